@@ -1,0 +1,139 @@
+//! Resampling an image window into a square crop with its mask, background blacked out:
+//! templates and queries go through the same function so they look alike to a backbone.
+
+use crate::geometry::CropBox;
+use image::{GrayImage, RgbImage};
+
+/// A square crop ready for a backbone: RGB with the background set to black, and the
+/// mask (255 = object) at the same resolution.
+#[derive(Clone, Debug)]
+pub struct CropInput {
+    pub rgb: RgbImage,
+    pub mask: GrayImage,
+}
+
+impl CropInput {
+    pub fn size(&self) -> u32 {
+        self.rgb.width()
+    }
+}
+
+/// Bounding box (min_u, min_v, max_u, max_v) of the nonzero mask pixels; `None` if empty.
+pub fn mask_bbox(mask: &GrayImage) -> Option<(u32, u32, u32, u32)> {
+    let (w, h) = mask.dimensions();
+    let (mut lo_u, mut lo_v, mut hi_u, mut hi_v) = (u32::MAX, u32::MAX, 0, 0);
+    let raw = mask.as_raw();
+    for v in 0..h {
+        let row = &raw[(v * w) as usize..((v + 1) * w) as usize];
+        if let Some(first) = row.iter().position(|&m| m > 0) {
+            let last = row.iter().rposition(|&m| m > 0).unwrap_or(first);
+            lo_u = lo_u.min(first as u32);
+            hi_u = hi_u.max(last as u32);
+            lo_v = lo_v.min(v);
+            hi_v = v;
+        }
+    }
+    (lo_u != u32::MAX).then_some((lo_u, lo_v, hi_u, hi_v))
+}
+
+/// Samples the crop `b` of `rgb`/`mask`. `to_source` maps image coordinates of the crop's
+/// frame to source pixel coordinates (the identity for a query; a rotation about the
+/// principal point for an in-plane-rotated template). When the crop shrinks the source,
+/// each crop pixel averages a grid of sub-samples so that thin edges are not aliased.
+pub fn sample_crop(
+    rgb: &RgbImage,
+    mask: &GrayImage,
+    b: &CropBox,
+    to_source: &(dyn Fn(f64, f64) -> (f64, f64) + Sync),
+) -> CropInput {
+    let size = b.size;
+    let sub = b.scale().ceil().clamp(1.0, 4.0) as u32;
+    let mut out_rgb = RgbImage::new(size, size);
+    let mut out_mask = GrayImage::new(size, size);
+    let inv = 1.0 / (sub * sub) as f32;
+    for cv in 0..size {
+        for cu in 0..size {
+            let mut acc = [0f32; 4];
+            for sy in 0..sub {
+                for sx in 0..sub {
+                    let du = (sx as f64 + 0.5) / sub as f64 - 0.5;
+                    let dv = (sy as f64 + 0.5) / sub as f64 - 0.5;
+                    let (iu, iv) = b.to_image(cu as f64 + du, cv as f64 + dv);
+                    let (su, sv) = to_source(iu, iv);
+                    let s = bilinear(rgb, mask, su, sv);
+                    for k in 0..4 {
+                        acc[k] += s[k];
+                    }
+                }
+            }
+            let m = acc[3] * inv; // 0..1 object coverage
+            // Premultiplied: background black, edge pixels darkened by their coverage.
+            let px = [acc[0] * inv, acc[1] * inv, acc[2] * inv].map(|c| c.round().clamp(0.0, 255.0) as u8);
+            out_rgb.put_pixel(cu, cv, image::Rgb(px));
+            out_mask.put_pixel(cu, cv, image::Luma([(m * 255.0).round() as u8]));
+        }
+    }
+    CropInput { rgb: out_rgb, mask: out_mask }
+}
+
+/// Bilinear sample of mask-weighted RGB (0..255) and mask coverage (0..1); outside = 0.
+fn bilinear(rgb: &RgbImage, mask: &GrayImage, u: f64, v: f64) -> [f32; 4] {
+    let (w, h) = (rgb.width() as i64, rgb.height() as i64);
+    let (u0, v0) = (u.floor() as i64, v.floor() as i64);
+    let (fu, fv) = ((u - u0 as f64) as f32, (v - v0 as f64) as f32);
+    let mut out = [0f32; 4];
+    for (du, dv, wgt) in [(0, 0, (1.0 - fu) * (1.0 - fv)), (1, 0, fu * (1.0 - fv)), (0, 1, (1.0 - fu) * fv), (1, 1, fu * fv)] {
+        let (x, y) = (u0 + du, v0 + dv);
+        if wgt == 0.0 || x < 0 || y < 0 || x >= w || y >= h {
+            continue;
+        }
+        let m = mask.get_pixel(x as u32, y as u32)[0] as f32 / 255.0 * wgt;
+        let p = rgb.get_pixel(x as u32, y as u32);
+        out[0] += p[0] as f32 * m;
+        out[1] += p[1] as f32 * m;
+        out[2] += p[2] as f32 * m;
+        out[3] += m;
+    }
+    out
+}
+
+/// Crop of a query image around its mask, with `padding` (fraction of the box side).
+pub fn crop_query(rgb: &RgbImage, mask: &GrayImage, padding: f64, size: u32) -> Option<(CropInput, CropBox)> {
+    let (a, b, c, d) = mask_bbox(mask)?;
+    let bx = CropBox::around(a, b, c, d, padding, size);
+    Some((sample_crop(rgb, mask, &bx, &|u, v| (u, v)), bx))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bbox_of_mask() {
+        let mut m = GrayImage::new(10, 8);
+        assert_eq!(mask_bbox(&m), None);
+        m.put_pixel(3, 2, image::Luma([255]));
+        m.put_pixel(7, 5, image::Luma([1]));
+        assert_eq!(mask_bbox(&m), Some((3, 2, 7, 5)));
+    }
+
+    #[test]
+    fn crop_blacks_out_background_and_keeps_object_colour() {
+        let rgb = RgbImage::from_pixel(64, 64, image::Rgb([200, 100, 50]));
+        let mut mask = GrayImage::new(64, 64);
+        for v in 20..40 {
+            for u in 10..30 {
+                mask.put_pixel(u, v, image::Luma([255]));
+            }
+        }
+        let (c, b) = crop_query(&rgb, &mask, 0.5, 32).unwrap();
+        assert_eq!(c.size(), 32);
+        // Centre is object, corners background.
+        assert_eq!(c.rgb.get_pixel(16, 16).0, [200, 100, 50]);
+        assert_eq!(c.mask.get_pixel(16, 16)[0], 255);
+        assert_eq!(c.rgb.get_pixel(0, 0).0, [0, 0, 0]);
+        assert_eq!(c.mask.get_pixel(0, 0)[0], 0);
+        // The mask box (20 px) with 50 % padding spans 30 image px over 32 crop px.
+        assert!((b.side - 30.0).abs() < 1e-9);
+    }
+}

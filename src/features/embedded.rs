@@ -1,0 +1,346 @@
+//! The embedded weight-free backbone: per 16-px patch, a gradient-orientation histogram
+//! (HOG/SIFT-like, on a 32-px support), mean chromaticity, and a silhouette context
+//! (object coverage in log-polar bins around the patch, from the crop mask). The last part
+//! is what crosses the render-to-real gap untouched; docs/backbone.md has the measurements
+//! behind the weights.
+
+use super::backbone::{check_sizes, l2_normalize, mean_descriptor, patch_coverage, Backbone, BackboneIdentity, FeatureError, FeatureMap};
+use super::crop::CropInput;
+use crate::geometry::PatchGrid;
+use rayon::prelude::*;
+use sha2::{Digest, Sha256};
+
+/// Parameters of the embedded backbone. All of them enter its identity hash.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct EmbeddedConfig {
+    pub input_size: u32,
+    pub patch_size: u32,
+    /// Orientation bins of the gradient histograms.
+    pub orientation_bins: usize,
+    /// Signed orientations (0–360°) keep edge polarity; unsigned (0–180°) survive polarity
+    /// flips between an untextured render and a photo.
+    pub signed_orientation: bool,
+    pub hog_weight: f32,
+    pub color_weight: f32,
+    pub shape_weight: f32,
+    /// Binomial pre-smoothing passes (each ≈ σ 0.7 px); damps sensor noise.
+    pub smoothing_passes: u32,
+    /// Minimum patch coverage for the global descriptor's mean.
+    pub min_coverage: f32,
+}
+
+impl Default for EmbeddedConfig {
+    fn default() -> Self {
+        Self {
+            input_size: 512,
+            patch_size: 16,
+            orientation_bins: 8,
+            signed_orientation: false,
+            hog_weight: 1.0,
+            color_weight: 0.5,
+            shape_weight: 1.0,
+            smoothing_passes: 1,
+            min_coverage: 0.5,
+        }
+    }
+}
+
+/// Angular sectors and ring edges (in patches) of the silhouette context.
+const SHAPE_SECTORS: usize = 8;
+const SHAPE_RINGS: [f32; 3] = [2.5, 6.0, 16.0];
+const COLOR_DIMS: usize = 8;
+
+pub struct EmbeddedBackbone {
+    config: EmbeddedConfig,
+    grid: PatchGrid,
+    /// Bin of every patch offset (di, dj) ∈ [-(n-1), n-1]², or `usize::MAX` outside the rings.
+    shape_bins: Vec<usize>,
+}
+
+impl EmbeddedBackbone {
+    pub fn new(config: EmbeddedConfig) -> Result<Self, String> {
+        let grid = PatchGrid::for_crop(config.input_size, config.patch_size)?;
+        if config.patch_size % 2 != 0 || config.orientation_bins < 2 {
+            return Err("embedded backbone needs an even patch size and at least 2 orientation bins".into());
+        }
+        let n = grid.n as i32;
+        let side = (2 * n - 1) as usize;
+        let mut shape_bins = vec![usize::MAX; side * side];
+        for di in -(n - 1)..n {
+            for dj in -(n - 1)..n {
+                let r = ((di * di + dj * dj) as f32).sqrt();
+                let Some(ring) = SHAPE_RINGS.iter().position(|&e| r < e) else { continue };
+                let a = (di as f32).atan2(dj as f32).rem_euclid(std::f32::consts::TAU);
+                let sector = ((a / std::f32::consts::TAU * SHAPE_SECTORS as f32) as usize).min(SHAPE_SECTORS - 1);
+                shape_bins[((di + n - 1) as usize) * side + (dj + n - 1) as usize] = ring * SHAPE_SECTORS + sector;
+            }
+        }
+        Ok(Self { config, grid, shape_bins })
+    }
+
+    pub fn config(&self) -> &EmbeddedConfig {
+        &self.config
+    }
+
+    fn hog_dims(&self) -> usize {
+        4 * self.config.orientation_bins
+    }
+
+    pub fn local_dim(&self) -> usize {
+        self.hog_dims() + COLOR_DIMS + SHAPE_RINGS.len() * SHAPE_SECTORS
+    }
+
+    fn extract_one(&self, crop: &CropInput) -> FeatureMap {
+        let grid = self.grid;
+        let n = grid.n as usize;
+        let dim = self.local_dim();
+        let coverage = patch_coverage(&crop.mask, &grid);
+        let cells = self.cell_histograms(crop);
+        let shape = self.shape_context(&coverage);
+        let color = self.chromaticity(crop);
+        let hd = self.hog_dims();
+        let b = self.config.orientation_bins;
+        let nc = 2 * n; // cells per side: two per patch
+        let mut local = vec![0f32; n * n * dim];
+        for i in 0..n {
+            for j in 0..n {
+                let k = i * n + j;
+                let out = &mut local[k * dim..(k + 1) * dim];
+                // 4×4 cells around the patch (one-cell ring) pooled into 2×2 quadrants.
+                for ci in 0..4 {
+                    for cj in 0..4 {
+                        let (y, x) = ((2 * i + ci) as i64 - 1, (2 * j + cj) as i64 - 1);
+                        if y < 0 || x < 0 || y >= nc as i64 || x >= nc as i64 {
+                            continue;
+                        }
+                        let q = (ci / 2) * 2 + cj / 2;
+                        let src = &cells[(y as usize * nc + x as usize) * b..][..b];
+                        for (o, s) in out[q * b..(q + 1) * b].iter_mut().zip(src) {
+                            *o += s;
+                        }
+                    }
+                }
+                normalize_clipped(&mut out[..hd], 0.2, 2.0);
+                out[..hd].iter_mut().for_each(|v| *v *= self.config.hog_weight);
+                for (o, c) in out[hd..hd + COLOR_DIMS].iter_mut().zip(&color[k * COLOR_DIMS..]) {
+                    *o = c * self.config.color_weight;
+                }
+                let sd = SHAPE_RINGS.len() * SHAPE_SECTORS;
+                for (o, s) in out[hd + COLOR_DIMS..].iter_mut().zip(&shape[k * sd..(k + 1) * sd]) {
+                    *o = s * self.config.shape_weight;
+                }
+                l2_normalize(out);
+            }
+        }
+        let global = mean_descriptor(&local, dim, &coverage, self.config.min_coverage);
+        FeatureMap { grid, local_dim: dim, local, global, coverage }
+    }
+
+    /// Orientation histograms of (patch/2)-px cells, gradient magnitude soft-assigned to the
+    /// two nearest orientation bins.
+    fn cell_histograms(&self, crop: &CropInput) -> Vec<f32> {
+        let s = self.config.input_size as usize;
+        let mut lum: Vec<f32> = crop.rgb.pixels().map(|p| (0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32) / 255.0).collect();
+        for _ in 0..self.config.smoothing_passes {
+            binomial_blur(&mut lum, s);
+        }
+        let cell = (self.config.patch_size / 2) as usize;
+        let nc = s / cell;
+        let b = self.config.orientation_bins;
+        let period = if self.config.signed_orientation { std::f32::consts::TAU } else { std::f32::consts::PI };
+        let mut hist = vec![0f32; nc * nc * b];
+        for y in 1..s - 1 {
+            let row = &mut hist[(y / cell) * nc * b..(y / cell + 1) * nc * b];
+            for x in 1..s - 1 {
+                let gx = lum[y * s + x + 1] - lum[y * s + x - 1];
+                let gy = lum[(y + 1) * s + x] - lum[(y - 1) * s + x];
+                let mag = (gx * gx + gy * gy).sqrt();
+                if mag < 1e-4 {
+                    continue;
+                }
+                let pos = gy.atan2(gx).rem_euclid(period) / period * b as f32;
+                let lo = (pos.floor() as usize) % b;
+                let frac = pos - pos.floor();
+                let base = (x / cell) * b;
+                row[base + lo] += mag * (1.0 - frac);
+                row[base + (lo + 1) % b] += mag * frac;
+            }
+        }
+        hist
+    }
+
+    /// Mean opponent chromaticity of the object pixels in each quadrant of each patch.
+    fn chromaticity(&self, crop: &CropInput) -> Vec<f32> {
+        let n = self.grid.n as usize;
+        let p = self.grid.patch as usize;
+        let half = p / 2;
+        let mut acc = vec![0f32; n * n * COLOR_DIMS];
+        let mut weight = vec![0f32; n * n * 4];
+        for (x, y, px) in crop.rgb.enumerate_pixels() {
+            let m = crop.mask.get_pixel(x, y)[0] as f32 / 255.0;
+            if m < 0.5 {
+                continue;
+            }
+            // Undo the coverage premultiplication of edge pixels before taking ratios.
+            let [r, g, bl] = px.0.map(|c| c as f32 / (255.0 * m));
+            let sum = r + g + bl + 0.05;
+            let (x, y) = (x as usize, y as usize);
+            let k = (y / p) * n + x / p;
+            let q = ((y % p) / half) * 2 + (x % p) / half;
+            acc[k * COLOR_DIMS + q * 2] += (r - g) / sum;
+            acc[k * COLOR_DIMS + q * 2 + 1] += (0.5 * (r + g) - bl) / sum;
+            weight[k * 4 + q] += 1.0;
+        }
+        for k in 0..n * n {
+            for q in 0..4 {
+                let w = weight[k * 4 + q].max(1.0);
+                acc[k * COLOR_DIMS + q * 2] /= w;
+                acc[k * COLOR_DIMS + q * 2 + 1] /= w;
+            }
+        }
+        acc
+    }
+
+    /// Object coverage in log-polar bins around every patch, L2-normalised per patch.
+    fn shape_context(&self, coverage: &[f32]) -> Vec<f32> {
+        let n = self.grid.n as usize;
+        let side = 2 * n - 1;
+        let d = SHAPE_RINGS.len() * SHAPE_SECTORS;
+        let mut out = vec![0f32; n * n * d];
+        let mut counts = vec![0f32; d];
+        for i in 0..n {
+            for j in 0..n {
+                let o = &mut out[(i * n + j) * d..(i * n + j + 1) * d];
+                counts.iter_mut().for_each(|c| *c = 0.0);
+                for ii in 0..n {
+                    let brow = &self.shape_bins[(ii + n - 1 - i) * side..];
+                    for jj in 0..n {
+                        let bin = brow[jj + n - 1 - j];
+                        if bin != usize::MAX {
+                            o[bin] += coverage[ii * n + jj];
+                            counts[bin] += 1.0;
+                        }
+                    }
+                }
+                // Bins that fall outside the crop count as background (their cells are 0).
+                for (v, c) in o.iter_mut().zip(&counts) {
+                    if *c > 0.0 {
+                        *v /= *c;
+                    }
+                }
+                l2_normalize(o);
+            }
+        }
+        out
+    }
+}
+
+impl Backbone for EmbeddedBackbone {
+    fn identity(&self) -> BackboneIdentity {
+        let params = serde_json::to_string(&self.config).unwrap_or_default();
+        let hash = Sha256::digest(format!("embedded-v1:{params}").as_bytes());
+        BackboneIdentity {
+            name: "embedded-hog-color-silhouette".into(),
+            weights_hash: hash.iter().take(8).map(|b| format!("{b:02x}")).collect(),
+            layers: "hog4x8+chroma8+silhouette24".into(),
+            input_size: self.config.input_size,
+            patch_size: self.config.patch_size,
+            local_dim: self.local_dim() as u32,
+            global_dim: self.local_dim() as u32,
+        }
+    }
+
+    fn extract(&self, crops: &[CropInput]) -> Result<Vec<FeatureMap>, FeatureError> {
+        check_sizes(crops, self.config.input_size)?;
+        Ok(crops.par_iter().map(|c| self.extract_one(c)).collect())
+    }
+}
+
+/// L2-normalise with a floor on the norm (so flat patches stay small instead of turning
+/// noise into a unit vector), clip large components, renormalise (as SIFT does).
+fn normalize_clipped(v: &mut [f32], clip: f32, floor: f32) {
+    let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    let scale = 1.0 / n.max(floor);
+    v.iter_mut().for_each(|x| *x = (*x * scale).min(clip));
+    let n2 = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    if n2 > 1e-12 {
+        let keep = (n / floor).min(1.0); // flat patches keep a proportionally small norm
+        v.iter_mut().for_each(|x| *x *= keep / n2);
+    }
+}
+
+/// One pass of the separable [1 2 1]/4 filter with clamped borders.
+fn binomial_blur(img: &mut [f32], s: usize) {
+    let mut tmp = vec![0f32; img.len()];
+    for y in 0..s {
+        let r = &img[y * s..(y + 1) * s];
+        let t = &mut tmp[y * s..(y + 1) * s];
+        for x in 0..s {
+            let a = r[x.saturating_sub(1)];
+            let c = r[(x + 1).min(s - 1)];
+            t[x] = 0.25 * a + 0.5 * r[x] + 0.25 * c;
+        }
+    }
+    for y in 0..s {
+        let (up, dn) = (y.saturating_sub(1), (y + 1).min(s - 1));
+        for x in 0..s {
+            img[y * s + x] = 0.25 * tmp[up * s + x] + 0.5 * tmp[y * s + x] + 0.25 * tmp[dn * s + x];
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use image::{GrayImage, RgbImage};
+
+    fn disc_crop(size: u32, color: [u8; 3]) -> CropInput {
+        let mut rgb = RgbImage::new(size, size);
+        let mut mask = GrayImage::new(size, size);
+        let c = size as f32 / 2.0;
+        for (x, y, p) in rgb.enumerate_pixels_mut() {
+            let (dx, dy) = (x as f32 - c, y as f32 - c);
+            if dx * dx + dy * dy < (size as f32 * 0.3).powi(2) {
+                // Stripes give the inside some gradient texture.
+                *p = if (x / 8) % 2 == 0 { image::Rgb(color) } else { image::Rgb([color[0] / 2, color[1] / 2, color[2] / 2]) };
+                mask.put_pixel(x, y, image::Luma([255]));
+            }
+        }
+        CropInput { rgb, mask }
+    }
+
+    #[test]
+    fn descriptors_are_normalised_and_deterministic() {
+        let bb = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap();
+        let crops = vec![disc_crop(512, [200, 50, 50]), disc_crop(512, [50, 50, 200])];
+        let a = bb.extract(&crops).unwrap();
+        let b = bb.extract(&crops).unwrap();
+        assert_eq!(a[0].local, b[0].local);
+        assert_eq!(a[0].local_dim, bb.local_dim());
+        let fg = a[0].foreground(0.5);
+        assert!(fg.len() > 200 && fg.len() < 400, "{} foreground patches", fg.len());
+        for &k in &fg {
+            let n: f32 = a[0].descriptor(k).iter().map(|x| x * x).sum();
+            assert!((n - 1.0).abs() < 1e-4);
+        }
+        let g: f32 = a[0].global.iter().map(|x| x * x).sum();
+        assert!((g - 1.0).abs() < 1e-4);
+        // Different colours change the descriptors of the same shape.
+        assert_ne!(a[0].global, a[1].global);
+    }
+
+    #[test]
+    fn wrong_crop_size_is_an_error() {
+        let bb = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap();
+        let err = bb.extract(&[disc_crop(256, [1, 2, 3])]).unwrap_err();
+        assert!(err.to_string().contains("256×256"), "{err}");
+    }
+
+    #[test]
+    fn identity_changes_with_parameters() {
+        let a = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap().identity();
+        let b = EmbeddedBackbone::new(EmbeddedConfig { color_weight: 0.0, ..Default::default() }).unwrap().identity();
+        assert_ne!(a.weights_hash, b.weights_hash);
+        assert_eq!(a.local_dim, 64);
+    }
+}

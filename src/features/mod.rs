@@ -1,0 +1,10 @@
+//! Backbones: the `Backbone` trait, the embedded weight-free backbone, and the crop
+//! resampling shared by templates and queries.
+
+pub mod backbone;
+pub mod crop;
+pub mod embedded;
+
+pub use backbone::{Backbone, BackboneIdentity, FeatureError, FeatureMap};
+pub use crop::{crop_query, mask_bbox, sample_crop, CropInput};
+pub use embedded::{EmbeddedBackbone, EmbeddedConfig};

@@ -1,0 +1,58 @@
+//! OpenCV pinhole intrinsics: x right, y down, z forward; `u = fx·x/z + cx`, and pixel
+//! (u, v)'s centre sits at integer coordinates (DESIGN.md, "Conventions").
+
+use nalgebra::{Matrix3, Point3, Vector2};
+
+/// Pinhole intrinsics with the image size they belong to. Pixels; no distortion.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Intrinsics {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    pub width: u32,
+    pub height: u32,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum IntrinsicsError {
+    #[error("focal lengths must be finite and positive, got fx={fx}, fy={fy}")]
+    BadFocal { fx: f64, fy: f64 },
+    #[error("principal point must be finite, got cx={cx}, cy={cy}")]
+    BadPrincipalPoint { cx: f64, cy: f64 },
+    #[error("image size must be positive, got {width}x{height}")]
+    BadSize { width: u32, height: u32 },
+}
+
+impl Intrinsics {
+    /// Validated constructor: every consumer may assume positive focals and a non-empty image.
+    pub fn new(fx: f64, fy: f64, cx: f64, cy: f64, width: u32, height: u32) -> Result<Self, IntrinsicsError> {
+        if !(fx.is_finite() && fy.is_finite() && fx > 0.0 && fy > 0.0) {
+            return Err(IntrinsicsError::BadFocal { fx, fy });
+        }
+        if !(cx.is_finite() && cy.is_finite()) {
+            return Err(IntrinsicsError::BadPrincipalPoint { cx, cy });
+        }
+        if width == 0 || height == 0 {
+            return Err(IntrinsicsError::BadSize { width, height });
+        }
+        Ok(Self { fx, fy, cx, cy, width, height })
+    }
+
+    pub fn k(&self) -> Matrix3<f64> {
+        Matrix3::new(self.fx, 0.0, self.cx, 0.0, self.fy, self.cy, 0.0, 0.0, 1.0)
+    }
+
+    /// Projects a camera-frame point to pixels; `None` behind or on the camera plane.
+    pub fn project(&self, p: &Point3<f64>) -> Option<Vector2<f64>> {
+        if p.z <= 0.0 {
+            return None;
+        }
+        Some(Vector2::new(self.fx * p.x / p.z + self.cx, self.fy * p.y / p.z + self.cy))
+    }
+
+    /// Camera-frame point at pixel (u, v) and depth z (metres along the optical axis).
+    pub fn back_project(&self, u: f64, v: f64, z: f64) -> Point3<f64> {
+        Point3::new((u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z)
+    }
+}

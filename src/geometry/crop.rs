@@ -1,0 +1,121 @@
+//! The square crop around a mask and its exact affine map back to image pixels, and the
+//! patch grid on a crop. Pixel centres sit at integer coordinates in both spaces.
+
+/// A square window of the image, resampled to `size`×`size` crop pixels.
+///
+/// Crop pixel `c` (centre at integer `c`) covers image coordinates whose centre is
+/// `u = origin_u + (c + 0.5)·scale`, where `origin` is the window's top-left pixel
+/// *edge* (a centre minus 0.5) in image coordinates and `scale = side / size` image pixels per crop pixel.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CropBox {
+    /// Top-left corner (pixel edge, not centre) of the window, image pixels.
+    pub origin_u: f64,
+    pub origin_v: f64,
+    /// Window side in image pixels.
+    pub side: f64,
+    /// Output crop side in crop pixels.
+    pub size: u32,
+}
+
+impl CropBox {
+    /// Square window centred on the box `[min, max]` of mask pixel centres (inclusive),
+    /// whose side is the box's longer side times `1 + padding`.
+    pub fn around(min_u: u32, min_v: u32, max_u: u32, max_v: u32, padding: f64, size: u32) -> Self {
+        // Pixel edges of the box: centre ± 0.5.
+        let (l, t, r, b) = (min_u as f64 - 0.5, min_v as f64 - 0.5, max_u as f64 + 0.5, max_v as f64 + 0.5);
+        let side = (r - l).max(b - t) * (1.0 + padding);
+        let (cu, cv) = ((l + r) * 0.5, (t + b) * 0.5);
+        Self { origin_u: cu - side * 0.5, origin_v: cv - side * 0.5, side, size }
+    }
+
+    pub fn scale(&self) -> f64 {
+        self.side / self.size as f64
+    }
+
+    /// Crop pixel coordinates → image pixel coordinates (both centre-at-integer).
+    pub fn to_image(&self, cu: f64, cv: f64) -> (f64, f64) {
+        let s = self.scale();
+        (self.origin_u + (cu + 0.5) * s, self.origin_v + (cv + 0.5) * s)
+    }
+
+    /// Image pixel coordinates → crop pixel coordinates.
+    pub fn to_crop(&self, u: f64, v: f64) -> (f64, f64) {
+        let s = self.scale();
+        ((u - self.origin_u) / s - 0.5, (v - self.origin_v) / s - 0.5)
+    }
+}
+
+/// The `n`×`n` grid of `patch`-pixel patches covering a crop (32×32 of 16 px on 512).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct PatchGrid {
+    pub n: u32,
+    pub patch: u32,
+}
+
+impl PatchGrid {
+    pub fn for_crop(crop_size: u32, patch: u32) -> Result<Self, String> {
+        if patch == 0 || crop_size == 0 || crop_size % patch != 0 {
+            return Err(format!("crop size {crop_size} is not a positive multiple of the patch size {patch}"));
+        }
+        Ok(Self { n: crop_size / patch, patch })
+    }
+
+    pub fn len(&self) -> usize {
+        (self.n * self.n) as usize
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    /// Centre of patch (row `i`, column `j`) in crop pixels: (16j + 7.5, 16i + 7.5) for 16 px.
+    pub fn centre(&self, i: u32, j: u32) -> (f64, f64) {
+        let h = (self.patch as f64 - 1.0) * 0.5;
+        ((j * self.patch) as f64 + h, (i * self.patch) as f64 + h)
+    }
+
+    /// Centre of the patch with linear index `k = i·n + j`.
+    pub fn centre_of(&self, k: usize) -> (f64, f64) {
+        self.centre(k as u32 / self.n, k as u32 % self.n)
+    }
+
+    /// Patch containing crop pixel coordinates, if inside the crop.
+    pub fn patch_at(&self, cu: f64, cv: f64) -> Option<(u32, u32)> {
+        let (j, i) = ((cu + 0.5) / self.patch as f64, (cv + 0.5) / self.patch as f64);
+        (j >= 0.0 && i >= 0.0 && j < self.n as f64 && i < self.n as f64).then(|| (i as u32, j as u32))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn crop_map_round_trips_and_keeps_pixel_centres() {
+        let b = CropBox::around(100, 50, 199, 99, 0.0, 100);
+        // 100 px wide box, no padding: crop scale 1, crop pixel 0 is image pixel 100.
+        assert!((b.scale() - 1.0).abs() < 1e-12);
+        let (u, v) = b.to_image(0.0, 25.0);
+        assert!((u - 100.0).abs() < 1e-12 && (v - 50.0).abs() < 1e-12, "{u} {v}");
+        let b = CropBox::around(10, 20, 73, 40, 0.2, 512);
+        for (cu, cv) in [(0.0, 0.0), (511.0, 3.0), (255.5, 255.5)] {
+            let (u, v) = b.to_image(cu, cv);
+            let (a, c) = b.to_crop(u, v);
+            assert!((a - cu).abs() < 1e-9 && (c - cv).abs() < 1e-9);
+        }
+        // The box centre maps to the crop centre.
+        let (cu, cv) = b.to_crop(41.5, 30.0);
+        assert!((cu - 255.5).abs() < 1e-9 && (cv - 255.5).abs() < 1e-9, "{cu} {cv}");
+    }
+
+    #[test]
+    fn patch_centres_follow_the_convention() {
+        let g = PatchGrid::for_crop(512, 16).unwrap();
+        assert_eq!(g.n, 32);
+        assert_eq!(g.centre(0, 0), (7.5, 7.5));
+        assert_eq!(g.centre(2, 3), (55.5, 39.5));
+        assert_eq!(g.patch_at(55.5, 39.5), Some((2, 3)));
+        assert_eq!(g.patch_at(-1.0, 3.0), None);
+        assert!(PatchGrid::for_crop(500, 16).is_err());
+    }
+}

@@ -1,0 +1,11 @@
+//! Intrinsics, poses, crops, viewpoint sampling and rotation distances. No images, no IO.
+
+pub mod camera;
+pub mod crop;
+pub mod pose;
+pub mod views;
+
+pub use camera::{Intrinsics, IntrinsicsError};
+pub use crop::{CropBox, PatchGrid};
+pub use pose::{geodesic_distance, Pose};
+pub use views::{icosphere, view_pose, ViewSampling};
