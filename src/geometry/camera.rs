@@ -4,7 +4,7 @@
 use nalgebra::{Matrix3, Point3, Vector2};
 
 /// Pinhole intrinsics with the image size they belong to. Pixels; no distortion.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Intrinsics {
     pub fx: f64,
     pub fy: f64,

@@ -22,7 +22,11 @@ impl CropBox {
     /// whose side is the box's longer side times `1 + padding`.
     pub fn around(min_u: u32, min_v: u32, max_u: u32, max_v: u32, padding: f64, size: u32) -> Self {
         // Pixel edges of the box: centre ± 0.5.
-        let (l, t, r, b) = (min_u as f64 - 0.5, min_v as f64 - 0.5, max_u as f64 + 0.5, max_v as f64 + 0.5);
+        Self::around_edges(min_u as f64 - 0.5, min_v as f64 - 0.5, max_u as f64 + 0.5, max_v as f64 + 0.5, padding, size)
+    }
+
+    /// Square window centred on the box with edges left `l`, top `t`, right `r`, bottom `b`.
+    pub fn around_edges(l: f64, t: f64, r: f64, b: f64, padding: f64, size: u32) -> Self {
         let side = (r - l).max(b - t) * (1.0 + padding);
         let (cu, cv) = ((l + r) * 0.5, (t + b) * 0.5);
         Self { origin_u: cu - side * 0.5, origin_v: cv - side * 0.5, side, size }

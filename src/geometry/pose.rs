@@ -3,7 +3,7 @@
 
 use nalgebra::{Matrix3, Matrix4, Point3, Rotation3, Vector3};
 
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Pose {
     pub rotation: Rotation3<f64>,
     /// Metres.

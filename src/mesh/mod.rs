@@ -4,3 +4,5 @@
 
 mod types;
 pub use types::*;
+
+pub mod procedural;

@@ -1,0 +1,149 @@
+//! An onboarded object: the templates (pose, global descriptor, silhouette) and, for each
+//! template, its foreground patches (descriptor, 3D object-frame point, patch index).
+
+use crate::features::BackboneIdentity;
+use crate::geometry::{CropBox, Intrinsics, PatchGrid, Pose, ViewSampling};
+use crate::mesh::Mesh;
+use half::f16;
+
+/// Version of the model layout; bumped on any change of meaning or layout.
+pub const MODEL_FORMAT_VERSION: u32 = 1;
+
+/// Side of the stored template silhouettes (crop mask downsampled, 1 bit per cell).
+pub const SILHOUETTE_SIZE: usize = 64;
+const SILHOUETTE_WORDS: usize = SILHOUETTE_SIZE * SILHOUETTE_SIZE / 64;
+
+/// How the templates were made; recorded so that a model can be re-made or compared.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct OnboardConfig {
+    pub views: ViewSampling,
+    /// Side of the square base renders, pixels.
+    pub render_size: u32,
+    /// Share of the render's half-width the object's bounding sphere fills.
+    pub render_fill: f64,
+    /// Crop padding around the mask box, as a fraction of its longer side.
+    pub crop_padding: f64,
+    /// A patch is foreground when the object covers at least this share of it.
+    pub min_coverage: f32,
+}
+
+impl Default for OnboardConfig {
+    fn default() -> Self {
+        Self { views: ViewSampling::default(), render_size: 512, render_fill: 0.9, crop_padding: 0.1, min_coverage: 0.5 }
+    }
+}
+
+/// One template: a view of the object and where its patches sit in the model's arrays.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Template {
+    pub pose: Pose,
+    /// Index of the icosphere viewpoint and of the in-plane rotation.
+    pub view: u32,
+    pub in_plane: u32,
+    /// Crop window in the (in-plane rotated) template image.
+    pub crop: CropBox,
+    /// First patch row in the model's patch arrays, and how many.
+    pub patch_start: u32,
+    pub patch_count: u32,
+}
+
+/// Everything estimation needs about one object.
+#[derive(Clone, Debug)]
+pub struct ObjectModel {
+    pub object_id: String,
+    pub backbone: BackboneIdentity,
+    pub config: OnboardConfig,
+    /// Intrinsics of the base renders (templates share them; in-plane rotations are exact
+    /// because fx = fy and the object centre is on the principal point).
+    pub render_intrinsics: Intrinsics,
+    pub grid: PatchGrid,
+    pub mesh: Mesh,
+    pub templates: Vec<Template>,
+    /// `templates × global_dim`, L2-normalised rows.
+    pub global: Vec<f32>,
+    pub global_dim: usize,
+    /// `patches × local_dim`, f16, L2-normalised rows.
+    pub patch_descriptors: Vec<f16>,
+    pub local_dim: usize,
+    /// Object-frame point (metres) behind each patch centre.
+    pub patch_points: Vec<[f32; 3]>,
+    /// Patch index `i·n + j` in its template's crop grid.
+    pub patch_cells: Vec<u16>,
+    /// `templates × SILHOUETTE_WORDS` bit-packed crop masks, row-major, LSB first.
+    pub silhouettes: Vec<u64>,
+}
+
+impl ObjectModel {
+    pub fn diameter(&self) -> f64 {
+        self.mesh.diameter()
+    }
+
+    pub fn template_count(&self) -> usize {
+        self.templates.len()
+    }
+
+    pub fn patch_count(&self) -> usize {
+        self.patch_points.len()
+    }
+
+    pub fn global_descriptor(&self, t: usize) -> &[f32] {
+        &self.global[t * self.global_dim..(t + 1) * self.global_dim]
+    }
+
+    pub fn patch_descriptor(&self, p: usize) -> &[f16] {
+        &self.patch_descriptors[p * self.local_dim..(p + 1) * self.local_dim]
+    }
+
+    /// Template silhouette as a `SILHOUETTE_SIZE²` row-major boolean grid.
+    pub fn silhouette(&self, t: usize) -> Vec<bool> {
+        let words = &self.silhouettes[t * SILHOUETTE_WORDS..(t + 1) * SILHOUETTE_WORDS];
+        (0..SILHOUETTE_SIZE * SILHOUETTE_SIZE).map(|k| words[k / 64] >> (k % 64) & 1 == 1).collect()
+    }
+
+    /// Checks the arrays agree with each other (used after loading).
+    pub fn validate(&self) -> Result<(), String> {
+        let t = self.templates.len();
+        let p = self.patch_points.len();
+        let checks = [
+            (self.global.len() == t * self.global_dim, "global descriptors"),
+            (self.patch_descriptors.len() == p * self.local_dim, "patch descriptors"),
+            (self.patch_cells.len() == p, "patch cells"),
+            (self.silhouettes.len() == t * SILHOUETTE_WORDS, "silhouettes"),
+            (self.local_dim == self.backbone.local_dim as usize, "local descriptor size vs backbone"),
+        ];
+        if let Some((_, what)) = checks.iter().find(|(ok, _)| !ok) {
+            return Err(format!("object {:?}: {what} do not match the template/patch counts", self.object_id));
+        }
+        for (i, tp) in self.templates.iter().enumerate() {
+            if tp.patch_start as usize + tp.patch_count as usize > p {
+                return Err(format!("object {:?}: template {i} points past the patch arrays", self.object_id));
+            }
+        }
+        if self.patch_cells.iter().any(|&c| c as usize >= self.grid.len()) {
+            return Err(format!("object {:?}: a patch index lies outside the {}² grid", self.object_id, self.grid.n));
+        }
+        Ok(())
+    }
+}
+
+/// Packs a crop mask into `SILHOUETTE_SIZE²` bits: a cell is set when at least half of it is object.
+pub fn pack_silhouette(mask: &image::GrayImage) -> Vec<u64> {
+    let s = mask.width() as usize;
+    let cell = (s / SILHOUETTE_SIZE).max(1);
+    let mut words = vec![0u64; SILHOUETTE_WORDS];
+    for ci in 0..SILHOUETTE_SIZE {
+        for cj in 0..SILHOUETTE_SIZE {
+            let mut sum = 0u32;
+            for y in ci * cell..((ci + 1) * cell).min(s) {
+                for x in cj * cell..((cj + 1) * cell).min(s) {
+                    sum += mask.get_pixel(x as u32, y as u32)[0] as u32;
+                }
+            }
+            if sum * 2 >= 255 * (cell * cell) as u32 {
+                let k = ci * SILHOUETTE_SIZE + cj;
+                words[k / 64] |= 1 << (k % 64);
+            }
+        }
+    }
+    words
+}

@@ -1,0 +1,263 @@
+//! Mesh → base-view renders → in-plane rotated crops → features + 3D points → ObjectModel.
+
+use super::model::{pack_silhouette, ObjectModel, OnboardConfig, Template};
+use crate::features::{sample_crop, Backbone, CropInput};
+use crate::geometry::views::{fitted_distance, icosphere, view_pose};
+use crate::geometry::{CropBox, Intrinsics, PatchGrid, Pose};
+use crate::mesh::Mesh;
+use crate::render::{RenderOptions, RenderOutput, RenderPool};
+use half::f16;
+use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
+
+/// Where onboarding is; sent to the progress callback after every step.
+#[derive(Clone, Copy, Debug)]
+pub struct Progress {
+    pub templates_done: usize,
+    pub templates_total: usize,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum OnboardError {
+    #[error("invalid onboarding settings: {0}")]
+    Config(String),
+    #[error("object id {0:?} is invalid: use 1–64 characters from A–Z, a–z, 0–9, '-', '_', '.' (not starting with '.')")]
+    BadId(String),
+    #[error("rendering failed: {0}")]
+    Render(#[from] crate::render::RenderError),
+    #[error("feature extraction failed: {0}")]
+    Features(#[from] crate::features::FeatureError),
+    #[error("view {0} of the object rendered empty (is the mesh degenerate?)")]
+    EmptyView(usize),
+}
+
+/// Object ids become file and database names: keep them boring.
+pub fn validate_object_id(id: &str) -> Result<(), OnboardError> {
+    let ok = !id.is_empty()
+        && id.len() <= 64
+        && !id.starts_with('.')
+        && id.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'));
+    if ok { Ok(()) } else { Err(OnboardError::BadId(id.to_string())) }
+}
+
+/// Base-render intrinsics: square, fx = fy (so in-plane rotation of the image is exact),
+/// principal point at the image centre.
+pub fn base_intrinsics(size: u32) -> Intrinsics {
+    let c = (size as f64 - 1.0) * 0.5;
+    Intrinsics { fx: size as f64, fy: size as f64, cx: c, cy: c, width: size, height: size }
+}
+
+/// Largest distance from the bounding-box centre to a vertex (the sphere the views fit).
+fn bounding_radius(mesh: &Mesh) -> (Vector3<f64>, f64) {
+    let c = Vector3::from(mesh.bbox_center());
+    let r = mesh.positions().iter().map(|p| (Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64) - c).norm()).fold(0.0, f64::max);
+    (c, r)
+}
+
+/// Chunk of base views rendered at once: bounds memory (each 512² render is ~2 MB).
+const VIEW_CHUNK: usize = 16;
+
+pub fn onboard(
+    object_id: &str,
+    mesh: &Mesh,
+    config: &OnboardConfig,
+    backbone: &dyn Backbone,
+    renderer: &RenderPool,
+    progress: &(dyn Fn(Progress) + Sync),
+) -> Result<ObjectModel, OnboardError> {
+    validate_object_id(object_id)?;
+    config.views.validate().map_err(OnboardError::Config)?;
+    let identity = backbone.identity();
+    let grid = PatchGrid::for_crop(identity.input_size, identity.patch_size).map_err(OnboardError::Config)?;
+    if config.render_size < 64 || !(0.1..=1.0).contains(&config.render_fill) {
+        return Err(OnboardError::Config(format!("render size {} / fill {} out of range", config.render_size, config.render_fill)));
+    }
+    let k = base_intrinsics(config.render_size);
+    let (centre, radius) = bounding_radius(mesh);
+    let distance = fitted_distance(radius.max(1e-6), k.fx, config.render_size as f64 * 0.5, config.render_fill);
+    let dirs = icosphere(config.views.level);
+    let angles = config.views.in_plane_angles();
+    let total = dirs.len() * angles.len();
+    let opts = RenderOptions::default();
+
+    let mut parts: Vec<ViewTemplates> = Vec::with_capacity(dirs.len());
+    for (chunk_idx, chunk) in dirs.chunks(VIEW_CHUNK).enumerate() {
+        let views: Vec<(Pose, Intrinsics)> = chunk.iter().map(|d| (view_pose(d, 0.0, &centre, distance), k)).collect();
+        let renders = renderer.render_batch(mesh, &views, &opts)?;
+        let done: Vec<ViewTemplates> = renders
+            .par_iter()
+            .zip(views.par_iter())
+            .enumerate()
+            .map(|(i, (r, (pose, _)))| {
+                let view = chunk_idx * VIEW_CHUNK + i;
+                templates_of_view(view, r, pose, &k, &angles, config, backbone, &grid)
+            })
+            .collect::<Result<_, _>>()?;
+        parts.extend(done);
+        progress(Progress { templates_done: parts.len() * angles.len(), templates_total: total });
+    }
+    Ok(assemble(object_id, mesh, config, identity, k, grid, parts))
+}
+
+/// The templates of one base view (all its in-plane rotations).
+struct ViewTemplates {
+    templates: Vec<Template>,
+    globals: Vec<f32>,
+    descriptors: Vec<f16>,
+    points: Vec<[f32; 3]>,
+    cells: Vec<u16>,
+    silhouettes: Vec<u64>,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn templates_of_view(
+    view: usize,
+    base: &RenderOutput,
+    base_pose: &Pose,
+    k: &Intrinsics,
+    angles: &[f64],
+    config: &OnboardConfig,
+    backbone: &dyn Backbone,
+    grid: &PatchGrid,
+) -> Result<ViewTemplates, OnboardError> {
+    let fg: Vec<(f64, f64)> = base
+        .mask
+        .enumerate_pixels()
+        .filter(|(_, _, m)| m[0] > 0)
+        .map(|(x, y, _)| (x as f64 - k.cx, y as f64 - k.cy))
+        .collect();
+    if fg.is_empty() {
+        return Err(OnboardError::EmptyView(view));
+    }
+    let crop_size = grid.n * grid.patch;
+    let mut boxes = Vec::with_capacity(angles.len());
+    let mut crops: Vec<CropInput> = Vec::with_capacity(angles.len());
+    for &a in angles {
+        let (s, c) = a.sin_cos();
+        // Template pixel q = centre + R(a)·(p − centre) for base pixel p (fx = fy).
+        let (mut l, mut t, mut r, mut b) = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
+        for &(x, y) in &fg {
+            let (u, v) = (c * x - s * y, s * x + c * y);
+            l = l.min(u);
+            r = r.max(u);
+            t = t.min(v);
+            b = b.max(v);
+        }
+        let bx = CropBox::around_edges(l + k.cx - 0.5, t + k.cy - 0.5, r + k.cx + 0.5, b + k.cy + 0.5, config.crop_padding, crop_size);
+        let to_base = rotation_to_base(k, a);
+        crops.push(sample_crop(&base.rgb, &base.mask, &bx, &to_base));
+        boxes.push(bx);
+    }
+    let features = backbone.extract(&crops)?;
+    let inv_pose = base_pose.inverse();
+    let mut out = ViewTemplates { templates: vec![], globals: vec![], descriptors: vec![], points: vec![], cells: vec![], silhouettes: vec![] };
+    for (ai, ((&a, bx), (fm, crop))) in angles.iter().zip(&boxes).zip(features.iter().zip(&crops)).enumerate() {
+        let to_base = rotation_to_base(k, a);
+        let start = out.points.len();
+        for patch in fm.foreground(config.min_coverage) {
+            let (cu, cv) = grid.centre_of(patch);
+            let (tu, tv) = bx.to_image(cu, cv);
+            let (bu, bv) = to_base(tu, tv);
+            let search = (grid.patch as f64 * bx.scale() * 0.5).ceil() as i64;
+            let Some(z) = nearest_depth(base, bu, bv, search) else { continue };
+            let p_cam = k.back_project(bu, bv, z as f64);
+            let p_obj = inv_pose.transform_point(&Point3::from(p_cam.coords));
+            out.points.push([p_obj.x as f32, p_obj.y as f32, p_obj.z as f32]);
+            out.cells.push(patch as u16);
+            out.descriptors.extend(fm.descriptor(patch).iter().map(|&x| f16::from_f32(x)));
+        }
+        let rot = crate::geometry::views::in_plane_rotation(a);
+        out.templates.push(Template {
+            pose: Pose::new(rot * base_pose.rotation, rot * base_pose.translation),
+            view: view as u32,
+            in_plane: ai as u32,
+            crop: *bx,
+            patch_start: start as u32, // made global in `assemble`
+            patch_count: (out.points.len() - start) as u32,
+        });
+        out.globals.extend_from_slice(&fm.global);
+        out.silhouettes.extend(pack_silhouette(&crop.mask));
+    }
+    Ok(out)
+}
+
+/// Maps template-image pixels to base-render pixels: a rotation by −`angle` about the
+/// principal point.
+fn rotation_to_base(k: &Intrinsics, angle: f64) -> impl Fn(f64, f64) -> (f64, f64) + Sync {
+    let (s, c) = angle.sin_cos();
+    let (cx, cy) = (k.cx, k.cy);
+    move |u, v| {
+        let (x, y) = (u - cx, v - cy);
+        (cx + c * x + s * y, cy - s * x + c * y)
+    }
+}
+
+/// Depth at the pixel nearest (u, v), or at the closest object pixel within `radius`
+/// (patch centres on the silhouette edge may fall just outside the object).
+fn nearest_depth(r: &RenderOutput, u: f64, v: f64, radius: i64) -> Option<f32> {
+    let (w, h) = (r.width() as i64, r.height() as i64);
+    let (x0, y0) = (u.round() as i64, v.round() as i64);
+    let mut best: Option<(i64, f32)> = None;
+    for ring in 0..=radius {
+        for dy in -ring..=ring {
+            for dx in -ring..=ring {
+                if dx.abs().max(dy.abs()) != ring {
+                    continue;
+                }
+                let (x, y) = (x0 + dx, y0 + dy);
+                if x < 0 || y < 0 || x >= w || y >= h {
+                    continue;
+                }
+                let z = r.depth[(y * w + x) as usize];
+                let d2 = dx * dx + dy * dy;
+                if z > 0.0 && best.is_none_or(|(b, _)| d2 < b) {
+                    best = Some((d2, z));
+                }
+            }
+        }
+        if best.is_some() {
+            break;
+        }
+    }
+    best.map(|(_, z)| z)
+}
+
+fn assemble(
+    object_id: &str,
+    mesh: &Mesh,
+    config: &OnboardConfig,
+    backbone: crate::features::BackboneIdentity,
+    k: Intrinsics,
+    grid: PatchGrid,
+    parts: Vec<ViewTemplates>,
+) -> ObjectModel {
+    let mut m = ObjectModel {
+        object_id: object_id.to_string(),
+        global_dim: backbone.global_dim as usize,
+        local_dim: backbone.local_dim as usize,
+        backbone,
+        config: config.clone(),
+        render_intrinsics: k,
+        grid,
+        mesh: mesh.clone(),
+        templates: vec![],
+        global: vec![],
+        patch_descriptors: vec![],
+        patch_points: vec![],
+        patch_cells: vec![],
+        silhouettes: vec![],
+    };
+    for p in parts {
+        let offset = m.patch_points.len() as u32;
+        m.templates.extend(p.templates.into_iter().map(|mut t| {
+            t.patch_start += offset;
+            t
+        }));
+        m.global.extend(p.globals);
+        m.patch_descriptors.extend(p.descriptors);
+        m.patch_points.extend(p.points);
+        m.patch_cells.extend(p.cells);
+        m.silhouettes.extend(p.silhouettes);
+    }
+    m
+}

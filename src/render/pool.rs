@@ -1,0 +1,100 @@
+//! `RenderPool`: a few renderers behind mutexes so that any thread can render. Each
+//! renderer has its own device and mesh cache, so a mesh is uploaded once per renderer.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Mutex, MutexGuard, TryLockError};
+
+use super::{RenderError, RenderOptions, RenderOutput, Renderer, RendererConfig};
+use crate::geometry::{Intrinsics, Pose};
+use crate::mesh::Mesh;
+
+pub struct RenderPool {
+    renderers: Vec<Mutex<Renderer>>,
+    /// Where the next checkout starts looking, so that load spreads over the renderers.
+    next: AtomicUsize,
+}
+
+impl RenderPool {
+    /// Two devices let one thread's readback overlap another's draw without multiplying
+    /// the memory held by mesh caches much.
+    pub const DEFAULT_SIZE: usize = 2;
+
+    /// A pool of `size` renderers (at least 1).
+    pub fn new(size: usize, config: RendererConfig) -> Result<Self, RenderError> {
+        let renderers = (0..size.max(1))
+            .map(|_| Renderer::with_config(config.clone()).map(Mutex::new))
+            .collect::<Result<_, _>>()?;
+        Ok(Self { renderers, next: AtomicUsize::new(0) })
+    }
+
+    pub fn size(&self) -> usize {
+        self.renderers.len()
+    }
+
+    pub fn describe(&self) -> String {
+        format!("{} x {}", self.size(), self.checkout().describe())
+    }
+
+    /// Mesh uploads summed over all renderers.
+    pub fn mesh_uploads(&self) -> u64 {
+        self.renderers.iter().map(|r| lock(r).mesh_uploads()).sum()
+    }
+
+    pub fn render(&self, mesh: &Mesh, pose: &Pose, k: &Intrinsics, opts: &RenderOptions) -> Result<RenderOutput, RenderError> {
+        self.checkout().render(mesh, pose, k, opts)
+    }
+
+    /// Several views of one mesh, in order, spread over the pool's renderers.
+    pub fn render_batch(&self, mesh: &Mesh, views: &[(Pose, Intrinsics)], opts: &RenderOptions) -> Result<Vec<RenderOutput>, RenderError> {
+        let workers = self.size().min(views.len());
+        if workers <= 1 {
+            return self.checkout().render_batch(mesh, views, opts);
+        }
+        let next_view = AtomicUsize::new(0);
+        let mut done: Vec<(usize, Result<RenderOutput, RenderError>)> = std::thread::scope(|s| {
+            let handles: Vec<_> = (0..workers)
+                .map(|_| {
+                    s.spawn(|| {
+                        let mut renderer = self.checkout();
+                        let mut out = Vec::new();
+                        loop {
+                            let i = next_view.fetch_add(1, Ordering::Relaxed);
+                            let Some((pose, k)) = views.get(i) else { break };
+                            let r = renderer.render(mesh, pose, k, opts);
+                            let failed = r.is_err();
+                            out.push((i, r));
+                            if failed {
+                                break;
+                            }
+                        }
+                        out
+                    })
+                })
+                .collect();
+            handles.into_iter().flat_map(|h| h.join().expect("render worker panicked")).collect()
+        });
+        done.sort_by_key(|(i, _)| *i);
+        // A worker that failed stops early, so on error some views may be missing.
+        done.into_iter().map(|(_, r)| r).collect()
+    }
+
+    /// A free renderer if there is one, else waits for the next in turn.
+    pub fn checkout(&self) -> MutexGuard<'_, Renderer> {
+        let n = self.renderers.len();
+        let start = self.next.fetch_add(1, Ordering::Relaxed) % n;
+        for i in 0..n {
+            match self.renderers[(start + i) % n].try_lock() {
+                Ok(r) => return r,
+                Err(TryLockError::Poisoned(e)) => return e.into_inner(),
+                Err(TryLockError::WouldBlock) => {}
+            }
+        }
+        lock(&self.renderers[start])
+    }
+}
+
+/// A panic mid-render leaves the renderer usable (every render starts from a clean pass),
+/// so poisoning is ignored.
+fn lock(m: &Mutex<Renderer>) -> MutexGuard<'_, Renderer> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}

@@ -1,0 +1,123 @@
+//! `Renderer`: one device, its pipeline, its mesh cache and its reusable targets. Renders
+//! are synchronous: submit, wait, read back.
+
+use super::context::GpuContext;
+use super::gpu_mesh::GpuMesh;
+use super::mesh_cache::MeshCache;
+use super::output::{assemble, RenderOutput};
+use super::pipeline::{FrameUniform, Pipeline};
+use super::projection::{check_intrinsics, check_pose, clip_from_camera, clip_range_for_sphere};
+use super::targets::{padded_row_bytes, Targets};
+use super::{RenderError, RenderOptions};
+use crate::geometry::{Intrinsics, Pose};
+use crate::mesh::Mesh;
+
+#[derive(Clone, Debug)]
+pub struct RendererConfig {
+    /// Meshes kept uploaded per renderer (least recently used evicted first); at least 1.
+    pub max_cached_meshes: usize,
+}
+
+impl Default for RendererConfig {
+    fn default() -> Self {
+        Self { max_cached_meshes: 8 }
+    }
+}
+
+pub struct Renderer {
+    ctx: GpuContext,
+    pipeline: Pipeline,
+    cache: MeshCache<GpuMesh>,
+    /// Targets of the last image size; most callers render one size repeatedly.
+    targets: Option<Targets>,
+}
+
+impl Renderer {
+    pub fn new() -> Result<Self, RenderError> {
+        Self::with_config(RendererConfig::default())
+    }
+
+    pub fn with_config(config: RendererConfig) -> Result<Self, RenderError> {
+        let ctx = GpuContext::open()?;
+        let pipeline = ctx.catching(|| Pipeline::new(&ctx.device, &ctx.queue))?;
+        Ok(Self { ctx, pipeline, cache: MeshCache::new(config.max_cached_meshes), targets: None })
+    }
+
+    pub fn adapter_info(&self) -> &wgpu::AdapterInfo {
+        &self.ctx.info
+    }
+
+    /// E.g. "llvmpipe (LLVM 15.0.6, 256 bits) via Vulkan", for logs.
+    pub fn describe(&self) -> String {
+        format!("{} via {}", self.ctx.info.name, self.ctx.info.backend)
+    }
+
+    /// Largest image width or height this device renders.
+    pub fn max_image_side(&self) -> u32 {
+        self.ctx.device.limits().max_texture_dimension_2d
+    }
+
+    /// Meshes uploaded so far (cache misses), over this renderer's lifetime.
+    pub fn mesh_uploads(&self) -> u64 {
+        self.cache.uploads()
+    }
+
+    pub fn cached_meshes(&self) -> usize {
+        self.cache.len()
+    }
+
+    /// Renders `mesh` at `pose` (object → camera) through `k`. See `RenderOutput` for what
+    /// each image holds.
+    pub fn render(&mut self, mesh: &Mesh, pose: &Pose, k: &Intrinsics, opts: &RenderOptions) -> Result<RenderOutput, RenderError> {
+        self.check_inputs(pose, k, opts)?;
+        let Self { ctx, pipeline, cache, targets } = self;
+        let submitted = ctx.catching(|| {
+            let gpu = cache.get_or_insert_with(mesh.id(), || GpuMesh::upload(&ctx.device, &ctx.queue, pipeline, mesh));
+            let (near, far) =
+                opts.clip_range.unwrap_or_else(|| clip_range_for_sphere(pose, gpu.sphere_center, gpu.sphere_radius));
+            let frame = FrameUniform::new(pose, &clip_from_camera(k, near, far), opts);
+            ctx.queue.write_buffer(&pipeline.frame_buffer, 0, bytemuck::bytes_of(&frame));
+            let t = match targets {
+                Some(t) if t.width == k.width && t.height == k.height => t,
+                _ => targets.insert(Targets::new(&ctx.device, k.width, k.height)),
+            };
+            let mut encoder = ctx.device.create_command_encoder(&Default::default());
+            {
+                let mut pass = t.begin_pass(&mut encoder);
+                pass.set_pipeline(&pipeline.pipeline);
+                pass.set_bind_group(0, &pipeline.frame_group, &[]);
+                gpu.draw(&mut pass);
+            }
+            t.encode_readback(&mut encoder);
+            ctx.queue.submit([encoder.finish()]);
+        });
+        if let Err(e) = submitted {
+            // Whatever was created inside the failed scope may be invalid: rebuild next time.
+            cache.remove(mesh.id());
+            *targets = None;
+            return Err(e);
+        }
+        let t = targets.as_ref().expect("created above");
+        let pitch = padded_row_bytes(k.width) as usize;
+        t.read(&ctx.device, |rgba, depth| assemble(k.width, k.height, pitch, rgba, depth, opts.background))
+    }
+
+    /// Several views of one mesh, in order; the mesh is uploaded at most once.
+    pub fn render_batch(&mut self, mesh: &Mesh, views: &[(Pose, Intrinsics)], opts: &RenderOptions) -> Result<Vec<RenderOutput>, RenderError> {
+        views.iter().map(|(pose, k)| self.render(mesh, pose, k, opts)).collect()
+    }
+
+    fn check_inputs(&self, pose: &Pose, k: &Intrinsics, opts: &RenderOptions) -> Result<(), RenderError> {
+        check_intrinsics(k, self.max_image_side())?;
+        let readback = padded_row_bytes(k.width) as u64 * k.height as u64;
+        let max_buffer = self.ctx.device.limits().max_buffer_size;
+        if readback > max_buffer {
+            return Err(RenderError::InvalidIntrinsics(format!(
+                "{}x{} needs a {readback}-byte readback buffer; this device allows {max_buffer}",
+                k.width, k.height
+            )));
+        }
+        check_pose(pose)?;
+        opts.validate()
+    }
+}
