@@ -1,8 +1,22 @@
 //! One `Mesh` type for every format: positions in metres in the object frame, per-vertex
 //! normals, optional vertex colours and UVs, triangles grouped into parts by material.
-//! Loaders live beside this file, one per format; they never guess units.
+//! Loaders live beside this file, one per format; they never guess units. `load_mesh` picks
+//! one by file extension.
 
+mod assemble;
+mod gltf;
+mod load;
+mod obj;
+mod ply;
+#[cfg(test)]
+mod test_util;
+mod texture;
 mod types;
+
+pub use self::gltf::load_gltf;
+pub use load::load_mesh;
+pub use obj::load_obj;
+pub use ply::load_ply;
 pub use types::*;
 
 pub mod procedural;

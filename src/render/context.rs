@@ -60,8 +60,10 @@ impl GpuContext {
         let oom = pollster::block_on(oom.pop());
         let validation = pollster::block_on(validation.pop());
         match oom.or(validation) {
+            // The description already carries wgpu's "Caused by" chain.
             Some(e) => Err(RenderError::Gpu(e.to_string())),
             None => Ok(r),
         }
     }
 }
+

@@ -47,7 +47,7 @@ impl RenderOutput {
 }
 
 /// Builds the output from readback buffers whose rows are `pitch` bytes apart: RGBA8 colour
-/// and native-endian f32 depth. Coverage is taken from depth (cleared to 0, and every drawn
+/// and depth as native-endian f32 bits. Coverage is taken from depth (cleared to 0, and every drawn
 /// surface lies beyond the near plane, so z > 0), and background pixels get `background`
 /// exactly rather than whatever the clear colour encodes to.
 pub(crate) fn assemble(width: u32, height: u32, pitch: usize, rgba: &[u8], depth_bytes: &[u8], background: [u8; 3]) -> RenderOutput {

@@ -10,7 +10,10 @@ use super::RenderOptions;
 use crate::geometry::Pose;
 
 pub(crate) const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
-pub(crate) const DEPTH_OUT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
+/// Metric depth as the bits of an f32. R32Float would be the obvious format, but it is not
+/// renderable on GLES without EXT_color_buffer_float (Mesa's llvmpipe GL lacks it), while
+/// R32Uint is renderable everywhere and carries the same 32 bits exactly.
+pub(crate) const DEPTH_OUT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 pub(crate) const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// sRGB: textures are authored in sRGB and the sampler must decode before filtering.
 pub(crate) const ALBEDO_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;

@@ -15,9 +15,10 @@ pub struct RenderPool {
 }
 
 impl RenderPool {
-    /// Two devices let one thread's readback overlap another's draw without multiplying
-    /// the memory held by mesh caches much.
-    pub const DEFAULT_SIZE: usize = 2;
+    /// One: on lavapipe the rasteriser already uses every core, and measured throughput of
+    /// a pool of 2 or 4 was lower than one renderer's. On a real GPU, 2 may overlap one
+    /// thread's CPU-side work with another's draw.
+    pub const DEFAULT_SIZE: usize = 1;
 
     /// A pool of `size` renderers (at least 1).
     pub fn new(size: usize, config: RendererConfig) -> Result<Self, RenderError> {

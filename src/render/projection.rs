@@ -36,7 +36,7 @@ pub fn clip_range_for_sphere(pose: &Pose, center: [f64; 3], radius: f64) -> (f64
     let margin = radius * 1.01 + 1e-6;
     // A floor on near keeps the depth mapping finite when the camera is inside the sphere.
     let near = (z - margin).max(1e-5);
-    let far = (z + margin).max(near * 2.0);
+    let far = (z + margin).max(near * 1.001);
     (near, far)
 }
 

@@ -1,5 +1,6 @@
 // One pass writes shaded colour and metric depth. Depth goes to a colour target (not read
-// back from the depth buffer) because the GL backend cannot copy depth textures.
+// back from the depth buffer) because the GL backend cannot copy depth textures; it is an
+// R32Uint target holding the f32's bits, because R32Float is not renderable on plain GLES.
 
 struct Frame {
     clip_from_obj: mat4x4<f32>,
@@ -44,7 +45,8 @@ struct VsOut {
 
 struct FsOut {
     @location(0) color: vec4<f32>,
-    @location(1) depth: f32,
+    // bitcast of the camera z (f32).
+    @location(1) depth_bits: u32,
 };
 
 @vertex
@@ -78,6 +80,6 @@ fn fs_main(f: VsOut) -> FsOut {
 
     var out: FsOut;
     out.color = vec4<f32>(clamp(shade, vec3<f32>(0.0), vec3<f32>(1.0)), 1.0);
-    out.depth = f.cam_z;
+    out.depth_bits = bitcast<u32>(f.cam_z);
     return out;
 }

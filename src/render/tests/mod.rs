@@ -8,6 +8,7 @@ use nalgebra::{Point3, Rotation3, Vector3};
 
 use super::*;
 use crate::geometry::{Intrinsics, Pose};
+use crate::mesh::{Material, Mesh, Units};
 use meshes::*;
 
 pub(super) fn renderer_with(config: RendererConfig) -> Option<Renderer> {
@@ -272,10 +273,10 @@ fn textured_sphere() -> Mesh {
     let s = uv_sphere(0.05, 16, 32);
     let mut d = s.data().clone();
     d.colors = d.positions.iter().map(|p| [0.5 + 5.0 * p[0], 0.5 + 5.0 * p[1], 0.8]).collect();
-    d.materials = vec![crate::mesh::Material {
+    d.materials = vec![Material {
         name: "checker".into(),
         base_color: [1.0, 0.9, 0.8, 1.0],
         texture: Some(std::sync::Arc::new(checkerboard(8, 8, [250, 200, 40], [30, 60, 200]))),
     }];
-    Mesh::new("textured sphere", crate::mesh::Units::M, d).unwrap()
+    Mesh::new("textured sphere", Units::M, d).unwrap()
 }

@@ -1,0 +1,917 @@
+//! PLY reader (ascii, binary little and big endian) for BOP-style models: positions, normals,
+//! vertex colours, per-vertex or per-face texture coordinates, polygon faces, and a texture
+//! named by a `comment TextureFile NAME` header line.
+//!
+//! Our own reader rather than a crate's because the errors must say where a file is broken
+//! (element, index, line or byte), and the BOP conventions (TextureFile, texcoord lists) need
+//! handling anyway.
+
+use super::texture::load_texture;
+use super::{Material, Mesh, MeshData, MeshError, Units};
+use std::collections::HashMap;
+use std::path::Path;
+
+/// Loads a PLY file whose lengths are in `units`.
+pub fn load_ply(path: &Path, units: Units) -> Result<Mesh, MeshError> {
+    let bytes = std::fs::read(path).map_err(|source| MeshError::Io { path: path.to_path_buf(), source })?;
+    let (mut data, texture) = parse_ply(&bytes, units).map_err(|m| MeshError::format(path, m))?;
+    if let Some(name) = texture {
+        let file = path.parent().unwrap_or(Path::new("")).join(&name);
+        let image = load_texture(path, &file, &name)?;
+        data.materials = vec![Material { name, texture: Some(image), ..Material::default() }];
+    }
+    Mesh::new(path.display().to_string(), units, data)
+}
+
+/// Parses a whole PLY file into mesh arrays (positions scaled to metres) and the texture file
+/// name from the header, if any. Errors are messages without the file name.
+fn parse_ply(bytes: &[u8], units: Units) -> Result<(MeshData, Option<String>), String> {
+    let header = parse_header(bytes)?;
+    let plan = Plan::new(&header)?;
+    let body = &bytes[header.body_offset..];
+    let mut raw = Raw::default();
+    match header.encoding {
+        Encoding::Ascii => {
+            let text =
+                std::str::from_utf8(body).map_err(|e| format!("ascii data is not text (byte {})", header.body_offset + e.valid_up_to()))?;
+            let mut src = Ascii { lines: text.lines(), line: header.lines, tokens: "".split_ascii_whitespace() };
+            read_body(&mut src, &header, &plan, &mut raw)?;
+        }
+        Encoding::Binary { big_endian } => {
+            let mut src = Binary { data: body, pos: 0, start: header.body_offset, big_endian };
+            read_body(&mut src, &header, &plan, &mut raw)?;
+        }
+    }
+    Ok((raw.into_mesh_data(units.to_metres()), header.texture))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Header
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Scalar {
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    F32,
+    F64,
+}
+
+impl Scalar {
+    fn parse(s: &str) -> Option<Self> {
+        Some(match s {
+            "char" | "int8" => Scalar::I8,
+            "uchar" | "uint8" => Scalar::U8,
+            "short" | "int16" => Scalar::I16,
+            "ushort" | "uint16" => Scalar::U16,
+            "int" | "int32" => Scalar::I32,
+            "uint" | "uint32" => Scalar::U32,
+            "float" | "float32" => Scalar::F32,
+            "double" | "float64" => Scalar::F64,
+            _ => return None,
+        })
+    }
+
+    fn is_float(self) -> bool {
+        matches!(self, Scalar::F32 | Scalar::F64)
+    }
+
+    /// Value of a full-intensity colour channel: integer colours span their type's range,
+    /// float colours are already 0..1.
+    fn colour_full_scale(self) -> f64 {
+        match self {
+            Scalar::I8 | Scalar::U8 => 255.0,
+            Scalar::I16 | Scalar::U16 => 65535.0,
+            Scalar::I32 | Scalar::U32 => u32::MAX as f64,
+            Scalar::F32 | Scalar::F64 => 1.0,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Kind {
+    Scalar(Scalar),
+    List { count: Scalar, item: Scalar },
+}
+
+#[derive(Debug)]
+struct Property {
+    name: String,
+    kind: Kind,
+}
+
+#[derive(Debug)]
+struct Element {
+    name: String,
+    count: usize,
+    props: Vec<Property>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Encoding {
+    Ascii,
+    Binary { big_endian: bool },
+}
+
+#[derive(Debug)]
+struct Header {
+    encoding: Encoding,
+    elements: Vec<Element>,
+    texture: Option<String>,
+    /// Byte offset of the data after `end_header`.
+    body_offset: usize,
+    /// Number of header lines, so that ascii data lines can be numbered as in the file.
+    lines: usize,
+}
+
+fn parse_header(bytes: &[u8]) -> Result<Header, String> {
+    let mut encoding = None;
+    let mut elements: Vec<Element> = Vec::new();
+    let mut texture = None;
+    let mut pos = 0;
+    let mut n = 0;
+    loop {
+        let Some(len) = bytes[pos..].iter().position(|&b| b == b'\n') else {
+            return Err(if n == 0 { "not a PLY file (empty or no line break)".into() } else { "header has no end_header line".into() });
+        };
+        n += 1;
+        let raw = &bytes[pos..pos + len];
+        pos += len + 1;
+        let line = String::from_utf8_lossy(raw.strip_suffix(b"\r").unwrap_or(raw));
+        let bad = |what: &str| format!("header line {n}: {what}: {line:?}");
+        let mut words = line.split_ascii_whitespace();
+        let keyword = words.next().unwrap_or("");
+        if n == 1 {
+            if keyword != "ply" {
+                return Err("not a PLY file (first line is not \"ply\")".into());
+            }
+            continue;
+        }
+        match keyword {
+            "format" => {
+                encoding = Some(match (words.next(), words.next()) {
+                    (Some("ascii"), Some("1.0")) => Encoding::Ascii,
+                    (Some("binary_little_endian"), Some("1.0")) => Encoding::Binary { big_endian: false },
+                    (Some("binary_big_endian"), Some("1.0")) => Encoding::Binary { big_endian: true },
+                    _ => return Err(bad("unknown format")),
+                })
+            }
+            "comment" => {
+                // The name is the rest of the line: it may contain spaces ("fuze uv.jpg").
+                let rest = line.trim_start()["comment".len()..].trim_start();
+                let mut split = rest.splitn(2, |c: char| c.is_ascii_whitespace());
+                if split.next().is_some_and(|w| w.eq_ignore_ascii_case("TextureFile")) {
+                    let name = split.next().unwrap_or("").trim();
+                    if name.is_empty() {
+                        return Err(bad("TextureFile comment without a file name"));
+                    }
+                    texture = Some(name.to_string());
+                }
+            }
+            "obj_info" | "" => {}
+            "element" => {
+                let (Some(name), Some(count), None) = (words.next(), words.next(), words.next()) else {
+                    return Err(bad("expected \"element NAME COUNT\""));
+                };
+                let count = count.parse().map_err(|_| bad("element count is not a non-negative integer"))?;
+                elements.push(Element { name: name.to_string(), count, props: Vec::new() });
+            }
+            "property" => {
+                let Some(element) = elements.last_mut() else {
+                    return Err(bad("property before any element"));
+                };
+                let words: Vec<&str> = words.collect();
+                let ty = |s: &str| Scalar::parse(s).ok_or_else(|| bad(&format!("unknown type {s:?}")));
+                let (kind, name) = match words[..] {
+                    ["list", count, item, name] => (Kind::List { count: ty(count)?, item: ty(item)? }, name),
+                    [scalar, name] if scalar != "list" => (Kind::Scalar(ty(scalar)?), name),
+                    _ => return Err(bad("expected \"property TYPE NAME\" or \"property list TYPE TYPE NAME\"")),
+                };
+                element.props.push(Property { name: name.to_string(), kind });
+            }
+            "end_header" => break,
+            _ => return Err(bad("unknown header keyword")),
+        }
+    }
+    let encoding = encoding.ok_or("header has no format line")?;
+    Ok(Header { encoding, elements, texture, body_offset: pos, lines: n })
+}
+
+// ---------------------------------------------------------------------------------------------
+// What to do with each property
+
+/// Slots of a vertex's values, in the order `Raw` stores them.
+const POS: usize = 0;
+const NORMAL: usize = 3;
+const COLOUR: usize = 6;
+const UV: usize = 9;
+const SLOTS: usize = 11;
+
+#[derive(Clone, Copy, Debug)]
+enum Role {
+    Skip,
+    /// A vertex value into slot `usize`, divided by the `f64` (colour full scale, else 1).
+    Vertex(usize, f64),
+    FaceIndices,
+    FaceTexcoords,
+}
+
+/// Per element, per property: its role; plus which vertex attributes the file has in full.
+/// Only the first element named "vertex" and the first named "face" are read; any other
+/// element is skipped.
+struct Plan {
+    roles: Vec<Vec<Role>>,
+    vertex_element: usize,
+    face_element: usize,
+    vertex_count: usize,
+    has_normals: bool,
+    has_colours: bool,
+    has_uvs: bool,
+}
+
+impl Plan {
+    fn new(header: &Header) -> Result<Self, String> {
+        let position = |name: &str| header.elements.iter().position(|e| e.name == name);
+        let vertex_element = position("vertex").ok_or("header declares no vertex element")?;
+        let face_element = position("face").ok_or("no faces: header declares no face element")?;
+        let (vertex, face) = (&header.elements[vertex_element], &header.elements[face_element]);
+        if face.count == 0 {
+            return Err("no faces: element face has count 0".into());
+        }
+        let find = |names: &[&str]| vertex.props.iter().position(|p| names.contains(&p.name.as_str()));
+        // Alternatives per slot, in slot order; an attribute counts only if all its slots exist.
+        let slot_names: [&[&str]; SLOTS] = [
+            &["x"],
+            &["y"],
+            &["z"],
+            &["nx", "normal_x"],
+            &["ny", "normal_y"],
+            &["nz", "normal_z"],
+            &["red", "r", "diffuse_red"],
+            &["green", "g", "diffuse_green"],
+            &["blue", "b", "diffuse_blue"],
+            &["texture_u", "s", "u", "texture_s"],
+            &["texture_v", "t", "v", "texture_t"],
+        ];
+        let found: Vec<Option<usize>> = slot_names.iter().map(|names| find(names)).collect();
+        let complete = |range: std::ops::Range<usize>| found[range].iter().all(Option::is_some);
+        for (slot, axis) in ["x", "y", "z"].iter().enumerate() {
+            if found[slot].is_none() {
+                return Err(format!("vertex element has no property {axis}"));
+            }
+        }
+        let (has_normals, has_colours, has_uvs) = (complete(NORMAL..NORMAL + 3), complete(COLOUR..COLOUR + 3), complete(UV..UV + 2));
+        let mut vertex_roles = vec![Role::Skip; vertex.props.len()];
+        for (slot, prop) in found.iter().enumerate() {
+            let wanted = match slot {
+                POS..NORMAL => true,
+                NORMAL..COLOUR => has_normals,
+                COLOUR..UV => has_colours,
+                _ => has_uvs,
+            };
+            if let (true, Some(p)) = (wanted, *prop) {
+                let Kind::Scalar(ty) = vertex.props[p].kind else {
+                    return Err(format!("vertex property {} is a list, expected a number", vertex.props[p].name));
+                };
+                let scale = if (COLOUR..UV).contains(&slot) { ty.colour_full_scale() } else { 1.0 };
+                vertex_roles[p] = Role::Vertex(slot, scale);
+            }
+        }
+        let mut face_roles = vec![Role::Skip; face.props.len()];
+        let list = |names: &[&str]| face.props.iter().position(|p| names.contains(&p.name.as_str()) && matches!(p.kind, Kind::List { .. }));
+        face_roles[list(&["vertex_indices", "vertex_index"]).ok_or("face element has no vertex_indices list")?] = Role::FaceIndices;
+        if let Some(p) = list(&["texcoord"]) {
+            face_roles[p] = Role::FaceTexcoords;
+        }
+        let vertex_count = vertex.count;
+        let mut roles: Vec<Vec<Role>> = header.elements.iter().map(|e| vec![Role::Skip; e.props.len()]).collect();
+        roles[vertex_element] = vertex_roles;
+        roles[face_element] = face_roles;
+        Ok(Plan { roles, vertex_element, face_element, vertex_count, has_normals, has_colours, has_uvs })
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Data sources: the same element walk reads ascii tokens or binary numbers.
+
+trait Source {
+    /// Called before each element item.
+    fn begin_item(&mut self) -> Result<(), String>;
+    /// Next number of type `ty`; the error says what is wrong, not where.
+    fn value(&mut self, ty: Scalar) -> Result<f64, String>;
+    /// Called after each element item, to catch items with more values than the header says.
+    fn end_item(&mut self) -> Result<(), String>;
+    /// Called after the last element, to catch data beyond what the header's counts cover.
+    fn finish(&mut self) -> Result<(), String>;
+    fn location(&self) -> String;
+}
+
+struct Ascii<'a> {
+    lines: std::str::Lines<'a>,
+    line: usize,
+    tokens: std::str::SplitAsciiWhitespace<'a>,
+}
+
+impl Ascii<'_> {
+    /// Advances to the next non-blank line; false at the end of the file.
+    fn next_line(&mut self) -> bool {
+        for line in self.lines.by_ref() {
+            self.line += 1;
+            if !line.trim_ascii().is_empty() {
+                self.tokens = line.split_ascii_whitespace();
+                return true;
+            }
+        }
+        false
+    }
+}
+
+/// Ascii items sit one per line (as every writer does it); holding to that turns a header
+/// whose counts disagree with the data into an error at the first misfit line, instead of
+/// silently shifted values.
+impl Source for Ascii<'_> {
+    fn begin_item(&mut self) -> Result<(), String> {
+        match self.next_line() {
+            true => Ok(()),
+            false => Err("file ends early (truncated, or the header's counts are too large)".into()),
+        }
+    }
+    fn value(&mut self, ty: Scalar) -> Result<f64, String> {
+        let t = self.tokens.next().ok_or("line ends early (fewer values than the header's properties)")?;
+        let v: f64 = t.parse().map_err(|_| format!("unparsable number {t:?}"))?;
+        if !ty.is_float() && v.fract() != 0.0 {
+            return Err(format!("{t:?} is not an integer"));
+        }
+        Ok(v)
+    }
+    fn end_item(&mut self) -> Result<(), String> {
+        match self.tokens.next() {
+            Some(t) => Err(format!("unexpected extra value {t:?} (more values than the header's properties)")),
+            None => Ok(()),
+        }
+    }
+    fn finish(&mut self) -> Result<(), String> {
+        match self.next_line() {
+            true => Err(format!("extra data at line {} after the last element (the header's counts are too small)", self.line)),
+            false => Ok(()),
+        }
+    }
+    fn location(&self) -> String {
+        format!("line {}", self.line)
+    }
+}
+
+struct Binary<'a> {
+    data: &'a [u8],
+    pos: usize,
+    /// File offset of `data`, so that locations are file offsets.
+    start: usize,
+    big_endian: bool,
+}
+
+impl Binary<'_> {
+    fn take<const N: usize>(&mut self) -> Result<[u8; N], String> {
+        let bytes = self.data.get(self.pos..self.pos + N).ok_or_else(|| {
+            format!("binary data ends early at byte {} (truncated, or the header's counts are too large)", self.start + self.data.len())
+        })?;
+        self.pos += N;
+        Ok(bytes.try_into().expect("slice of length N"))
+    }
+}
+
+impl Source for Binary<'_> {
+    fn begin_item(&mut self) -> Result<(), String> {
+        Ok(())
+    }
+    fn value(&mut self, ty: Scalar) -> Result<f64, String> {
+        macro_rules! num {
+            ($t:ty) => {{
+                let b = self.take::<{ std::mem::size_of::<$t>() }>()?;
+                (if self.big_endian { <$t>::from_be_bytes(b) } else { <$t>::from_le_bytes(b) }) as f64
+            }};
+        }
+        Ok(match ty {
+            Scalar::I8 => num!(i8),
+            Scalar::U8 => num!(u8),
+            Scalar::I16 => num!(i16),
+            Scalar::U16 => num!(u16),
+            Scalar::I32 => num!(i32),
+            Scalar::U32 => num!(u32),
+            Scalar::F32 => num!(f32),
+            Scalar::F64 => num!(f64),
+        })
+    }
+    fn end_item(&mut self) -> Result<(), String> {
+        Ok(())
+    }
+    fn finish(&mut self) -> Result<(), String> {
+        match self.data.len() - self.pos {
+            0 => Ok(()),
+            extra => Err(format!("{extra} bytes of extra data after the last element (the header's counts are too small)")),
+        }
+    }
+    fn location(&self) -> String {
+        format!("byte {}", self.start + self.pos)
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Reading the elements
+
+/// Everything read from the body, before scaling and texture-coordinate unsharing.
+#[derive(Default)]
+struct Raw {
+    positions: Vec<[f64; 3]>,
+    normals: Vec<[f32; 3]>,
+    colours: Vec<[f32; 3]>,
+    uvs: Vec<[f32; 2]>,
+    triangles: Vec<[u32; 3]>,
+    /// Per triangle corner, when the faces carry `texcoord` lists.
+    corner_uvs: Vec<[f32; 2]>,
+}
+
+fn read_body<S: Source>(src: &mut S, header: &Header, plan: &Plan, raw: &mut Raw) -> Result<(), String> {
+    let mut indices = Vec::new();
+    let mut texcoords = Vec::new();
+    for (e, (element, roles)) in header.elements.iter().zip(&plan.roles).enumerate() {
+        for item in 0..element.count {
+            let at = |src: &S, what: String| format!("{} {item} of {} ({}): {what}", element.name, element.count, src.location());
+            src.begin_item().map_err(|e| at(src, e))?;
+            let mut slots = [0f64; SLOTS];
+            let mut has_texcoords = false;
+            indices.clear();
+            texcoords.clear();
+            for (prop, &role) in element.props.iter().zip(roles) {
+                let with_name = |e: String| format!("property {}: {e}", prop.name);
+                match (prop.kind, role) {
+                    (Kind::Scalar(ty), Role::Vertex(slot, scale)) => {
+                        slots[slot] = src.value(ty).map_err(|e| at(src, with_name(e)))? / scale
+                    }
+                    (Kind::Scalar(ty), _) => {
+                        src.value(ty).map_err(|e| at(src, with_name(e)))?;
+                    }
+                    (Kind::List { count, item: ty }, role) => {
+                        let n = src.value(count).map_err(|e| at(src, with_name(e)))?;
+                        if n < 0.0 {
+                            return Err(at(src, with_name(format!("negative list length {n}"))));
+                        }
+                        let mut out = match role {
+                            Role::FaceIndices => Some(&mut indices),
+                            Role::FaceTexcoords => {
+                                has_texcoords = true;
+                                Some(&mut texcoords)
+                            }
+                            _ => None,
+                        };
+                        // One value at a time, so that a corrupt huge count cannot allocate:
+                        // the data runs out first.
+                        for _ in 0..n as u64 {
+                            let v = src.value(ty).map_err(|e| at(src, with_name(e)))?;
+                            if let Some(out) = out.as_mut() {
+                                out.push(v);
+                            }
+                        }
+                    }
+                }
+            }
+            src.end_item().map_err(|e| at(src, e))?;
+            if e == plan.vertex_element {
+                raw.push_vertex(&slots, plan).map_err(|e| at(src, e))?;
+            } else if e == plan.face_element {
+                let texcoords = has_texcoords.then_some(&texcoords[..]);
+                raw.push_face(&indices, texcoords, plan.vertex_count).map_err(|e| at(src, e))?;
+            }
+        }
+    }
+    src.finish()
+}
+
+impl Raw {
+    fn push_vertex(&mut self, s: &[f64; SLOTS], plan: &Plan) -> Result<(), String> {
+        let p = [s[POS], s[POS + 1], s[POS + 2]];
+        if p.iter().any(|c| !c.is_finite()) {
+            return Err(format!("non-finite coordinate {p:?}"));
+        }
+        self.positions.push(p);
+        let f = |i: usize| s[i] as f32;
+        if plan.has_normals {
+            self.normals.push([f(NORMAL), f(NORMAL + 1), f(NORMAL + 2)]);
+        }
+        if plan.has_colours {
+            self.colours.push([f(COLOUR), f(COLOUR + 1), f(COLOUR + 2)]);
+        }
+        if plan.has_uvs {
+            self.uvs.push([f(UV), f(UV + 1)]);
+        }
+        Ok(())
+    }
+
+    /// Fan-triangulates a polygon; with texcoords, records each triangle corner's uv.
+    fn push_face(&mut self, indices: &[f64], texcoords: Option<&[f64]>, vertex_count: usize) -> Result<(), String> {
+        let n = indices.len();
+        if n < 3 {
+            return Err(format!("face has {n} vertices, at least 3 are needed"));
+        }
+        if let Some(&bad) = indices.iter().find(|&&i| !(0.0..vertex_count as f64).contains(&i)) {
+            return Err(format!("vertex index {bad} out of range (the file has {vertex_count} vertices)"));
+        }
+        if let Some(tc) = texcoords {
+            if tc.len() != 2 * n {
+                return Err(format!("texcoord list has {} values for a {n}-vertex face (expected {})", tc.len(), 2 * n));
+            }
+        }
+        let uv = |k: usize| texcoords.map(|tc| [tc[2 * k] as f32, tc[2 * k + 1] as f32]);
+        for k in 1..n - 1 {
+            self.triangles.push([indices[0] as u32, indices[k] as u32, indices[k + 1] as u32]);
+            if let (Some(a), Some(b), Some(c)) = (uv(0), uv(k), uv(k + 1)) {
+                self.corner_uvs.extend([a, b, c]);
+            }
+        }
+        Ok(())
+    }
+
+    fn into_mesh_data(self, metres_per_unit: f64) -> MeshData {
+        let mut data = MeshData {
+            positions: self.positions.iter().map(|p| p.map(|c| (c * metres_per_unit) as f32)).collect(),
+            normals: self.normals,
+            colors: self.colours,
+            uvs: self.uvs,
+            triangles: self.triangles,
+            ..MeshData::default()
+        };
+        if !self.corner_uvs.is_empty() {
+            unshare_corner_uvs(&mut data, &self.corner_uvs);
+        }
+        data
+    }
+}
+
+/// Makes per-corner uvs per-vertex: one vertex per distinct (vertex, uv) pair, so vertices are
+/// duplicated only along texture seams and smooth shading survives elsewhere. Per-face
+/// texcoords win over per-vertex ones when a file has both.
+fn unshare_corner_uvs(data: &mut MeshData, corner_uvs: &[[f32; 2]]) {
+    let mut map: HashMap<(u32, [u32; 2]), u32> = HashMap::with_capacity(corner_uvs.len());
+    let mut out = MeshData { triangles: Vec::with_capacity(data.triangles.len()), ..MeshData::default() };
+    for (t, tri) in data.triangles.iter().enumerate() {
+        let new = std::array::from_fn(|c| {
+            let (v, uv) = (tri[c], corner_uvs[3 * t + c]);
+            *map.entry((v, uv.map(f32::to_bits))).or_insert_with(|| {
+                let i = v as usize;
+                out.positions.push(data.positions[i]);
+                if let Some(n) = data.normals.get(i) {
+                    out.normals.push(*n);
+                }
+                if let Some(c) = data.colors.get(i) {
+                    out.colors.push(*c);
+                }
+                out.uvs.push(uv);
+                out.positions.len() as u32 - 1
+            })
+        });
+        out.triangles.push(new);
+    }
+    *data = out;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::test_util::{assert_close, assert_error, write_png};
+    use super::*;
+    use std::path::PathBuf;
+
+    /// Corner `i` of a 20 mm cube centred on the origin: bit 0 is x, bit 1 y, bit 2 z.
+    fn corner(i: usize) -> [f64; 3] {
+        [0, 1, 2].map(|b| if i >> b & 1 == 1 { 10.0 } else { -10.0 })
+    }
+    fn corner_uv(i: usize) -> [f64; 2] {
+        let c = corner(i);
+        [c[0] / 40.0 + 0.5, c[1] / 40.0 + 0.5]
+    }
+    const QUADS: [[u32; 4]; 6] = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
+
+    fn write(dir: &Path, name: &str, bytes: impl AsRef<[u8]>) -> PathBuf {
+        let path = dir.join(name);
+        std::fs::write(&path, bytes).unwrap();
+        path
+    }
+
+    /// An ascii PLY from header lines (between the format line and end_header) and data lines.
+    fn ascii(header: &[&str], body: &[String]) -> String {
+        format!("ply\nformat ascii 1.0\n{}\nend_header\n{}\n", header.join("\n"), body.join("\n"))
+    }
+
+    /// The BOP layout: positions, normals, texture_u/v, quads, and a TextureFile comment.
+    fn cube_ascii(texture: &str, vertex_count: usize, face_count: usize) -> String {
+        let mut body: Vec<String> = (0..8)
+            .map(|i| {
+                let [x, y, z] = corner(i);
+                let [u, v] = corner_uv(i);
+                let s = 1.0 / (10.0 * 3f64.sqrt());
+                format!("{x} {y} {z} {} {} {} {u} {v}", x * s, y * s, z * s)
+            })
+            .collect();
+        body.extend(QUADS.iter().map(|q| format!("4 {} {} {} {}", q[0], q[1], q[2], q[3])));
+        let vertex = format!("element vertex {vertex_count}");
+        let face = format!("element face {face_count}");
+        let texture = format!("comment TextureFile {texture}");
+        let header = [
+            "comment made by a test",
+            texture.as_str(),
+            vertex.as_str(),
+            "property float x",
+            "property float y",
+            "property float z",
+            "property float nx",
+            "property float ny",
+            "property float nz",
+            "property float texture_u",
+            "property float texture_v",
+            face.as_str(),
+            "property list uchar int vertex_indices",
+        ];
+        ascii(&header, &body)
+    }
+
+    fn textured_cube_dir() -> (tempfile::TempDir, PathBuf) {
+        let dir = tempfile::tempdir().unwrap();
+        write_png(&dir.path().join("cube tex.png"), 4, 3);
+        let path = write(dir.path(), "cube.ply", cube_ascii("cube tex.png", 8, 6));
+        (dir, path)
+    }
+
+    #[test]
+    fn ascii_textured_cube_in_mm() {
+        let (_dir, path) = textured_cube_dir();
+        let mesh = load_ply(&path, Units::Mm).unwrap();
+        assert_eq!(mesh.positions().len(), 8);
+        assert_eq!(mesh.triangles().len(), 12);
+        for i in 0..8 {
+            assert_close(&mesh.positions()[i], &corner(i).map(|c| (c * 1e-3) as f32));
+            assert_close(&mesh.uvs().unwrap()[i], &corner_uv(i).map(|c| c as f32));
+            let n = mesh.normals()[i];
+            assert!((n[0] * n[0] + n[1] * n[1] + n[2] * n[2] - 1.0).abs() < 1e-4, "normal {n:?} kept from the file");
+        }
+        assert!(mesh.has_texture());
+        let texture = mesh.materials()[0].texture.as_ref().unwrap();
+        assert_eq!(texture.dimensions(), (4, 3));
+        assert_eq!(texture.get_pixel(2, 1).0, [20, 10, 7, 255]);
+        assert!((mesh.diameter() - 0.02 * 3f64.sqrt()).abs() < 1e-6);
+        assert_eq!(mesh.source_units(), Units::Mm);
+    }
+
+    #[test]
+    fn units_scale_positions() {
+        let (_dir, path) = textured_cube_dir();
+        for (units, metres) in [(Units::Mm, 1e-3), (Units::Cm, 1e-2), (Units::M, 1.0)] {
+            let mesh = load_ply(&path, units).unwrap();
+            assert!((mesh.diameter() - 20.0 * metres * 3f64.sqrt()).abs() < 1e-6 * metres * 100.0, "{units:?}");
+            assert_close(&mesh.positions()[7], &[(10.0 * metres) as f32; 3]);
+        }
+    }
+
+    /// Little-endian or big-endian writer for binary bodies.
+    struct Bin {
+        bytes: Vec<u8>,
+        big: bool,
+    }
+    impl Bin {
+        fn put<const N: usize>(&mut self, le: [u8; N], be: [u8; N]) {
+            self.bytes.extend(if self.big { be } else { le });
+        }
+        fn f64(&mut self, v: f64) {
+            self.put(v.to_le_bytes(), v.to_be_bytes());
+        }
+        fn f32(&mut self, v: f32) {
+            self.put(v.to_le_bytes(), v.to_be_bytes());
+        }
+        fn i32(&mut self, v: i32) {
+            self.put(v.to_le_bytes(), v.to_be_bytes());
+        }
+        fn u16(&mut self, v: u16) {
+            self.put(v.to_le_bytes(), v.to_be_bytes());
+        }
+        fn u8(&mut self, v: u8) {
+            self.bytes.push(v);
+        }
+    }
+
+    /// The cube in binary with other types (double positions, uchar colours with alpha, s/t
+    /// uvs, ushort index lists), plus properties and an element the reader must skip.
+    fn cube_binary(big: bool, vertex_coord: impl Fn(usize, usize) -> f64) -> Vec<u8> {
+        let format = if big { "binary_big_endian" } else { "binary_little_endian" };
+        let header = format!(
+            "ply\r\nformat {format} 1.0\r\ncomment TextureFile cube tex.png\r\nelement vertex 8\r\nproperty double x\r\n\
+             property double y\r\nproperty double z\r\nproperty list uchar float junk\r\nproperty uchar red\r\n\
+             property uchar green\r\nproperty uchar blue\r\nproperty uchar alpha\r\nproperty float s\r\nproperty float t\r\n\
+             element edge 2\r\nproperty int a\r\nproperty list uchar int b\r\n\
+             element face 6\r\nproperty uchar flags\r\nproperty list uchar ushort vertex_index\r\nend_header\r\n"
+        );
+        let mut b = Bin { bytes: header.into_bytes(), big };
+        for i in 0..8 {
+            (0..3).for_each(|k| b.f64(vertex_coord(i, k)));
+            b.u8(i as u8 % 3);
+            (0..i % 3).for_each(|k| b.f32(k as f32));
+            [30 * i as u8, 255 - 30 * i as u8, 100, 255].into_iter().for_each(|c| b.u8(c));
+            corner_uv(i).into_iter().for_each(|c| b.f32(c as f32));
+        }
+        for e in 0..2 {
+            b.i32(e);
+            b.u8(2);
+            b.i32(7);
+            b.i32(8);
+        }
+        for q in QUADS {
+            b.u8(0xEE);
+            b.u8(4);
+            q.into_iter().for_each(|i| b.u16(i as u16));
+        }
+        b.bytes
+    }
+
+    #[test]
+    fn binary_cube_both_endians_matches_ascii() {
+        let (dir, ascii_path) = textured_cube_dir();
+        let reference = load_ply(&ascii_path, Units::Mm).unwrap();
+        for big in [false, true] {
+            let path = write(dir.path(), "cube_bin.ply", cube_binary(big, |i, k| corner(i)[k]));
+            let mesh = load_ply(&path, Units::Mm).unwrap();
+            assert_eq!(mesh.positions(), reference.positions(), "big endian: {big}");
+            assert_eq!(mesh.triangles(), reference.triangles());
+            assert_eq!(mesh.uvs(), reference.uvs());
+            assert!(mesh.has_texture());
+            let colours = mesh.colors().unwrap();
+            assert_close(&colours[2], &[60.0 / 255.0, 195.0 / 255.0, 100.0 / 255.0]);
+        }
+    }
+
+    #[test]
+    fn float_colours_and_st_uvs() {
+        let dir = tempfile::tempdir().unwrap();
+        let header = [
+            "element vertex 3",
+            "property float x",
+            "property float y",
+            "property float z",
+            "property float red",
+            "property float green",
+            "property float blue",
+            "property float s",
+            "property float t",
+            "element face 1",
+            "property list uchar uint vertex_indices",
+        ];
+        let body = ["0 0 0 1 0.5 0 0.1 0.2", "1 0 0 0 0 0 0.3 0.4", "0 1 0 0.25 0.25 0.25 0.5 0.6", "3 0 1 2"].map(String::from);
+        let path = write(dir.path(), "tri.ply", ascii(&header, &body));
+        let mesh = load_ply(&path, Units::M).unwrap();
+        assert_close(&mesh.colors().unwrap()[0], &[1.0, 0.5, 0.0]);
+        assert_close(&mesh.colors().unwrap()[2], &[0.25; 3]);
+        assert_close(&mesh.uvs().unwrap()[1], &[0.3, 0.4]);
+        assert!(!mesh.has_texture());
+    }
+
+    #[test]
+    fn polygons_are_fan_triangulated() {
+        let dir = tempfile::tempdir().unwrap();
+        let header = [
+            "element vertex 5",
+            "property float x",
+            "property float y",
+            "property float z",
+            "element face 1",
+            "property list uchar int vertex_indices",
+        ];
+        let body = ["1 0 0", "0.3 0.95 0", "-0.8 0.6 0", "-0.8 -0.6 0", "0.3 -0.95 0", "5 0 1 2 3 4"].map(String::from);
+        let mesh = load_ply(&write(dir.path(), "pentagon.ply", ascii(&header, &body)), Units::M).unwrap();
+        assert_eq!(mesh.triangles(), &[[0, 1, 2], [0, 2, 3], [0, 3, 4]]);
+    }
+
+    /// A square as a quad plus a triangle over a fifth vertex, with per-face texcoords that
+    /// agree on vertex 1 but disagree on vertex 2: only vertex 2 is duplicated.
+    #[test]
+    fn per_face_texcoords_become_per_vertex() {
+        let dir = tempfile::tempdir().unwrap();
+        let header = [
+            "element vertex 5",
+            "property float x",
+            "property float y",
+            "property float z",
+            "element face 2",
+            "property list uchar int vertex_indices",
+            "property list uchar float texcoord",
+        ];
+        let body = ["0 0 0", "1 0 0", "1 1 0", "0 1 0", "2 0 0", "4 0 1 2 3 8 0 0 0.5 0 0.5 1 0 1", "3 1 4 2 6 0.5 0 1 0 0.9 0.9"]
+            .map(String::from);
+        let mesh = load_ply(&write(dir.path(), "seam.ply", ascii(&header, &body)), Units::M).unwrap();
+        assert_eq!(mesh.triangles().len(), 3);
+        assert_eq!(mesh.positions().len(), 6);
+        let uvs = mesh.uvs().unwrap();
+        let expected = [[[0.0, 0.0], [0.5, 0.0], [0.5, 1.0]], [[0.0, 0.0], [0.5, 1.0], [0.0, 1.0]], [[0.5, 0.0], [1.0, 0.0], [0.9, 0.9]]];
+        for (t, want) in mesh.triangles().iter().zip(expected) {
+            for c in 0..3 {
+                assert_close(&uvs[t[c] as usize], &want[c]);
+            }
+        }
+        assert_eq!(mesh.triangles()[0][1], mesh.triangles()[2][0], "vertex 1 shared: same uv in both faces");
+        assert_ne!(mesh.triangles()[0][2], mesh.triangles()[2][2], "vertex 2 split: different uvs");
+    }
+
+    // ---- errors: each names the file and what and where
+
+    fn bad_ascii(name: &str, text: String, needles: &[&str]) -> String {
+        let (dir, _) = textured_cube_dir();
+        let path = write(dir.path(), name, text);
+        assert_error(load_ply(&path, Units::Mm), &path, needles)
+    }
+
+    #[test]
+    fn truncated_ascii() {
+        let text = cube_ascii("cube tex.png", 8, 6);
+        let cut = text.trim_end().rsplitn(3, '\n').last().unwrap().to_string();
+        bad_ascii("cut.ply", cut, &["face 4 of 6", "line 28", "file ends early"]);
+    }
+
+    #[test]
+    fn truncated_binary() {
+        let mut bytes = cube_binary(false, |i, k| corner(i)[k]);
+        bytes.truncate(bytes.len() - 3);
+        let dir = tempfile::tempdir().unwrap();
+        write_png(&dir.path().join("cube tex.png"), 2, 2);
+        let path = write(dir.path(), "cut.ply", bytes);
+        assert_error(load_ply(&path, Units::Mm), &path, &["face 5 of 6", "binary data ends early"]);
+    }
+
+    #[test]
+    fn counts_disagreeing_with_data() {
+        bad_ascii("more_vertices.ply", cube_ascii("cube tex.png", 9, 6), &["vertex 8 of 9", "line 25", "line ends early"]);
+        bad_ascii("fewer_faces.ply", cube_ascii("cube tex.png", 8, 5), &["extra data at line 30", "counts are too small"]);
+        let text = cube_ascii("cube tex.png", 8, 6).replace("4 0 2 3 1", "3 0 2 3 1");
+        bad_ascii("list_count.ply", text, &["face 0 of 6", "line 25", "extra value \"1\""]);
+        let dir = tempfile::tempdir().unwrap();
+        write_png(&dir.path().join("cube tex.png"), 2, 2);
+        let mut bytes = cube_binary(false, |i, k| corner(i)[k]);
+        bytes.push(0);
+        let path = write(dir.path(), "long.ply", bytes);
+        assert_error(load_ply(&path, Units::Mm), &path, &["1 bytes of extra data"]);
+    }
+
+    #[test]
+    fn non_finite_coordinates() {
+        let text = cube_ascii("cube tex.png", 8, 6).replacen("-10 10 -10", "-10 nan -10", 1);
+        bad_ascii("nan.ply", text, &["vertex 2 of 8", "line 19", "non-finite"]);
+        let dir = tempfile::tempdir().unwrap();
+        write_png(&dir.path().join("cube tex.png"), 2, 2);
+        let bytes = cube_binary(true, |i, k| if i == 5 && k == 1 { f64::INFINITY } else { corner(i)[k] });
+        let path = write(dir.path(), "inf.ply", bytes);
+        assert_error(load_ply(&path, Units::Mm), &path, &["vertex 5 of 8", "non-finite"]);
+    }
+
+    #[test]
+    fn out_of_range_and_degenerate_faces() {
+        let text = cube_ascii("cube tex.png", 8, 6).replace("4 4 5 7 6", "4 4 5 8 6");
+        bad_ascii("range.ply", text, &["face 1 of 6", "line 26", "vertex index 8 out of range", "8 vertices"]);
+        let text = cube_ascii("cube tex.png", 8, 6).replace("4 4 5 7 6", "2 4 5");
+        bad_ascii("two.ply", text, &["face 1 of 6", "2 vertices"]);
+        let text = cube_ascii("cube tex.png", 8, 6).replace("4 4 5 7 6", "4 4 5 -1 6");
+        bad_ascii("negative.ply", text, &["face 1", "vertex index -1 out of range"]);
+    }
+
+    #[test]
+    fn no_faces() {
+        let text = cube_ascii("cube tex.png", 8, 0);
+        let no_face_lines = text.lines().filter(|l| !l.starts_with("4 ")).collect::<Vec<_>>().join("\n");
+        bad_ascii("zero.ply", no_face_lines.clone(), &["no faces", "count 0"]);
+        let no_element = no_face_lines.replace("element face 0\nproperty list uchar int vertex_indices\n", "");
+        bad_ascii("points.ply", no_element, &["no faces", "no face element"]);
+    }
+
+    #[test]
+    fn bad_headers_and_numbers() {
+        bad_ascii("magic.ply", "plx\n".into(), &["not a PLY file"]);
+        bad_ascii("no_end.ply", "ply\nformat ascii 1.0\nelement vertex 1\n".into(), &["no end_header"]);
+        let text = cube_ascii("cube tex.png", 8, 6);
+        bad_ascii("type.ply", text.replace("property float nz", "property flot nz"), &["header line 11", "unknown type \"flot\""]);
+        bad_ascii("format.ply", text.replace("format ascii 1.0", "format ascii 2.0"), &["header line 2", "unknown format"]);
+        bad_ascii("word.ply", text.replacen("10 -10", "10 1o", 1), &["vertex", "property", "unparsable number \"1o\""]);
+        bad_ascii("int.ply", text.replace("4 4 5 7 6", "4 4 5 7.5 6"), &["face 1", "\"7.5\" is not an integer"]);
+        bad_ascii("no_z.ply", text.replace("property float z\n", ""), &["no property z"]);
+    }
+
+    #[test]
+    fn missing_texture() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write(dir.path(), "cube.ply", cube_ascii("absent file.png", 8, 6));
+        let message = assert_error(load_ply(&path, Units::Mm), &path, &["absent file.png"]);
+        assert!(matches!(load_ply(&path, Units::Mm), Err(MeshError::Texture { .. })), "{message}");
+    }
+
+    #[test]
+    fn missing_file_is_io_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("nothing.ply");
+        assert!(matches!(load_ply(&path, Units::Mm), Err(MeshError::Io { .. })));
+        assert_error(load_ply(&path, Units::Mm), &path, &[]);
+    }
+}
