@@ -62,7 +62,7 @@ pub fn uv_sphere(r: f32, stacks: u32, slices: u32) -> Mesh {
 /// `cells × cells` checkerboard image: cell (0, 0) — the top-left of the image — is `a`.
 pub fn checkerboard(cells: u32, cell_px: u32, a: [u8; 3], b: [u8; 3]) -> image::RgbaImage {
     image::RgbaImage::from_fn(cells * cell_px, cells * cell_px, |x, y| {
-        let c = if (x / cell_px + y / cell_px) % 2 == 0 { a } else { b };
+        let c = if (x / cell_px + y / cell_px).is_multiple_of(2) { a } else { b };
         image::Rgba([c[0], c[1], c[2], 255])
     })
 }

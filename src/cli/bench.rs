@@ -1,0 +1,205 @@
+//! `b2tf bench …`: commands that print the figures quoted in docs and issue notes.
+
+use crate::eval::reid::ReidSet;
+use crate::features::{EmbeddedBackbone, EmbeddedConfig};
+use crate::geometry::views::{fitted_distance, view_pose};
+use crate::mesh::{load_mesh, procedural::textured_box, Mesh, Units};
+use crate::onboard::{artefact, onboard, OnboardConfig};
+use crate::render::RenderOptions;
+use anyhow::{bail, Result};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(clap::Subcommand, Debug)]
+pub enum BenchCommand {
+    /// Patch re-identification of backbone variants, between neighbouring views and across
+    /// a simulated render-to-real gap.
+    Reid {
+        /// Mesh to test on (default: the procedural textured box).
+        #[arg(long)]
+        mesh: Option<PathBuf>,
+        #[arg(long)]
+        units: Option<Units>,
+        /// Image pairs per setting.
+        #[arg(long, default_value_t = 8)]
+        pairs: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Renders per second.
+    Render {
+        #[arg(long)]
+        mesh: Option<PathBuf>,
+        #[arg(long)]
+        units: Option<Units>,
+        #[arg(long, default_value_t = 512)]
+        size: u32,
+        #[arg(long, default_value_t = 100)]
+        count: usize,
+    },
+    /// Loads and onboards every mesh under a folder; prints vertices, faces, load time,
+    /// onboarding time and model size.
+    Onboard {
+        /// Folder searched recursively for .ply/.obj/.gltf/.glb files.
+        #[arg(long)]
+        data: PathBuf,
+        /// Units of PLY/OBJ files outside BOP model folders (BOP models, next to a
+        /// models_info.json, are mm by the BOP format).
+        #[arg(long)]
+        default_units: Units,
+        /// Where the models are written (default: a temporary folder, removed afterwards).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Only meshes whose path contains this text.
+        #[arg(long)]
+        filter: Option<String>,
+    },
+}
+
+pub fn run(cmd: BenchCommand) -> Result<()> {
+    match cmd {
+        BenchCommand::Reid { mesh, units, pairs, seed } => reid(mesh_or_box(mesh, units)?, pairs, seed),
+        BenchCommand::Render { mesh, units, size, count } => render(mesh_or_box(mesh, units)?, size, count),
+        BenchCommand::Onboard { data, default_units, out, filter } => onboard_table(&data, default_units, out, filter),
+    }
+}
+
+fn mesh_or_box(path: Option<PathBuf>, units: Option<Units>) -> Result<Mesh> {
+    Ok(match path {
+        Some(p) => load_mesh(&p, units)?,
+        None => textured_box([0.10, 0.06, 0.16], 3),
+    })
+}
+
+/// Backbone variants compared in docs/backbone.md.
+fn variants() -> Vec<(&'static str, EmbeddedConfig)> {
+    let d = EmbeddedConfig::default();
+    vec![
+        ("sift-like: signed HOG + colour", EmbeddedConfig { signed_orientation: true, shape_weight: 0.0, ..d.clone() }),
+        ("unsigned HOG only", EmbeddedConfig { color_weight: 0.0, shape_weight: 0.0, ..d.clone() }),
+        ("silhouette context only", EmbeddedConfig { hog_weight: 0.0, color_weight: 0.0, ..d.clone() }),
+        ("HOG + silhouette", EmbeddedConfig { color_weight: 0.0, ..d.clone() }),
+        ("HOG + colour + silhouette (default)", d),
+    ]
+}
+
+fn reid(mesh: Mesh, pairs: usize, seed: u64) -> Result<()> {
+    let pool = super::open_renderer(1)?;
+    let t = Instant::now();
+    let set = ReidSet::build(&mesh, &pool, pairs, seed)?;
+    println!("patch re-identification on {} ({pairs} pairs per setting, seed {seed}; built in {:.1} s)", mesh.name(), t.elapsed().as_secs_f64());
+    println!("{:<38} {:>16} {:>16}", "backbone", "neighbour views", "render-to-real");
+    for (name, cfg) in variants() {
+        let bb = EmbeddedBackbone::new(cfg).map_err(anyhow::Error::msg)?;
+        let s = set.score(&bb, 0.5)?;
+        println!("{name:<38} {:>15.1}% {:>15.1}%   ({} / {} patches)", 100.0 * s.neighbour_views, 100.0 * s.render_to_real, s.patches_neighbour, s.patches_gap);
+    }
+    Ok(())
+}
+
+fn render(mesh: Mesh, size: u32, count: usize) -> Result<()> {
+    if count == 0 || size == 0 {
+        bail!("--count and --size must be positive");
+    }
+    let pool = super::open_renderer(1)?;
+    let c = (size as f64 - 1.0) * 0.5;
+    let k = crate::geometry::Intrinsics::new(size as f64, size as f64, c, c, size, size)?;
+    let centre = nalgebra::Vector3::from(mesh.bbox_center());
+    let d = fitted_distance(mesh.diameter() * 0.5, k.fx, size as f64 * 0.5, 0.9);
+    let dirs = crate::geometry::icosphere(2);
+    let views: Vec<_> = (0..count).map(|i| (view_pose(&dirs[i % dirs.len()], 0.0, &centre, d), k)).collect();
+    pool.render(&mesh, &views[0].0, &k, &RenderOptions::default())?; // upload + warm-up
+    let t = Instant::now();
+    pool.render_batch(&mesh, &views, &RenderOptions::default())?;
+    let s = t.elapsed().as_secs_f64();
+    println!(
+        "{count} renders of {} ({} triangles) at {size}×{size} on {}: {:.1} renders/s ({:.1} ms each, RGB + depth + mask read back)",
+        mesh.name(),
+        mesh.triangles().len(),
+        pool.describe(),
+        count as f64 / s,
+        1e3 * s / count as f64
+    );
+    Ok(())
+}
+
+fn find_meshes(dir: &Path, out: &mut Vec<PathBuf>) {
+    let Ok(rd) = std::fs::read_dir(dir) else { return };
+    let mut entries: Vec<PathBuf> = rd.flatten().map(|e| e.path()).collect();
+    entries.sort();
+    for p in entries {
+        if p.is_dir() {
+            find_meshes(&p, out);
+        } else if matches!(p.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref(), Some("ply" | "obj" | "gltf" | "glb")) {
+            out.push(p);
+        }
+    }
+}
+
+fn units_for(path: &Path, default_units: Units) -> Option<Units> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    if ext == "gltf" || ext == "glb" {
+        None
+    } else if path.parent().is_some_and(|d| d.join("models_info.json").is_file()) {
+        Some(Units::Mm)
+    } else {
+        Some(default_units)
+    }
+}
+
+fn onboard_table(data: &Path, default_units: Units, out: Option<PathBuf>, filter: Option<String>) -> Result<()> {
+    let mut meshes = Vec::new();
+    find_meshes(data, &mut meshes);
+    meshes.retain(|p| filter.as_ref().is_none_or(|f| p.to_string_lossy().contains(f.as_str())));
+    if meshes.is_empty() {
+        bail!("no meshes under {}", data.display());
+    }
+    let tmp;
+    let out = match out {
+        Some(o) => o,
+        None => {
+            tmp = tempfile_dir()?;
+            tmp.clone()
+        }
+    };
+    let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?;
+    let pool = super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?;
+    let config = OnboardConfig::default();
+    println!("| mesh | units | vertices | faces | diameter (mm) | load (s) | onboarding (s) | templates | patches | model (MB) |");
+    println!("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for path in meshes {
+        let units = units_for(&path, default_units);
+        let t = Instant::now();
+        let mesh = match load_mesh(&path, units) {
+            Ok(m) => m,
+            Err(e) => {
+                println!("| {} | | | | | | failed: {e} | | | |", path.display());
+                continue;
+            }
+        };
+        let load_s = t.elapsed().as_secs_f64();
+        let id: String = path.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh").chars().map(|c| if c.is_ascii_alphanumeric() { c } else { '_' }).collect();
+        let t = Instant::now();
+        let model = onboard(&id, &mesh, &config, &backbone, &pool, &|_| {})?;
+        let onboard_s = t.elapsed().as_secs_f64();
+        let dir = artefact::save(&model, &out, true)?;
+        let mb = artefact::stored_bytes(&dir) as f64 / 1e6;
+        println!(
+            "| {} | {} | {} | {} | {:.1} | {load_s:.2} | {onboard_s:.1} | {} | {} | {mb:.1} |",
+            path.strip_prefix(data).unwrap_or(&path).display(),
+            units.map(|u| u.as_str()).unwrap_or("m (glTF)"),
+            mesh.positions().len(),
+            mesh.triangles().len(),
+            mesh.diameter() * 1e3,
+            model.template_count(),
+            model.patch_count()
+        );
+    }
+    Ok(())
+}
+
+fn tempfile_dir() -> Result<PathBuf> {
+    let p = std::env::temp_dir().join(format!("b2tf-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&p)?;
+    Ok(p)
+}

@@ -1,0 +1,42 @@
+//! The `b2tf` command line: argument parsing and one file per command.
+
+pub mod bench;
+pub mod camera_file;
+pub mod onboard_cmd;
+pub mod pose_arg;
+pub mod progress;
+pub mod render_cmd;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser, Debug)]
+#[command(name = "b2tf", version, about = "Training-free zero-shot 6DoF pose estimation from one RGB image and a CAD mesh")]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Onboard a mesh: render templates, extract features and 3D points, save the object model.
+    Onboard(onboard_cmd::OnboardArgs),
+    /// Render a mesh at a pose through a camera (RGB, depth and mask PNGs) for debugging.
+    Render(render_cmd::RenderArgs),
+    /// Benchmarks that print figures (re-identification, rendering, onboarding).
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
+}
+
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Onboard(a) => onboard_cmd::run(a),
+        Command::Render(a) => render_cmd::run(a),
+        Command::Bench(b) => bench::run(b),
+    }
+}
+
+/// Renderer pool shared by the commands, with a message that says what to install when
+/// no adapter can be found.
+pub fn open_renderer(size: usize) -> anyhow::Result<crate::render::RenderPool> {
+    Ok(crate::render::RenderPool::new(size, crate::render::RendererConfig::default())?)
+}
