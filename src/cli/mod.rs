@@ -22,6 +22,15 @@ pub enum Command {
     Onboard(onboard_cmd::OnboardArgs),
     /// Render a mesh at a pose through a camera (RGB, depth and mask PNGs) for debugging.
     Render(render_cmd::RenderArgs),
+    /// Write the generated sample object (a textured box, OBJ + MTL + PNG, metres).
+    Sample {
+        /// Output folder.
+        #[arg(long)]
+        out: std::path::PathBuf,
+        /// Pattern seed.
+        #[arg(long, default_value_t = 3)]
+        seed: u64,
+    },
     /// Benchmarks that print figures (re-identification, rendering, onboarding).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -31,6 +40,12 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Onboard(a) => onboard_cmd::run(a),
         Command::Render(a) => render_cmd::run(a),
+        Command::Sample { out, seed } => {
+            let mesh = crate::mesh::procedural::textured_box([0.10, 0.06, 0.16], seed);
+            let path = crate::mesh::write_obj::write_obj(&mesh, &out, "sample_box")?;
+            println!("wrote {} (a 10 × 6 × 16 cm textured box, units m)", path.display());
+            Ok(())
+        }
         Command::Bench(b) => bench::run(b),
     }
 }

@@ -18,11 +18,14 @@ use nalgebra::{Rotation3, Unit, Vector3};
 pub struct ReidScore {
     pub neighbour_views: f64,
     pub render_to_real: f64,
+    /// Both at once: a degraded photo-like query against an untextured neighbouring view.
+    pub neighbour_across_gap: f64,
     pub patches_neighbour: usize,
     pub patches_gap: usize,
 }
 
 /// One image of the object as the backbone sees it, with what is needed to locate patches.
+#[derive(Clone)]
 struct View {
     crop: CropInput,
     bx: CropBox,
@@ -42,6 +45,7 @@ fn camera(size: u32) -> Intrinsics {
 pub struct ReidSet {
     neighbour: Vec<(View, View)>,
     gap: Vec<(View, View)>,
+    neighbour_gap: Vec<(View, View)>,
     k: Intrinsics,
 }
 
@@ -54,6 +58,7 @@ impl ReidSet {
         let mut rng = Rng::new(seed);
         let mut neighbour = Vec::new();
         let mut gap = Vec::new();
+        let mut neighbour_gap = Vec::new();
         // Template look: what a CAD mesh gives — vertex colours if it has them, else grey.
         let template_opts = if mesh.colors().is_some() {
             RenderOptions { use_texture: false, ..RenderOptions::default() }
@@ -77,17 +82,21 @@ impl ReidSet {
             let query_opts = RenderOptions { light_dir: light, light_intensity: rng.range(0.5, 0.9) as f32, ambient: rng.range(0.15, 0.4) as f32, ..RenderOptions::default() };
             let q = render_view(mesh, pool, &pose, &k, &query_opts, Some(&mut rng))?;
             let t = render_view(mesh, pool, &pose, &k, &template_opts, None)?;
+            let t2 = render_view(mesh, pool, &pose2, &k, &template_opts, None)?;
+            neighbour_gap.push((q.clone(), t2));
             gap.push((q, t));
         }
-        Ok(Self { neighbour, gap, k })
+        Ok(Self { neighbour, gap, neighbour_gap, k })
     }
 
     pub fn score(&self, backbone: &dyn Backbone, min_coverage: f32) -> Result<ReidScore> {
         let (n_ok, n_all) = self.score_pairs(&self.neighbour, backbone, min_coverage)?;
         let (g_ok, g_all) = self.score_pairs(&self.gap, backbone, min_coverage)?;
+        let (c_ok, c_all) = self.score_pairs(&self.neighbour_gap, backbone, min_coverage)?;
         Ok(ReidScore {
             neighbour_views: n_ok as f64 / n_all.max(1) as f64,
             render_to_real: g_ok as f64 / g_all.max(1) as f64,
+            neighbour_across_gap: c_ok as f64 / c_all.max(1) as f64,
             patches_neighbour: n_all,
             patches_gap: g_all,
         })

@@ -38,8 +38,8 @@ impl Default for EmbeddedConfig {
             signed_orientation: false,
             hog_weight: 1.0,
             color_weight: 0.5,
-            shape_weight: 1.0,
-            smoothing_passes: 1,
+            shape_weight: 2.0,
+            smoothing_passes: 2,
             min_coverage: 0.5,
         }
     }

@@ -20,3 +20,4 @@ pub use ply::load_ply;
 pub use types::*;
 
 pub mod procedural;
+pub mod write_obj;

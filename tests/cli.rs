@@ -1,0 +1,66 @@
+//! The `b2tf` binary as a user runs it: sample → render → onboard, and clear errors.
+
+use std::path::Path;
+use std::process::Command;
+
+fn b2tf(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_b2tf")).args(args).env("XDG_RUNTIME_DIR", "/tmp").output().expect("runs");
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn sample_render_and_onboard() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (ok, out, err) = b2tf(&["sample", "--out", s(&d.join("sample"))]);
+    assert!(ok, "{out}{err}");
+    let mesh = d.join("sample/sample_box.obj");
+    let cam = d.join("cam.json");
+    std::fs::write(&cam, r#"{"cam_K": [500, 0, 159.5, 0, 500, 119.5, 0, 0, 1], "width": 320, "height": 240}"#).unwrap();
+    let (ok, out, err) = b2tf(&["render", "--mesh", s(&mesh), "--units", "m", "--camera", s(&cam), "--out", s(&d.join("r")), "--pose", "1,0,0,0,1,0,0,0,1,0,0,0.5"]);
+    assert!(ok, "{out}{err}");
+    let mask = image::open(d.join("r/mask.png")).unwrap().to_luma8();
+    assert_eq!(mask.dimensions(), (320, 240));
+    // The box's 10 × 6 cm face nearest the camera is at 0.5 − 0.08 = 0.42 m; with f = 500
+    // it covers 119.0 × 71.4 px.
+    let on = mask.pixels().filter(|p| p[0] > 0).count();
+    assert!((8300..8700).contains(&on), "{on} mask pixels");
+    let depth = image::open(d.join("r/depth.png")).unwrap().to_luma16();
+    // The box's front face is at z = 0.5 − 0.08 m = 0.42 m = 4200 × 0.1 mm.
+    assert_eq!(depth.get_pixel(160, 120)[0], 4200);
+    assert!(image::open(d.join("r/rgb.png")).is_ok());
+
+    let (ok, out, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--out", s(&d.join("models")), "--level", "0", "--in-plane", "2"]);
+    assert!(ok, "{out}{err}");
+    assert!(out.contains("24 templates"), "{out}");
+    assert!(d.join("models/box/manifest.json").is_file());
+    // Same id again without --replace is refused, with it accepted.
+    let (ok, _, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--out", s(&d.join("models")), "--level", "0", "--in-plane", "1"]);
+    assert!(!ok && err.contains("--replace"), "{err}");
+}
+
+#[test]
+fn bad_inputs_give_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    b2tf(&["sample", "--out", s(d)]);
+    let mesh = d.join("sample_box.obj");
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--id".into(), "x".into(), "--out".into(), s(d).into()], "units must be given"),
+        (vec!["onboard".into(), "--mesh".into(), s(&d.join("nope.ply")).into(), "--units".into(), "mm".into(), "--id".into(), "x".into(), "--out".into(), s(d).into()], "nope.ply"),
+        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "../evil".into(), "--out".into(), s(d).into()], "invalid"),
+        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--out".into(), s(d).into(), "--level".into(), "7".into()], "level"),
+        (vec!["render".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--camera".into(), s(&d.join("missing.json")).into(), "--out".into(), s(d).into()], "missing.json"),
+        (vec!["render".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "furlongs".into(), "--camera".into(), "c.json".into(), "--out".into(), s(d).into()], "unknown length unit"),
+    ];
+    for (args, needle) in cases {
+        let a: Vec<&str> = args.iter().map(|x| x.as_str()).collect();
+        let (ok, out, err) = b2tf(&a);
+        assert!(!ok, "{args:?} succeeded: {out}");
+        assert!(err.contains(needle), "{args:?}: expected {needle:?} in {err}");
+    }
+}
