@@ -60,7 +60,7 @@ pub struct EmbeddedBackbone {
 impl EmbeddedBackbone {
     pub fn new(config: EmbeddedConfig) -> Result<Self, String> {
         let grid = PatchGrid::for_crop(config.input_size, config.patch_size)?;
-        if config.patch_size % 2 != 0 || config.orientation_bins < 2 {
+        if !config.patch_size.is_multiple_of(2) || config.orientation_bins < 2 {
             return Err("embedded backbone needs an even patch size and at least 2 orientation bins".into());
         }
         let n = grid.n as i32;

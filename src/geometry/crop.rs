@@ -58,7 +58,7 @@ pub struct PatchGrid {
 
 impl PatchGrid {
     pub fn for_crop(crop_size: u32, patch: u32) -> Result<Self, String> {
-        if patch == 0 || crop_size == 0 || crop_size % patch != 0 {
+        if patch == 0 || crop_size == 0 || !crop_size.is_multiple_of(patch) {
             return Err(format!("crop size {crop_size} is not a positive multiple of the patch size {patch}"));
         }
         Ok(Self { n: crop_size / patch, patch })
@@ -86,7 +86,7 @@ impl PatchGrid {
     /// Patch containing crop pixel coordinates, if inside the crop.
     pub fn patch_at(&self, cu: f64, cv: f64) -> Option<(u32, u32)> {
         let (j, i) = ((cu + 0.5) / self.patch as f64, (cv + 0.5) / self.patch as f64);
-        (j >= 0.0 && i >= 0.0 && j < self.n as f64 && i < self.n as f64).then(|| (i as u32, j as u32))
+        (j >= 0.0 && i >= 0.0 && j < self.n as f64 && i < self.n as f64).then_some((i as u32, j as u32))
     }
 }
 
