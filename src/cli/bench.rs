@@ -26,6 +26,9 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
+    /// Pose accuracy (MSSD < 0.1 × diameter) and per-stage median times on generated scenes,
+    /// with and without RRC.
+    Estimate(super::bench_estimate::BenchEstimateArgs),
     /// Renders per second.
     Render {
         #[arg(long)]
@@ -59,6 +62,7 @@ pub enum BenchCommand {
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Reid { mesh, units, pairs, seed } => reid(mesh_or_box(mesh, units)?, pairs, seed),
+        BenchCommand::Estimate(a) => super::bench_estimate::run(a),
         BenchCommand::Render { mesh, units, size, count } => render(mesh_or_box(mesh, units)?, size, count),
         BenchCommand::Onboard { data, default_units, out, filter } => onboard_table(&data, default_units, out, filter),
     }

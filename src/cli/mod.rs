@@ -1,7 +1,10 @@
 //! The `b2tf` command line: argument parsing and one file per command.
 
 pub mod bench;
+pub mod bench_estimate;
 pub mod camera_file;
+pub mod demo_cmd;
+pub mod estimate_cmd;
 pub mod onboard_cmd;
 pub mod pose_arg;
 pub mod progress;
@@ -20,6 +23,10 @@ pub struct Cli {
 pub enum Command {
     /// Onboard a mesh: render templates, extract features and 3D points, save the object model.
     Onboard(onboard_cmd::OnboardArgs),
+    /// The whole method on a generated object and scene: onboard, estimate, compare with the truth.
+    Demo(demo_cmd::DemoArgs),
+    /// Estimate an object's pose in an image from one or more candidate masks.
+    Estimate(estimate_cmd::EstimateArgs),
     /// Render a mesh at a pose through a camera (RGB, depth and mask PNGs) for debugging.
     Render(render_cmd::RenderArgs),
     /// Write the generated sample object (a textured box, OBJ + MTL + PNG, metres).
@@ -39,6 +46,8 @@ pub enum Command {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Onboard(a) => onboard_cmd::run(a),
+        Command::Demo(a) => demo_cmd::run(a),
+        Command::Estimate(a) => estimate_cmd::run(a),
         Command::Render(a) => render_cmd::run(a),
         Command::Sample { out, seed } => {
             let mesh = crate::mesh::procedural::textured_box([0.10, 0.06, 0.16], seed);

@@ -42,6 +42,20 @@ impl CropBox {
         (self.origin_u + (cu + 0.5) * s, self.origin_v + (cv + 0.5) * s)
     }
 
+    /// The camera `k` seen through this window: intrinsics whose pixel grid is the crop's,
+    /// so that rendering with them draws exactly what `to_image` maps back to `k`'s image.
+    pub fn intrinsics(&self, k: &super::Intrinsics) -> super::Intrinsics {
+        let s = self.scale();
+        super::Intrinsics {
+            fx: k.fx / s,
+            fy: k.fy / s,
+            cx: (k.cx - self.origin_u) / s - 0.5,
+            cy: (k.cy - self.origin_v) / s - 0.5,
+            width: self.size,
+            height: self.size,
+        }
+    }
+
     /// Image pixel coordinates → crop pixel coordinates.
     pub fn to_crop(&self, u: f64, v: f64) -> (f64, f64) {
         let s = self.scale();
@@ -110,6 +124,18 @@ mod tests {
         // The box centre maps to the crop centre.
         let (cu, cv) = b.to_crop(41.5, 30.0);
         assert!((cu - 255.5).abs() < 1e-9 && (cv - 255.5).abs() < 1e-9, "{cu} {cv}");
+    }
+
+    #[test]
+    fn window_intrinsics_project_like_the_crop_map() {
+        let k = crate::geometry::Intrinsics::new(600.0, 610.0, 320.0, 240.0, 640, 480).unwrap();
+        let b = CropBox::around(100, 80, 260, 200, 0.1, 512);
+        let kw = b.intrinsics(&k);
+        let p = nalgebra::Point3::new(0.03, -0.02, 0.5);
+        let (u, v) = { let q = k.project(&p).unwrap(); (q.x, q.y) };
+        let w = kw.project(&p).unwrap();
+        let (cu, cv) = b.to_crop(u, v);
+        assert!((w.x - cu).abs() < 1e-9 && (w.y - cv).abs() < 1e-9);
     }
 
     #[test]

@@ -207,6 +207,18 @@ impl Mesh {
     pub fn has_texture(&self) -> bool {
         self.uvs().is_some() && self.data.materials.iter().any(|m| m.texture.is_some())
     }
+    /// The same geometry with no texture, no vertex colours and one plain material: what
+    /// an untextured CAD model gives (used to simulate the render-to-real gap).
+    pub fn without_appearance(&self) -> Mesh {
+        let data = MeshData {
+            positions: self.data.positions.clone(),
+            normals: self.data.normals.clone(),
+            triangles: self.data.triangles.clone(),
+            ..Default::default()
+        };
+        Mesh::new(format!("{} (untextured)", self.name), self.source_units, data).expect("geometry was valid")
+    }
+
     /// Axis-aligned bounding box in metres (min, max).
     pub fn bbox(&self) -> ([f32; 3], [f32; 3]) {
         (self.bbox_min, self.bbox_max)

@@ -96,8 +96,7 @@ impl ObjectModel {
 
     /// Template silhouette as a `SILHOUETTE_SIZE²` row-major boolean grid.
     pub fn silhouette(&self, t: usize) -> Vec<bool> {
-        let words = &self.silhouettes[t * SILHOUETTE_WORDS..(t + 1) * SILHOUETTE_WORDS];
-        (0..SILHOUETTE_SIZE * SILHOUETTE_SIZE).map(|k| words[k / 64] >> (k % 64) & 1 == 1).collect()
+        unpack_silhouette(&self.silhouettes[t * SILHOUETTE_WORDS..(t + 1) * SILHOUETTE_WORDS])
     }
 
     /// Checks the arrays agree with each other (used after loading).
@@ -124,6 +123,11 @@ impl ObjectModel {
         }
         Ok(())
     }
+}
+
+/// Bit-packed silhouette → `SILHOUETTE_SIZE²` row-major booleans.
+pub fn unpack_silhouette(words: &[u64]) -> Vec<bool> {
+    (0..SILHOUETTE_SIZE * SILHOUETTE_SIZE).map(|k| words[k / 64] >> (k % 64) & 1 == 1).collect()
 }
 
 /// Packs a crop mask into `SILHOUETTE_SIZE²` bits: a cell is set when at least half of it is object.

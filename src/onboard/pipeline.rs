@@ -159,7 +159,7 @@ fn templates_of_view(
             let (tu, tv) = bx.to_image(cu, cv);
             let (bu, bv) = to_base(tu, tv);
             let search = (grid.patch as f64 * bx.scale() * 0.5).ceil() as i64;
-            let Some(z) = nearest_depth(base, bu, bv, search) else { continue };
+            let Some(z) = base.depth_near(bu, bv, search) else { continue };
             let p_cam = k.back_project(bu, bv, z as f64);
             let p_obj = inv_pose.transform_point(&Point3::from(p_cam.coords));
             out.points.push([p_obj.x as f32, p_obj.y as f32, p_obj.z as f32]);
@@ -190,36 +190,6 @@ fn rotation_to_base(k: &Intrinsics, angle: f64) -> impl Fn(f64, f64) -> (f64, f6
         let (x, y) = (u - cx, v - cy);
         (cx + c * x + s * y, cy - s * x + c * y)
     }
-}
-
-/// Depth at the pixel nearest (u, v), or at the closest object pixel within `radius`
-/// (patch centres on the silhouette edge may fall just outside the object).
-fn nearest_depth(r: &RenderOutput, u: f64, v: f64, radius: i64) -> Option<f32> {
-    let (w, h) = (r.width() as i64, r.height() as i64);
-    let (x0, y0) = (u.round() as i64, v.round() as i64);
-    let mut best: Option<(i64, f32)> = None;
-    for ring in 0..=radius {
-        for dy in -ring..=ring {
-            for dx in -ring..=ring {
-                if dx.abs().max(dy.abs()) != ring {
-                    continue;
-                }
-                let (x, y) = (x0 + dx, y0 + dy);
-                if x < 0 || y < 0 || x >= w || y >= h {
-                    continue;
-                }
-                let z = r.depth[(y * w + x) as usize];
-                let d2 = dx * dx + dy * dy;
-                if z > 0.0 && best.is_none_or(|(b, _)| d2 < b) {
-                    best = Some((d2, z));
-                }
-            }
-        }
-        if best.is_some() {
-            break;
-        }
-    }
-    best.map(|(_, z)| z)
 }
 
 fn assemble(

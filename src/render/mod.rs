@@ -17,6 +17,7 @@ mod gpu_mesh;
 mod mesh_cache;
 mod options;
 mod output;
+pub mod overlay;
 mod pipeline;
 mod pool;
 pub mod projection;

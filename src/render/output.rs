@@ -29,6 +29,34 @@ impl RenderOutput {
         self.depth[(y * self.width() + x) as usize]
     }
 
+    /// Depth at the pixel nearest (u, v), or at the closest covered pixel within `radius`
+    /// pixels (a patch centre on the silhouette edge may fall just outside the object).
+    /// `None` when nothing within the radius is covered.
+    pub fn depth_near(&self, u: f64, v: f64, radius: i64) -> Option<f32> {
+        let (w, h) = (self.width() as i64, self.height() as i64);
+        let (x0, y0) = (u.round() as i64, v.round() as i64);
+        let mut best: Option<(i64, f32)> = None;
+        for ring in 0..=radius.max(0) {
+            for dy in -ring..=ring {
+                for dx in -ring..=ring {
+                    let (x, y) = (x0 + dx, y0 + dy);
+                    if dx.abs().max(dy.abs()) != ring || x < 0 || y < 0 || x >= w || y >= h {
+                        continue;
+                    }
+                    let z = self.depth[(y * w + x) as usize];
+                    let d2 = dx * dx + dy * dy;
+                    if z > 0.0 && best.is_none_or(|(b, _)| d2 < b) {
+                        best = Some((d2, z));
+                    }
+                }
+            }
+            if best.is_some() {
+                break;
+            }
+        }
+        best.map(|(_, z)| z)
+    }
+
     pub fn is_foreground(&self, x: u32, y: u32) -> bool {
         self.mask.get_pixel(x, y)[0] != 0
     }

@@ -1,0 +1,157 @@
+//! `b2tf bench estimate`: accuracy and per-stage times on generated scenes.
+
+use crate::estimate::{Detection, EstimateConfig, EstimateResult, Estimator};
+use crate::eval::pose_error::{mssd, rotation_error_deg, translation_error_m};
+use crate::eval::scenes::{generate_image, SceneConfig};
+use crate::features::{Backbone, EmbeddedBackbone, EmbeddedConfig};
+use crate::mesh::{load_mesh, Mesh, Units};
+use crate::onboard::{artefact, onboard, ObjectModel, OnboardConfig};
+use crate::render::RenderPool;
+use anyhow::{bail, Result};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+#[derive(clap::Args, Debug)]
+pub struct BenchEstimateArgs {
+    /// Mesh files to place in the scenes (default: the generated sample box).
+    #[arg(long = "mesh")]
+    pub meshes: Vec<PathBuf>,
+    /// Length unit of the PLY/OBJ meshes.
+    #[arg(long)]
+    pub units: Option<Units>,
+    /// Generated images; each holds --objects-per-image instances.
+    #[arg(long, default_value_t = 25)]
+    pub images: usize,
+    #[arg(long, default_value_t = 2)]
+    pub objects_per_image: usize,
+    /// Largest hidden share of an instance's silhouette.
+    #[arg(long, default_value_t = 0.3)]
+    pub max_occlusion: f64,
+    /// Simulate the render-to-real gap: templates from the untextured mesh, harsher scenes.
+    #[arg(long)]
+    pub gap: bool,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Where onboarded objects are cached between runs.
+    #[arg(long, default_value = "out/bench-models")]
+    pub models: PathBuf,
+    /// Write an overlay PNG per image into this folder.
+    #[arg(long)]
+    pub overlays: Option<PathBuf>,
+}
+
+/// One configuration's outcomes over all instances.
+#[derive(Default)]
+struct Tally {
+    name: &'static str,
+    correct: usize,
+    found: usize,
+    rot: Vec<f64>,
+    trans_mm: Vec<f64>,
+    stages: Vec<[f64; 8]>,
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[v.len() / 2]
+}
+
+fn load_or_onboard(id: &str, mesh: &Mesh, dir: &Path, backbone: &dyn Backbone, pool: &RenderPool) -> Result<ObjectModel> {
+    if let Ok(m) = artefact::load(&dir.join(id)) {
+        if m.backbone == backbone.identity() && m.mesh.positions() == mesh.positions() && m.mesh.has_texture() == mesh.has_texture() {
+            return Ok(m);
+        }
+    }
+    let pb = super::progress::bar(1944, &format!("onboarding {id}"));
+    let m = onboard(id, mesh, &OnboardConfig::default(), backbone, pool, &|p| pb.set_position(p.templates_done as u64))?;
+    pb.finish_and_clear();
+    artefact::save(&m, dir, true)?;
+    Ok(m)
+}
+
+pub fn run(a: BenchEstimateArgs) -> Result<()> {
+    let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?);
+    let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
+    let meshes: Vec<(String, Mesh)> = if a.meshes.is_empty() {
+        vec![("box".into(), crate::mesh::procedural::textured_box([0.10, 0.06, 0.16], 3))]
+    } else {
+        a.meshes.iter().map(|p| Ok((p.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh").replace(' ', "_"), load_mesh(p, a.units)?))).collect::<Result<_>>()?
+    };
+    let mut models = Vec::new();
+    for (name, mesh) in &meshes {
+        // Across the gap, templates come from the bare geometry while scenes stay textured.
+        let (id, template_mesh) = if a.gap { (format!("{name}-untextured"), mesh.without_appearance()) } else { (name.clone(), mesh.clone()) };
+        models.push(load_or_onboard(&id, &template_mesh, &a.models, backbone.as_ref(), &pool)?);
+    }
+    let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
+    let scene_cfg = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, max_occlusion: a.max_occlusion, render_to_real_gap: a.gap, seed: a.seed, ..Default::default() };
+    let estimator = Estimator::new(backbone, pool.clone());
+    let configs = [("with RRC", EstimateConfig::default()), ("without RRC", EstimateConfig { rrc: false, ..Default::default() })];
+    let mut tallies: Vec<Tally> = configs.iter().map(|(n, _)| Tally { name: n, ..Default::default() }).collect();
+    let mut instances = 0;
+    if let Some(dir) = &a.overlays {
+        std::fs::create_dir_all(dir)?;
+    }
+    let pb = super::progress::bar(a.images as u64, "estimating");
+    for im in 0..a.images as u32 {
+        let scene = generate_image(&objects, &scene_cfg, &pool, im)?;
+        let mut overlay = scene.rgb.clone();
+        for inst in &scene.instances {
+            instances += 1;
+            let model = &models[inst.obj_id as usize - 1];
+            let det = [Detection { mask: inst.mask_visib.clone(), score: 1.0 }];
+            for (t, (_, cfg)) in tallies.iter_mut().zip(&configs) {
+                let r: EstimateResult = estimator.estimate(model, &scene.rgb, &scene.cam, &det, cfg)?;
+                let tm = &r.timings;
+                t.stages.push([tm.crop, tm.features, tm.retrieval, tm.matching, tm.pnp, tm.rrc, tm.selection, tm.total]);
+                if let Some(p) = r.pose {
+                    t.found += 1;
+                    t.rot.push(rotation_error_deg(&p, &inst.pose));
+                    t.trans_mm.push(translation_error_m(&p, &inst.pose) * 1e3);
+                    if mssd(&p, &inst.pose, model.mesh.positions()) < 0.1 * model.diameter() {
+                        t.correct += 1;
+                    }
+                    if cfg.rrc && a.overlays.is_some() {
+                        overlay = crate::render::overlay::draw_overlay(&overlay, &pool, &model.mesh, &p, &scene.cam, [0, 255, 0])?;
+                    }
+                }
+            }
+        }
+        if let Some(dir) = &a.overlays {
+            overlay.save(dir.join(format!("{im:04}.png")))?;
+        }
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    if instances == 0 {
+        bail!("no instances generated");
+    }
+    println!(
+        "{} instances in {} generated images ({} objects/image, ≤{:.0} % occluded, seed {}){}; objects: {}",
+        instances,
+        a.images,
+        a.objects_per_image,
+        a.max_occlusion * 100.0,
+        a.seed,
+        if a.gap { ", render-to-real gap: untextured templates, harsher scenes" } else { "" },
+        meshes.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(", ")
+    );
+    println!("| setting | MSSD < 0.1·d | pose found | median rot. err (°) | median trans. err (mm) | median ms: crop | features | retrieval | matching | pnp | rrc | selection | total |");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for t in &mut tallies {
+        let med: Vec<f64> = (0..8).map(|s| median(&mut t.stages.iter().map(|x| x[s]).collect::<Vec<_>>())).collect();
+        println!(
+            "| {} | {:.1} % | {:.1} % | {:.1} | {:.1} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} |",
+            t.name,
+            100.0 * t.correct as f64 / instances as f64,
+            100.0 * t.found as f64 / instances as f64,
+            median(&mut t.rot),
+            median(&mut t.trans_mm),
+            med[0], med[1], med[2], med[3], med[4], med[5], med[6], med[7]
+        );
+    }
+    Ok(())
+}

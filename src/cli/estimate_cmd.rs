@@ -1,0 +1,119 @@
+use crate::estimate::{Detection, EstimateConfig, EstimateResult, Estimator};
+use crate::features::{EmbeddedBackbone, EmbeddedConfig};
+use crate::geometry::{Intrinsics, Pose};
+use crate::onboard::{artefact, ObjectModel};
+use anyhow::{bail, Context, Result};
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+#[derive(clap::Args, Debug)]
+pub struct EstimateArgs {
+    /// Object model folder written by `b2tf onboard` (OUT/ID).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// RGB image (PNG or JPEG).
+    #[arg(long)]
+    pub image: PathBuf,
+    /// Camera JSON ({"K", "resolution"} or BOP {"cam_K", "width", "height"}).
+    #[arg(long)]
+    pub camera: PathBuf,
+    /// Object mask PNG, image-sized, nonzero = object. Repeat for candidate masks.
+    #[arg(long = "mask", required = true)]
+    pub masks: Vec<PathBuf>,
+    /// Detector score of each mask, in the order of --mask (default 1.0).
+    #[arg(long = "score")]
+    pub scores: Vec<f32>,
+    /// Skip render-guided re-correspondence.
+    #[arg(long)]
+    pub no_rrc: bool,
+    /// Templates kept by retrieval.
+    #[arg(long, default_value_t = 125)]
+    pub k: usize,
+    /// Result JSON path.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Also draw the estimate over the image into this PNG.
+    #[arg(long)]
+    pub overlay: Option<PathBuf>,
+}
+
+pub fn load_mask(path: &Path) -> Result<image::GrayImage> {
+    let img = image::open(path).with_context(|| format!("cannot read mask {}", path.display()))?;
+    // Any nonzero channel marks the object (masks come as L, LA, RGB or RGBA PNGs).
+    let rgba = img.to_rgba8();
+    Ok(image::GrayImage::from_fn(rgba.width(), rgba.height(), |x, y| {
+        let p = rgba.get_pixel(x, y);
+        image::Luma([if p[0] > 0 || p[1] > 0 || p[2] > 0 { 255 } else { 0 }])
+    }))
+}
+
+pub fn run(a: EstimateArgs) -> Result<()> {
+    if a.scores.len() > a.masks.len() {
+        bail!("{} --score values for {} --mask files", a.scores.len(), a.masks.len());
+    }
+    let model = artefact::load(&a.model).with_context(|| format!("loading object model {}", a.model.display()))?;
+    let image = image::open(&a.image).with_context(|| format!("cannot read image {}", a.image.display()))?.to_rgb8();
+    let k = super::camera_file::load_camera(&a.camera)?;
+    let detections = a
+        .masks
+        .iter()
+        .enumerate()
+        .map(|(i, p)| Ok(Detection { mask: load_mask(p)?, score: a.scores.get(i).copied().unwrap_or(1.0) }))
+        .collect::<Result<Vec<_>>>()?;
+    let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?);
+    let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
+    let estimator = Estimator::new(backbone, renderer.clone());
+    let mut cfg = EstimateConfig { rrc: !a.no_rrc, ..Default::default() };
+    cfg.retrieval.k = a.k;
+    let result = estimator.estimate(&model, &image, &k, &detections, &cfg)?;
+    let doc = result_json(&model, &result);
+    std::fs::write(&a.out, serde_json::to_vec_pretty(&doc)?).with_context(|| format!("writing {}", a.out.display()))?;
+    match &result.pose {
+        Some(p) => println!("{}: {}", model.object_id, describe_pose(p, result.score)),
+        None => println!("{}: no pose ({})", model.object_id, result.reason.as_deref().unwrap_or("unknown")),
+    }
+    println!("total {:.0} ms; wrote {}", result.timings.total, a.out.display());
+    if let (Some(path), Some(pose)) = (&a.overlay, &result.pose) {
+        write_overlay(&image, &renderer, &model, pose, &k, path)?;
+        println!("overlay: {}", path.display());
+    }
+    Ok(())
+}
+
+pub fn describe_pose(p: &Pose, score: f32) -> String {
+    let r = p.rotation_row_major();
+    format!(
+        "t = [{:.4}, {:.4}, {:.4}] m, R = [{:.3} {:.3} {:.3}; {:.3} {:.3} {:.3}; {:.3} {:.3} {:.3}], score {:.3}",
+        p.translation.x, p.translation.y, p.translation.z, r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], score
+    )
+}
+
+pub fn write_overlay(image: &image::RgbImage, renderer: &crate::render::RenderPool, model: &ObjectModel, pose: &Pose, k: &Intrinsics, path: &Path) -> Result<()> {
+    let img = crate::render::overlay::draw_overlay(image, renderer, &model.mesh, pose, k, [0, 255, 0])?;
+    img.save(path).with_context(|| format!("writing {}", path.display()))
+}
+
+/// RESULT.json: poses (R row-major, t in metres), diagnostics and stage timings.
+pub fn result_json(model: &ObjectModel, r: &EstimateResult) -> serde_json::Value {
+    let poses: Vec<serde_json::Value> = r
+        .pose
+        .iter()
+        .map(|p| {
+            json!({
+                "object": model.object_id,
+                "R": p.rotation_row_major(),
+                "t": [p.translation.x, p.translation.y, p.translation.z],
+                "score": r.score,
+                "mask_index": r.mask_index,
+                "diagnostics": { "hypotheses": r.hypotheses },
+            })
+        })
+        .collect();
+    let mut doc = json!({ "poses": poses, "timings_ms": r.timings });
+    if r.pose.is_none() {
+        doc["reason"] = json!(r.reason);
+        doc["diagnostics"] = json!({ "hypotheses": r.hypotheses });
+    }
+    doc
+}

@@ -1,0 +1,72 @@
+//! 2D–3D correspondences: a pool of patches with 3D object points (from retrieved templates
+//! or from RRC renders), matched against the query's foreground patches.
+
+use super::matching::mutual_matches;
+use super::query::QueryView;
+use crate::onboard::ObjectModel;
+
+/// Patch descriptors (`len × dim`, L2-normalised) with the object point behind each.
+#[derive(Default)]
+pub struct PatchPool {
+    pub dim: usize,
+    pub descriptors: Vec<f32>,
+    pub points: Vec<[f32; 3]>,
+}
+
+impl PatchPool {
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// All patches of the given templates of `model` (f16 descriptors widened to f32).
+    pub fn from_templates(model: &ObjectModel, templates: impl IntoIterator<Item = usize>) -> Self {
+        let mut pool = PatchPool { dim: model.local_dim, ..Default::default() };
+        for t in templates {
+            let tp = &model.templates[t];
+            let range = tp.patch_start as usize..(tp.patch_start + tp.patch_count) as usize;
+            pool.points.extend_from_slice(&model.patch_points[range.clone()]);
+            pool.descriptors.extend(model.patch_descriptors[range.start * model.local_dim..range.end * model.local_dim].iter().map(|h| h.to_f32()));
+        }
+        pool
+    }
+}
+
+/// Matched pairs ready for PnP.
+#[derive(Default, Clone)]
+pub struct Correspondences {
+    /// Query patch centres in image pixels.
+    pub image_points: Vec<[f64; 2]>,
+    /// Object points in metres.
+    pub object_points: Vec<[f64; 3]>,
+    pub similarities: Vec<f32>,
+}
+
+impl Correspondences {
+    pub fn len(&self) -> usize {
+        self.image_points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.image_points.is_empty()
+    }
+}
+
+/// Mutual nearest neighbours (each query patch's `k_nn` best) between query and pool.
+pub fn correspond(query: &QueryView, pool: &PatchPool, k_nn: usize) -> Correspondences {
+    let mut c = Correspondences::default();
+    if pool.dim != query.features.local_dim {
+        return c;
+    }
+    for m in mutual_matches(&query.descriptors, &pool.descriptors, pool.dim, k_nn) {
+        let (u, v) = query.patch_centre(m.query);
+        let p = pool.points[m.pool];
+        c.image_points.push([u, v]);
+        c.object_points.push([p[0] as f64, p[1] as f64, p[2] as f64]);
+        c.similarities.push(m.similarity);
+    }
+    c
+}

@@ -1,0 +1,127 @@
+//! Dense matching: for each query patch its k nearest pool patches (cosine, by blocked
+//! matrix multiplication), then the mutual-nearest-neighbour filter.
+
+/// A query patch matched to a pool patch.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Match {
+    pub query: usize,
+    pub pool: usize,
+    pub similarity: f32,
+}
+
+/// Pool columns per block: bounds the similarity buffer (queries × block floats).
+const BLOCK: usize = 8192;
+
+/// `query` is `q × dim`, `pool` is `p × dim`, both row-major and L2-normalised. Returns the
+/// pairs (i, j) where j is among the `k_nn` most similar pool rows of query i and i is the
+/// most similar query row of pool j.
+pub fn mutual_matches(query: &[f32], pool: &[f32], dim: usize, k_nn: usize) -> Vec<Match> {
+    let q = query.len() / dim.max(1);
+    let p = pool.len() / dim.max(1);
+    if q == 0 || p == 0 || dim == 0 || k_nn == 0 {
+        return vec![];
+    }
+    // Per query: its best k (pool index, similarity), sorted descending.
+    let mut top: Vec<Vec<(usize, f32)>> = vec![Vec::with_capacity(k_nn + 1); q];
+    // Per pool row: its best query.
+    let mut best_query: Vec<(usize, f32)> = vec![(usize::MAX, f32::NEG_INFINITY); p];
+    let mut sims = vec![0f32; q * BLOCK.min(p)];
+    for start in (0..p).step_by(BLOCK) {
+        let n = BLOCK.min(p - start);
+        let block = &pool[start * dim..(start + n) * dim];
+        similarity(query, block, q, n, dim, &mut sims[..q * n]);
+        for i in 0..q {
+            let row = &sims[i * n..(i + 1) * n];
+            let t = &mut top[i];
+            for (j, &s) in row.iter().enumerate() {
+                if t.len() < k_nn || s > t[t.len() - 1].1 {
+                    let pos = t.partition_point(|&(_, v)| v >= s);
+                    t.insert(pos, (start + j, s));
+                    t.truncate(k_nn);
+                }
+                let b = &mut best_query[start + j];
+                if s > b.1 {
+                    *b = (i, s);
+                }
+            }
+        }
+    }
+    let mut out = Vec::new();
+    for (i, t) in top.iter().enumerate() {
+        for &(j, s) in t {
+            // Orthogonal or opposite descriptors share nothing: never a match.
+            if best_query[j].0 == i && s > 0.0 {
+                out.push(Match { query: i, pool: j, similarity: s });
+            }
+        }
+    }
+    out
+}
+
+/// `out[i·n + j] = a_i · b_j` for `a` (m × dim) and `b` (n × dim), multi-threaded GEMM.
+fn similarity(a: &[f32], b: &[f32], m: usize, n: usize, dim: usize, out: &mut [f32]) {
+    // SAFETY: the slices hold m×dim, n×dim and m×n elements, and the strides below describe
+    // exactly those row-major layouts, so gemm reads and writes in bounds only.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            dim,
+            out.as_mut_ptr(),
+            1,          // dst column stride
+            n as isize, // dst row stride
+            false,
+            a.as_ptr(),
+            1,
+            dim as isize, // lhs (m × dim) row-major
+            b.as_ptr(),
+            dim as isize,
+            1, // rhs viewed as dim × n: element (k, j) = b[j·dim + k]
+            0.0,
+            1.0,
+            false,
+            false,
+            false,
+            gemm::Parallelism::Rayon(0),
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn normalized(rows: &[[f32; 3]]) -> Vec<f32> {
+        rows.iter().flat_map(|r| {
+            let n = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
+            r.map(|x| x / n)
+        }).collect()
+    }
+
+    #[test]
+    fn gemm_matches_naive_dot_products() {
+        let a: Vec<f32> = (0..5 * 7).map(|i| ((i * 37 % 11) as f32) - 5.0).collect();
+        let b: Vec<f32> = (0..9 * 7).map(|i| ((i * 13 % 7) as f32) - 3.0).collect();
+        let mut out = vec![0f32; 5 * 9];
+        similarity(&a, &b, 5, 9, 7, &mut out);
+        for i in 0..5 {
+            for j in 0..9 {
+                let naive: f32 = (0..7).map(|k| a[i * 7 + k] * b[j * 7 + k]).sum();
+                assert!((out[i * 9 + j] - naive).abs() < 1e-4);
+            }
+        }
+    }
+
+    #[test]
+    fn mutual_filter_keeps_only_reciprocal_pairs() {
+        let query = normalized(&[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.9, 0.1, 0.0]]);
+        let pool = normalized(&[[0.0, 1.0, 0.05], [1.0, 0.02, 0.0], [0.0, 0.0, 1.0]]);
+        let m = mutual_matches(&query, &pool, 3, 1);
+        let pairs: Vec<(usize, usize)> = m.iter().map(|m| (m.query, m.pool)).collect();
+        // Query 2 also prefers pool 1, but pool 1's best query is query 0.
+        assert_eq!(pairs, vec![(0, 1), (1, 0)]);
+        // With k = 3, query 2's list holds pool 1 too, still not mutual.
+        assert_eq!(mutual_matches(&query, &pool, 3, 3).len(), 2);
+        assert!(mutual_matches(&[], &pool, 3, 3).is_empty());
+    }
+}

@@ -1,0 +1,27 @@
+//! Estimation: retrieval with geodesic NMS, mutual-NN matching, RANSAC-PnP, RRC, refinement
+//! and hypothesis selection across masks (DESIGN.md steps 4–10).
+
+pub mod correspond;
+pub mod matching;
+pub mod pipeline;
+pub mod pnp;
+pub mod query;
+pub mod refine;
+pub mod retrieve;
+pub mod rrc;
+pub mod select;
+
+pub use pipeline::{Detection, EstimateConfig, EstimateResult, Estimator, Hypothesis, StageTimings};
+pub use refine::{PassThrough, RefineContext, Refiner};
+
+#[derive(Debug, thiserror::Error)]
+pub enum EstimateError {
+    #[error("invalid input: {0}")]
+    BadInput(String),
+    #[error("object {object:?} was onboarded with backbone {model}, but this estimator runs {ours}: onboard it again with this backbone")]
+    BackboneMismatch { object: String, model: String, ours: String },
+    #[error("rendering failed: {0}")]
+    Render(#[from] crate::render::RenderError),
+    #[error("feature extraction failed: {0}")]
+    Features(#[from] crate::features::FeatureError),
+}

@@ -1,0 +1,308 @@
+//! The online stage end to end (DESIGN.md steps 4–10) for one object in one image.
+
+use super::correspond::{correspond, Correspondences, PatchPool};
+use super::pnp::{solve_pnp_ransac, PnpConfig, PnpResult};
+use super::query::{crop_all, encode, QueryView};
+use super::refine::{PassThrough, RefineContext, Refiner};
+use super::retrieve::{retrieve, RetrievalConfig};
+use super::rrc::rrc_pool;
+use super::select::{combined_scores, mask_window, render_window, window_iou, SelectionConfig};
+use super::EstimateError;
+use crate::features::{crop_query, Backbone};
+use crate::geometry::{Intrinsics, Pose};
+use crate::onboard::ObjectModel;
+use crate::render::RenderPool;
+use image::{GrayImage, RgbImage};
+use std::sync::Arc;
+use std::time::Instant;
+
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct EstimateConfig {
+    pub retrieval: RetrievalConfig,
+    /// Nearest pool patches per query patch before the mutual filter.
+    pub k_nn: usize,
+    pub pnp: PnpConfig,
+    /// Render-guided re-correspondence on or off.
+    pub rrc: bool,
+    /// Candidate masks per object, and the detector score they need (the best one is kept
+    /// regardless).
+    pub max_masks: usize,
+    pub min_mask_score: f32,
+    pub selection: SelectionConfig,
+}
+
+impl Default for EstimateConfig {
+    fn default() -> Self {
+        Self { retrieval: RetrievalConfig::default(), k_nn: 3, pnp: PnpConfig::default(), rrc: true, max_masks: 2, min_mask_score: 0.35, selection: SelectionConfig::default() }
+    }
+}
+
+/// A segmentation of the object in the image, with the detector's confidence.
+#[derive(Clone, Debug)]
+pub struct Detection {
+    pub mask: GrayImage,
+    pub score: f32,
+}
+
+/// Milliseconds per stage, summed over the masks of one estimate.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct StageTimings {
+    pub crop: f64,
+    pub features: f64,
+    pub retrieval: f64,
+    pub matching: f64,
+    pub pnp: f64,
+    pub rrc: f64,
+    pub selection: f64,
+    pub total: f64,
+}
+
+/// What happened to one candidate mask.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct Hypothesis {
+    /// Index into the caller's detections.
+    pub mask_index: usize,
+    #[serde(skip)]
+    pub pose: Option<Pose>,
+    pub detector_score: f32,
+    pub retrieved_templates: usize,
+    /// Best template's retrieval cosine and silhouette IoU.
+    pub top_template_cosine: f32,
+    pub top_template_silhouette_iou: f32,
+    pub matches: usize,
+    pub inliers: usize,
+    pub rrc_matches: usize,
+    pub rrc_inliers: usize,
+    /// Whether the RRC pose replaced the first one.
+    pub rrc_used: bool,
+    pub reprojection_error_px: f64,
+    /// Selection inputs and result (NaN until scored).
+    pub cosine: f32,
+    pub iou: f32,
+    pub score: f32,
+    /// Why this hypothesis has no pose or was dropped.
+    pub failure: Option<String>,
+}
+
+/// The result for one object: the selected pose (if any) and every hypothesis.
+#[derive(Clone, Debug, Default)]
+pub struct EstimateResult {
+    pub pose: Option<Pose>,
+    pub score: f32,
+    pub mask_index: Option<usize>,
+    pub hypotheses: Vec<Hypothesis>,
+    pub timings: StageTimings,
+    /// Why there is no pose, when there is none.
+    pub reason: Option<String>,
+}
+
+/// Runs the pipeline; holds the backbone, the renderer and the refiner it uses.
+pub struct Estimator {
+    backbone: Arc<dyn Backbone>,
+    renderer: Arc<RenderPool>,
+    refiner: Arc<dyn Refiner>,
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+impl Estimator {
+    pub fn new(backbone: Arc<dyn Backbone>, renderer: Arc<RenderPool>) -> Self {
+        Self { backbone, renderer, refiner: Arc::new(PassThrough) }
+    }
+
+    pub fn with_refiner(mut self, refiner: Arc<dyn Refiner>) -> Self {
+        self.refiner = refiner;
+        self
+    }
+
+    pub fn backbone(&self) -> &dyn Backbone {
+        self.backbone.as_ref()
+    }
+
+    /// Checks the inputs; every problem is an `EstimateError` naming what is wrong.
+    fn validate(&self, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, detections: &[Detection]) -> Result<(), EstimateError> {
+        let ours = self.backbone.identity();
+        if ours != model.backbone {
+            return Err(EstimateError::BackboneMismatch { object: model.object_id.clone(), model: format!("{} ({})", model.backbone.name, model.backbone.weights_hash), ours: format!("{} ({})", ours.name, ours.weights_hash) });
+        }
+        Intrinsics::new(k.fx, k.fy, k.cx, k.cy, k.width, k.height).map_err(|e| EstimateError::BadInput(e.to_string()))?;
+        if (k.width, k.height) != image.dimensions() {
+            return Err(EstimateError::BadInput(format!("camera resolution {}×{} differs from the image's {}×{}", k.width, k.height, image.width(), image.height())));
+        }
+        if detections.is_empty() {
+            return Err(EstimateError::BadInput("no detection (mask) given".into()));
+        }
+        for (i, d) in detections.iter().enumerate() {
+            if d.mask.dimensions() != image.dimensions() {
+                return Err(EstimateError::BadInput(format!("mask {i} is {}×{}, the image {}×{}", d.mask.width(), d.mask.height(), image.width(), image.height())));
+            }
+            if !d.score.is_finite() {
+                return Err(EstimateError::BadInput(format!("mask {i} has a non-finite score")));
+            }
+            if crate::features::mask_bbox(&d.mask).is_none() {
+                return Err(EstimateError::BadInput(format!("mask {i} is empty (no object pixel)")));
+            }
+        }
+        Ok(())
+    }
+
+    /// Indices of the masks to try: score ≥ threshold, best first, at most `max_masks`;
+    /// the best one when none passes.
+    fn candidate_masks(detections: &[Detection], cfg: &EstimateConfig) -> Vec<usize> {
+        let mut order: Vec<usize> = (0..detections.len()).collect();
+        order.sort_by(|&a, &b| detections[b].score.total_cmp(&detections[a].score));
+        let mut kept: Vec<usize> = order.iter().copied().filter(|&i| detections[i].score >= cfg.min_mask_score).take(cfg.max_masks.max(1)).collect();
+        if kept.is_empty() {
+            kept.push(order[0]);
+        }
+        kept
+    }
+
+    pub fn estimate(&self, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, detections: &[Detection], cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
+        let t_total = Instant::now();
+        self.validate(model, image, k, detections)?;
+        let mut timings = StageTimings::default();
+        let chosen = Self::candidate_masks(detections, cfg);
+        let size = model.grid.n * model.grid.patch;
+
+        let t = Instant::now();
+        let masks: Vec<&GrayImage> = chosen.iter().map(|&i| &detections[i].mask).collect();
+        let crops: Vec<_> = crop_all(image, &masks, model.config.crop_padding, size).into_iter().map(|c| c.expect("validated non-empty")).collect();
+        timings.crop = ms(t);
+        let t = Instant::now();
+        let queries = encode(self.backbone.as_ref(), crops, model.config.min_coverage)?;
+        timings.features = ms(t);
+
+        let mut hyps = Vec::new();
+        for (q, &mi) in queries.iter().zip(&chosen) {
+            let mut h = Hypothesis { mask_index: mi, detector_score: detections[mi].score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() };
+            self.pose_for_mask(model, q, k, cfg, &mut h, &mut timings)?;
+            if let Some(p) = h.pose {
+                let ctx = RefineContext { model, image, intrinsics: k, mask: &detections[mi].mask };
+                match self.refiner.refine(&ctx, p) {
+                    Ok(r) => h.pose = Some(r),
+                    Err(e) => h.failure = Some(format!("refiner {} failed: {e}", self.refiner.name())),
+                }
+            }
+            hyps.push(h);
+        }
+
+        let t = Instant::now();
+        let result = self.select(model, &queries, &chosen, k, detections, hyps, cfg)?;
+        timings.selection = ms(t);
+        timings.total = ms(t_total);
+        Ok(EstimateResult { timings, ..result })
+    }
+
+    /// Steps 5–8 for one mask: retrieval, matching, PnP, RRC.
+    fn pose_for_mask(&self, model: &ObjectModel, q: &QueryView, k: &Intrinsics, cfg: &EstimateConfig, h: &mut Hypothesis, timings: &mut StageTimings) -> Result<(), EstimateError> {
+        let t = Instant::now();
+        let retrieved = retrieve(model, &q.features.global, &q.silhouette, &cfg.retrieval);
+        h.retrieved_templates = retrieved.len();
+        if let Some(top) = retrieved.first() {
+            h.top_template_cosine = top.cosine;
+            h.top_template_silhouette_iou = top.silhouette_iou;
+        }
+        let pool = PatchPool::from_templates(model, retrieved.iter().map(|r| r.template));
+        timings.retrieval += ms(t);
+
+        let t = Instant::now();
+        let corr = correspond(q, &pool, cfg.k_nn);
+        h.matches = corr.len();
+        timings.matching += ms(t);
+
+        let t = Instant::now();
+        let first = run_pnp(&corr, k, &cfg.pnp);
+        timings.pnp += ms(t);
+        let first = match first {
+            Ok(r) => r,
+            Err(e) => {
+                h.failure = Some(format!("no pose from {} matches: {e}", corr.len()));
+                return Ok(());
+            }
+        };
+        h.inliers = first.inliers.len();
+        h.reprojection_error_px = first.mean_reprojection_error_px;
+        h.pose = Some(first.pose);
+
+        if cfg.rrc {
+            let t = Instant::now();
+            let pool = rrc_pool(model, &first.pose, k, self.backbone.as_ref(), &self.renderer)?;
+            let corr = correspond(q, &pool, cfg.k_nn);
+            h.rrc_matches = corr.len();
+            // The RRC pose replaces the first when it explains at least as many matches.
+            if let Ok(r) = run_pnp(&corr, k, &cfg.pnp) {
+                h.rrc_inliers = r.inliers.len();
+                if r.inliers.len() >= first.inliers.len() {
+                    h.pose = Some(r.pose);
+                    h.reprojection_error_px = r.mean_reprojection_error_px;
+                    h.rrc_used = true;
+                }
+            }
+            timings.rrc += ms(t);
+        }
+        Ok(())
+    }
+
+    /// Step 10: IoU gate and z-normalised scoring across hypotheses.
+    #[allow(clippy::too_many_arguments)]
+    fn select(&self, model: &ObjectModel, queries: &[QueryView], chosen: &[usize], k: &Intrinsics, detections: &[Detection], mut hyps: Vec<Hypothesis>, cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
+        let size = model.grid.n * model.grid.patch;
+        let mut crops = Vec::new();
+        let mut owners = Vec::new();
+        for (i, h) in hyps.iter_mut().enumerate() {
+            let Some(pose) = h.pose else { continue };
+            let mask = &detections[chosen[i]].mask;
+            let window = mask_window(mask).expect("validated non-empty");
+            let render = render_window(&self.renderer, &model.mesh, &pose, k, window)?;
+            h.iou = window_iou(&render, mask, window);
+            if h.iou < cfg.selection.iou_gate {
+                h.failure = Some(format!("rendered mask IoU {:.2} < gate {:.2}", h.iou, cfg.selection.iou_gate));
+                continue;
+            }
+            if let Some((crop, _)) = crop_query(&render.rgb, &render.mask, model.config.crop_padding, size) {
+                crops.push(crop);
+                owners.push(i);
+            }
+        }
+        let maps = self.backbone.extract(&crops)?;
+        for (fm, &i) in maps.iter().zip(&owners) {
+            hyps[i].cosine = fm.global.iter().zip(&queries[i].features.global).map(|(a, b)| a * b).sum();
+        }
+        let cos: Vec<f32> = owners.iter().map(|&i| hyps[i].cosine).collect();
+        let iou: Vec<f32> = owners.iter().map(|&i| hyps[i].iou).collect();
+        let det: Vec<f32> = owners.iter().map(|&i| hyps[i].detector_score).collect();
+        let scores = combined_scores(&cos, &iou, &det, &cfg.selection.weights);
+        for (&i, s) in owners.iter().zip(&scores) {
+            hyps[i].score = *s;
+        }
+        let best = owners.iter().zip(&scores).max_by(|a, b| a.1.total_cmp(b.1)).map(|(&i, _)| i);
+        let reason = match best {
+            Some(_) => None,
+            None => Some(hyps.iter().filter_map(|h| h.failure.clone()).collect::<Vec<_>>().join("; ")).filter(|s| !s.is_empty()).or(Some("no hypothesis".into())),
+        };
+        Ok(EstimateResult {
+            pose: best.and_then(|i| hyps[i].pose),
+            // Reported score: the winner's IoU-weighted confidence in [0, 1], not the
+            // z-score (which only ranks within one image).
+            score: best.map(|i| confidence(&hyps[i], &cfg.selection.weights)).unwrap_or(0.0),
+            mask_index: best.map(|i| hyps[i].mask_index),
+            hypotheses: hyps,
+            timings: StageTimings::default(),
+            reason,
+        })
+    }
+}
+
+/// A [0, 1] confidence from the raw selection inputs with the selection weights.
+fn confidence(h: &Hypothesis, w: &[f32; 3]) -> f32 {
+    let c = h.cosine.clamp(0.0, 1.0);
+    let total = w.iter().sum::<f32>().max(1e-6);
+    ((w[0] * c + w[1] * h.iou + w[2] * h.detector_score.clamp(0.0, 1.0)) / total).clamp(0.0, 1.0)
+}
+
+fn run_pnp(c: &Correspondences, k: &Intrinsics, cfg: &PnpConfig) -> Result<PnpResult, super::pnp::PnpError> {
+    solve_pnp_ransac(&c.image_points, &c.object_points, k, cfg)
+}

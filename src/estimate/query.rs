@@ -1,0 +1,48 @@
+//! The query side: crop the image around a detection mask exactly as templates are cropped,
+//! encode it, and keep what later stages need (foreground patches, crop map, silhouette).
+
+use crate::features::{crop_query, Backbone, CropInput, FeatureError, FeatureMap};
+use crate::geometry::CropBox;
+use crate::onboard::model::pack_silhouette;
+use image::{GrayImage, RgbImage};
+
+/// One encoded query crop.
+pub struct QueryView {
+    pub crop_box: CropBox,
+    pub features: FeatureMap,
+    /// Foreground patch indices and their descriptors (`fg.len() × dim`).
+    pub foreground: Vec<usize>,
+    pub descriptors: Vec<f32>,
+    /// 64×64 crop silhouette, comparable with the templates'.
+    pub silhouette: Vec<bool>,
+}
+
+impl QueryView {
+    /// Image-pixel centre of foreground patch number `i` (an index into `foreground`).
+    pub fn patch_centre(&self, i: usize) -> (f64, f64) {
+        let (cu, cv) = self.features.grid.centre_of(self.foreground[i]);
+        self.crop_box.to_image(cu, cv)
+    }
+}
+
+/// Crops each (image, mask) pair; `None` for an empty mask.
+pub fn crop_all(image: &RgbImage, masks: &[&GrayImage], padding: f64, size: u32) -> Vec<Option<(CropInput, CropBox)>> {
+    masks.iter().map(|m| crop_query(image, m, padding, size)).collect()
+}
+
+/// Encodes crops in one batched backbone call and gathers foreground descriptors.
+pub fn encode(backbone: &dyn Backbone, crops: Vec<(CropInput, CropBox)>, min_coverage: f32) -> Result<Vec<QueryView>, FeatureError> {
+    let inputs: Vec<CropInput> = crops.iter().map(|(c, _)| c.clone()).collect();
+    let maps = backbone.extract(&inputs)?;
+    Ok(maps
+        .into_iter()
+        .zip(crops)
+        .map(|(features, (crop, crop_box))| {
+            let foreground = features.foreground(min_coverage);
+            let descriptors = foreground.iter().flat_map(|&p| features.descriptor(p).iter().copied()).collect();
+            let words = pack_silhouette(&crop.mask);
+            let silhouette = crate::onboard::model::unpack_silhouette(&words);
+            QueryView { crop_box, features, foreground, descriptors, silhouette }
+        })
+        .collect())
+}

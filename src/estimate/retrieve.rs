@@ -1,0 +1,84 @@
+//! Template retrieval: rank templates by global-descriptor cosine (plus, optionally, the
+//! silhouette overlap of query and template crops), then keep a viewpoint-diverse top k
+//! with geodesic non-maximum suppression over the full rotation.
+
+use crate::geometry::geodesic_distance;
+use crate::onboard::ObjectModel;
+
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct RetrievalConfig {
+    /// Templates kept (125 in the paper).
+    pub k: usize,
+    /// Minimum rotation distance between two kept templates, degrees; 0 disables NMS.
+    pub nms_degrees: f64,
+    /// Keep every template (ablation: no retrieval at all).
+    pub all_templates: bool,
+    /// Weight of the silhouette IoU added to the cosine similarity (0 = descriptor only).
+    pub silhouette_weight: f32,
+}
+
+impl Default for RetrievalConfig {
+    fn default() -> Self {
+        Self { k: 125, nms_degrees: 20.0, all_templates: false, silhouette_weight: 1.0 }
+    }
+}
+
+/// A retrieved template and its ranking score.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Retrieved {
+    pub template: usize,
+    pub score: f32,
+    pub cosine: f32,
+    pub silhouette_iou: f32,
+}
+
+/// Intersection over union of two equally sized boolean grids.
+pub fn silhouette_iou(a: &[bool], b: &[bool]) -> f32 {
+    let (mut inter, mut union) = (0u32, 0u32);
+    for (&x, &y) in a.iter().zip(b) {
+        inter += (x && y) as u32;
+        union += (x || y) as u32;
+    }
+    if union == 0 { 0.0 } else { inter as f32 / union as f32 }
+}
+
+pub fn retrieve(model: &ObjectModel, query_global: &[f32], query_silhouette: &[bool], cfg: &RetrievalConfig) -> Vec<Retrieved> {
+    let mut ranked: Vec<Retrieved> = (0..model.template_count())
+        .map(|t| {
+            let cosine: f32 = model.global_descriptor(t).iter().zip(query_global).map(|(a, b)| a * b).sum();
+            let silhouette_iou = if cfg.silhouette_weight != 0.0 { silhouette_iou(&model.silhouette(t), query_silhouette) } else { 0.0 };
+            Retrieved { template: t, score: cosine + cfg.silhouette_weight * silhouette_iou, cosine, silhouette_iou }
+        })
+        .collect();
+    ranked.sort_by(|a, b| b.score.total_cmp(&a.score));
+    if cfg.all_templates {
+        return ranked;
+    }
+    if cfg.nms_degrees <= 0.0 {
+        ranked.truncate(cfg.k);
+        return ranked;
+    }
+    let min_dist = cfg.nms_degrees.to_radians();
+    let mut kept: Vec<Retrieved> = Vec::with_capacity(cfg.k);
+    for r in ranked {
+        if kept.len() >= cfg.k {
+            break;
+        }
+        let rot = &model.templates[r.template].pose.rotation;
+        if kept.iter().all(|k| geodesic_distance(&model.templates[k.template].pose.rotation, rot) >= min_dist) {
+            kept.push(r);
+        }
+    }
+    kept
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn iou_of_grids() {
+        assert_eq!(silhouette_iou(&[true, true, false, false], &[true, false, true, false]), 1.0 / 3.0);
+        assert_eq!(silhouette_iou(&[false; 4], &[false; 4]), 0.0);
+    }
+}

@@ -1,0 +1,98 @@
+//! Hypothesis selection across candidate masks: render each candidate pose, gate on the
+//! IoU of its rendered mask with its segmentation mask, and score the survivors with the
+//! z-normalised (across hypotheses) global-descriptor cosine, IoU and detector score.
+
+use crate::geometry::{Intrinsics, Pose};
+use crate::render::{RenderOptions, RenderOutput, RenderPool};
+use image::GrayImage;
+
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SelectionConfig {
+    /// Hypotheses whose render overlaps their mask less than this are dropped.
+    pub iou_gate: f32,
+    /// Weights of z-normalised cosine, IoU and detector score.
+    pub weights: [f32; 3],
+}
+
+impl Default for SelectionConfig {
+    fn default() -> Self {
+        Self { iou_gate: 0.2, weights: [0.2, 0.5, 0.3] }
+    }
+}
+
+/// Window of the image around a mask (its box grown by half its size each way), clipped to
+/// the image: renders for IoU need only cover where the mask and a sane estimate can be.
+pub fn mask_window(mask: &GrayImage) -> Option<(u32, u32, u32, u32)> {
+    let (x0, y0, x1, y1) = crate::features::mask_bbox(mask)?;
+    let (w, h) = (x1 - x0 + 1, y1 - y0 + 1);
+    let (gx, gy) = (w / 2 + 8, h / 2 + 8);
+    let (ax, ay) = (x0.saturating_sub(gx), y0.saturating_sub(gy));
+    let (bx, by) = ((x1 + gx).min(mask.width() - 1), (y1 + gy).min(mask.height() - 1));
+    Some((ax, ay, bx - ax + 1, by - ay + 1))
+}
+
+/// Renders `pose` inside `window` (x, y, w, h) of the image of camera `k`, at native resolution.
+pub fn render_window(renderer: &RenderPool, mesh: &crate::mesh::Mesh, pose: &Pose, k: &Intrinsics, window: (u32, u32, u32, u32)) -> Result<RenderOutput, crate::render::RenderError> {
+    let (x, y, w, h) = window;
+    let kw = Intrinsics { cx: k.cx - x as f64, cy: k.cy - y as f64, width: w, height: h, ..*k };
+    renderer.render(mesh, pose, &kw, &RenderOptions::default())
+}
+
+/// IoU of a window render's mask with the same window of a full-size mask.
+pub fn window_iou(render: &RenderOutput, mask: &GrayImage, window: (u32, u32, u32, u32)) -> f32 {
+    let (x0, y0, w, h) = window;
+    let (mut inter, mut union) = (0u64, 0u64);
+    for y in 0..h {
+        for x in 0..w {
+            let a = render.mask.get_pixel(x, y)[0] > 0;
+            let b = mask.get_pixel(x0 + x, y0 + y)[0] > 0;
+            inter += (a && b) as u64;
+            union += (a || b) as u64;
+        }
+    }
+    // Mask pixels outside the window cannot exist: the window contains the whole mask box.
+    if union == 0 { 0.0 } else { inter as f32 / union as f32 }
+}
+
+/// z-score of each value across the set; all zeros when the values do not vary.
+pub fn z_normalise(v: &[f32]) -> Vec<f32> {
+    let n = v.len() as f32;
+    if v.is_empty() {
+        return vec![];
+    }
+    let mean = v.iter().sum::<f32>() / n;
+    let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f32>() / n).sqrt();
+    if sd < 1e-9 { vec![0.0; v.len()] } else { v.iter().map(|x| (x - mean) / sd).collect() }
+}
+
+/// Combined scores of gated hypotheses given their (cosine, IoU, detector score).
+pub fn combined_scores(cos: &[f32], iou: &[f32], det: &[f32], w: &[f32; 3]) -> Vec<f32> {
+    let (zc, zi, zd) = (z_normalise(cos), z_normalise(iou), z_normalise(det));
+    (0..cos.len()).map(|i| w[0] * zc[i] + w[1] * zi[i] + w[2] * zd[i]).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn z_scores_and_weights() {
+        assert_eq!(z_normalise(&[2.0, 2.0]), vec![0.0, 0.0]);
+        let z = z_normalise(&[1.0, 3.0]);
+        assert!((z[0] + 1.0).abs() < 1e-6 && (z[1] - 1.0).abs() < 1e-6);
+        // IoU dominates: the second hypothesis wins despite a lower cosine.
+        let s = combined_scores(&[0.9, 0.8], &[0.5, 0.9], &[0.9, 0.9], &[0.2, 0.5, 0.3]);
+        assert!(s[1] > s[0]);
+    }
+
+    #[test]
+    fn window_covers_mask_with_margin() {
+        let mut m = GrayImage::new(100, 80);
+        for y in 30..40 {
+            for x in 40..60 {
+                m.put_pixel(x, y, image::Luma([255]));
+            }
+        }
+        assert_eq!(mask_window(&m), Some((22, 17, 56, 36)));
+    }
+}

@@ -1,0 +1,172 @@
+//! One generated image: place objects without hiding each other too much, render each
+//! alone, composite by depth over clutter, add occluders, degrade.
+
+use super::appearance::{degrade, sample_lighting};
+use super::config::SceneConfig;
+use super::layers::Layers;
+use super::occluders::{sample_occluder, Occluder};
+use super::placement::{sample_intrinsics, sample_placement, Extent, Placement};
+use crate::eval::degrade::clutter_background;
+use crate::geometry::{Intrinsics, Pose};
+use crate::mesh::procedural::Rng;
+use crate::mesh::Mesh;
+use crate::render::{RenderOutput, RenderPool};
+use anyhow::{bail, Result};
+use image::{GrayImage, RgbImage};
+
+/// One object instance of a generated image, with what BOP's ground truth records.
+#[derive(Clone, Debug)]
+pub struct SceneInstance {
+    pub obj_id: u32,
+    /// `T_cam_obj`, metres.
+    pub pose: Pose,
+    /// Full silhouette (the object rendered alone), 255 inside.
+    pub mask: GrayImage,
+    /// Visible part after depth compositing and occluders, 255 inside.
+    pub mask_visib: GrayImage,
+    pub px_count_all: usize,
+    pub px_count_visib: usize,
+}
+
+impl SceneInstance {
+    pub fn visib_fract(&self) -> f64 {
+        self.px_count_visib as f64 / self.px_count_all.max(1) as f64
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct SceneImage {
+    pub cam: Intrinsics,
+    /// The degraded photo-like image.
+    pub rgb: RgbImage,
+    /// Scene depth in metres (objects and occluders), row-major; 0 where there is none.
+    pub depth: Vec<f32>,
+    pub instances: Vec<SceneInstance>,
+}
+
+/// Draws of a position per instance before giving up (most are rejected without rendering).
+const PLACEMENT_DRAWS: usize = 300;
+/// Renders per instance before giving up: each costs a few milliseconds.
+const RENDERS_PER_INSTANCE: usize = 30;
+/// Chance that an instance gets an occluder, and tries to place one that keeps every
+/// instance visible enough.
+const OCCLUDER_CHANCE: f64 = 0.7;
+const OCCLUDER_TRIES: usize = 8;
+/// Occluders float this fraction of the nearest object's depth in front of the camera:
+/// in front of everything, so they hide whatever they overlap.
+const OCCLUDER_DEPTH: f32 = 0.9;
+
+/// Image `im_id` of the dataset that `cfg` describes. Its randomness depends only on
+/// `cfg.seed` and `im_id`, so images can be made in any order or alone.
+pub fn generate_image(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, im_id: u32) -> Result<SceneImage> {
+    if objects.is_empty() {
+        bail!("no objects to place in the scene");
+    }
+    cfg.validate().map_err(|e| anyhow::anyhow!("scene config: {e}"))?;
+    let mut rng = Rng::new(cfg.seed.wrapping_mul(0x0001_0000_0001).wrapping_add(im_id as u64));
+    let cam = sample_intrinsics(cfg, &mut rng);
+    let appearance = cfg.effective_appearance();
+    let lighting = sample_lighting(&appearance, &mut rng);
+    let min_visible = 1.0 - cfg.max_occlusion;
+    let extents: Vec<Extent> = objects.iter().map(|(_, m)| Extent::of(m)).collect();
+
+    let mut layers = Layers::new(cam.width, cam.height);
+    let mut placed: Vec<(usize, Placement, RenderOutput)> = Vec::new();
+    let mut full: Vec<usize> = Vec::new();
+    for &obj in &slot_objects(objects.len(), cfg.objects_per_image, &mut rng) {
+        let (mut draws, mut renders) = (0, 0);
+        loop {
+            if draws == PLACEMENT_DRAWS || renders == RENDERS_PER_INSTANCE {
+                bail!(
+                    "image {im_id}: could not place instance {} (object {}) with at least {:.0} % visible after {draws} positions \
+                     and {renders} renders; lower objects_per_image or fill_range, or raise max_occlusion",
+                    placed.len(),
+                    objects[obj].0,
+                    min_visible * 100.0
+                );
+            }
+            draws += 1;
+            let fill = rng.range(cfg.fill_range.0, cfg.fill_range.1);
+            let Some(p) = sample_placement(&extents[obj], &cam, fill, &mut rng) else {
+                continue;
+            };
+            if placed.iter().any(|(_, q, _)| p.crowds(q, min_visible)) {
+                continue;
+            }
+            renders += 1;
+            let out = pool.render(&objects[obj].1, &p.pose, &cam, &lighting)?;
+            let count = out.depth.iter().filter(|&&z| z > 0.0).count();
+            if count == 0 {
+                continue;
+            }
+            let mut trial = layers.clone();
+            trial.add_object(placed.len(), &out);
+            full.push(count);
+            if trial.min_visible_fraction(&full) >= min_visible {
+                layers = trial;
+                placed.push((obj, p, out));
+                break;
+            }
+            full.pop();
+        }
+    }
+
+    let mut occluders: Vec<Occluder> = Vec::new();
+    if cfg.occluders {
+        let z = layers.nearest() * OCCLUDER_DEPTH;
+        for (_, _, out) in &placed {
+            if rng.uniform() >= OCCLUDER_CHANCE {
+                continue;
+            }
+            let [x0, y0, x1, y1] = out.mask_bbox().expect("placed objects cover pixels");
+            let size = (x1 - x0).max(y1 - y0) as f64 + 1.0;
+            for _ in 0..OCCLUDER_TRIES {
+                let occ = sample_occluder(random_pixel(&out.mask, &mut rng), size, &mut rng);
+                let mut trial = layers.clone();
+                trial.add_occluder(occluders.len(), &occ, z);
+                if trial.min_visible_fraction(&full) >= min_visible {
+                    layers = trial;
+                    occluders.push(occ);
+                    break;
+                }
+            }
+        }
+    }
+
+    let background = clutter_background(cam.width, cam.height, &mut rng);
+    let renders: Vec<&RenderOutput> = placed.iter().map(|(_, _, out)| out).collect();
+    let clean = layers.paint(&renders, &occluders, &background);
+    let rgb = degrade(&clean, &appearance, &mut rng);
+    let visible = layers.visible_counts(placed.len());
+    let instances = placed
+        .into_iter()
+        .enumerate()
+        .map(|(i, (obj, p, out))| SceneInstance {
+            obj_id: objects[obj].0,
+            pose: p.pose,
+            mask: out.mask,
+            mask_visib: layers.visible_mask(i),
+            px_count_all: full[i],
+            px_count_visib: visible[i],
+        })
+        .collect();
+    Ok(SceneImage { cam, rgb, depth: layers.depth().to_vec(), instances })
+}
+
+/// Which object fills each slot: a random order of all objects, repeated when there are
+/// more slots than objects, so that every object appears as evenly as the slots allow.
+fn slot_objects(objects: usize, slots: usize, rng: &mut Rng) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..objects).collect();
+    for i in (1..order.len()).rev() {
+        order.swap(i, (rng.next_u64() % (i as u64 + 1)) as usize);
+    }
+    (0..slots).map(|s| order[s % objects]).collect()
+}
+
+/// A uniformly drawn pixel of a non-empty mask.
+fn random_pixel(mask: &GrayImage, rng: &mut Rng) -> (f64, f64) {
+    let n = mask.pixels().filter(|p| p[0] > 0).count();
+    let k = (rng.next_u64() % n as u64) as usize;
+    let (x, y, _) = mask.enumerate_pixels().filter(|(_, _, p)| p[0] > 0).nth(k).expect("k < count");
+    (x as f64, y as f64)
+}

@@ -1,0 +1,279 @@
+//! Generated datasets against their own claims: layout, units, masks, depth, round trip,
+//! reproducibility. GPU tests skip without an adapter unless B2TF_REQUIRE_GPU=1.
+
+use super::*;
+use crate::mesh::procedural::textured_box;
+use crate::render::{RenderError, RenderOptions, RendererConfig};
+use image::{GrayImage, ImageBuffer, Luma};
+use serde_json::Value;
+use std::collections::BTreeMap;
+
+fn pool() -> Option<RenderPool> {
+    match RenderPool::new(1, RendererConfig::default()) {
+        Ok(p) => Some(p),
+        Err(e @ RenderError::NoAdapter { .. }) if std::env::var_os("B2TF_REQUIRE_GPU").is_none() => {
+            eprintln!("SKIPPED (no GPU adapter): {e}");
+            None
+        }
+        Err(e) => panic!("{e}"),
+    }
+}
+
+fn objects() -> Vec<(u32, Mesh)> {
+    vec![(1, textured_box([0.10, 0.06, 0.16], 3)), (2, textured_box([0.05, 0.05, 0.08], 9))]
+}
+
+/// Three objects over two meshes, so one image holds two instances of an object.
+fn small_config(seed: u64) -> SceneConfig {
+    SceneConfig { images: 3, objects_per_image: 3, image_size: (160, 120), seed, ..SceneConfig::default() }
+}
+
+fn read_json(path: &Path) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+fn gray(path: &Path) -> GrayImage {
+    image::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())).into_luma8()
+}
+
+fn ones(m: &GrayImage) -> usize {
+    m.pixels().filter(|p| p[0] > 0).count()
+}
+
+#[test]
+fn dataset_files_agree_with_the_scene_they_describe() {
+    let Some(pool) = pool() else { return };
+    let (objs, cfg) = (objects(), small_config(7));
+    let dir = tempfile::tempdir().unwrap();
+    let summary = generate_dataset(&objs, &cfg, &pool, dir.path()).unwrap();
+    assert_eq!((summary.images, summary.instances), (3, 9));
+    let scene = dir.path().join("test/000001");
+    assert_eq!(summary.scene_dir, scene);
+    let gt = read_json(&scene.join("scene_gt.json"));
+    let info = read_json(&scene.join("scene_gt_info.json"));
+    let cams = read_json(&scene.join("scene_camera.json"));
+    assert_eq!(gt.as_object().unwrap().keys().collect::<Vec<_>>(), ["0", "1", "2"]);
+
+    for im_id in 0..3u32 {
+        // The images are reproducible one by one, which gives the poses that were used.
+        let img = generate_image(&objs, &cfg, &pool, im_id).unwrap();
+        let key = im_id.to_string();
+        let rgb = image::open(scene.join(format!("rgb/{im_id:06}.png"))).unwrap().into_rgb8();
+        assert_eq!(rgb, img.rgb);
+        let depth: ImageBuffer<Luma<u16>, Vec<u16>> = image::open(scene.join(format!("depth/{im_id:06}.png"))).unwrap().into_luma16();
+        assert_eq!(depth.dimensions(), (160, 120));
+        let cam = &cams[&key];
+        let k: Vec<f64> = serde_json::from_value(cam["cam_K"].clone()).unwrap();
+        assert_eq!(k, vec![img.cam.fx, 0.0, img.cam.cx, 0.0, img.cam.fy, img.cam.cy, 0.0, 0.0, 1.0]);
+        let depth_scale = cam["depth_scale"].as_f64().unwrap();
+        assert_eq!(depth_scale, 0.1);
+
+        for (i, inst) in img.instances.iter().enumerate() {
+            let g = &gt[&key][i];
+            assert_eq!(g["obj_id"].as_u64().unwrap() as u32, inst.obj_id);
+            let t: Vec<f64> = serde_json::from_value(g["cam_t_m2c"].clone()).unwrap();
+            for a in 0..3 {
+                assert!((t[a] - inst.pose.translation[a] * 1000.0).abs() < 1e-9, "cam_t_m2c {t:?} is not the pose in mm");
+            }
+            let r: Vec<f64> = serde_json::from_value(g["cam_R_m2c"].clone()).unwrap();
+            assert_eq!(r, inst.pose.rotation_row_major());
+
+            let mask = gray(&scene.join(format!("mask/{im_id:06}_{i:06}.png")));
+            let visib = gray(&scene.join(format!("mask_visib/{im_id:06}_{i:06}.png")));
+            assert_eq!((mask.dimensions(), visib.dimensions()), ((160, 120), (160, 120)));
+            assert!(mask.pixels().zip(visib.pixels()).all(|(m, v)| m[0] == 255 || v[0] == 0), "mask_visib ⊄ mask");
+            let gi = &info[&key][i];
+            let (all, vis) = (ones(&mask), ones(&visib));
+            assert_eq!(gi["px_count_all"].as_u64().unwrap() as usize, all);
+            assert_eq!(gi["px_count_visib"].as_u64().unwrap() as usize, vis);
+            assert!((gi["visib_fract"].as_f64().unwrap() - vis as f64 / all as f64).abs() < 1e-12);
+            assert!(vis as f64 / all as f64 >= 1.0 - cfg.max_occlusion, "instance {i} of image {im_id} is {vis}/{all} visible");
+            // Wholly inside the frame before occlusion: every vertex projects into it.
+            for v in objs[(inst.obj_id - 1) as usize].1.positions() {
+                let uv = img.cam.project(&inst.pose.transform_point(&nalgebra::Point3::from(v.map(f64::from)))).unwrap();
+                assert!(uv.x >= 0.0 && uv.y >= 0.0 && uv.x <= 159.0 && uv.y <= 119.0, "vertex at {uv:?}");
+            }
+
+            // The object rendered alone at the recorded pose: same silhouette, and the
+            // depth PNG decodes to its depth (mm) wherever the object is visible.
+            let alone = pool.render(&objs[(inst.obj_id - 1) as usize].1, &inst.pose, &img.cam, &RenderOptions::default()).unwrap();
+            assert_eq!(alone.mask, mask);
+            let [x0, y0, x1, y1] = alone.mask_bbox().unwrap().map(i64::from);
+            assert_eq!(gi["bbox_obj"], serde_json::json!([x0, y0, x1 - x0 + 1, y1 - y0 + 1]));
+            for (x, y, p) in visib.enumerate_pixels() {
+                if p[0] > 0 {
+                    let mm = depth.get_pixel(x, y)[0] as f64 * depth_scale;
+                    let want = alone.depth_at(x, y) as f64 * 1000.0;
+                    assert!((mm - want).abs() < 1.0, "depth at ({x}, {y}): {mm} mm vs rendered {want} mm");
+                }
+            }
+        }
+    }
+
+    let targets = read_json(&dir.path().join("test_targets_bop19.json"));
+    let targets = targets.as_array().unwrap();
+    assert!(targets.iter().all(|t| t["scene_id"] == 1));
+    assert_eq!(targets.iter().map(|t| t["inst_count"].as_u64().unwrap()).sum::<u64>(), 9);
+    assert!(targets.iter().any(|t| t["inst_count"] == 2), "three slots over two objects repeat one");
+    let saved: SceneConfig = serde_json::from_value(read_json(&dir.path().join(CONFIG_FILE))).unwrap();
+    assert_eq!(saved, cfg);
+    let models = load_models_info(dir.path()).unwrap();
+    assert_eq!(models.keys().copied().collect::<Vec<_>>(), vec![1, 2]);
+    assert!((models[&1].diameter - objs[0].1.diameter() * 1000.0).abs() < 1e-6);
+    assert!((models[&2].size_z - 80.0).abs() < 1e-3 && (models[&2].min_x + 25.0).abs() < 1e-3);
+}
+
+#[test]
+fn reader_gives_back_poses_cameras_and_paths() {
+    let Some(pool) = pool() else { return };
+    let (objs, cfg) = (objects(), SceneConfig { images: 2, objects_per_image: 2, ..small_config(11) });
+    let dir = tempfile::tempdir().unwrap();
+    generate_dataset(&objs, &cfg, &pool, dir.path()).unwrap();
+    let images = load_split_gt(dir.path(), TEST_SPLIT).unwrap();
+    assert_eq!(images, load_scene_gt(&dir.path().join("test/000001")).unwrap());
+    assert_eq!(images.iter().map(|i| (i.scene_id, i.im_id)).collect::<Vec<_>>(), vec![(1, 0), (1, 1)]);
+    for gt in &images {
+        let img = generate_image(&objs, &cfg, &pool, gt.im_id).unwrap();
+        assert_eq!(gt.cam, img.cam);
+        assert_eq!(gt.depth_scale, 0.1);
+        assert!(gt.rgb_path.is_file() && gt.depth_path.is_file());
+        assert_eq!(gt.instances.len(), img.instances.len());
+        for (g, want) in gt.instances.iter().zip(&img.instances) {
+            assert_eq!(g.obj_id, want.obj_id);
+            assert!((g.pose.translation - want.pose.translation).norm() < 1e-12, "{:?} vs {:?}", g.pose, want.pose);
+            assert!((g.pose.rotation.matrix() - want.pose.rotation.matrix()).amax() < 1e-12);
+            assert!((g.visib_fract.unwrap() - want.visib_fract()).abs() < 1e-12);
+            assert_eq!(gray(&g.mask_visib_path), want.mask_visib);
+            assert_eq!(gray(&g.mask_path), want.mask);
+        }
+    }
+}
+
+#[test]
+fn fixed_seed_gives_identical_files() {
+    let Some(pool) = pool() else { return };
+    let objs = objects();
+    let cfg = SceneConfig { images: 2, ..small_config(5) };
+    let dirs: Vec<_> = (0..4).map(|_| tempfile::tempdir().unwrap()).collect();
+    for (d, (seed, gap)) in dirs.iter().zip([(5, true), (5, true), (6, true), (5, false)]) {
+        generate_dataset(&objs, &SceneConfig { seed, render_to_real_gap: gap, ..cfg.clone() }, &pool, d.path()).unwrap();
+    }
+    let files = |root: &Path| -> BTreeMap<PathBuf, Vec<u8>> {
+        let mut out = BTreeMap::new();
+        let mut stack = vec![root.to_path_buf()];
+        while let Some(d) = stack.pop() {
+            for e in std::fs::read_dir(&d).unwrap() {
+                let p = e.unwrap().path();
+                if p.is_dir() {
+                    stack.push(p);
+                } else {
+                    out.insert(p.strip_prefix(root).unwrap().to_path_buf(), std::fs::read(&p).unwrap());
+                }
+            }
+        }
+        out
+    };
+    let (a, b, c) = (files(dirs[0].path()), files(dirs[1].path()), files(dirs[2].path()));
+    assert_eq!(a.len(), 6 + 2 * 2 + 2 * 3 * 2, "json files, rgb + depth per image, two masks per instance");
+    assert!(a == b, "same seed, different files");
+    let rgb = PathBuf::from("test/000001/rgb/000000.png");
+    assert_ne!(a[&rgb], c[&rgb], "another seed gives another image");
+    // Without the gap: other pixels, same geometry.
+    let d = files(dirs[3].path());
+    assert_ne!(a[&rgb], d[&rgb]);
+    for (path, bytes) in &a {
+        let p = path.to_string_lossy();
+        if p.contains("mask") || p.ends_with("scene_gt.json") || p.ends_with("scene_camera.json") || p.contains("depth/") {
+            assert!(d[path] == *bytes, "{p} differs without the gap");
+        }
+    }
+}
+
+#[test]
+fn crowded_config_fails_with_advice() {
+    let Some(pool) = pool() else { return };
+    let cfg = SceneConfig { objects_per_image: 4, fill_range: (0.8, 0.9), max_occlusion: 0.0, ..small_config(1) };
+    let err = generate_image(&objects(), &cfg, &pool, 0).unwrap_err().to_string();
+    assert!(err.contains("image 0: could not place instance") && err.contains("max_occlusion"), "{err}");
+}
+
+/// A hand-written scene, so the reader's errors are tested without a GPU.
+fn write_scene(root: &Path, gt: &str) -> PathBuf {
+    let scene = root.join("test/000003");
+    std::fs::create_dir_all(scene.join("rgb")).unwrap();
+    image::RgbImage::new(40, 30).save(scene.join("rgb/000004.png")).unwrap();
+    std::fs::write(scene.join("scene_camera.json"), r#"{"4": {"cam_K": [50, 0, 19.5, 0, 51, 14.5, 0, 0, 1], "depth_scale": 0.1}}"#).unwrap();
+    std::fs::write(scene.join("scene_gt.json"), gt).unwrap();
+    scene
+}
+
+#[test]
+fn reader_reads_hand_written_scene_and_names_bad_entries() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = r#"{"4": [{"obj_id": 7, "cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [10, -20, 500]}]}"#;
+    let scene = write_scene(dir.path(), good);
+    let images = load_scene_gt(&scene).unwrap();
+    assert_eq!(images.len(), 1);
+    let im = &images[0];
+    assert_eq!((im.scene_id, im.im_id, im.cam.width, im.cam.height, im.cam.fy), (3, 4, 40, 30, 51.0));
+    assert_eq!(im.instances[0].pose.translation, nalgebra::Vector3::new(0.01, -0.02, 0.5));
+    assert_eq!(im.instances[0].visib_fract, None);
+    assert!(im.instances[0].mask_visib_path.ends_with("mask_visib/000004_000000.png"));
+
+    let cases = [
+        (r#"{"4": [{"obj_id": 7, "cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1]}]}"#, "image 4, instance 0: missing field `cam_t_m2c`"),
+        (r#"{"4": [{"obj_id": 7, "cam_R_m2c": [2, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [0, 0, 1]}]}"#, "image 4, instance 0: cam_R_m2c has determinant"),
+        (r#"{"4": {"obj_id": 7}}"#, "image 4: expected a list"),
+        (r#"{"four": []}"#, "key \"four\" is not a numeric id"),
+        (r#"{"4": [ "#, "not a JSON object"),
+        (r#"{"5": []}"#, "scene_camera.json: no entry for image 5"),
+    ];
+    for (text, needle) in cases {
+        std::fs::write(scene.join("scene_gt.json"), text).unwrap();
+        let err = load_scene_gt(&scene).unwrap_err().to_string();
+        assert!(err.contains("scene_gt.json") || needle.starts_with("scene_camera"), "{err}");
+        assert!(err.contains(needle), "{err:?} lacks {needle:?}");
+    }
+    std::fs::write(scene.join("scene_gt_info.json"), r#"{"4": [{"bbox_obj": [1, 2, 3, 4]}]}"#).unwrap();
+    std::fs::write(scene.join("scene_gt.json"), good).unwrap();
+    let err = load_scene_gt(&scene).unwrap_err().to_string();
+    assert!(err.contains("scene_gt_info.json") && err.contains("image 4, instance 0: missing field"), "{err}");
+}
+
+#[test]
+fn config_is_validated_and_the_gap_is_harsher() {
+    assert!(SceneConfig::default().validate().is_ok());
+    let bad = [
+        SceneConfig { objects_per_image: 0, ..Default::default() },
+        SceneConfig { max_occlusion: 0.95, ..Default::default() },
+        SceneConfig { fill_range: (0.4, 0.1), ..Default::default() },
+        SceneConfig { image_size: (8, 480), ..Default::default() },
+    ];
+    for c in bad {
+        assert!(c.validate().is_err(), "{c:?} passed");
+    }
+    let a = Appearance::default();
+    let h = SceneConfig { render_to_real_gap: true, ..Default::default() }.effective_appearance();
+    assert_eq!(h, a.harsher());
+    assert!(h.light_angle_deg > a.light_angle_deg && h.ambient.1 < a.ambient.1);
+    assert!(h.blur_sigma.0 > a.blur_sigma.0 && h.noise_sigma.1 > a.noise_sigma.1 && h.color_gain > a.color_gain);
+}
+
+/// `cargo test --release -- --ignored scene_generation_speed --nocapture`
+#[test]
+#[ignore]
+fn scene_generation_speed() {
+    let Some(pool) = pool() else { return };
+    let objs = objects();
+    let cfg = SceneConfig { images: 10, objects_per_image: 3, ..SceneConfig::default() };
+    let dir = tempfile::tempdir().unwrap();
+    let t = std::time::Instant::now();
+    for im_id in 0..cfg.images as u32 {
+        generate_image(&objs, &cfg, &pool, im_id).unwrap();
+    }
+    let gen = t.elapsed().as_secs_f64() / cfg.images as f64;
+    let t = std::time::Instant::now();
+    generate_dataset(&objs, &cfg, &pool, dir.path()).unwrap();
+    let all = t.elapsed().as_secs_f64() / cfg.images as f64;
+    println!("640x480, 3 objects: {:.0} ms per image generated, {:.0} ms with writing ({})", gen * 1e3, all * 1e3, pool.describe());
+}
