@@ -1,0 +1,117 @@
+//! Estimation end to end on lavapipe: a generated scene of the procedural box, each stage's
+//! contribution, and every kind of bad input.
+
+use b2tfpose::estimate::{Detection, EstimateConfig, EstimateError, Estimator};
+use b2tfpose::eval::pose_error::mssd;
+use b2tfpose::eval::scenes::{generate_image, SceneConfig};
+use b2tfpose::features::{EmbeddedBackbone, EmbeddedConfig};
+use b2tfpose::geometry::{Intrinsics, ViewSampling};
+use b2tfpose::mesh::procedural::textured_box;
+use b2tfpose::onboard::{onboard, ObjectModel, OnboardConfig};
+use b2tfpose::render::{RenderPool, RendererConfig};
+use std::sync::{Arc, OnceLock};
+
+struct Fixture {
+    model: ObjectModel,
+    estimator: Estimator,
+    pool: Arc<RenderPool>,
+}
+
+/// One onboarded box shared by the tests (level 1: 42 views × 12 in-plane, to stay quick in
+/// debug builds; accuracy only needs the nearest template within ~30°).
+fn fixture() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| {
+        let pool = Arc::new(RenderPool::new(1, RendererConfig::default()).unwrap());
+        let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap());
+        let cfg = OnboardConfig { views: ViewSampling { level: 1, in_plane_steps: 12 }, render_size: 256, ..Default::default() };
+        let model = onboard("box", &textured_box([0.10, 0.06, 0.16], 3), &cfg, backbone.as_ref(), &pool, &|_| {}).unwrap();
+        Fixture { model, estimator: Estimator::new(backbone, pool.clone()), pool }
+    })
+}
+
+fn scene(seed: u64) -> b2tfpose::eval::scenes::SceneImage {
+    let f = fixture();
+    let cfg = SceneConfig { images: 1, objects_per_image: 1, image_size: (320, 240), fill_range: (0.45, 0.6), max_occlusion: 0.1, seed, ..Default::default() };
+    generate_image(&[(1, f.model.mesh.clone())], &cfg, &f.pool, 0).unwrap()
+}
+
+#[test]
+fn recovers_the_pose_of_the_box_in_generated_scenes() {
+    let f = fixture();
+    let mut correct = 0;
+    let seeds = [1u64, 2, 3, 4];
+    for &seed in &seeds {
+        let s = scene(seed);
+        let inst = &s.instances[0];
+        let det = [Detection { mask: inst.mask_visib.clone(), score: 0.9 }];
+        let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &det, &EstimateConfig::default()).unwrap();
+        let h = &r.hypotheses[0];
+        assert!(h.matches >= h.inliers && h.retrieved_templates > 0, "{h:?}");
+        assert!(r.timings.total > 0.0 && r.timings.rrc > 0.0, "{:?}", r.timings);
+        if let Some(p) = r.pose {
+            assert_eq!(r.mask_index, Some(0));
+            assert!((0.0..=1.0).contains(&r.score));
+            let e = mssd(&p, &inst.pose, f.model.mesh.positions());
+            eprintln!("seed {seed}: MSSD {:.1} mm, {} inliers", e * 1e3, h.inliers);
+            if e < 0.1 * f.model.diameter() {
+                correct += 1;
+            }
+        }
+    }
+    assert!(correct >= 3, "{correct} of {} scenes within MSSD 0.1·d", seeds.len());
+}
+
+#[test]
+fn selection_prefers_the_right_mask_over_a_wrong_one() {
+    let f = fixture();
+    let s = scene(5);
+    let inst = &s.instances[0];
+    // A distractor: a box-shaped region elsewhere in the image with a higher detector score.
+    let mut wrong = image::GrayImage::new(320, 240);
+    for y in 5..60 {
+        for x in 5..50 {
+            wrong.put_pixel(x, y, image::Luma([255]));
+        }
+    }
+    let dets = [Detection { mask: wrong, score: 0.8 }, Detection { mask: inst.mask_visib.clone(), score: 0.7 }];
+    let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &dets, &EstimateConfig { rrc: false, ..Default::default() }).unwrap();
+    assert_eq!(r.hypotheses.len(), 2);
+    assert_eq!(r.mask_index, Some(1), "{:?}", r.hypotheses);
+    // Below the score threshold, only the best mask is tried.
+    let dets = [Detection { mask: inst.mask_visib.clone(), score: 0.2 }, Detection { mask: inst.mask_visib.clone(), score: 0.1 }];
+    let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &dets, &EstimateConfig { rrc: false, ..Default::default() }).unwrap();
+    assert_eq!(r.hypotheses.len(), 1);
+    assert_eq!(r.hypotheses[0].mask_index, 0);
+}
+
+#[test]
+fn bad_inputs_are_clear_errors() {
+    let f = fixture();
+    let s = scene(6);
+    let mask = s.instances[0].mask_visib.clone();
+    let ok_det = vec![Detection { mask: mask.clone(), score: 1.0 }];
+    let cfg = EstimateConfig { rrc: false, ..Default::default() };
+    let run = |img: &image::RgbImage, k: &Intrinsics, d: &[Detection]| f.estimator.estimate(&f.model, img, k, d, &cfg).unwrap_err().to_string();
+
+    let e = run(&s.rgb, &s.cam, &[Detection { mask: image::GrayImage::new(320, 240), score: 1.0 }]);
+    assert!(e.contains("mask 0 is empty"), "{e}");
+    let e = run(&s.rgb, &s.cam, &[Detection { mask: image::GrayImage::new(100, 100), score: 1.0 }]);
+    assert!(e.contains("mask 0 is 100×100"), "{e}");
+    let e = run(&s.rgb, &Intrinsics { fx: -5.0, ..s.cam }, &ok_det);
+    assert!(e.contains("focal"), "{e}");
+    let e = run(&s.rgb, &Intrinsics { fy: 0.0, ..s.cam }, &ok_det);
+    assert!(e.contains("focal"), "{e}");
+    let e = run(&s.rgb, &Intrinsics { width: 640, ..s.cam }, &ok_det);
+    assert!(e.contains("camera resolution 640×240"), "{e}");
+    let e = run(&s.rgb, &s.cam, &[]);
+    assert!(e.contains("no detection"), "{e}");
+    let e = run(&s.rgb, &s.cam, &[Detection { mask, score: f32::NAN }]);
+    assert!(e.contains("non-finite score"), "{e}");
+
+    // A model made by another backbone (other parameters, other identity hash).
+    let other = Estimator::new(Arc::new(EmbeddedBackbone::new(EmbeddedConfig { color_weight: 0.0, ..Default::default() }).unwrap()), f.pool.clone());
+    let err = other.estimate(&f.model, &s.rgb, &s.cam, &ok_det, &cfg).unwrap_err();
+    assert!(matches!(err, EstimateError::BackboneMismatch { .. }), "{err}");
+    assert!(err.to_string().contains("onboard it again"), "{err}");
+}
