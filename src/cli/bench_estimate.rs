@@ -35,6 +35,18 @@ pub struct BenchEstimateArgs {
     /// Where onboarded objects are cached between runs.
     #[arg(long, default_value = "out/bench-models")]
     pub models: PathBuf,
+    /// Weight of the silhouette IoU in template retrieval (default: the library's).
+    #[arg(long)]
+    pub silhouette_weight: Option<f32>,
+    /// Templates kept by retrieval.
+    #[arg(long)]
+    pub k: Option<usize>,
+    /// Geodesic NMS radius in degrees (0 disables NMS).
+    #[arg(long)]
+    pub nms_degrees: Option<f64>,
+    /// RANSAC reprojection threshold in pixels.
+    #[arg(long)]
+    pub pnp_threshold: Option<f64>,
     /// Write an overlay PNG per image into this folder.
     #[arg(long)]
     pub overlays: Option<PathBuf>,
@@ -49,6 +61,21 @@ struct Tally {
     rot: Vec<f64>,
     trans_mm: Vec<f64>,
     stages: Vec<[f64; 8]>,
+    /// (instances, correct) by apparent object size: < 100, 100–200, ≥ 200 px mask box side.
+    by_size: [(usize, usize); 3],
+}
+
+fn size_bucket(mask: &image::GrayImage) -> usize {
+    let side = crate::features::mask_bbox(mask).map(|(a, b, c, d)| (c - a).max(d - b) + 1).unwrap_or(0);
+    match side {
+        0..100 => 0,
+        100..200 => 1,
+        _ => 2,
+    }
+}
+
+fn share((n, ok): (usize, usize)) -> String {
+    if n == 0 { "–".into() } else { format!("{:.0} % of {n}", 100.0 * ok as f64 / n as f64) }
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -89,7 +116,20 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
     let scene_cfg = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, max_occlusion: a.max_occlusion, render_to_real_gap: a.gap, seed: a.seed, ..Default::default() };
     let estimator = Estimator::new(backbone, pool.clone());
-    let configs = [("with RRC", EstimateConfig::default()), ("without RRC", EstimateConfig { rrc: false, ..Default::default() })];
+    let mut base = EstimateConfig::default();
+    if let Some(w) = a.silhouette_weight {
+        base.retrieval.silhouette_weight = w;
+    }
+    if let Some(k) = a.k {
+        base.retrieval.k = k;
+    }
+    if let Some(t) = a.pnp_threshold {
+        base.pnp.reprojection_threshold_px = t;
+    }
+    if let Some(d) = a.nms_degrees {
+        base.retrieval.nms_degrees = d;
+    }
+    let configs = [("with RRC", base.clone()), ("without RRC", EstimateConfig { rrc: false, ..base.clone() })];
     let mut tallies: Vec<Tally> = configs.iter().map(|(n, _)| Tally { name: n, ..Default::default() }).collect();
     let mut instances = 0;
     if let Some(dir) = &a.overlays {
@@ -107,12 +147,15 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                 let r: EstimateResult = estimator.estimate(model, &scene.rgb, &scene.cam, &det, cfg)?;
                 let tm = &r.timings;
                 t.stages.push([tm.crop, tm.features, tm.retrieval, tm.matching, tm.pnp, tm.rrc, tm.selection, tm.total]);
+                let bucket = size_bucket(&inst.mask);
+                t.by_size[bucket].0 += 1;
                 if let Some(p) = r.pose {
                     t.found += 1;
                     t.rot.push(rotation_error_deg(&p, &inst.pose));
                     t.trans_mm.push(translation_error_m(&p, &inst.pose) * 1e3);
                     if mssd(&p, &inst.pose, model.mesh.positions()) < 0.1 * model.diameter() {
                         t.correct += 1;
+                        t.by_size[bucket].1 += 1;
                     }
                     if cfg.rrc && a.overlays.is_some() {
                         overlay = crate::render::overlay::draw_overlay(&overlay, &pool, &model.mesh, &p, &scene.cam, [0, 255, 0])?;
@@ -130,6 +173,10 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         bail!("no instances generated");
     }
     println!(
+        "retrieval: k {}, NMS {}°, silhouette weight {}; PnP threshold {} px",
+        base.retrieval.k, base.retrieval.nms_degrees, base.retrieval.silhouette_weight, base.pnp.reprojection_threshold_px
+    );
+    println!(
         "{} instances in {} generated images ({} objects/image, ≤{:.0} % occluded, seed {}){}; objects: {}",
         instances,
         a.images,
@@ -139,14 +186,17 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         if a.gap { ", render-to-real gap: untextured templates, harsher scenes" } else { "" },
         meshes.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(", ")
     );
-    println!("| setting | MSSD < 0.1·d | pose found | median rot. err (°) | median trans. err (mm) | median ms: crop | features | retrieval | matching | pnp | rrc | selection | total |");
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("| setting | MSSD < 0.1·d | < 100 px | 100–200 px | ≥ 200 px | pose found | median rot. err (°) | median trans. err (mm) | median ms: crop | features | retrieval | matching | pnp | rrc | selection | total |");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for t in &mut tallies {
         let med: Vec<f64> = (0..8).map(|s| median(&mut t.stages.iter().map(|x| x[s]).collect::<Vec<_>>())).collect();
         println!(
-            "| {} | {:.1} % | {:.1} % | {:.1} | {:.1} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} |",
+            "| {} | {:.1} % | {} | {} | {} | {:.1} % | {:.1} | {:.1} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} |",
             t.name,
             100.0 * t.correct as f64 / instances as f64,
+            share(t.by_size[0]),
+            share(t.by_size[1]),
+            share(t.by_size[2]),
             100.0 * t.found as f64 / instances as f64,
             median(&mut t.rot),
             median(&mut t.trans_mm),

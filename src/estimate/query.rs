@@ -13,8 +13,8 @@ pub struct QueryView {
     /// Foreground patch indices and their descriptors (`fg.len() × dim`).
     pub foreground: Vec<usize>,
     pub descriptors: Vec<f32>,
-    /// 64×64 crop silhouette, comparable with the templates'.
-    pub silhouette: Vec<bool>,
+    /// 64×64 crop silhouette, bit-packed like the templates'.
+    pub silhouette: Vec<u64>,
 }
 
 impl QueryView {
@@ -40,8 +40,7 @@ pub fn encode(backbone: &dyn Backbone, crops: Vec<(CropInput, CropBox)>, min_cov
         .map(|(features, (crop, crop_box))| {
             let foreground = features.foreground(min_coverage);
             let descriptors = foreground.iter().flat_map(|&p| features.descriptor(p).iter().copied()).collect();
-            let words = pack_silhouette(&crop.mask);
-            let silhouette = crate::onboard::model::unpack_silhouette(&words);
+            let silhouette = pack_silhouette(&crop.mask);
             QueryView { crop_box, features, foreground, descriptors, silhouette }
         })
         .collect())

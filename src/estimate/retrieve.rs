@@ -3,6 +3,7 @@
 //! with geodesic non-maximum suppression over the full rotation.
 
 use crate::geometry::geodesic_distance;
+use crate::onboard::model::silhouette_iou;
 use crate::onboard::ObjectModel;
 
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -32,21 +33,12 @@ pub struct Retrieved {
     pub silhouette_iou: f32,
 }
 
-/// Intersection over union of two equally sized boolean grids.
-pub fn silhouette_iou(a: &[bool], b: &[bool]) -> f32 {
-    let (mut inter, mut union) = (0u32, 0u32);
-    for (&x, &y) in a.iter().zip(b) {
-        inter += (x && y) as u32;
-        union += (x || y) as u32;
-    }
-    if union == 0 { 0.0 } else { inter as f32 / union as f32 }
-}
-
-pub fn retrieve(model: &ObjectModel, query_global: &[f32], query_silhouette: &[bool], cfg: &RetrievalConfig) -> Vec<Retrieved> {
+/// Ranked templates; `query_silhouette` is the bit-packed query crop mask.
+pub fn retrieve(model: &ObjectModel, query_global: &[f32], query_silhouette: &[u64], cfg: &RetrievalConfig) -> Vec<Retrieved> {
     let mut ranked: Vec<Retrieved> = (0..model.template_count())
         .map(|t| {
             let cosine: f32 = model.global_descriptor(t).iter().zip(query_global).map(|(a, b)| a * b).sum();
-            let silhouette_iou = if cfg.silhouette_weight != 0.0 { silhouette_iou(&model.silhouette(t), query_silhouette) } else { 0.0 };
+            let silhouette_iou = if cfg.silhouette_weight != 0.0 { silhouette_iou(model.silhouette_words(t), query_silhouette) } else { 0.0 };
             Retrieved { template: t, score: cosine + cfg.silhouette_weight * silhouette_iou, cosine, silhouette_iou }
         })
         .collect();
@@ -77,8 +69,9 @@ mod tests {
     use super::*;
 
     #[test]
-    fn iou_of_grids() {
-        assert_eq!(silhouette_iou(&[true, true, false, false], &[true, false, true, false]), 1.0 / 3.0);
-        assert_eq!(silhouette_iou(&[false; 4], &[false; 4]), 0.0);
+    fn iou_of_packed_silhouettes() {
+        assert_eq!(silhouette_iou(&[0b0011], &[0b0101]), 1.0 / 3.0);
+        assert_eq!(silhouette_iou(&[0, 0], &[0, 0]), 0.0);
+        assert_eq!(silhouette_iou(&[u64::MAX], &[u64::MAX]), 1.0);
     }
 }

@@ -11,7 +11,7 @@ pub const MODEL_FORMAT_VERSION: u32 = 1;
 
 /// Side of the stored template silhouettes (crop mask downsampled, 1 bit per cell).
 pub const SILHOUETTE_SIZE: usize = 64;
-const SILHOUETTE_WORDS: usize = SILHOUETTE_SIZE * SILHOUETTE_SIZE / 64;
+pub const SILHOUETTE_WORDS: usize = SILHOUETTE_SIZE * SILHOUETTE_SIZE / 64;
 
 /// How the templates were made; recorded so that a model can be re-made or compared.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -94,9 +94,9 @@ impl ObjectModel {
         &self.patch_descriptors[p * self.local_dim..(p + 1) * self.local_dim]
     }
 
-    /// Template silhouette as a `SILHOUETTE_SIZE²` row-major boolean grid.
-    pub fn silhouette(&self, t: usize) -> Vec<bool> {
-        unpack_silhouette(&self.silhouettes[t * SILHOUETTE_WORDS..(t + 1) * SILHOUETTE_WORDS])
+    /// Template silhouette, bit-packed (`SILHOUETTE_WORDS` words).
+    pub fn silhouette_words(&self, t: usize) -> &[u64] {
+        &self.silhouettes[t * SILHOUETTE_WORDS..(t + 1) * SILHOUETTE_WORDS]
     }
 
     /// Checks the arrays agree with each other (used after loading).
@@ -125,9 +125,14 @@ impl ObjectModel {
     }
 }
 
-/// Bit-packed silhouette → `SILHOUETTE_SIZE²` row-major booleans.
-pub fn unpack_silhouette(words: &[u64]) -> Vec<bool> {
-    (0..SILHOUETTE_SIZE * SILHOUETTE_SIZE).map(|k| words[k / 64] >> (k % 64) & 1 == 1).collect()
+/// Intersection over union of two bit-packed silhouettes (0 when both are empty).
+pub fn silhouette_iou(a: &[u64], b: &[u64]) -> f32 {
+    let (mut inter, mut union) = (0u32, 0u32);
+    for (x, y) in a.iter().zip(b) {
+        inter += (x & y).count_ones();
+        union += (x | y).count_ones();
+    }
+    if union == 0 { 0.0 } else { inter as f32 / union as f32 }
 }
 
 /// Packs a crop mask into `SILHOUETTE_SIZE²` bits: a cell is set when at least half of it is object.

@@ -46,28 +46,10 @@ impl<'a> Matches<'a> {
     }
 
     #[inline(always)]
-    fn is_inlier(&self, i: usize, r: &Matrix3<f64>, t: &Vector3<f64>) -> bool {
+    pub(crate) fn is_inlier(&self, i: usize, r: &Matrix3<f64>, t: &Vector3<f64>) -> bool {
         let p = r * self.point(i) + t;
         // Behind (or on) the camera plane is an outlier whatever it reprojects to.
         p.z > 0.0 && self.scaled_error_sq(i, &p) < self.threshold_sq * p.z * p.z
-    }
-
-    /// Inlier count under `pose`, but gives up (returning something ≤ `to_beat`) as soon as
-    /// it cannot exceed `to_beat`: most RANSAC hypotheses are bad, and this is the hot loop.
-    pub(crate) fn count_inliers(&self, pose: &Pose, to_beat: usize) -> usize {
-        let r = pose.rotation.matrix();
-        let n = self.len();
-        let max_outliers = n.saturating_sub(to_beat + 1);
-        let mut outliers = 0;
-        for i in 0..n {
-            if !self.is_inlier(i, r, &pose.translation) {
-                outliers += 1;
-                if outliers > max_outliers {
-                    return 0;
-                }
-            }
-        }
-        n - outliers
     }
 
     /// MSAC score: Σ min(error², threshold²) over all matches, behind-camera ones at the cap.

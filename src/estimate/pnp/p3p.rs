@@ -7,6 +7,7 @@
 
 use nalgebra::{Matrix3, Rotation3, Vector3};
 
+use super::algebra::{adjugate, cubic_root, eigen_known_zero, quadratic_roots};
 use crate::geometry::Pose;
 
 /// Up to four poses, on the stack: this runs thousands of times per RANSAC call.
@@ -54,24 +55,32 @@ pub fn p3p(world: &[Vector3<f64>; 3], bearings: &[Vector3<f64>; 3]) -> P3pSoluti
     // D1 = a23·M12 − a12·M23 and D2 = a23·M13 − a13·M23, Mᵢⱼ the quadratic form of equation ij:
     // both vanish on the solutions and neither has a constant term.
     let d1 = Matrix3::new(
-        a23, 0.5 * a23 * b12, 0.0, //
-        0.5 * a23 * b12, a23 - a12, -0.5 * a12 * b23, //
-        0.0, -0.5 * a12 * b23, -a12,
+        a23,
+        0.5 * a23 * b12,
+        0.0, //
+        0.5 * a23 * b12,
+        a23 - a12,
+        -0.5 * a12 * b23, //
+        0.0,
+        -0.5 * a12 * b23,
+        -a12,
     );
     let d2 = Matrix3::new(
-        a23, 0.0, 0.5 * a23 * b13, //
-        0.0, -a13, -0.5 * a13 * b23, //
-        0.5 * a23 * b13, -0.5 * a13 * b23, a23 - a13,
+        a23,
+        0.0,
+        0.5 * a23 * b13, //
+        0.0,
+        -a13,
+        -0.5 * a13 * b23, //
+        0.5 * a23 * b13,
+        -0.5 * a13 * b23,
+        a23 - a13,
     );
     // det(D1 + g·D2) = det D2·g³ + tr(adj D2·D1)·g² + tr(adj D1·D2)·g + det D1.
     // A vanishing det D2 makes g = ∞ a root: D2 itself is then the degenerate member.
     let c3 = d2.determinant();
     let degenerate_member = if c3.abs() > 1e-12 {
-        let g = cubic_root(
-            (adjugate(&d2) * d1).trace() / c3,
-            (adjugate(&d1) * d2).trace() / c3,
-            d1.determinant() / c3,
-        );
+        let g = cubic_root((adjugate(&d2) * d1).trace() / c3, (adjugate(&d1) * d2).trace() / c3, d1.determinant() / c3);
         d1 + d2 * g
     } else {
         d2
@@ -96,7 +105,7 @@ pub fn p3p(world: &[Vector3<f64>; 3], bearings: &[Vector3<f64>; 3]) -> P3pSoluti
             }
             // E23 fixes the scale: λ2²(1 + b23·τ + τ²) = a23.
             let d = a23 / (tau * (b23 + tau) + 1.0);
-            if !(d > 0.0) {
+            if !d.is_finite() || d <= 0.0 {
                 continue;
             }
             let l2 = d.sqrt();
@@ -134,18 +143,26 @@ impl Equations {
         self.residuals(l).abs().sum()
     }
 
-    /// A few Newton steps on the three equations: the closed form loses digits when the
-    /// pencil is nearly degenerate, and this gets them back for a handful of flops.
+    /// Newton steps on the three equations, where needed: the closed form loses digits when
+    /// the pencil is nearly degenerate, and this gets them back.
     fn polish(&self, mut l: Vector3<f64>) -> Vector3<f64> {
         for _ in 0..5 {
             let r = self.residuals(&l);
-            if r.abs().sum() < 1e-15 {
+            // Distances are O(1) here. 1e-10 leaves pose errors ~1e-10, far below what RANSAC
+            // can tell and what LM then polishes anyway; tighter costs a 3×3 solve per root.
+            if r.abs().sum() < 1e-10 {
                 break;
             }
             let j = Matrix3::new(
-                2.0 * l.x + self.b12 * l.y, 2.0 * l.y + self.b12 * l.x, 0.0, //
-                2.0 * l.x + self.b13 * l.z, 0.0, 2.0 * l.z + self.b13 * l.x, //
-                0.0, 2.0 * l.y + self.b23 * l.z, 2.0 * l.z + self.b23 * l.y,
+                2.0 * l.x + self.b12 * l.y,
+                2.0 * l.y + self.b12 * l.x,
+                0.0, //
+                2.0 * l.x + self.b13 * l.z,
+                0.0,
+                2.0 * l.z + self.b13 * l.x, //
+                0.0,
+                2.0 * l.y + self.b23 * l.z,
+                2.0 * l.z + self.b23 * l.y,
             );
             match j.try_inverse() {
                 Some(inv) => l -= inv * r,
@@ -159,12 +176,14 @@ impl Equations {
 /// Orthonormal frame (columns) of a triangle from two of its edges; `None` when collinear.
 fn frame(e1: &Vector3<f64>, e2: &Vector3<f64>) -> Option<Matrix3<f64>> {
     let n = e1.cross(e2);
-    if !(n.norm_squared() > 1e-20 * e1.norm_squared() * e2.norm_squared()) {
-        return None;
+    // Written so that NaN fails it too.
+    if n.norm_squared() > 1e-20 * e1.norm_squared() * e2.norm_squared() {
+        let u = e1.normalize();
+        let w = n.normalize();
+        Some(Matrix3::from_columns(&[u, w.cross(&u), w]))
+    } else {
+        None
     }
-    let u = e1.normalize();
-    let w = n.normalize();
-    Some(Matrix3::from_columns(&[u, w.cross(&u), w]))
 }
 
 /// The rigid motion taking the world triangle onto the camera one: orthonormal by
@@ -182,87 +201,4 @@ fn pose_from_depths(
     let centroid_obj = (world[0] + world[1] + world[2]) / 3.0;
     let rotation = Rotation3::from_matrix_unchecked(r);
     Pose::new(rotation, centroid_cam - rotation * centroid_obj)
-}
-
-/// Rows r0, r1, r2 → adjugate with columns r1×r2, r2×r0, r0×r1.
-fn adjugate(m: &Matrix3<f64>) -> Matrix3<f64> {
-    let (r0, r1, r2) = (m.row(0).transpose(), m.row(1).transpose(), m.row(2).transpose());
-    Matrix3::from_columns(&[r1.cross(&r2), r2.cross(&r0), r0.cross(&r1)])
-}
-
-/// One real root of g³ + b·g² + c·g + d. Newton from the quadratic model beside the outer
-/// stationary point converges to an extreme root, whatever the spacing of the others.
-fn cubic_root(b: f64, c: f64, d: f64) -> f64 {
-    let h = |x: f64| ((x + b) * x + c) * x + d;
-    let dh = |x: f64| (3.0 * x + 2.0 * b) * x + c;
-    let disc = b * b - 3.0 * c;
-    let mut x = if disc > 0.0 {
-        let s = disc.sqrt();
-        let left = (-b - s) / 3.0; // local maximum
-        let hl = h(left);
-        if hl > 0.0 {
-            left - (hl / s).sqrt()
-        } else {
-            let right = (-b + s) / 3.0; // local minimum
-            right + (-h(right) / s).max(0.0).sqrt()
-        }
-    } else {
-        // Monotone: Newton from the inflection point cannot overshoot into a wrong basin.
-        let x = -b / 3.0;
-        if dh(x).abs() < 1e-4 { x + 1.0 } else { x }
-    };
-    for _ in 0..50 {
-        let f = h(x);
-        let df = dh(x);
-        if f.abs() < 1e-15 || df == 0.0 {
-            break;
-        }
-        x -= f / df;
-    }
-    x
-}
-
-/// Eigen-pairs of a symmetric 3×3 known to be singular: the two others, largest magnitude first.
-fn eigen_known_zero(a: &Matrix3<f64>) -> Option<(f64, Vector3<f64>, f64, Vector3<f64>)> {
-    // λ² − tr·λ + (sum of principal 2×2 minors) = 0.
-    let tr = a.trace();
-    let minors = a[(0, 0)] * a[(1, 1)] - a[(0, 1)] * a[(1, 0)] + a[(0, 0)] * a[(2, 2)] - a[(0, 2)] * a[(2, 0)]
-        + a[(1, 1)] * a[(2, 2)]
-        - a[(1, 2)] * a[(2, 1)];
-    let [e0, e1] = quadratic_roots(1.0, -tr, minors);
-    let (mut e0, mut e1) = (e0?, e1?);
-    if e0.abs() < e1.abs() {
-        std::mem::swap(&mut e0, &mut e1);
-    }
-    if !(e0.abs() > 1e-14) {
-        return None;
-    }
-    Some((e0, null_vector(&(a - Matrix3::identity() * e0))?, e1, null_vector(&(a - Matrix3::identity() * e1))?))
-}
-
-/// Unit vector spanning the null space of a rank-2 matrix: the best-conditioned cross product
-/// of two of its rows.
-fn null_vector(m: &Matrix3<f64>) -> Option<Vector3<f64>> {
-    let (r0, r1, r2) = (m.row(0).transpose(), m.row(1).transpose(), m.row(2).transpose());
-    let v = [r0.cross(&r1), r0.cross(&r2), r1.cross(&r2)]
-        .into_iter()
-        .max_by(|p, q| p.norm_squared().total_cmp(&q.norm_squared()))?;
-    let n = v.norm();
-    (n > 1e-300).then(|| v / n)
-}
-
-/// Real roots of a·x² + b·x + c (a may be 0), cancellation-free.
-fn quadratic_roots(a: f64, b: f64, c: f64) -> [Option<f64>; 2] {
-    if a == 0.0 {
-        return [(b != 0.0).then(|| -c / b), None];
-    }
-    let disc = b * b - 4.0 * a * c;
-    if disc < 0.0 {
-        return [None, None];
-    }
-    let q = -0.5 * (b + b.signum() * disc.sqrt());
-    if q == 0.0 {
-        return [Some(0.0), Some(0.0)];
-    }
-    [Some(q / a), Some(c / q)]
 }

@@ -147,7 +147,11 @@ impl Problem<'_, '_> {
             let w = match self.huber {
                 Some(d) => {
                     let norm = (ru * ru + rv * rv).sqrt();
-                    if norm > d { d / norm } else { 1.0 }
+                    if norm > d {
+                        d / norm
+                    } else {
+                        1.0
+                    }
                 }
                 None => 1.0,
             };

@@ -29,6 +29,15 @@ impl SplitMix64 {
         (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
     }
 
+    /// A uniformly random order of `0..n` (Fisher–Yates).
+    pub(crate) fn permutation(&mut self, n: usize) -> Vec<u32> {
+        let mut order: Vec<u32> = (0..n as u32).collect();
+        for i in (1..n).rev() {
+            order.swap(i, self.below(i + 1));
+        }
+        order
+    }
+
     /// `K` distinct indices in `0..n` (n ≥ K), by rejection: cheap while K ≪ n.
     pub(crate) fn distinct<const K: usize>(&mut self, n: usize) -> [usize; K] {
         debug_assert!(n >= K);

@@ -24,22 +24,23 @@ pub fn solve_pnp_ransac(
     let m = Matches::new(image_points, object_points, k, cfg.reprojection_threshold_px);
 
     let consensus = ransac::search(&m, cfg);
-    let no_consensus = PnpError::NoConsensus { best_inliers: consensus.inliers };
-    let best = consensus.pose.filter(|_| consensus.inliers >= need).ok_or(no_consensus.clone())?;
+    let best = match consensus.pose {
+        Some(pose) if consensus.inliers >= need => pose,
+        _ => return Err(PnpError::NoConsensus { best_inliers: consensus.inliers }),
+    };
 
     let mut inliers = m.inliers(&best);
     // An inlier set on a line fits a family of poses equally well: refuse rather than pick one.
     if degenerate_spread(image_points, object_points, inliers.iter().copied()) {
         return Err(PnpError::Degenerate);
     }
-    let reestimated = levenberg_marquardt(&m, &inliers, &best, &REESTIMATE);
-    let from_mirror = mirrored(&m, &inliers, &reestimated).map(|p| levenberg_marquardt(&m, &inliers, &p, &REESTIMATE));
-    let mut pose = [Some(reestimated), from_mirror]
-        .into_iter()
-        .flatten()
-        .map(|p| (m.truncated_cost(&p), p))
-        .min_by(|a, b| a.0.total_cmp(&b.0))
-        .map_or(reestimated, |(_, p)| p);
+    let mut pose = levenberg_marquardt(&m, &inliers, &best, &REESTIMATE);
+    if let Some(mirror) = mirrored(&m, &inliers, &pose) {
+        let mirror = levenberg_marquardt(&m, &inliers, &mirror, &REESTIMATE);
+        if m.truncated_cost(&mirror) < m.truncated_cost(&pose) {
+            pose = mirror;
+        }
+    }
     inliers = m.inliers(&pose);
     if cfg.refine {
         // Huber at half the threshold: the matches near the threshold are the likeliest
