@@ -115,3 +115,31 @@ fn bad_inputs_are_clear_errors() {
     assert!(matches!(err, EstimateError::BackboneMismatch { .. }), "{err}");
     assert!(err.to_string().contains("onboard it again"), "{err}");
 }
+
+#[test]
+fn retrieval_keeps_templates_apart_by_geodesic_nms() {
+    use b2tfpose::estimate::retrieve::{retrieve, RetrievalConfig};
+    use b2tfpose::geometry::geodesic_distance;
+    let f = fixture();
+    let q = f.model.global_descriptor(17).to_vec();
+    let sil = f.model.silhouette_words(17).to_vec();
+    // Without NMS the query's own template ranks first (cosine 1).
+    let plain = retrieve(&f.model, &q, &sil, &RetrievalConfig { k: 30, nms_degrees: 0.0, ..Default::default() });
+    assert_eq!(plain.len(), 30);
+    assert_eq!(plain[0].template, 17);
+    assert!(plain.windows(2).all(|w| w[0].score >= w[1].score));
+    // With NMS no two kept templates are closer than 20°, and the best one is still first.
+    let nms = retrieve(&f.model, &q, &sil, &RetrievalConfig { k: 30, nms_degrees: 20.0, ..Default::default() });
+    assert_eq!(nms[0].template, 17);
+    for (i, a) in nms.iter().enumerate() {
+        for b in &nms[i + 1..] {
+            let d = geodesic_distance(&f.model.templates[a.template].pose.rotation, &f.model.templates[b.template].pose.rotation);
+            assert!(d.to_degrees() >= 20.0 - 1e-9, "{} and {} are {:.1}° apart", a.template, b.template, d.to_degrees());
+        }
+    }
+    let all = retrieve(&f.model, &q, &sil, &RetrievalConfig { all_templates: true, ..Default::default() });
+    assert_eq!(all.len(), f.model.template_count());
+    // The silhouette term adds the IoU: the query's own template gets exactly cosine + 1.
+    let with_sil = retrieve(&f.model, &q, &sil, &RetrievalConfig { k: 1, silhouette_weight: 1.0, ..Default::default() });
+    assert!((with_sil[0].score - with_sil[0].cosine - 1.0).abs() < 1e-5);
+}

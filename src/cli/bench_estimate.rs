@@ -27,6 +27,9 @@ pub struct BenchEstimateArgs {
     /// Largest hidden share of an instance's silhouette.
     #[arg(long, default_value_t = 0.3)]
     pub max_occlusion: f64,
+    /// Object diameter as a share of the image height, drawn per instance: MIN,MAX.
+    #[arg(long, value_parser = parse_range, default_value = "0.10,0.40")]
+    pub fill: (f64, f64),
     /// Simulate the render-to-real gap: templates from the untextured mesh, harsher scenes.
     #[arg(long)]
     pub gap: bool,
@@ -74,6 +77,15 @@ fn size_bucket(mask: &image::GrayImage) -> usize {
     }
 }
 
+fn parse_range(s: &str) -> Result<(f64, f64), String> {
+    let (a, b) = s.split_once(',').ok_or_else(|| format!("expected MIN,MAX, got {s:?}"))?;
+    let (a, b) = (a.trim().parse::<f64>().map_err(|e| e.to_string())?, b.trim().parse::<f64>().map_err(|e| e.to_string())?);
+    if !(0.0 < a && a <= b && b <= 1.0) {
+        return Err(format!("need 0 < MIN ≤ MAX ≤ 1, got {a},{b}"));
+    }
+    Ok((a, b))
+}
+
 fn share((n, ok): (usize, usize)) -> String {
     if n == 0 { "–".into() } else { format!("{:.0} % of {n}", 100.0 * ok as f64 / n as f64) }
 }
@@ -114,7 +126,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         models.push(load_or_onboard(&id, &template_mesh, &a.models, backbone.as_ref(), &pool)?);
     }
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
-    let scene_cfg = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, max_occlusion: a.max_occlusion, render_to_real_gap: a.gap, seed: a.seed, ..Default::default() };
+    let scene_cfg = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, max_occlusion: a.max_occlusion, fill_range: a.fill, render_to_real_gap: a.gap, seed: a.seed, ..Default::default() };
     let estimator = Estimator::new(backbone, pool.clone());
     let mut base = EstimateConfig::default();
     if let Some(w) = a.silhouette_weight {
@@ -177,10 +189,12 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         base.retrieval.k, base.retrieval.nms_degrees, base.retrieval.silhouette_weight, base.pnp.reprojection_threshold_px
     );
     println!(
-        "{} instances in {} generated images ({} objects/image, ≤{:.0} % occluded, seed {}){}; objects: {}",
+        "{} instances in {} generated images ({} objects/image, diameter {:.2}–{:.2} of the image height, ≤{:.0} % occluded, seed {}){}; objects: {}",
         instances,
         a.images,
         a.objects_per_image,
+        a.fill.0,
+        a.fill.1,
         a.max_occlusion * 100.0,
         a.seed,
         if a.gap { ", render-to-real gap: untextured templates, harsher scenes" } else { "" },

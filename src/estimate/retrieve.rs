@@ -14,13 +14,14 @@ pub struct RetrievalConfig {
     pub nms_degrees: f64,
     /// Keep every template (ablation: no retrieval at all).
     pub all_templates: bool,
-    /// Weight of the silhouette IoU added to the cosine similarity (0 = descriptor only).
+    /// Weight of the silhouette IoU added to the cosine similarity. 0 by default: on the
+    /// generated HOPE benchmark it did not help (docs/benchmarks.md, "Silhouette in retrieval").
     pub silhouette_weight: f32,
 }
 
 impl Default for RetrievalConfig {
     fn default() -> Self {
-        Self { k: 125, nms_degrees: 20.0, all_templates: false, silhouette_weight: 1.0 }
+        Self { k: 125, nms_degrees: 20.0, all_templates: false, silhouette_weight: 0.0 }
     }
 }
 
