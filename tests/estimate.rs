@@ -143,3 +143,21 @@ fn retrieval_keeps_templates_apart_by_geodesic_nms() {
     let with_sil = retrieve(&f.model, &q, &sil, &RetrievalConfig { k: 1, silhouette_weight: 1.0, ..Default::default() });
     assert!((with_sil[0].score - with_sil[0].cosine - 1.0).abs() < 1e-5);
 }
+
+#[test]
+fn silhouette_depth_refiner_pulls_a_wrong_depth_back() {
+    use b2tfpose::estimate::silhouette_refiner::SilhouetteDepthRefiner;
+    use b2tfpose::estimate::{RefineContext, Refiner};
+    let f = fixture();
+    let s = scene(8);
+    let inst = &s.instances[0];
+    let refiner = SilhouetteDepthRefiner::new(f.pool.clone());
+    let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib };
+    for scale in [0.95, 1.06] {
+        let off = b2tfpose::geometry::Pose::new(inst.pose.rotation, inst.pose.translation * scale);
+        let refined = refiner.refine(&ctx, off).unwrap();
+        let before = (off.translation - inst.pose.translation).norm();
+        let after = (refined.translation - inst.pose.translation).norm();
+        assert!(after < 0.3 * before, "scale {scale}: {:.1} mm → {:.1} mm", before * 1e3, after * 1e3);
+    }
+}

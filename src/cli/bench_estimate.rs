@@ -1,6 +1,6 @@
 //! `b2tf bench estimate`: accuracy and per-stage times on generated scenes.
 
-use crate::estimate::{Detection, EstimateConfig, EstimateResult, Estimator};
+use crate::estimate::{Detection, EstimateConfig, EstimateResult};
 use crate::eval::pose_error::{mssd, rotation_error_deg, translation_error_m};
 use crate::eval::scenes::{generate_image, SceneConfig};
 use crate::features::{Backbone, EmbeddedBackbone, EmbeddedConfig};
@@ -50,6 +50,9 @@ pub struct BenchEstimateArgs {
     /// RANSAC reprojection threshold in pixels.
     #[arg(long)]
     pub pnp_threshold: Option<f64>,
+    /// Refiner after PnP/RRC: none (pass-through) or silhouette-depth.
+    #[arg(long, default_value = "none")]
+    pub refiner: String,
     /// Write an overlay PNG per image into this folder.
     #[arg(long)]
     pub overlays: Option<PathBuf>,
@@ -127,7 +130,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     }
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
     let scene_cfg = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, max_occlusion: a.max_occlusion, fill_range: a.fill, render_to_real_gap: a.gap, seed: a.seed, ..Default::default() };
-    let estimator = Estimator::new(backbone, pool.clone());
+    let estimator = super::estimator(backbone, pool.clone(), &a.refiner)?;
     let mut base = EstimateConfig::default();
     if let Some(w) = a.silhouette_weight {
         base.retrieval.silhouette_weight = w;

@@ -1,4 +1,4 @@
-use crate::estimate::{Detection, EstimateConfig, EstimateResult, Estimator};
+use crate::estimate::{Detection, EstimateConfig, EstimateResult};
 use crate::features::{EmbeddedBackbone, EmbeddedConfig};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::{artefact, ObjectModel};
@@ -27,6 +27,10 @@ pub struct EstimateArgs {
     /// Skip render-guided re-correspondence.
     #[arg(long)]
     pub no_rrc: bool,
+    /// Refiner after PnP/RRC: none (pass-through) or silhouette-depth (scales the
+    /// translation to the depth whose render best overlaps the mask).
+    #[arg(long, default_value = "none")]
+    pub refiner: String,
     /// Templates kept by retrieval.
     #[arg(long, default_value_t = 125)]
     pub k: usize,
@@ -63,7 +67,7 @@ pub fn run(a: EstimateArgs) -> Result<()> {
         .collect::<Result<Vec<_>>>()?;
     let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?);
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
-    let estimator = Estimator::new(backbone, renderer.clone());
+    let estimator = super::estimator(backbone, renderer.clone(), &a.refiner)?;
     let mut cfg = EstimateConfig { rrc: !a.no_rrc, ..Default::default() };
     cfg.retrieval.k = a.k;
     let result = estimator.estimate(&model, &image, &k, &detections, &cfg)?;

@@ -64,3 +64,13 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 pub fn open_renderer(size: usize) -> anyhow::Result<crate::render::RenderPool> {
     Ok(crate::render::RenderPool::new(size, crate::render::RendererConfig::default())?)
 }
+
+/// An estimator with the named refiner: "none" (pass-through) or "silhouette-depth".
+pub fn estimator(backbone: std::sync::Arc<dyn crate::features::Backbone>, renderer: std::sync::Arc<crate::render::RenderPool>, refiner: &str) -> anyhow::Result<crate::estimate::Estimator> {
+    let e = crate::estimate::Estimator::new(backbone, renderer.clone());
+    Ok(match refiner {
+        "none" => e,
+        "silhouette-depth" => e.with_refiner(std::sync::Arc::new(crate::estimate::silhouette_refiner::SilhouetteDepthRefiner::new(renderer))),
+        other => anyhow::bail!("unknown refiner {other:?}: none or silhouette-depth"),
+    })
+}

@@ -10,6 +10,7 @@ pub mod refine;
 pub mod retrieve;
 pub mod rrc;
 pub mod select;
+pub mod silhouette_refiner;
 
 pub use pipeline::{Detection, EstimateConfig, EstimateResult, Estimator, Hypothesis, StageTimings};
 pub use refine::{PassThrough, RefineContext, Refiner};
