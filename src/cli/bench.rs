@@ -167,23 +167,28 @@ fn onboard_table(data: &Path, default_units: Units, out: Option<PathBuf>, filter
     if meshes.is_empty() {
         bail!("no meshes under {}", data.display());
     }
-    let tmp;
+    let temporary = out.is_none();
     let out = match out {
         Some(o) => o,
-        None => {
-            tmp = tempfile_dir()?;
-            tmp.clone()
-        }
+        None => tempfile_dir()?,
     };
+    let result = onboard_rows(data, default_units, &meshes, &out);
+    if temporary {
+        let _ = std::fs::remove_dir_all(&out);
+    }
+    result
+}
+
+fn onboard_rows(data: &Path, default_units: Units, meshes: &[PathBuf], out: &Path) -> Result<()> {
     let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?;
     let pool = super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?;
     let config = OnboardConfig::default();
     println!("| mesh | units | vertices | faces | diameter (mm) | load (s) | onboarding (s) | templates | patches | model (MB) |");
     println!("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|");
     for path in meshes {
-        let units = units_for(&path, default_units);
+        let units = units_for(path, default_units);
         let t = Instant::now();
-        let mesh = match load_mesh(&path, units) {
+        let mesh = match load_mesh(path, units) {
             Ok(m) => m,
             Err(e) => {
                 println!("| {} | | | | | | failed: {e} | | | |", path.display());
@@ -195,11 +200,11 @@ fn onboard_table(data: &Path, default_units: Units, out: Option<PathBuf>, filter
         let t = Instant::now();
         let model = onboard(&id, &mesh, &config, &backbone, &pool, &|_| {})?;
         let onboard_s = t.elapsed().as_secs_f64();
-        let dir = artefact::save(&model, &out, true)?;
+        let dir = artefact::save(&model, out, true)?;
         let mb = artefact::stored_bytes(&dir) as f64 / 1e6;
         println!(
             "| {} | {} | {} | {} | {:.1} | {load_s:.2} | {onboard_s:.1} | {} | {} | {mb:.1} |",
-            path.strip_prefix(data).unwrap_or(&path).display(),
+            path.strip_prefix(data).unwrap_or(path).display(),
             units.map(|u| u.as_str()).unwrap_or("m (glTF)"),
             mesh.positions().len(),
             mesh.triangles().len(),
