@@ -64,3 +64,49 @@ fn bad_inputs_give_clear_errors() {
         assert!(err.contains(needle), "{args:?}: expected {needle:?} in {err}");
     }
 }
+
+#[test]
+fn estimate_writes_the_result_json_and_overlay() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    assert!(b2tf(&["sample", "--out", s(&d.join("sample"))]).0);
+    let mesh = d.join("sample/sample_box.obj");
+    let (ok, out, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--out", s(&d.join("models")), "--level", "1", "--in-plane", "6"]);
+    assert!(ok, "{out}{err}");
+    // The "photo": the box rendered at a pose (its mask serves as the detection).
+    let cam = d.join("cam.json");
+    std::fs::write(&cam, r#"{"K": [[500, 0, 159.5], [0, 500, 119.5], [0, 0, 1]], "resolution": [240, 320]}"#).unwrap();
+    let pose = "0.8660254,0,0.5, 0.25,0.8660254,-0.4330127, -0.4330127,0.5,0.75, 0.01,-0.01,0.6";
+    assert!(b2tf(&["render", "--mesh", s(&mesh), "--units", "m", "--camera", s(&cam), "--out", s(&d.join("r")), "--pose", pose]).0);
+    let (img, mask) = (d.join("r/rgb.png"), d.join("r/mask.png"));
+    let result = d.join("result.json");
+    let overlay = d.join("overlay.png");
+    let (ok, out, err) = b2tf(&[
+        "estimate", "--model", s(&d.join("models/box")), "--image", s(&img), "--camera", s(&cam), "--mask", s(&mask), "--score", "0.9",
+        "--no-rrc", "--out", s(&result), "--overlay", s(&overlay),
+    ]);
+    assert!(ok, "{out}{err}");
+    let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&result).unwrap()).unwrap();
+    let p = &doc["poses"][0];
+    assert_eq!(p["object"], "box");
+    assert_eq!(p["R"].as_array().unwrap().len(), 9);
+    assert_eq!(p["mask_index"], 0);
+    let t: Vec<f64> = p["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert!((t[2] - 0.6).abs() < 0.06, "depth {t:?}");
+    for stage in ["crop", "features", "retrieval", "matching", "pnp", "rrc", "selection", "total"] {
+        assert!(doc["timings_ms"][stage].is_number(), "missing timing {stage}");
+    }
+    assert!(image::open(&overlay).is_ok());
+
+    // Bad inputs: more scores than masks, a missing mask file, a camera of another size.
+    let (ok, _, err) = b2tf(&["estimate", "--model", s(&d.join("models/box")), "--image", s(&img), "--camera", s(&cam), "--mask", s(&mask), "--score", "1", "--score", "2", "--out", s(&result)]);
+    assert!(!ok && err.contains("--score values"), "{err}");
+    let (ok, _, err) = b2tf(&["estimate", "--model", s(&d.join("models/box")), "--image", s(&img), "--camera", s(&cam), "--mask", s(&d.join("none.png")), "--out", s(&result)]);
+    assert!(!ok && err.contains("none.png"), "{err}");
+    let cam2 = d.join("cam2.json");
+    std::fs::write(&cam2, r#"{"cam_K": [500, 0, 159.5, 0, 500, 119.5, 0, 0, 1], "width": 640, "height": 480}"#).unwrap();
+    let (ok, _, err) = b2tf(&["estimate", "--model", s(&d.join("models/box")), "--image", s(&img), "--camera", s(&cam2), "--mask", s(&mask), "--out", s(&result)]);
+    assert!(!ok && err.contains("camera resolution"), "{err}");
+    let (ok, _, err) = b2tf(&["estimate", "--model", s(&d.join("nope")), "--image", s(&img), "--camera", s(&cam), "--mask", s(&mask), "--out", s(&result)]);
+    assert!(!ok && err.contains("nope"), "{err}");
+}
