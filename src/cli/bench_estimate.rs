@@ -3,12 +3,11 @@
 use crate::estimate::{Detection, EstimateConfig, EstimateResult};
 use crate::eval::pose_error::{mssd, rotation_error_deg, translation_error_m};
 use crate::eval::scenes::{generate_image, SceneConfig};
-use crate::features::{Backbone, EmbeddedBackbone, EmbeddedConfig};
+use crate::features::{EmbeddedBackbone, EmbeddedConfig};
 use crate::mesh::{load_mesh, Mesh, Units};
-use crate::onboard::{artefact, onboard, ObjectModel, OnboardConfig};
 use crate::render::RenderPool;
 use anyhow::{bail, Result};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 #[derive(clap::Args, Debug)]
@@ -101,19 +100,6 @@ fn median(v: &mut [f64]) -> f64 {
     v[v.len() / 2]
 }
 
-fn load_or_onboard(id: &str, mesh: &Mesh, dir: &Path, backbone: &dyn Backbone, pool: &RenderPool) -> Result<ObjectModel> {
-    if let Ok(m) = artefact::load(&dir.join(id)) {
-        if m.backbone == backbone.identity() && m.mesh.positions() == mesh.positions() && m.mesh.has_texture() == mesh.has_texture() {
-            return Ok(m);
-        }
-    }
-    let pb = super::progress::bar(1944, &format!("onboarding {id}"));
-    let m = onboard(id, mesh, &OnboardConfig::default(), backbone, pool, &|p| pb.set_position(p.templates_done as u64))?;
-    pb.finish_and_clear();
-    artefact::save(&m, dir, true)?;
-    Ok(m)
-}
-
 pub fn run(a: BenchEstimateArgs) -> Result<()> {
     let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?);
     let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
@@ -126,7 +112,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     for (name, mesh) in &meshes {
         // Across the gap, templates come from the bare geometry while scenes stay textured.
         let (id, template_mesh) = if a.gap { (format!("{name}-untextured"), mesh.without_appearance()) } else { (name.clone(), mesh.clone()) };
-        models.push(load_or_onboard(&id, &template_mesh, &a.models, backbone.as_ref(), &pool)?);
+        models.push(super::cached_model(&id, &template_mesh, &a.models, backbone.as_ref(), &pool)?);
     }
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
     let scene_cfg = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, max_occlusion: a.max_occlusion, fill_range: a.fill, render_to_real_gap: a.gap, seed: a.seed, ..Default::default() };

@@ -4,11 +4,10 @@
 use super::estimate_cmd::{describe_pose, result_json, write_overlay};
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::eval::degrade::{add_noise, clutter_background, composite, gaussian_blur};
-use crate::features::{Backbone, EmbeddedBackbone, EmbeddedConfig};
+use crate::features::{EmbeddedBackbone, EmbeddedConfig};
 use crate::geometry::views::view_pose;
 use crate::geometry::{geodesic_distance, Intrinsics};
 use crate::mesh::procedural::{textured_box, Rng};
-use crate::onboard::{artefact, onboard, OnboardConfig};
 use crate::render::RenderOptions;
 use anyhow::{Context, Result};
 use nalgebra::Vector3;
@@ -34,21 +33,8 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?);
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
 
-    let models = a.out.join("models");
-    let model = match artefact::load(&models.join("demo-box")) {
-        Ok(m) if m.backbone == backbone.identity() && m.mesh.positions() == mesh.positions() => {
-            println!("using the onboarded demo object in {}", models.display());
-            m
-        }
-        _ => {
-            let pb = super::progress::bar(1944, "onboarding the demo object");
-            let m = onboard("demo-box", &mesh, &OnboardConfig::default(), backbone.as_ref(), &renderer, &|p| pb.set_position(p.templates_done as u64))?;
-            pb.finish_and_clear();
-            artefact::save(&m, &models, true)?;
-            println!("onboarded the demo object: {} templates, {} patches", m.template_count(), m.patch_count());
-            m
-        }
-    };
+    let model = super::cached_model("demo-box", &mesh, &a.out.join("models"), backbone.as_ref(), &renderer)?;
+    println!("demo object: {} templates, {} patches", model.template_count(), model.patch_count());
 
     // A photo-like scene: random pose, light, clutter, blur and sensor noise.
     let k = Intrinsics::new(600.0, 600.0, 319.5, 239.5, 640, 480)?;

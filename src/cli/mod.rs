@@ -74,3 +74,22 @@ pub fn estimator(backbone: std::sync::Arc<dyn crate::features::Backbone>, render
         other => anyhow::bail!("unknown refiner {other:?}: none or silhouette-depth"),
     })
 }
+
+/// The object `id` from `dir` when it was made from this mesh (geometry and appearance) by
+/// this backbone with the default settings; otherwise onboards it (with a progress bar)
+/// and saves it there. Benchmarks and the demo reuse models across runs this way.
+pub fn cached_model(id: &str, mesh: &crate::mesh::Mesh, dir: &std::path::Path, backbone: &dyn crate::features::Backbone, pool: &crate::render::RenderPool) -> anyhow::Result<crate::onboard::ObjectModel> {
+    use crate::onboard::{artefact, onboard, OnboardConfig};
+    let config = OnboardConfig::default();
+    if let Ok(m) = artefact::load(&dir.join(id)) {
+        if m.backbone == backbone.identity() && m.config == config && m.mesh.positions() == mesh.positions() && m.mesh.has_texture() == mesh.has_texture() {
+            return Ok(m);
+        }
+    }
+    let total = (crate::geometry::icosphere(config.views.level).len() as u32 * config.views.in_plane_steps) as u64;
+    let pb = progress::bar(total, &format!("onboarding {id}"));
+    let m = onboard(id, mesh, &config, backbone, pool, &|p| pb.set_position(p.templates_done as u64))?;
+    pb.finish_and_clear();
+    artefact::save(&m, dir, true)?;
+    Ok(m)
+}

@@ -32,15 +32,15 @@ pub fn crop_all(image: &RgbImage, masks: &[&GrayImage], padding: f64, size: u32)
 
 /// Encodes crops in one batched backbone call and gathers foreground descriptors.
 pub fn encode(backbone: &dyn Backbone, crops: Vec<(CropInput, CropBox)>, min_coverage: f32) -> Result<Vec<QueryView>, FeatureError> {
-    let inputs: Vec<CropInput> = crops.iter().map(|(c, _)| c.clone()).collect();
+    let silhouettes: Vec<Vec<u64>> = crops.iter().map(|(c, _)| pack_silhouette(&c.mask)).collect();
+    let (inputs, boxes): (Vec<CropInput>, Vec<CropBox>) = crops.into_iter().unzip();
     let maps = backbone.extract(&inputs)?;
     Ok(maps
         .into_iter()
-        .zip(crops)
-        .map(|(features, (crop, crop_box))| {
+        .zip(boxes.into_iter().zip(silhouettes))
+        .map(|(features, (crop_box, silhouette))| {
             let foreground = features.foreground(min_coverage);
             let descriptors = foreground.iter().flat_map(|&p| features.descriptor(p).iter().copied()).collect();
-            let silhouette = pack_silhouette(&crop.mask);
             QueryView { crop_box, features, foreground, descriptors, silhouette }
         })
         .collect())
