@@ -226,6 +226,17 @@ impl Mesh {
     pub fn bbox_center(&self) -> [f64; 3] {
         std::array::from_fn(|i| 0.5 * (self.bbox_min[i] as f64 + self.bbox_max[i] as f64))
     }
+    /// Largest distance from the bounding-box centre to a vertex, metres: the radius of a
+    /// sphere about `bbox_center` that holds the whole mesh (views and placements fit it).
+    pub fn bounding_radius(&self) -> f64 {
+        let c = self.bbox_center();
+        self.data
+            .positions
+            .iter()
+            .map(|p| (0..3).map(|i| (p[i] as f64 - c[i]).powi(2)).sum::<f64>().sqrt())
+            .fold(0.0, f64::max)
+    }
+
     /// Largest distance between two vertices, in metres (the BOP definition).
     pub fn diameter(&self) -> f64 {
         self.diameter

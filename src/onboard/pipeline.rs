@@ -47,13 +47,6 @@ pub fn base_intrinsics(size: u32) -> Intrinsics {
     Intrinsics { fx: size as f64, fy: size as f64, cx: c, cy: c, width: size, height: size }
 }
 
-/// Largest distance from the bounding-box centre to a vertex (the sphere the views fit).
-fn bounding_radius(mesh: &Mesh) -> (Vector3<f64>, f64) {
-    let c = Vector3::from(mesh.bbox_center());
-    let r = mesh.positions().iter().map(|p| (Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64) - c).norm()).fold(0.0, f64::max);
-    (c, r)
-}
-
 /// Chunk of base views rendered at once: bounds memory (each 512² render is ~2 MB).
 const VIEW_CHUNK: usize = 16;
 
@@ -73,7 +66,7 @@ pub fn onboard(
         return Err(OnboardError::Config(format!("render size {} / fill {} out of range", config.render_size, config.render_fill)));
     }
     let k = base_intrinsics(config.render_size);
-    let (centre, radius) = bounding_radius(mesh);
+    let (centre, radius) = (Vector3::from(mesh.bbox_center()), mesh.bounding_radius());
     let distance = fitted_distance(radius.max(1e-6), k.fx, config.render_size as f64 * 0.5, config.render_fill);
     let dirs = icosphere(config.views.level);
     let angles = config.views.in_plane_angles();

@@ -39,9 +39,7 @@ pub(super) struct Extent {
 
 impl Extent {
     pub fn of(mesh: &Mesh) -> Self {
-        let centre = Vector3::from(mesh.bbox_center());
-        let radius = mesh.positions().iter().map(|p| (Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64) - centre).norm()).fold(0.0, f64::max);
-        Self { centre, radius, diameter: mesh.diameter() }
+        Self { centre: Vector3::from(mesh.bbox_center()), radius: mesh.bounding_radius(), diameter: mesh.diameter() }
     }
 }
 
