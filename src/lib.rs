@@ -1,6 +1,7 @@
 //! b2tfpose: training-free zero-shot 6DoF pose estimation from one RGB image and a CAD mesh.
 //! See DESIGN.md in the repository for the method, the conventions and the architecture.
 
+pub mod bop;
 pub mod cli;
 pub mod estimate;
 pub mod eval;

@@ -86,7 +86,7 @@ fn size_bucket(mask: &image::GrayImage) -> usize {
     }
 }
 
-fn parse_range(s: &str) -> Result<(f64, f64), String> {
+pub(super) fn parse_range(s: &str) -> Result<(f64, f64), String> {
     let (a, b) = s.split_once(',').ok_or_else(|| format!("expected MIN,MAX, got {s:?}"))?;
     let (a, b) = (a.trim().parse::<f64>().map_err(|e| e.to_string())?, b.trim().parse::<f64>().map_err(|e| e.to_string())?);
     if !(0.0 < a && a <= b && b <= 1.0) {

@@ -2,6 +2,8 @@
 
 pub mod bench;
 pub mod bench_estimate;
+pub mod bop_cmd;
+pub mod bop_eval_cmd;
 pub mod camera_file;
 pub mod demo_cmd;
 pub mod estimate_cmd;
@@ -38,6 +40,9 @@ pub enum Command {
         #[arg(long, default_value_t = 3)]
         seed: u64,
     },
+    /// BOP benchmark: generate a dataset, run the estimator on one, score results (AR).
+    #[command(subcommand)]
+    Bop(bop_cmd::BopCommand),
     /// Benchmarks that print figures (re-identification, rendering, onboarding).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -56,6 +61,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         Command::Bench(b) => bench::run(b),
+        Command::Bop(b) => bop_cmd::run(b),
     }
 }
 

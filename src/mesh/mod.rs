@@ -21,3 +21,4 @@ pub use types::*;
 
 pub mod procedural;
 pub mod write_obj;
+pub mod write_ply;

@@ -1,7 +1,7 @@
 //! Writes generated images as one BOP scene: images, masks, depth and the three per-scene
 //! JSON files, plus the dataset's test targets and models info. Metres become mm here.
 
-use super::bop_format::*;
+use crate::bop::format::*;
 use super::generate::SceneImage;
 use crate::mesh::Mesh;
 use anyhow::{bail, Context, Result};
@@ -86,14 +86,23 @@ impl SceneWriter {
     }
 }
 
-/// `models/models_info.json`: evaluation needs each object's diameter (mm).
+/// `models/models_info.json`: evaluation needs each object's diameter (mm). Entries
+/// already in the file are kept as they are (a copied BOP models folder carries its
+/// symmetries there); objects without one get their measured diameter and box.
 pub(super) fn write_models_info(dataset: &Path, objects: &[(u32, Mesh)]) -> Result<()> {
-    let info: BTreeMap<u32, ModelInfo> = objects
-        .iter()
-        .map(|(id, m)| {
+    let path = dataset.join(MODELS_INFO);
+    let mut info: BTreeMap<u32, serde_json::Value> = if path.exists() {
+        let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+        let map: BTreeMap<String, serde_json::Value> = serde_json::from_str(&text).with_context(|| format!("{}: not a JSON object keyed by object id", path.display()))?;
+        map.into_iter().filter_map(|(k, v)| k.parse().ok().map(|id| (id, v))).collect()
+    } else {
+        BTreeMap::new()
+    };
+    for (id, m) in objects {
+        info.entry(*id).or_insert_with(|| {
             let (lo, hi) = m.bbox();
             let mm = |v: f32| v as f64 * 1000.0;
-            let info = ModelInfo {
+            let measured = ModelInfo {
                 diameter: m.diameter() * 1000.0,
                 min_x: mm(lo[0]),
                 min_y: mm(lo[1]),
@@ -101,11 +110,11 @@ pub(super) fn write_models_info(dataset: &Path, objects: &[(u32, Mesh)]) -> Resu
                 size_x: mm(hi[0] - lo[0]),
                 size_y: mm(hi[1] - lo[1]),
                 size_z: mm(hi[2] - lo[2]),
+                ..Default::default()
             };
-            (*id, info)
-        })
-        .collect();
-    let path = dataset.join(MODELS_INFO);
+            serde_json::to_value(measured).expect("serialisable")
+        });
+    }
     let dir = path.parent().expect("has a folder");
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     write_json(&path, &info)

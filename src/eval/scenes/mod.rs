@@ -19,8 +19,6 @@
 //! The object models themselves are not written.
 
 mod appearance;
-mod bop_format;
-mod bop_read;
 mod bop_write;
 mod config;
 mod generate;
@@ -30,8 +28,6 @@ mod placement;
 #[cfg(test)]
 mod tests;
 
-pub use bop_format::{scene_dir, CameraRecord, GtInfoRecord, GtRecord, ModelInfo, TargetRecord, TEST_SPLIT};
-pub use bop_read::{load_models_info, load_scene_gt, load_split_gt, DatasetError, GtInstance, ImageGt};
 pub use config::{Appearance, SceneConfig, MAX_OBJECTS_PER_IMAGE};
 pub use generate::{generate_image, SceneImage, SceneInstance};
 

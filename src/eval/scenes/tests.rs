@@ -2,6 +2,7 @@
 //! reproducibility. GPU tests skip without an adapter unless B2TF_REQUIRE_GPU=1.
 
 use super::*;
+use crate::bop::{load_models_info, load_scene_gt, load_split_gt, TEST_SPLIT};
 use crate::mesh::procedural::textured_box;
 use crate::render::{RenderError, RenderOptions, RendererConfig};
 use image::{GrayImage, ImageBuffer, Luma};

@@ -75,9 +75,10 @@ pub struct TargetRecord {
     pub scene_id: u32,
 }
 
-/// One object of `models/models_info.json`, mm: the diameter (largest vertex distance)
-/// and the model's axis-aligned box.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+/// One object of `models/models_info.json`, mm: the diameter (largest vertex distance),
+/// and the model's axis-aligned box. Symmetries, when listed, are read by
+/// `symmetry::parse_models_info`.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ModelInfo {
     pub diameter: f64,
     pub min_x: f64,

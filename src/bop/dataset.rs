@@ -1,7 +1,7 @@
-//! Reads the ground truth of BOP scenes (ours or a downloaded dataset's) back into the
-//! library's units: poses in metres, intrinsics with the image size.
+//! Reads BOP datasets (ours or a downloaded one) into the library's units: poses in
+//! metres, intrinsics with the image size. Errors name the file and the entry.
 
-use super::bop_format::*;
+use super::format::*;
 use crate::geometry::{Intrinsics, Pose};
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -60,21 +60,51 @@ pub fn load_split_gt(dataset: &Path, split: &str) -> Result<Vec<ImageGt>, Datase
     Ok(out)
 }
 
+/// What estimation needs of one image, all of which BOP publishes even for test sets whose
+/// ground truth is withheld: the camera and where the pixels are.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImageCamera {
+    /// With the image size read from the colour image's header.
+    pub cam: Intrinsics,
+    /// Depth PNG value × `depth_scale` = mm.
+    pub depth_scale: f64,
+    pub rgb_path: PathBuf,
+    pub depth_path: PathBuf,
+}
+
+fn scene_id_of(scene: &Path) -> Result<u32, DatasetError> {
+    let id = scene.file_name().and_then(|n| n.to_str()).and_then(|n| n.parse::<u32>().ok());
+    id.ok_or_else(|| invalid(scene, "a scene folder's name must be its numeric id"))
+}
+
+/// `scene_camera.json` of one scene folder, by image id.
+pub fn load_scene_cameras(scene: &Path) -> Result<BTreeMap<u32, ImageCamera>, DatasetError> {
+    let cam_path = scene.join(SCENE_CAMERA);
+    read_images(&cam_path)?
+        .into_iter()
+        .map(|(im_id, entry)| {
+            let cam: CameraRecord = serde_json::from_value(entry).map_err(|e| invalid(&cam_path, format!("image {im_id}: {e}")))?;
+            let rgb_path = colour_image(scene, im_id)?;
+            let (width, height) = image::image_dimensions(&rgb_path).map_err(|e| invalid(&rgb_path, e.to_string()))?;
+            let k = intrinsics(&cam, width, height).map_err(|m| invalid(&cam_path, format!("image {im_id}: {m}")))?;
+            Ok((im_id, ImageCamera { cam: k, depth_scale: cam.depth_scale, rgb_path, depth_path: depth_path(scene, im_id) }))
+        })
+        .collect()
+}
+
 /// The annotated images of one scene folder (`…/<scene_id:06>/`), by image id.
 pub fn load_scene_gt(scene: &Path) -> Result<Vec<ImageGt>, DatasetError> {
-    let scene_id = scene.file_name().and_then(|n| n.to_str()).and_then(|n| n.parse::<u32>().ok());
-    let scene_id = scene_id.ok_or_else(|| invalid(scene, "a scene folder's name must be its numeric id"))?;
+    let scene_id = scene_id_of(scene)?;
     let gt_path = scene.join(SCENE_GT);
     let cam_path = scene.join(SCENE_CAMERA);
     let info_path = scene.join(SCENE_GT_INFO);
     let gt = read_images(&gt_path)?;
-    let cams = read_images(&cam_path)?;
+    let mut cams = load_scene_cameras(scene)?;
     let infos = if info_path.exists() { Some(read_images(&info_path)?) } else { None };
     let mut out = Vec::with_capacity(gt.len());
     for (im_id, entry) in gt {
         let records: Vec<GtRecord> = parse_list(&gt_path, im_id, entry)?;
-        let cam_entry = cams.get(&im_id).ok_or_else(|| invalid(&cam_path, format!("no entry for image {im_id}, which {SCENE_GT} annotates")))?;
-        let cam: CameraRecord = serde_json::from_value(cam_entry.clone()).map_err(|e| invalid(&cam_path, format!("image {im_id}: {e}")))?;
+        let camera = cams.remove(&im_id).ok_or_else(|| invalid(&cam_path, format!("no entry for image {im_id}, which {SCENE_GT} annotates")))?;
         let visib: Vec<Option<f64>> = match &infos {
             None => vec![None; records.len()],
             Some(infos) => {
@@ -86,8 +116,6 @@ pub fn load_scene_gt(scene: &Path) -> Result<Vec<ImageGt>, DatasetError> {
                 list.iter().map(|i| Some(i.visib_fract)).collect()
             }
         };
-        let rgb_path = colour_image(scene, im_id)?;
-        let (width, height) = image::image_dimensions(&rgb_path).map_err(|e| invalid(&rgb_path, e.to_string()))?;
         let instances = records
             .iter()
             .zip(visib)
@@ -102,15 +130,7 @@ pub fn load_scene_gt(scene: &Path) -> Result<Vec<ImageGt>, DatasetError> {
                 })
             })
             .collect::<Result<_, DatasetError>>()?;
-        out.push(ImageGt {
-            scene_id,
-            im_id,
-            cam: intrinsics(&cam, width, height).map_err(|m| invalid(&cam_path, format!("image {im_id}: {m}")))?,
-            depth_scale: cam.depth_scale,
-            rgb_path,
-            depth_path: depth_path(scene, im_id),
-            instances,
-        });
+        out.push(ImageGt { scene_id, im_id, cam: camera.cam, depth_scale: camera.depth_scale, rgb_path: camera.rgb_path, depth_path: camera.depth_path, instances });
     }
     Ok(out)
 }
@@ -159,15 +179,53 @@ fn intrinsics(c: &CameraRecord, width: u32, height: u32) -> Result<Intrinsics, S
     Intrinsics::new(k[0], k[4], k[2], k[5], width, height).map_err(|e| e.to_string())
 }
 
-/// BOP colour images are PNG, some datasets' JPEG.
+/// BOP colour images are PNG (some datasets JPEG) in `rgb/`; grey-only datasets (ITODD)
+/// have `gray/` instead.
 fn colour_image(scene: &Path, im_id: u32) -> Result<PathBuf, DatasetError> {
     let png = rgb_path(scene, im_id);
-    let jpg = png.with_extension("jpg");
-    if png.is_file() {
-        Ok(png)
-    } else if jpg.is_file() {
-        Ok(jpg)
-    } else {
-        Err(invalid(&png, format!("missing colour image of image {im_id} (nor {} exists)", jpg.display())))
-    }
+    let gray = scene.join("gray").join(format!("{im_id:06}.png"));
+    let candidates = [png.clone(), png.with_extension("jpg"), gray.clone(), gray.with_extension("jpg")];
+    candidates
+        .into_iter()
+        .find(|p| p.is_file())
+        .ok_or_else(|| invalid(&png, format!("missing colour image of image {im_id} (nor .jpg, nor gray/{im_id:06}.png|jpg exists)")))
+}
+
+/// `test_targets_bop19.json`: which objects to estimate in which images, and how many
+/// instances of each. Each entry is checked, and an error names its index.
+pub fn load_targets(dataset: &Path) -> Result<Vec<TargetRecord>, DatasetError> {
+    let path = dataset.join(TEST_TARGETS);
+    let text = std::fs::read_to_string(&path).map_err(|source| DatasetError::Io { path: path.clone(), source })?;
+    let Value::Array(items) = serde_json::from_str(&text).map_err(|e| invalid(&path, format!("not JSON: {e}")))? else {
+        return Err(invalid(&path, "expected a list of {scene_id, im_id, obj_id, inst_count}"));
+    };
+    items
+        .into_iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let t: TargetRecord = serde_json::from_value(v).map_err(|e| invalid(&path, format!("entry {i}: {e}")))?;
+            if t.inst_count == 0 || t.obj_id == 0 {
+                return Err(invalid(&path, format!("entry {i}: obj_id and inst_count must be positive")));
+            }
+            Ok(t)
+        })
+        .collect()
+}
+
+/// The colour image as RGB (grey images are expanded), with the file named on failure.
+pub fn load_rgb(path: &Path) -> Result<image::RgbImage, DatasetError> {
+    Ok(image::open(path).map_err(|e| invalid(path, e.to_string()))?.to_rgb8())
+}
+
+/// A BOP depth PNG (16 bit) as depth in mm (value × `depth_scale`), 0 where unknown.
+pub fn load_depth_mm(path: &Path, depth_scale: f64) -> Result<(u32, u32, Vec<f32>), DatasetError> {
+    let img = image::open(path).map_err(|e| invalid(path, e.to_string()))?;
+    let depth = img.to_luma16();
+    let (w, h) = depth.dimensions();
+    Ok((w, h, depth.into_raw().into_iter().map(|v| (v as f64 * depth_scale) as f32).collect()))
+}
+
+/// `models/obj_<id:06>.ply`: BOP models are PLY in mm.
+pub fn model_path(dataset: &Path, obj_id: u32) -> PathBuf {
+    dataset.join("models").join(format!("obj_{obj_id:06}.ply"))
 }

@@ -1,0 +1,21 @@
+//! The BOP benchmark (bop.felk.cvut.cz): dataset layout and reading, default detections
+//! (RLE masks), the results CSV, the BOP'19 pose errors (VSD, MSSD, MSPD) with symmetries
+//! and their Average Recall, the runner that feeds a dataset through the estimator, and a
+//! generator of synthetic BOP datasets.
+
+pub mod dataset;
+pub mod detections;
+pub mod evaluate;
+pub mod format;
+pub mod instances;
+pub mod pose_errors;
+pub mod results_csv;
+pub mod rle;
+pub mod run;
+pub mod scoring;
+pub mod symmetry;
+pub mod synth;
+pub mod synth_masks;
+
+pub use dataset::{load_depth_mm, load_models_info, load_rgb, load_scene_cameras, load_scene_gt, load_split_gt, load_targets, model_path, DatasetError, GtInstance, ImageCamera, ImageGt};
+pub use format::{scene_dir, CameraRecord, GtInfoRecord, GtRecord, ModelInfo, TargetRecord, TEST_SPLIT};

@@ -1,0 +1,135 @@
+//! `b2tf bop run`: every target of a BOP split through the estimator, with that image's
+//! detections of that object, into the BOP results CSV.
+//!
+//! Per target (image, object, `inst_count`): the object's detections in the image are
+//! grouped into instances by mask overlap (`instances.rs`); the `inst_count` best groups are
+//! estimated, each group's masks being the candidates of the paper's multi-mask selection.
+//! `time` is the wall time of the whole image (decoding included), on every row of it.
+//! Results are appended image by image, and images already in the CSV are skipped, so an
+//! interrupted run resumes where it stopped.
+
+use super::dataset::{load_rgb, load_scene_cameras, load_targets, ImageCamera};
+use super::detections::DetectionIndex;
+use super::format::{scene_dir, TargetRecord};
+use super::instances::group_instances;
+use super::results_csv::{done_images, ResultRow, ResultsWriter};
+use crate::estimate::{Detection, EstimateConfig, EstimateError, Estimator};
+use crate::onboard::ObjectModel;
+use anyhow::{Context, Result};
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    pub split: String,
+    pub estimate: EstimateConfig,
+    /// Masks of one object overlapping their group's best mask at least this much are
+    /// treated as candidates for the same instance.
+    pub same_instance_iou: f64,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        Self { split: "test".into(), estimate: EstimateConfig::default(), same_instance_iou: 0.5 }
+    }
+}
+
+/// What a run did; targets that could not be estimated are counted, not fatal.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct RunSummary {
+    pub images: usize,
+    /// Images found in the CSV already and skipped.
+    pub images_done_before: usize,
+    pub targets: usize,
+    /// Sum of `inst_count` over the targets run.
+    pub instances_requested: usize,
+    pub estimates_written: usize,
+    /// Targets without any detection of their object in their image.
+    pub targets_without_detection: usize,
+    /// Detections that could not be used (bad size, empty mask), each counted.
+    pub unusable_detections: usize,
+    /// Instances for which the estimator returned no pose.
+    pub instances_without_pose: usize,
+    /// Estimator complaints about the input, by message, e.g. a detection the estimator refused.
+    pub failures: BTreeMap<String, usize>,
+}
+
+/// Runs the split's targets; `model` returns the onboarded object for a BOP object id
+/// (loading or onboarding it on first use); `progress(done, total)` is called per image.
+pub fn run(
+    dataset: &Path,
+    detections: &DetectionIndex,
+    out_csv: &Path,
+    estimator: &Estimator,
+    model: &mut dyn FnMut(u32) -> Result<Arc<ObjectModel>>,
+    opts: &RunOptions,
+    progress: &dyn Fn(usize, usize),
+) -> Result<RunSummary> {
+    let targets = load_targets(dataset)?;
+    let mut by_image: BTreeMap<(u32, u32), Vec<TargetRecord>> = BTreeMap::new();
+    for t in targets {
+        by_image.entry((t.scene_id, t.im_id)).or_default().push(t);
+    }
+    let done = if out_csv.exists() { done_images(out_csv)? } else { Default::default() };
+    let mut writer = ResultsWriter::open(out_csv)?;
+    let mut cameras: BTreeMap<u32, BTreeMap<u32, ImageCamera>> = BTreeMap::new();
+    let mut summary = RunSummary::default();
+    let total = by_image.len();
+    for (n, ((scene_id, im_id), targets)) in by_image.into_iter().enumerate() {
+        progress(n, total);
+        if done.contains(&(scene_id, im_id)) {
+            summary.images_done_before += 1;
+            continue;
+        }
+        if !cameras.contains_key(&scene_id) {
+            cameras.insert(scene_id, load_scene_cameras(&scene_dir(dataset, &opts.split, scene_id))?);
+        }
+        let camera = cameras[&scene_id].get(&im_id).with_context(|| format!("scene {scene_id}: no camera for image {im_id}, which {} lists", super::format::TEST_TARGETS))?;
+        let started = Instant::now();
+        let rgb = load_rgb(&camera.rgb_path)?;
+        let mut rows = Vec::new();
+        for t in &targets {
+            summary.targets += 1;
+            summary.instances_requested += t.inst_count as usize;
+            let dets = detections.get(scene_id, im_id, t.obj_id);
+            let mut masks = Vec::with_capacity(dets.len());
+            for d in dets {
+                match d.mask(camera.cam.width, camera.cam.height) {
+                    Ok(m) => masks.push((m, d.score)),
+                    Err(_) => summary.unusable_detections += 1,
+                }
+            }
+            if masks.is_empty() {
+                summary.targets_without_detection += 1;
+                continue;
+            }
+            let m = model(t.obj_id)?;
+            let refs: Vec<_> = masks.iter().map(|(m, s)| (m, *s)).collect();
+            for group in group_instances(&refs, opts.same_instance_iou).into_iter().take(t.inst_count as usize) {
+                let candidates: Vec<Detection> = group.iter().map(|&i| Detection { mask: masks[i].0.clone(), score: masks[i].1 as f32 }).collect();
+                match estimator.estimate(&m, &rgb, &camera.cam, &candidates, &opts.estimate) {
+                    Ok(r) => match r.pose {
+                        Some(pose) => rows.push(ResultRow { scene_id, im_id, obj_id: t.obj_id, score: r.score as f64, pose, time: 0.0 }),
+                        None => summary.instances_without_pose += 1,
+                    },
+                    Err(EstimateError::BadInput(msg)) => {
+                        summary.instances_without_pose += 1;
+                        *summary.failures.entry(msg).or_default() += 1;
+                    }
+                    Err(e) => return Err(e).with_context(|| format!("scene {scene_id}, image {im_id}, object {}", t.obj_id)),
+                }
+            }
+        }
+        let seconds = started.elapsed().as_secs_f64();
+        for r in &mut rows {
+            r.time = seconds;
+        }
+        writer.append_image(&rows)?;
+        summary.estimates_written += rows.len();
+        summary.images += 1;
+    }
+    progress(total, total);
+    Ok(summary)
+}

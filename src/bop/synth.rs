@@ -1,0 +1,157 @@
+//! `b2tf bop synth`: a complete BOP test dataset made from a BOP models folder (PLY in mm,
+//! optional `models_info.json`), plus a detections file in the CNOS default-detections
+//! format, so that `bop run` and `bop eval` can be exercised on any objects.
+//!
+//! Detections per target instance: its true visible mask with score 1.0; with `degraded`,
+//! one imperfect copy (eroded, dilated or shifted) scoring 0.4–0.8; with `distractors`, per
+//! image one detection that names an object wrongly (another instance's mask, or a blob
+//! where nothing is) scoring 0.1–0.5. The wrong ones are what mask selection must reject.
+
+use super::dataset::{load_split_gt, model_path};
+use super::detections::{write_detections, DetectionRecord};
+use super::format::{MODELS_INFO, TEST_SPLIT};
+use super::rle::Rle;
+use super::synth_masks::{area, morph, shift};
+use crate::eval::scenes::{generate_dataset, SceneConfig, SCENE_ID};
+use crate::mesh::procedural::Rng;
+use crate::mesh::{load_mesh, Mesh, Units};
+use crate::render::RenderPool;
+use anyhow::{bail, Context, Result};
+use image::{GrayImage, Luma};
+use std::path::{Path, PathBuf};
+
+/// The detections file `synth` writes, relative to the dataset root.
+pub const DETECTIONS_FILE: &str = "detections_synth.json";
+
+#[derive(Clone, Debug)]
+pub struct SynthOptions {
+    pub scene: SceneConfig,
+    pub degraded: bool,
+    pub distractors: bool,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct SynthSummary {
+    pub objects: Vec<u32>,
+    pub images: usize,
+    pub instances: usize,
+    pub detections: usize,
+    pub detections_path: PathBuf,
+}
+
+/// BOP object ids of the `obj_<id:06>.ply` files in a models folder, ascending.
+pub fn model_ids(models: &Path) -> Result<Vec<u32>> {
+    let mut ids = Vec::new();
+    for e in std::fs::read_dir(models).with_context(|| format!("reading {}", models.display()))? {
+        let name = e?.file_name();
+        let name = name.to_string_lossy();
+        if let Some(id) = name.strip_prefix("obj_").and_then(|s| s.strip_suffix(".ply")).and_then(|s| s.parse::<u32>().ok()) {
+            ids.push(id);
+        }
+    }
+    ids.sort_unstable();
+    if ids.is_empty() {
+        bail!("{}: no BOP models (obj_NNNNNN.ply) in this folder", models.display());
+    }
+    Ok(ids)
+}
+
+/// Copies the models (PLY files, their textures: every `obj_*` file) and the models_info
+/// entries of those objects into `out/models/`, then generates the scenes and detections.
+pub fn synth(models: &Path, out: &Path, opts: &SynthOptions, pool: &RenderPool) -> Result<SynthSummary> {
+    let ids = model_ids(models)?;
+    let out_models = out.join("models");
+    std::fs::create_dir_all(&out_models).with_context(|| format!("creating {}", out_models.display()))?;
+    for e in std::fs::read_dir(models)? {
+        let e = e?;
+        if e.file_name().to_string_lossy().starts_with("obj_") && e.file_type()?.is_file() {
+            let to = out_models.join(e.file_name());
+            std::fs::copy(e.path(), &to).with_context(|| format!("copying {} to {}", e.path().display(), to.display()))?;
+        }
+    }
+    copy_models_info(models, out, &ids)?;
+    let objects: Vec<(u32, Mesh)> = ids.iter().map(|&id| Ok((id, load_mesh(&model_path(out, id), Some(Units::Mm))?))).collect::<Result<_>>()?;
+    let summary = generate_dataset(&objects, &opts.scene, pool, out)?;
+    let detections = make_detections(out, &ids, opts)?;
+    let detections_path = out.join(DETECTIONS_FILE);
+    write_detections(&detections_path, &detections)?;
+    Ok(SynthSummary { objects: ids, images: summary.images, instances: summary.instances, detections: detections.len(), detections_path })
+}
+
+/// The source's models_info entries of the copied objects (symmetries included); objects
+/// it lacks are measured by the scene writer.
+fn copy_models_info(models: &Path, out: &Path, ids: &[u32]) -> Result<()> {
+    let src = models.join("models_info.json");
+    if !src.exists() {
+        return Ok(());
+    }
+    let text = std::fs::read_to_string(&src).with_context(|| format!("reading {}", src.display()))?;
+    let all: serde_json::Map<String, serde_json::Value> = serde_json::from_str(&text).with_context(|| format!("{}: not a JSON object keyed by object id", src.display()))?;
+    let kept: serde_json::Map<String, serde_json::Value> = all.into_iter().filter(|(k, _)| k.parse::<u32>().is_ok_and(|id| ids.contains(&id))).collect();
+    let dst = out.join(MODELS_INFO);
+    std::fs::write(&dst, serde_json::to_string_pretty(&kept)?).with_context(|| format!("writing {}", dst.display()))
+}
+
+fn record(im_id: u32, obj_id: u32, mask: &GrayImage, score: f64) -> DetectionRecord {
+    let rle = Rle::encode(mask);
+    let bbox = rle.bbox().map_or([0.0; 4], |b| b.map(|v| v as f64));
+    DetectionRecord { scene_id: SCENE_ID, image_id: im_id, obj_id, bbox, score, time: 0.0, segmentation: Some(rle) }
+}
+
+fn make_detections(dataset: &Path, ids: &[u32], opts: &SynthOptions) -> Result<Vec<DetectionRecord>> {
+    let images = load_split_gt(dataset, TEST_SPLIT)?;
+    let mut rng = Rng::new(opts.scene.seed ^ 0xDE7E_C710);
+    let mut out = Vec::new();
+    for img in &images {
+        let mut masks = Vec::new();
+        for inst in &img.instances {
+            let mask = image::open(&inst.mask_visib_path).with_context(|| format!("reading {}", inst.mask_visib_path.display()))?.to_luma8();
+            // BOP'19 targets are the instances at least 10 % visible; others get no detection.
+            if inst.visib_fract.unwrap_or(1.0) < 0.1 || area(&mask) == 0 {
+                continue;
+            }
+            out.push(record(img.im_id, inst.obj_id, &mask, 1.0));
+            if opts.degraded {
+                let bad = degrade(&mask, &mut rng);
+                if area(&bad) > 0 {
+                    out.push(record(img.im_id, inst.obj_id, &bad, rng.range(0.4, 0.8)));
+                }
+            }
+            masks.push((inst.obj_id, mask));
+        }
+        if opts.distractors {
+            let wrong_id = ids[(rng.next_u64() % ids.len() as u64) as usize];
+            let other = masks.iter().find(|(id, _)| *id != wrong_id);
+            let mask = match other {
+                Some((_, m)) => m.clone(),
+                None => blob(img.cam.width, img.cam.height, &mut rng),
+            };
+            out.push(record(img.im_id, wrong_id, &mask, rng.range(0.1, 0.5)));
+        }
+    }
+    Ok(out)
+}
+
+/// Eroded, dilated or shifted by 4–15 % of the mask's size.
+fn degrade(mask: &GrayImage, rng: &mut Rng) -> GrayImage {
+    let side = (area(mask) as f64).sqrt();
+    let r = (side * rng.range(0.04, 0.15)).round().max(1.0);
+    match rng.next_u64() % 3 {
+        0 => morph(mask, r as u32, false),
+        1 => morph(mask, r as u32, true),
+        _ => {
+            let a = rng.range(0.0, std::f64::consts::TAU);
+            shift(mask, (r * 1.5 * a.cos()).round() as i64, (r * 1.5 * a.sin()).round() as i64)
+        }
+    }
+}
+
+/// An elliptical blob somewhere in the image: a detection of nothing.
+fn blob(w: u32, h: u32, rng: &mut Rng) -> GrayImage {
+    let (cx, cy) = (rng.range(0.2, 0.8) * w as f64, rng.range(0.2, 0.8) * h as f64);
+    let (rx, ry) = (rng.range(0.03, 0.12) * h as f64, rng.range(0.03, 0.12) * h as f64);
+    GrayImage::from_fn(w, h, |x, y| {
+        let (dx, dy) = ((x as f64 - cx) / rx, (y as f64 - cy) / ry);
+        Luma([if dx * dx + dy * dy <= 1.0 { 255 } else { 0 }])
+    })
+}

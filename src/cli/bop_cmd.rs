@@ -1,0 +1,143 @@
+//! `b2tf bop run|eval|synth`: BOP datasets in, BOP results CSV and scores out.
+
+use crate::bop::detections::{read_detections, DetectionIndex};
+use crate::bop::run::{run as run_targets, RunOptions};
+use crate::bop::synth::{synth, SynthOptions};
+use crate::bop::model_path;
+use crate::estimate::EstimateConfig;
+use crate::eval::scenes::SceneConfig;
+use crate::features::{EmbeddedBackbone, EmbeddedConfig};
+use crate::mesh::{load_mesh, Units};
+use crate::onboard::ObjectModel;
+use crate::render::RenderPool;
+use anyhow::Result;
+use clap::{Args, Subcommand};
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+#[derive(Subcommand, Debug)]
+pub enum BopCommand {
+    /// Estimate every target of a BOP split from its detections; write the BOP results CSV.
+    Run(RunArgs),
+    /// Score a results CSV with the BOP'19 metrics (VSD, MSSD, MSPD; AR).
+    Eval(super::bop_eval_cmd::EvalArgs),
+    /// Generate a BOP test dataset and a detections file from a BOP models folder.
+    Synth(SynthArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct RunArgs {
+    /// Dataset root (holding models/, test/ and test_targets_bop19.json).
+    #[arg(long)]
+    pub dataset: PathBuf,
+    /// Detections in the BOP / CNOS default-detections JSON.
+    #[arg(long)]
+    pub detections: PathBuf,
+    /// Results CSV; images already in it are skipped (resume).
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long)]
+    pub no_rrc: bool,
+    #[arg(long, default_value = "test")]
+    pub split: String,
+    /// Where onboarded objects are kept (default: `b2tf-models/` beside the output CSV).
+    #[arg(long)]
+    pub models: Option<PathBuf>,
+    /// Refiner after PnP/RRC: none or silhouette-depth.
+    #[arg(long, default_value = "none")]
+    pub refiner: String,
+}
+
+#[derive(Args, Debug)]
+pub struct SynthArgs {
+    /// BOP models folder: obj_NNNNNN.ply in mm (textures beside them), optional models_info.json.
+    #[arg(long)]
+    pub models: PathBuf,
+    /// Output dataset root.
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = 20)]
+    pub images: usize,
+    #[arg(long, default_value_t = 3)]
+    pub objects_per_image: usize,
+    /// Object diameter as a share of the image height: MIN,MAX.
+    #[arg(long, value_parser = super::bench_estimate::parse_range, default_value = "0.10,0.40")]
+    pub fill: (f64, f64),
+    #[arg(long, default_value_t = 0.3)]
+    pub max_occlusion: f64,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Only the true masks, no degraded copies.
+    #[arg(long)]
+    pub no_degraded: bool,
+    /// No wrongly labelled detections.
+    #[arg(long)]
+    pub no_distractors: bool,
+}
+
+pub fn run(cmd: BopCommand) -> Result<()> {
+    match cmd {
+        BopCommand::Run(a) => run_cmd(a),
+        BopCommand::Eval(a) => super::bop_eval_cmd::run(a),
+        BopCommand::Synth(a) => synth_cmd(a),
+    }
+}
+
+fn run_cmd(a: RunArgs) -> Result<()> {
+    let detections = DetectionIndex::new(read_detections(&a.detections)?);
+    let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?);
+    let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
+    let estimator = super::estimator(backbone.clone(), pool.clone(), &a.refiner)?;
+    let models_dir = a.models.clone().unwrap_or_else(|| a.out.parent().unwrap_or(std::path::Path::new(".")).join("b2tf-models"));
+    let mut loaded: HashMap<u32, Arc<ObjectModel>> = HashMap::new();
+    let mut model = |obj_id: u32| -> Result<Arc<ObjectModel>> {
+        if let Some(m) = loaded.get(&obj_id) {
+            return Ok(m.clone());
+        }
+        let mesh = load_mesh(&model_path(&a.dataset, obj_id), Some(Units::Mm))?;
+        let m = Arc::new(super::cached_model(&format!("obj_{obj_id:06}"), &mesh, &models_dir, backbone.as_ref(), &pool)?);
+        loaded.insert(obj_id, m.clone());
+        Ok(m)
+    };
+    let opts = RunOptions { split: a.split.clone(), estimate: EstimateConfig { rrc: !a.no_rrc, ..Default::default() }, ..Default::default() };
+    let pb = super::progress::bar(0, "images");
+    let progress = |done: usize, total: usize| {
+        pb.set_length(total as u64);
+        pb.set_position(done as u64);
+    };
+    let s = run_targets(&a.dataset, &detections, &a.out, &estimator, &mut model, &opts, &progress)?;
+    pb.finish_and_clear();
+    println!(
+        "{} images estimated ({} already in {}), {} targets ({} instances requested): {} estimates written; {} targets without a detection, {} unusable detections, {} instances without a pose",
+        s.images,
+        s.images_done_before,
+        a.out.display(),
+        s.targets,
+        s.instances_requested,
+        s.estimates_written,
+        s.targets_without_detection,
+        s.unusable_detections,
+        s.instances_without_pose
+    );
+    for (msg, n) in &s.failures {
+        println!("  {n} × {msg}");
+    }
+    Ok(())
+}
+
+fn synth_cmd(a: SynthArgs) -> Result<()> {
+    let pool = super::open_renderer(RenderPool::DEFAULT_SIZE)?;
+    let scene = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, fill_range: a.fill, max_occlusion: a.max_occlusion, seed: a.seed, ..Default::default() };
+    let s = synth(&a.models, &a.out, &SynthOptions { scene, degraded: !a.no_degraded, distractors: !a.no_distractors }, &pool)?;
+    println!(
+        "wrote a BOP dataset to {}: objects {:?}, {} images, {} instances; {} detections in {}",
+        a.out.display(),
+        s.objects,
+        s.images,
+        s.instances,
+        s.detections,
+        s.detections_path.display()
+    );
+    Ok(())
+}
