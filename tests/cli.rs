@@ -110,3 +110,26 @@ fn estimate_writes_the_result_json_and_overlay() {
     let (ok, _, err) = b2tf(&["estimate", "--model", s(&d.join("nope")), "--image", s(&img), "--camera", s(&cam), "--mask", s(&mask), "--out", s(&result)]);
     assert!(!ok && err.contains("nope"), "{err}");
 }
+
+#[test]
+fn bop_commands_name_the_bad_file_and_entry() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let csv = d.join("results.csv");
+    std::fs::write(&csv, "scene_id,im_id,obj_id,score,R,t,time\n1,0,1,0.9,1 0 0 0 1 0 0 0,0 0 500,0.1\n").unwrap();
+    let (ok, _, err) = b2tf(&["bop", "eval", "--dataset", s(d), "--results", s(&csv)]);
+    assert!(!ok && err.contains("results.csv") && err.contains("line 2") && err.contains("R"), "{err}");
+
+    let dets = d.join("dets.json");
+    std::fs::write(&dets, r#"[{"scene_id": 1, "image_id": 0, "category_id": 1, "bbox": [0, 0, 4, 4], "score": 0.9, "segmentation": {"counts": [3, 2], "size": [4, 4]}}]"#).unwrap();
+    let (ok, _, err) = b2tf(&["bop", "run", "--dataset", s(d), "--detections", s(&dets), "--out", s(&d.join("out.csv"))]);
+    assert!(!ok && err.contains("dets.json") && err.contains("entry 0") && err.contains("segmentation"), "{err}");
+
+    // A well-formed detections file, but the dataset has no targets file.
+    std::fs::write(&dets, "[]").unwrap();
+    let (ok, _, err) = b2tf(&["bop", "run", "--dataset", s(d), "--detections", s(&dets), "--out", s(&d.join("out.csv"))]);
+    assert!(!ok && err.contains("test_targets_bop19.json"), "{err}");
+
+    let (ok, _, err) = b2tf(&["bop", "synth", "--models", s(d), "--out", s(&d.join("ds"))]);
+    assert!(!ok && err.contains("no BOP models"), "{err}");
+}
