@@ -560,6 +560,11 @@ mod tests {
     // so s never changes a decision. Row-major layout, `o` = object pixel.
     const KS: Intrinsics = [100.0, 100.0, 1.5, 1.5];
 
+    /// BOP19 VSD (δ 15, normalised by a 100 mm diameter, step cost) on the test camera.
+    fn vsd_step(est: &DepthMap, gt: &DepthMap, test: &DepthMap, taus: &[f64]) -> Vec<f64> {
+        vsd(est, gt, test, KS, 15.0, taus, true, 100.0, VsdCost::Step).unwrap()
+    }
+
     fn map(rows: [[f32; 4]; 4]) -> DepthMap {
         DepthMap::new(4, 4, rows.iter().flatten().copied().collect()).unwrap()
     }
@@ -579,18 +584,7 @@ mod tests {
     fn vsd_true_pose_is_zero() {
         let gt = render(0..2, 100.0);
         let test = map([[100.0, 100.0, 200.0, 200.0]; 4]);
-        let e = vsd(
-            &gt,
-            &gt,
-            &test,
-            KS,
-            15.0,
-            &[0.05, 0.5],
-            true,
-            100.0,
-            VsdCost::Step,
-        )
-        .unwrap();
+        let e = vsd_step(&gt, &gt, &test, &[0.05, 0.5]);
         assert_eq!(e, vec![0.0, 0.0]);
     }
 
@@ -604,18 +598,7 @@ mod tests {
         let gt = render(0..2, 100.0);
         let est = render(1..3, 100.0);
         let test = map([[100.0, 100.0, 200.0, 200.0]; 4]);
-        let e = vsd(
-            &est,
-            &gt,
-            &test,
-            KS,
-            15.0,
-            &[0.05, 0.5],
-            true,
-            100.0,
-            VsdCost::Step,
-        )
-        .unwrap();
+        let e = vsd_step(&est, &gt, &test, &[0.05, 0.5]);
         assert_eq!(e, vec![8.0 / 12.0, 8.0 / 12.0]);
     }
 
@@ -637,18 +620,7 @@ mod tests {
             [100.0, 100.0, 200.0, 200.0],
             [100.0, 0.0, 200.0, 200.0],
         ]);
-        let e = vsd(
-            &est,
-            &gt,
-            &test,
-            KS,
-            15.0,
-            &[0.05, 0.2],
-            true,
-            100.0,
-            VsdCost::Step,
-        )
-        .unwrap();
+        let e = vsd_step(&est, &gt, &test, &[0.05, 0.2]);
         assert_eq!(e, vec![1.0, 0.0]);
         // Unnormalised taus in mm give the same decisions.
         let e = vsd(
@@ -699,18 +671,7 @@ mod tests {
             [100.0, 100.0, 200.0, 200.0],
             [100.0, 100.0, 200.0, 200.0],
         ]);
-        let e = vsd(
-            &est,
-            &gt,
-            &test,
-            KS,
-            15.0,
-            &[0.2, 0.4],
-            true,
-            100.0,
-            VsdCost::Step,
-        )
-        .unwrap();
+        let e = vsd_step(&est, &gt, &test, &[0.2, 0.4]);
         assert_eq!(e, vec![1.0, 6.0 / 9.0]);
     }
 
@@ -719,34 +680,12 @@ mod tests {
         // Nothing rendered in either pose.
         let empty = DepthMap::zeros(4, 4);
         let test = map([[100.0; 4]; 4]);
-        let e = vsd(
-            &empty,
-            &empty,
-            &test,
-            KS,
-            15.0,
-            &[0.05, 0.3, 0.5],
-            true,
-            100.0,
-            VsdCost::Step,
-        )
-        .unwrap();
+        let e = vsd_step(&empty, &empty, &test, &[0.05, 0.3, 0.5]);
         assert_eq!(e, vec![1.0; 3]);
         // Object fully occluded in gt and estimate rendered at the same occluded spot.
         let gt = render(0..2, 100.0);
         let test = map([[50.0; 4]; 4]);
-        let e = vsd(
-            &gt,
-            &gt,
-            &test,
-            KS,
-            15.0,
-            &[0.05],
-            true,
-            100.0,
-            VsdCost::Step,
-        )
-        .unwrap();
+        let e = vsd_step(&gt, &gt, &test, &[0.05]);
         assert_eq!(e, vec![1.0]);
     }
 

@@ -83,10 +83,11 @@ pub fn run(
             summary.images_done_before += 1;
             continue;
         }
-        if !cameras.contains_key(&scene_id) {
-            cameras.insert(scene_id, load_scene_cameras(&scene_dir(dataset, &opts.split, scene_id))?);
-        }
-        let camera = cameras[&scene_id].get(&im_id).with_context(|| format!("scene {scene_id}: no camera for image {im_id}, which {} lists", super::format::TEST_TARGETS))?;
+        let scene_cameras = match cameras.entry(scene_id) {
+            std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::btree_map::Entry::Vacant(e) => e.insert(load_scene_cameras(&scene_dir(dataset, &opts.split, scene_id))?),
+        };
+        let camera = scene_cameras.get(&im_id).with_context(|| format!("scene {scene_id}: no camera for image {im_id}, which {} lists", super::format::TEST_TARGETS))?;
         let started = Instant::now();
         let rgb = load_rgb(&camera.rgb_path)?;
         let mut rows = Vec::new();

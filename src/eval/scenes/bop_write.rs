@@ -110,7 +110,6 @@ pub(super) fn write_models_info(dataset: &Path, objects: &[(u32, Mesh)]) -> Resu
                 size_x: mm(hi[0] - lo[0]),
                 size_y: mm(hi[1] - lo[1]),
                 size_z: mm(hi[2] - lo[2]),
-                ..Default::default()
             };
             serde_json::to_value(measured).expect("serialisable")
         });
