@@ -19,6 +19,7 @@ fn sample_render_and_onboard() {
     let (ok, out, err) = b2tf(&["sample", "--out", s(&d.join("sample"))]);
     assert!(ok, "{out}{err}");
     let mesh = d.join("sample/sample_box.obj");
+    let dir_store = format!("dir://{}", d.join("models").display());
     let cam = d.join("cam.json");
     std::fs::write(&cam, r#"{"cam_K": [500, 0, 159.5, 0, 500, 119.5, 0, 0, 1], "width": 320, "height": 240}"#).unwrap();
     let (ok, out, err) = b2tf(&["render", "--mesh", s(&mesh), "--units", "m", "--camera", s(&cam), "--out", s(&d.join("r")), "--pose", "1,0,0,0,1,0,0,0,1,0,0,0.5"]);
@@ -34,13 +35,23 @@ fn sample_render_and_onboard() {
     assert_eq!(depth.get_pixel(160, 120)[0], 4200);
     assert!(image::open(d.join("r/rgb.png")).is_ok());
 
-    let (ok, out, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--out", s(&d.join("models")), "--level", "0", "--in-plane", "2"]);
+    let (ok, out, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--store", &dir_store, "--level", "0", "--in-plane", "2"]);
     assert!(ok, "{out}{err}");
     assert!(out.contains("24 templates"), "{out}");
     assert!(d.join("models/box/manifest.json").is_file());
+    let (ok, out, err) = b2tf(&["objects", "list", "--store", &dir_store]);
+    assert!(ok && out.contains("| box | m |") && out.contains("1 objects"), "{out}{err}");
+    let (ok, out, err) = b2tf(&["objects", "show", "box", "--load", "--store", &dir_store]);
+    assert!(ok && out.contains("\"templates\": 24") && out.contains("\"loaded\""), "{out}{err}");
     // Same id again without --replace is refused, with it accepted.
-    let (ok, _, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--out", s(&d.join("models")), "--level", "0", "--in-plane", "1"]);
+    let (ok, _, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--store", &dir_store, "--level", "0", "--in-plane", "1"]);
     assert!(!ok && err.contains("--replace"), "{err}");
+    let (ok, out, err) = b2tf(&["objects", "delete", "box", "--store", &dir_store]);
+    assert!(ok && out.contains("deleted"), "{out}{err}");
+    let (ok, _, err) = b2tf(&["objects", "show", "box", "--store", &dir_store]);
+    assert!(!ok && err.contains("not found"), "{err}");
+    let (ok, _, err) = b2tf(&["objects", "list", "--store", "ftp://x"]);
+    assert!(!ok && err.contains("dir://PATH or sqlite://PATH"), "{err}");
 }
 
 #[test]
@@ -49,11 +60,12 @@ fn bad_inputs_give_clear_errors() {
     let d = dir.path();
     b2tf(&["sample", "--out", s(d)]);
     let mesh = d.join("sample_box.obj");
+    let store = format!("sqlite://{}", d.join("objects.db").display());
     let cases: Vec<(Vec<String>, &str)> = vec![
-        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--id".into(), "x".into(), "--out".into(), s(d).into()], "units must be given"),
-        (vec!["onboard".into(), "--mesh".into(), s(&d.join("nope.ply")).into(), "--units".into(), "mm".into(), "--id".into(), "x".into(), "--out".into(), s(d).into()], "nope.ply"),
-        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "../evil".into(), "--out".into(), s(d).into()], "invalid"),
-        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--out".into(), s(d).into(), "--level".into(), "7".into()], "level"),
+        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--id".into(), "x".into(), "--store".into(), store.clone()], "units must be given"),
+        (vec!["onboard".into(), "--mesh".into(), s(&d.join("nope.ply")).into(), "--units".into(), "mm".into(), "--id".into(), "x".into(), "--store".into(), store.clone()], "nope.ply"),
+        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "../evil".into(), "--store".into(), store.clone()], "invalid"),
+        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--level".into(), "7".into()], "level"),
         (vec!["render".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--camera".into(), s(&d.join("missing.json")).into(), "--out".into(), s(d).into()], "missing.json"),
         (vec!["render".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "furlongs".into(), "--camera".into(), "c.json".into(), "--out".into(), s(d).into()], "unknown length unit"),
     ];
@@ -71,7 +83,8 @@ fn estimate_writes_the_result_json_and_overlay() {
     let d = dir.path();
     assert!(b2tf(&["sample", "--out", s(&d.join("sample"))]).0);
     let mesh = d.join("sample/sample_box.obj");
-    let (ok, out, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--out", s(&d.join("models")), "--level", "1", "--in-plane", "6"]);
+    let store = format!("sqlite://{}", d.join("objects.db").display());
+    let (ok, out, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--store", &store, "--level", "1", "--in-plane", "6"]);
     assert!(ok, "{out}{err}");
     // The "photo": the box rendered at a pose (its mask serves as the detection).
     let cam = d.join("cam.json");
@@ -82,7 +95,7 @@ fn estimate_writes_the_result_json_and_overlay() {
     let result = d.join("result.json");
     let overlay = d.join("overlay.png");
     let (ok, out, err) = b2tf(&[
-        "estimate", "--model", s(&d.join("models/box")), "--image", s(&img), "--camera", s(&cam), "--mask", s(&mask), "--score", "0.9",
+        "estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--mask", s(&mask), "--score", "0.9",
         "--no-rrc", "--out", s(&result), "--overlay", s(&overlay),
     ]);
     assert!(ok, "{out}{err}");
@@ -99,15 +112,15 @@ fn estimate_writes_the_result_json_and_overlay() {
     assert!(image::open(&overlay).is_ok());
 
     // Bad inputs: more scores than masks, a missing mask file, a camera of another size.
-    let (ok, _, err) = b2tf(&["estimate", "--model", s(&d.join("models/box")), "--image", s(&img), "--camera", s(&cam), "--mask", s(&mask), "--score", "1", "--score", "2", "--out", s(&result)]);
+    let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--mask", s(&mask), "--score", "1", "--score", "2", "--out", s(&result)]);
     assert!(!ok && err.contains("--score values"), "{err}");
-    let (ok, _, err) = b2tf(&["estimate", "--model", s(&d.join("models/box")), "--image", s(&img), "--camera", s(&cam), "--mask", s(&d.join("none.png")), "--out", s(&result)]);
+    let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--mask", s(&d.join("none.png")), "--out", s(&result)]);
     assert!(!ok && err.contains("none.png"), "{err}");
     let cam2 = d.join("cam2.json");
     std::fs::write(&cam2, r#"{"cam_K": [500, 0, 159.5, 0, 500, 119.5, 0, 0, 1], "width": 640, "height": 480}"#).unwrap();
-    let (ok, _, err) = b2tf(&["estimate", "--model", s(&d.join("models/box")), "--image", s(&img), "--camera", s(&cam2), "--mask", s(&mask), "--out", s(&result)]);
+    let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam2), "--mask", s(&mask), "--out", s(&result)]);
     assert!(!ok && err.contains("camera resolution"), "{err}");
-    let (ok, _, err) = b2tf(&["estimate", "--model", s(&d.join("nope")), "--image", s(&img), "--camera", s(&cam), "--mask", s(&mask), "--out", s(&result)]);
+    let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "nope", "--image", s(&img), "--camera", s(&cam), "--mask", s(&mask), "--out", s(&result)]);
     assert!(!ok && err.contains("nope"), "{err}");
 }
 

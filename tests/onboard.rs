@@ -1,9 +1,10 @@
-//! Onboarding end to end on lavapipe: templates, 3D points, artefact round trip.
+//! Onboarding end to end on lavapipe: templates, 3D points, directory-store round trip.
 
 use b2tfpose::features::{EmbeddedBackbone, EmbeddedConfig};
 use b2tfpose::geometry::{Pose, ViewSampling};
 use b2tfpose::mesh::procedural::textured_box;
-use b2tfpose::onboard::{artefact, onboard, ObjectModel, OnboardConfig};
+use b2tfpose::onboard::{onboard, ObjectModel, OnboardConfig};
+use b2tfpose::store::{dir::DirStore, ObjectStore};
 use b2tfpose::render::{RenderPool, RendererConfig};
 use nalgebra::Point3;
 use std::sync::Mutex;
@@ -46,8 +47,10 @@ fn templates_have_consistent_points_and_round_trip() {
     assert!(worst_px < 1.0, "3D points reproject {worst_px:.2} crop px from their patch centres");
 
     let dir = tempfile::tempdir().unwrap();
-    let path = artefact::save(&m, dir.path(), false).unwrap();
-    let back = artefact::load(&path).unwrap();
+    let store = DirStore::open(dir.path()).unwrap();
+    store.put(&m, false).unwrap();
+    let path = dir.path().join(&m.object_id);
+    let back = store.get(&m.object_id).unwrap();
     assert_eq!(back.templates, m.templates);
     assert_eq!(back.patch_points, m.patch_points);
     assert_eq!(back.patch_descriptors, m.patch_descriptors);
@@ -57,24 +60,24 @@ fn templates_have_consistent_points_and_round_trip() {
     assert!(back.mesh.has_texture());
     assert!((back.diameter() - m.diameter()).abs() < 1e-12);
     // Saving again without `replace` refuses; with it, succeeds.
-    assert!(artefact::save(&m, dir.path(), false).is_err());
-    artefact::save(&m, dir.path(), true).unwrap();
+    assert!(store.put(&m, false).is_err());
+    store.put(&m, true).unwrap();
 
     // Broken manifests and tensors give errors naming the file.
     let manifest = path.join("manifest.json");
     let good = std::fs::read_to_string(&manifest).unwrap();
-    std::fs::write(&manifest, good.replace("\"format_version\": 1", "\"format_version\": 99")).unwrap();
-    let e = artefact::load(&path).unwrap_err().to_string();
-    assert!(e.contains("manifest.json") && e.contains("newer"), "{e}");
+    std::fs::write(&manifest, good.replace(&format!("\"format_version\": {}", b2tfpose::onboard::MODEL_FORMAT_VERSION), "\"format_version\": 99")).unwrap();
+    let e = store.get(&m.object_id).unwrap_err().to_string();
+    assert!(e.contains("box-1") && e.contains("newer"), "{e}");
     std::fs::write(&manifest, &good[..good.len() / 2]).unwrap();
-    let e = artefact::load(&path).unwrap_err().to_string();
-    assert!(e.contains("manifest.json") && e.contains("invalid JSON"), "{e}");
+    let e = store.get(&m.object_id).unwrap_err().to_string();
+    assert!(e.contains("box-1") && e.contains("invalid JSON"), "{e}");
     std::fs::write(&manifest, &good).unwrap();
     let tensors = path.join("tensors.safetensors");
     let bytes = std::fs::read(&tensors).unwrap();
     std::fs::write(&tensors, &bytes[..bytes.len() / 2]).unwrap();
-    let e = artefact::load(&path).unwrap_err().to_string();
-    assert!(e.contains("tensors.safetensors"), "{e}");
+    let e = store.get(&m.object_id).unwrap_err().to_string();
+    assert!(e.contains("box-1") && e.contains("tensors"), "{e}");
 }
 
 #[test]

@@ -4,7 +4,7 @@ use crate::eval::reid::ReidSet;
 use crate::features::{EmbeddedBackbone, EmbeddedConfig};
 use crate::geometry::views::{fitted_distance, view_pose};
 use crate::mesh::{load_mesh, procedural::textured_box, Mesh, Units};
-use crate::onboard::{artefact, onboard, OnboardConfig};
+use crate::onboard::{onboard, OnboardConfig};
 use crate::render::RenderOptions;
 use anyhow::{bail, Result};
 use std::path::{Path, PathBuf};
@@ -50,9 +50,10 @@ pub enum BenchCommand {
         /// models_info.json, are mm by the BOP format).
         #[arg(long)]
         default_units: Units,
-        /// Where the models are written (default: a temporary folder, removed afterwards).
+        /// Object store the models are put into (default: a temporary SQLite store,
+        /// removed afterwards).
         #[arg(long)]
-        out: Option<PathBuf>,
+        store: Option<String>,
         /// Only meshes whose path contains this text.
         #[arg(long)]
         filter: Option<String>,
@@ -64,7 +65,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Reid { mesh, units, pairs, seed } => reid(mesh_or_box(mesh, units)?, pairs, seed),
         BenchCommand::Estimate(a) => super::bench_estimate::run(a),
         BenchCommand::Render { mesh, units, size, count } => render(mesh_or_box(mesh, units)?, size, count),
-        BenchCommand::Onboard { data, default_units, out, filter } => onboard_table(&data, default_units, out, filter),
+        BenchCommand::Onboard { data, default_units, store, filter } => onboard_table(&data, default_units, store, filter),
     }
 }
 
@@ -160,38 +161,39 @@ fn units_for(path: &Path, default_units: Units) -> Option<Units> {
     }
 }
 
-fn onboard_table(data: &Path, default_units: Units, out: Option<PathBuf>, filter: Option<String>) -> Result<()> {
+fn onboard_table(data: &Path, default_units: Units, store: Option<String>, filter: Option<String>) -> Result<()> {
     let mut meshes = Vec::new();
     find_meshes(data, &mut meshes);
     meshes.retain(|p| filter.as_ref().is_none_or(|f| p.to_string_lossy().contains(f.as_str())));
     if meshes.is_empty() {
         bail!("no meshes under {}", data.display());
     }
-    let temporary = out.is_none();
-    let out = match out {
-        Some(o) => o,
-        None => tempfile_dir()?,
+    let temporary = match store {
+        Some(_) => None,
+        None => Some(tempfile_dir()?),
     };
-    let result = onboard_rows(data, default_units, &meshes, &out);
-    if temporary {
-        let _ = std::fs::remove_dir_all(&out);
+    let url = store.unwrap_or_else(|| format!("sqlite://{}", temporary.as_ref().expect("set").join("objects.db").display()));
+    let result = crate::store::open(&url).map_err(anyhow::Error::from).and_then(|store| onboard_rows(data, default_units, &meshes, store.as_ref()));
+    if let Some(t) = temporary {
+        let _ = std::fs::remove_dir_all(&t);
     }
     result
 }
 
-fn onboard_rows(data: &Path, default_units: Units, meshes: &[PathBuf], out: &Path) -> Result<()> {
+fn onboard_rows(data: &Path, default_units: Units, meshes: &[PathBuf], store: &dyn crate::store::ObjectStore) -> Result<()> {
     let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?;
     let pool = super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?;
     let config = OnboardConfig::default();
-    println!("| mesh | units | vertices | faces | diameter (mm) | load (s) | onboarding (s) | templates | patches | model (MB) |");
-    println!("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("{}", store.url());
+    println!("| mesh | units | vertices | faces | diameter (mm) | load (s) | onboarding (s) | store put (s) | templates | patches | model (MB) |");
+    println!("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for path in meshes {
         let units = units_for(path, default_units);
         let t = Instant::now();
         let mesh = match load_mesh(path, units) {
             Ok(m) => m,
             Err(e) => {
-                println!("| {} | | | | | | failed: {e} | | | |", path.display());
+                println!("| {} | | | | | | failed: {e} | | | | |", path.display());
                 continue;
             }
         };
@@ -200,10 +202,12 @@ fn onboard_rows(data: &Path, default_units: Units, meshes: &[PathBuf], out: &Pat
         let t = Instant::now();
         let model = onboard(&id, &mesh, &config, &backbone, &pool, &|_| {})?;
         let onboard_s = t.elapsed().as_secs_f64();
-        let dir = artefact::save(&model, out, true)?;
-        let mb = artefact::stored_bytes(&dir) as f64 / 1e6;
+        let t = Instant::now();
+        let info = store.put(&model, true)?;
+        let put_s = t.elapsed().as_secs_f64();
+        let mb = info.bytes as f64 / 1e6;
         println!(
-            "| {} | {} | {} | {} | {:.1} | {load_s:.2} | {onboard_s:.1} | {} | {} | {mb:.1} |",
+            "| {} | {} | {} | {} | {:.1} | {load_s:.2} | {onboard_s:.1} | {put_s:.2} | {} | {} | {mb:.1} |",
             path.strip_prefix(data).unwrap_or(path).display(),
             units.map(|u| u.as_str()).unwrap_or("m (glTF)"),
             mesh.positions().len(),

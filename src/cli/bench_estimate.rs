@@ -38,9 +38,9 @@ pub struct BenchEstimateArgs {
     pub harsh_scenes: bool,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Where onboarded objects are cached between runs.
-    #[arg(long, default_value = "out/bench-models")]
-    pub models: PathBuf,
+    /// Object store that caches onboarded objects between runs.
+    #[arg(long, default_value = "dir://out/bench-models")]
+    pub store: String,
     /// Weight of the silhouette IoU in template retrieval (default: the library's).
     #[arg(long)]
     pub silhouette_weight: Option<f32>,
@@ -59,6 +59,9 @@ pub struct BenchEstimateArgs {
     /// Write an overlay PNG per image into this folder.
     #[arg(long)]
     pub overlays: Option<PathBuf>,
+    /// Onboard with patch descriptors compressed to this many PCA components.
+    #[arg(long)]
+    pub pca: Option<usize>,
     /// Write one CSV row per instance and setting (errors, apparent size) into this file.
     #[arg(long)]
     pub per_instance: Option<PathBuf>,
@@ -115,11 +118,16 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     } else {
         a.meshes.iter().map(|p| Ok((p.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh").replace(' ', "_"), load_mesh(p, a.units)?))).collect::<Result<_>>()?
     };
+    let store = crate::store::open(&a.store)?;
     let mut models = Vec::new();
     for (name, mesh) in &meshes {
         // Across the gap, templates come from the bare geometry while scenes stay textured.
-        let (id, template_mesh) = if a.gap { (format!("{name}-untextured"), mesh.without_appearance()) } else { (name.clone(), mesh.clone()) };
-        models.push(super::cached_model(&id, &template_mesh, &a.models, backbone.as_ref(), &pool)?);
+        let (mut id, template_mesh) = if a.gap { (format!("{name}-untextured"), mesh.without_appearance()) } else { (name.clone(), mesh.clone()) };
+        if let Some(d) = a.pca {
+            id = format!("{id}-pca{d}");
+        }
+        let config = crate::onboard::OnboardConfig { pca_dim: a.pca, ..Default::default() };
+        models.push(super::cached_model_with(&id, &template_mesh, store.as_ref(), backbone.as_ref(), &pool, &config)?);
     }
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
     let scene_cfg = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, max_occlusion: a.max_occlusion, fill_range: a.fill, render_to_real_gap: a.gap || a.harsh_scenes, seed: a.seed, ..Default::default() };

@@ -41,9 +41,10 @@ pub struct RunArgs {
     pub no_rrc: bool,
     #[arg(long, default_value = "test")]
     pub split: String,
-    /// Where onboarded objects are kept (default: `b2tf-models/` beside the output CSV).
+    /// Object store for the dataset's onboarded objects (default:
+    /// sqlite://<folder of --out>/b2tf-objects.db; object ids are obj_NNNNNN).
     #[arg(long)]
-    pub models: Option<PathBuf>,
+    pub store: Option<String>,
     /// Refiner after PnP/RRC: none or silhouette-depth.
     #[arg(long, default_value = "none")]
     pub refiner: String,
@@ -89,14 +90,15 @@ fn run_cmd(a: RunArgs) -> Result<()> {
     let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?);
     let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
     let estimator = super::estimator(backbone.clone(), pool.clone(), &a.refiner)?;
-    let models_dir = a.models.clone().unwrap_or_else(|| a.out.parent().unwrap_or(std::path::Path::new(".")).join("b2tf-models"));
+    let url = a.store.clone().unwrap_or_else(|| format!("sqlite://{}", a.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new(".")).join("b2tf-objects.db").display()));
+    let store = crate::store::open(&url)?;
     let mut loaded: HashMap<u32, Arc<ObjectModel>> = HashMap::new();
     let mut model = |obj_id: u32| -> Result<Arc<ObjectModel>> {
         if let Some(m) = loaded.get(&obj_id) {
             return Ok(m.clone());
         }
         let mesh = load_mesh(&model_path(&a.dataset, obj_id), Some(Units::Mm))?;
-        let m = Arc::new(super::cached_model(&format!("obj_{obj_id:06}"), &mesh, &models_dir, backbone.as_ref(), &pool)?);
+        let m = Arc::new(super::cached_model(&format!("obj_{obj_id:06}"), &mesh, store.as_ref(), backbone.as_ref(), &pool)?);
         loaded.insert(obj_id, m.clone());
         Ok(m)
     };

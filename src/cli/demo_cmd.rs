@@ -33,7 +33,8 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?);
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
 
-    let model = super::cached_model("demo-box", &mesh, &a.out.join("models"), backbone.as_ref(), &renderer)?;
+    let store = crate::store::open(&format!("sqlite://{}", a.out.join("objects.db").display()))?;
+    let model = super::cached_model("demo-box", &mesh, store.as_ref(), backbone.as_ref(), &renderer)?;
     println!("demo object: {} templates, {} patches", model.template_count(), model.patch_count());
 
     // A photo-like scene: random pose, light, clutter, blur and sensor noise.

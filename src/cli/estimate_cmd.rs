@@ -1,7 +1,7 @@
 use crate::estimate::{Detection, EstimateConfig, EstimateResult};
 use crate::features::{EmbeddedBackbone, EmbeddedConfig};
 use crate::geometry::{Intrinsics, Pose};
-use crate::onboard::{artefact, ObjectModel};
+use crate::onboard::ObjectModel;
 use anyhow::{bail, Context, Result};
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -9,9 +9,13 @@ use std::sync::Arc;
 
 #[derive(clap::Args, Debug)]
 pub struct EstimateArgs {
-    /// Object model folder written by `b2tf onboard` (OUT/ID).
+    /// Object store the object was onboarded into (default: $B2TF_STORE, else
+    /// sqlite://~/.local/share/b2tfpose/objects.db).
     #[arg(long)]
-    pub model: PathBuf,
+    pub store: Option<String>,
+    /// Id of the onboarded object.
+    #[arg(long)]
+    pub object: String,
     /// RGB image (PNG or JPEG).
     #[arg(long)]
     pub image: PathBuf,
@@ -56,7 +60,8 @@ pub fn run(a: EstimateArgs) -> Result<()> {
     if a.scores.len() > a.masks.len() {
         bail!("{} --score values for {} --mask files", a.scores.len(), a.masks.len());
     }
-    let model = artefact::load(&a.model).with_context(|| format!("loading object model {}", a.model.display()))?;
+    let store = crate::store::open(&a.store.clone().unwrap_or_else(crate::store::default_url))?;
+    let model = store.get(&a.object).with_context(|| format!("loading object {:?} from {}", a.object, store.url()))?;
     let image = image::open(&a.image).with_context(|| format!("cannot read image {}", a.image.display()))?.to_rgb8();
     let k = super::camera_file::load_camera(&a.camera)?;
     let detections = a

@@ -7,6 +7,7 @@ pub mod bop_eval_cmd;
 pub mod camera_file;
 pub mod demo_cmd;
 pub mod estimate_cmd;
+pub mod objects_cmd;
 pub mod onboard_cmd;
 pub mod pose_arg;
 pub mod progress;
@@ -40,6 +41,8 @@ pub enum Command {
         #[arg(long, default_value_t = 3)]
         seed: u64,
     },
+    /// List, inspect or delete the objects of an object store.
+    Objects(objects_cmd::ObjectsArgs),
     /// BOP benchmark: generate a dataset, run the estimator on one, score results (AR).
     #[command(subcommand)]
     Bop(bop_cmd::BopCommand),
@@ -62,6 +65,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Bench(b) => bench::run(b),
         Command::Bop(b) => bop_cmd::run(b),
+        Command::Objects(a) => objects_cmd::run(a),
     }
 }
 
@@ -81,13 +85,18 @@ pub fn estimator(backbone: std::sync::Arc<dyn crate::features::Backbone>, render
     })
 }
 
-/// The object `id` from `dir` when it was made from this mesh (geometry and appearance) by
-/// this backbone with the default settings; otherwise onboards it (with a progress bar)
-/// and saves it there. Benchmarks and the demo reuse models across runs this way.
-pub fn cached_model(id: &str, mesh: &crate::mesh::Mesh, dir: &std::path::Path, backbone: &dyn crate::features::Backbone, pool: &crate::render::RenderPool) -> anyhow::Result<crate::onboard::ObjectModel> {
-    use crate::onboard::{artefact, onboard, OnboardConfig};
-    let config = OnboardConfig::default();
-    if let Ok(m) = artefact::load(&dir.join(id)) {
+/// The object `id` from `store` when it was made from this mesh (geometry and appearance)
+/// by this backbone with the default settings; otherwise onboards it (with a progress bar)
+/// and puts it there. Benchmarks and the demo reuse models across runs this way.
+pub fn cached_model(id: &str, mesh: &crate::mesh::Mesh, store: &dyn crate::store::ObjectStore, backbone: &dyn crate::features::Backbone, pool: &crate::render::RenderPool) -> anyhow::Result<crate::onboard::ObjectModel> {
+    cached_model_with(id, mesh, store, backbone, pool, &crate::onboard::OnboardConfig::default())
+}
+
+/// `cached_model` with other onboarding settings (e.g. PCA compression).
+pub fn cached_model_with(id: &str, mesh: &crate::mesh::Mesh, store: &dyn crate::store::ObjectStore, backbone: &dyn crate::features::Backbone, pool: &crate::render::RenderPool, config: &crate::onboard::OnboardConfig) -> anyhow::Result<crate::onboard::ObjectModel> {
+    use crate::onboard::onboard;
+    let config = config.clone();
+    if let Ok(m) = store.get(id) {
         if m.backbone == backbone.identity() && m.config == config && m.mesh.positions() == mesh.positions() && m.mesh.has_texture() == mesh.has_texture() {
             return Ok(m);
         }
@@ -96,6 +105,6 @@ pub fn cached_model(id: &str, mesh: &crate::mesh::Mesh, dir: &std::path::Path, b
     let pb = progress::bar(total, &format!("onboarding {id}"));
     let m = onboard(id, mesh, &config, backbone, pool, &|p| pb.set_position(p.templates_done as u64))?;
     pb.finish_and_clear();
-    artefact::save(&m, dir, true)?;
+    store.put(&m, true)?;
     Ok(m)
 }

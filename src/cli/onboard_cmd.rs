@@ -1,7 +1,7 @@
 use crate::features::{Backbone, EmbeddedBackbone, EmbeddedConfig};
 use crate::geometry::ViewSampling;
 use crate::mesh::{load_mesh, Units};
-use crate::onboard::{artefact, onboard, OnboardConfig};
+use crate::onboard::{onboard, OnboardConfig};
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -17,15 +17,19 @@ pub struct OnboardArgs {
     /// Object id (1–64 of A–Z a–z 0–9 - _ .).
     #[arg(long)]
     pub id: String,
-    /// Folder that receives the object model as OUT/ID/.
+    /// Object store: sqlite://PATH.db or dir://PATH (default: $B2TF_STORE, else
+    /// sqlite://~/.local/share/b2tfpose/objects.db).
     #[arg(long)]
-    pub out: PathBuf,
+    pub store: Option<String>,
     /// Icosphere subdivision level (0–3: 12, 42, 162, 642 viewpoints).
     #[arg(long, default_value_t = 2)]
     pub level: u32,
     /// In-plane rotations per viewpoint.
     #[arg(long, default_value_t = 12)]
     pub in_plane: u32,
+    /// Compress patch descriptors to this many PCA components (default: keep all, f16).
+    #[arg(long)]
+    pub pca: Option<usize>,
     /// Replace an existing object with the same id.
     #[arg(long)]
     pub replace: bool,
@@ -38,12 +42,12 @@ pub fn run(a: OnboardArgs) -> Result<()> {
     let t0 = Instant::now();
     let mesh = load_mesh(&a.mesh, a.units)?;
     let load_s = t0.elapsed().as_secs_f64();
-    let config = OnboardConfig { views: ViewSampling { level: a.level, in_plane_steps: a.in_plane }, ..Default::default() };
+    let config = OnboardConfig { views: ViewSampling { level: a.level, in_plane_steps: a.in_plane }, pca_dim: a.pca, ..Default::default() };
     config.views.validate().map_err(anyhow::Error::msg)?;
     crate::onboard::validate_object_id(&a.id)?;
-    let target = a.out.join(&a.id);
-    if target.exists() && !a.replace {
-        anyhow::bail!("{} already exists; pass --replace to overwrite it", target.display());
+    let store = crate::store::open(&a.store.clone().unwrap_or_else(crate::store::default_url))?;
+    if store.exists(&a.id)? && !a.replace {
+        anyhow::bail!("object {:?} already exists in {}; pass --replace to overwrite it", a.id, store.url());
     }
     let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?;
     let pool = super::open_renderer(a.render_pool)?;
@@ -53,8 +57,9 @@ pub fn run(a: OnboardArgs) -> Result<()> {
     let model = onboard(&a.id, &mesh, &config, &backbone, &pool, &|p| pb.set_position(p.templates_done as u64))?;
     pb.finish_and_clear();
     let onboard_s = t1.elapsed().as_secs_f64();
-    let path = artefact::save(&model, &a.out, a.replace).context("saving the object model")?;
-    let bytes = artefact::stored_bytes(&path);
+    let t2 = Instant::now();
+    let info = store.put(&model, a.replace).context("saving the object model")?;
+    let store_s = t2.elapsed().as_secs_f64();
     println!(
         "onboarded {:?}: {} templates, {} patches, diameter {:.1} mm, backbone {} ({})",
         a.id,
@@ -64,6 +69,6 @@ pub fn run(a: OnboardArgs) -> Result<()> {
         backbone.identity().name,
         backbone.identity().weights_hash
     );
-    println!("mesh load {load_s:.2} s, onboarding {onboard_s:.1} s, model {:.1} MB at {}", bytes as f64 / 1e6, path.display());
+    println!("mesh load {load_s:.2} s, onboarding {onboard_s:.1} s, storing {store_s:.2} s; {:.1} MB in {}", info.bytes as f64 / 1e6, store.url());
     Ok(())
 }

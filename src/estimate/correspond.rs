@@ -56,12 +56,12 @@ impl Correspondences {
 }
 
 /// Mutual nearest neighbours (each query patch's `k_nn` best) between query and pool.
-pub fn correspond(query: &QueryView, pool: &PatchPool, k_nn: usize) -> Correspondences {
+pub fn correspond(query: &QueryView, descriptors: &[f32], pool: &PatchPool, k_nn: usize) -> Correspondences {
     let mut c = Correspondences::default();
-    if pool.dim != query.features.local_dim {
+    if pool.dim == 0 || descriptors.len() != query.foreground.len() * pool.dim {
         return c;
     }
-    for m in mutual_matches(&query.descriptors, &pool.descriptors, pool.dim, k_nn) {
+    for m in mutual_matches(descriptors, &pool.descriptors, pool.dim, k_nn) {
         let (u, v) = query.patch_centre(m.query);
         let p = pool.points[m.pool];
         c.image_points.push([u, v]);

@@ -209,7 +209,8 @@ impl Estimator {
         timings.retrieval += ms(t);
 
         let t = Instant::now();
-        let corr = correspond(q, &pool, cfg.k_nn);
+        // Templates may hold PCA-compressed descriptors; the query goes into their space.
+        let corr = correspond(q, &model.to_stored_space(&q.descriptors), &pool, cfg.k_nn);
         h.matches = corr.len();
         timings.matching += ms(t);
 
@@ -230,7 +231,8 @@ impl Estimator {
         if cfg.rrc {
             let t = Instant::now();
             let pool = rrc_pool(model, &first.pose, k, self.backbone.as_ref(), &self.renderer)?;
-            let corr = correspond(q, &pool, cfg.k_nn);
+            // RRC's pool comes straight from the backbone: the query's own descriptors.
+            let corr = correspond(q, &q.descriptors, &pool, cfg.k_nn);
             h.rrc_matches = corr.len();
             // The RRC pose replaces the first when it explains at least as many matches.
             if let Ok(r) = run_pnp(&corr, k, &cfg.pnp) {

@@ -6,8 +6,9 @@ use crate::geometry::{CropBox, Intrinsics, PatchGrid, Pose, ViewSampling};
 use crate::mesh::Mesh;
 use half::f16;
 
-/// Version of the model layout; bumped on any change of meaning or layout.
-pub const MODEL_FORMAT_VERSION: u32 = 1;
+/// Version of the model layout; bumped on any change of meaning or layout. 2: optional
+/// PCA-compressed patch descriptors (version 1 models load as uncompressed).
+pub const MODEL_FORMAT_VERSION: u32 = 2;
 
 /// Side of the stored template silhouettes (crop mask downsampled, 1 bit per cell).
 pub const SILHOUETTE_SIZE: usize = 64;
@@ -25,11 +26,14 @@ pub struct OnboardConfig {
     pub crop_padding: f64,
     /// A patch is foreground when the object covers at least this share of it.
     pub min_coverage: f32,
+    /// Keep this many PCA components of the patch descriptors (None: all, as f16).
+    #[serde(default)]
+    pub pca_dim: Option<usize>,
 }
 
 impl Default for OnboardConfig {
     fn default() -> Self {
-        Self { views: ViewSampling::default(), render_size: 512, render_fill: 0.9, crop_padding: 0.1, min_coverage: 0.5 }
+        Self { views: ViewSampling::default(), render_size: 512, render_fill: 0.9, crop_padding: 0.1, min_coverage: 0.5, pca_dim: None }
     }
 }
 
@@ -62,9 +66,11 @@ pub struct ObjectModel {
     /// `templates × global_dim`, L2-normalised rows.
     pub global: Vec<f32>,
     pub global_dim: usize,
-    /// `patches × local_dim`, f16, L2-normalised rows.
+    /// `patches × local_dim`, f16, L2-normalised rows (after `pca` when there is one).
     pub patch_descriptors: Vec<f16>,
     pub local_dim: usize,
+    /// The projection applied to the backbone's patch descriptors, if compressed.
+    pub pca: Option<super::pca::Pca>,
     /// Object-frame point (metres) behind each patch centre.
     pub patch_points: Vec<[f32; 3]>,
     /// Patch index `i·n + j` in its template's crop grid.
@@ -99,6 +105,22 @@ impl ObjectModel {
         &self.silhouettes[t * SILHOUETTE_WORDS..(t + 1) * SILHOUETTE_WORDS]
     }
 
+    /// Approximate heap bytes held: the arrays, the mesh and its textures (for cache budgets).
+    pub fn memory_bytes(&self) -> usize {
+        let d = self.mesh.data();
+        let mesh = d.positions.len() * 12 + d.normals.len() * 12 + d.colors.len() * 12 + d.uvs.len() * 8 + d.triangles.len() * 12;
+        let textures: usize = self.mesh.materials().iter().filter_map(|m| m.texture.as_ref()).map(|t| t.as_raw().len()).sum();
+        self.global.len() * 4 + self.patch_descriptors.len() * 2 + self.patch_points.len() * 12 + self.patch_cells.len() * 2 + self.silhouettes.len() * 8 + self.templates.len() * std::mem::size_of::<Template>() + mesh + textures
+    }
+
+    /// Query patch descriptors (`n × backbone local_dim`) in the space of the stored ones.
+    pub fn to_stored_space<'a>(&self, descriptors: &'a [f32]) -> std::borrow::Cow<'a, [f32]> {
+        match &self.pca {
+            Some(p) => std::borrow::Cow::Owned(p.project(descriptors)),
+            None => std::borrow::Cow::Borrowed(descriptors),
+        }
+    }
+
     /// Checks the arrays agree with each other (used after loading).
     pub fn validate(&self) -> Result<(), String> {
         let t = self.templates.len();
@@ -108,7 +130,8 @@ impl ObjectModel {
             (self.patch_descriptors.len() == p * self.local_dim, "patch descriptors"),
             (self.patch_cells.len() == p, "patch cells"),
             (self.silhouettes.len() == t * SILHOUETTE_WORDS, "silhouettes"),
-            (self.local_dim == self.backbone.local_dim as usize, "local descriptor size vs backbone"),
+            (self.local_dim == self.pca.as_ref().map_or(self.backbone.local_dim as usize, |p| p.output_dim), "local descriptor size vs backbone and PCA"),
+            (self.pca.as_ref().is_none_or(|p| p.input_dim == self.backbone.local_dim as usize && p.validate().is_ok()), "PCA arrays"),
         ];
         if let Some((_, what)) = checks.iter().find(|(ok, _)| !ok) {
             return Err(format!("object {:?}: {what} do not match the template/patch counts", self.object_id));

@@ -89,7 +89,21 @@ pub fn onboard(
         parts.extend(done);
         progress(Progress { templates_done: parts.len() * angles.len(), templates_total: total });
     }
-    Ok(assemble(object_id, mesh, config, identity, k, grid, parts))
+    let mut model = assemble(object_id, mesh, config, identity, k, grid, parts);
+    if let Some(dim) = config.pca_dim {
+        compress(&mut model, dim)?;
+    }
+    Ok(model)
+}
+
+/// Fits the PCA on the model's own patch descriptors and stores them projected.
+fn compress(m: &mut ObjectModel, dim: usize) -> Result<(), OnboardError> {
+    let full: Vec<f32> = m.patch_descriptors.iter().map(|h| h.to_f32()).collect();
+    let pca = super::pca::Pca::fit(&full, m.local_dim, dim).map_err(OnboardError::Config)?;
+    m.patch_descriptors = pca.project(&full).into_iter().map(f16::from_f32).collect();
+    m.local_dim = dim;
+    m.pca = Some(pca);
+    Ok(())
 }
 
 /// The templates of one base view (all its in-plane rotations).
@@ -209,6 +223,7 @@ fn assemble(
         patch_points: vec![],
         patch_cells: vec![],
         silhouettes: vec![],
+        pca: None,
     };
     for p in parts {
         let offset = m.patch_points.len() as u32;

@@ -1,0 +1,213 @@
+//! An `ObjectModel` as bytes, shared by every store backend: a versioned JSON manifest
+//! (human-readable metadata), one safetensors buffer (descriptors, points, silhouettes, the
+//! mesh arrays; a zero-copy format, so a backend can hand in a memory map) and the mesh
+//! textures as PNG files named in the manifest.
+
+use crate::features::BackboneIdentity;
+use crate::geometry::{Intrinsics, PatchGrid};
+use crate::mesh::{Material, Mesh, MeshData, Part, Units};
+use crate::onboard::{ObjectModel, OnboardConfig, Template, MODEL_FORMAT_VERSION};
+use safetensors::{tensor::TensorView, Dtype, SafeTensors};
+use std::sync::Arc;
+
+#[derive(Debug, thiserror::Error)]
+pub enum CodecError {
+    #[error("{0}")]
+    Corrupt(String),
+    #[error("model format version {found} is newer than this program understands ({supported}); upgrade b2tfpose")]
+    TooNew { found: u32, supported: u32 },
+}
+
+fn corrupt(m: impl Into<String>) -> CodecError {
+    CodecError::Corrupt(m.into())
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct Manifest {
+    format_version: u32,
+    object_id: String,
+    created_unix_s: u64,
+    backbone: BackboneIdentity,
+    config: OnboardConfig,
+    render_intrinsics: Intrinsics,
+    grid: PatchGrid,
+    diameter_m: f64,
+    mesh: MeshManifest,
+    templates: Vec<Template>,
+    /// Since format 2; absent means uncompressed descriptors.
+    #[serde(default)]
+    pca: Option<crate::onboard::pca::Pca>,
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct MeshManifest {
+    name: String,
+    source_units: Units,
+    materials: Vec<MaterialManifest>,
+    /// (first_triangle, triangle_count, material)
+    parts: Vec<(u32, u32, u32)>,
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct MaterialManifest {
+    name: String,
+    base_color: [f32; 4],
+    texture_file: Option<String>,
+}
+
+/// The encoded parts of one object.
+pub struct Encoded {
+    /// `manifest.json`.
+    pub manifest: Vec<u8>,
+    /// `tensors.safetensors`.
+    pub tensors: Vec<u8>,
+    /// (name as referenced by the manifest, e.g. `textures/0.png`; PNG bytes).
+    pub textures: Vec<(String, Vec<u8>)>,
+}
+
+/// What listing needs of a stored object, from its manifest alone.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct ManifestSummary {
+    pub object_id: String,
+    pub format_version: u32,
+    pub source_units: Units,
+    pub diameter_m: f64,
+    pub backbone: BackboneIdentity,
+    pub templates: usize,
+    pub created_unix_s: u64,
+}
+
+pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
+    let mesh = &model.mesh;
+    let mut materials = Vec::new();
+    let mut textures = Vec::new();
+    for (i, m) in mesh.materials().iter().enumerate() {
+        let texture_file = match &m.texture {
+            Some(img) => {
+                let name = format!("textures/{i}.png");
+                let mut png = Vec::new();
+                img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).map_err(|e| corrupt(format!("cannot encode texture {i}: {e}")))?;
+                textures.push((name.clone(), png));
+                Some(name)
+            }
+            None => None,
+        };
+        materials.push(MaterialManifest { name: m.name.clone(), base_color: m.base_color, texture_file });
+    }
+    let manifest = Manifest {
+        format_version: MODEL_FORMAT_VERSION,
+        object_id: model.object_id.clone(),
+        created_unix_s: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0),
+        backbone: model.backbone.clone(),
+        config: model.config.clone(),
+        render_intrinsics: model.render_intrinsics,
+        grid: model.grid,
+        diameter_m: model.diameter(),
+        mesh: MeshManifest {
+            name: mesh.name().to_string(),
+            source_units: mesh.source_units(),
+            materials,
+            parts: mesh.parts().iter().map(|p| (p.first_triangle, p.triangle_count, p.material)).collect(),
+        },
+        templates: model.templates.clone(),
+        pca: model.pca.clone(),
+    };
+    let manifest = serde_json::to_vec_pretty(&manifest).map_err(|e| corrupt(e.to_string()))?;
+
+    let d = mesh.data();
+    let t = model.templates.len();
+    let p = model.patch_points.len();
+    let tensors: Vec<(&str, Dtype, Vec<usize>, &[u8])> = vec![
+        ("global", Dtype::F32, vec![t, model.global_dim], bytemuck::cast_slice(&model.global)),
+        ("patch_descriptors", Dtype::F16, vec![p, model.local_dim], bytemuck::cast_slice(&model.patch_descriptors)),
+        ("patch_points", Dtype::F32, vec![p, 3], bytemuck::cast_slice(&model.patch_points)),
+        ("patch_cells", Dtype::U16, vec![p], bytemuck::cast_slice(&model.patch_cells)),
+        ("silhouettes", Dtype::U64, vec![model.silhouettes.len()], bytemuck::cast_slice(&model.silhouettes)),
+        ("mesh_positions", Dtype::F32, vec![d.positions.len(), 3], bytemuck::cast_slice(&d.positions)),
+        ("mesh_normals", Dtype::F32, vec![d.normals.len(), 3], bytemuck::cast_slice(&d.normals)),
+        ("mesh_colors", Dtype::F32, vec![d.colors.len(), 3], bytemuck::cast_slice(&d.colors)),
+        ("mesh_uvs", Dtype::F32, vec![d.uvs.len(), 2], bytemuck::cast_slice(&d.uvs)),
+        ("mesh_triangles", Dtype::U32, vec![d.triangles.len(), 3], bytemuck::cast_slice(&d.triangles)),
+    ];
+    let views = tensors.into_iter().map(|(name, dt, shape, bytes)| TensorView::new(dt, shape, bytes).map(|v| (name, v))).collect::<Result<Vec<_>, _>>().map_err(|e| corrupt(e.to_string()))?;
+    let tensors = safetensors::serialize(views, None).map_err(|e| corrupt(e.to_string()))?;
+    Ok(Encoded { manifest, tensors, textures })
+}
+
+/// Parses a manifest, refusing a newer format with its own error.
+fn parse_manifest(raw: &[u8]) -> Result<Manifest, CodecError> {
+    let value: serde_json::Value = serde_json::from_slice(raw).map_err(|e| corrupt(format!("manifest: invalid JSON: {e}")))?;
+    let found = value.get("format_version").and_then(|v| v.as_u64()).ok_or_else(|| corrupt("manifest: no format_version"))? as u32;
+    if found > MODEL_FORMAT_VERSION {
+        return Err(CodecError::TooNew { found, supported: MODEL_FORMAT_VERSION });
+    }
+    serde_json::from_value(value).map_err(|e| corrupt(format!("manifest: {e}")))
+}
+
+pub fn summary(manifest: &[u8]) -> Result<ManifestSummary, CodecError> {
+    let m = parse_manifest(manifest)?;
+    Ok(ManifestSummary {
+        object_id: m.object_id,
+        format_version: m.format_version,
+        source_units: m.mesh.source_units,
+        diameter_m: m.diameter_m,
+        backbone: m.backbone,
+        templates: m.templates.len(),
+        created_unix_s: m.created_unix_s,
+    })
+}
+
+/// Rebuilds the model; `texture(name)` returns the PNG bytes the manifest names.
+pub fn decode(manifest: &[u8], tensors: &[u8], texture: &mut dyn FnMut(&str) -> Result<Vec<u8>, String>) -> Result<ObjectModel, CodecError> {
+    let man = parse_manifest(manifest)?;
+    let st = SafeTensors::deserialize(tensors).map_err(|e| corrupt(format!("tensors: {e}")))?;
+    let get = |name: &str, dt: Dtype, cols: usize| -> Result<&[u8], CodecError> {
+        let v = st.tensor(name).map_err(|e| corrupt(format!("tensor {name}: {e}")))?;
+        let shape = v.shape();
+        if v.dtype() != dt || (cols > 0 && shape.get(1).copied().unwrap_or(0) != cols && shape[0] != 0) {
+            return Err(corrupt(format!("tensor {name} has dtype {:?} shape {shape:?}, expected {dt:?} with {cols} columns", v.dtype())));
+        }
+        Ok(v.data())
+    };
+    let mut materials = Vec::new();
+    for m in &man.mesh.materials {
+        let texture = match &m.texture_file {
+            Some(f) => {
+                let bytes = texture(f).map_err(|e| corrupt(format!("texture {f}: {e}")))?;
+                let img = image::load_from_memory(&bytes).map_err(|e| corrupt(format!("texture {f}: {e}")))?.to_rgba8();
+                Some(Arc::new(img))
+            }
+            None => None,
+        };
+        materials.push(Material { name: m.name.clone(), base_color: m.base_color, texture });
+    }
+    let data = MeshData {
+        positions: bytemuck::pod_collect_to_vec(get("mesh_positions", Dtype::F32, 3)?),
+        normals: bytemuck::pod_collect_to_vec(get("mesh_normals", Dtype::F32, 3)?),
+        colors: bytemuck::pod_collect_to_vec(get("mesh_colors", Dtype::F32, 3)?),
+        uvs: bytemuck::pod_collect_to_vec(get("mesh_uvs", Dtype::F32, 2)?),
+        triangles: bytemuck::pod_collect_to_vec(get("mesh_triangles", Dtype::U32, 3)?),
+        parts: man.mesh.parts.iter().map(|&(first_triangle, triangle_count, material)| Part { first_triangle, triangle_count, material }).collect(),
+        materials,
+    };
+    let mesh = Mesh::new(man.mesh.name.clone(), man.mesh.source_units, data).map_err(|e| corrupt(format!("stored mesh: {e}")))?;
+    let model = ObjectModel {
+        object_id: man.object_id,
+        global_dim: man.backbone.global_dim as usize,
+        local_dim: man.pca.as_ref().map_or(man.backbone.local_dim as usize, |p| p.output_dim),
+        pca: man.pca,
+        backbone: man.backbone,
+        config: man.config,
+        render_intrinsics: man.render_intrinsics,
+        grid: man.grid,
+        mesh,
+        templates: man.templates,
+        global: bytemuck::pod_collect_to_vec(get("global", Dtype::F32, 0)?),
+        patch_descriptors: bytemuck::pod_collect_to_vec(get("patch_descriptors", Dtype::F16, 0)?),
+        patch_points: bytemuck::pod_collect_to_vec(get("patch_points", Dtype::F32, 3)?),
+        patch_cells: bytemuck::pod_collect_to_vec(get("patch_cells", Dtype::U16, 0)?),
+        silhouettes: bytemuck::pod_collect_to_vec(get("silhouettes", Dtype::U64, 0)?),
+    };
+    model.validate().map_err(corrupt)?;
+    Ok(model)
+}

@@ -1,0 +1,154 @@
+//! `dir://PATH`: one folder per object, `PATH/<id>/{manifest.json, tensors.safetensors,
+//! textures/N.png}`. A put writes a hidden temporary folder, syncs it and renames it into
+//! place, so readers see an object whole or not at all; leftovers of killed writers are
+//! hidden (dot names) and removed at the next open. The tensors are memory-mapped on load.
+
+use super::codec::{self, Encoded};
+use super::{info_of, validate_id, ObjectInfo, ObjectStore, StoreError};
+use crate::onboard::ObjectModel;
+use std::path::{Path, PathBuf};
+
+const MANIFEST: &str = "manifest.json";
+const TENSORS: &str = "tensors.safetensors";
+
+pub struct DirStore {
+    root: PathBuf,
+}
+
+fn unique_suffix() -> String {
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
+    format!("{}-{nanos}", std::process::id())
+}
+
+/// Whether the process that named a temporary folder `.<id>.tmp-<pid>-<n>` still runs.
+fn writer_alive(name: &str) -> bool {
+    let pid = name.rsplit_once(".tmp-").or_else(|| name.rsplit_once(".old-")).and_then(|(_, s)| s.split('-').next()).and_then(|p| p.parse::<u32>().ok());
+    match pid {
+        Some(pid) => Path::new(&format!("/proc/{pid}")).exists(),
+        None => false,
+    }
+}
+
+fn dir_bytes(p: &Path) -> u64 {
+    std::fs::read_dir(p).map(|rd| rd.flatten().map(|e| if e.path().is_dir() { dir_bytes(&e.path()) } else { e.metadata().map(|m| m.len()).unwrap_or(0) }).sum()).unwrap_or(0)
+}
+
+fn sync_dir(p: &Path) -> Result<(), StoreError> {
+    std::fs::File::open(p).and_then(|f| f.sync_all()).map_err(StoreError::io(format!("syncing {}", p.display())))
+}
+
+impl DirStore {
+    /// Opens (creating) the folder and removes what killed writers left behind.
+    pub fn open(root: impl Into<PathBuf>) -> Result<Self, StoreError> {
+        let root = root.into();
+        std::fs::create_dir_all(&root).map_err(StoreError::io(format!("creating store folder {}", root.display())))?;
+        for e in std::fs::read_dir(&root).map_err(StoreError::io(format!("reading {}", root.display())))?.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if name.starts_with('.') && (name.contains(".tmp-") || name.contains(".old-")) && !writer_alive(&name) {
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        }
+        Ok(Self { root })
+    }
+
+    fn object_dir(&self, id: &str) -> Result<PathBuf, StoreError> {
+        validate_id(id)?;
+        Ok(self.root.join(id))
+    }
+
+    fn write_encoded(dir: &Path, enc: &Encoded) -> Result<(), StoreError> {
+        std::fs::create_dir_all(dir.join("textures")).map_err(StoreError::io(format!("creating {}", dir.display())))?;
+        let mut files = vec![(dir.join(MANIFEST), enc.manifest.as_slice()), (dir.join(TENSORS), enc.tensors.as_slice())];
+        files.extend(enc.textures.iter().map(|(name, png)| (dir.join(name), png.as_slice())));
+        for (path, bytes) in files {
+            use std::io::Write;
+            let mut f = std::fs::File::create(&path).map_err(StoreError::io(format!("writing {}", path.display())))?;
+            f.write_all(bytes).and_then(|()| f.sync_all()).map_err(StoreError::io(format!("writing {}", path.display())))?;
+        }
+        sync_dir(&dir.join("textures"))?;
+        sync_dir(dir)
+    }
+
+    fn info_at(&self, id: &str, dir: &Path) -> Result<ObjectInfo, StoreError> {
+        let raw = std::fs::read(dir.join(MANIFEST)).map_err(|e| if e.kind() == std::io::ErrorKind::NotFound { StoreError::NotFound(id.into()) } else { StoreError::io(format!("reading {}", dir.display()))(e) })?;
+        let s = codec::summary(&raw).map_err(|e| StoreError::from_codec(id, e))?;
+        Ok(info_of(&s, dir_bytes(dir)))
+    }
+}
+
+impl ObjectStore for DirStore {
+    fn put(&self, model: &ObjectModel, replace: bool) -> Result<ObjectInfo, StoreError> {
+        let target = self.object_dir(&model.object_id)?;
+        if target.exists() && !replace {
+            return Err(StoreError::AlreadyExists(model.object_id.clone()));
+        }
+        let enc = codec::encode(model).map_err(|e| StoreError::from_codec(&model.object_id, e))?;
+        let tmp = self.root.join(format!(".{}.tmp-{}", model.object_id, unique_suffix()));
+        let result = Self::write_encoded(&tmp, &enc).and_then(|()| {
+            if target.exists() {
+                // Two renames: the old object is out of the way before the new one arrives.
+                let old = self.root.join(format!(".{}.old-{}", model.object_id, unique_suffix()));
+                std::fs::rename(&target, &old).map_err(StoreError::io(format!("moving {} aside", target.display())))?;
+                std::fs::rename(&tmp, &target).map_err(StoreError::io(format!("renaming into {}", target.display())))?;
+                let _ = std::fs::remove_dir_all(&old);
+            } else {
+                std::fs::rename(&tmp, &target).map_err(StoreError::io(format!("renaming into {}", target.display())))?;
+            }
+            sync_dir(&self.root)
+        });
+        if result.is_err() {
+            let _ = std::fs::remove_dir_all(&tmp);
+        }
+        result?;
+        self.info_at(&model.object_id, &target)
+    }
+
+    fn get(&self, id: &str) -> Result<ObjectModel, StoreError> {
+        let dir = self.object_dir(id)?;
+        let manifest = std::fs::read(dir.join(MANIFEST)).map_err(|e| if e.kind() == std::io::ErrorKind::NotFound { StoreError::NotFound(id.into()) } else { StoreError::io(format!("reading object {id:?}"))(e) })?;
+        let tpath = dir.join(TENSORS);
+        let file = std::fs::File::open(&tpath).map_err(|e| StoreError::Corrupt { object: id.into(), message: format!("{}: {e}", tpath.display()) })?;
+        // SAFETY: stored files are never modified in place (puts write a new folder and
+        // rename it), so the mapping cannot change under us while it is alive.
+        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(StoreError::io(format!("mapping {}", tpath.display())))?;
+        let mut texture = |name: &str| std::fs::read(dir.join(name)).map_err(|e| e.to_string());
+        codec::decode(&manifest, &map, &mut texture).map_err(|e| StoreError::from_codec(id, e))
+    }
+
+    fn list(&self) -> Result<Vec<ObjectInfo>, StoreError> {
+        let mut out = Vec::new();
+        for e in std::fs::read_dir(&self.root).map_err(StoreError::io(format!("reading {}", self.root.display())))?.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if validate_id(&name).is_ok() && e.path().join(MANIFEST).is_file() {
+                out.push(self.info_at(&name, &e.path())?);
+            }
+        }
+        out.sort_by(|a, b| a.id.cmp(&b.id));
+        Ok(out)
+    }
+
+    fn info(&self, id: &str) -> Result<ObjectInfo, StoreError> {
+        let dir = self.object_dir(id)?;
+        self.info_at(id, &dir)
+    }
+
+    fn delete(&self, id: &str) -> Result<(), StoreError> {
+        let dir = self.object_dir(id)?;
+        if !dir.join(MANIFEST).exists() {
+            return Err(StoreError::NotFound(id.into()));
+        }
+        // Renamed away first, so the object disappears at once and as a whole.
+        let gone = self.root.join(format!(".{id}.old-{}", unique_suffix()));
+        std::fs::rename(&dir, &gone).map_err(StoreError::io(format!("deleting {}", dir.display())))?;
+        sync_dir(&self.root)?;
+        std::fs::remove_dir_all(&gone).map_err(StoreError::io(format!("removing {}", gone.display())))
+    }
+
+    fn exists(&self, id: &str) -> Result<bool, StoreError> {
+        Ok(self.object_dir(id)?.join(MANIFEST).is_file())
+    }
+
+    fn url(&self) -> String {
+        format!("dir://{}", self.root.display())
+    }
+}
