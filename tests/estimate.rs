@@ -181,7 +181,9 @@ fn pca_compressed_model_stores_smaller_and_still_finds_the_pose() {
         let s = scene(seed);
         let inst = &s.instances[0];
         let det = [Detection { mask: inst.mask_visib.clone(), score: 0.9 }];
-        let r = f.estimator.estimate(&back, &s.rgb, &s.cam, &det, &EstimateConfig { rrc: false, ..Default::default() }).unwrap();
+        let r = f.estimator.estimate(&back, &s.rgb, &s.cam, &det, &EstimateConfig::default()).unwrap();
+        // RRC matches fresh (uncompressed) render descriptors against the raw query ones.
+        assert!(r.hypotheses[0].rrc_matches > 0, "{:?}", r.hypotheses[0]);
         if r.pose.is_some_and(|p| mssd(&p, &inst.pose, back.mesh.positions()) < 0.1 * back.diameter()) {
             correct += 1;
         }

@@ -122,12 +122,13 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     let mut models = Vec::new();
     for (name, mesh) in &meshes {
         // Across the gap, templates come from the bare geometry while scenes stay textured.
-        let (mut id, template_mesh) = if a.gap { (format!("{name}-untextured"), mesh.without_appearance()) } else { (name.clone(), mesh.clone()) };
+        let (id, template_mesh) = if a.gap { (format!("{name}-untextured"), mesh.without_appearance()) } else { (name.clone(), mesh.clone()) };
+        let mut model = super::cached_model(&id, &template_mesh, store.as_ref(), backbone.as_ref(), &pool)?;
+        // The same PCA onboarding with `pca_dim` would fit, applied to the cached model.
         if let Some(d) = a.pca {
-            id = format!("{id}-pca{d}");
+            crate::onboard::compress(&mut model, d)?;
         }
-        let config = crate::onboard::OnboardConfig { pca_dim: a.pca, ..Default::default() };
-        models.push(super::cached_model_with(&id, &template_mesh, store.as_ref(), backbone.as_ref(), &pool, &config)?);
+        models.push(model);
     }
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
     let scene_cfg = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, max_occlusion: a.max_occlusion, fill_range: a.fill, render_to_real_gap: a.gap || a.harsh_scenes, seed: a.seed, ..Default::default() };

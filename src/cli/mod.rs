@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod bench_estimate;
+pub mod bench_store;
 pub mod bop_cmd;
 pub mod bop_eval_cmd;
 pub mod camera_file;
@@ -89,13 +90,8 @@ pub fn estimator(backbone: std::sync::Arc<dyn crate::features::Backbone>, render
 /// by this backbone with the default settings; otherwise onboards it (with a progress bar)
 /// and puts it there. Benchmarks and the demo reuse models across runs this way.
 pub fn cached_model(id: &str, mesh: &crate::mesh::Mesh, store: &dyn crate::store::ObjectStore, backbone: &dyn crate::features::Backbone, pool: &crate::render::RenderPool) -> anyhow::Result<crate::onboard::ObjectModel> {
-    cached_model_with(id, mesh, store, backbone, pool, &crate::onboard::OnboardConfig::default())
-}
-
-/// `cached_model` with other onboarding settings (e.g. PCA compression).
-pub fn cached_model_with(id: &str, mesh: &crate::mesh::Mesh, store: &dyn crate::store::ObjectStore, backbone: &dyn crate::features::Backbone, pool: &crate::render::RenderPool, config: &crate::onboard::OnboardConfig) -> anyhow::Result<crate::onboard::ObjectModel> {
-    use crate::onboard::onboard;
-    let config = config.clone();
+    use crate::onboard::{onboard, OnboardConfig};
+    let config = OnboardConfig::default();
     if let Ok(m) = store.get(id) {
         if m.backbone == backbone.identity() && m.config == config && m.mesh.positions() == mesh.positions() && m.mesh.has_texture() == mesh.has_texture() {
             return Ok(m);

@@ -76,7 +76,8 @@ pub fn rrc_pool(
         }
     }
     let maps = backbone.extract(&crops)?;
-    let mut pool = PatchPool { dim: model.local_dim, ..Default::default() };
+    // Fresh backbone descriptors: the backbone's size, whether or not the templates are PCA-compressed.
+    let mut pool = PatchPool { dim: backbone.identity().local_dim as usize, ..Default::default() };
     for (fm, (i, bx)) in maps.iter().zip(&meta) {
         let (pose_i, kw) = &views[*i];
         let inv = pose_i.inverse();

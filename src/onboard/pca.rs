@@ -21,7 +21,7 @@ const MAX_FIT_ROWS: usize = 50_000;
 impl Pca {
     /// Fits on `rows` (`n × dim`, row-major) keeping `k` components.
     pub fn fit(rows: &[f32], dim: usize, k: usize) -> Result<Self, String> {
-        if dim == 0 || rows.len() % dim != 0 {
+        if dim == 0 || !rows.len().is_multiple_of(dim) {
             return Err(format!("PCA: {} values are not rows of {dim}", rows.len()));
         }
         let n = rows.len() / dim;

@@ -96,13 +96,18 @@ pub fn onboard(
     Ok(model)
 }
 
-/// Fits the PCA on the model's own patch descriptors and stores them projected.
-fn compress(m: &mut ObjectModel, dim: usize) -> Result<(), OnboardError> {
+/// Fits the PCA on the model's own patch descriptors and stores them projected (what
+/// onboarding with `pca_dim` does; also usable on an uncompressed model afterwards).
+pub fn compress(m: &mut ObjectModel, dim: usize) -> Result<(), OnboardError> {
+    if m.pca.is_some() {
+        return Err(OnboardError::Config("the model is already PCA-compressed".into()));
+    }
     let full: Vec<f32> = m.patch_descriptors.iter().map(|h| h.to_f32()).collect();
     let pca = super::pca::Pca::fit(&full, m.local_dim, dim).map_err(OnboardError::Config)?;
     m.patch_descriptors = pca.project(&full).into_iter().map(f16::from_f32).collect();
     m.local_dim = dim;
     m.pca = Some(pca);
+    m.config.pca_dim = Some(dim);
     Ok(())
 }
 

@@ -37,6 +37,10 @@ struct Manifest {
     /// Since format 2; absent means uncompressed descriptors.
     #[serde(default)]
     pca: Option<crate::onboard::pca::Pca>,
+    /// Random per write, also in the tensors' metadata and the texture names, so a reader
+    /// that raced a replace and got parts of two writes notices (absent before format 2).
+    #[serde(default)]
+    generation: Option<u64>,
 }
 
 #[derive(serde::Serialize, serde::Deserialize)]
@@ -77,14 +81,25 @@ pub struct ManifestSummary {
     pub created_unix_s: u64,
 }
 
+fn new_generation() -> u64 {
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(0);
+    // Mixed with the pid and a counter: two writes in one nanosecond still differ.
+    static COUNTER: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    nanos ^ ((std::process::id() as u64) << 40) ^ n.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+}
+
+const GENERATION_KEY: &str = "b2tf_generation";
+
 pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
+    let generation = new_generation();
     let mesh = &model.mesh;
     let mut materials = Vec::new();
     let mut textures = Vec::new();
     for (i, m) in mesh.materials().iter().enumerate() {
         let texture_file = match &m.texture {
             Some(img) => {
-                let name = format!("textures/{i}.png");
+                let name = format!("textures/{generation:016x}-{i}.png");
                 let mut png = Vec::new();
                 img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).map_err(|e| corrupt(format!("cannot encode texture {i}: {e}")))?;
                 textures.push((name.clone(), png));
@@ -111,6 +126,7 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
         },
         templates: model.templates.clone(),
         pca: model.pca.clone(),
+        generation: Some(generation),
     };
     let manifest = serde_json::to_vec_pretty(&manifest).map_err(|e| corrupt(e.to_string()))?;
 
@@ -130,7 +146,8 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
         ("mesh_triangles", Dtype::U32, vec![d.triangles.len(), 3], bytemuck::cast_slice(&d.triangles)),
     ];
     let views = tensors.into_iter().map(|(name, dt, shape, bytes)| TensorView::new(dt, shape, bytes).map(|v| (name, v))).collect::<Result<Vec<_>, _>>().map_err(|e| corrupt(e.to_string()))?;
-    let tensors = safetensors::serialize(views, None).map_err(|e| corrupt(e.to_string()))?;
+    let metadata = std::collections::HashMap::from([(GENERATION_KEY.to_string(), generation.to_string())]);
+    let tensors = safetensors::serialize(views, Some(metadata)).map_err(|e| corrupt(e.to_string()))?;
     Ok(Encoded { manifest, tensors, textures })
 }
 
@@ -160,6 +177,13 @@ pub fn summary(manifest: &[u8]) -> Result<ManifestSummary, CodecError> {
 /// Rebuilds the model; `texture(name)` returns the PNG bytes the manifest names.
 pub fn decode(manifest: &[u8], tensors: &[u8], texture: &mut dyn FnMut(&str) -> Result<Vec<u8>, String>) -> Result<ObjectModel, CodecError> {
     let man = parse_manifest(manifest)?;
+    if let Some(g) = man.generation {
+        let (_, meta) = SafeTensors::read_metadata(tensors).map_err(|e| corrupt(format!("tensors: {e}")))?;
+        let found = meta.metadata().as_ref().and_then(|m| m.get(GENERATION_KEY)).and_then(|v| v.parse::<u64>().ok());
+        if found != Some(g) {
+            return Err(corrupt(format!("manifest (write {g:016x}) and tensors (write {}) come from different writes", found.map_or("unknown".into(), |f| format!("{f:016x}")))));
+        }
+    }
     let st = SafeTensors::deserialize(tensors).map_err(|e| corrupt(format!("tensors: {e}")))?;
     let get = |name: &str, dt: Dtype, cols: usize| -> Result<&[u8], CodecError> {
         let v = st.tensor(name).map_err(|e| corrupt(format!("tensor {name}: {e}")))?;

@@ -1,7 +1,13 @@
 //! `dir://PATH`: one folder per object, `PATH/<id>/{manifest.json, tensors.safetensors,
-//! textures/N.png}`. A put writes a hidden temporary folder, syncs it and renames it into
-//! place, so readers see an object whole or not at all; leftovers of killed writers are
-//! hidden (dot names) and removed at the next open. The tensors are memory-mapped on load.
+//! textures/*.png}`. A put writes a hidden temporary folder, syncs it and renames it into
+//! place (a replace swaps the two folders in one `renameat2(RENAME_EXCHANGE)` where the
+//! file system has it), so readers see an object whole or not at all; leftovers of killed
+//! writers are hidden (dot names) and removed at the next open. The tensors are
+//! memory-mapped on load.
+//!
+//! A reader opens the object's files one after the other, so a replace by another process
+//! can land between two of them. Every write carries a random generation in all its files
+//! (`codec.rs`), so such a torn read is detected, and `get` reads again.
 
 use super::codec::{self, Encoded};
 use super::{info_of, validate_id, ObjectInfo, ObjectStore, StoreError};
@@ -32,6 +38,20 @@ fn writer_alive(name: &str) -> bool {
 fn dir_bytes(p: &Path) -> u64 {
     std::fs::read_dir(p).map(|rd| rd.flatten().map(|e| if e.path().is_dir() { dir_bytes(&e.path()) } else { e.metadata().map(|m| m.len()).unwrap_or(0) }).sum()).unwrap_or(0)
 }
+
+/// Swaps two paths atomically (Linux `renameat2(RENAME_EXCHANGE)`); false where the
+/// kernel or file system cannot, so the caller falls back to two renames.
+fn exchange(a: &Path, b: &Path) -> bool {
+    use std::os::unix::ffi::OsStrExt;
+    let (Ok(ca), Ok(cb)) = (std::ffi::CString::new(a.as_os_str().as_bytes()), std::ffi::CString::new(b.as_os_str().as_bytes())) else {
+        return false;
+    };
+    // SAFETY: both arguments are valid NUL-terminated paths that outlive the call.
+    unsafe { libc::renameat2(libc::AT_FDCWD, ca.as_ptr(), libc::AT_FDCWD, cb.as_ptr(), libc::RENAME_EXCHANGE) == 0 }
+}
+
+/// Reads of one object attempted before a torn read (a replace racing it) is reported.
+const READ_ATTEMPTS: u32 = 6;
 
 fn sync_dir(p: &Path) -> Result<(), StoreError> {
     std::fs::File::open(p).and_then(|f| f.sync_all()).map_err(StoreError::io(format!("syncing {}", p.display())))
@@ -69,6 +89,28 @@ impl DirStore {
         sync_dir(dir)
     }
 
+    /// One attempt at reading an object.
+    fn read_once(&self, id: &str, dir: &Path) -> Result<ObjectModel, StoreError> {
+        let manifest = std::fs::read(dir.join(MANIFEST)).map_err(|e| if e.kind() == std::io::ErrorKind::NotFound { StoreError::NotFound(id.into()) } else { StoreError::io(format!("reading object {id:?}"))(e) })?;
+        let tpath = dir.join(TENSORS);
+        let file = std::fs::File::open(&tpath).map_err(|e| StoreError::Corrupt { object: id.into(), message: format!("{}: {e}", tpath.display()) })?;
+        // SAFETY: stored files are never modified in place (puts write a new folder and
+        // rename it), so the mapping cannot change under us while it is alive.
+        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(StoreError::io(format!("mapping {}", tpath.display())))?;
+        let mut texture = |name: &str| std::fs::read(dir.join(name)).map_err(|e| e.to_string());
+        let model = codec::decode(&manifest, &map, &mut texture).map_err(|e| StoreError::from_codec(id, e))?;
+        if model.object_id != id {
+            return Err(StoreError::Corrupt { object: id.into(), message: format!("its folder holds object {:?}", model.object_id) });
+        }
+        Ok(model)
+    }
+
+    /// Whether a put or delete of `id` is under way (its hidden folders exist).
+    fn write_in_progress(&self, id: &str) -> bool {
+        let prefix = format!(".{id}.");
+        std::fs::read_dir(&self.root).map(|rd| rd.flatten().any(|e| e.file_name().to_string_lossy().starts_with(&prefix))).unwrap_or(false)
+    }
+
     fn info_at(&self, id: &str, dir: &Path) -> Result<ObjectInfo, StoreError> {
         let raw = std::fs::read(dir.join(MANIFEST)).map_err(|e| if e.kind() == std::io::ErrorKind::NotFound { StoreError::NotFound(id.into()) } else { StoreError::io(format!("reading {}", dir.display()))(e) })?;
         let s = codec::summary(&raw).map_err(|e| StoreError::from_codec(id, e))?;
@@ -86,11 +128,16 @@ impl ObjectStore for DirStore {
         let tmp = self.root.join(format!(".{}.tmp-{}", model.object_id, unique_suffix()));
         let result = Self::write_encoded(&tmp, &enc).and_then(|()| {
             if target.exists() {
-                // Two renames: the old object is out of the way before the new one arrives.
-                let old = self.root.join(format!(".{}.old-{}", model.object_id, unique_suffix()));
-                std::fs::rename(&target, &old).map_err(StoreError::io(format!("moving {} aside", target.display())))?;
-                std::fs::rename(&tmp, &target).map_err(StoreError::io(format!("renaming into {}", target.display())))?;
-                let _ = std::fs::remove_dir_all(&old);
+                if exchange(&tmp, &target) {
+                    // `tmp` now holds the old object.
+                    let _ = std::fs::remove_dir_all(&tmp);
+                } else {
+                    // Two renames: for a moment the object is absent (readers retry).
+                    let old = self.root.join(format!(".{}.old-{}", model.object_id, unique_suffix()));
+                    std::fs::rename(&target, &old).map_err(StoreError::io(format!("moving {} aside", target.display())))?;
+                    std::fs::rename(&tmp, &target).map_err(StoreError::io(format!("renaming into {}", target.display())))?;
+                    let _ = std::fs::remove_dir_all(&old);
+                }
             } else {
                 std::fs::rename(&tmp, &target).map_err(StoreError::io(format!("renaming into {}", target.display())))?;
             }
@@ -105,14 +152,18 @@ impl ObjectStore for DirStore {
 
     fn get(&self, id: &str) -> Result<ObjectModel, StoreError> {
         let dir = self.object_dir(id)?;
-        let manifest = std::fs::read(dir.join(MANIFEST)).map_err(|e| if e.kind() == std::io::ErrorKind::NotFound { StoreError::NotFound(id.into()) } else { StoreError::io(format!("reading object {id:?}"))(e) })?;
-        let tpath = dir.join(TENSORS);
-        let file = std::fs::File::open(&tpath).map_err(|e| StoreError::Corrupt { object: id.into(), message: format!("{}: {e}", tpath.display()) })?;
-        // SAFETY: stored files are never modified in place (puts write a new folder and
-        // rename it), so the mapping cannot change under us while it is alive.
-        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(StoreError::io(format!("mapping {}", tpath.display())))?;
-        let mut texture = |name: &str| std::fs::read(dir.join(name)).map_err(|e| e.to_string());
-        codec::decode(&manifest, &map, &mut texture).map_err(|e| StoreError::from_codec(id, e))
+        let mut attempt = 0;
+        loop {
+            match self.read_once(id, &dir) {
+                // A replace may have raced this read: read again while one is under way
+                // (and once in any case, since it may just have finished).
+                Err(StoreError::Corrupt { .. } | StoreError::NotFound(_)) if attempt + 1 < READ_ATTEMPTS && (attempt == 0 || self.write_in_progress(id)) => {
+                    std::thread::sleep(std::time::Duration::from_millis(5 << attempt));
+                    attempt += 1;
+                }
+                other => return other,
+            }
+        }
     }
 
     fn list(&self) -> Result<Vec<ObjectInfo>, StoreError> {
@@ -120,7 +171,12 @@ impl ObjectStore for DirStore {
         for e in std::fs::read_dir(&self.root).map_err(StoreError::io(format!("reading {}", self.root.display())))?.flatten() {
             let name = e.file_name().to_string_lossy().into_owned();
             if validate_id(&name).is_ok() && e.path().join(MANIFEST).is_file() {
-                out.push(self.info_at(&name, &e.path())?);
+                match self.info_at(&name, &e.path()) {
+                    Ok(i) => out.push(i),
+                    // Deleted since the folder was listed.
+                    Err(StoreError::NotFound(_)) => {}
+                    Err(e) => return Err(e),
+                }
             }
         }
         out.sort_by(|a, b| a.id.cmp(&b.id));

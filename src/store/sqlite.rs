@@ -455,7 +455,9 @@ mod tests {
 
         let enc = codec::encode(m).expect("encode");
         let size = enc.manifest.len() + enc.tensors.len() + enc.textures.iter().map(|(_, p)| p.len()).sum::<usize>();
-        assert_eq!((info.id.as_str(), info.units, info.templates, info.bytes), ("obj-a", m.mesh.source_units(), m.templates.len(), size as u64));
+        assert_eq!((info.id.as_str(), info.units, info.templates), ("obj-a", m.mesh.source_units(), m.templates.len()));
+        // Each encode draws a new write generation, whose decimal form varies by a few bytes.
+        assert!(info.bytes.abs_diff(size as u64) <= 64, "{} stored vs {size} encoded", info.bytes);
         assert_eq!(info.backbone, m.backbone);
         assert!((info.diameter_m - m.diameter()).abs() < 1e-12 && info.created_at > 0);
 
@@ -538,7 +540,10 @@ mod tests {
         let enc = codec::encode(m).expect("encode");
         let c = raw(&store);
         let tensor_chunks = count(&c, "SELECT COUNT(*) FROM chunks WHERE object_id = ?1 AND part = 'tensors'", "obj-a");
-        assert_eq!(tensor_chunks as usize, enc.tensors.len().div_ceil(4096));
+        let stored = count(&c, "SELECT SUM(length(data)) FROM chunks WHERE object_id = ?1 AND part = 'tensors'", "obj-a");
+        assert_eq!(tensor_chunks as usize, (stored as usize).div_ceil(4096));
+        // A re-encode differs only in its write generation (a few bytes).
+        assert!((stored as usize).abs_diff(enc.tensors.len()) <= 32);
         assert!(tensor_chunks > 1);
         assert!(count(&c, "SELECT MAX(length(data)) FROM chunks WHERE object_id = ?1", "obj-a") <= 4096);
         let parts = count(&c, "SELECT COUNT(DISTINCT part) FROM chunks WHERE object_id = ?1", "obj-a");

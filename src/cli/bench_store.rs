@@ -1,0 +1,105 @@
+//! `b2tf bench store`: what the object stores cost: bytes per object (f16, PCA), put time,
+//! and load time from each backend, cold (page cache dropped, when allowed) and warm.
+
+use crate::features::{EmbeddedBackbone, EmbeddedConfig};
+use crate::mesh::{load_mesh, Units};
+use crate::onboard::{compress, ObjectModel};
+use crate::render::RenderPool;
+use crate::store::{ModelCache, ObjectStore};
+use anyhow::Result;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+#[derive(clap::Args, Debug)]
+pub struct BenchStoreArgs {
+    /// Mesh to onboard (default: the generated sample box).
+    #[arg(long)]
+    pub mesh: Option<PathBuf>,
+    #[arg(long)]
+    pub units: Option<Units>,
+    /// PCA sizes to compare with the uncompressed f16 model.
+    #[arg(long, value_delimiter = ',', default_value = "32,16")]
+    pub pca: Vec<usize>,
+    /// Store that caches the onboarded model between runs.
+    #[arg(long, default_value = "dir://out/bench-models")]
+    pub cache_store: String,
+    /// Loads timed per backend and variant.
+    #[arg(long, default_value_t = 3)]
+    pub repeats: usize,
+}
+
+/// Drops the kernel's page cache so the next read comes from the disk (root only).
+fn drop_page_cache() -> bool {
+    // SAFETY: sync(2) has no preconditions.
+    unsafe { libc_sync() };
+    std::fs::write("/proc/sys/vm/drop_caches", "3").is_ok()
+}
+
+extern "C" {
+    #[link_name = "sync"]
+    fn libc_sync();
+}
+
+pub fn run(a: BenchStoreArgs) -> Result<()> {
+    let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?;
+    let pool = super::open_renderer(RenderPool::DEFAULT_SIZE)?;
+    let (name, mesh) = match &a.mesh {
+        Some(p) => (p.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh").replace(' ', "_"), load_mesh(p, a.units)?),
+        None => ("box".to_string(), crate::mesh::procedural::textured_box([0.10, 0.06, 0.16], 3)),
+    };
+    let cache = crate::store::open(&a.cache_store)?;
+    let full = super::cached_model(&name, &mesh, cache.as_ref(), &backbone, &pool)?;
+    let mut variants: Vec<(String, ObjectModel)> = vec![("f16".into(), full.clone())];
+    for &d in &a.pca {
+        let mut m = full.clone();
+        compress(&mut m, d)?;
+        variants.push((format!("PCA {d} (f16)"), m));
+    }
+    let tmp = std::env::temp_dir().join(format!("b2tf-bench-store-{}", std::process::id()));
+    let result = (|| -> Result<()> {
+        println!("object {name}: {} templates, {} patches", full.template_count(), full.patch_count());
+        println!("| backend | descriptors | stored MB | put (s) | cold load (s) | load, page cache warm (s) | cache hit (ms) |");
+        println!("|---|---|---:|---:|---:|---:|---:|");
+        let mut dropped_all = true;
+        for backend in ["dir", "sqlite"] {
+            for (label, model) in &variants {
+                let url = match backend {
+                    "dir" => format!("dir://{}", tmp.join(format!("dir-{}", label.replace(' ', "_"))).display()),
+                    _ => format!("sqlite://{}", tmp.join(format!("{}.db", label.replace(' ', "_"))).display()),
+                };
+                let store: Arc<dyn ObjectStore> = crate::store::open(&url)?;
+                let t = Instant::now();
+                let info = store.put(model, true)?;
+                let put_s = t.elapsed().as_secs_f64();
+                let mut cold = Vec::new();
+                let mut warm = Vec::new();
+                for _ in 0..a.repeats {
+                    dropped_all &= drop_page_cache();
+                    let t = Instant::now();
+                    store.get(&model.object_id)?;
+                    cold.push(t.elapsed().as_secs_f64());
+                    let t = Instant::now();
+                    store.get(&model.object_id)?;
+                    warm.push(t.elapsed().as_secs_f64());
+                }
+                let models = ModelCache::new(store.clone(), u64::MAX);
+                models.get(&model.object_id)?;
+                let t = Instant::now();
+                models.get(&model.object_id)?;
+                let hit_ms = t.elapsed().as_secs_f64() * 1e3;
+                let med = |v: &mut Vec<f64>| {
+                    v.sort_by(f64::total_cmp);
+                    v[v.len() / 2]
+                };
+                println!("| {backend} | {label} | {:.1} | {put_s:.2} | {:.3} | {:.3} | {hit_ms:.3} |", info.bytes as f64 / 1e6, med(&mut cold), med(&mut warm));
+            }
+        }
+        if !dropped_all {
+            println!("(the page cache could not be dropped (needs root): \"cold\" loads read from memory)");
+        }
+        Ok(())
+    })();
+    let _ = std::fs::remove_dir_all(&tmp);
+    result
+}
