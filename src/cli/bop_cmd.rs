@@ -12,7 +12,7 @@ use crate::onboard::ObjectModel;
 use crate::render::RenderPool;
 use anyhow::Result;
 use clap::{Args, Subcommand};
-use std::collections::HashMap;
+use std::collections::HashSet;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -48,6 +48,9 @@ pub struct RunArgs {
     /// Refiner after PnP/RRC: none or silhouette-depth.
     #[arg(long, default_value = "none")]
     pub refiner: String,
+    /// Memory for loaded objects, MB (least recently used ones are dropped beyond it).
+    #[arg(long, default_value_t = 4000)]
+    pub cache_mb: u64,
 }
 
 #[derive(Args, Debug)]
@@ -92,15 +95,18 @@ fn run_cmd(a: RunArgs) -> Result<()> {
     let estimator = super::estimator(backbone.clone(), pool.clone(), &a.refiner)?;
     let url = a.store.clone().unwrap_or_else(|| format!("sqlite://{}", a.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new(".")).join("b2tf-objects.db").display()));
     let store = crate::store::open(&url)?;
-    let mut loaded: HashMap<u32, Arc<ObjectModel>> = HashMap::new();
+    // Each object is checked (onboarded if missing or stale) once, then served from the
+    // shared LRU cache, so a dataset with many objects stays within the memory budget.
+    let models = crate::store::ModelCache::new(store.clone(), a.cache_mb * 1_000_000);
+    let mut checked: HashSet<u32> = HashSet::new();
     let mut model = |obj_id: u32| -> Result<Arc<ObjectModel>> {
-        if let Some(m) = loaded.get(&obj_id) {
-            return Ok(m.clone());
+        let id = format!("obj_{obj_id:06}");
+        if checked.insert(obj_id) {
+            let mesh = load_mesh(&model_path(&a.dataset, obj_id), Some(Units::Mm))?;
+            super::cached_model(&id, &mesh, store.as_ref(), backbone.as_ref(), &pool)?;
+            models.invalidate(&id);
         }
-        let mesh = load_mesh(&model_path(&a.dataset, obj_id), Some(Units::Mm))?;
-        let m = Arc::new(super::cached_model(&format!("obj_{obj_id:06}"), &mesh, store.as_ref(), backbone.as_ref(), &pool)?);
-        loaded.insert(obj_id, m.clone());
-        Ok(m)
+        Ok(models.get(&id)?)
     };
     let opts = RunOptions { split: a.split.clone(), estimate: EstimateConfig { rrc: !a.no_rrc, ..Default::default() }, ..Default::default() };
     let pb = super::progress::bar(0, "images");
