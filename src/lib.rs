@@ -11,3 +11,4 @@ pub mod geometry;
 pub mod mesh;
 pub mod onboard;
 pub mod render;
+pub mod service;

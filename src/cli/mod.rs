@@ -13,6 +13,7 @@ pub mod onboard_cmd;
 pub mod pose_arg;
 pub mod progress;
 pub mod render_cmd;
+pub mod serve_cmd;
 
 use clap::{Parser, Subcommand};
 
@@ -42,6 +43,8 @@ pub enum Command {
         #[arg(long, default_value_t = 3)]
         seed: u64,
     },
+    /// Run the HTTP service (onboard and estimate over the network).
+    Serve(serve_cmd::ServeArgs),
     /// List, inspect or delete the objects of an object store.
     Objects(objects_cmd::ObjectsArgs),
     /// BOP benchmark: generate a dataset, run the estimator on one, score results (AR).
@@ -67,6 +70,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(b) => bench::run(b),
         Command::Bop(b) => bop_cmd::run(b),
         Command::Objects(a) => objects_cmd::run(a),
+        Command::Serve(a) => serve_cmd::run(a),
     }
 }
 

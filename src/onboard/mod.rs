@@ -5,4 +5,4 @@ pub mod pca;
 pub mod pipeline;
 
 pub use model::{ObjectModel, OnboardConfig, Template, MODEL_FORMAT_VERSION};
-pub use pipeline::{compress, onboard, validate_object_id, OnboardError, Progress};
+pub use pipeline::{compress, onboard, onboard_cancellable, validate_object_id, OnboardError, Progress};

@@ -29,6 +29,8 @@ pub enum OnboardError {
     Features(#[from] crate::features::FeatureError),
     #[error("view {0} of the object rendered empty (is the mesh degenerate?)")]
     EmptyView(usize),
+    #[error("onboarding was cancelled")]
+    Cancelled,
 }
 
 /// Object ids become file and database names: keep them boring.
@@ -58,6 +60,20 @@ pub fn onboard(
     renderer: &RenderPool,
     progress: &(dyn Fn(Progress) + Sync),
 ) -> Result<ObjectModel, OnboardError> {
+    onboard_cancellable(object_id, mesh, config, backbone, renderer, progress, &std::sync::atomic::AtomicBool::new(false))
+}
+
+/// `onboard` that stops with `OnboardError::Cancelled` at the next chunk of views once
+/// `cancel` is set (a service cancelling a long-running onboarding).
+pub fn onboard_cancellable(
+    object_id: &str,
+    mesh: &Mesh,
+    config: &OnboardConfig,
+    backbone: &dyn Backbone,
+    renderer: &RenderPool,
+    progress: &(dyn Fn(Progress) + Sync),
+    cancel: &std::sync::atomic::AtomicBool,
+) -> Result<ObjectModel, OnboardError> {
     validate_object_id(object_id)?;
     config.views.validate().map_err(OnboardError::Config)?;
     let identity = backbone.identity();
@@ -75,6 +91,9 @@ pub fn onboard(
 
     let mut parts: Vec<ViewTemplates> = Vec::with_capacity(dirs.len());
     for (chunk_idx, chunk) in dirs.chunks(VIEW_CHUNK).enumerate() {
+        if cancel.load(std::sync::atomic::Ordering::Relaxed) {
+            return Err(OnboardError::Cancelled);
+        }
         let views: Vec<(Pose, Intrinsics)> = chunk.iter().map(|d| (view_pose(d, 0.0, &centre, distance), k)).collect();
         let renders = renderer.render_batch(mesh, &views, &opts)?;
         let done: Vec<ViewTemplates> = renders

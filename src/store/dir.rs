@@ -10,7 +10,7 @@
 //! (`codec.rs`), so such a torn read is detected, and `get` reads again.
 
 use super::codec::{self, Encoded};
-use super::{info_of, validate_id, ObjectInfo, ObjectStore, StoreError};
+use super::{info_of, unique_suffix, validate_id, ObjectInfo, ObjectStore, StoreError};
 use crate::onboard::ObjectModel;
 use std::path::{Path, PathBuf};
 
@@ -21,10 +21,6 @@ pub struct DirStore {
     root: PathBuf,
 }
 
-fn unique_suffix() -> String {
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
-    format!("{}-{nanos}", std::process::id())
-}
 
 /// Whether the process that named a temporary folder `.<id>.tmp-<pid>-<n>` still runs.
 fn writer_alive(name: &str) -> bool {

@@ -121,6 +121,14 @@ pub fn open(url: &str) -> Result<Arc<dyn ObjectStore>, StoreError> {
     }
 }
 
+/// A name part unique to this process and moment, for temporary files and folders.
+pub(crate) fn unique_suffix() -> String {
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
+    static COUNTER: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    format!("{}-{nanos}-{n}", std::process::id())
+}
+
 /// Info of a model about to be stored, from the encoded manifest.
 pub(crate) fn info_of(summary: &codec::ManifestSummary, bytes: u64) -> ObjectInfo {
     ObjectInfo {

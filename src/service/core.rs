@@ -1,0 +1,232 @@
+//! The one core behind both adapters (HTTP now, gRPC next): the object store and its
+//! cache, the backbone, the render pool, the estimator and the onboarding operations. The
+//! adapters only parse, call these methods and map `ServiceError` to their status codes.
+//! Methods here block (rendering, features, PnP); async adapters call them on blocking
+//! threads after taking a slot, so load beyond the limits is refused at once.
+
+use super::error::{ErrorKind, ServiceError};
+use super::operations::{OperationState, OperationStatus, Operations};
+use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput};
+use crate::estimate::{Detection, EstimateConfig, Estimator};
+use crate::features::{Backbone, EmbeddedBackbone, EmbeddedConfig};
+use crate::geometry::ViewSampling;
+use crate::onboard::{onboard_cancellable, OnboardConfig, OnboardError};
+use crate::render::{RenderPool, RendererConfig};
+use crate::store::{ModelCache, ObjectInfo, ObjectStore};
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+#[derive(Clone, Debug)]
+pub struct CoreConfig {
+    pub store_url: String,
+    pub render_pool: usize,
+    /// Memory for loaded objects (LRU beyond it).
+    pub cache_bytes: u64,
+    /// Estimates running at once; more are refused (429 / RESOURCE_EXHAUSTED).
+    pub max_estimates: usize,
+    /// Onboardings running at once; more are refused the same way.
+    pub max_onboardings: usize,
+}
+
+impl Default for CoreConfig {
+    fn default() -> Self {
+        Self { store_url: crate::store::default_url(), render_pool: RenderPool::DEFAULT_SIZE, cache_bytes: 4_000_000_000, max_estimates: 2, max_onboardings: 1 }
+    }
+}
+
+/// A taken slot, released on drop (it may travel to the thread doing the work).
+pub struct Slot(Arc<AtomicUsize>);
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::AcqRel);
+    }
+}
+
+fn take_slot(counter: &Arc<AtomicUsize>, max: usize) -> Option<Slot> {
+    counter.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| (n < max).then_some(n + 1)).ok().map(|_| Slot(counter.clone()))
+}
+
+pub struct Core {
+    pub config: CoreConfig,
+    store: Arc<dyn ObjectStore>,
+    cache: Arc<ModelCache>,
+    backbone: Arc<dyn Backbone>,
+    pool: Arc<RenderPool>,
+    estimator: Estimator,
+    operations: Operations,
+    estimates_running: Arc<AtomicUsize>,
+    onboardings_running: Arc<AtomicUsize>,
+}
+
+impl Core {
+    /// Opens the store, loads the backbone and starts the render pool.
+    pub fn new(config: CoreConfig) -> Result<Self, ServiceError> {
+        let store = crate::store::open(&config.store_url)?;
+        let backbone: Arc<dyn Backbone> = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(ServiceError::internal)?);
+        let pool = Arc::new(RenderPool::new(config.render_pool.max(1), RendererConfig::default()).map_err(|e| ServiceError::new(ErrorKind::Unavailable, e.to_string()))?);
+        let estimator = Estimator::new(backbone.clone(), pool.clone());
+        let cache = Arc::new(ModelCache::new(store.clone(), config.cache_bytes));
+        Ok(Self { config, store, cache, backbone, pool, estimator, operations: Operations::default(), estimates_running: Arc::new(AtomicUsize::new(0)), onboardings_running: Arc::new(AtomicUsize::new(0)) })
+    }
+
+    /// One render and one backbone pass, so the first request does not pay for shader
+    /// compilation and allocation; readiness waits for it.
+    pub fn warm_up(&self) -> Result<(), ServiceError> {
+        let mesh = crate::mesh::procedural::textured_box([0.1, 0.06, 0.16], 3);
+        let k = crate::geometry::Intrinsics::new(200.0, 200.0, 63.5, 63.5, 128, 128).map_err(|e| ServiceError::internal(e.to_string()))?;
+        let pose = crate::geometry::views::view_pose(&nalgebra::Vector3::z(), 0.0, &nalgebra::Vector3::zeros(), 0.5);
+        let r = self.pool.render(&mesh, &pose, &k, &Default::default()).map_err(|e| ServiceError::internal(e.to_string()))?;
+        let size = self.backbone.identity().input_size;
+        if let Some((crop, _)) = crate::features::crop_query(&r.rgb, &r.mask, 0.1, size) {
+            self.backbone.extract(&[crop]).map_err(|e| ServiceError::internal(e.to_string()))?;
+        }
+        Ok(())
+    }
+
+    pub fn store_url(&self) -> String {
+        self.store.url()
+    }
+
+    pub fn cache_stats(&self) -> crate::store::cache::CacheStats {
+        self.cache.stats()
+    }
+
+    pub fn estimates_running(&self) -> usize {
+        self.estimates_running.load(Ordering::Acquire)
+    }
+
+    pub fn onboardings_running(&self) -> usize {
+        self.onboardings_running.load(Ordering::Acquire)
+    }
+
+    pub fn list_objects(&self) -> Result<Vec<ObjectInfo>, ServiceError> {
+        Ok(self.store.list()?)
+    }
+
+    pub fn get_object(&self, id: &str) -> Result<ObjectInfo, ServiceError> {
+        Ok(self.store.info(id)?)
+    }
+
+    /// Removes the object; estimates already using it finish with their copy.
+    pub fn delete_object(&self, id: &str) -> Result<(), ServiceError> {
+        if self.operations.running_for(id) {
+            return Err(ServiceError::new(ErrorKind::AlreadyExists, format!("object {id:?} is being onboarded; cancel that operation first")));
+        }
+        self.store.delete(id)?;
+        self.cache.invalidate(id);
+        Ok(())
+    }
+
+    /// A slot for one estimate, or `None` when `max_estimates` are running.
+    pub fn estimate_slot(&self) -> Option<Slot> {
+        take_slot(&self.estimates_running, self.config.max_estimates)
+    }
+
+    /// Validates the upload and starts onboarding on its own thread; returns at once.
+    pub fn start_onboard(&self, req: OnboardRequest) -> Result<OperationStatus, ServiceError> {
+        crate::store::validate_id(&req.object_id)?;
+        let views = ViewSampling { level: req.options.level, in_plane_steps: req.options.in_plane };
+        views.validate().map_err(|e| ServiceError::invalid(format!("options: {e}")))?;
+        if !req.replace && self.store.exists(&req.object_id)? {
+            return Err(ServiceError::new(ErrorKind::AlreadyExists, format!("object {:?} already exists (set replace to overwrite it)", req.object_id)));
+        }
+        if self.operations.running_for(&req.object_id) {
+            return Err(ServiceError::new(ErrorKind::AlreadyExists, format!("object {:?} is already being onboarded", req.object_id)));
+        }
+        let staging = std::env::temp_dir().join(format!("b2tf-upload-{}-{}", std::process::id(), crate::store::unique_suffix()));
+        std::fs::create_dir_all(&staging).map_err(|e| ServiceError::internal(format!("staging the upload: {e}")))?;
+        let mesh = req.mesh.load(&staging);
+        let _ = std::fs::remove_dir_all(&staging);
+        let mesh = mesh?;
+        let config = OnboardConfig { views, pca_dim: req.options.pca, ..Default::default() };
+        let total = (crate::geometry::icosphere(views.level).len() as u32 * views.in_plane_steps) as u64;
+        // The slot is taken now (refusing at once) and held by the worker thread.
+        let slot = take_slot(&self.onboardings_running, self.config.max_onboardings).ok_or_else(|| ServiceError::new(ErrorKind::ResourceExhausted, format!("{} onboarding(s) already running; retry later", self.config.max_onboardings)))?;
+        let op = self.operations.start(&req.object_id, total);
+        let (backbone, pool, store, cache) = (self.backbone.clone(), self.pool.clone(), self.store.clone(), self.cache.clone());
+        let status = op.status();
+        let replace = req.replace;
+        std::thread::spawn(move || {
+            let progress = |p: crate::onboard::Progress| op.done.store(p.templates_done as u64, Ordering::Relaxed);
+            let result = onboard_cancellable(&op.object_id, &mesh, &config, backbone.as_ref(), &pool, &progress, &op.cancel);
+            match result {
+                Ok(model) => match store.put(&model, replace) {
+                    Ok(info) => {
+                        // A replaced object must not be served from the cache's old copy.
+                        cache.invalidate(&op.object_id);
+                        op.finish(OperationState::Succeeded, None, Some(info))
+                    }
+                    Err(e) => op.finish(OperationState::Failed, Some(e.to_string()), None),
+                },
+                Err(OnboardError::Cancelled) => op.finish(OperationState::Cancelled, None, None),
+                Err(e) => op.finish(OperationState::Failed, Some(e.to_string()), None),
+            }
+            drop(slot);
+        });
+        Ok(status)
+    }
+
+    pub fn operation(&self, id: &str) -> Result<OperationStatus, ServiceError> {
+        let op = self.operations.get(id).ok_or_else(|| ServiceError::not_found(format!("operation {id:?} not found")))?;
+        Ok(op.status())
+    }
+
+    /// Asks a running onboarding to stop; nothing of it is stored.
+    pub fn cancel_operation(&self, id: &str) -> Result<OperationStatus, ServiceError> {
+        let op = self.operations.get(id).ok_or_else(|| ServiceError::not_found(format!("operation {id:?} not found")))?;
+        op.cancel.store(true, Ordering::Relaxed);
+        Ok(op.status())
+    }
+
+    /// Runs the pipeline for every object named by the detections. Blocking.
+    pub fn estimate(&self, req: &EstimateRequest) -> Result<EstimateResponse, ServiceError> {
+        let t0 = Instant::now();
+        let k = req.intrinsics.decode()?;
+        let image = req.image.decode()?;
+        if image.dimensions() != (k.width, k.height) {
+            return Err(ServiceError::invalid(format!("image is {}×{} but intrinsics say {}×{}", image.width(), image.height(), k.width, k.height)));
+        }
+        if req.detections.is_empty() {
+            return Err(ServiceError::invalid("detections: at least one is needed"));
+        }
+        let o = &req.options;
+        if o.k == 0 || o.max_masks == 0 || o.instances_per_object == 0 {
+            return Err(ServiceError::invalid("options: k, max_masks and instances_per_object must be positive"));
+        }
+        let mut by_object: BTreeMap<&str, Vec<(usize, image::GrayImage, f32)>> = BTreeMap::new();
+        for (i, d) in req.detections.iter().enumerate() {
+            if !d.score.is_finite() {
+                return Err(ServiceError::invalid(format!("detections[{i}].score is not a finite number")));
+            }
+            crate::store::validate_id(&d.object_id).map_err(|e| ServiceError::invalid(format!("detections[{i}].object_id: {e}")))?;
+            by_object.entry(d.object_id.as_str()).or_default().push((i, d.mask(i, k.width, k.height)?, d.score));
+        }
+        // Every object must exist before any work starts.
+        let models: BTreeMap<&str, _> = by_object.keys().map(|&id| Ok((id, self.cache.get(id)?))).collect::<Result<_, ServiceError>>()?;
+        let mut cfg = EstimateConfig { rrc: o.rrc, max_masks: o.max_masks, ..Default::default() };
+        cfg.retrieval.k = o.k;
+        let mut results = Vec::new();
+        for (object_id, dets) in &by_object {
+            let model = &models[object_id];
+            let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, m, s)| (m, *s as f64)).collect();
+            for (instance, group) in crate::bop::instances::group_instances(&refs, 0.5).into_iter().take(o.instances_per_object).enumerate() {
+                let candidates: Vec<Detection> = group.iter().map(|&g| Detection { mask: dets[g].1.clone(), score: dets[g].2 }).collect();
+                let r = self.estimator.estimate(model, &image, &k, &candidates, &cfg)?;
+                results.push(InstanceResult {
+                    object_id: object_id.to_string(),
+                    instance,
+                    pose: r.pose.as_ref().map(PoseOutput::from),
+                    score: r.score,
+                    detection_index: r.mask_index.map(|m| dets[group[m]].0),
+                    reason: r.reason.clone(),
+                    diagnostics: serde_json::to_value(&r.hypotheses).unwrap_or_default(),
+                    timings_ms: serde_json::to_value(r.timings).unwrap_or_default(),
+                });
+            }
+        }
+        Ok(EstimateResponse { results, total_ms: t0.elapsed().as_secs_f64() * 1e3 })
+    }
+}

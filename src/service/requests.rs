@@ -1,0 +1,264 @@
+//! The API's messages as plain serde types (the HTTP JSON bodies; the gRPC adapter maps
+//! its protobuf messages onto the same), and their decoding into library inputs with a
+//! clear error for every kind of bad input. Units: metres, pixels (OpenCV: pixel centres
+//! at integer coordinates), `T_cam_obj`.
+
+use super::error::ServiceError;
+use crate::geometry::Intrinsics;
+use base64::Engine as _;
+use image::{GrayImage, RgbImage};
+
+fn b64(field: &str, s: &str) -> Result<Vec<u8>, ServiceError> {
+    base64::engine::general_purpose::STANDARD.decode(s.trim()).map_err(|e| ServiceError::invalid(format!("{field}: not valid base64: {e}")))
+}
+
+/// An image: encoded PNG/JPEG bytes, or raw 8-bit RGB rows with their size.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct ImageInput {
+    /// PNG or JPEG file bytes, base64 (JSON) or raw (gRPC).
+    #[serde(default)]
+    pub encoded: Option<String>,
+    /// Raw RGB8, row-major, `width × height × 3` bytes, base64.
+    #[serde(default)]
+    pub raw_rgb8: Option<String>,
+    #[serde(default)]
+    pub width: Option<u32>,
+    #[serde(default)]
+    pub height: Option<u32>,
+}
+
+impl ImageInput {
+    pub fn decode(&self) -> Result<RgbImage, ServiceError> {
+        match (&self.encoded, &self.raw_rgb8) {
+            (Some(e), None) => {
+                let bytes = b64("image.encoded", e)?;
+                Ok(image::load_from_memory(&bytes).map_err(|e| ServiceError::invalid(format!("image.encoded: not a readable PNG/JPEG image: {e}")))?.to_rgb8())
+            }
+            (None, Some(r)) => {
+                let (Some(w), Some(h)) = (self.width, self.height) else {
+                    return Err(ServiceError::invalid("image.raw_rgb8 needs image.width and image.height"));
+                };
+                let bytes = b64("image.raw_rgb8", r)?;
+                let expected = w as u64 * h as u64 * 3;
+                if w == 0 || h == 0 || bytes.len() as u64 != expected {
+                    return Err(ServiceError::invalid(format!("image.raw_rgb8 has {} bytes; {w}×{h} RGB8 needs {expected}", bytes.len())));
+                }
+                RgbImage::from_raw(w, h, bytes).ok_or_else(|| ServiceError::invalid("image.raw_rgb8: size mismatch"))
+            }
+            _ => Err(ServiceError::invalid("image: give exactly one of encoded or raw_rgb8")),
+        }
+    }
+}
+
+/// Pinhole intrinsics in pixels, with the image size they belong to.
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
+pub struct IntrinsicsInput {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl IntrinsicsInput {
+    pub fn decode(&self) -> Result<Intrinsics, ServiceError> {
+        Intrinsics::new(self.fx, self.fy, self.cx, self.cy, self.width, self.height).map_err(|e| ServiceError::invalid(format!("intrinsics: {e}")))
+    }
+}
+
+/// A binary mask as run-length encoding (BOP/COCO: column-major counts, first run
+/// background, `size` = [height, width]).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct RleInput {
+    pub counts: Vec<u32>,
+    pub size: [u32; 2],
+}
+
+/// One detection of one object: a mask (PNG, base64, non-zero = object; or RLE) and/or a
+/// box `[x, y, w, h]` in pixels (a box alone is used as a filled mask).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct DetectionInput {
+    pub object_id: String,
+    #[serde(default)]
+    pub mask_png: Option<String>,
+    #[serde(default)]
+    pub mask_rle: Option<RleInput>,
+    #[serde(default)]
+    pub bbox: Option<[f64; 4]>,
+    #[serde(default = "one")]
+    pub score: f32,
+}
+
+fn one() -> f32 {
+    1.0
+}
+
+impl DetectionInput {
+    /// The mask at the image's size; `index` names the detection in errors.
+    pub fn mask(&self, index: usize, width: u32, height: u32) -> Result<GrayImage, ServiceError> {
+        let field = |f: &str| format!("detections[{index}].{f}");
+        let mask = if let Some(png) = &self.mask_png {
+            let bytes = b64(&field("mask_png"), png)?;
+            image::load_from_memory(&bytes).map_err(|e| ServiceError::invalid(format!("{}: not a readable image: {e}", field("mask_png"))))?.to_luma8()
+        } else if let Some(rle) = &self.mask_rle {
+            let r = crate::bop::rle::Rle::new(rle.size, rle.counts.clone()).map_err(|e| ServiceError::invalid(format!("{}: {e}", field("mask_rle"))))?;
+            r.decode().map_err(|e| ServiceError::invalid(format!("{}: {e}", field("mask_rle"))))?
+        } else if let Some(b) = self.bbox {
+            let rec = crate::bop::detections::DetectionRecord { scene_id: 0, image_id: 0, obj_id: 0, bbox: b, score: self.score as f64, time: 0.0, segmentation: None };
+            rec.mask(width, height).map_err(|e| ServiceError::invalid(format!("{}: {e}", field("bbox"))))?
+        } else {
+            return Err(ServiceError::invalid(format!("detections[{index}]: give a mask_png, a mask_rle or a bbox")));
+        };
+        if mask.dimensions() != (width, height) {
+            return Err(ServiceError::invalid(format!("detections[{index}]: mask is {}×{} but the image is {width}×{height}", mask.width(), mask.height())));
+        }
+        Ok(mask)
+    }
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct EstimateOptions {
+    /// Render-guided re-correspondence.
+    pub rrc: bool,
+    /// Templates kept by retrieval.
+    pub k: usize,
+    /// Candidate masks per instance (multi-mask selection).
+    pub max_masks: usize,
+    /// Instances estimated per object (its detections grouped by mask overlap).
+    pub instances_per_object: usize,
+}
+
+impl Default for EstimateOptions {
+    fn default() -> Self {
+        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1 }
+    }
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct EstimateRequest {
+    pub image: ImageInput,
+    pub intrinsics: IntrinsicsInput,
+    pub detections: Vec<DetectionInput>,
+    #[serde(default)]
+    pub options: EstimateOptions,
+}
+
+/// A pose `T_cam_obj`: rotation row-major and as a unit quaternion (w, x, y, z), translation
+/// in metres.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PoseOutput {
+    #[serde(rename = "R")]
+    pub r: [f64; 9],
+    pub t: [f64; 3],
+    pub quaternion_wxyz: [f64; 4],
+}
+
+impl From<&crate::geometry::Pose> for PoseOutput {
+    fn from(p: &crate::geometry::Pose) -> Self {
+        let q = nalgebra::UnitQuaternion::from_rotation_matrix(&p.rotation);
+        Self { r: p.rotation_row_major(), t: [p.translation.x, p.translation.y, p.translation.z], quaternion_wxyz: [q.w, q.i, q.j, q.k] }
+    }
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct InstanceResult {
+    pub object_id: String,
+    /// Instance number within the object, best detection first.
+    pub instance: usize,
+    /// Absent when no pose was found (then `reason` says why).
+    pub pose: Option<PoseOutput>,
+    pub score: f32,
+    /// Index into the request's `detections` of the mask the pose came from.
+    pub detection_index: Option<usize>,
+    pub reason: Option<String>,
+    /// Per candidate mask: retrieval, matches, inliers, RRC, IoU, selection scores.
+    pub diagnostics: serde_json::Value,
+    /// Stage times of this instance, milliseconds.
+    pub timings_ms: serde_json::Value,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct EstimateResponse {
+    pub results: Vec<InstanceResult>,
+    /// Whole request, milliseconds (decoding included).
+    pub total_ms: f64,
+}
+
+/// A mesh upload: the file's bytes, its format and length unit, and the files it refers to
+/// (MTL, textures, glTF buffers) by the names it uses.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct MeshInput {
+    /// base64 file bytes.
+    pub data: String,
+    /// ply | obj | gltf | glb
+    pub format: String,
+    /// mm | cm | m (PLY and OBJ need it; glTF is metres).
+    #[serde(default)]
+    pub units: Option<String>,
+    #[serde(default)]
+    pub resources: Vec<ResourceInput>,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct ResourceInput {
+    /// File name as the mesh refers to it (no folders).
+    pub name: String,
+    /// base64 bytes.
+    pub data: String,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct OnboardOptions {
+    /// Icosphere level 0–3 and in-plane steps (defaults: 2 and 12, 1944 templates).
+    pub level: u32,
+    pub in_plane: u32,
+    /// PCA components for the patch descriptors (none: keep all).
+    pub pca: Option<usize>,
+}
+
+impl Default for OnboardOptions {
+    fn default() -> Self {
+        Self { level: 2, in_plane: 12, pca: None }
+    }
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct OnboardRequest {
+    pub object_id: String,
+    pub mesh: MeshInput,
+    #[serde(default)]
+    pub options: OnboardOptions,
+    #[serde(default)]
+    pub replace: bool,
+}
+
+impl MeshInput {
+    /// Writes the mesh and its resources into `dir` and loads it.
+    pub fn load(&self, dir: &std::path::Path) -> Result<crate::mesh::Mesh, ServiceError> {
+        let ext = match self.format.to_ascii_lowercase().as_str() {
+            f @ ("ply" | "obj" | "gltf" | "glb") => f.to_string(),
+            other => return Err(ServiceError::invalid(format!("mesh.format {other:?}: expected ply, obj, gltf or glb"))),
+        };
+        let units = match &self.units {
+            None => None,
+            Some(u) => Some(u.parse::<crate::mesh::Units>().map_err(|e| ServiceError::invalid(format!("mesh.units: {e}")))?),
+        };
+        let write = |name: &str, data: &str, field: &str| -> Result<(), ServiceError> {
+            let bytes = b64(field, data)?;
+            std::fs::write(dir.join(name), bytes).map_err(|e| ServiceError::internal(format!("staging {name}: {e}")))
+        };
+        for (i, r) in self.resources.iter().enumerate() {
+            let ok = !r.name.is_empty() && !r.name.contains(['/', '\\']) && r.name != "." && r.name != ".." && !r.name.starts_with("mesh.");
+            if !ok {
+                return Err(ServiceError::invalid(format!("mesh.resources[{i}].name {:?}: a plain file name is required", r.name)));
+            }
+            write(&r.name, &r.data, &format!("mesh.resources[{i}].data"))?;
+        }
+        let path = dir.join(format!("mesh.{ext}"));
+        write(path.file_name().and_then(|n| n.to_str()).unwrap_or("mesh"), &self.data, "mesh.data")?;
+        crate::mesh::load_mesh(&path, units).map_err(|e| ServiceError::invalid(format!("mesh: {}", e.to_string().replace(&dir.display().to_string(), "<upload>"))))
+    }
+}

@@ -1,0 +1,179 @@
+//! The HTTP service as clients see it: a real `b2tf serve` process on loopback, onboarding
+//! the generated sample object through the API, estimating its pose in a rendered photo,
+//! and every kind of bad input answered with the right status while the server keeps
+//! serving.
+
+use b2tfpose::geometry::views::view_pose;
+use b2tfpose::geometry::{geodesic_distance, Intrinsics};
+use b2tfpose::mesh::procedural::textured_box;
+use b2tfpose::render::{RenderOptions, RenderPool, RendererConfig};
+use base64::Engine as _;
+use serde_json::{json, Value};
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+struct Server {
+    child: Child,
+    base: String,
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn start(store: &str) -> Server {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_b2tf"))
+        .args(["serve", "--http", "127.0.0.1:0", "--store", store, "--max-body-mb", "3", "--max-estimates", "2", "--render-pool", "1"])
+        .env("XDG_RUNTIME_DIR", "/tmp")
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("server starts");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+    let addr = line.split_whitespace().find(|w| w.starts_with("http://")).unwrap_or_else(|| panic!("no address in {line:?}")).to_string();
+    Server { child, base: addr }
+}
+
+fn b64(bytes: &[u8]) -> String {
+    base64::engine::general_purpose::STANDARD.encode(bytes)
+}
+
+/// PNG file bytes of an RGB or grey image, base64.
+fn png<P: image::PixelWithColorType>(img: &image::ImageBuffer<P, Vec<P::Subpixel>>) -> String
+where
+    [P::Subpixel]: image::EncodableLayout,
+{
+    let mut out = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png).unwrap();
+    b64(&out)
+}
+
+fn client() -> reqwest::blocking::Client {
+    reqwest::blocking::Client::builder().timeout(Duration::from_secs(300)).build().unwrap()
+}
+
+fn call(c: &reqwest::blocking::Client, method: &str, url: &str, body: Option<&Value>) -> (u16, Value) {
+    let req = match method {
+        "GET" => c.get(url),
+        "DELETE" => c.delete(url),
+        _ => c.post(url),
+    };
+    let req = match body {
+        Some(b) => req.json(b),
+        None => req,
+    };
+    let r = req.send().expect("request sent");
+    let status = r.status().as_u16();
+    let text = r.text().unwrap_or_default();
+    (status, serde_json::from_str(&text).unwrap_or(Value::String(text)))
+}
+
+#[test]
+fn onboard_estimate_and_bad_inputs_over_http() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = format!("sqlite://{}", dir.path().join("objects.db").display());
+    let server = start(&store);
+    let (c, base) = (client(), server.base.clone());
+    let healthy = |c: &reqwest::blocking::Client| assert_eq!(call(c, "GET", &format!("{base}/healthz"), None).0, 200);
+    healthy(&c);
+    let t = Instant::now();
+    while call(&c, "GET", &format!("{base}/readyz"), None).0 != 200 {
+        assert!(t.elapsed() < Duration::from_secs(60), "never ready");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+
+    // Onboard the sample box (OBJ + MTL + PNG texture) through the API.
+    let mesh = textured_box([0.10, 0.06, 0.16], 3);
+    let files = dir.path().join("sample");
+    b2tfpose::mesh::write_obj::write_obj(&mesh, &files, "box").unwrap();
+    let read = |n: &str| b64(&std::fs::read(files.join(n)).unwrap());
+    let onboard = json!({
+        "object_id": "box",
+        "mesh": {"data": read("box.obj"), "format": "obj", "units": "m",
+                 "resources": [{"name": "box.mtl", "data": read("box.mtl")}, {"name": "box_m0.png", "data": read("box_m0.png")}]},
+        "options": {"level": 1, "in_plane": 6}
+    });
+    let (status, op) = call(&c, "POST", &format!("{base}/v1/objects"), Some(&onboard));
+    assert_eq!(status, 202, "{op}");
+    let op_url = format!("{base}/v1/operations/{}", op["id"].as_str().unwrap());
+    let t = Instant::now();
+    let done = loop {
+        let (s, o) = call(&c, "GET", &op_url, None);
+        assert_eq!(s, 200, "{o}");
+        if o["state"] != "running" {
+            break o;
+        }
+        assert!(t.elapsed() < Duration::from_secs(600), "onboarding did not finish: {o}");
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    assert_eq!(done["state"], "succeeded", "{done}");
+    assert_eq!(done["object"]["templates"], 42 * 6);
+    let (s, list) = call(&c, "GET", &format!("{base}/v1/objects"), None);
+    assert!(s == 200 && list["objects"][0]["id"] == "box", "{list}");
+    // The same id again without replace: 409.
+    assert_eq!(call(&c, "POST", &format!("{base}/v1/objects"), Some(&onboard)).0, 409);
+
+    // A photo of the box at a known pose, its mask as the detection.
+    let pool = RenderPool::new(1, RendererConfig::default()).unwrap();
+    let k = Intrinsics::new(500.0, 500.0, 159.5, 119.5, 320, 240).unwrap();
+    let truth = view_pose(&nalgebra::Vector3::new(0.3, -0.5, 0.8).normalize(), 0.7, &nalgebra::Vector3::zeros(), 0.5);
+    let r = pool.render(&mesh, &truth, &k, &RenderOptions::default()).unwrap();
+    let intrinsics = json!({"fx": 500.0, "fy": 500.0, "cx": 159.5, "cy": 119.5, "width": 320, "height": 240});
+    let request = |image: Value, intrinsics: Value, detections: Value| json!({"image": image, "intrinsics": intrinsics, "detections": detections, "options": {"rrc": false}});
+    let good_image = json!({"encoded": png(&r.rgb)});
+    let good_dets = json!([{"object_id": "box", "mask_png": png(&r.mask), "score": 0.9}]);
+    let (s, est) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&request(good_image.clone(), intrinsics.clone(), good_dets.clone())));
+    assert_eq!(s, 200, "{est}");
+    let res = &est["results"][0];
+    assert_eq!(res["object_id"], "box");
+    let tv: Vec<f64> = res["pose"]["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let rv: Vec<f64> = res["pose"]["R"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let est_pose = b2tfpose::geometry::Pose::from_row_major(&rv.clone().try_into().unwrap(), [tv[0], tv[1], tv[2]]);
+    let rot = geodesic_distance(&est_pose.rotation, &truth.rotation).to_degrees();
+    let trans = (est_pose.translation - truth.translation).norm();
+    assert!(rot < 10.0 && trans < 0.03, "rotation error {rot:.1}°, translation error {:.1} mm", trans * 1e3);
+    assert_eq!(res["pose"]["quaternion_wxyz"].as_array().unwrap().len(), 4);
+
+    // Raw RGB8 gives the same answer as the PNG.
+    let raw = json!({"raw_rgb8": b64(r.rgb.as_raw()), "width": 320, "height": 240});
+    let (s, est_raw) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&request(raw, intrinsics.clone(), good_dets.clone())));
+    assert_eq!(s, 200, "{est_raw}");
+    assert_eq!(est_raw["results"][0]["pose"], res["pose"]);
+
+    // Bad inputs: each gets its status and names the problem; the server keeps serving.
+    let small_mask = png(&image::GrayImage::new(10, 10));
+    let cases: Vec<(Value, u16, &str)> = vec![
+        (request(json!({"encoded": b64(b"not an image")}), intrinsics.clone(), good_dets.clone()), 400, "image.encoded"),
+        (request(good_image.clone(), intrinsics.clone(), json!([{"object_id": "nope", "mask_png": png(&r.mask)}])), 404, "nope"),
+        (request(good_image.clone(), intrinsics.clone(), json!([{"object_id": "box", "mask_png": small_mask}])), 400, "mask is 10×10"),
+        (request(good_image.clone(), json!({"fx": -500.0, "fy": 500.0, "cx": 159.5, "cy": 119.5, "width": 320, "height": 240}), good_dets.clone()), 400, "intrinsics"),
+        (request(good_image.clone(), json!({"fx": 500.0, "fy": 500.0, "cx": 159.5, "cy": 119.5, "width": 640, "height": 480}), good_dets.clone()), 400, "intrinsics say 640×480"),
+        (request(good_image.clone(), intrinsics.clone(), json!([])), 400, "at least one"),
+        (request(good_image.clone(), intrinsics.clone(), json!([{"object_id": "../x", "mask_png": png(&r.mask)}])), 400, "object_id"),
+        (json!({"image": "wrong"}), 400, "request body"),
+    ];
+    for (body, want, needle) in cases {
+        let (s, v) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&body));
+        assert_eq!(s, want, "{needle}: {v}");
+        assert!(v.to_string().contains(needle), "{needle} not in {v}");
+        healthy(&c);
+    }
+    // NaN cannot be written in JSON; a string where a number belongs is refused as such.
+    let (s, _) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&request(good_image.clone(), json!({"fx": "NaN", "fy": 500.0, "cx": 1, "cy": 1, "width": 320, "height": 240}), good_dets.clone())));
+    assert_eq!(s, 400);
+    // Larger than --max-body-mb 3.
+    let big = json!({"image": {"encoded": "A".repeat(4_000_000)}});
+    assert_eq!(call(&c, "POST", &format!("{base}/v1/estimate"), Some(&big)).0, 413);
+    assert_eq!(call(&c, "GET", &format!("{base}/v1/operations/op-unknown"), None).0, 404);
+    assert_eq!(call(&c, "GET", &format!("{base}/v1/objects/..%2Fetc"), None).0, 400);
+    healthy(&c);
+
+    // Delete: 204, then the object is gone.
+    assert_eq!(call(&c, "DELETE", &format!("{base}/v1/objects/box"), None).0, 204);
+    assert_eq!(call(&c, "GET", &format!("{base}/v1/objects/box"), None).0, 404);
+    assert_eq!(call(&c, "DELETE", &format!("{base}/v1/objects/box"), None).0, 404);
+}
