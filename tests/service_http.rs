@@ -25,10 +25,13 @@ impl Drop for Server {
     }
 }
 
-fn start(store: &str) -> Server {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_b2tf"))
-        .args(["serve", "--http", "127.0.0.1:0", "--store", store, "--max-body-mb", "3", "--max-estimates", "2", "--render-pool", "1"])
-        .env("XDG_RUNTIME_DIR", "/tmp")
+fn start(store: &str, keys: Option<&str>) -> Server {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_b2tf"));
+    cmd.args(["serve", "--http", "127.0.0.1:0", "--store", store, "--max-body-mb", "3", "--max-estimates", "2", "--render-pool", "1"]).env("XDG_RUNTIME_DIR", "/tmp").env_remove("B2TF_API_KEYS");
+    if let Some(k) = keys {
+        cmd.env("B2TF_API_KEYS", k);
+    }
+    let mut child = cmd
         .stdout(Stdio::piped())
         .spawn()
         .expect("server starts");
@@ -76,7 +79,7 @@ fn call(c: &reqwest::blocking::Client, method: &str, url: &str, body: Option<&Va
 fn onboard_estimate_and_bad_inputs_over_http() {
     let dir = tempfile::tempdir().unwrap();
     let store = format!("sqlite://{}", dir.path().join("objects.db").display());
-    let server = start(&store);
+    let mut server = start(&store, None);
     let (c, base) = (client(), server.base.clone());
     let healthy = |c: &reqwest::blocking::Client| assert_eq!(call(c, "GET", &format!("{base}/healthz"), None).0, 200);
     healthy(&c);
@@ -167,13 +170,87 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     assert_eq!(s, 400);
     // Larger than --max-body-mb 3.
     let big = json!({"image": {"encoded": "A".repeat(4_000_000)}});
-    assert_eq!(call(&c, "POST", &format!("{base}/v1/estimate"), Some(&big)).0, 413);
+    // Its own client: the server answers before reading the body and then closes that
+    // connection, which a pooled client might otherwise try to reuse.
+    assert_eq!(call(&client(), "POST", &format!("{base}/v1/estimate"), Some(&big)).0, 413);
     assert_eq!(call(&c, "GET", &format!("{base}/v1/operations/op-unknown"), None).0, 404);
     assert_eq!(call(&c, "GET", &format!("{base}/v1/objects/..%2Fetc"), None).0, 400);
     healthy(&c);
+
+    // Over the concurrency limit (2 running estimates) requests are refused at once.
+    let with_rrc = json!({"image": good_image, "intrinsics": intrinsics, "detections": good_dets});
+    let statuses: Vec<u16> = std::thread::scope(|sc| {
+        let hs: Vec<_> = (0..5).map(|_| sc.spawn(|| call(&client(), "POST", &format!("{base}/v1/estimate"), Some(&with_rrc)).0)).collect();
+        hs.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    assert!(statuses.iter().all(|s| *s == 200 || *s == 429) && statuses.contains(&200) && statuses.contains(&429), "{statuses:?}");
+
+    // Estimates keep working while another object onboards; the onboarding can be cancelled
+    // and leaves nothing behind.
+    let mut slow = onboard.clone();
+    slow["object_id"] = json!("box2");
+    slow["options"] = json!({"level": 3, "in_plane": 12});
+    let (s, op2) = call(&c, "POST", &format!("{base}/v1/objects"), Some(&slow));
+    assert_eq!(s, 202, "{op2}");
+    let op2_url = format!("{base}/v1/operations/{}", op2["id"].as_str().unwrap());
+    let (s, again) = call(&c, "POST", &format!("{base}/v1/objects"), Some(&slow));
+    assert_eq!(s, 409, "a second onboarding of the same id: {again}");
+    let (s, est2) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&request(json!({"encoded": png(&r.rgb)}), intrinsics_again(), good_dets_again(&r.mask))));
+    assert_eq!(s, 200, "{est2}");
+    assert_eq!(call(&c, "GET", &op2_url, None).1["state"], "running");
+    assert_eq!(call(&c, "POST", &format!("{op2_url}/cancel"), None).0, 200);
+    let t = Instant::now();
+    while call(&c, "GET", &op2_url, None).1["state"] == "running" {
+        assert!(t.elapsed() < Duration::from_secs(120), "cancel not honoured");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert_eq!(call(&c, "GET", &op2_url, None).1["state"], "cancelled");
+    assert_eq!(call(&c, "GET", &format!("{base}/v1/objects/box2"), None).0, 404);
+
+    // Metrics count what happened; the OpenAPI document lists every route.
+    let metrics = c.get(format!("{base}/metrics")).send().unwrap().text().unwrap();
+    for needle in ["b2tf_requests_total{method=\"POST\",route=\"/v1/estimate\",status=\"200\"}", "status=\"429\"", "b2tf_request_seconds_bucket", "b2tf_stage_seconds_bucket{stage=\"pnp\"", "b2tf_objects_loaded 1", "b2tf_ready 1"] {
+        assert!(metrics.contains(needle), "{needle} not in metrics:\n{metrics}");
+    }
+    let (s, doc) = call(&c, "GET", &format!("{base}/openapi.json"), None);
+    assert_eq!((s, doc["openapi"].as_str()), (200, Some("3.0.3")));
+    for path in ["/healthz", "/readyz", "/metrics", "/v1/objects", "/v1/objects/{id}", "/v1/operations/{id}", "/v1/operations/{id}/cancel", "/v1/estimate"] {
+        assert!(doc["paths"][path].is_object(), "{path} missing from openapi.json");
+    }
 
     // Delete: 204, then the object is gone.
     assert_eq!(call(&c, "DELETE", &format!("{base}/v1/objects/box"), None).0, 204);
     assert_eq!(call(&c, "GET", &format!("{base}/v1/objects/box"), None).0, 404);
     assert_eq!(call(&c, "DELETE", &format!("{base}/v1/objects/box"), None).0, 404);
+
+    // SIGTERM: the server stops accepting, finishes, and exits cleanly.
+    // SAFETY: kill(2) on our own child's pid.
+    unsafe { libc::kill(server.child.id() as i32, libc::SIGTERM) };
+    let status = server.child.wait().unwrap();
+    assert!(status.success(), "{status:?}");
+}
+
+fn intrinsics_again() -> Value {
+    json!({"fx": 500.0, "fy": 500.0, "cx": 159.5, "cy": 119.5, "width": 320, "height": 240})
+}
+
+fn good_dets_again(mask: &image::GrayImage) -> Value {
+    json!([{"object_id": "box", "mask_png": png(mask), "score": 0.9}])
+}
+
+#[test]
+fn api_keys_guard_everything_but_health() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = start(&format!("sqlite://{}", dir.path().join("o.db").display()), Some("s3cret,other"));
+    let (c, base) = (client(), server.base.clone());
+    assert_eq!(call(&c, "GET", &format!("{base}/healthz"), None).0, 200);
+    for path in ["/v1/objects", "/metrics", "/openapi.json", "/v1/operations/x"] {
+        let (s, v) = call(&c, "GET", &format!("{base}{path}"), None);
+        assert_eq!(s, 401, "{path}: {v}");
+        assert_eq!(c.get(format!("{base}{path}")).header("Authorization", "Bearer wrong").send().unwrap().status().as_u16(), 401, "{path}");
+    }
+    let ok = c.get(format!("{base}/v1/objects")).header("Authorization", "Bearer s3cret").send().unwrap();
+    assert_eq!(ok.status().as_u16(), 200);
+    let ok = c.get(format!("{base}/metrics")).header("Authorization", "Bearer other").send().unwrap();
+    assert_eq!(ok.status().as_u16(), 200);
 }

@@ -31,6 +31,12 @@ pub struct ServeArgs {
     /// Memory for loaded objects, MB.
     #[arg(long, env = "B2TF_CACHE_MB", default_value_t = 4000)]
     pub cache_mb: u64,
+    /// File of API keys (one per line); with keys, only /healthz and /readyz are open.
+    #[arg(long, env = "B2TF_API_KEYS_FILE")]
+    pub api_keys_file: Option<std::path::PathBuf>,
+    /// API keys, comma-separated (prefer the file: command lines are visible to other users).
+    #[arg(long, env = "B2TF_API_KEYS", hide_env_values = true)]
+    pub api_keys: Option<String>,
 }
 
 pub fn run(a: ServeArgs) -> Result<()> {
@@ -41,12 +47,13 @@ pub fn run(a: ServeArgs) -> Result<()> {
         max_estimates: a.max_estimates.max(1),
         max_onboardings: a.max_onboardings.max(1),
     };
+    let keys = crate::service::auth::ApiKeys::load(a.api_keys_file.as_deref(), a.api_keys.as_deref()).map_err(anyhow::Error::msg)?;
     let core = Arc::new(Core::new(config).context("starting the service core")?);
     let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
     runtime.block_on(async move {
         let listener = tokio::net::TcpListener::bind(&a.http).await.with_context(|| format!("cannot listen on {}", a.http))?;
         let addr = listener.local_addr()?;
-        println!("listening on http://{addr} (store {})", core.store_url());
+        println!("listening on http://{addr} (store {}; {})", core.store_url(), if keys.enabled() { format!("{} API key(s) required", keys.len()) } else { "no API keys".into() });
         std::io::stdout().flush()?;
         let ready = Arc::new(AtomicBool::new(false));
         {
@@ -56,9 +63,11 @@ pub fn run(a: ServeArgs) -> Result<()> {
                 Err(e) => eprintln!("warm-up failed, staying not ready: {e}"),
             });
         }
-        let app = router(AppState { core, ready }, a.max_body_mb * 1_000_000);
+        let metrics = Arc::new(crate::service::metrics::Metrics::default());
+        let app = router(AppState { core, ready, metrics, keys }, a.max_body_mb * 1_000_000);
         axum::serve(listener, app).with_graceful_shutdown(shutdown_signal()).await?;
-        println!("stopped");
+        // The reader of stdout may be gone by now (a supervisor that only wanted the address).
+        let _ = writeln!(std::io::stdout(), "stopped");
         Ok(())
     })
 }

@@ -5,9 +5,12 @@
 use super::core::Core;
 use super::error::{ErrorKind, ServiceError};
 use super::requests::{EstimateRequest, OnboardRequest};
+use super::auth::ApiKeys;
+use super::metrics::{Gauges, Metrics};
 use axum::extract::rejection::JsonRejection;
-use axum::extract::{DefaultBodyLimit, Path, State};
-use axum::http::StatusCode;
+use axum::extract::{DefaultBodyLimit, MatchedPath, Path, Request, State};
+use axum::http::{header, StatusCode};
+use axum::middleware::{from_fn_with_state, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
@@ -19,7 +22,12 @@ pub struct AppState {
     pub core: Arc<Core>,
     /// Set once the store is open, the backbone loaded and warmed up, the pool up.
     pub ready: Arc<AtomicBool>,
+    pub metrics: Arc<Metrics>,
+    pub keys: ApiKeys,
 }
+
+/// The OpenAPI 3 description of these routes, served at `/openapi.json`.
+pub const OPENAPI: &str = include_str!("openapi.json");
 
 pub fn status_of(kind: &ErrorKind) -> StatusCode {
     match kind {
@@ -53,6 +61,29 @@ fn body<T>(b: Result<Json<T>, JsonRejection>) -> Result<T, ServiceError> {
 /// Runs blocking core work off the async threads.
 async fn blocking<T: Send + 'static>(f: impl FnOnce() -> Result<T, ServiceError> + Send + 'static) -> Result<T, ServiceError> {
     tokio::task::spawn_blocking(f).await.map_err(|e| ServiceError::internal(format!("worker failed: {e}")))?
+}
+
+/// API keys (all routes but the health checks) and request metrics, after routing so the
+/// route template (not the raw path with ids) labels the metrics.
+async fn guard(State(s): State<AppState>, req: Request, next: Next) -> Response {
+    let method = req.method().to_string();
+    let route = req.extensions().get::<MatchedPath>().map_or_else(|| "unmatched".to_string(), |m| m.as_str().to_string());
+    let open = matches!(route.as_str(), "/healthz" | "/readyz");
+    let t = std::time::Instant::now();
+    let authorised = open || !s.keys.enabled() || s.keys.accepts_header(req.headers().get(header::AUTHORIZATION).and_then(|v| v.to_str().ok()));
+    let resp = if authorised { next.run(req).await } else { ServiceError::new(ErrorKind::Unauthenticated, "missing or unknown API key (send Authorization: Bearer <key>)").into_response() };
+    s.metrics.request(&method, &route, resp.status().as_u16(), t.elapsed().as_secs_f64());
+    resp
+}
+
+async fn metrics(State(s): State<AppState>) -> Response {
+    let c = s.core.cache_stats();
+    let g = Gauges { estimates_running: s.core.estimates_running(), onboardings_running: s.core.onboardings_running(), objects_loaded: c.objects, cache_bytes: c.bytes, ready: s.ready.load(Ordering::Acquire) };
+    ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], s.metrics.render(&g)).into_response()
+}
+
+async fn openapi() -> Response {
+    ([(header::CONTENT_TYPE, "application/json")], OPENAPI).into_response()
 }
 
 async fn healthz() -> &'static str {
@@ -104,11 +135,15 @@ async fn estimate(State(s): State<AppState>, b: Result<Json<EstimateRequest>, Js
     // Over the limit the request is refused now, not queued.
     let slot = s.core.estimate_slot().ok_or_else(|| ServiceError::new(ErrorKind::ResourceExhausted, format!("{} estimates already running; retry later", s.core.config.max_estimates)))?;
     let core = s.core.clone();
+    let detections = req.detections.len();
     let resp = blocking(move || {
         let _slot = slot;
         core.estimate(&req)
     })
     .await?;
+    for r in &resp.results {
+        s.metrics.stages(&r.timings_ms, detections);
+    }
     Ok(Json(resp).into_response())
 }
 
@@ -121,6 +156,9 @@ pub fn router(state: AppState, max_body_bytes: usize) -> Router {
         .route("/v1/operations/{id}", get(get_operation))
         .route("/v1/operations/{id}/cancel", post(cancel_operation))
         .route("/v1/estimate", post(estimate))
+        .route("/metrics", get(metrics))
+        .route("/openapi.json", get(openapi))
+        .route_layer(from_fn_with_state(state.clone(), guard))
         .layer(DefaultBodyLimit::max(max_body_bytes))
         .with_state(state)
 }

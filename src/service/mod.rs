@@ -2,9 +2,11 @@
 //! estimator, onboarding operations) behind thin adapters that parse, validate, call the
 //! core and map errors (`http.rs`; gRPC to follow). No pipeline logic lives here.
 
+pub mod auth;
 pub mod core;
 pub mod error;
 pub mod http;
+pub mod metrics;
 pub mod operations;
 pub mod requests;
 

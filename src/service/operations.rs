@@ -65,8 +65,15 @@ impl Operation {
 const KEEP_FINISHED: usize = 1000;
 
 #[derive(Default)]
+struct Registry {
+    by_id: HashMap<String, Arc<Operation>>,
+    /// Ids in start order, for forgetting the oldest finished ones.
+    order: VecDeque<String>,
+}
+
+#[derive(Default)]
 pub struct Operations {
-    inner: Mutex<(HashMap<String, Arc<Operation>>, VecDeque<String>)>,
+    inner: Mutex<Registry>,
     counter: AtomicU64,
 }
 
@@ -84,28 +91,28 @@ impl Operations {
             outcome: Mutex::new((OperationState::Running, None, None)),
         });
         let mut g = self.inner.lock().expect("operations lock");
-        g.0.insert(id.clone(), op.clone());
-        g.1.push_back(id);
+        g.by_id.insert(id.clone(), op.clone());
+        g.order.push_back(id);
         // Forget the oldest finished ones beyond the bound (running ones always stay).
-        while g.1.len() > KEEP_FINISHED {
-            let Some(pos) = g.1.iter().position(|i| g.0.get(i).is_none_or(|o| !o.is_running())) else { break };
-            let old = g.1.remove(pos).expect("index valid");
-            g.0.remove(&old);
+        while g.order.len() > KEEP_FINISHED {
+            let Some(pos) = g.order.iter().position(|i| g.by_id.get(i).is_none_or(|o| !o.is_running())) else { break };
+            let old = g.order.remove(pos).expect("index valid");
+            g.by_id.remove(&old);
         }
         op
     }
 
     pub fn get(&self, id: &str) -> Option<Arc<Operation>> {
-        self.inner.lock().expect("operations lock").0.get(id).cloned()
+        self.inner.lock().expect("operations lock").by_id.get(id).cloned()
     }
 
     /// Running operations, for the readiness of onboarding slots and for shutdown.
     pub fn running(&self) -> usize {
-        self.inner.lock().expect("operations lock").0.values().filter(|o| o.is_running()).count()
+        self.inner.lock().expect("operations lock").by_id.values().filter(|o| o.is_running()).count()
     }
 
     /// Whether an onboarding of `object_id` is under way.
     pub fn running_for(&self, object_id: &str) -> bool {
-        self.inner.lock().expect("operations lock").0.values().any(|o| o.object_id == object_id && o.is_running())
+        self.inner.lock().expect("operations lock").by_id.values().any(|o| o.object_id == object_id && o.is_running())
     }
 }

@@ -1,0 +1,131 @@
+//! Prometheus text-format metrics: requests by route and status, latency histograms per
+//! route, estimate stage timings, and gauges read from the core at scrape time (running
+//! estimates and onboardings, loaded objects, cache bytes). Hand-written: a few counters
+//! do not need a metrics framework.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::sync::Mutex;
+
+/// Upper bounds of the latency buckets, seconds.
+const BUCKETS: [f64; 12] = [0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0];
+
+#[derive(Default, Clone)]
+struct Histogram {
+    counts: [u64; BUCKETS.len()],
+    sum: f64,
+    count: u64,
+}
+
+impl Histogram {
+    fn observe(&mut self, v: f64) {
+        for (b, c) in BUCKETS.iter().zip(self.counts.iter_mut()) {
+            if v <= *b {
+                *c += 1;
+            }
+        }
+        self.sum += v;
+        self.count += 1;
+    }
+
+    fn write(&self, out: &mut String, name: &str, labels: &str) {
+        for (b, c) in BUCKETS.iter().zip(&self.counts) {
+            let _ = writeln!(out, "{name}_bucket{{{labels}le=\"{b}\"}} {c}");
+        }
+        let _ = writeln!(out, "{name}_bucket{{{labels}le=\"+Inf\"}} {}", self.count);
+        let _ = writeln!(out, "{name}_sum{{{}}} {}", labels.trim_end_matches(','), self.sum);
+        let _ = writeln!(out, "{name}_count{{{}}} {}", labels.trim_end_matches(','), self.count);
+    }
+}
+
+#[derive(Default)]
+struct Inner {
+    requests: BTreeMap<(String, String, u16), u64>,
+    latency: BTreeMap<String, Histogram>,
+    stages: BTreeMap<String, Histogram>,
+    detections_per_estimate: Histogram,
+}
+
+#[derive(Default)]
+pub struct Metrics {
+    inner: Mutex<Inner>,
+}
+
+/// Values read from the core when scraped.
+pub struct Gauges {
+    pub estimates_running: usize,
+    pub onboardings_running: usize,
+    pub objects_loaded: usize,
+    pub cache_bytes: u64,
+    pub ready: bool,
+}
+
+impl Metrics {
+    pub fn request(&self, method: &str, route: &str, status: u16, seconds: f64) {
+        let mut g = self.inner.lock().expect("metrics lock");
+        *g.requests.entry((method.to_string(), route.to_string(), status)).or_default() += 1;
+        g.latency.entry(format!("{method} {route}")).or_default().observe(seconds);
+    }
+
+    /// Stage times of one estimated instance (milliseconds, as the pipeline reports them).
+    pub fn stages(&self, timings_ms: &serde_json::Value, detections: usize) {
+        let mut g = self.inner.lock().expect("metrics lock");
+        if let Some(map) = timings_ms.as_object() {
+            for (stage, v) in map {
+                if let Some(ms) = v.as_f64() {
+                    g.stages.entry(stage.clone()).or_default().observe(ms / 1e3);
+                }
+            }
+        }
+        g.detections_per_estimate.observe(detections as f64);
+    }
+
+    pub fn render(&self, gauges: &Gauges) -> String {
+        let g = self.inner.lock().expect("metrics lock");
+        let mut out = String::new();
+        out.push_str("# HELP b2tf_requests_total Requests by method, route and status.\n# TYPE b2tf_requests_total counter\n");
+        for ((m, r, s), n) in &g.requests {
+            let _ = writeln!(out, "b2tf_requests_total{{method=\"{m}\",route=\"{r}\",status=\"{s}\"}} {n}");
+        }
+        out.push_str("# HELP b2tf_request_seconds Request latency.\n# TYPE b2tf_request_seconds histogram\n");
+        for (key, h) in &g.latency {
+            let (m, r) = key.split_once(' ').unwrap_or((key, ""));
+            h.write(&mut out, "b2tf_request_seconds", &format!("method=\"{m}\",route=\"{r}\","));
+        }
+        out.push_str("# HELP b2tf_stage_seconds Estimation stage time per instance.\n# TYPE b2tf_stage_seconds histogram\n");
+        for (stage, h) in &g.stages {
+            h.write(&mut out, "b2tf_stage_seconds", &format!("stage=\"{stage}\","));
+        }
+        out.push_str("# HELP b2tf_detections_per_estimate Detections in one estimate request (the backbone batch).\n# TYPE b2tf_detections_per_estimate histogram\n");
+        g.detections_per_estimate.write(&mut out, "b2tf_detections_per_estimate", "");
+        let gauge = |out: &mut String, name: &str, help: &str, v: f64| {
+            let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} gauge\n{name} {v}");
+        };
+        gauge(&mut out, "b2tf_estimates_running", "Estimates in progress (the queue is refused beyond the limit).", gauges.estimates_running as f64);
+        gauge(&mut out, "b2tf_onboardings_running", "Onboardings in progress.", gauges.onboardings_running as f64);
+        gauge(&mut out, "b2tf_objects_loaded", "Objects held in the model cache.", gauges.objects_loaded as f64);
+        gauge(&mut out, "b2tf_cache_bytes", "Bytes held by the model cache.", gauges.cache_bytes as f64);
+        gauge(&mut out, "b2tf_ready", "1 once warmed up.", if gauges.ready { 1.0 } else { 0.0 });
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn renders_counters_histograms_and_gauges() {
+        let m = Metrics::default();
+        m.request("POST", "/v1/estimate", 200, 0.3);
+        m.request("POST", "/v1/estimate", 200, 0.03);
+        m.request("POST", "/v1/estimate", 429, 0.001);
+        m.stages(&serde_json::json!({"pnp": 4.0, "total": 150.0}), 2);
+        let text = m.render(&Gauges { estimates_running: 1, onboardings_running: 0, objects_loaded: 3, cache_bytes: 42, ready: true });
+        assert!(text.contains("b2tf_requests_total{method=\"POST\",route=\"/v1/estimate\",status=\"200\"} 2"), "{text}");
+        assert!(text.contains("b2tf_request_seconds_bucket{method=\"POST\",route=\"/v1/estimate\",le=\"0.05\"} 2"), "{text}");
+        assert!(text.contains("b2tf_request_seconds_count{method=\"POST\",route=\"/v1/estimate\"} 3"), "{text}");
+        assert!(text.contains("b2tf_stage_seconds_bucket{stage=\"pnp\",le=\"0.005\"} 1"), "{text}");
+        assert!(text.contains("b2tf_objects_loaded 3") && text.contains("b2tf_cache_bytes 42") && text.contains("b2tf_ready 1"), "{text}");
+    }
+}
