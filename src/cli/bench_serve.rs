@@ -1,0 +1,161 @@
+//! `b2tf bench serve`: the HTTP service under load, measured from outside: a real `b2tf
+//! serve` child process, N concurrent clients posting estimates of the sample box, req/s
+//! and p50 / p99 latency per concurrency; then the server's resident memory once every
+//! object in its store (up to 10) is loaded.
+
+use crate::geometry::views::view_pose;
+use crate::geometry::Intrinsics;
+use crate::render::{RenderOptions, RenderPool};
+use anyhow::{anyhow, bail, Context, Result};
+use base64::Engine as _;
+use serde_json::{json, Value};
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::time::{Duration, Instant};
+
+#[derive(clap::Args, Debug)]
+pub struct BenchServeArgs {
+    /// Store the server uses; it must hold the sample box as "box" (`b2tf bench estimate`
+    /// puts it into the default) or the bench onboards it through the API.
+    #[arg(long, default_value = "dir://out/bench-models")]
+    pub store: String,
+    /// Concurrent clients, one measurement each.
+    #[arg(long, value_delimiter = ',', default_value = "1,4,16")]
+    pub clients: Vec<usize>,
+    /// Requests per client per measurement.
+    #[arg(long, default_value_t = 8)]
+    pub requests: usize,
+    /// RRC in the estimate requests.
+    #[arg(long)]
+    pub no_rrc: bool,
+}
+
+/// One HTTP/1.1 request on a fresh connection; returns (status, body).
+fn http(addr: &str, method: &str, path: &str, body: Option<&[u8]>) -> Result<(u16, Vec<u8>)> {
+    let mut s = TcpStream::connect(addr)?;
+    let body = body.unwrap_or(&[]);
+    write!(s, "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n", body.len())?;
+    s.write_all(body)?;
+    let mut raw = Vec::new();
+    s.read_to_end(&mut raw)?;
+    let split = raw.windows(4).position(|w| w == b"\r\n\r\n").ok_or_else(|| anyhow!("no HTTP header in the reply"))?;
+    let head = String::from_utf8_lossy(&raw[..split]);
+    let status = head.split_whitespace().nth(1).and_then(|c| c.parse().ok()).ok_or_else(|| anyhow!("bad status line {head:?}"))?;
+    Ok((status, raw[split + 4..].to_vec()))
+}
+
+fn json_call(addr: &str, method: &str, path: &str, body: Option<&Value>) -> Result<(u16, Value)> {
+    let bytes = body.map(|b| serde_json::to_vec(b)).transpose()?;
+    let (status, body) = http(addr, method, path, bytes.as_deref())?;
+    Ok((status, serde_json::from_slice(&body).unwrap_or(Value::Null)))
+}
+
+fn rss_mb(pid: u32) -> Option<f64> {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let kb: f64 = s.lines().find(|l| l.starts_with("VmRSS:"))?.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+fn b64(bytes: &[u8]) -> String {
+    base64::engine::general_purpose::STANDARD.encode(bytes)
+}
+
+fn png<P: image::PixelWithColorType>(img: &image::ImageBuffer<P, Vec<P::Subpixel>>) -> Result<String>
+where
+    [P::Subpixel]: image::EncodableLayout,
+{
+    let mut out = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png)?;
+    Ok(b64(&out))
+}
+
+pub fn run(a: BenchServeArgs) -> Result<()> {
+    let max_clients = a.clients.iter().copied().max().unwrap_or(1);
+    let mut child = std::process::Command::new(std::env::current_exe()?)
+        .args(["serve", "--http", "127.0.0.1:0", "--store", &a.store, "--max-estimates", &max_clients.to_string()])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .context("starting b2tf serve")?;
+    let pid = child.id();
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().ok_or_else(|| anyhow!("no stdout"))?).read_line(&mut line)?;
+    let addr = line.split_whitespace().find_map(|w| w.strip_prefix("http://")).ok_or_else(|| anyhow!("server said {line:?}"))?.to_string();
+    let result = measure(&a, &addr, pid);
+    // SAFETY: kill(2) on our own child's pid.
+    unsafe { libc::kill(pid as i32, libc::SIGTERM) };
+    let _ = child.wait();
+    result
+}
+
+fn measure(a: &BenchServeArgs, addr: &str, pid: u32) -> Result<()> {
+    let t = Instant::now();
+    while json_call(addr, "GET", "/readyz", None).map(|r| r.0).unwrap_or(0) != 200 {
+        if t.elapsed() > Duration::from_secs(120) {
+            bail!("server not ready after 120 s");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let mesh = crate::mesh::procedural::textured_box([0.10, 0.06, 0.16], 3);
+    if json_call(addr, "GET", "/v1/objects/box", None)?.0 != 200 {
+        bail!("the store {} has no object \"box\": run `b2tf bench estimate --store {}` once (it onboards the sample box)", a.store, a.store);
+    }
+    let pool = RenderPool::new(1, Default::default())?;
+    let k = Intrinsics::new(600.0, 600.0, 319.5, 239.5, 640, 480)?;
+    let truth = view_pose(&nalgebra::Vector3::new(0.3, -0.5, 0.8).normalize(), 0.7, &nalgebra::Vector3::zeros(), 0.5);
+    let r = pool.render(&mesh, &truth, &k, &RenderOptions::default())?;
+    let intrinsics = json!({"fx": 600.0, "fy": 600.0, "cx": 319.5, "cy": 239.5, "width": 640, "height": 480});
+    let request = json!({"image": {"encoded": png(&r.rgb)?}, "intrinsics": intrinsics, "detections": [{"object_id": "box", "mask_png": png(&r.mask)?, "score": 1.0}], "options": {"rrc": !a.no_rrc}});
+    let body = serde_json::to_vec(&request)?;
+    // One request first, so every measurement starts with the object loaded.
+    let (s, v) = http(addr, "POST", "/v1/estimate", Some(&body))?;
+    if s != 200 {
+        bail!("estimate failed: {s} {}", String::from_utf8_lossy(&v));
+    }
+    println!("server pid {pid}, store {}; 640×480 PNG of the sample box, RRC {}", a.store, if a.no_rrc { "off" } else { "on" });
+    println!("| clients | requests | req/s | p50 (ms) | p99 (ms) | non-200 |");
+    println!("|---:|---:|---:|---:|---:|---:|");
+    for &c in &a.clients {
+        let t0 = Instant::now();
+        let results: Vec<(u16, f64)> = std::thread::scope(|sc| {
+            let hs: Vec<_> = (0..c)
+                .map(|_| {
+                    sc.spawn(|| {
+                        (0..a.requests)
+                            .map(|_| {
+                                let t = Instant::now();
+                                let s = http(addr, "POST", "/v1/estimate", Some(&body)).map(|r| r.0).unwrap_or(0);
+                                (s, t.elapsed().as_secs_f64() * 1e3)
+                            })
+                            .collect::<Vec<_>>()
+                    })
+                })
+                .collect();
+            hs.into_iter().flat_map(|h| h.join().unwrap_or_default()).collect()
+        });
+        let wall = t0.elapsed().as_secs_f64();
+        let mut ms: Vec<f64> = results.iter().map(|r| r.1).collect();
+        ms.sort_by(f64::total_cmp);
+        let pct = |p: f64| ms[((ms.len() as f64 * p).ceil() as usize).clamp(1, ms.len()) - 1];
+        let bad = results.iter().filter(|r| r.0 != 200).count();
+        println!("| {c} | {} | {:.2} | {:.0} | {:.0} | {bad} |", results.len(), results.len() as f64 / wall, pct(0.5), pct(0.99));
+    }
+    // Memory: every object of the store (up to 10) loaded into the server's cache.
+    let before = rss_mb(pid);
+    let (_, list) = json_call(addr, "GET", "/v1/objects", None)?;
+    let ids: Vec<String> = list["objects"].as_array().map(|a| a.iter().filter_map(|o| o["id"].as_str().map(String::from)).take(10).collect()).unwrap_or_default();
+    for id in &ids {
+        let mut req = request.clone();
+        req["detections"][0]["object_id"] = json!(id);
+        req["options"]["rrc"] = json!(false);
+        json_call(addr, "POST", "/v1/estimate", Some(&req))?;
+    }
+    let (_, metrics) = http(addr, "GET", "/metrics", None)?;
+    let loaded = String::from_utf8_lossy(&metrics).lines().find(|l| l.starts_with("b2tf_objects_loaded")).map(String::from).unwrap_or_default();
+    println!(
+        "server RSS: {:.0} MB with the sample box loaded; {:.0} MB after loading {} objects ({loaded})",
+        before.unwrap_or(f64::NAN),
+        rss_mb(pid).unwrap_or(f64::NAN),
+        ids.len()
+    );
+    Ok(())
+}
