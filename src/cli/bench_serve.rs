@@ -45,7 +45,7 @@ fn http(addr: &str, method: &str, path: &str, body: Option<&[u8]>) -> Result<(u1
 }
 
 fn json_call(addr: &str, method: &str, path: &str, body: Option<&Value>) -> Result<(u16, Value)> {
-    let bytes = body.map(|b| serde_json::to_vec(b)).transpose()?;
+    let bytes = body.map(serde_json::to_vec).transpose()?;
     let (status, body) = http(addr, method, path, bytes.as_deref())?;
     Ok((status, serde_json::from_slice(&body).unwrap_or(Value::Null)))
 }
