@@ -76,6 +76,16 @@ async fn guard(State(s): State<AppState>, req: Request, next: Next) -> Response 
     resp
 }
 
+/// Refuses a body whose announced length is over the limit before reading any of it (the
+/// extractors' own limit only trips after reading that much).
+async fn announced_size(State(max): State<usize>, req: Request, next: Next) -> Response {
+    let announced = req.headers().get(header::CONTENT_LENGTH).and_then(|v| v.to_str().ok()).and_then(|v| v.parse::<u64>().ok());
+    match announced {
+        Some(n) if n > max as u64 => ServiceError::new(ErrorKind::TooLarge, format!("request body of {n} bytes is over the limit of {max}")).into_response(),
+        _ => next.run(req).await,
+    }
+}
+
 async fn metrics(State(s): State<AppState>) -> Response {
     let c = s.core.cache_stats();
     let g = Gauges { estimates_running: s.core.estimates_running(), onboardings_running: s.core.onboardings_running(), objects_loaded: c.objects, cache_bytes: c.bytes, ready: s.ready.load(Ordering::Acquire) };
@@ -160,5 +170,6 @@ pub fn router(state: AppState, max_body_bytes: usize) -> Router {
         .route("/openapi.json", get(openapi))
         .route_layer(from_fn_with_state(state.clone(), guard))
         .layer(DefaultBodyLimit::max(max_body_bytes))
+        .layer(from_fn_with_state(max_body_bytes, announced_size))
         .with_state(state)
 }
