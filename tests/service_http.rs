@@ -3,43 +3,12 @@
 //! and every kind of bad input answered with the right status while the server keeps
 //! serving.
 
-use b2tfpose::geometry::views::view_pose;
-use b2tfpose::geometry::{geodesic_distance, Intrinsics};
-use b2tfpose::mesh::procedural::textured_box;
-use b2tfpose::render::{RenderOptions, RenderPool, RendererConfig};
+mod common;
+
 use base64::Engine as _;
+use common::{png_bytes, pose_errors, sample_files, scene, start};
 use serde_json::{json, Value};
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
-
-struct Server {
-    child: Child,
-    base: String,
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn start(store: &str, keys: Option<&str>) -> Server {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_b2tf"));
-    cmd.args(["serve", "--http", "127.0.0.1:0", "--store", store, "--max-body-mb", "3", "--max-estimates", "2", "--render-pool", "1"]).env("XDG_RUNTIME_DIR", "/tmp").env_remove("B2TF_API_KEYS");
-    if let Some(k) = keys {
-        cmd.env("B2TF_API_KEYS", k);
-    }
-    let mut child = cmd
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("server starts");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
-    let addr = line.split_whitespace().find(|w| w.starts_with("http://")).unwrap_or_else(|| panic!("no address in {line:?}")).to_string();
-    Server { child, base: addr }
-}
 
 fn b64(bytes: &[u8]) -> String {
     base64::engine::general_purpose::STANDARD.encode(bytes)
@@ -50,9 +19,7 @@ fn png<P: image::PixelWithColorType>(img: &image::ImageBuffer<P, Vec<P::Subpixel
 where
     [P::Subpixel]: image::EncodableLayout,
 {
-    let mut out = Vec::new();
-    img.write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png).unwrap();
-    b64(&out)
+    b64(&png_bytes(img))
 }
 
 fn client() -> reqwest::blocking::Client {
@@ -79,8 +46,8 @@ fn call(c: &reqwest::blocking::Client, method: &str, url: &str, body: Option<&Va
 fn onboard_estimate_and_bad_inputs_over_http() {
     let dir = tempfile::tempdir().unwrap();
     let store = format!("sqlite://{}", dir.path().join("objects.db").display());
-    let mut server = start(&store, None);
-    let (c, base) = (client(), server.base.clone());
+    let mut server = start(&store, None, &[]);
+    let (c, base) = (client(), server.http.clone());
     let healthy = |c: &reqwest::blocking::Client| assert_eq!(call(c, "GET", &format!("{base}/healthz"), None).0, 200);
     healthy(&c);
     let t = Instant::now();
@@ -90,14 +57,11 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     }
 
     // Onboard the sample box (OBJ + MTL + PNG texture) through the API.
-    let mesh = textured_box([0.10, 0.06, 0.16], 3);
-    let files = dir.path().join("sample");
-    b2tfpose::mesh::write_obj::write_obj(&mesh, &files, "box").unwrap();
-    let read = |n: &str| b64(&std::fs::read(files.join(n)).unwrap());
+    let files = sample_files(dir.path());
     let onboard = json!({
         "object_id": "box",
-        "mesh": {"data": read("box.obj"), "format": "obj", "units": "m",
-                 "resources": [{"name": "box.mtl", "data": read("box.mtl")}, {"name": "box_m0.png", "data": read("box_m0.png")}]},
+        "mesh": {"data": b64(&files[0].1), "format": "obj", "units": "m",
+                 "resources": [{"name": files[1].0, "data": b64(&files[1].1)}, {"name": files[2].0, "data": b64(&files[2].1)}]},
         "options": {"level": 1, "in_plane": 6}
     });
     let (status, op) = call(&c, "POST", &format!("{base}/v1/objects"), Some(&onboard));
@@ -120,11 +84,46 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     // The same id again without replace: 409.
     assert_eq!(call(&c, "POST", &format!("{base}/v1/objects"), Some(&onboard)).0, 409);
 
+    // The same files as multipart/form-data, as they are (12 templates: quick).
+    let part = |(name, bytes): &(String, Vec<u8>)| reqwest::blocking::multipart::Part::bytes(bytes.clone()).file_name(name.clone());
+    let form = reqwest::blocking::multipart::Form::new()
+        .text("object_id", "box_mp")
+        .text("units", "m")
+        .text("level", "0")
+        .text("in_plane", "1")
+        .part("mesh", part(&files[0]))
+        .part("resource", part(&files[1]))
+        .part("resource", part(&files[2]));
+    let r = c.post(format!("{base}/v1/objects")).multipart(form).send().unwrap();
+    assert_eq!(r.status().as_u16(), 202);
+    let op: Value = r.json().unwrap();
+    let mp_url = format!("{base}/v1/operations/{}", op["id"].as_str().unwrap());
+    let t = Instant::now();
+    let mp_done = loop {
+        let (_, o) = call(&c, "GET", &mp_url, None);
+        if o["state"] != "running" {
+            break o;
+        }
+        assert!(t.elapsed() < Duration::from_secs(300), "multipart onboarding did not finish: {o}");
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    assert_eq!((mp_done["state"].as_str(), mp_done["object"]["templates"].as_u64()), (Some("succeeded"), Some(12)), "{mp_done}");
+    // Bad multipart bodies name what is wrong.
+    for (form, needle) in [
+        (reqwest::blocking::multipart::Form::new().text("object_id", "x").text("colour", "red"), "colour"),
+        (reqwest::blocking::multipart::Form::new().text("object_id", "x"), "mesh file part is missing"),
+        (reqwest::blocking::multipart::Form::new().part("mesh", part(&files[0])), "object_id"),
+        (reqwest::blocking::multipart::Form::new().text("object_id", "x").text("level", "two").part("mesh", part(&files[0])), "level"),
+    ] {
+        let r = c.post(format!("{base}/v1/objects")).multipart(form).send().unwrap();
+        let (s, v) = (r.status().as_u16(), r.text().unwrap());
+        assert!(s == 400 && v.contains(needle), "{needle}: {s} {v}");
+    }
+    assert_eq!(call(&c, "DELETE", &format!("{base}/v1/objects/box_mp"), None).0, 204);
+
     // A photo of the box at a known pose, its mask as the detection.
-    let pool = RenderPool::new(1, RendererConfig::default()).unwrap();
-    let k = Intrinsics::new(500.0, 500.0, 159.5, 119.5, 320, 240).unwrap();
-    let truth = view_pose(&nalgebra::Vector3::new(0.3, -0.5, 0.8).normalize(), 0.7, &nalgebra::Vector3::zeros(), 0.5);
-    let r = pool.render(&mesh, &truth, &k, &RenderOptions::default()).unwrap();
+    let sc = scene();
+    let (truth, r) = (&sc.truth, &sc.render);
     let intrinsics = json!({"fx": 500.0, "fy": 500.0, "cx": 159.5, "cy": 119.5, "width": 320, "height": 240});
     let request = |image: Value, intrinsics: Value, detections: Value| json!({"image": image, "intrinsics": intrinsics, "detections": detections, "options": {"rrc": false}});
     let good_image = json!({"encoded": png(&r.rgb)});
@@ -135,9 +134,7 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     assert_eq!(res["object_id"], "box");
     let tv: Vec<f64> = res["pose"]["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
     let rv: Vec<f64> = res["pose"]["R"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
-    let est_pose = b2tfpose::geometry::Pose::from_row_major(&rv.clone().try_into().unwrap(), [tv[0], tv[1], tv[2]]);
-    let rot = geodesic_distance(&est_pose.rotation, &truth.rotation).to_degrees();
-    let trans = (est_pose.translation - truth.translation).norm();
+    let (rot, trans) = pose_errors(&rv, &tv, truth);
     assert!(rot < 10.0 && trans < 0.03, "rotation error {rot:.1}°, translation error {:.1} mm", trans * 1e3);
     assert_eq!(res["pose"]["quaternion_wxyz"].as_array().unwrap().len(), 4);
 
@@ -252,8 +249,8 @@ fn good_dets_again(mask: &image::GrayImage) -> Value {
 #[test]
 fn api_keys_guard_everything_but_health() {
     let dir = tempfile::tempdir().unwrap();
-    let server = start(&format!("sqlite://{}", dir.path().join("o.db").display()), Some("s3cret,other"));
-    let (c, base) = (client(), server.base.clone());
+    let server = start(&format!("sqlite://{}", dir.path().join("o.db").display()), Some("s3cret,other"), &[]);
+    let (c, base) = (client(), server.http.clone());
     assert_eq!(call(&c, "GET", &format!("{base}/healthz"), None).0, 200);
     for path in ["/v1/objects", "/metrics", "/openapi.json", "/v1/operations/x"] {
         let (s, v) = call(&c, "GET", &format!("{base}{path}"), None);

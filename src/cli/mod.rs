@@ -15,6 +15,7 @@ pub mod pose_arg;
 pub mod progress;
 pub mod render_cmd;
 pub mod serve_cmd;
+pub mod serve_config;
 
 use clap::{Parser, Subcommand};
 
@@ -44,7 +45,7 @@ pub enum Command {
         #[arg(long, default_value_t = 3)]
         seed: u64,
     },
-    /// Run the HTTP service (onboard and estimate over the network).
+    /// Run the service: HTTP/JSON and gRPC (onboard and estimate over the network).
     Serve(serve_cmd::ServeArgs),
     /// List, inspect or delete the objects of an object store.
     Objects(objects_cmd::ObjectsArgs),

@@ -1,4 +1,4 @@
-//! The one core behind both adapters (HTTP now, gRPC next): the object store and its
+//! The one core behind both adapters (HTTP and gRPC): the object store and its
 //! cache, the backbone, the render pool, the estimator and the onboarding operations. The
 //! adapters only parse, call these methods and map `ServiceError` to their status codes.
 //! Methods here block (rendering, features, PnP); async adapters call them on blocking
@@ -181,8 +181,9 @@ impl Core {
         Ok(op.status())
     }
 
-    /// Runs the pipeline for every object named by the detections. Blocking.
-    pub fn estimate(&self, req: &EstimateRequest) -> Result<EstimateResponse, ServiceError> {
+    /// Runs the pipeline for every object named by the detections. Blocking. Past
+    /// `deadline` it stops before the next instance.
+    pub fn estimate(&self, req: &EstimateRequest, deadline: Option<Instant>) -> Result<EstimateResponse, ServiceError> {
         let t0 = Instant::now();
         let k = req.intrinsics.decode()?;
         let image = req.image.decode()?;
@@ -213,6 +214,9 @@ impl Core {
             let model = &models[object_id];
             let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, m, s)| (m, *s as f64)).collect();
             for (instance, group) in crate::bop::instances::group_instances(&refs, 0.5).into_iter().take(o.instances_per_object).enumerate() {
+                if deadline.is_some_and(|d| Instant::now() >= d) {
+                    return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", results.len())));
+                }
                 let candidates: Vec<Detection> = group.iter().map(|&g| Detection { mask: dets[g].1.clone(), score: dets[g].2 }).collect();
                 let r = self.estimator.estimate(model, &image, &k, &candidates, &cfg)?;
                 results.push(InstanceResult {

@@ -2,29 +2,16 @@
 //! the core (blocking work on the blocking pool, after taking a slot) and maps
 //! `ServiceError` to a status with a JSON body `{"error": {"kind", "message"}}`.
 
-use super::core::Core;
+use super::api::Api;
 use super::error::{ErrorKind, ServiceError};
 use super::requests::{EstimateRequest, OnboardRequest};
-use super::auth::ApiKeys;
-use super::metrics::{Gauges, Metrics};
 use axum::extract::rejection::JsonRejection;
-use axum::extract::{DefaultBodyLimit, MatchedPath, Path, Request, State};
+use axum::extract::{DefaultBodyLimit, FromRequest, MatchedPath, Multipart, Path, Request, State};
 use axum::http::{header, StatusCode};
 use axum::middleware::{from_fn_with_state, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
-
-#[derive(Clone)]
-pub struct AppState {
-    pub core: Arc<Core>,
-    /// Set once the store is open, the backbone loaded and warmed up, the pool up.
-    pub ready: Arc<AtomicBool>,
-    pub metrics: Arc<Metrics>,
-    pub keys: ApiKeys,
-}
 
 /// The OpenAPI 3 description of these routes, served at `/openapi.json`.
 pub const OPENAPI: &str = include_str!("openapi.json");
@@ -58,21 +45,16 @@ fn body<T>(b: Result<Json<T>, JsonRejection>) -> Result<T, ServiceError> {
     }
 }
 
-/// Runs blocking core work off the async threads.
-async fn blocking<T: Send + 'static>(f: impl FnOnce() -> Result<T, ServiceError> + Send + 'static) -> Result<T, ServiceError> {
-    tokio::task::spawn_blocking(f).await.map_err(|e| ServiceError::internal(format!("worker failed: {e}")))?
-}
-
 /// API keys (all routes but the health checks) and request metrics, after routing so the
 /// route template (not the raw path with ids) labels the metrics.
-async fn guard(State(s): State<AppState>, req: Request, next: Next) -> Response {
+async fn guard(State(s): State<Api>, req: Request, next: Next) -> Response {
     let method = req.method().to_string();
     let route = req.extensions().get::<MatchedPath>().map_or_else(|| "unmatched".to_string(), |m| m.as_str().to_string());
     let open = matches!(route.as_str(), "/healthz" | "/readyz");
     let t = std::time::Instant::now();
     let authorised = open || !s.keys.enabled() || s.keys.accepts_header(req.headers().get(header::AUTHORIZATION).and_then(|v| v.to_str().ok()));
     let resp = if authorised { next.run(req).await } else { ServiceError::new(ErrorKind::Unauthenticated, "missing or unknown API key (send Authorization: Bearer <key>)").into_response() };
-    s.metrics.request(&method, &route, resp.status().as_u16(), t.elapsed().as_secs_f64());
+    s.metrics.request(&method, &route, resp.status().as_str(), t.elapsed().as_secs_f64());
     resp
 }
 
@@ -86,10 +68,8 @@ async fn announced_size(State(max): State<usize>, req: Request, next: Next) -> R
     }
 }
 
-async fn metrics(State(s): State<AppState>) -> Response {
-    let c = s.core.cache_stats();
-    let g = Gauges { estimates_running: s.core.estimates_running(), onboardings_running: s.core.onboardings_running(), objects_loaded: c.objects, cache_bytes: c.bytes, ready: s.ready.load(Ordering::Acquire) };
-    ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], s.metrics.render(&g)).into_response()
+async fn metrics(State(s): State<Api>) -> Response {
+    ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], s.metrics.render(&s.gauges())).into_response()
 }
 
 async fn openapi() -> Response {
@@ -100,64 +80,55 @@ async fn healthz() -> &'static str {
     "ok"
 }
 
-async fn readyz(State(s): State<AppState>) -> Response {
-    if s.ready.load(Ordering::Acquire) {
+async fn readyz(State(s): State<Api>) -> Response {
+    if s.is_ready() {
         (StatusCode::OK, "ready").into_response()
     } else {
         ServiceError::new(ErrorKind::Unavailable, "warming up").into_response()
     }
 }
 
-async fn list_objects(State(s): State<AppState>) -> Result<Response, ServiceError> {
-    let core = s.core.clone();
-    let list = blocking(move || core.list_objects()).await?;
-    Ok(Json(serde_json::json!({ "objects": list })).into_response())
+async fn list_objects(State(s): State<Api>) -> Result<Response, ServiceError> {
+    Ok(Json(serde_json::json!({ "objects": s.list_objects().await? })).into_response())
 }
 
-async fn get_object(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ServiceError> {
-    let core = s.core.clone();
-    Ok(Json(blocking(move || core.get_object(&id)).await?).into_response())
+async fn get_object(State(s): State<Api>, Path(id): Path<String>) -> Result<Response, ServiceError> {
+    Ok(Json(s.get_object(id).await?).into_response())
 }
 
-async fn delete_object(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ServiceError> {
-    let core = s.core.clone();
-    blocking(move || core.delete_object(&id)).await?;
+async fn delete_object(State(s): State<Api>, Path(id): Path<String>) -> Result<Response, ServiceError> {
+    s.delete_object(id).await?;
     Ok(StatusCode::NO_CONTENT.into_response())
 }
 
-async fn onboard(State(s): State<AppState>, b: Result<Json<OnboardRequest>, JsonRejection>) -> Result<Response, ServiceError> {
-    let req = body(b)?;
-    let core = s.core.clone();
-    let op = blocking(move || core.start_onboard(req)).await?;
+/// JSON with base64 files, or multipart/form-data with the files as they are.
+async fn onboard(State(s): State<Api>, req: Request) -> Result<Response, ServiceError> {
+    let multipart = req.headers().get(header::CONTENT_TYPE).and_then(|v| v.to_str().ok()).is_some_and(|v| v.starts_with("multipart/form-data"));
+    let parsed: OnboardRequest = if multipart {
+        let form = Multipart::from_request(req, &()).await.map_err(|e| ServiceError::invalid(format!("multipart body: {}", e.body_text())))?;
+        super::multipart::onboard_request(form).await?
+    } else {
+        body(Json::from_request(req, &()).await)?
+    };
+    let op = s.onboard(parsed).await?;
     Ok((StatusCode::ACCEPTED, Json(op)).into_response())
 }
 
-async fn get_operation(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ServiceError> {
+async fn get_operation(State(s): State<Api>, Path(id): Path<String>) -> Result<Response, ServiceError> {
     Ok(Json(s.core.operation(&id)?).into_response())
 }
 
-async fn cancel_operation(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ServiceError> {
+async fn cancel_operation(State(s): State<Api>, Path(id): Path<String>) -> Result<Response, ServiceError> {
     Ok(Json(s.core.cancel_operation(&id)?).into_response())
 }
 
-async fn estimate(State(s): State<AppState>, b: Result<Json<EstimateRequest>, JsonRejection>) -> Result<Response, ServiceError> {
+async fn estimate(State(s): State<Api>, b: Result<Json<EstimateRequest>, JsonRejection>) -> Result<Response, ServiceError> {
     let req = body(b)?;
-    // Over the limit the request is refused now, not queued.
-    let slot = s.core.estimate_slot().ok_or_else(|| ServiceError::new(ErrorKind::ResourceExhausted, format!("{} estimates already running; retry later", s.core.config.max_estimates)))?;
-    let core = s.core.clone();
-    let detections = req.detections.len();
-    let resp = blocking(move || {
-        let _slot = slot;
-        core.estimate(&req)
-    })
-    .await?;
-    for r in &resp.results {
-        s.metrics.stages(&r.timings_ms, detections);
-    }
-    Ok(Json(resp).into_response())
+    let budget = s.budget(None);
+    Ok(Json(s.estimate(req, budget).await?).into_response())
 }
 
-pub fn router(state: AppState, max_body_bytes: usize) -> Router {
+pub fn router(state: Api, max_body_bytes: usize) -> Router {
     Router::new()
         .route("/healthz", get(healthz))
         .route("/readyz", get(readyz))

@@ -40,7 +40,7 @@ impl Histogram {
 
 #[derive(Default)]
 struct Inner {
-    requests: BTreeMap<(String, String, u16), u64>,
+    requests: BTreeMap<(String, String, String), u64>,
     latency: BTreeMap<String, Histogram>,
     stages: BTreeMap<String, Histogram>,
     detections_per_estimate: Histogram,
@@ -61,9 +61,11 @@ pub struct Gauges {
 }
 
 impl Metrics {
-    pub fn request(&self, method: &str, route: &str, status: u16, seconds: f64) {
+    /// One finished request. HTTP: method, route template, status code; gRPC: method
+    /// "grpc", the full RPC path, the status code's name (e.g. "OK", "NOT_FOUND").
+    pub fn request(&self, method: &str, route: &str, status: &str, seconds: f64) {
         let mut g = self.inner.lock().expect("metrics lock");
-        *g.requests.entry((method.to_string(), route.to_string(), status)).or_default() += 1;
+        *g.requests.entry((method.to_string(), route.to_string(), status.to_string())).or_default() += 1;
         g.latency.entry(format!("{method} {route}")).or_default().observe(seconds);
     }
 
@@ -117,14 +119,16 @@ mod tests {
     #[test]
     fn renders_counters_histograms_and_gauges() {
         let m = Metrics::default();
-        m.request("POST", "/v1/estimate", 200, 0.3);
-        m.request("POST", "/v1/estimate", 200, 0.03);
-        m.request("POST", "/v1/estimate", 429, 0.001);
+        m.request("POST", "/v1/estimate", "200", 0.3);
+        m.request("POST", "/v1/estimate", "200", 0.03);
+        m.request("POST", "/v1/estimate", "429", 0.001);
+        m.request("grpc", "/b2tfpose.v1.PoseService/Estimate", "NOT_FOUND", 0.001);
         m.stages(&serde_json::json!({"pnp": 4.0, "total": 150.0}), 2);
         let text = m.render(&Gauges { estimates_running: 1, onboardings_running: 0, objects_loaded: 3, cache_bytes: 42, ready: true });
         assert!(text.contains("b2tf_requests_total{method=\"POST\",route=\"/v1/estimate\",status=\"200\"} 2"), "{text}");
         assert!(text.contains("b2tf_request_seconds_bucket{method=\"POST\",route=\"/v1/estimate\",le=\"0.05\"} 2"), "{text}");
         assert!(text.contains("b2tf_request_seconds_count{method=\"POST\",route=\"/v1/estimate\"} 3"), "{text}");
+        assert!(text.contains("b2tf_requests_total{method=\"grpc\",route=\"/b2tfpose.v1.PoseService/Estimate\",status=\"NOT_FOUND\"} 1"), "{text}");
         assert!(text.contains("b2tf_stage_seconds_bucket{stage=\"pnp\",le=\"0.005\"} 1"), "{text}");
         assert!(text.contains("b2tf_objects_loaded 3") && text.contains("b2tf_cache_bytes 42") && text.contains("b2tf_ready 1"), "{text}");
     }

@@ -1,14 +1,26 @@
 //! The network service: one core (`core.rs`: store, cache, backbone, render pool,
-//! estimator, onboarding operations) behind thin adapters that parse, validate, call the
-//! core and map errors (`http.rs`; gRPC to follow). No pipeline logic lives here.
+//! estimator, onboarding operations) and the async calls over it (`api.rs`), behind thin
+//! adapters that parse, validate, call and map errors: HTTP/JSON (`http.rs`, axum) and
+//! gRPC (`grpc.rs`, tonic, API in `proto/`). `server.rs` runs both listeners. No pipeline
+//! logic lives here.
 
+pub mod api;
 pub mod auth;
+pub mod base64_bytes;
 pub mod core;
 pub mod error;
+pub mod grpc;
+pub mod grpc_convert;
+pub mod grpc_oversized;
 pub mod http;
 pub mod metrics;
+pub mod multipart;
 pub mod operations;
+pub mod proto;
 pub mod requests;
+pub mod server;
+pub mod tls;
 
 pub use self::core::{Core, CoreConfig};
+pub use api::Api;
 pub use error::{ErrorKind, ServiceError};

@@ -3,24 +3,20 @@
 //! clear error for every kind of bad input. Units: metres, pixels (OpenCV: pixel centres
 //! at integer coordinates), `T_cam_obj`.
 
+use super::base64_bytes::Base64Bytes;
 use super::error::ServiceError;
 use crate::geometry::Intrinsics;
-use base64::Engine as _;
 use image::{GrayImage, RgbImage};
-
-fn b64(field: &str, s: &str) -> Result<Vec<u8>, ServiceError> {
-    base64::engine::general_purpose::STANDARD.decode(s.trim()).map_err(|e| ServiceError::invalid(format!("{field}: not valid base64: {e}")))
-}
 
 /// An image: encoded PNG/JPEG bytes, or raw 8-bit RGB rows with their size.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct ImageInput {
     /// PNG or JPEG file bytes, base64 (JSON) or raw (gRPC).
     #[serde(default)]
-    pub encoded: Option<String>,
-    /// Raw RGB8, row-major, `width × height × 3` bytes, base64.
+    pub encoded: Option<Base64Bytes>,
+    /// Raw RGB8, row-major, `width × height × 3` bytes, base64 (JSON) or raw (gRPC).
     #[serde(default)]
-    pub raw_rgb8: Option<String>,
+    pub raw_rgb8: Option<Base64Bytes>,
     #[serde(default)]
     pub width: Option<u32>,
     #[serde(default)]
@@ -30,15 +26,14 @@ pub struct ImageInput {
 impl ImageInput {
     pub fn decode(&self) -> Result<RgbImage, ServiceError> {
         match (&self.encoded, &self.raw_rgb8) {
-            (Some(e), None) => {
-                let bytes = b64("image.encoded", e)?;
-                Ok(image::load_from_memory(&bytes).map_err(|e| ServiceError::invalid(format!("image.encoded: not a readable PNG/JPEG image: {e}")))?.to_rgb8())
+            (Some(bytes), None) => {
+                Ok(image::load_from_memory(bytes.as_slice()).map_err(|e| ServiceError::invalid(format!("image.encoded: not a readable PNG/JPEG image: {e}")))?.to_rgb8())
             }
             (None, Some(r)) => {
                 let (Some(w), Some(h)) = (self.width, self.height) else {
                     return Err(ServiceError::invalid("image.raw_rgb8 needs image.width and image.height"));
                 };
-                let bytes = b64("image.raw_rgb8", r)?;
+                let bytes = r.0.clone();
                 let expected = w as u64 * h as u64 * 3;
                 if w == 0 || h == 0 || bytes.len() as u64 != expected {
                     return Err(ServiceError::invalid(format!("image.raw_rgb8 has {} bytes; {w}×{h} RGB8 needs {expected}", bytes.len())));
@@ -81,7 +76,7 @@ pub struct RleInput {
 pub struct DetectionInput {
     pub object_id: String,
     #[serde(default)]
-    pub mask_png: Option<String>,
+    pub mask_png: Option<Base64Bytes>,
     #[serde(default)]
     pub mask_rle: Option<RleInput>,
     #[serde(default)]
@@ -99,8 +94,7 @@ impl DetectionInput {
     pub fn mask(&self, index: usize, width: u32, height: u32) -> Result<GrayImage, ServiceError> {
         let field = |f: &str| format!("detections[{index}].{f}");
         let mask = if let Some(png) = &self.mask_png {
-            let bytes = b64(&field("mask_png"), png)?;
-            image::load_from_memory(&bytes).map_err(|e| ServiceError::invalid(format!("{}: not a readable image: {e}", field("mask_png"))))?.to_luma8()
+            image::load_from_memory(png.as_slice()).map_err(|e| ServiceError::invalid(format!("{}: not a readable image: {e}", field("mask_png"))))?.to_luma8()
         } else if let Some(rle) = &self.mask_rle {
             let r = crate::bop::rle::Rle::new(rle.size, rle.counts.clone()).map_err(|e| ServiceError::invalid(format!("{}: {e}", field("mask_rle"))))?;
             r.decode().map_err(|e| ServiceError::invalid(format!("{}: {e}", field("mask_rle"))))?
@@ -190,8 +184,8 @@ pub struct EstimateResponse {
 /// (MTL, textures, glTF buffers) by the names it uses.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct MeshInput {
-    /// base64 file bytes.
-    pub data: String,
+    /// File bytes (base64 in JSON).
+    pub data: Base64Bytes,
     /// ply | obj | gltf | glb
     pub format: String,
     /// mm | cm | m (PLY and OBJ need it; glTF is metres).
@@ -205,8 +199,8 @@ pub struct MeshInput {
 pub struct ResourceInput {
     /// File name as the mesh refers to it (no folders).
     pub name: String,
-    /// base64 bytes.
-    pub data: String,
+    /// File bytes (base64 in JSON).
+    pub data: Base64Bytes,
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -246,19 +240,18 @@ impl MeshInput {
             None => None,
             Some(u) => Some(u.parse::<crate::mesh::Units>().map_err(|e| ServiceError::invalid(format!("mesh.units: {e}")))?),
         };
-        let write = |name: &str, data: &str, field: &str| -> Result<(), ServiceError> {
-            let bytes = b64(field, data)?;
-            std::fs::write(dir.join(name), bytes).map_err(|e| ServiceError::internal(format!("staging {name}: {e}")))
+        let write = |name: &str, data: &Base64Bytes| -> Result<(), ServiceError> {
+            std::fs::write(dir.join(name), data.as_slice()).map_err(|e| ServiceError::internal(format!("staging {name}: {e}")))
         };
         for (i, r) in self.resources.iter().enumerate() {
             let ok = !r.name.is_empty() && !r.name.contains(['/', '\\']) && r.name != "." && r.name != ".." && !r.name.starts_with("mesh.");
             if !ok {
                 return Err(ServiceError::invalid(format!("mesh.resources[{i}].name {:?}: a plain file name is required", r.name)));
             }
-            write(&r.name, &r.data, &format!("mesh.resources[{i}].data"))?;
+            write(&r.name, &r.data)?;
         }
         let path = dir.join(format!("mesh.{ext}"));
-        write(path.file_name().and_then(|n| n.to_str()).unwrap_or("mesh"), &self.data, "mesh.data")?;
+        write(path.file_name().and_then(|n| n.to_str()).unwrap_or("mesh"), &self.data)?;
         crate::mesh::load_mesh(&path, units).map_err(|e| ServiceError::invalid(format!("mesh: {}", e.to_string().replace(&dir.display().to_string(), "<upload>"))))
     }
 }

@@ -1,0 +1,197 @@
+//! `b2tf serve` settings from three places, strongest first: flags, the environment
+//! (`B2TF_*`, how docker-compose sets them), and an optional TOML file (`--config`), then
+//! the defaults. The file uses the flags' names with underscores:
+//!
+//! ```toml
+//! http = "0.0.0.0:8080"          # "none" turns a listener off
+//! grpc = "0.0.0.0:50051"
+//! store = "sqlite:///var/lib/b2tf/objects.db"
+//! backbone = "embedded"
+//! render_pool = 2
+//! max_estimates = 2
+//! max_onboardings = 1
+//! max_body_mb = 64
+//! cache_mb = 4000
+//! request_timeout_s = 60
+//! api_keys_file = "/run/secrets/b2tf_keys"
+//! tls_cert = "/etc/b2tf/cert.pem"
+//! tls_key = "/etc/b2tf/key.pem"
+//! ```
+
+use anyhow::{bail, Context, Result};
+use std::path::{Path, PathBuf};
+
+/// Every setting, each optional: what one source says.
+#[derive(clap::Args, serde::Deserialize, Debug, Default, Clone)]
+#[serde(deny_unknown_fields)]
+pub struct ServeSettings {
+    /// HTTP listen address ("none": off; port 0: any free port, printed) [default: 127.0.0.1:8080]
+    #[arg(long, env = "B2TF_HTTP_ADDR")]
+    pub http: Option<String>,
+    /// gRPC listen address ("none": off) [default: 127.0.0.1:50051]
+    #[arg(long, env = "B2TF_GRPC_ADDR")]
+    pub grpc: Option<String>,
+    /// Object store URL [default: sqlite://~/.local/share/b2tfpose/objects.db]
+    #[arg(long, env = "B2TF_STORE")]
+    pub store: Option<String>,
+    /// Backbone: "embedded" (weight-free, the only one built in) [default: embedded]
+    #[arg(long, env = "B2TF_BACKBONE")]
+    pub backbone: Option<String>,
+    /// Render contexts [default: 2]
+    #[arg(long, env = "B2TF_RENDER_POOL")]
+    pub render_pool: Option<usize>,
+    /// Estimates running at once; more are refused at once (429 / RESOURCE_EXHAUSTED) [default: 2]
+    #[arg(long, env = "B2TF_MAX_ESTIMATES")]
+    pub max_estimates: Option<usize>,
+    /// Onboardings running at once; more are refused [default: 1]
+    #[arg(long, env = "B2TF_MAX_ONBOARDINGS")]
+    pub max_onboardings: Option<usize>,
+    /// Largest request body / gRPC message, MB (413 / INVALID_ARGUMENT beyond) [default: 64]
+    #[arg(long, env = "B2TF_MAX_BODY_MB")]
+    pub max_body_mb: Option<usize>,
+    /// Memory for loaded objects, MB [default: 4000]
+    #[arg(long, env = "B2TF_CACHE_MB")]
+    pub cache_mb: Option<u64>,
+    /// Longest an estimate may run on the server, seconds; 0: no limit (gRPC clients'
+    /// shorter deadlines always apply) [default: 120]
+    #[arg(long, env = "B2TF_REQUEST_TIMEOUT_S")]
+    pub request_timeout_s: Option<f64>,
+    /// File of API keys (one per line); with keys, only the health checks are open.
+    #[arg(long, env = "B2TF_API_KEYS_FILE")]
+    pub api_keys_file: Option<PathBuf>,
+    /// API keys, comma-separated (prefer the file: command lines are visible to others).
+    #[arg(long, env = "B2TF_API_KEYS", hide_env_values = true)]
+    pub api_keys: Option<String>,
+    /// PEM certificate chain: serve both ports over TLS (needs --tls-key).
+    #[arg(long, env = "B2TF_TLS_CERT")]
+    pub tls_cert: Option<PathBuf>,
+    /// PEM private key for --tls-cert.
+    #[arg(long, env = "B2TF_TLS_KEY")]
+    pub tls_key: Option<PathBuf>,
+}
+
+/// The settings in force.
+#[derive(Debug, Clone)]
+pub struct Resolved {
+    pub http: Option<String>,
+    pub grpc: Option<String>,
+    pub store: String,
+    pub render_pool: usize,
+    pub max_estimates: usize,
+    pub max_onboardings: usize,
+    pub max_body_bytes: usize,
+    pub cache_bytes: u64,
+    pub request_timeout: Option<std::time::Duration>,
+    pub api_keys_file: Option<PathBuf>,
+    pub api_keys: Option<String>,
+    pub tls: Option<(PathBuf, PathBuf)>,
+}
+
+impl ServeSettings {
+    pub fn from_file(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("config file {}", path.display()))?;
+        let mut s: Self = toml::from_str(&text).with_context(|| format!("config file {}", path.display()))?;
+        // Relative paths in the file are relative to the file, not to the working folder.
+        let base = path.parent().unwrap_or(Path::new("."));
+        for p in [&mut s.api_keys_file, &mut s.tls_cert, &mut s.tls_key].into_iter().flatten() {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        }
+        Ok(s)
+    }
+
+    /// `self` wins over `file`, which wins over the defaults.
+    pub fn resolve(self, file: ServeSettings) -> Result<Resolved> {
+        macro_rules! pick {
+            ($f:ident) => {
+                self.$f.or(file.$f)
+            };
+        }
+        let listen = |v: Option<String>, default: &str| -> Option<String> {
+            match v.as_deref().map(str::trim) {
+                Some("none" | "off" | "") => None,
+                Some(a) => Some(a.to_string()),
+                None => Some(default.to_string()),
+            }
+        };
+        let http = listen(pick!(http), "127.0.0.1:8080");
+        let grpc = listen(pick!(grpc), "127.0.0.1:50051");
+        if http.is_none() && grpc.is_none() {
+            bail!("both listeners are off: set --http or --grpc to an address");
+        }
+        match pick!(backbone).as_deref().unwrap_or("embedded") {
+            "embedded" => {}
+            other => bail!("backbone {other:?} is not available in this build (built in: \"embedded\")"),
+        }
+        let positive = |name: &str, v: usize| -> Result<usize> {
+            if v == 0 {
+                bail!("{name} must be at least 1");
+            }
+            Ok(v)
+        };
+        let timeout = pick!(request_timeout_s).unwrap_or(120.0);
+        if !timeout.is_finite() || timeout < 0.0 {
+            bail!("request_timeout_s must be a number of seconds ≥ 0 (0: no limit), not {timeout}");
+        }
+        let tls = match (pick!(tls_cert), pick!(tls_key)) {
+            (Some(c), Some(k)) => Some((c, k)),
+            (None, None) => None,
+            _ => bail!("TLS needs both tls_cert and tls_key"),
+        };
+        Ok(Resolved {
+            http,
+            grpc,
+            store: pick!(store).unwrap_or_else(crate::store::default_url),
+            render_pool: positive("render_pool", pick!(render_pool).unwrap_or(crate::render::RenderPool::DEFAULT_SIZE))?,
+            max_estimates: positive("max_estimates", pick!(max_estimates).unwrap_or(2))?,
+            max_onboardings: positive("max_onboardings", pick!(max_onboardings).unwrap_or(1))?,
+            max_body_bytes: positive("max_body_mb", pick!(max_body_mb).unwrap_or(64))? * 1_000_000,
+            cache_bytes: pick!(cache_mb).unwrap_or(4000) * 1_000_000,
+            request_timeout: (timeout > 0.0).then(|| std::time::Duration::from_secs_f64(timeout)),
+            api_keys_file: pick!(api_keys_file),
+            api_keys: pick!(api_keys),
+            tls,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flags_win_over_the_file_and_the_file_over_defaults() {
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("b2tf.toml");
+        std::fs::write(&f, "http = \"0.0.0.0:9000\"\ngrpc = \"none\"\nmax_estimates = 4\nrequest_timeout_s = 0\napi_keys_file = \"keys.txt\"\n").unwrap();
+        let file = ServeSettings::from_file(&f).unwrap();
+        let flags = ServeSettings { max_estimates: Some(8), ..Default::default() };
+        let r = flags.resolve(file).unwrap();
+        assert_eq!(r.http.as_deref(), Some("0.0.0.0:9000"));
+        assert_eq!(r.grpc, None);
+        assert_eq!(r.max_estimates, 8);
+        assert_eq!(r.request_timeout, None);
+        assert_eq!(r.api_keys_file, Some(dir.path().join("keys.txt")));
+        let d = ServeSettings::default().resolve(ServeSettings::default()).unwrap();
+        assert_eq!((d.http.as_deref(), d.grpc.as_deref(), d.max_onboardings), (Some("127.0.0.1:8080"), Some("127.0.0.1:50051"), 1));
+        assert_eq!(d.request_timeout, Some(std::time::Duration::from_secs(120)));
+    }
+
+    #[test]
+    fn bad_settings_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("bad.toml");
+        std::fs::write(&f, "max_estimatez = 3\n").unwrap();
+        assert!(format!("{:#}", ServeSettings::from_file(&f).unwrap_err()).contains("max_estimatez"));
+        std::fs::write(&f, "max_estimates = \"three\"\n").unwrap();
+        assert!(format!("{:#}", ServeSettings::from_file(&f).unwrap_err()).contains("max_estimates"));
+        let none = ServeSettings::default;
+        let err = |s: ServeSettings| format!("{:#}", s.resolve(none()).unwrap_err());
+        assert!(err(ServeSettings { max_estimates: Some(0), ..none() }).contains("max_estimates"));
+        assert!(err(ServeSettings { backbone: Some("dinov3".into()), ..none() }).contains("dinov3"));
+        assert!(err(ServeSettings { tls_cert: Some("c.pem".into()), ..none() }).contains("tls_key"));
+        assert!(err(ServeSettings { http: Some("none".into()), grpc: Some("off".into()), ..none() }).contains("both listeners"));
+        assert!(err(ServeSettings { request_timeout_s: Some(-1.0), ..none() }).contains("request_timeout_s"));
+    }
+}

@@ -1,0 +1,98 @@
+//! The calls both adapters make, in async form: each takes its slot (refusing at once over
+//! the limit), runs the blocking core work off the async threads under the request's
+//! deadline, and records metrics. HTTP and gRPC differ only in how they parse requests and
+//! write answers, so they answer the same request the same way.
+
+use super::auth::ApiKeys;
+use super::core::Core;
+use super::error::{ErrorKind, ServiceError};
+use super::metrics::{Gauges, Metrics};
+use super::operations::OperationStatus;
+use super::requests::{EstimateRequest, EstimateResponse, OnboardRequest};
+use crate::store::ObjectInfo;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+#[derive(Clone)]
+pub struct Api {
+    pub core: Arc<Core>,
+    /// Set once the store is open, the backbone loaded and warmed up, the pool up.
+    pub ready: Arc<AtomicBool>,
+    pub metrics: Arc<Metrics>,
+    pub keys: ApiKeys,
+    /// Longest an estimate may take on the server (a client's shorter deadline wins).
+    pub request_timeout: Option<Duration>,
+}
+
+/// Runs blocking core work off the async threads.
+pub async fn blocking<T: Send + 'static>(f: impl FnOnce() -> Result<T, ServiceError> + Send + 'static) -> Result<T, ServiceError> {
+    tokio::task::spawn_blocking(f).await.map_err(|e| ServiceError::internal(format!("worker failed: {e}")))?
+}
+
+impl Api {
+    pub fn is_ready(&self) -> bool {
+        self.ready.load(Ordering::Acquire)
+    }
+
+    pub fn gauges(&self) -> Gauges {
+        let c = self.core.cache_stats();
+        Gauges { estimates_running: self.core.estimates_running(), onboardings_running: self.core.onboardings_running(), objects_loaded: c.objects, cache_bytes: c.bytes, ready: self.is_ready() }
+    }
+
+    /// The time this request may take: the server's limit or the client's deadline,
+    /// whichever is shorter.
+    pub fn budget(&self, client: Option<Duration>) -> Option<Duration> {
+        match (self.request_timeout, client) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// Estimates within `budget`. Past it the caller gets DEADLINE_EXCEEDED at once; the
+    /// worker stops at its next check (between instances) and only then frees its slot, so
+    /// the concurrency limit stays true.
+    pub async fn estimate(&self, req: EstimateRequest, budget: Option<Duration>) -> Result<EstimateResponse, ServiceError> {
+        // Over the limit the request is refused now, not queued.
+        let slot = self.core.estimate_slot().ok_or_else(|| ServiceError::new(ErrorKind::ResourceExhausted, format!("{} estimates already running; retry later", self.core.config.max_estimates)))?;
+        let deadline = budget.map(|b| Instant::now() + b);
+        let core = self.core.clone();
+        let detections = req.detections.len();
+        let work = blocking(move || {
+            let _slot = slot;
+            core.estimate(&req, deadline)
+        });
+        let resp = match budget {
+            Some(b) => tokio::time::timeout(b, work).await.map_err(|_| deadline_exceeded(b))??,
+            None => work.await?,
+        };
+        for r in &resp.results {
+            self.metrics.stages(&r.timings_ms, detections);
+        }
+        Ok(resp)
+    }
+
+    pub async fn onboard(&self, req: OnboardRequest) -> Result<OperationStatus, ServiceError> {
+        let core = self.core.clone();
+        blocking(move || core.start_onboard(req)).await
+    }
+
+    pub async fn list_objects(&self) -> Result<Vec<ObjectInfo>, ServiceError> {
+        let core = self.core.clone();
+        blocking(move || core.list_objects()).await
+    }
+
+    pub async fn get_object(&self, id: String) -> Result<ObjectInfo, ServiceError> {
+        let core = self.core.clone();
+        blocking(move || core.get_object(&id)).await
+    }
+
+    pub async fn delete_object(&self, id: String) -> Result<(), ServiceError> {
+        let core = self.core.clone();
+        blocking(move || core.delete_object(&id)).await
+    }
+}
+
+pub fn deadline_exceeded(budget: Duration) -> ServiceError {
+    ServiceError::new(ErrorKind::DeadlineExceeded, format!("the estimate did not finish within its deadline of {} ms", budget.as_millis()))
+}

@@ -1,0 +1,211 @@
+//! gRPC adapter (tonic): `b2tfpose.v1.PoseService` over the same `Api` as HTTP, plus the
+//! standard health service (SERVING once warmed up) and server reflection. API keys come
+//! from the `authorization` metadata (`Bearer <key>`); health and reflection stay open.
+//! Deadlines: the client's `grpc-timeout` and the server's request timeout, whichever is
+//! shorter, bound an estimate (DEADLINE_EXCEEDED).
+
+use super::api::Api;
+use super::error::{ErrorKind, ServiceError};
+use super::grpc_convert as convert;
+use super::proto::pose_service_server::{PoseService, PoseServiceServer};
+use super::proto::{self as pb};
+use std::time::{Duration, Instant};
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::{Code, Request, Response, Status};
+
+pub fn code_of(kind: &ErrorKind) -> Code {
+    match kind {
+        ErrorKind::InvalidArgument | ErrorKind::TooLarge => Code::InvalidArgument,
+        ErrorKind::Unauthenticated => Code::Unauthenticated,
+        ErrorKind::NotFound => Code::NotFound,
+        ErrorKind::AlreadyExists => Code::AlreadyExists,
+        ErrorKind::ResourceExhausted => Code::ResourceExhausted,
+        ErrorKind::Unavailable => Code::Unavailable,
+        ErrorKind::DeadlineExceeded => Code::DeadlineExceeded,
+        ErrorKind::Internal => Code::Internal,
+    }
+}
+
+impl From<ServiceError> for Status {
+    fn from(e: ServiceError) -> Self {
+        Status::new(code_of(&e.kind), e.message)
+    }
+}
+
+/// The client's deadline from `grpc-timeout` ("<digits><H|M|S|m|u|n>"), less a margin
+/// so this server answers DEADLINE_EXCEEDED itself before the transport's own timer
+/// (which would answer CANCELLED) fires.
+fn client_deadline<T>(req: &Request<T>) -> Option<Duration> {
+    let v = req.metadata().get("grpc-timeout")?.to_str().ok()?;
+    let (digits, unit) = v.split_at(v.len().checked_sub(1)?);
+    let n: u64 = digits.parse().ok()?;
+    let d = match unit {
+        "H" => Duration::from_secs(n.saturating_mul(3600)),
+        "M" => Duration::from_secs(n.saturating_mul(60)),
+        "S" => Duration::from_secs(n),
+        "m" => Duration::from_millis(n),
+        "u" => Duration::from_micros(n),
+        "n" => Duration::from_nanos(n),
+        _ => return None,
+    };
+    Some(d.saturating_sub((d / 20).min(Duration::from_millis(50))))
+}
+
+pub struct GrpcService {
+    api: Api,
+}
+
+impl GrpcService {
+    pub fn new(api: Api) -> Self {
+        Self { api }
+    }
+
+    /// Counts the call in the metrics under its RPC name and status code.
+    fn observe<T>(&self, rpc: &str, started: Instant, result: &Result<T, ServiceError>) {
+        let code = match result {
+            Ok(_) => Code::Ok,
+            Err(e) => code_of(&e.kind),
+        };
+        self.api.metrics.request("grpc", &format!("/b2tfpose.v1.PoseService/{rpc}"), &code_name(code), started.elapsed().as_secs_f64());
+    }
+}
+
+/// The canonical upper-snake name of a code, as gRPC's documentation spells it.
+pub fn code_name(code: Code) -> String {
+    let mut out = String::new();
+    for (i, ch) in format!("{code:?}").chars().enumerate() {
+        if ch.is_uppercase() && i > 0 {
+            out.push('_');
+        }
+        out.push(ch.to_ascii_uppercase());
+    }
+    if out == "OK" || out == "O_K" {
+        "OK".into()
+    } else {
+        out
+    }
+}
+
+#[tonic::async_trait]
+impl PoseService for GrpcService {
+    async fn onboard(&self, req: Request<pb::OnboardRequest>) -> Result<Response<pb::Operation>, Status> {
+        let t = Instant::now();
+        let r = async { self.api.onboard(convert::onboard_request(req.into_inner())?).await }.await;
+        self.observe("Onboard", t, &r);
+        Ok(Response::new(convert::operation(r?)))
+    }
+
+    async fn get_operation(&self, req: Request<pb::GetOperationRequest>) -> Result<Response<pb::Operation>, Status> {
+        let t = Instant::now();
+        let r = self.api.core.operation(&req.into_inner().id);
+        self.observe("GetOperation", t, &r);
+        Ok(Response::new(convert::operation(r?)))
+    }
+
+    type WatchOperationStream = ReceiverStream<Result<pb::Operation, Status>>;
+
+    async fn watch_operation(&self, req: Request<pb::GetOperationRequest>) -> Result<Response<Self::WatchOperationStream>, Status> {
+        let t = Instant::now();
+        let id = req.into_inner().id;
+        let first = self.api.core.operation(&id);
+        self.observe("WatchOperation", t, &first);
+        let mut last = first?;
+        let (tx, rx) = tokio::sync::mpsc::channel(8);
+        let core = self.api.core.clone();
+        tokio::spawn(async move {
+            // Operations keep no subscriber list; polling a few atomics is cheap.
+            let mut interval = tokio::time::interval(Duration::from_millis(100));
+            if tx.send(Ok(convert::operation(last.clone()))).await.is_err() {
+                return;
+            }
+            while last.state == super::operations::OperationState::Running {
+                interval.tick().await;
+                let Ok(now) = core.operation(&id) else { break };
+                if now.state != last.state || now.templates_done != last.templates_done {
+                    if tx.send(Ok(convert::operation(now.clone()))).await.is_err() {
+                        return; // the client went away
+                    }
+                    last = now;
+                }
+            }
+        });
+        Ok(Response::new(ReceiverStream::new(rx)))
+    }
+
+    async fn cancel_operation(&self, req: Request<pb::GetOperationRequest>) -> Result<Response<pb::Operation>, Status> {
+        let t = Instant::now();
+        let r = self.api.core.cancel_operation(&req.into_inner().id);
+        self.observe("CancelOperation", t, &r);
+        Ok(Response::new(convert::operation(r?)))
+    }
+
+    async fn estimate(&self, req: Request<pb::EstimateRequest>) -> Result<Response<pb::EstimateResponse>, Status> {
+        let t = Instant::now();
+        let budget = self.api.budget(client_deadline(&req));
+        let r = async { self.api.estimate(convert::estimate_request(req.into_inner())?, budget).await }.await;
+        self.observe("Estimate", t, &r);
+        Ok(Response::new(convert::estimate_response(r?)))
+    }
+
+    async fn list_objects(&self, _req: Request<pb::ListObjectsRequest>) -> Result<Response<pb::ListObjectsResponse>, Status> {
+        let t = Instant::now();
+        let r = self.api.list_objects().await;
+        self.observe("ListObjects", t, &r);
+        Ok(Response::new(pb::ListObjectsResponse { objects: r?.into_iter().map(convert::object_info).collect() }))
+    }
+
+    async fn get_object(&self, req: Request<pb::GetObjectRequest>) -> Result<Response<pb::ObjectInfo>, Status> {
+        let t = Instant::now();
+        let r = self.api.get_object(req.into_inner().object_id).await;
+        self.observe("GetObject", t, &r);
+        Ok(Response::new(convert::object_info(r?)))
+    }
+
+    async fn delete_object(&self, req: Request<pb::GetObjectRequest>) -> Result<Response<pb::DeleteObjectResponse>, Status> {
+        let t = Instant::now();
+        let r = self.api.delete_object(req.into_inner().object_id).await;
+        self.observe("DeleteObject", t, &r);
+        r?;
+        Ok(Response::new(pb::DeleteObjectResponse {}))
+    }
+}
+
+/// The PoseService with its message size limit and, when keys are configured, the API-key
+/// check in front.
+pub fn pose_service(api: Api, max_message_bytes: usize) -> tonic::service::interceptor::InterceptedService<PoseServiceServer<GrpcService>, impl tonic::service::Interceptor + Clone> {
+    let keys = api.keys.clone();
+    let metrics = api.metrics.clone();
+    let server = PoseServiceServer::new(GrpcService::new(api)).max_decoding_message_size(max_message_bytes).max_encoding_message_size(usize::MAX);
+    let check = move |req: Request<()>| -> Result<Request<()>, Status> {
+        let header = req.metadata().get("authorization").and_then(|v| v.to_str().ok());
+        if !keys.enabled() || keys.accepts_header(header) {
+            return Ok(req);
+        }
+        let rpc = req.extensions().get::<tonic::GrpcMethod>().map_or_else(|| "unknown".to_string(), |m| format!("/{}/{}", m.service(), m.method()));
+        metrics.request("grpc", &rpc, "UNAUTHENTICATED", 0.0);
+        Err(Status::unauthenticated("missing or unknown API key (send authorization: Bearer <key> metadata)"))
+    };
+    tonic::service::interceptor::InterceptedService::new(server, check)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn deadline_header_and_code_names() {
+        let mut r = Request::new(());
+        assert_eq!(client_deadline(&r), None);
+        r.metadata_mut().insert("grpc-timeout", "2S".parse().unwrap());
+        assert_eq!(client_deadline(&r), Some(Duration::from_millis(1950)));
+        r.metadata_mut().insert("grpc-timeout", "200m".parse().unwrap());
+        assert_eq!(client_deadline(&r), Some(Duration::from_millis(190)));
+        r.metadata_mut().insert("grpc-timeout", "x".parse().unwrap());
+        assert_eq!(client_deadline(&r), None);
+        assert_eq!(code_name(Code::Ok), "OK");
+        assert_eq!(code_name(Code::InvalidArgument), "INVALID_ARGUMENT");
+        assert_eq!(code_name(Code::ResourceExhausted), "RESOURCE_EXHAUSTED");
+        let e: Status = ServiceError::new(ErrorKind::TooLarge, "big").into();
+        assert_eq!(e.code(), Code::InvalidArgument);
+    }
+}

@@ -1,0 +1,109 @@
+//! Protobuf messages to and from the request types the core takes (the same ones the
+//! HTTP JSON bodies deserialize into), so both adapters feed the core identical inputs.
+//! Proto3 zero values stand for "default" where the proto says so.
+
+use super::error::ServiceError;
+use super::operations::{OperationState, OperationStatus};
+use super::proto as pb;
+use super::requests::{self as rq, EstimateOptions, OnboardOptions};
+use crate::store::ObjectInfo;
+
+fn required<T>(v: Option<T>, field: &str) -> Result<T, ServiceError> {
+    v.ok_or_else(|| ServiceError::invalid(format!("{field} is required")))
+}
+
+fn non_zero<T: Default + PartialEq>(v: T, default: T) -> T {
+    if v == T::default() {
+        default
+    } else {
+        v
+    }
+}
+
+pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, ServiceError> {
+    let image = required(r.image, "image")?;
+    let (encoded, raw_rgb8) = match image.data {
+        Some(pb::image::Data::Encoded(b)) => (Some(b.into()), None),
+        Some(pb::image::Data::RawRgb8(b)) => (None, Some(b.into())),
+        None => (None, None),
+    };
+    let size = |v: u32| (v > 0).then_some(v);
+    let image = rq::ImageInput { encoded, raw_rgb8, width: size(image.width), height: size(image.height) };
+    let k = required(r.intrinsics, "intrinsics")?;
+    let intrinsics = rq::IntrinsicsInput { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy, width: k.width, height: k.height };
+    let detections = r
+        .detections
+        .into_iter()
+        .map(|d| {
+            let (mask_png, mask_rle) = match d.mask {
+                Some(pb::detection::Mask::MaskPng(b)) => (Some(b.into()), None),
+                Some(pb::detection::Mask::MaskRle(rle)) => (None, Some(rq::RleInput { counts: rle.counts, size: [rle.height, rle.width] })),
+                None => (None, None),
+            };
+            rq::DetectionInput { object_id: d.object_id, mask_png, mask_rle, bbox: d.bbox.map(|b| [b.x, b.y, b.width, b.height]), score: d.score.unwrap_or(1.0) }
+        })
+        .collect();
+    let defaults = EstimateOptions::default();
+    let o = r.options.unwrap_or_default();
+    let options = EstimateOptions {
+        rrc: o.rrc.unwrap_or(defaults.rrc),
+        k: non_zero(o.k as usize, defaults.k),
+        max_masks: non_zero(o.max_masks as usize, defaults.max_masks),
+        instances_per_object: non_zero(o.instances_per_object as usize, defaults.instances_per_object),
+    };
+    Ok(rq::EstimateRequest { image, intrinsics, detections, options })
+}
+
+pub fn estimate_response(r: rq::EstimateResponse) -> pb::EstimateResponse {
+    let results = r
+        .results
+        .into_iter()
+        .map(|i| pb::InstanceResult {
+            object_id: i.object_id,
+            instance: i.instance as u32,
+            pose: i.pose.map(|p| pb::Pose { r: p.r.to_vec(), t: p.t.to_vec(), quaternion_wxyz: p.quaternion_wxyz.to_vec() }),
+            score: i.score,
+            detection_index: i.detection_index.map_or(-1, |d| d as i32),
+            reason: i.reason.unwrap_or_default(),
+            diagnostics_json: i.diagnostics.to_string(),
+            timings_ms: i.timings_ms.as_object().map(|m| m.iter().filter_map(|(k, v)| Some((k.clone(), v.as_f64()?))).collect()).unwrap_or_default(),
+        })
+        .collect();
+    pb::EstimateResponse { results, total_ms: r.total_ms }
+}
+
+pub fn onboard_request(r: pb::OnboardRequest) -> Result<rq::OnboardRequest, ServiceError> {
+    let mesh = required(r.mesh, "mesh")?;
+    let defaults = OnboardOptions::default();
+    let o = r.options.unwrap_or_default();
+    let options = OnboardOptions { level: non_zero(o.level, defaults.level), in_plane: non_zero(o.in_plane, defaults.in_plane), pca: (o.pca > 0).then_some(o.pca as usize) };
+    let mesh = rq::MeshInput {
+        data: mesh.data.into(),
+        format: mesh.format,
+        units: (!mesh.units.is_empty()).then_some(mesh.units),
+        resources: mesh.resources.into_iter().map(|x| rq::ResourceInput { name: x.name, data: x.data.into() }).collect(),
+    };
+    Ok(rq::OnboardRequest { object_id: r.object_id, mesh, options, replace: r.replace })
+}
+
+pub fn object_info(o: ObjectInfo) -> pb::ObjectInfo {
+    pb::ObjectInfo { id: o.id, templates: o.templates as u64, diameter_m: o.diameter_m, backbone: o.backbone.name, bytes: o.bytes, created_unix_s: o.created_at, mesh_units: o.units.as_str().to_string() }
+}
+
+pub fn operation(s: OperationStatus) -> pb::Operation {
+    let state = match s.state {
+        OperationState::Running => pb::operation::State::Running,
+        OperationState::Succeeded => pb::operation::State::Succeeded,
+        OperationState::Failed => pb::operation::State::Failed,
+        OperationState::Cancelled => pb::operation::State::Cancelled,
+    };
+    pb::Operation {
+        id: s.id,
+        object_id: s.object_id,
+        state: state as i32,
+        templates_done: s.templates_done,
+        templates_total: s.templates_total,
+        error: s.error.unwrap_or_default(),
+        object: s.object.map(object_info),
+    }
+}

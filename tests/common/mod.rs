@@ -1,0 +1,87 @@
+//! Shared by the service tests: a real `b2tf serve` child process on loopback, and the
+//! generated sample object with a rendered photo of it at a known pose.
+#![allow(dead_code)]
+
+use b2tfpose::geometry::views::view_pose;
+use b2tfpose::geometry::{Intrinsics, Pose};
+use b2tfpose::mesh::procedural::textured_box;
+use b2tfpose::mesh::Mesh;
+use b2tfpose::render::{RenderOptions, RenderOutput, RenderPool, RendererConfig};
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+
+pub struct Server {
+    pub child: Child,
+    /// `http://HOST:PORT` (or https).
+    pub http: String,
+    /// `http://HOST:PORT` of the gRPC listener, as tonic's endpoint wants it (or https).
+    pub grpc: String,
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Starts `b2tf serve` on free ports with `extra` flags; no API keys unless given.
+pub fn start(store: &str, keys: Option<&str>, extra: &[&str]) -> Server {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_b2tf"));
+    cmd.args(["serve", "--http", "127.0.0.1:0", "--grpc", "127.0.0.1:0", "--store", store, "--max-body-mb", "3", "--max-estimates", "2", "--render-pool", "1"])
+        .args(extra)
+        .env("XDG_RUNTIME_DIR", "/tmp")
+        .env_remove("B2TF_API_KEYS")
+        .env_remove("B2TF_CONFIG");
+    if let Some(k) = keys {
+        cmd.env("B2TF_API_KEYS", k);
+    }
+    let mut child = cmd.stdout(Stdio::piped()).spawn().expect("server starts");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+    let word = |scheme: &str| line.split_whitespace().find(|w| w.starts_with(scheme)).map(str::to_string);
+    let http = word("http://").or_else(|| word("https://")).unwrap_or_else(|| panic!("no HTTP address in {line:?}"));
+    let grpc = word("grpc://").map(|g| g.replacen("grpc://", "http://", 1)).or_else(|| word("grpcs://").map(|g| g.replacen("grpcs://", "https://", 1))).unwrap_or_else(|| panic!("no gRPC address in {line:?}"));
+    Server { child, http, grpc }
+}
+
+pub fn sample_mesh() -> Mesh {
+    textured_box([0.10, 0.06, 0.16], 3)
+}
+
+/// The sample written as OBJ + MTL + PNG into `dir`: (file name, bytes) with the OBJ first.
+pub fn sample_files(dir: &std::path::Path) -> Vec<(String, Vec<u8>)> {
+    b2tfpose::mesh::write_obj::write_obj(&sample_mesh(), dir, "box").unwrap();
+    ["box.obj", "box.mtl", "box_m0.png"].iter().map(|n| (n.to_string(), std::fs::read(dir.join(n)).unwrap())).collect()
+}
+
+pub struct Scene {
+    pub k: Intrinsics,
+    pub truth: Pose,
+    pub render: RenderOutput,
+}
+
+/// A 320×240 render of the sample at a known pose.
+pub fn scene() -> Scene {
+    let pool = RenderPool::new(1, RendererConfig::default()).unwrap();
+    let k = Intrinsics::new(500.0, 500.0, 159.5, 119.5, 320, 240).unwrap();
+    let truth = view_pose(&nalgebra::Vector3::new(0.3, -0.5, 0.8).normalize(), 0.7, &nalgebra::Vector3::zeros(), 0.5);
+    let render = pool.render(&sample_mesh(), &truth, &k, &RenderOptions::default()).unwrap();
+    Scene { k, truth, render }
+}
+
+/// PNG file bytes of an RGB or grey image.
+pub fn png_bytes<P: image::PixelWithColorType>(img: &image::ImageBuffer<P, Vec<P::Subpixel>>) -> Vec<u8>
+where
+    [P::Subpixel]: image::EncodableLayout,
+{
+    let mut out = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png).unwrap();
+    out
+}
+
+/// Rotation (degrees) and translation (metres) errors of a row-major R and t.
+pub fn pose_errors(r: &[f64], t: &[f64], truth: &Pose) -> (f64, f64) {
+    let est = Pose::from_row_major(&r.try_into().unwrap(), [t[0], t[1], t[2]]);
+    (b2tfpose::geometry::geodesic_distance(&est.rotation, &truth.rotation).to_degrees(), (est.translation - truth.translation).norm())
+}
