@@ -7,6 +7,7 @@ pub mod bench_store;
 pub mod bop_cmd;
 pub mod bop_eval_cmd;
 pub mod camera_file;
+pub mod demo_client;
 pub mod demo_cmd;
 pub mod estimate_cmd;
 pub mod objects_cmd;
