@@ -56,7 +56,8 @@ fn estimate_request(image: pb::image::Data, w: u32, h: u32, mask_png: Vec<u8>, o
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
     let dir = tempfile::tempdir().unwrap();
-    let server = start(&format!("sqlite://{}", dir.path().join("objects.db").display()), None, &[]);
+    let store = format!("sqlite://{}", dir.path().join("objects.db").display());
+    let mut server = start(&store, None, &[]);
     let channel = Channel::from_shared(server.grpc.clone()).unwrap().connect().await.expect("gRPC connects");
     wait_serving(&channel).await;
     assert_eq!(serving(channel.clone(), "").await, ServingStatus::Serving);
@@ -199,6 +200,21 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
     // Delete, then gone.
     c.delete_object(pb::GetObjectRequest { object_id: "box".into() }).await.unwrap();
     assert_eq!(c.delete_object(pb::GetObjectRequest { object_id: "box".into() }).await.unwrap_err().code(), Code::NotFound);
+
+    // SIGTERM during an onboarding: the server cancels it, exits cleanly, stores nothing.
+    c.onboard(onboard_request(dir.path(), "box3", 3, 12)).await.unwrap();
+    // SAFETY: kill(2) on our own child's pid.
+    unsafe { libc::kill(server.child.id() as i32, libc::SIGTERM) };
+    let status = tokio::task::spawn_blocking(move || {
+        let s = server.child.wait().unwrap();
+        drop(server);
+        s
+    })
+    .await
+    .unwrap();
+    assert!(status.success(), "{status:?}");
+    let reopened = b2tfpose::store::open(&store).unwrap();
+    assert!(!reopened.exists("box3").unwrap() && reopened.list().unwrap().is_empty());
 }
 
 /// A self-signed certificate for 127.0.0.1 / localhost: (cert PEM, key PEM).

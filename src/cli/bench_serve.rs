@@ -1,7 +1,7 @@
-//! `b2tf bench serve`: the HTTP service under load, measured from outside: a real `b2tf
-//! serve` child process, N concurrent clients posting estimates of the sample box, req/s
-//! and p50 / p99 latency per concurrency; then the server's resident memory once every
-//! object in its store (up to 10) is loaded.
+//! `b2tf bench serve`: the service under load, measured from outside: a real `b2tf serve`
+//! child process, N concurrent clients sending estimates of the sample box over HTTP/JSON
+//! and over gRPC (one connection per client), req/s and p50 / p99 latency per concurrency;
+//! then the server's resident memory once every object in its store (up to 10) is loaded.
 
 use crate::geometry::views::view_pose;
 use crate::geometry::Intrinsics;
@@ -11,6 +11,7 @@ use base64::Engine as _;
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
+use crate::service::proto as pb;
 use std::time::{Duration, Instant};
 
 #[derive(clap::Args, Debug)]
@@ -28,6 +29,9 @@ pub struct BenchServeArgs {
     /// RRC in the estimate requests.
     #[arg(long)]
     pub no_rrc: bool,
+    /// Protocols measured: http, grpc or both.
+    #[arg(long, value_delimiter = ',', default_value = "http,grpc")]
+    pub protocols: Vec<String>,
 }
 
 /// One HTTP/1.1 request on a fresh connection; returns (status, body).
@@ -60,19 +64,19 @@ fn b64(bytes: &[u8]) -> String {
     base64::engine::general_purpose::STANDARD.encode(bytes)
 }
 
-fn png<P: image::PixelWithColorType>(img: &image::ImageBuffer<P, Vec<P::Subpixel>>) -> Result<String>
+fn png<P: image::PixelWithColorType>(img: &image::ImageBuffer<P, Vec<P::Subpixel>>) -> Result<Vec<u8>>
 where
     [P::Subpixel]: image::EncodableLayout,
 {
     let mut out = Vec::new();
     img.write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png)?;
-    Ok(b64(&out))
+    Ok(out)
 }
 
 pub fn run(a: BenchServeArgs) -> Result<()> {
     let max_clients = a.clients.iter().copied().max().unwrap_or(1);
     let mut child = std::process::Command::new(std::env::current_exe()?)
-        .args(["serve", "--http", "127.0.0.1:0", "--store", &a.store, "--max-estimates", &max_clients.to_string()])
+        .args(["serve", "--http", "127.0.0.1:0", "--grpc", "127.0.0.1:0", "--store", &a.store, "--max-estimates", &max_clients.to_string()])
         .stdout(std::process::Stdio::piped())
         .spawn()
         .context("starting b2tf serve")?;
@@ -80,14 +84,15 @@ pub fn run(a: BenchServeArgs) -> Result<()> {
     let mut line = String::new();
     BufReader::new(child.stdout.take().ok_or_else(|| anyhow!("no stdout"))?).read_line(&mut line)?;
     let addr = line.split_whitespace().find_map(|w| w.strip_prefix("http://")).ok_or_else(|| anyhow!("server said {line:?}"))?.to_string();
-    let result = measure(&a, &addr, pid);
+    let grpc = line.split_whitespace().find_map(|w| w.strip_prefix("grpc://")).ok_or_else(|| anyhow!("server said {line:?}"))?.to_string();
+    let result = measure(&a, &addr, &grpc, pid);
     // SAFETY: kill(2) on our own child's pid.
     unsafe { libc::kill(pid as i32, libc::SIGTERM) };
     let _ = child.wait();
     result
 }
 
-fn measure(a: &BenchServeArgs, addr: &str, pid: u32) -> Result<()> {
+fn measure(a: &BenchServeArgs, addr: &str, grpc: &str, pid: u32) -> Result<()> {
     let t = Instant::now();
     while json_call(addr, "GET", "/readyz", None).map(|r| r.0).unwrap_or(0) != 200 {
         if t.elapsed() > Duration::from_secs(120) {
@@ -104,7 +109,14 @@ fn measure(a: &BenchServeArgs, addr: &str, pid: u32) -> Result<()> {
     let truth = view_pose(&nalgebra::Vector3::new(0.3, -0.5, 0.8).normalize(), 0.7, &nalgebra::Vector3::zeros(), 0.5);
     let r = pool.render(&mesh, &truth, &k, &RenderOptions::default())?;
     let intrinsics = json!({"fx": 600.0, "fy": 600.0, "cx": 319.5, "cy": 239.5, "width": 640, "height": 480});
-    let request = json!({"image": {"encoded": png(&r.rgb)?}, "intrinsics": intrinsics, "detections": [{"object_id": "box", "mask_png": png(&r.mask)?, "score": 1.0}], "options": {"rrc": !a.no_rrc}});
+    let (rgb_png, mask_png) = (png(&r.rgb)?, png(&r.mask)?);
+    let request = json!({"image": {"encoded": b64(&rgb_png)}, "intrinsics": intrinsics, "detections": [{"object_id": "box", "mask_png": b64(&mask_png), "score": 1.0}], "options": {"rrc": !a.no_rrc}});
+    let grpc_request = pb::EstimateRequest {
+        image: Some(pb::Image { data: Some(pb::image::Data::Encoded(rgb_png)), width: 0, height: 0 }),
+        intrinsics: Some(pb::Intrinsics { fx: 600.0, fy: 600.0, cx: 319.5, cy: 239.5, width: 640, height: 480 }),
+        detections: vec![pb::Detection { object_id: "box".into(), mask: Some(pb::detection::Mask::MaskPng(mask_png)), bbox: None, score: Some(1.0) }],
+        options: Some(pb::EstimateOptions { rrc: Some(!a.no_rrc), ..Default::default() }),
+    };
     let body = serde_json::to_vec(&request)?;
     // One request first, so every measurement starts with the object loaded.
     let (s, v) = http(addr, "POST", "/v1/estimate", Some(&body))?;
@@ -112,32 +124,23 @@ fn measure(a: &BenchServeArgs, addr: &str, pid: u32) -> Result<()> {
         bail!("estimate failed: {s} {}", String::from_utf8_lossy(&v));
     }
     println!("server pid {pid}, store {}; 640×480 PNG of the sample box, RRC {}", a.store, if a.no_rrc { "off" } else { "on" });
-    println!("| clients | requests | req/s | p50 (ms) | p99 (ms) | non-200 |");
-    println!("|---:|---:|---:|---:|---:|---:|");
-    for &c in &a.clients {
-        let t0 = Instant::now();
-        let results: Vec<(u16, f64)> = std::thread::scope(|sc| {
-            let hs: Vec<_> = (0..c)
-                .map(|_| {
-                    sc.spawn(|| {
-                        (0..a.requests)
-                            .map(|_| {
-                                let t = Instant::now();
-                                let s = http(addr, "POST", "/v1/estimate", Some(&body)).map(|r| r.0).unwrap_or(0);
-                                (s, t.elapsed().as_secs_f64() * 1e3)
-                            })
-                            .collect::<Vec<_>>()
-                    })
-                })
-                .collect();
-            hs.into_iter().flat_map(|h| h.join().unwrap_or_default()).collect()
-        });
-        let wall = t0.elapsed().as_secs_f64();
-        let mut ms: Vec<f64> = results.iter().map(|r| r.1).collect();
-        ms.sort_by(f64::total_cmp);
-        let pct = |p: f64| ms[((ms.len() as f64 * p).ceil() as usize).clamp(1, ms.len()) - 1];
-        let bad = results.iter().filter(|r| r.0 != 200).count();
-        println!("| {c} | {} | {:.2} | {:.0} | {:.0} | {bad} |", results.len(), results.len() as f64 / wall, pct(0.5), pct(0.99));
+    println!("| protocol | clients | requests | req/s | p50 (ms) | p99 (ms) | failed |");
+    println!("|---|---:|---:|---:|---:|---:|---:|");
+    for protocol in &a.protocols {
+        for &c in &a.clients {
+            let t0 = Instant::now();
+            let results: Vec<(bool, f64)> = match protocol.as_str() {
+                "http" => http_load(addr, &body, c, a.requests),
+                "grpc" => grpc_load(grpc, &grpc_request, c, a.requests)?,
+                other => bail!("--protocols: {other:?} is neither http nor grpc"),
+            };
+            let wall = t0.elapsed().as_secs_f64();
+            let mut ms: Vec<f64> = results.iter().map(|r| r.1).collect();
+            ms.sort_by(f64::total_cmp);
+            let pct = |p: f64| ms[((ms.len() as f64 * p).ceil() as usize).clamp(1, ms.len()) - 1];
+            let bad = results.iter().filter(|r| !r.0).count();
+            println!("| {protocol} | {c} | {} | {:.2} | {:.0} | {:.0} | {bad} |", results.len(), results.len() as f64 / wall, pct(0.5), pct(0.99));
+        }
     }
     // Memory: every object of the store (up to 10) loaded into the server's cache.
     let before = rss_mb(pid);
@@ -158,4 +161,52 @@ fn measure(a: &BenchServeArgs, addr: &str, pid: u32) -> Result<()> {
         ids.len()
     );
     Ok(())
+}
+
+/// `clients` threads, each posting `requests` estimates one after another: (ok, ms).
+fn http_load(addr: &str, body: &[u8], clients: usize, requests: usize) -> Vec<(bool, f64)> {
+    std::thread::scope(|sc| {
+        let hs: Vec<_> = (0..clients)
+            .map(|_| {
+                sc.spawn(|| {
+                    (0..requests)
+                        .map(|_| {
+                            let t = Instant::now();
+                            let ok = http(addr, "POST", "/v1/estimate", Some(body)).map(|r| r.0 == 200).unwrap_or(false);
+                            (ok, t.elapsed().as_secs_f64() * 1e3)
+                        })
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        hs.into_iter().flat_map(|h| h.join().unwrap_or_default()).collect()
+    })
+}
+
+/// `clients` tasks, each with its own connection, sending `requests` estimates one after
+/// another: (ok, ms).
+fn grpc_load(addr: &str, request: &pb::EstimateRequest, clients: usize, requests: usize) -> Result<Vec<(bool, f64)>> {
+    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
+    rt.block_on(async {
+        let mut tasks = tokio::task::JoinSet::new();
+        for _ in 0..clients {
+            let channel = tonic::transport::Channel::from_shared(format!("http://{addr}"))?.connect().await?;
+            let request = request.clone();
+            tasks.spawn(async move {
+                let mut client = pb::pose_service_client::PoseServiceClient::new(channel);
+                let mut out = Vec::with_capacity(requests);
+                for _ in 0..requests {
+                    let t = Instant::now();
+                    let ok = client.estimate(request.clone()).await.is_ok();
+                    out.push((ok, t.elapsed().as_secs_f64() * 1e3));
+                }
+                out
+            });
+        }
+        let mut all = Vec::new();
+        while let Some(r) = tasks.join_next().await {
+            all.extend(r?);
+        }
+        Ok(all)
+    })
 }

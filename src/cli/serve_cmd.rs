@@ -57,6 +57,11 @@ pub fn run(a: ServeArgs) -> Result<()> {
             });
         }
         crate::service::server::run(api, options, on_bound, shutdown_signal()).await?;
+        let stopping = core.clone();
+        let cancelled = tokio::task::spawn_blocking(move || stopping.stop_onboardings(std::time::Duration::from_secs(30))).await?;
+        if cancelled > 0 {
+            eprintln!("shutdown: cancelled {cancelled} running onboarding(s); nothing of them was stored");
+        }
         // The reader of stdout may be gone by now (a supervisor that only wanted the address).
         let _ = writeln!(std::io::stdout(), "stopped");
         Ok(())

@@ -181,6 +181,17 @@ impl Core {
         Ok(op.status())
     }
 
+    /// At shutdown: cancels running onboardings (they store nothing) and waits up to
+    /// `wait` for their threads to stop, so none is cut off mid-write by the exit.
+    pub fn stop_onboardings(&self, wait: std::time::Duration) -> usize {
+        let asked = self.operations.cancel_all();
+        let t = Instant::now();
+        while self.onboardings_running() > 0 && t.elapsed() < wait {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        asked
+    }
+
     /// Runs the pipeline for every object named by the detections. Blocking. Past
     /// `deadline` it stops before the next instance.
     pub fn estimate(&self, req: &EstimateRequest, deadline: Option<Instant>) -> Result<EstimateResponse, ServiceError> {

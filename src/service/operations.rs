@@ -111,6 +111,12 @@ impl Operations {
         self.inner.lock().expect("operations lock").by_id.values().filter(|o| o.is_running()).count()
     }
 
+    /// Asks every running onboarding to stop (at shutdown); returns how many were asked.
+    pub fn cancel_all(&self) -> usize {
+        let g = self.inner.lock().expect("operations lock");
+        g.by_id.values().filter(|o| o.is_running()).map(|o| o.cancel.store(true, Ordering::Relaxed)).count()
+    }
+
     /// Whether an onboarding of `object_id` is under way.
     pub fn running_for(&self, object_id: &str) -> bool {
         self.inner.lock().expect("operations lock").by_id.values().any(|o| o.object_id == object_id && o.is_running())
