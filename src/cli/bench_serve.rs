@@ -29,6 +29,9 @@ pub struct BenchServeArgs {
     /// RRC in the estimate requests.
     #[arg(long)]
     pub no_rrc: bool,
+    /// Crops per backbone pass of the server's batching queue (0: no queue).
+    #[arg(long, default_value_t = 32)]
+    pub backbone_batch: usize,
     /// Protocols measured: http, grpc or both.
     #[arg(long, value_delimiter = ',', default_value = "http,grpc")]
     pub protocols: Vec<String>,
@@ -76,7 +79,7 @@ where
 pub fn run(a: BenchServeArgs) -> Result<()> {
     let max_clients = a.clients.iter().copied().max().unwrap_or(1);
     let mut child = std::process::Command::new(std::env::current_exe()?)
-        .args(["serve", "--http", "127.0.0.1:0", "--grpc", "127.0.0.1:0", "--store", &a.store, "--max-estimates", &max_clients.to_string()])
+        .args(["serve", "--http", "127.0.0.1:0", "--grpc", "127.0.0.1:0", "--store", &a.store, "--max-estimates", &max_clients.to_string(), "--backbone-batch", &a.backbone_batch.to_string()])
         .stdout(std::process::Stdio::piped())
         .spawn()
         .context("starting b2tf serve")?;
@@ -123,7 +126,7 @@ fn measure(a: &BenchServeArgs, addr: &str, grpc: &str, pid: u32) -> Result<()> {
     if s != 200 {
         bail!("estimate failed: {s} {}", String::from_utf8_lossy(&v));
     }
-    println!("server pid {pid}, store {}; 640×480 PNG of the sample box, RRC {}", a.store, if a.no_rrc { "off" } else { "on" });
+    println!("server pid {pid}, store {}; 640×480 PNG of the sample box, RRC {}, backbone batch {}", a.store, if a.no_rrc { "off" } else { "on" }, a.backbone_batch);
     println!("| protocol | clients | requests | req/s | p50 (ms) | p99 (ms) | failed |");
     println!("|---|---:|---:|---:|---:|---:|---:|");
     for protocol in &a.protocols {

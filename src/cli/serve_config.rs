@@ -7,6 +7,7 @@
 //! grpc = "0.0.0.0:50051"
 //! store = "sqlite:///var/lib/b2tf/objects.db"
 //! backbone = "embedded"
+//! backbone_batch = 32            # crops per backbone pass of the batching queue; 0: none
 //! render_pool = 2
 //! max_estimates = 2
 //! max_onboardings = 1
@@ -37,6 +38,10 @@ pub struct ServeSettings {
     /// Backbone: "embedded" (weight-free, the only one built in) [default: embedded]
     #[arg(long, env = "B2TF_BACKBONE")]
     pub backbone: Option<String>,
+    /// Most crops per backbone forward pass of the shared batching queue; 0: no queue
+    /// [default: 32]
+    #[arg(long, env = "B2TF_BACKBONE_BATCH")]
+    pub backbone_batch: Option<usize>,
     /// Render contexts [default: 2]
     #[arg(long, env = "B2TF_RENDER_POOL")]
     pub render_pool: Option<usize>,
@@ -77,6 +82,7 @@ pub struct Resolved {
     pub grpc: Option<String>,
     pub store: String,
     pub render_pool: usize,
+    pub backbone_batch: usize,
     pub max_estimates: usize,
     pub max_onboardings: usize,
     pub max_body_bytes: usize,
@@ -144,6 +150,7 @@ impl ServeSettings {
             grpc,
             store: pick!(store).unwrap_or_else(crate::store::default_url),
             render_pool: positive("render_pool", pick!(render_pool).unwrap_or(crate::render::RenderPool::DEFAULT_SIZE))?,
+            backbone_batch: pick!(backbone_batch).unwrap_or(32),
             max_estimates: positive("max_estimates", pick!(max_estimates).unwrap_or(2))?,
             max_onboardings: positive("max_onboardings", pick!(max_onboardings).unwrap_or(1))?,
             max_body_bytes: positive("max_body_mb", pick!(max_body_mb).unwrap_or(64))? * 1_000_000,

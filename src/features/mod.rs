@@ -2,9 +2,11 @@
 //! resampling shared by templates and queries.
 
 pub mod backbone;
+pub mod batch_queue;
 pub mod crop;
 pub mod embedded;
 
+pub use batch_queue::BatchingBackbone;
 pub use backbone::{Backbone, BackboneIdentity, FeatureError, FeatureMap};
 pub use crop::{crop_query, mask_bbox, sample_crop, CropInput};
 pub use embedded::{EmbeddedBackbone, EmbeddedConfig};

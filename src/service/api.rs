@@ -37,7 +37,7 @@ impl Api {
 
     pub fn gauges(&self) -> Gauges {
         let c = self.core.cache_stats();
-        Gauges { estimates_running: self.core.estimates_running(), onboardings_running: self.core.onboardings_running(), objects_loaded: c.objects, cache_bytes: c.bytes, ready: self.is_ready() }
+        Gauges { estimates_running: self.core.estimates_running(), onboardings_running: self.core.onboardings_running(), objects_loaded: c.objects, cache_bytes: c.bytes, ready: self.is_ready(), queue: self.core.queue_stats() }
     }
 
     /// The time this request may take: the server's limit or the client's deadline,

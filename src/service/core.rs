@@ -28,11 +28,14 @@ pub struct CoreConfig {
     pub max_estimates: usize,
     /// Onboardings running at once; more are refused the same way.
     pub max_onboardings: usize,
+    /// Most crops in one backbone pass of the shared batching queue (0: no queue, every
+    /// request calls the backbone itself).
+    pub backbone_batch: usize,
 }
 
 impl Default for CoreConfig {
     fn default() -> Self {
-        Self { store_url: crate::store::default_url(), render_pool: RenderPool::DEFAULT_SIZE, cache_bytes: 4_000_000_000, max_estimates: 2, max_onboardings: 1 }
+        Self { store_url: crate::store::default_url(), render_pool: RenderPool::DEFAULT_SIZE, cache_bytes: 4_000_000_000, max_estimates: 2, max_onboardings: 1, backbone_batch: 32 }
     }
 }
 
@@ -54,6 +57,8 @@ pub struct Core {
     store: Arc<dyn ObjectStore>,
     cache: Arc<ModelCache>,
     backbone: Arc<dyn Backbone>,
+    /// The batching queue in front of the backbone, when configured (for its stats).
+    queue: Option<Arc<crate::features::BatchingBackbone>>,
     pool: Arc<RenderPool>,
     estimator: Estimator,
     operations: Operations,
@@ -65,11 +70,16 @@ impl Core {
     /// Opens the store, loads the backbone and starts the render pool.
     pub fn new(config: CoreConfig) -> Result<Self, ServiceError> {
         let store = crate::store::open(&config.store_url)?;
-        let backbone: Arc<dyn Backbone> = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(ServiceError::internal)?);
+        let embedded: Arc<dyn Backbone> = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(ServiceError::internal)?);
+        let queue = (config.backbone_batch > 0).then(|| Arc::new(crate::features::BatchingBackbone::new(embedded.clone(), config.backbone_batch)));
+        let backbone: Arc<dyn Backbone> = match &queue {
+            Some(q) => q.clone(),
+            None => embedded,
+        };
         let pool = Arc::new(RenderPool::new(config.render_pool.max(1), RendererConfig::default()).map_err(|e| ServiceError::new(ErrorKind::Unavailable, e.to_string()))?);
         let estimator = Estimator::new(backbone.clone(), pool.clone());
         let cache = Arc::new(ModelCache::new(store.clone(), config.cache_bytes));
-        Ok(Self { config, store, cache, backbone, pool, estimator, operations: Operations::default(), estimates_running: Arc::new(AtomicUsize::new(0)), onboardings_running: Arc::new(AtomicUsize::new(0)) })
+        Ok(Self { config, store, cache, backbone, queue, pool, estimator, operations: Operations::default(), estimates_running: Arc::new(AtomicUsize::new(0)), onboardings_running: Arc::new(AtomicUsize::new(0)) })
     }
 
     /// One render and one backbone pass, so the first request does not pay for shader
@@ -92,6 +102,10 @@ impl Core {
 
     pub fn cache_stats(&self) -> crate::store::cache::CacheStats {
         self.cache.stats()
+    }
+
+    pub fn queue_stats(&self) -> Option<crate::features::batch_queue::QueueStats> {
+        self.queue.as_ref().map(|q| q.stats())
     }
 
     pub fn estimates_running(&self) -> usize {

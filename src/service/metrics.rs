@@ -58,6 +58,8 @@ pub struct Gauges {
     pub objects_loaded: usize,
     pub cache_bytes: u64,
     pub ready: bool,
+    /// The backbone batching queue, when there is one.
+    pub queue: Option<crate::features::batch_queue::QueueStats>,
 }
 
 impl Metrics {
@@ -108,6 +110,14 @@ impl Metrics {
         gauge(&mut out, "b2tf_objects_loaded", "Objects held in the model cache.", gauges.objects_loaded as f64);
         gauge(&mut out, "b2tf_cache_bytes", "Bytes held by the model cache.", gauges.cache_bytes as f64);
         gauge(&mut out, "b2tf_ready", "1 once warmed up.", if gauges.ready { 1.0 } else { 0.0 });
+        if let Some(q) = &gauges.queue {
+            gauge(&mut out, "b2tf_backbone_queue_depth", "Crops waiting for the backbone.", q.queued_crops as f64);
+            out.push_str("# HELP b2tf_backbone_batch_crops Crops per backbone forward pass (requests batched together).\n# TYPE b2tf_backbone_batch_crops histogram\n");
+            for (bound, n) in crate::features::batch_queue::BATCH_BUCKETS.iter().zip(&q.batch_buckets) {
+                let _ = writeln!(out, "b2tf_backbone_batch_crops_bucket{{le=\"{bound}\"}} {n}");
+            }
+            let _ = writeln!(out, "b2tf_backbone_batch_crops_bucket{{le=\"+Inf\"}} {}\nb2tf_backbone_batch_crops_sum {}\nb2tf_backbone_batch_crops_count {}", q.passes, q.crops, q.passes);
+        }
         out
     }
 }
@@ -124,12 +134,13 @@ mod tests {
         m.request("POST", "/v1/estimate", "429", 0.001);
         m.request("grpc", "/b2tfpose.v1.PoseService/Estimate", "NOT_FOUND", 0.001);
         m.stages(&serde_json::json!({"pnp": 4.0, "total": 150.0}), 2);
-        let text = m.render(&Gauges { estimates_running: 1, onboardings_running: 0, objects_loaded: 3, cache_bytes: 42, ready: true });
+        let text = m.render(&Gauges { estimates_running: 1, onboardings_running: 0, objects_loaded: 3, cache_bytes: 42, ready: true, queue: Some(crate::features::batch_queue::QueueStats { queued_crops: 3, passes: 2, crops: 11, batch_buckets: vec![0, 0, 0, 1, 2, 2, 2, 2] }) });
         assert!(text.contains("b2tf_requests_total{method=\"POST\",route=\"/v1/estimate\",status=\"200\"} 2"), "{text}");
         assert!(text.contains("b2tf_request_seconds_bucket{method=\"POST\",route=\"/v1/estimate\",le=\"0.05\"} 2"), "{text}");
         assert!(text.contains("b2tf_request_seconds_count{method=\"POST\",route=\"/v1/estimate\"} 3"), "{text}");
         assert!(text.contains("b2tf_requests_total{method=\"grpc\",route=\"/b2tfpose.v1.PoseService/Estimate\",status=\"NOT_FOUND\"} 1"), "{text}");
         assert!(text.contains("b2tf_stage_seconds_bucket{stage=\"pnp\",le=\"0.005\"} 1"), "{text}");
+        assert!(text.contains("b2tf_backbone_queue_depth 3") && text.contains("b2tf_backbone_batch_crops_bucket{le=\"8\"} 1") && text.contains("b2tf_backbone_batch_crops_count 2"), "{text}");
         assert!(text.contains("b2tf_objects_loaded 3") && text.contains("b2tf_cache_bytes 42") && text.contains("b2tf_ready 1"), "{text}");
     }
 }

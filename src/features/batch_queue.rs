@@ -1,0 +1,219 @@
+//! A single-owner batching queue in front of a backbone: requests from many threads (one
+//! estimate's query and RRC crops, an onboarding's view batches) go through one channel
+//! to one worker, which runs whatever has queued up as one forward pass. An accelerator
+//! then sees large batches under load, and no request waits for a batch to fill: the
+//! worker never delays a pass to collect more (the layout of text-embeddings-inference's
+//! router → queue → backend).
+
+use super::backbone::{Backbone, BackboneIdentity, FeatureError, FeatureMap};
+use super::crop::CropInput;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender};
+use std::sync::{Arc, Mutex};
+
+/// Upper bounds of the batch-size histogram (crops per forward pass).
+pub const BATCH_BUCKETS: [usize; 8] = [1, 2, 4, 8, 16, 32, 64, 128];
+
+struct Job {
+    crops: Vec<CropInput>,
+    reply: SyncSender<Result<Vec<FeatureMap>, FeatureError>>,
+}
+
+#[derive(Default)]
+struct Counters {
+    /// Crops waiting for the worker.
+    queued: AtomicUsize,
+    passes: AtomicU64,
+    crops: AtomicU64,
+    /// Passes per `BATCH_BUCKETS` bound (cumulative like Prometheus' `le`), then +Inf.
+    buckets: [AtomicU64; BATCH_BUCKETS.len()],
+}
+
+/// What the queue has done, for metrics.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct QueueStats {
+    pub queued_crops: usize,
+    pub passes: u64,
+    pub crops: u64,
+    /// Cumulative counts per `BATCH_BUCKETS` bound.
+    pub batch_buckets: Vec<u64>,
+}
+
+pub struct BatchingBackbone {
+    identity: BackboneIdentity,
+    jobs: Mutex<Sender<Job>>,
+    counters: Arc<Counters>,
+}
+
+impl BatchingBackbone {
+    /// Starts the worker. A pass takes whole requests in arrival order up to `max_batch`
+    /// crops (a larger single request runs alone, whole).
+    pub fn new(inner: Arc<dyn Backbone>, max_batch: usize) -> Self {
+        let (tx, rx) = channel::<Job>();
+        let counters = Arc::new(Counters::default());
+        let identity = inner.identity();
+        let worker_counters = counters.clone();
+        std::thread::Builder::new()
+            .name("backbone-queue".into())
+            .spawn(move || worker(inner, rx, max_batch.max(1), worker_counters))
+            .expect("spawning the backbone queue thread");
+        Self { identity, jobs: Mutex::new(tx), counters }
+    }
+
+    pub fn stats(&self) -> QueueStats {
+        let c = &self.counters;
+        QueueStats {
+            queued_crops: c.queued.load(Ordering::Relaxed),
+            passes: c.passes.load(Ordering::Relaxed),
+            crops: c.crops.load(Ordering::Relaxed),
+            batch_buckets: c.buckets.iter().map(|b| b.load(Ordering::Relaxed)).collect(),
+        }
+    }
+}
+
+fn worker(inner: Arc<dyn Backbone>, rx: Receiver<Job>, max_batch: usize, counters: Arc<Counters>) {
+    let mut carry: Option<Job> = None;
+    loop {
+        // Block for the first request only; then take what is already waiting.
+        let first = match carry.take() {
+            Some(j) => j,
+            None => match rx.recv() {
+                Ok(j) => j,
+                Err(_) => return, // every sender dropped: the backbone is gone
+            },
+        };
+        let mut batch = vec![first];
+        let mut size = batch[0].crops.len();
+        while size < max_batch {
+            match rx.try_recv() {
+                Ok(j) if size + j.crops.len() <= max_batch => {
+                    size += j.crops.len();
+                    batch.push(j);
+                }
+                Ok(j) => {
+                    carry = Some(j);
+                    break;
+                }
+                Err(_) => break,
+            }
+        }
+        counters.queued.fetch_sub(size, Ordering::Relaxed);
+        let lens: Vec<usize> = batch.iter().map(|j| j.crops.len()).collect();
+        let crops: Vec<CropInput> = batch.iter_mut().flat_map(|j| std::mem::take(&mut j.crops)).collect();
+        // A panicking backend fails this pass's requests, not the queue.
+        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| inner.extract(&crops))).unwrap_or_else(|_| Err(FeatureError::Backend("the backbone panicked".into())));
+        counters.passes.fetch_add(1, Ordering::Relaxed);
+        counters.crops.fetch_add(size as u64, Ordering::Relaxed);
+        for (bound, count) in BATCH_BUCKETS.iter().zip(&counters.buckets) {
+            if size <= *bound {
+                count.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        match result {
+            Ok(mut maps) => {
+                // Hand each request its own maps, in order.
+                for (job, n) in batch.into_iter().zip(lens).rev() {
+                    let Some(start) = maps.len().checked_sub(n) else {
+                        let _ = job.reply.send(Err(FeatureError::Backend("the backbone returned too few feature maps".into())));
+                        continue;
+                    };
+                    let mine = maps.split_off(start);
+                    let _ = job.reply.send(Ok(mine));
+                }
+            }
+            Err(e) => {
+                let message = e.to_string();
+                for job in batch {
+                    let _ = job.reply.send(Err(FeatureError::Backend(message.clone())));
+                }
+            }
+        }
+    }
+}
+
+impl Backbone for BatchingBackbone {
+    fn identity(&self) -> BackboneIdentity {
+        self.identity.clone()
+    }
+
+    fn extract(&self, crops: &[CropInput]) -> Result<Vec<FeatureMap>, FeatureError> {
+        if crops.is_empty() {
+            return Ok(Vec::new());
+        }
+        super::backbone::check_sizes(crops, self.identity.input_size)?;
+        let (reply, answer) = sync_channel(1);
+        self.counters.queued.fetch_add(crops.len(), Ordering::Relaxed);
+        let sent = self.jobs.lock().map_err(|_| FeatureError::Backend("backbone queue lock poisoned".into()))?.send(Job { crops: crops.to_vec(), reply });
+        if sent.is_err() {
+            self.counters.queued.fetch_sub(crops.len(), Ordering::Relaxed);
+            return Err(FeatureError::Backend("the backbone queue has stopped".into()));
+        }
+        answer.recv().map_err(|_| FeatureError::Backend("the backbone queue worker stopped".into()))?
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::features::{EmbeddedBackbone, EmbeddedConfig};
+
+    fn crops(n: usize, seed: u8) -> Vec<CropInput> {
+        (0..n)
+            .map(|i| {
+                let v = seed.wrapping_mul(31).wrapping_add(i as u8 * 17);
+                let rgb = image::RgbImage::from_fn(512, 512, |x, y| image::Rgb([((x / 8) as u8).wrapping_add(v), ((y / 8) as u8) ^ v, v]));
+                let mask = image::GrayImage::from_fn(512, 512, |x, y| image::Luma([if (100..400).contains(&x) && (50..450).contains(&y) { 255 } else { 0 }]));
+                CropInput { rgb, mask }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn concurrent_requests_get_their_own_features_in_shared_passes() {
+        let inner: Arc<dyn Backbone> = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap());
+        let queue = Arc::new(BatchingBackbone::new(inner.clone(), 8));
+        assert_eq!(queue.identity(), inner.identity());
+        let requests: Vec<Vec<CropInput>> = (0..6).map(|r| crops(1 + r % 3, r as u8)).collect();
+        let direct: Vec<Vec<FeatureMap>> = requests.iter().map(|c| inner.extract(c).unwrap()).collect();
+        let queued: Vec<Vec<FeatureMap>> = std::thread::scope(|s| {
+            let hs: Vec<_> = requests.iter().map(|c| s.spawn(|| queue.extract(c).unwrap())).collect();
+            hs.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        for (d, q) in direct.iter().zip(&queued) {
+            assert_eq!(d.len(), q.len());
+            for (a, b) in d.iter().zip(q) {
+                assert_eq!(a.local, b.local);
+                assert_eq!(a.global, b.global);
+            }
+        }
+        let st = queue.stats();
+        let total: usize = requests.iter().map(Vec::len).sum();
+        assert_eq!((st.crops, st.queued_crops), (total as u64, 0));
+        assert!(st.passes >= 2 && st.passes <= requests.len() as u64, "{st:?}");
+        assert_eq!(*st.batch_buckets.last().unwrap(), st.passes);
+        // Bad input is refused before queueing, naming the crop.
+        let mut bad = crops(2, 9);
+        bad[1].rgb = image::RgbImage::new(64, 64);
+        assert!(matches!(queue.extract(&bad), Err(FeatureError::WrongSize { index: 1, .. })));
+        assert!(queue.extract(&[]).unwrap().is_empty());
+    }
+
+    struct Panics;
+    impl Backbone for Panics {
+        fn identity(&self) -> BackboneIdentity {
+            BackboneIdentity { name: "panics".into(), weights_hash: String::new(), layers: String::new(), input_size: 512, patch_size: 16, local_dim: 1, global_dim: 1 }
+        }
+        fn extract(&self, _: &[CropInput]) -> Result<Vec<FeatureMap>, FeatureError> {
+            panic!("backend bug")
+        }
+    }
+
+    #[test]
+    fn a_panicking_backend_fails_the_request_not_the_queue() {
+        let queue = BatchingBackbone::new(Arc::new(Panics), 4);
+        for _ in 0..2 {
+            let e = queue.extract(&crops(1, 0)).unwrap_err();
+            assert!(e.to_string().contains("panicked"), "{e}");
+        }
+    }
+}
