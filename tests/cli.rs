@@ -146,3 +146,30 @@ fn bop_commands_name_the_bad_file_and_entry() {
     let (ok, _, err) = b2tf(&["bop", "synth", "--models", s(d), "--out", s(&d.join("ds"))]);
     assert!(!ok && err.contains("no BOP models"), "{err}");
 }
+
+#[test]
+fn serve_and_demo_client_refuse_bad_settings_at_start() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let store = format!("sqlite://{}", d.join("o.db").display());
+    let config = d.join("b2tf.toml");
+    std::fs::write(&config, "max_estimatez = 2\n").unwrap();
+    std::fs::write(d.join("junk.pem"), "not a certificate").unwrap();
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        (vec!["serve".into(), "--config".into(), s(&config).into(), "--store".into(), store.clone()], "max_estimatez"),
+        (vec!["serve".into(), "--config".into(), s(&d.join("absent.toml")).into()], "absent.toml"),
+        (vec!["serve".into(), "--http".into(), "none".into(), "--grpc".into(), "none".into(), "--store".into(), store.clone()], "both listeners are off"),
+        (vec!["serve".into(), "--backbone".into(), "dinov3".into(), "--store".into(), store.clone()], "dinov3"),
+        (vec!["serve".into(), "--tls-cert".into(), s(&d.join("junk.pem")).into(), "--tls-key".into(), s(&d.join("junk.pem")).into(), "--store".into(), store.clone()], "junk.pem"),
+        (vec!["serve".into(), "--http".into(), "not-an-address".into(), "--grpc".into(), "none".into(), "--store".into(), store.clone()], "not-an-address"),
+        (vec!["demo".into(), "--out".into(), s(d).into(), "--server".into(), "ftp://x".into()], "grpc://HOST:PORT"),
+        (vec!["demo".into(), "--out".into(), s(d).into(), "--server".into(), "grpcs://127.0.0.1:1".into()], "--ca-cert"),
+        (vec!["demo".into(), "--out".into(), s(d).into(), "--server".into(), "grpc://127.0.0.1:1".into()], "cannot reach"),
+    ];
+    for (args, needle) in cases {
+        let a: Vec<&str> = args.iter().map(|x| x.as_str()).collect();
+        let (ok, out, err) = b2tf(&a);
+        assert!(!ok, "{args:?} succeeded: {out}");
+        assert!(err.contains(needle), "{args:?}: expected {needle:?} in {err}");
+    }
+}
