@@ -72,6 +72,17 @@ impl BatchingBackbone {
 }
 
 fn worker(inner: Arc<dyn Backbone>, rx: Receiver<Job>, max_batch: usize, counters: Arc<Counters>) {
+    // The backbone runs on a thread pool of its own: callers may be rayon tasks of the
+    // global pool (onboarding runs views in parallel) blocked on their replies, and a
+    // backbone parallelising on that same pool would wait for them forever.
+    let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
+    let pool = match rayon::ThreadPoolBuilder::new().num_threads(threads).thread_name(|i| format!("backbone-{i}")).build() {
+        Ok(p) => p,
+        Err(e) => {
+            log::error!("backbone queue: cannot start its thread pool: {e}");
+            return; // callers then get "the backbone queue worker stopped"
+        }
+    };
     let mut carry: Option<Job> = None;
     loop {
         // Block for the first request only; then take what is already waiting.
@@ -101,7 +112,7 @@ fn worker(inner: Arc<dyn Backbone>, rx: Receiver<Job>, max_batch: usize, counter
         let lens: Vec<usize> = batch.iter().map(|j| j.crops.len()).collect();
         let crops: Vec<CropInput> = batch.iter_mut().flat_map(|j| std::mem::take(&mut j.crops)).collect();
         // A panicking backend fails this pass's requests, not the queue.
-        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| inner.extract(&crops))).unwrap_or_else(|_| Err(FeatureError::Backend("the backbone panicked".into())));
+        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| pool.install(|| inner.extract(&crops)))).unwrap_or_else(|_| Err(FeatureError::Backend("the backbone panicked".into())));
         counters.passes.fetch_add(1, Ordering::Relaxed);
         counters.crops.fetch_add(size as u64, Ordering::Relaxed);
         for (bound, count) in BATCH_BUCKETS.iter().zip(&counters.buckets) {
@@ -196,6 +207,21 @@ mod tests {
         bad[1].rgb = image::RgbImage::new(64, 64);
         assert!(matches!(queue.extract(&bad), Err(FeatureError::WrongSize { index: 1, .. })));
         assert!(queue.extract(&[]).unwrap().is_empty());
+    }
+
+    #[test]
+    fn callers_on_the_global_rayon_pool_do_not_deadlock() {
+        // Onboarding calls the backbone from rayon tasks; the queue's backbone parallelises
+        // too. Run in a thread with a time limit so a regression fails instead of hanging.
+        use rayon::prelude::*;
+        let inner: Arc<dyn Backbone> = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap());
+        let queue = Arc::new(BatchingBackbone::new(inner, 4));
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let n: usize = (0..8u8).into_par_iter().map(|i| queue.extract(&crops(2, i)).map(|m| m.len()).unwrap_or(0)).sum();
+            let _ = tx.send(n);
+        });
+        assert_eq!(rx.recv_timeout(std::time::Duration::from_secs(120)).expect("deadlock: no answer within 120 s"), 16);
     }
 
     struct Panics;
