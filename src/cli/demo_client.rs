@@ -134,6 +134,7 @@ where
     };
     let op = client.onboard(request).await.map_err(|s| anyhow::anyhow!("Onboard: {s}"))?.into_inner();
     println!("onboarding {OBJECT_ID} through the API (operation {}, {} templates)", op.id, op.templates_total);
+    let started = Instant::now();
     let mut stream = client.watch_operation(pb::GetOperationRequest { id: op.id.clone() }).await?.into_inner();
     let mut last_tenth = 0;
     let mut last = op;
@@ -146,7 +147,10 @@ where
         last = o;
     }
     match last.state() {
-        pb::operation::State::Succeeded => last.object.context("the finished operation names no object"),
+        pb::operation::State::Succeeded => {
+            println!("onboarded in {:.1} s", started.elapsed().as_secs_f64());
+            last.object.context("the finished operation names no object")
+        }
         state => bail!("onboarding ended {state:?}: {}", last.error),
     }
 }
