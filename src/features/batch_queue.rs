@@ -9,7 +9,7 @@ use super::backbone::{Backbone, BackboneIdentity, FeatureError, FeatureMap};
 use super::crop::CropInput;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 /// Upper bounds of the batch-size histogram (crops per forward pass).
 pub const BATCH_BUCKETS: [usize; 8] = [1, 2, 4, 8, 16, 32, 64, 128];
@@ -41,7 +41,7 @@ pub struct QueueStats {
 
 pub struct BatchingBackbone {
     identity: BackboneIdentity,
-    jobs: Mutex<Sender<Job>>,
+    jobs: Sender<Job>,
     counters: Arc<Counters>,
 }
 
@@ -57,7 +57,7 @@ impl BatchingBackbone {
             .name("backbone-queue".into())
             .spawn(move || worker(inner, rx, max_batch.max(1), worker_counters))
             .expect("spawning the backbone queue thread");
-        Self { identity, jobs: Mutex::new(tx), counters }
+        Self { identity, jobs: tx, counters }
     }
 
     pub fn stats(&self) -> QueueStats {
@@ -154,7 +154,7 @@ impl Backbone for BatchingBackbone {
         super::backbone::check_sizes(crops, self.identity.input_size)?;
         let (reply, answer) = sync_channel(1);
         self.counters.queued.fetch_add(crops.len(), Ordering::Relaxed);
-        let sent = self.jobs.lock().map_err(|_| FeatureError::Backend("backbone queue lock poisoned".into()))?.send(Job { crops: crops.to_vec(), reply });
+        let sent = self.jobs.send(Job { crops: crops.to_vec(), reply });
         if sent.is_err() {
             self.counters.queued.fetch_sub(crops.len(), Ordering::Relaxed);
             return Err(FeatureError::Backend("the backbone queue has stopped".into()));

@@ -60,13 +60,16 @@ impl GrpcService {
         Self { api }
     }
 
-    /// Counts the call in the metrics under its RPC name and status code.
-    fn observe<T>(&self, rpc: &str, started: Instant, result: &Result<T, ServiceError>) {
-        let code = match result {
+    /// Runs one call, counting it in the metrics under its RPC name and status code.
+    async fn observed<T>(&self, rpc: &str, work: impl std::future::Future<Output = Result<T, ServiceError>>) -> Result<T, Status> {
+        let started = Instant::now();
+        let result = work.await;
+        let code = match &result {
             Ok(_) => Code::Ok,
             Err(e) => code_of(&e.kind),
         };
         self.api.metrics.request("grpc", &format!("/b2tfpose.v1.PoseService/{rpc}"), &code_name(code), started.elapsed().as_secs_f64());
+        result.map_err(Status::from)
     }
 }
 
@@ -79,37 +82,26 @@ pub fn code_name(code: Code) -> String {
         }
         out.push(ch.to_ascii_uppercase());
     }
-    if out == "OK" || out == "O_K" {
-        "OK".into()
-    } else {
-        out
-    }
+    out
 }
 
 #[tonic::async_trait]
 impl PoseService for GrpcService {
     async fn onboard(&self, req: Request<pb::OnboardRequest>) -> Result<Response<pb::Operation>, Status> {
-        let t = Instant::now();
-        let r = async { self.api.onboard(convert::onboard_request(req.into_inner())?).await }.await;
-        self.observe("Onboard", t, &r);
-        Ok(Response::new(convert::operation(r?)))
+        let op = self.observed("Onboard", async { self.api.onboard(convert::onboard_request(req.into_inner())?).await }).await?;
+        Ok(Response::new(convert::operation(op)))
     }
 
     async fn get_operation(&self, req: Request<pb::GetOperationRequest>) -> Result<Response<pb::Operation>, Status> {
-        let t = Instant::now();
-        let r = self.api.core.operation(&req.into_inner().id);
-        self.observe("GetOperation", t, &r);
-        Ok(Response::new(convert::operation(r?)))
+        let op = self.observed("GetOperation", async { self.api.core.operation(&req.into_inner().id) }).await?;
+        Ok(Response::new(convert::operation(op)))
     }
 
     type WatchOperationStream = ReceiverStream<Result<pb::Operation, Status>>;
 
     async fn watch_operation(&self, req: Request<pb::GetOperationRequest>) -> Result<Response<Self::WatchOperationStream>, Status> {
-        let t = Instant::now();
         let id = req.into_inner().id;
-        let first = self.api.core.operation(&id);
-        self.observe("WatchOperation", t, &first);
-        let mut last = first?;
+        let mut last = self.observed("WatchOperation", async { self.api.core.operation(&id) }).await?;
         let (tx, rx) = tokio::sync::mpsc::channel(8);
         let core = self.api.core.clone();
         tokio::spawn(async move {
@@ -133,39 +125,28 @@ impl PoseService for GrpcService {
     }
 
     async fn cancel_operation(&self, req: Request<pb::GetOperationRequest>) -> Result<Response<pb::Operation>, Status> {
-        let t = Instant::now();
-        let r = self.api.core.cancel_operation(&req.into_inner().id);
-        self.observe("CancelOperation", t, &r);
-        Ok(Response::new(convert::operation(r?)))
+        let op = self.observed("CancelOperation", async { self.api.core.cancel_operation(&req.into_inner().id) }).await?;
+        Ok(Response::new(convert::operation(op)))
     }
 
     async fn estimate(&self, req: Request<pb::EstimateRequest>) -> Result<Response<pb::EstimateResponse>, Status> {
-        let t = Instant::now();
         let budget = self.api.budget(client_deadline(&req));
-        let r = async { self.api.estimate(convert::estimate_request(req.into_inner())?, budget).await }.await;
-        self.observe("Estimate", t, &r);
-        Ok(Response::new(convert::estimate_response(r?)))
+        let resp = self.observed("Estimate", async { self.api.estimate(convert::estimate_request(req.into_inner())?, budget).await }).await?;
+        Ok(Response::new(convert::estimate_response(resp)))
     }
 
     async fn list_objects(&self, _req: Request<pb::ListObjectsRequest>) -> Result<Response<pb::ListObjectsResponse>, Status> {
-        let t = Instant::now();
-        let r = self.api.list_objects().await;
-        self.observe("ListObjects", t, &r);
-        Ok(Response::new(pb::ListObjectsResponse { objects: r?.into_iter().map(convert::object_info).collect() }))
+        let objects = self.observed("ListObjects", self.api.list_objects()).await?;
+        Ok(Response::new(pb::ListObjectsResponse { objects: objects.into_iter().map(convert::object_info).collect() }))
     }
 
     async fn get_object(&self, req: Request<pb::GetObjectRequest>) -> Result<Response<pb::ObjectInfo>, Status> {
-        let t = Instant::now();
-        let r = self.api.get_object(req.into_inner().object_id).await;
-        self.observe("GetObject", t, &r);
-        Ok(Response::new(convert::object_info(r?)))
+        let info = self.observed("GetObject", self.api.get_object(req.into_inner().object_id)).await?;
+        Ok(Response::new(convert::object_info(info)))
     }
 
     async fn delete_object(&self, req: Request<pb::GetObjectRequest>) -> Result<Response<pb::DeleteObjectResponse>, Status> {
-        let t = Instant::now();
-        let r = self.api.delete_object(req.into_inner().object_id).await;
-        self.observe("DeleteObject", t, &r);
-        r?;
+        self.observed("DeleteObject", self.api.delete_object(req.into_inner().object_id)).await?;
         Ok(Response::new(pb::DeleteObjectResponse {}))
     }
 }
