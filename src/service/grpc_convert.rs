@@ -76,7 +76,7 @@ pub fn onboard_request(r: pb::OnboardRequest) -> Result<rq::OnboardRequest, Serv
     let mesh = required(r.mesh, "mesh")?;
     let defaults = OnboardOptions::default();
     let o = r.options.unwrap_or_default();
-    let options = OnboardOptions { level: non_zero(o.level, defaults.level), in_plane: non_zero(o.in_plane, defaults.in_plane), pca: (o.pca > 0).then_some(o.pca as usize) };
+    let options = OnboardOptions { level: o.level.unwrap_or(defaults.level), in_plane: non_zero(o.in_plane, defaults.in_plane), pca: (o.pca > 0).then_some(o.pca as usize) };
     let mesh = rq::MeshInput {
         data: mesh.data.into(),
         format: mesh.format,
@@ -105,5 +105,25 @@ pub fn operation(s: OperationStatus) -> pb::Operation {
         templates_total: s.templates_total,
         error: s.error.unwrap_or_default(),
         object: s.object.map(object_info),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn onboard_with(options: Option<pb::OnboardOptions>) -> OnboardOptions {
+        let mesh = Some(pb::Mesh { data: vec![1], format: "obj".into(), units: "m".into(), resources: vec![] });
+        onboard_request(pb::OnboardRequest { object_id: "x".into(), mesh, options, replace: false }).unwrap().options
+    }
+
+    #[test]
+    fn unset_options_take_defaults_and_level_zero_is_kept() {
+        let d = OnboardOptions::default();
+        let o = onboard_with(None);
+        assert_eq!((o.level, o.in_plane, o.pca), (d.level, d.in_plane, None));
+        let o = onboard_with(Some(pb::OnboardOptions { level: Some(0), in_plane: 1, pca: 16 }));
+        assert_eq!((o.level, o.in_plane, o.pca), (0, 1, Some(16)));
+        assert!(onboard_request(pb::OnboardRequest { object_id: "x".into(), mesh: None, options: None, replace: false }).unwrap_err().message.contains("mesh is required"));
     }
 }
