@@ -9,7 +9,8 @@ mod common;
 use b2tfpose::service::proto as pb;
 use b2tfpose::service::proto::pose_service_client::PoseServiceClient;
 use base64::Engine as _;
-use common::{png_bytes, pose_errors, sample_files, scene, start};
+use b2tfpose::service::client::png_bytes;
+use common::{pose_errors, sample_files, scene, start};
 use std::time::{Duration, Instant};
 use tonic::transport::Channel;
 use tonic::Code;
@@ -99,7 +100,7 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
 
     // Estimate through gRPC (PNG and raw RGB) and through HTTP: the same pose.
     let sc = scene();
-    let (rgb, mask) = (png_bytes(&sc.render.rgb), png_bytes(&sc.render.mask));
+    let (rgb, mask) = (png_bytes(&sc.render.rgb).unwrap(), png_bytes(&sc.render.mask).unwrap());
     let by_png = c.estimate(estimate_request(pb::image::Data::Encoded(rgb.clone()), 0, 0, mask.clone(), "box")).await.expect("estimate").into_inner();
     let res = &by_png.results[0];
     let pose = res.pose.as_ref().expect("a pose");
@@ -129,7 +130,7 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
         f(&mut r);
         r
     };
-    let small_mask = png_bytes(&image::GrayImage::new(10, 10));
+    let small_mask = png_bytes(&image::GrayImage::new(10, 10)).unwrap();
     let cases: Vec<(pb::EstimateRequest, Code, &str)> = vec![
         (with(&|r| r.image = Some(pb::Image { data: Some(pb::image::Data::Encoded(b"not an image".to_vec())), width: 0, height: 0 })), Code::InvalidArgument, "image.encoded"),
         (with(&|r| r.image = None), Code::InvalidArgument, "image is required"),

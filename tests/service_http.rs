@@ -6,7 +6,8 @@
 mod common;
 
 use base64::Engine as _;
-use common::{png_bytes, pose_errors, sample_files, scene, start};
+use b2tfpose::service::client::png_bytes;
+use common::{pose_errors, sample_files, scene, start};
 use serde_json::{json, Value};
 use std::time::{Duration, Instant};
 
@@ -19,7 +20,7 @@ fn png<P: image::PixelWithColorType>(img: &image::ImageBuffer<P, Vec<P::Subpixel
 where
     [P::Subpixel]: image::EncodableLayout,
 {
-    b64(&png_bytes(img))
+    b64(&png_bytes(img).unwrap())
 }
 
 fn client() -> reqwest::blocking::Client {

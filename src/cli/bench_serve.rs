@@ -11,6 +11,7 @@ use base64::Engine as _;
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
+use crate::service::client::{one_mask_request, png_bytes};
 use crate::service::proto as pb;
 use std::time::{Duration, Instant};
 
@@ -67,15 +68,6 @@ fn b64(bytes: &[u8]) -> String {
     base64::engine::general_purpose::STANDARD.encode(bytes)
 }
 
-fn png<P: image::PixelWithColorType>(img: &image::ImageBuffer<P, Vec<P::Subpixel>>) -> Result<Vec<u8>>
-where
-    [P::Subpixel]: image::EncodableLayout,
-{
-    let mut out = Vec::new();
-    img.write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png)?;
-    Ok(out)
-}
-
 pub fn run(a: BenchServeArgs) -> Result<()> {
     let max_clients = a.clients.iter().copied().max().unwrap_or(1);
     let mut child = std::process::Command::new(std::env::current_exe()?)
@@ -112,14 +104,9 @@ fn measure(a: &BenchServeArgs, addr: &str, grpc: &str, pid: u32) -> Result<()> {
     let truth = view_pose(&nalgebra::Vector3::new(0.3, -0.5, 0.8).normalize(), 0.7, &nalgebra::Vector3::zeros(), 0.5);
     let r = pool.render(&mesh, &truth, &k, &RenderOptions::default())?;
     let intrinsics = json!({"fx": 600.0, "fy": 600.0, "cx": 319.5, "cy": 239.5, "width": 640, "height": 480});
-    let (rgb_png, mask_png) = (png(&r.rgb)?, png(&r.mask)?);
+    let (rgb_png, mask_png) = (png_bytes(&r.rgb)?, png_bytes(&r.mask)?);
     let request = json!({"image": {"encoded": b64(&rgb_png)}, "intrinsics": intrinsics, "detections": [{"object_id": "box", "mask_png": b64(&mask_png), "score": 1.0}], "options": {"rrc": !a.no_rrc}});
-    let grpc_request = pb::EstimateRequest {
-        image: Some(pb::Image { data: Some(pb::image::Data::Encoded(rgb_png)), width: 0, height: 0 }),
-        intrinsics: Some(pb::Intrinsics { fx: 600.0, fy: 600.0, cx: 319.5, cy: 239.5, width: 640, height: 480 }),
-        detections: vec![pb::Detection { object_id: "box".into(), mask: Some(pb::detection::Mask::MaskPng(mask_png)), bbox: None, score: Some(1.0) }],
-        options: Some(pb::EstimateOptions { rrc: Some(!a.no_rrc), ..Default::default() }),
-    };
+    let grpc_request = one_mask_request("box", rgb_png, mask_png, &k, !a.no_rrc);
     let body = serde_json::to_vec(&request)?;
     // One request first, so every measurement starts with the object loaded.
     let (s, v) = http(addr, "POST", "/v1/estimate", Some(&body))?;

@@ -4,6 +4,7 @@
 //! through the API, prints the pose and its error against the truth and writes the overlay.
 
 use super::demo_cmd::{make_scene, report, sample_mesh, DemoArgs};
+use crate::service::client::{one_mask_request, png_bytes, BearerKey, Client};
 use crate::service::proto as pb;
 use crate::service::proto::pose_service_client::PoseServiceClient;
 use anyhow::{bail, Context, Result};
@@ -53,17 +54,8 @@ async fn run_async(a: &DemoArgs) -> Result<()> {
     let server = a.server.as_deref().unwrap_or_default();
     let channel = connect(server, a.ca_cert.as_deref()).await?;
     wait_ready(&channel).await?;
-    let key: Option<tonic::metadata::MetadataValue<_>> = match &a.api_key {
-        Some(k) => Some(format!("Bearer {k}").parse().context("--api-key is not a valid header value")?),
-        None => None,
-    };
-    let mut client = PoseServiceClient::with_interceptor(channel, move |mut req: tonic::Request<()>| {
-        if let Some(k) = &key {
-            req.metadata_mut().insert("authorization", k.clone());
-        }
-        Ok(req)
-    })
-    .max_decoding_message_size(64 << 20);
+    let key = BearerKey::new(a.api_key.as_deref()).map_err(|e| anyhow::anyhow!("--api-key: {e}"))?;
+    let mut client: Client = PoseServiceClient::with_interceptor(channel, key).max_decoding_message_size(64 << 20);
 
     let mesh = sample_mesh();
     let info = match client.get_object(pb::GetObjectRequest { object_id: OBJECT_ID.into() }).await {
@@ -78,18 +70,8 @@ async fn run_async(a: &DemoArgs) -> Result<()> {
 
     let renderer = super::open_renderer(1)?;
     let scene = make_scene(&mesh, &renderer, a.seed, &a.out)?;
-    let png = |write: &dyn Fn(&mut std::io::Cursor<&mut Vec<u8>>) -> image::ImageResult<()>| -> Result<Vec<u8>> {
-        let mut out = Vec::new();
-        write(&mut std::io::Cursor::new(&mut out))?;
-        Ok(out)
-    };
     let k = &scene.k;
-    let request = pb::EstimateRequest {
-        image: Some(pb::Image { data: Some(pb::image::Data::Encoded(png(&|c| scene.photo.write_to(c, image::ImageFormat::Png))?)), width: 0, height: 0 }),
-        intrinsics: Some(pb::Intrinsics { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy, width: k.width, height: k.height }),
-        detections: vec![pb::Detection { object_id: OBJECT_ID.into(), mask: Some(pb::detection::Mask::MaskPng(png(&|c| scene.mask.write_to(c, image::ImageFormat::Png))?)), bbox: None, score: Some(1.0) }],
-        options: Some(pb::EstimateOptions { rrc: Some(!a.no_rrc), ..Default::default() }),
-    };
+    let request = one_mask_request(OBJECT_ID, png_bytes(&scene.photo)?, png_bytes(&scene.mask)?, k, !a.no_rrc);
     let t = Instant::now();
     let resp = client.estimate(request).await.map_err(|s| anyhow::anyhow!("Estimate: {s}"))?.into_inner();
     let round_trip_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -111,13 +93,7 @@ async fn run_async(a: &DemoArgs) -> Result<()> {
 
 
 /// Uploads the sample (OBJ + MTL + PNG) and follows the operation to its end.
-async fn onboard<C>(client: &mut PoseServiceClient<C>, mesh: &crate::mesh::Mesh, out: &std::path::Path) -> Result<pb::ObjectInfo>
-where
-    C: tonic::client::GrpcService<tonic::body::Body> + Send,
-    C::Error: Into<tonic::codegen::StdError>,
-    C::ResponseBody: tonic::codegen::Body<Data = tonic::codegen::Bytes> + Send + 'static,
-    <C::ResponseBody as tonic::codegen::Body>::Error: Into<tonic::codegen::StdError> + Send,
-{
+async fn onboard(client: &mut Client, mesh: &crate::mesh::Mesh, out: &std::path::Path) -> Result<pb::ObjectInfo> {
     let dir = out.join("sample");
     crate::mesh::write_obj::write_obj(mesh, &dir, "box")?;
     let read = |n: &str| std::fs::read(dir.join(n)).with_context(|| format!("reading {n}"));

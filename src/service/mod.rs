@@ -7,6 +7,7 @@
 pub mod api;
 pub mod auth;
 pub mod base64_bytes;
+pub mod client;
 pub mod core;
 pub mod error;
 pub mod grpc;

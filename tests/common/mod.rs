@@ -70,16 +70,6 @@ pub fn scene() -> Scene {
     Scene { k, truth, render }
 }
 
-/// PNG file bytes of an RGB or grey image.
-pub fn png_bytes<P: image::PixelWithColorType>(img: &image::ImageBuffer<P, Vec<P::Subpixel>>) -> Vec<u8>
-where
-    [P::Subpixel]: image::EncodableLayout,
-{
-    let mut out = Vec::new();
-    img.write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png).unwrap();
-    out
-}
-
 /// Rotation (degrees) and translation (metres) errors of a row-major R and t.
 pub fn pose_errors(r: &[f64], t: &[f64], truth: &Pose) -> (f64, f64) {
     let est = Pose::from_row_major(&r.try_into().unwrap(), [t[0], t[1], t[2]]);
