@@ -29,13 +29,21 @@ impl Histogram {
     }
 
     fn write(&self, out: &mut String, name: &str, labels: &str) {
-        for (b, c) in BUCKETS.iter().zip(&self.counts) {
-            let _ = writeln!(out, "{name}_bucket{{{labels}le=\"{b}\"}} {c}");
-        }
-        let _ = writeln!(out, "{name}_bucket{{{labels}le=\"+Inf\"}} {}", self.count);
-        let _ = writeln!(out, "{name}_sum{{{}}} {}", labels.trim_end_matches(','), self.sum);
-        let _ = writeln!(out, "{name}_count{{{}}} {}", labels.trim_end_matches(','), self.count);
+        write_histogram(out, name, labels, BUCKETS.iter().map(|b| b.to_string()).zip(self.counts), self.count, self.sum);
     }
+}
+
+/// One Prometheus histogram: cumulative `(upper bound, count)` buckets, then +Inf, sum and
+/// count. `labels` is empty or ends with a comma.
+fn write_histogram(out: &mut String, name: &str, labels: &str, buckets: impl Iterator<Item = (String, u64)>, count: u64, sum: f64) {
+    for (bound, c) in buckets {
+        let _ = writeln!(out, "{name}_bucket{{{labels}le=\"{bound}\"}} {c}");
+    }
+    let _ = writeln!(out, "{name}_bucket{{{labels}le=\"+Inf\"}} {count}");
+    let own = labels.trim_end_matches(',');
+    let own = if own.is_empty() { String::new() } else { format!("{{{own}}}") };
+    let _ = writeln!(out, "{name}_sum{own} {sum}");
+    let _ = writeln!(out, "{name}_count{own} {count}");
 }
 
 #[derive(Default)]
@@ -100,7 +108,7 @@ impl Metrics {
         for (stage, h) in &g.stages {
             h.write(&mut out, "b2tf_stage_seconds", &format!("stage=\"{stage}\","));
         }
-        out.push_str("# HELP b2tf_detections_per_estimate Detections in one estimate request (the backbone batch).\n# TYPE b2tf_detections_per_estimate histogram\n");
+        out.push_str("# HELP b2tf_detections_per_estimate Detections in one estimate request.\n# TYPE b2tf_detections_per_estimate histogram\n");
         g.detections_per_estimate.write(&mut out, "b2tf_detections_per_estimate", "");
         let gauge = |out: &mut String, name: &str, help: &str, v: f64| {
             let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} gauge\n{name} {v}");
@@ -113,10 +121,8 @@ impl Metrics {
         if let Some(q) = &gauges.queue {
             gauge(&mut out, "b2tf_backbone_queue_depth", "Crops waiting for the backbone.", q.queued_crops as f64);
             out.push_str("# HELP b2tf_backbone_batch_crops Crops per backbone forward pass (requests batched together).\n# TYPE b2tf_backbone_batch_crops histogram\n");
-            for (bound, n) in crate::features::batch_queue::BATCH_BUCKETS.iter().zip(&q.batch_buckets) {
-                let _ = writeln!(out, "b2tf_backbone_batch_crops_bucket{{le=\"{bound}\"}} {n}");
-            }
-            let _ = writeln!(out, "b2tf_backbone_batch_crops_bucket{{le=\"+Inf\"}} {}\nb2tf_backbone_batch_crops_sum {}\nb2tf_backbone_batch_crops_count {}", q.passes, q.crops, q.passes);
+            let buckets = crate::features::batch_queue::BATCH_BUCKETS.iter().map(|b| b.to_string()).zip(q.batch_buckets.iter().copied());
+            write_histogram(&mut out, "b2tf_backbone_batch_crops", "", buckets, q.passes, q.crops as f64);
         }
         out
     }
