@@ -156,7 +156,7 @@ impl PoseService for GrpcService {
 pub fn pose_service(api: Api, max_message_bytes: usize) -> tonic::service::interceptor::InterceptedService<PoseServiceServer<GrpcService>, impl tonic::service::Interceptor + Clone> {
     let keys = api.keys.clone();
     let metrics = api.metrics.clone();
-    let server = PoseServiceServer::new(GrpcService::new(api)).max_decoding_message_size(max_message_bytes).max_encoding_message_size(usize::MAX);
+    let server = PoseServiceServer::new(GrpcService::new(api)).max_decoding_message_size(max_message_bytes);
     let check = move |req: Request<()>| -> Result<Request<()>, Status> {
         let header = req.metadata().get("authorization").and_then(|v| v.to_str().ok());
         if !keys.enabled() || keys.accepts_header(header) {
