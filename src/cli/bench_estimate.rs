@@ -53,9 +53,21 @@ pub struct BenchEstimateArgs {
     /// RANSAC reprojection threshold in pixels.
     #[arg(long)]
     pub pnp_threshold: Option<f64>,
-    /// Refiner after PnP/RRC: none (pass-through) or silhouette-depth.
-    #[arg(long, default_value = "none")]
-    pub refiner: String,
+    /// Refiner after PnP/RRC: none (pass-through), silhouette-depth (scales the depth to
+    /// the best silhouette IoU) or contour (aligns the outline with the mask).
+    #[arg(long, value_enum, default_value_t = crate::estimate::RefinerKind::default())]
+    pub refiner: crate::estimate::RefinerKind,
+    /// Verify only the pipeline's pose (no flips or template hypotheses).
+    #[arg(long)]
+    pub no_verify: bool,
+    /// Retrieved templates added as hypotheses, and hypotheses rendered in verification.
+    #[arg(long)]
+    pub verify_templates: Option<usize>,
+    #[arg(long)]
+    pub verify_rendered: Option<usize>,
+    /// Verification weights of silhouette IoU, contour agreement and appearance: A,B,C.
+    #[arg(long, value_parser = parse_weights)]
+    pub verify_weights: Option<[f64; 3]>,
     /// Write an overlay PNG per image into this folder.
     #[arg(long)]
     pub overlays: Option<PathBuf>,
@@ -75,7 +87,9 @@ struct Tally {
     found: usize,
     rot: Vec<f64>,
     trans_mm: Vec<f64>,
-    stages: Vec<[f64; 8]>,
+    /// |Δz|/z of the instances whose rotation is within 10°.
+    depth_rel: Vec<f64>,
+    stages: Vec<[f64; 9]>,
     /// (instances, correct) by apparent object size: < 100, 100–200, ≥ 200 px mask box side.
     by_size: [(usize, usize); 3],
 }
@@ -96,6 +110,14 @@ pub(super) fn parse_range(s: &str) -> Result<(f64, f64), String> {
         return Err(format!("need 0 < MIN ≤ MAX ≤ 1, got {a},{b}"));
     }
     Ok((a, b))
+}
+
+fn parse_weights(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s.split(',').map(|x| x.trim().parse::<f64>().map_err(|e| format!("{x:?}: {e}"))).collect::<Result<_, _>>()?;
+    match v[..] {
+        [a, b, c] if v.iter().all(|x| x.is_finite() && *x >= 0.0) => Ok([a, b, c]),
+        _ => Err(format!("expected three non-negative weights A,B,C, got {s:?}")),
+    }
 }
 
 fn share((n, ok): (usize, usize)) -> String {
@@ -132,8 +154,8 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     }
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
     let scene_cfg = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, max_occlusion: a.max_occlusion, fill_range: a.fill, render_to_real_gap: a.gap || a.harsh_scenes, seed: a.seed, ..Default::default() };
-    let estimator = super::estimator(backbone, pool.clone(), &a.refiner)?;
-    let mut base = EstimateConfig::default();
+    let estimator = crate::estimate::Estimator::new(backbone, pool.clone());
+    let mut base = EstimateConfig { refiner: a.refiner, ..Default::default() };
     if let Some(w) = a.silhouette_weight {
         base.retrieval.silhouette_weight = w;
     }
@@ -145,6 +167,16 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     }
     if let Some(d) = a.nms_degrees {
         base.retrieval.nms_degrees = d;
+    }
+    base.verify.enabled = !a.no_verify;
+    if let Some(n) = a.verify_templates {
+        base.verify.templates = n;
+    }
+    if let Some(n) = a.verify_rendered {
+        base.verify.rendered = n;
+    }
+    if let Some(w) = a.verify_weights {
+        base.verify.weights = w;
     }
     let configs = [("with RRC", base.clone()), ("without RRC", EstimateConfig { rrc: false, ..base.clone() })];
     let mut tallies: Vec<Tally> = configs.iter().map(|(n, _)| Tally { name: n, ..Default::default() }).collect();
@@ -164,7 +196,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
             for (t, (_, cfg)) in tallies.iter_mut().zip(&configs) {
                 let r: EstimateResult = estimator.estimate(model, &scene.rgb, &scene.cam, &det, cfg)?;
                 let tm = &r.timings;
-                t.stages.push([tm.crop, tm.features, tm.retrieval, tm.matching, tm.pnp, tm.rrc, tm.selection, tm.total]);
+                t.stages.push([tm.crop, tm.features, tm.retrieval, tm.matching, tm.pnp, tm.rrc, tm.refine, tm.selection, tm.total]);
                 let bucket = size_bucket(&inst.mask);
                 t.by_size[bucket].0 += 1;
                 let size_px = crate::features::mask_bbox(&inst.mask).map_or(0, |b| (b.2 - b.0).max(b.3 - b.1));
@@ -186,6 +218,9 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                     t.found += 1;
                     t.rot.push(rotation_error_deg(&p, &inst.pose));
                     t.trans_mm.push(translation_error_m(&p, &inst.pose) * 1e3);
+                    if rotation_error_deg(&p, &inst.pose) < 10.0 {
+                        t.depth_rel.push((p.translation.z - inst.pose.translation.z).abs() / inst.pose.translation.z);
+                    }
                     if mssd(&p, &inst.pose, model.mesh.positions()) < 0.1 * model.diameter() {
                         t.correct += 1;
                         t.by_size[bucket].1 += 1;
@@ -209,8 +244,13 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         std::fs::write(path, rows)?;
     }
     println!(
-        "retrieval: k {}, NMS {}°, silhouette weight {}; PnP threshold {} px",
-        base.retrieval.k, base.retrieval.nms_degrees, base.retrieval.silhouette_weight, base.pnp.reprojection_threshold_px
+        "retrieval: k {}, NMS {}°, silhouette weight {}; PnP threshold {} px; refiner {}; verification {}",
+        base.retrieval.k,
+        base.retrieval.nms_degrees,
+        base.retrieval.silhouette_weight,
+        base.pnp.reprojection_threshold_px,
+        base.refiner.name(),
+        if base.verify.enabled { format!("{} templates, {} rendered, weights {:?}", base.verify.templates, base.verify.rendered, base.verify.weights) } else { "off".into() }
     );
     println!(
         "{} instances in {} generated images ({} objects/image, diameter {:.2}–{:.2} of the image height, ≤{:.0} % occluded, seed {}){}; objects: {}",
@@ -230,12 +270,12 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         },
         meshes.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(", ")
     );
-    println!("| setting | MSSD < 0.1·d | < 100 px | 100–200 px | ≥ 200 px | pose found | median rot. err (°) | median trans. err (mm) | median ms: crop | features | retrieval | matching | pnp | rrc | selection | total |");
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("| setting | MSSD < 0.1·d | < 100 px | 100–200 px | ≥ 200 px | pose found | median rot. err (°) | median trans. err (mm) | median Δz/z (rot. < 10°) | median ms: crop | features | retrieval | matching | pnp | rrc | refine | selection | total |");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for t in &mut tallies {
-        let med: Vec<f64> = (0..8).map(|s| median(&mut t.stages.iter().map(|x| x[s]).collect::<Vec<_>>())).collect();
+        let med: Vec<f64> = (0..9).map(|s| median(&mut t.stages.iter().map(|x| x[s]).collect::<Vec<_>>())).collect();
         println!(
-            "| {} | {:.1} % | {} | {} | {} | {:.1} % | {:.1} | {:.1} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} |",
+            "| {} | {:.1} % | {} | {} | {} | {:.1} % | {:.1} | {:.1} | {:.2} % | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} |",
             t.name,
             100.0 * t.correct as f64 / instances as f64,
             share(t.by_size[0]),
@@ -244,7 +284,8 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
             100.0 * t.found as f64 / instances as f64,
             median(&mut t.rot),
             median(&mut t.trans_mm),
-            med[0], med[1], med[2], med[3], med[4], med[5], med[6], med[7]
+            100.0 * median(&mut t.depth_rel),
+            med[0], med[1], med[2], med[3], med[4], med[5], med[6], med[7], med[8]
         );
     }
     Ok(())

@@ -45,9 +45,10 @@ pub struct RunArgs {
     /// sqlite://<folder of --out>/b2tf-objects.db; object ids are obj_NNNNNN).
     #[arg(long)]
     pub store: Option<String>,
-    /// Refiner after PnP/RRC: none or silhouette-depth.
-    #[arg(long, default_value = "none")]
-    pub refiner: String,
+    /// Refiner after PnP/RRC: none (pass-through), silhouette-depth (scales the depth to
+    /// the best silhouette IoU) or contour (aligns the outline with the mask).
+    #[arg(long, value_enum, default_value_t = crate::estimate::RefinerKind::default())]
+    pub refiner: crate::estimate::RefinerKind,
     /// Memory for loaded objects, MB (least recently used ones are dropped beyond it).
     #[arg(long, default_value_t = 4000)]
     pub cache_mb: u64,
@@ -92,7 +93,7 @@ fn run_cmd(a: RunArgs) -> Result<()> {
     let detections = DetectionIndex::new(read_detections(&a.detections)?);
     let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?);
     let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
-    let estimator = super::estimator(backbone.clone(), pool.clone(), &a.refiner)?;
+    let estimator = crate::estimate::Estimator::new(backbone.clone(), pool.clone());
     let url = a.store.clone().unwrap_or_else(|| format!("sqlite://{}", a.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new(".")).join("b2tf-objects.db").display()));
     let store = crate::store::open(&url)?;
     // Each object is checked (onboarded if missing or stale) once, then served from the
@@ -108,7 +109,7 @@ fn run_cmd(a: RunArgs) -> Result<()> {
         }
         Ok(models.get(&id)?)
     };
-    let opts = RunOptions { split: a.split.clone(), estimate: EstimateConfig { rrc: !a.no_rrc, ..Default::default() }, ..Default::default() };
+    let opts = RunOptions { split: a.split.clone(), estimate: EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, ..Default::default() }, ..Default::default() };
     let pb = super::progress::bar(0, "images");
     let progress = |done: usize, total: usize| {
         pb.set_length(total as u64);

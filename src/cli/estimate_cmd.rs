@@ -31,10 +31,10 @@ pub struct EstimateArgs {
     /// Skip render-guided re-correspondence.
     #[arg(long)]
     pub no_rrc: bool,
-    /// Refiner after PnP/RRC: none (pass-through) or silhouette-depth (scales the
-    /// translation to the depth whose render best overlaps the mask).
-    #[arg(long, default_value = "none")]
-    pub refiner: String,
+    /// Refiner after PnP/RRC: none (pass-through), silhouette-depth (scales the depth to
+    /// the best silhouette IoU) or contour (aligns the outline with the mask).
+    #[arg(long, value_enum, default_value_t = crate::estimate::RefinerKind::default())]
+    pub refiner: crate::estimate::RefinerKind,
     /// Templates kept by retrieval.
     #[arg(long, default_value_t = 125)]
     pub k: usize,
@@ -72,8 +72,8 @@ pub fn run(a: EstimateArgs) -> Result<()> {
         .collect::<Result<Vec<_>>>()?;
     let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?);
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
-    let estimator = super::estimator(backbone, renderer.clone(), &a.refiner)?;
-    let mut cfg = EstimateConfig { rrc: !a.no_rrc, ..Default::default() };
+    let estimator = crate::estimate::Estimator::new(backbone, renderer.clone());
+    let mut cfg = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, ..Default::default() };
     cfg.retrieval.k = a.k;
     let result = estimator.estimate(&model, &image, &k, &detections, &cfg)?;
     let doc = result_json(&model, &result);

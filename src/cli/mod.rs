@@ -83,16 +83,6 @@ pub fn open_renderer(size: usize) -> anyhow::Result<crate::render::RenderPool> {
     Ok(crate::render::RenderPool::new(size, crate::render::RendererConfig::default())?)
 }
 
-/// An estimator with the named refiner: "none" (pass-through) or "silhouette-depth".
-pub fn estimator(backbone: std::sync::Arc<dyn crate::features::Backbone>, renderer: std::sync::Arc<crate::render::RenderPool>, refiner: &str) -> anyhow::Result<crate::estimate::Estimator> {
-    let e = crate::estimate::Estimator::new(backbone, renderer.clone());
-    Ok(match refiner {
-        "none" => e,
-        "silhouette-depth" => e.with_refiner(std::sync::Arc::new(crate::estimate::silhouette_refiner::SilhouetteDepthRefiner::new(renderer))),
-        other => anyhow::bail!("unknown refiner {other:?}: none or silhouette-depth"),
-    })
-}
-
 /// The object `id` from `store` when it was made from this mesh (geometry and appearance)
 /// by this backbone with the default settings; otherwise onboards it (with a progress bar)
 /// and puts it there. Benchmarks and the demo reuse models across runs this way.

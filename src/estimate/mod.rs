@@ -1,7 +1,9 @@
 //! Estimation: retrieval with geodesic NMS, mutual-NN matching, RANSAC-PnP, RRC, refinement
 //! and hypothesis selection across masks (DESIGN.md steps 4–10).
 
+pub mod contour;
 pub mod correspond;
+pub mod hypotheses;
 pub mod matching;
 pub mod pipeline;
 pub mod pnp;
@@ -11,9 +13,10 @@ pub mod retrieve;
 pub mod rrc;
 pub mod select;
 pub mod silhouette_refiner;
+pub mod verify;
 
 pub use pipeline::{Detection, EstimateConfig, EstimateResult, Estimator, Hypothesis, StageTimings};
-pub use refine::{PassThrough, RefineContext, Refiner};
+pub use refine::{PassThrough, RefineContext, RefineReport, Refined, Refiner, RefinerKind};
 
 #[derive(Debug, thiserror::Error)]
 pub enum EstimateError {

@@ -3,7 +3,11 @@
 use super::correspond::{correspond, Correspondences, PatchPool};
 use super::pnp::{solve_pnp_ransac, PnpConfig, PnpResult};
 use super::query::{crop_all, encode, QueryView};
-use super::refine::{PassThrough, RefineContext, Refiner};
+use super::contour::ContourRefiner;
+use super::refine::{PassThrough, RefineContext, Refiner, RefinerKind};
+use super::silhouette_refiner::SilhouetteDepthRefiner;
+use super::verify::{render_evidence, score as verification_score, Verified, VerifyConfig};
+use rayon::prelude::*;
 use super::retrieve::{retrieve, RetrievalConfig};
 use super::rrc::rrc_pool;
 use super::select::{combined_scores, mask_window, render_window, window_iou, SelectionConfig};
@@ -29,11 +33,17 @@ pub struct EstimateConfig {
     pub max_masks: usize,
     pub min_mask_score: f32,
     pub selection: SelectionConfig,
+    /// The refinement after PnP/RRC.
+    #[serde(default)]
+    pub refiner: RefinerKind,
+    /// Hypothesis verification (flips and retrieved templates, refined and verified).
+    #[serde(default)]
+    pub verify: VerifyConfig,
 }
 
 impl Default for EstimateConfig {
     fn default() -> Self {
-        Self { retrieval: RetrievalConfig::default(), k_nn: 3, pnp: PnpConfig::default(), rrc: true, max_masks: 2, min_mask_score: 0.35, selection: SelectionConfig::default() }
+        Self { retrieval: RetrievalConfig::default(), k_nn: 3, pnp: PnpConfig::default(), rrc: true, max_masks: 2, min_mask_score: 0.35, selection: SelectionConfig::default(), refiner: RefinerKind::default(), verify: VerifyConfig::default() }
     }
 }
 
@@ -53,6 +63,7 @@ pub struct StageTimings {
     pub matching: f64,
     pub pnp: f64,
     pub rrc: f64,
+    pub refine: f64,
     pub selection: f64,
     pub total: f64,
 }
@@ -76,6 +87,12 @@ pub struct Hypothesis {
     /// Whether the RRC pose replaced the first one.
     pub rrc_used: bool,
     pub reprojection_error_px: f64,
+    /// What the refiner did to the kept pose (absent when there was no pose to refine).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub refinement: Option<super::refine::RefineReport>,
+    /// Every verified hypothesis of this mask, best first (empty without verification).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub verified: Vec<Verified>,
     /// Selection inputs and result (NaN until scored).
     pub cosine: f32,
     pub iou: f32,
@@ -96,11 +113,14 @@ pub struct EstimateResult {
     pub reason: Option<String>,
 }
 
-/// Runs the pipeline; holds the backbone, the renderer and the refiner it uses.
+/// Runs the pipeline; holds the backbone, the renderer and the refiners it can use.
 pub struct Estimator {
     backbone: Arc<dyn Backbone>,
     renderer: Arc<RenderPool>,
-    refiner: Arc<dyn Refiner>,
+    /// One per `RefinerKind`, in `RefinerKind::ALL` order.
+    refiners: Vec<Arc<dyn Refiner>>,
+    /// Scores the outline of every hypothesis in verification, whichever refiner runs.
+    contour: Arc<ContourRefiner>,
 }
 
 fn ms(t: Instant) -> f64 {
@@ -109,12 +129,32 @@ fn ms(t: Instant) -> f64 {
 
 impl Estimator {
     pub fn new(backbone: Arc<dyn Backbone>, renderer: Arc<RenderPool>) -> Self {
-        Self { backbone, renderer, refiner: Arc::new(PassThrough) }
+        let refiners: Vec<Arc<dyn Refiner>> = RefinerKind::ALL
+            .iter()
+            .map(|k| -> Arc<dyn Refiner> {
+                match k {
+                    RefinerKind::None => Arc::new(PassThrough),
+                    RefinerKind::SilhouetteDepth => Arc::new(SilhouetteDepthRefiner::new(renderer.clone())),
+                    RefinerKind::Contour => Arc::new(ContourRefiner::new(renderer.clone())),
+                }
+            })
+            .collect();
+        let contour = Arc::new(ContourRefiner::new(renderer.clone()));
+        Self { backbone, renderer, refiners, contour }
     }
 
-    pub fn with_refiner(mut self, refiner: Arc<dyn Refiner>) -> Self {
-        self.refiner = refiner;
+    /// Replaces the refiner run for `kind` (a pluggable refinement stage).
+    pub fn with_refiner(mut self, kind: RefinerKind, refiner: Arc<dyn Refiner>) -> Self {
+        self.refiners[Self::slot(kind)] = refiner;
         self
+    }
+
+    fn slot(kind: RefinerKind) -> usize {
+        RefinerKind::ALL.iter().position(|&k| k == kind).expect("every kind has a slot")
+    }
+
+    fn refiner(&self, kind: RefinerKind) -> &dyn Refiner {
+        self.refiners[Self::slot(kind)].as_ref()
     }
 
     pub fn backbone(&self) -> &dyn Backbone {
@@ -178,13 +218,26 @@ impl Estimator {
         let mut hyps = Vec::new();
         for (q, &mi) in queries.iter().zip(&chosen) {
             let mut h = Hypothesis { mask_index: mi, detector_score: detections[mi].score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() };
-            self.pose_for_mask(model, q, k, cfg, &mut h, &mut timings)?;
+            let retrieved = self.pose_for_mask(model, q, k, cfg, &mut h, &mut timings)?;
             if let Some(p) = h.pose {
-                let ctx = RefineContext { model, image, intrinsics: k, mask: &detections[mi].mask };
-                match self.refiner.refine(&ctx, p) {
-                    Ok(r) => h.pose = Some(r),
-                    Err(e) => h.failure = Some(format!("refiner {} failed: {e}", self.refiner.name())),
+                let ctx = RefineContext { model, image, intrinsics: k, mask: &detections[mi].mask, unknown: None };
+                let t = Instant::now();
+                if cfg.verify.enabled {
+                    h.verified = self.verify(&ctx, p, &retrieved, &q.crop_box, cfg)?;
+                    if let Some(best) = h.verified.first() {
+                        h.pose = Some(best.pose);
+                        h.refinement = Some(best.refinement.clone());
+                    }
+                } else {
+                    match self.refiner(cfg.refiner).refine(&ctx, p) {
+                        Ok(r) => {
+                            h.pose = Some(r.pose);
+                            h.refinement = Some(r.report);
+                        }
+                        Err(e) => h.failure = Some(format!("refiner {} failed: {e}", cfg.refiner.name())),
+                    }
                 }
+                timings.refine += ms(t);
             }
             hyps.push(h);
         }
@@ -196,8 +249,40 @@ impl Estimator {
         Ok(EstimateResult { timings, ..result })
     }
 
-    /// Steps 5–8 for one mask: retrieval, matching, PnP, RRC.
-    fn pose_for_mask(&self, model: &ObjectModel, q: &QueryView, k: &Intrinsics, cfg: &EstimateConfig, h: &mut Hypothesis, timings: &mut StageTimings) -> Result<(), EstimateError> {
+    /// Refines the pose, its axis flips and the best templates placed at the mask, and
+    /// verifies them: contour agreement for all, then a render (IoU, appearance) for the
+    /// `rendered` best. Best first.
+    fn verify(&self, ctx: &RefineContext<'_>, pose: Pose, retrieved: &[usize], crop: &crate::geometry::CropBox, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
+        let candidates = super::hypotheses::candidates(ctx.model, &pose, retrieved, cfg.verify.templates, crop, ctx.intrinsics);
+        let refiner = self.refiner(cfg.refiner);
+        let mut verified: Vec<Verified> = candidates
+            .par_iter()
+            .filter_map(|&(source, p)| {
+                let r = refiner.refine(ctx, p).ok()?;
+                let contour = if cfg.refiner == RefinerKind::Contour { r.report.agreement } else { self.contour.agreement(ctx, &r.pose).ok()?.score };
+                Some(Verified { source, pose: r.pose, refinement: r.report, contour, iou: f64::NAN, appearance: f64::NAN, score: f64::NAN })
+            })
+            .collect();
+        verified.sort_by(|a, b| b.contour.total_cmp(&a.contour));
+        let window = mask_window(ctx.mask).expect("validated non-empty");
+        // The pipeline's own pose is always rendered: it must be beaten on the evidence.
+        let pipeline = verified.iter().position(|v| v.source == super::hypotheses::Source::Pipeline);
+        let rendered: Vec<usize> = (0..verified.len().min(cfg.verify.rendered)).chain(pipeline.filter(|&i| i >= cfg.verify.rendered)).collect();
+        for i in rendered {
+            let (iou, appearance) = render_evidence(&self.renderer, &ctx.model.mesh, &verified[i].pose, ctx.intrinsics, ctx.image, ctx.mask, window)?;
+            verified[i].iou = iou;
+            verified[i].appearance = appearance;
+        }
+        for v in &mut verified {
+            v.score = verification_score(v, &cfg.verify.weights);
+        }
+        verified.sort_by(|a, b| b.score.total_cmp(&a.score));
+        Ok(verified)
+    }
+
+    /// Steps 5–8 for one mask: retrieval, matching, PnP, RRC. Returns the retrieved
+    /// templates, best first.
+    fn pose_for_mask(&self, model: &ObjectModel, q: &QueryView, k: &Intrinsics, cfg: &EstimateConfig, h: &mut Hypothesis, timings: &mut StageTimings) -> Result<Vec<usize>, EstimateError> {
         let t = Instant::now();
         let retrieved = retrieve(model, &q.features.global, &q.silhouette, &cfg.retrieval);
         h.retrieved_templates = retrieved.len();
@@ -206,6 +291,7 @@ impl Estimator {
             h.top_template_silhouette_iou = top.silhouette_iou;
         }
         let pool = PatchPool::from_templates(model, retrieved.iter().map(|r| r.template));
+        let ranked: Vec<usize> = retrieved.iter().map(|r| r.template).collect();
         timings.retrieval += ms(t);
 
         let t = Instant::now();
@@ -221,7 +307,7 @@ impl Estimator {
             Ok(r) => r,
             Err(e) => {
                 h.failure = Some(format!("no pose from {} matches: {e}", corr.len()));
-                return Ok(());
+                return Ok(ranked);
             }
         };
         h.inliers = first.inliers.len();
@@ -245,7 +331,7 @@ impl Estimator {
             }
             timings.rrc += ms(t);
         }
-        Ok(())
+        Ok(ranked)
     }
 
     /// Step 10: IoU gate and z-normalised scoring across hypotheses.

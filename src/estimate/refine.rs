@@ -1,9 +1,43 @@
 //! The final refinement stage. The paper uses MegaPose (a trained network); here a
-//! `Refiner` is any pose → pose step, and the default passes the pose through unchanged.
+//! `Refiner` is any pose → pose step: the default passes the pose through unchanged, the
+//! training-free ones align the silhouette (`silhouette_refiner`) or the contour
+//! (`contour`) with the detection mask.
 
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
 use image::{GrayImage, RgbImage};
+
+/// The refiners an estimate can run, by name (CLI `--refiner`, API `options.refiner`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum RefinerKind {
+    /// Pass the pose through (the paper's pipeline without MegaPose).
+    #[default]
+    None,
+    /// Scale the depth to the best silhouette IoU (a few renders).
+    SilhouetteDepth,
+    /// Align the projected contour with the mask's outline (no rendering).
+    Contour,
+}
+
+impl RefinerKind {
+    pub const ALL: [RefinerKind; 3] = [RefinerKind::None, RefinerKind::SilhouetteDepth, RefinerKind::Contour];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            RefinerKind::None => "none",
+            RefinerKind::SilhouetteDepth => "silhouette-depth",
+            RefinerKind::Contour => "contour",
+        }
+    }
+}
+
+impl std::str::FromStr for RefinerKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL.into_iter().find(|k| k.name() == s).ok_or_else(|| format!("unknown refiner {s:?}: none, silhouette-depth or contour"))
+    }
+}
 
 /// What a refiner may look at.
 pub struct RefineContext<'a> {
@@ -11,11 +45,38 @@ pub struct RefineContext<'a> {
     pub image: &'a RgbImage,
     pub intrinsics: &'a Intrinsics,
     pub mask: &'a GrayImage,
+    /// Pixels where the mask's outline says nothing about this object (e.g. other
+    /// detections that may hide it); `None`: the mask holds everywhere.
+    pub unknown: Option<&'a GrayImage>,
+}
+
+/// What a refiner did to one hypothesis.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct RefineReport {
+    /// Whether the pose changed.
+    pub moved: bool,
+    /// Weighted RMS offset (px) between the projected model outline and the mask's outline
+    /// along the lines that found one (contour refiner; NaN for the others).
+    pub residual_px: f64,
+    /// Correspondence lines, and how many of them found the mask's outline.
+    pub lines: usize,
+    pub lines_with_edge: usize,
+    /// The refiner's own measure of fit in [0, 1] (contour: share of lines with an edge
+    /// close to the model's outline; silhouette-depth: render IoU).
+    pub agreement: f64,
+    /// Why the pose was kept, when it was.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+}
+
+pub struct Refined {
+    pub pose: Pose,
+    pub report: RefineReport,
 }
 
 pub trait Refiner: Send + Sync {
     fn name(&self) -> &str;
-    fn refine(&self, ctx: &RefineContext<'_>, pose: Pose) -> Result<Pose, String>;
+    fn refine(&self, ctx: &RefineContext<'_>, pose: Pose) -> Result<Refined, String>;
 }
 
 /// Returns the pose unchanged.
@@ -26,7 +87,7 @@ impl Refiner for PassThrough {
         "none"
     }
 
-    fn refine(&self, _: &RefineContext<'_>, pose: Pose) -> Result<Pose, String> {
-        Ok(pose)
+    fn refine(&self, _: &RefineContext<'_>, pose: Pose) -> Result<Refined, String> {
+        Ok(Refined { pose, report: RefineReport { residual_px: f64::NAN, agreement: f64::NAN, ..Default::default() } })
     }
 }

@@ -3,7 +3,7 @@
 //! fixed and changes only its apparent size) to the value whose rendered silhouette best
 //! overlaps the detection mask, by a shrinking-step search over a few window renders.
 
-use super::refine::{RefineContext, Refiner};
+use super::refine::{RefineContext, RefineReport, Refined, Refiner};
 use super::select::{mask_window, render_window, window_iou};
 use crate::geometry::Pose;
 use crate::render::RenderPool;
@@ -32,7 +32,7 @@ impl Refiner for SilhouetteDepthRefiner {
         "silhouette-depth"
     }
 
-    fn refine(&self, ctx: &RefineContext<'_>, pose: Pose) -> Result<Pose, String> {
+    fn refine(&self, ctx: &RefineContext<'_>, pose: Pose) -> Result<Refined, String> {
         let window = mask_window(ctx.mask).ok_or("empty mask")?;
         let mut best = (self.iou_at(ctx, &pose, window)?, 1.0f64);
         let mut step = self.initial_step;
@@ -47,6 +47,7 @@ impl Refiner for SilhouetteDepthRefiner {
             }
             step *= 0.5;
         }
-        Ok(Pose::new(pose.rotation, pose.translation * best.1))
+        let report = RefineReport { moved: best.1 != 1.0, residual_px: f64::NAN, agreement: best.0 as f64, ..Default::default() };
+        Ok(Refined { pose: Pose::new(pose.rotation, pose.translation * best.1), report })
     }
 }

@@ -1,8 +1,10 @@
 //! Onboarding: from a mesh to an object model (templates with descriptors and 3D points).
 
+pub mod contour;
 pub mod model;
 pub mod pca;
 pub mod pipeline;
 
+pub use contour::{ContourConfig, ContourModel};
 pub use model::{ObjectModel, OnboardConfig, Template, MODEL_FORMAT_VERSION};
 pub use pipeline::{compress, onboard, onboard_cancellable, validate_object_id, OnboardError, Progress};

@@ -4,11 +4,14 @@
 use crate::features::BackboneIdentity;
 use crate::geometry::{CropBox, Intrinsics, PatchGrid, Pose, ViewSampling};
 use crate::mesh::Mesh;
+use super::contour::ContourModel;
 use half::f16;
+use std::sync::{Arc, OnceLock};
 
 /// Version of the model layout; bumped on any change of meaning or layout. 2: optional
-/// PCA-compressed patch descriptors (version 1 models load as uncompressed).
-pub const MODEL_FORMAT_VERSION: u32 = 2;
+/// PCA-compressed patch descriptors (version 1 models load as uncompressed). 3: the contour
+/// model (older models load without it and get it computed on first use).
+pub const MODEL_FORMAT_VERSION: u32 = 3;
 
 /// Side of the stored template silhouettes (crop mask downsampled, 1 bit per cell).
 pub const SILHOUETTE_SIZE: usize = 64;
@@ -77,6 +80,10 @@ pub struct ObjectModel {
     pub patch_cells: Vec<u16>,
     /// `templates × SILHOUETTE_WORDS` bit-packed crop masks, row-major, LSB first.
     pub silhouettes: Vec<u64>,
+    /// Silhouette contour points per viewpoint, for the contour refiner. Set by onboarding
+    /// and loading; objects stored before format 3 get it on first use
+    /// (`contour_model_or_build`), once per loaded copy.
+    pub contours: OnceLock<Arc<ContourModel>>,
 }
 
 impl ObjectModel {
@@ -105,12 +112,30 @@ impl ObjectModel {
         &self.silhouettes[t * SILHOUETTE_WORDS..(t + 1) * SILHOUETTE_WORDS]
     }
 
+    /// The contour model, computed now (silhouette renders of the mesh) if the object was
+    /// stored without one.
+    pub fn contour_model_or_build(&self, renderer: &crate::render::RenderPool) -> Result<Arc<ContourModel>, crate::render::RenderError> {
+        if let Some(c) = self.contours.get() {
+            return Ok(c.clone());
+        }
+        let t = std::time::Instant::now();
+        let built = Arc::new(ContourModel::build(&self.mesh, renderer, &Default::default())?);
+        log::warn!(
+            "object {:?} was stored without a contour model (format < 3): computed it in {:.1} s for this session; onboard it again to store it",
+            self.object_id,
+            t.elapsed().as_secs_f64()
+        );
+        // Two threads may race here; both results are equal, the first one stays.
+        let _ = self.contours.set(built);
+        Ok(self.contours.get().expect("just set").clone())
+    }
+
     /// Approximate heap bytes held: the arrays, the mesh and its textures (for cache budgets).
     pub fn memory_bytes(&self) -> usize {
         let d = self.mesh.data();
         let mesh = d.positions.len() * 12 + d.normals.len() * 12 + d.colors.len() * 12 + d.uvs.len() * 8 + d.triangles.len() * 12;
         let textures: usize = self.mesh.materials().iter().filter_map(|m| m.texture.as_ref()).map(|t| t.as_raw().len()).sum();
-        self.global.len() * 4 + self.patch_descriptors.len() * 2 + self.patch_points.len() * 12 + self.patch_cells.len() * 2 + self.silhouettes.len() * 8 + self.templates.len() * std::mem::size_of::<Template>() + mesh + textures
+        self.global.len() * 4 + self.patch_descriptors.len() * 2 + self.patch_points.len() * 12 + self.patch_cells.len() * 2 + self.silhouettes.len() * 8 + self.templates.len() * std::mem::size_of::<Template>() + mesh + textures + self.contours.get().map_or(0, |c| c.memory_bytes())
     }
 
     /// Query patch descriptors (`n × backbone local_dim`) in the space of the stored ones.
@@ -143,6 +168,9 @@ impl ObjectModel {
         }
         if self.patch_cells.iter().any(|&c| c as usize >= self.grid.len()) {
             return Err(format!("object {:?}: a patch index lies outside the {}² grid", self.object_id, self.grid.n));
+        }
+        if let Some(c) = self.contours.get() {
+            c.validate().map_err(|e| format!("object {:?}: {e}", self.object_id))?;
         }
         Ok(())
     }

@@ -109,6 +109,11 @@ pub fn onboard_cancellable(
         progress(Progress { templates_done: parts.len() * angles.len(), templates_total: total });
     }
     let mut model = assemble(object_id, mesh, config, identity, k, grid, parts);
+    if cancel.load(std::sync::atomic::Ordering::Relaxed) {
+        return Err(OnboardError::Cancelled);
+    }
+    let contours = super::contour::ContourModel::build(mesh, renderer, &Default::default())?;
+    model.contours = std::sync::OnceLock::from(std::sync::Arc::new(contours));
     if let Some(dim) = config.pca_dim {
         compress(&mut model, dim)?;
     }
@@ -248,6 +253,7 @@ fn assemble(
         patch_cells: vec![],
         silhouettes: vec![],
         pca: None,
+        contours: Default::default(),
     };
     for p in parts {
         let offset = m.patch_points.len() as u32;

@@ -232,7 +232,7 @@ impl Core {
         }
         // Every object must exist before any work starts.
         let models: BTreeMap<&str, _> = by_object.keys().map(|&id| Ok((id, self.cache.get(id)?))).collect::<Result<_, ServiceError>>()?;
-        let mut cfg = EstimateConfig { rrc: o.rrc, max_masks: o.max_masks, ..Default::default() };
+        let mut cfg = EstimateConfig { rrc: o.rrc, max_masks: o.max_masks, refiner: o.refiner, ..Default::default() };
         cfg.retrieval.k = o.k;
         let mut results = Vec::new();
         for (object_id, dets) in &by_object {

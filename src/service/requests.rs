@@ -122,11 +122,13 @@ pub struct EstimateOptions {
     pub max_masks: usize,
     /// Instances estimated per object (its detections grouped by mask overlap).
     pub instances_per_object: usize,
+    /// Refinement after PnP/RRC.
+    pub refiner: crate::estimate::RefinerKind,
 }
 
 impl Default for EstimateOptions {
     fn default() -> Self {
-        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1 }
+        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default() }
     }
 }
 

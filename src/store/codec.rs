@@ -41,6 +41,10 @@ struct Manifest {
     /// that raced a replace and got parts of two writes notices (absent before format 2).
     #[serde(default)]
     generation: Option<u64>,
+    /// Since format 3: how the contour model in the `contour_*` tensors was sampled; absent
+    /// when the object has none (older formats).
+    #[serde(default)]
+    contour: Option<crate::onboard::ContourConfig>,
 }
 
 #[derive(serde::Serialize, serde::Deserialize)]
@@ -127,13 +131,14 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
         templates: model.templates.clone(),
         pca: model.pca.clone(),
         generation: Some(generation),
+        contour: model.contours.get().map(|c| c.config),
     };
     let manifest = serde_json::to_vec_pretty(&manifest).map_err(|e| corrupt(e.to_string()))?;
 
     let d = mesh.data();
     let t = model.templates.len();
     let p = model.patch_points.len();
-    let tensors: Vec<(&str, Dtype, Vec<usize>, &[u8])> = vec![
+    let mut tensors: Vec<(&str, Dtype, Vec<usize>, &[u8])> = vec![
         ("global", Dtype::F32, vec![t, model.global_dim], bytemuck::cast_slice(&model.global)),
         ("patch_descriptors", Dtype::F16, vec![p, model.local_dim], bytemuck::cast_slice(&model.patch_descriptors)),
         ("patch_points", Dtype::F32, vec![p, 3], bytemuck::cast_slice(&model.patch_points)),
@@ -145,6 +150,16 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
         ("mesh_uvs", Dtype::F32, vec![d.uvs.len(), 2], bytemuck::cast_slice(&d.uvs)),
         ("mesh_triangles", Dtype::U32, vec![d.triangles.len(), 3], bytemuck::cast_slice(&d.triangles)),
     ];
+    if let Some(c) = model.contours.get() {
+        let rows = c.points.len();
+        tensors.extend([
+            ("contour_directions", Dtype::F32, vec![c.directions.len(), 3], bytemuck::cast_slice(&c.directions)),
+            ("contour_points", Dtype::F32, vec![rows, 3], bytemuck::cast_slice(&c.points)),
+            ("contour_normals", Dtype::F32, vec![rows, 3], bytemuck::cast_slice(&c.normals)),
+            ("contour_foreground_m", Dtype::F32, vec![rows], bytemuck::cast_slice(&c.foreground_m)),
+            ("contour_background_m", Dtype::F32, vec![rows], bytemuck::cast_slice(&c.background_m)),
+        ] as [(&str, Dtype, Vec<usize>, &[u8]); 5]);
+    }
     let views = tensors.into_iter().map(|(name, dt, shape, bytes)| TensorView::new(dt, shape, bytes).map(|v| (name, v))).collect::<Result<Vec<_>, _>>().map_err(|e| corrupt(e.to_string()))?;
     let metadata = std::collections::HashMap::from([(GENERATION_KEY.to_string(), generation.to_string())]);
     let tensors = safetensors::serialize(views, Some(metadata)).map_err(|e| corrupt(e.to_string()))?;
@@ -215,6 +230,20 @@ pub fn decode(manifest: &[u8], tensors: &[u8], texture: &mut dyn FnMut(&str) -> 
         materials,
     };
     let mesh = Mesh::new(man.mesh.name.clone(), man.mesh.source_units, data).map_err(|e| corrupt(format!("stored mesh: {e}")))?;
+    let contours = match man.contour {
+        Some(config) => {
+            let c = crate::onboard::ContourModel {
+                config,
+                directions: bytemuck::pod_collect_to_vec(get("contour_directions", Dtype::F32, 3)?),
+                points: bytemuck::pod_collect_to_vec(get("contour_points", Dtype::F32, 3)?),
+                normals: bytemuck::pod_collect_to_vec(get("contour_normals", Dtype::F32, 3)?),
+                foreground_m: bytemuck::pod_collect_to_vec(get("contour_foreground_m", Dtype::F32, 0)?),
+                background_m: bytemuck::pod_collect_to_vec(get("contour_background_m", Dtype::F32, 0)?),
+            };
+            std::sync::OnceLock::from(Arc::new(c))
+        }
+        None => std::sync::OnceLock::new(),
+    };
     let model = ObjectModel {
         object_id: man.object_id,
         global_dim: man.backbone.global_dim as usize,
@@ -231,6 +260,7 @@ pub fn decode(manifest: &[u8], tensors: &[u8], texture: &mut dyn FnMut(&str) -> 
         patch_points: bytemuck::pod_collect_to_vec(get("patch_points", Dtype::F32, 3)?),
         patch_cells: bytemuck::pod_collect_to_vec(get("patch_cells", Dtype::U16, 0)?),
         silhouettes: bytemuck::pod_collect_to_vec(get("silhouettes", Dtype::U64, 0)?),
+        contours,
     };
     model.validate().map_err(corrupt)?;
     Ok(model)

@@ -1,0 +1,162 @@
+//! Correspondence lines: the model's contour points projected at a pose, each with a short
+//! line of segments along its projected normal, and from the foreground probability of
+//! those segments a distribution over where the object's outline crosses the line (the
+//! discrete formulation of SRT3D, with a smoothed step as the segment likelihood).
+
+use super::posterior::Posterior;
+use crate::geometry::{Intrinsics, Pose};
+use crate::onboard::ContourModel;
+use nalgebra::{Matrix2x3, Point3, Vector2, Vector3};
+
+/// Largest share of the background probability a segment's likelihood reaches (the
+/// smoothed step runs from 0.5 − this to 0.5 + this); below 0.5 so that one wrong segment
+/// cannot veto a location.
+const STEP_AMPLITUDE: f64 = 0.43;
+
+/// One correspondence line.
+#[derive(Clone, Debug)]
+pub struct Line {
+    /// The contour point, object frame (metres).
+    pub object_point: Vector3<f64>,
+    /// Where the point projected when the line was built, and the unit outward normal there.
+    pub centre: Vector2<f64>,
+    pub normal: Vector2<f64>,
+    /// Mean and variance (px, px²) of the outline's offset from `centre` along `normal`.
+    pub mean: f64,
+    pub variance: f64,
+    /// The line crosses from object to background (some segment clearly each).
+    pub edge: bool,
+}
+
+/// Line settings for one scale.
+#[derive(Clone, Copy, Debug)]
+pub struct LineScale {
+    /// Segment length, pixels.
+    pub segment_px: f64,
+    /// Segments on each side of the centre at most (fewer where the object or the gap to
+    /// it along the normal is shorter).
+    pub segments: usize,
+}
+
+/// Jacobian of the pinhole projection at camera-frame point `p`.
+pub fn projection_jacobian(k: &Intrinsics, p: &Point3<f64>) -> Matrix2x3<f64> {
+    let iz = 1.0 / p.z;
+    Matrix2x3::new(k.fx * iz, 0.0, -k.fx * p.x * iz * iz, 0.0, k.fy * iz, -k.fy * p.y * iz * iz)
+}
+
+/// Direction from the object's bounding-box centre to the camera, object frame.
+pub fn camera_direction(pose: &Pose, centre: &Vector3<f64>) -> Vector3<f64> {
+    let camera = -(pose.rotation.inverse() * pose.translation);
+    camera - centre
+}
+
+/// Builds the lines of the view nearest to `pose` and measures the outline on each.
+pub fn build_lines(cm: &ContourModel, centre: &Vector3<f64>, pose: &Pose, k: &Intrinsics, post: &Posterior<'_>, scale: LineScale) -> Vec<Line> {
+    let view = cm.nearest_view(&camera_direction(pose, centre));
+    let mut lines = Vec::with_capacity(cm.config.points_per_view);
+    for i in cm.view_range(view) {
+        let x = Vector3::new(cm.points[i][0] as f64, cm.points[i][1] as f64, cm.points[i][2] as f64);
+        let n = Vector3::new(cm.normals[i][0] as f64, cm.normals[i][1] as f64, cm.normals[i][2] as f64);
+        let p = Point3::from(pose.rotation * x + pose.translation);
+        if p.z <= 1e-6 {
+            continue;
+        }
+        let n2 = projection_jacobian(k, &p) * (pose.rotation * n);
+        let len = n2.norm();
+        if len < 1e-9 {
+            continue;
+        }
+        let normal = n2 / len;
+        let centre_px = Vector2::new(k.fx * p.x / p.z + k.cx, k.fy * p.y / p.z + k.cy);
+        let px_per_m = k.fx.max(k.fy) / p.z;
+        let inner = ((cm.foreground_m[i] as f64 * px_per_m / scale.segment_px).floor() as usize).min(scale.segments);
+        let outer = ((cm.background_m[i] as f64 * px_per_m / scale.segment_px).floor() as usize).min(scale.segments);
+        // Fewer than two segments a side cannot place an outline (a thin part at a coarse
+        // scale): the line waits for a finer scale.
+        if inner < 2 || outer < 2 {
+            continue;
+        }
+        let probs = segment_probabilities(post, &centre_px, &normal, scale.segment_px, inner, outer);
+        let (mean, variance) = outline_distribution(&probs, inner, scale.segment_px);
+        let edge = probs.iter().any(|&p| p > 0.7) && probs.iter().any(|&p| p < 0.3);
+        lines.push(Line { object_point: x, centre: centre_px, normal, mean, variance, edge });
+    }
+    lines
+}
+
+/// Mean foreground probability of each segment, innermost first: `inner` segments inside
+/// the projected outline, then `outer` outside.
+fn segment_probabilities(post: &Posterior<'_>, c: &Vector2<f64>, n: &Vector2<f64>, s: f64, inner: usize, outer: usize) -> Vec<f64> {
+    let samples = s.round().max(1.0) as usize;
+    (0..inner + outer)
+        .map(|r| {
+            let start = (r as f64 - inner as f64) * s;
+            let sum: f64 = (0..samples)
+                .map(|j| {
+                    let d = start + (j as f64 + 0.5) * s / samples as f64;
+                    post.foreground(c.x + n.x * d, c.y + n.y * d) as f64
+                })
+                .sum();
+            sum / samples as f64
+        })
+        .collect()
+}
+
+/// Mean and variance (px) of the outline's offset along the line, given the segments'
+/// foreground probabilities: a uniform prior over offsets at half-segment steps, and for
+/// each segment the likelihood of its probability if the outline sat at that offset.
+pub fn outline_distribution(probs: &[f64], inner: usize, s: f64) -> (f64, f64) {
+    let n = probs.len();
+    let candidates = 2 * n + 1;
+    let offset = |c: usize| (c as f64 * 0.5 - inner as f64) * s;
+    let mut log_l = vec![0.0f64; candidates];
+    for (c, ll) in log_l.iter_mut().enumerate() {
+        let d = offset(c);
+        for (r, &p) in probs.iter().enumerate() {
+            // Segment centre's signed distance beyond the outline (positive = outside).
+            let x = (r as f64 + 0.5 - inner as f64) * s - d;
+            let h_bg = 0.5 + STEP_AMPLITUDE * (x / s).tanh();
+            *ll += (h_bg * (1.0 - p) + (1.0 - h_bg) * p).max(1e-12).ln();
+        }
+    }
+    let top = log_l.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    let w: Vec<f64> = log_l.iter().map(|l| (l - top).exp()).collect();
+    let total: f64 = w.iter().sum();
+    let mean = w.iter().enumerate().map(|(c, wi)| wi * offset(c)).sum::<f64>() / total;
+    let var = w.iter().enumerate().map(|(c, wi)| wi * (offset(c) - mean).powi(2)).sum::<f64>() / total;
+    // Never more certain than the candidate spacing allows.
+    (mean, var + s * s / 12.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outline_found_where_probabilities_flip() {
+        // Four object segments, then background from the third outer one on: the outline
+        // is two segments (2·s px) outside the centre.
+        let s = 2.0;
+        let probs = [0.9, 0.9, 0.9, 0.9, 0.9, 0.9, 0.1, 0.1, 0.1, 0.1];
+        let (mean, var) = outline_distribution(&probs, 4, s);
+        assert!((mean - 4.0).abs() < 0.5, "mean {mean}");
+        assert!(var < 2.0, "variance {var}");
+        // Uninformative segments: a flat distribution centred on the line's middle.
+        let (mean, var) = outline_distribution(&[0.5; 8], 4, s);
+        assert!(mean.abs() < 1e-9 && var > 10.0);
+    }
+
+    #[test]
+    fn projection_jacobian_matches_finite_differences() {
+        let k = Intrinsics { fx: 600.0, fy: 580.0, cx: 320.0, cy: 240.0, width: 640, height: 480 };
+        let p = Point3::new(0.05, -0.03, 0.7);
+        let j = projection_jacobian(&k, &p);
+        let proj = |q: &Point3<f64>| Vector2::new(k.fx * q.x / q.z + k.cx, k.fy * q.y / q.z + k.cy);
+        for a in 0..3 {
+            let mut q = p;
+            q[a] += 1e-7;
+            let num = (proj(&q) - proj(&p)) / 1e-7;
+            assert!((num - j.column(a)).norm() < 1e-3);
+        }
+    }
+}

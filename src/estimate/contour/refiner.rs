@@ -1,0 +1,160 @@
+//! The contour refiner: from a pose hypothesis, align the object's projected outline with
+//! the detection mask by correspondence lines and regularised Gauss–Newton, coarse to fine
+//! over line scales, without rendering. It keeps the hypothesis when its own agreement
+//! measure says the result is no better, so a good pose is never drifted away.
+
+use super::lines::{build_lines, Line, LineScale};
+use super::posterior::Posterior;
+use super::solve::{apply_update, gauss_newton_update, Regularisation};
+use crate::estimate::refine::{RefineContext, RefineReport, Refined, Refiner};
+use crate::geometry::Pose;
+use crate::render::RenderPool;
+use nalgebra::Vector3;
+use std::sync::Arc;
+
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ContourRefinerConfig {
+    /// First segment length as a share of the object's apparent diameter (clamped to
+    /// `max_segment_px`); each later scale shrinks it, down to 1 px.
+    pub first_segment_share: f64,
+    pub max_segment_px: f64,
+    /// Scales from coarse to fine, as factors of the first segment length.
+    pub scale_factors: Vec<f64>,
+    /// Segments on each side of a line's centre.
+    pub segments: usize,
+    /// Correspondence passes per scale, and pose updates per pass.
+    pub passes_per_scale: usize,
+    pub updates_per_pass: usize,
+    pub regularisation: Regularisation,
+    /// At least this share of the lines must find an edge for a pose to be refined at all.
+    pub min_edge_share: f64,
+}
+
+impl Default for ContourRefinerConfig {
+    fn default() -> Self {
+        Self {
+            first_segment_share: 1.0 / 30.0,
+            max_segment_px: 8.0,
+            scale_factors: vec![1.0, 0.6, 0.35, 0.2],
+            segments: 8,
+            passes_per_scale: 2,
+            updates_per_pass: 2,
+            regularisation: Regularisation::default(),
+            min_edge_share: 0.3,
+        }
+    }
+}
+
+/// How well the outline at a pose agrees with the mask, measured on lines of one fixed
+/// scale: the share of lines that find an edge near where the model says, in [0, 1].
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Agreement {
+    pub score: f64,
+    pub lines: usize,
+    pub lines_with_edge: usize,
+    /// Weighted RMS of the outline offsets of the lines with an edge, px.
+    pub residual_px: f64,
+}
+
+fn agreement(lines: &[Line], scale: &LineScale) -> Agreement {
+    let tolerance = 2.0 * scale.segment_px;
+    let mut a = Agreement { lines: lines.len(), ..Default::default() };
+    let (mut num, mut den) = (0.0, 0.0);
+    for l in lines.iter().filter(|l| l.edge) {
+        a.lines_with_edge += 1;
+        a.score += (-0.5 * (l.mean / tolerance).powi(2)).exp();
+        num += l.mean * l.mean / l.variance;
+        den += 1.0 / l.variance;
+    }
+    a.score /= lines.len().max(1) as f64;
+    a.residual_px = if den > 0.0 { (num / den).sqrt() } else { f64::NAN };
+    a
+}
+
+pub struct ContourRefiner {
+    renderer: Arc<RenderPool>,
+    pub config: ContourRefinerConfig,
+}
+
+impl ContourRefiner {
+    pub fn new(renderer: Arc<RenderPool>) -> Self {
+        Self { renderer, config: ContourRefinerConfig::default() }
+    }
+
+    /// Apparent diameter of the object at `pose`, px.
+    fn apparent_diameter(ctx: &RefineContext<'_>, pose: &Pose, centre: &Vector3<f64>) -> f64 {
+        let z = (pose.rotation * centre + pose.translation).z.max(1e-6);
+        ctx.intrinsics.fx.max(ctx.intrinsics.fy) * ctx.model.diameter() / z
+    }
+
+    fn scales(&self, diameter_px: f64) -> Vec<LineScale> {
+        let first = (diameter_px * self.config.first_segment_share).clamp(1.0, self.config.max_segment_px);
+        self.config.scale_factors.iter().map(|f| LineScale { segment_px: (first * f).max(1.0), segments: self.config.segments }).collect()
+    }
+
+    /// The agreement of `pose` with the mask on the verification scale (what `refine`
+    /// compares before and after, and what hypothesis verification reads).
+    pub fn agreement(&self, ctx: &RefineContext<'_>, pose: &Pose) -> Result<Agreement, String> {
+        let cm = ctx.model.contour_model_or_build(&self.renderer).map_err(|e| e.to_string())?;
+        let centre = Vector3::from(ctx.model.mesh.bbox_center());
+        let post = Posterior::new(ctx.mask, ctx.unknown);
+        let scale = self.verification_scale(Self::apparent_diameter(ctx, pose, &centre));
+        Ok(agreement(&build_lines(&cm, &centre, pose, ctx.intrinsics, &post, scale), &scale))
+    }
+
+    /// Lines of the second scale, twice as long: wide enough to see an outline a few
+    /// pixels off, fine enough to score its offset.
+    fn verification_scale(&self, diameter_px: f64) -> LineScale {
+        let s = self.scales(diameter_px);
+        let mid = s.get(1).or(s.first()).copied().unwrap_or(LineScale { segment_px: 1.0, segments: self.config.segments });
+        LineScale { segment_px: mid.segment_px, segments: 2 * mid.segments }
+    }
+}
+
+impl Refiner for ContourRefiner {
+    fn name(&self) -> &str {
+        "contour"
+    }
+
+    fn refine(&self, ctx: &RefineContext<'_>, start: Pose) -> Result<Refined, String> {
+        let cm = ctx.model.contour_model_or_build(&self.renderer).map_err(|e| e.to_string())?;
+        let centre = Vector3::from(ctx.model.mesh.bbox_center());
+        let post = Posterior::new(ctx.mask, ctx.unknown);
+        let k = ctx.intrinsics;
+        let scales = self.scales(Self::apparent_diameter(ctx, &start, &centre));
+        let verify = self.verification_scale(Self::apparent_diameter(ctx, &start, &centre));
+        let before = agreement(&build_lines(&cm, &centre, &start, k, &post, verify), &verify);
+        let mut report = RefineReport { moved: false, residual_px: before.residual_px, lines: before.lines, lines_with_edge: before.lines_with_edge, agreement: before.score, ..Default::default() };
+        // Too few lines see the mask's outline (empty, wrong or far-off mask): no update
+        // could be trusted.
+        let coarse = build_lines(&cm, &centre, &start, k, &post, scales[0]);
+        let edges = coarse.iter().filter(|l| l.edge).count();
+        if (edges as f64) < self.config.min_edge_share * coarse.len().max(1) as f64 {
+            report.note = Some(format!("no improvement: {edges} of {} lines see the mask's outline", coarse.len()));
+            return Ok(Refined { pose: start, report });
+        }
+        let radius = ctx.model.mesh.bounding_radius();
+        let mut pose = start;
+        for scale in &scales {
+            for _ in 0..self.config.passes_per_scale {
+                let lines = build_lines(&cm, &centre, &pose, k, &post, *scale);
+                for _ in 0..self.config.updates_per_pass {
+                    let Some((w, v)) = gauss_newton_update(&lines, &pose, &start, k, &self.config.regularisation, radius) else { break };
+                    pose = apply_update(&pose, &w, &v);
+                }
+                if pose.translation.z <= 0.0 || !pose.translation.iter().all(|x| x.is_finite()) {
+                    report.note = Some("no improvement: the update left the camera's field of view".into());
+                    return Ok(Refined { pose: start, report });
+                }
+            }
+        }
+        let verify = self.verification_scale(Self::apparent_diameter(ctx, &pose, &centre));
+        let after = agreement(&build_lines(&cm, &centre, &pose, k, &post, verify), &verify);
+        if after.score < before.score {
+            report.note = Some(format!("no improvement: contour agreement {:.3} after, {:.3} before", after.score, before.score));
+            return Ok(Refined { pose: start, report });
+        }
+        report = RefineReport { moved: true, residual_px: after.residual_px, lines: after.lines, lines_with_edge: after.lines_with_edge, agreement: after.score, note: None };
+        Ok(Refined { pose, report })
+    }
+}

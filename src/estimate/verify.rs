@@ -1,0 +1,132 @@
+//! Hypothesis verification: every hypothesis of a mask is refined, scored on the evidence
+//! that survives the render-to-real gap (the outline against the mask, one render's
+//! silhouette IoU, and whether the render's interior edges run where the photo's do), and
+//! the best one is kept. The multi-mask selection then runs on the survivors.
+
+use super::hypotheses::Source;
+use super::refine::RefineReport;
+use super::select::{render_window, window_iou};
+use crate::geometry::{Intrinsics, Pose};
+use crate::render::{RenderOutput, RenderPool};
+use image::{GrayImage, RgbImage};
+
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct VerifyConfig {
+    /// Refine and verify the extra hypotheses at all (off: the pipeline's pose alone).
+    pub enabled: bool,
+    /// Retrieved templates placed at the mask as extra hypotheses.
+    pub templates: usize,
+    /// Hypotheses (best contour agreement first) that get a render for IoU and appearance.
+    pub rendered: usize,
+    /// Weights of silhouette IoU, contour agreement and appearance agreement.
+    pub weights: [f64; 3],
+}
+
+impl Default for VerifyConfig {
+    fn default() -> Self {
+        Self { enabled: true, templates: 3, rendered: 3, weights: [0.4, 0.3, 0.3] }
+    }
+}
+
+/// One verified hypothesis, as reported.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Verified {
+    pub source: Source,
+    #[serde(skip)]
+    pub pose: Pose,
+    pub refinement: RefineReport,
+    /// Contour agreement after refinement, [0, 1].
+    pub contour: f64,
+    /// Silhouette IoU and appearance agreement of its render (NaN when not rendered).
+    pub iou: f64,
+    pub appearance: f64,
+    pub score: f64,
+}
+
+/// Grey level of an sRGB pixel (0–255).
+fn grey(p: &image::Rgb<u8>) -> f32 {
+    0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32
+}
+
+/// Sobel gradient of `at(x, y)` at interior point (x, y).
+fn sobel(at: &dyn Fn(u32, u32) -> f32, x: u32, y: u32) -> (f32, f32) {
+    let gx = at(x + 1, y - 1) + 2.0 * at(x + 1, y) + at(x + 1, y + 1) - at(x - 1, y - 1) - 2.0 * at(x - 1, y) - at(x - 1, y + 1);
+    let gy = at(x - 1, y + 1) + 2.0 * at(x, y + 1) + at(x + 1, y + 1) - at(x - 1, y - 1) - 2.0 * at(x, y - 1) - at(x + 1, y - 1);
+    (gx, gy)
+}
+
+/// Grey-level Sobel magnitude (of 8·255 at most) below which a pixel has no edge.
+const EDGE: f32 = 40.0;
+
+/// How well the render's interior edges (its texture, colours and creases; not its
+/// outline, which the other terms judge) line up with the photo's, in [0, 1]: over the
+/// render's edge pixels well inside both its silhouette and the mask, the mean squared
+/// cosine between the two gradient orientations where the photo has an edge too (0 where
+/// it has none). Orientation, not sign or strength: lighting changes both across the gap.
+pub fn appearance_agreement(render: &RenderOutput, image: &RgbImage, mask: &GrayImage, window: (u32, u32, u32, u32)) -> f64 {
+    let (x0, y0, w, h) = window;
+    if w < 7 || h < 7 {
+        return 0.0;
+    }
+    let r_at = |x: u32, y: u32| grey(render.rgb.get_pixel(x, y));
+    let i_at = |x: u32, y: u32| grey(image.get_pixel(x0 + x, y0 + y));
+    let inside = |x: u32, y: u32| (-2i64..=2).all(|d| render.mask.get_pixel((x as i64 + d) as u32, y)[0] > 0 && render.mask.get_pixel(x, (y as i64 + d) as u32)[0] > 0) && mask.get_pixel(x0 + x, y0 + y)[0] > 0;
+    let (mut sum, mut count) = (0.0f64, 0usize);
+    for y in 3..h - 3 {
+        for x in 3..w - 3 {
+            if !inside(x, y) {
+                continue;
+            }
+            let (rx, ry) = sobel(&r_at, x, y);
+            let rm = rx * rx + ry * ry;
+            if rm < EDGE * EDGE {
+                continue;
+            }
+            count += 1;
+            let (ix, iy) = sobel(&i_at, x, y);
+            let im = ix * ix + iy * iy;
+            if im >= EDGE * EDGE {
+                let dot = (rx * ix + ry * iy) as f64;
+                sum += dot * dot / (rm as f64 * im as f64);
+            }
+        }
+    }
+    if count == 0 { 0.0 } else { sum / count as f64 }
+}
+
+/// Renders `pose` over the mask's window and measures silhouette IoU and appearance.
+pub fn render_evidence(renderer: &RenderPool, mesh: &crate::mesh::Mesh, pose: &Pose, k: &Intrinsics, image: &RgbImage, mask: &GrayImage, window: (u32, u32, u32, u32)) -> Result<(f64, f64), crate::render::RenderError> {
+    let r = render_window(renderer, mesh, pose, k, window)?;
+    Ok((window_iou(&r, mask, window) as f64, appearance_agreement(&r, image, mask, window)))
+}
+
+/// Weighted score of the three terms; an unrendered hypothesis counts its contour alone,
+/// scaled as if the others matched it (it only competes when nothing was rendered).
+pub fn score(v: &Verified, w: &[f64; 3]) -> f64 {
+    if v.iou.is_nan() {
+        return v.contour * (w[0] + w[1] + w[2]) - 1.0;
+    }
+    w[0] * v.iou + w[1] * v.contour + w[2] * v.appearance
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn striped(width: u32, vertical: bool) -> RgbImage {
+        RgbImage::from_fn(width, width, |x, y| {
+            let on = if vertical { (x / 4) % 2 == 0 } else { (y / 4) % 2 == 0 };
+            if on { image::Rgb([220, 220, 220]) } else { image::Rgb([30, 30, 30]) }
+        })
+    }
+
+    #[test]
+    fn appearance_agrees_with_itself_and_not_with_a_turned_texture() {
+        let full = GrayImage::from_pixel(40, 40, image::Luma([255]));
+        let render = RenderOutput { rgb: striped(40, true), depth: vec![1.0; 1600], mask: full.clone() };
+        let same = appearance_agreement(&render, &striped(40, true), &full, (0, 0, 40, 40));
+        let turned = appearance_agreement(&render, &striped(40, false), &full, (0, 0, 40, 40));
+        assert!(same > 0.9, "{same}");
+        assert!(turned < 0.1, "{turned}");
+    }
+}
