@@ -152,12 +152,12 @@ fn silhouette_depth_refiner_pulls_a_wrong_depth_back() {
     let s = scene(8);
     let inst = &s.instances[0];
     let refiner = SilhouetteDepthRefiner::new(f.pool.clone());
-    let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib };
+    let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None };
     for scale in [0.95, 1.06] {
         let off = b2tfpose::geometry::Pose::new(inst.pose.rotation, inst.pose.translation * scale);
         let refined = refiner.refine(&ctx, off).unwrap();
         let before = (off.translation - inst.pose.translation).norm();
-        let after = (refined.translation - inst.pose.translation).norm();
+        let after = (refined.pose.translation - inst.pose.translation).norm();
         assert!(after < 0.3 * before, "scale {scale}: {:.1} mm → {:.1} mm", before * 1e3, after * 1e3);
     }
 }

@@ -57,9 +57,10 @@ pub struct BenchEstimateArgs {
     /// the best silhouette IoU) or contour (aligns the outline with the mask).
     #[arg(long, value_enum, default_value_t = crate::estimate::RefinerKind::default())]
     pub refiner: crate::estimate::RefinerKind,
-    /// Verify only the pipeline's pose (no flips or template hypotheses).
+    /// Hypothesis verification: refine and verify the pose's axis flips and the best
+    /// templates placed at the mask too (off: the pipeline's pose alone).
     #[arg(long)]
-    pub no_verify: bool,
+    pub verify: bool,
     /// Retrieved templates added as hypotheses, and hypotheses rendered in verification.
     #[arg(long)]
     pub verify_templates: Option<usize>,
@@ -168,7 +169,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     if let Some(d) = a.nms_degrees {
         base.retrieval.nms_degrees = d;
     }
-    base.verify.enabled = !a.no_verify;
+    base.verify.enabled = a.verify;
     if let Some(n) = a.verify_templates {
         base.verify.templates = n;
     }

@@ -201,6 +201,13 @@ impl Estimator {
     }
 
     pub fn estimate(&self, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, detections: &[Detection], cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
+        self.estimate_among(model, image, k, detections, None, cfg)
+    }
+
+    /// `estimate` when other detections in the image may hide this object: `others`
+    /// (image-sized, non-zero where another detection is) tells the refiner that the
+    /// mask's outline says nothing there, so an occluder's edge does not pull the pose.
+    pub fn estimate_among(&self, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, detections: &[Detection], others: Option<&GrayImage>, cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
         let t_total = Instant::now();
         self.validate(model, image, k, detections)?;
         let mut timings = StageTimings::default();
@@ -220,7 +227,7 @@ impl Estimator {
             let mut h = Hypothesis { mask_index: mi, detector_score: detections[mi].score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() };
             let retrieved = self.pose_for_mask(model, q, k, cfg, &mut h, &mut timings)?;
             if let Some(p) = h.pose {
-                let ctx = RefineContext { model, image, intrinsics: k, mask: &detections[mi].mask, unknown: None };
+                let ctx = RefineContext { model, image, intrinsics: k, mask: &detections[mi].mask, unknown: others };
                 let t = Instant::now();
                 if cfg.verify.enabled {
                     h.verified = self.verify(&ctx, p, &retrieved, &q.crop_box, cfg)?;

@@ -12,11 +12,12 @@ use image::{GrayImage, RgbImage};
 #[serde(rename_all = "kebab-case")]
 pub enum RefinerKind {
     /// Pass the pose through (the paper's pipeline without MegaPose).
-    #[default]
     None,
     /// Scale the depth to the best silhouette IoU (a few renders).
     SilhouetteDepth,
-    /// Align the projected contour with the mask's outline (no rendering).
+    /// Align the projected contour with the mask's outline (no rendering). The default:
+    /// it measured best (docs/benchmarks.md, "Contour refiner").
+    #[default]
     Contour,
 }
 

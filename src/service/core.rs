@@ -234,6 +234,7 @@ impl Core {
         let models: BTreeMap<&str, _> = by_object.keys().map(|&id| Ok((id, self.cache.get(id)?))).collect::<Result<_, ServiceError>>()?;
         let mut cfg = EstimateConfig { rrc: o.rrc, max_masks: o.max_masks, refiner: o.refiner, ..Default::default() };
         cfg.retrieval.k = o.k;
+        cfg.verify.enabled = o.verify;
         let mut results = Vec::new();
         for (object_id, dets) in &by_object {
             let model = &models[object_id];
@@ -243,7 +244,8 @@ impl Core {
                     return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", results.len())));
                 }
                 let candidates: Vec<Detection> = group.iter().map(|&g| Detection { mask: dets[g].1.clone(), score: dets[g].2 }).collect();
-                let r = self.estimator.estimate(model, &image, &k, &candidates, &cfg)?;
+                let others = others_mask(&by_object, object_id, &group, k.width, k.height);
+                let r = self.estimator.estimate_among(model, &image, &k, &candidates, others.as_ref(), &cfg)?;
                 results.push(InstanceResult {
                     object_id: object_id.to_string(),
                     instance,
@@ -258,4 +260,22 @@ impl Core {
         }
         Ok(EstimateResponse { results, total_ms: t0.elapsed().as_secs_f64() * 1e3 })
     }
+}
+
+/// Union of every detection's mask except those of `object_id`'s instance `group`: where
+/// another detection is, this instance may be hidden. `None` when there is no other.
+fn others_mask(by_object: &BTreeMap<&str, Vec<(usize, image::GrayImage, f32)>>, object_id: &str, group: &[usize], width: u32, height: u32) -> Option<image::GrayImage> {
+    let mut union: Option<image::GrayImage> = None;
+    for (&id, dets) in by_object {
+        for (g, (_, mask, _)) in dets.iter().enumerate() {
+            if id == object_id && group.contains(&g) {
+                continue;
+            }
+            let u = union.get_or_insert_with(|| image::GrayImage::new(width, height));
+            for (o, m) in u.pixels_mut().zip(mask.pixels()) {
+                o[0] |= m[0];
+            }
+        }
+    }
+    union
 }

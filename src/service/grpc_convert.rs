@@ -50,6 +50,7 @@ pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, S
         k: non_zero(o.k as usize, defaults.k),
         max_masks: non_zero(o.max_masks as usize, defaults.max_masks),
         instances_per_object: non_zero(o.instances_per_object as usize, defaults.instances_per_object),
+        verify: o.verify.unwrap_or(defaults.verify),
         refiner: if o.refiner.is_empty() { defaults.refiner } else { o.refiner.parse().map_err(|e: String| ServiceError::invalid(format!("options.refiner: {e}")))? },
     };
     Ok(rq::EstimateRequest { image, intrinsics, detections, options })

@@ -124,11 +124,14 @@ pub struct EstimateOptions {
     pub instances_per_object: usize,
     /// Refinement after PnP/RRC.
     pub refiner: crate::estimate::RefinerKind,
+    /// Hypothesis verification: also refine the pose's axis flips and the best templates
+    /// placed at the mask, and keep the best verified one.
+    pub verify: bool,
 }
 
 impl Default for EstimateOptions {
     fn default() -> Self {
-        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default() }
+        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default(), verify: false }
     }
 }
 

@@ -7,6 +7,7 @@ use super::posterior::Posterior;
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ContourModel;
 use nalgebra::{Matrix2x3, Point3, Vector2, Vector3};
+use rayon::prelude::*;
 
 /// Largest share of the background probability a segment's likelihood reaches (the
 /// smoothed step runs from 0.5 − this to 0.5 + this); below 0.5 so that one wrong segment
@@ -53,18 +54,22 @@ pub fn camera_direction(pose: &Pose, centre: &Vector3<f64>) -> Vector3<f64> {
 /// Builds the lines of the view nearest to `pose` and measures the outline on each.
 pub fn build_lines(cm: &ContourModel, centre: &Vector3<f64>, pose: &Pose, k: &Intrinsics, post: &Posterior<'_>, scale: LineScale) -> Vec<Line> {
     let view = cm.nearest_view(&camera_direction(pose, centre));
-    let mut lines = Vec::with_capacity(cm.config.points_per_view);
-    for i in cm.view_range(view) {
+    cm.view_range(view).into_par_iter().filter_map(|i| line(cm, i, pose, k, post, scale)).collect()
+}
+
+/// Line `i` of the model at `pose`; `None` when it cannot be measured at this scale.
+fn line(cm: &ContourModel, i: usize, pose: &Pose, k: &Intrinsics, post: &Posterior<'_>, scale: LineScale) -> Option<Line> {
+    {
         let x = Vector3::new(cm.points[i][0] as f64, cm.points[i][1] as f64, cm.points[i][2] as f64);
         let n = Vector3::new(cm.normals[i][0] as f64, cm.normals[i][1] as f64, cm.normals[i][2] as f64);
         let p = Point3::from(pose.rotation * x + pose.translation);
         if p.z <= 1e-6 {
-            continue;
+            return None;
         }
         let n2 = projection_jacobian(k, &p) * (pose.rotation * n);
         let len = n2.norm();
         if len < 1e-9 {
-            continue;
+            return None;
         }
         let normal = n2 / len;
         let centre_px = Vector2::new(k.fx * p.x / p.z + k.cx, k.fy * p.y / p.z + k.cy);
@@ -74,14 +79,13 @@ pub fn build_lines(cm: &ContourModel, centre: &Vector3<f64>, pose: &Pose, k: &In
         // Fewer than two segments a side cannot place an outline (a thin part at a coarse
         // scale): the line waits for a finer scale.
         if inner < 2 || outer < 2 {
-            continue;
+            return None;
         }
         let probs = segment_probabilities(post, &centre_px, &normal, scale.segment_px, inner, outer);
         let (mean, variance) = outline_distribution(&probs, inner, scale.segment_px);
         let edge = probs.iter().any(|&p| p > 0.7) && probs.iter().any(|&p| p < 0.3);
-        lines.push(Line { object_point: x, centre: centre_px, normal, mean, variance, edge });
+        Some(Line { object_point: x, centre: centre_px, normal, mean, variance, edge })
     }
-    lines
 }
 
 /// Mean foreground probability of each segment, innermost first: `inner` segments inside
@@ -102,6 +106,11 @@ fn segment_probabilities(post: &Posterior<'_>, c: &Vector2<f64>, n: &Vector2<f64
         .collect()
 }
 
+/// Half-segment steps beyond which the smoothed step is flat (tanh(3.5) ≈ 0.998): there a
+/// segment's likelihood no longer depends on the exact offset, which `outline_distribution`
+/// uses to sum the far segments by prefix sums instead of one logarithm per pair.
+const STEP_REACH: i64 = 7;
+
 /// Mean and variance (px) of the outline's offset along the line, given the segments'
 /// foreground probabilities: a uniform prior over offsets at half-segment steps, and for
 /// each segment the likelihood of its probability if the outline sat at that offset.
@@ -109,15 +118,30 @@ pub fn outline_distribution(probs: &[f64], inner: usize, s: f64) -> (f64, f64) {
     let n = probs.len();
     let candidates = 2 * n + 1;
     let offset = |c: usize| (c as f64 * 0.5 - inner as f64) * s;
+    // Segment r seen from candidate c sits (2r + 1 − c)/2 segments beyond the outline, so
+    // its likelihood depends on k = 2r + 1 − c alone.
+    let step = |k: i64| 0.5 + STEP_AMPLITUDE * (k as f64 * 0.5).tanh();
+    let like = |p: f64, h_bg: f64| (h_bg * (1.0 - p) + (1.0 - h_bg) * p).max(1e-12).ln();
+    let (flat_in, flat_out) = (step(-STEP_REACH - 1), step(STEP_REACH + 1));
+    // Prefix sums of each segment's far-inside and far-outside log-likelihoods.
+    let mut inside = vec![0.0; n + 1];
+    let mut outside = vec![0.0; n + 1];
+    for (r, &p) in probs.iter().enumerate() {
+        inside[r + 1] = inside[r] + like(p, flat_in);
+        outside[r + 1] = outside[r] + like(p, flat_out);
+    }
+    let near: Vec<f64> = (-STEP_REACH..=STEP_REACH).map(step).collect();
     let mut log_l = vec![0.0f64; candidates];
     for (c, ll) in log_l.iter_mut().enumerate() {
-        let d = offset(c);
-        for (r, &p) in probs.iter().enumerate() {
-            // Segment centre's signed distance beyond the outline (positive = outside).
-            let x = (r as f64 + 0.5 - inner as f64) * s - d;
-            let h_bg = 0.5 + STEP_AMPLITUDE * (x / s).tanh();
-            *ll += (h_bg * (1.0 - p) + (1.0 - h_bg) * p).max(1e-12).ln();
+        let c = c as i64;
+        // Segments with k < −REACH (far inside): r < (c − 1 − REACH)/2; k > REACH: r > (c − 1 + REACH)/2.
+        let lo = ((c - 1 - STEP_REACH + 1).div_euclid(2)).clamp(0, n as i64) as usize; // first r with k ≥ −REACH
+        let hi = ((c - 1 + STEP_REACH).div_euclid(2) + 1).clamp(lo as i64, n as i64) as usize; // first r with k > REACH
+        let mut sum = inside[lo] + (outside[n] - outside[hi]);
+        for (r, &p) in probs.iter().enumerate().take(hi).skip(lo) {
+            sum += like(p, near[(2 * r as i64 + 1 - c + STEP_REACH) as usize]);
         }
+        *ll = sum;
     }
     let top = log_l.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
     let w: Vec<f64> = log_l.iter().map(|l| (l - top).exp()).collect();
@@ -144,6 +168,36 @@ mod tests {
         // Uninformative segments: a flat distribution centred on the line's middle.
         let (mean, var) = outline_distribution(&[0.5; 8], 4, s);
         assert!(mean.abs() < 1e-9 && var > 10.0);
+    }
+
+    /// The prefix-sum evaluation equals summing every segment with the exact step.
+    #[test]
+    fn fast_distribution_matches_the_direct_sum() {
+        let probs: Vec<f64> = (0..20).map(|i| 0.5 + 0.4 * ((i as f64) * 0.7).sin()).collect();
+        for inner in [3usize, 8, 12] {
+            let s = 1.5;
+            let n = probs.len();
+            let offset = |c: usize| (c as f64 * 0.5 - inner as f64) * s;
+            let log_l: Vec<f64> = (0..2 * n + 1)
+                .map(|c| {
+                    probs
+                        .iter()
+                        .enumerate()
+                        .map(|(r, &p)| {
+                            let x = (r as f64 + 0.5 - inner as f64) * s - offset(c);
+                            let k = (2.0 * x / s).round() as i64;
+                            let h = 0.5 + STEP_AMPLITUDE * ((k.clamp(-STEP_REACH - 1, STEP_REACH + 1)) as f64 * 0.5).tanh();
+                            (h * (1.0 - p) + (1.0 - h) * p).ln()
+                        })
+                        .sum()
+                })
+                .collect();
+            let top = log_l.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+            let w: Vec<f64> = log_l.iter().map(|l| (l - top).exp()).collect();
+            let mean = w.iter().enumerate().map(|(c, wi)| wi * offset(c)).sum::<f64>() / w.iter().sum::<f64>();
+            let (fast, _) = outline_distribution(&probs, inner, s);
+            assert!((fast - mean).abs() < 1e-9, "inner {inner}: {fast} vs {mean}");
+        }
     }
 
     #[test]
