@@ -5,22 +5,11 @@ use b2tfpose::eval::scenes::{generate_image, SceneConfig};
 use b2tfpose::features::mask_bbox;
 use b2tfpose::masks::{box_to_mask, mask_iou, BoxMask, Method};
 use b2tfpose::mesh::procedural::textured_box;
-use b2tfpose::render::{RenderError, RenderPool, RendererConfig};
-
-fn pool() -> Option<RenderPool> {
-    match RenderPool::new(1, RendererConfig::default()) {
-        Ok(p) => Some(p),
-        Err(e @ RenderError::NoAdapter { .. }) if std::env::var_os("B2TF_REQUIRE_GPU").is_none() => {
-            eprintln!("SKIPPED (no GPU adapter): {e}");
-            None
-        }
-        Err(e) => panic!("{e}"),
-    }
-}
+use b2tfpose::render::{RenderPool, RendererConfig};
 
 #[test]
 fn segmented_boxes_match_the_visible_masks_far_better_than_filled_boxes() {
-    let Some(pool) = pool() else { return };
+    let pool = RenderPool::new(1, RendererConfig::default()).unwrap();
     let objects = [(1, textured_box([0.10, 0.06, 0.16], 3)), (2, textured_box([0.05, 0.05, 0.08], 9))];
     let cfg = SceneConfig { images: 4, objects_per_image: 2, image_size: (320, 240), seed: 7, ..Default::default() };
     let (mut segmented, mut filled, mut fallbacks, mut n) = (0.0, 0.0, 0, 0);

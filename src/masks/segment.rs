@@ -236,10 +236,10 @@ fn clean(grid: &Grid, labels: Vec<bool>) -> Vec<bool> {
     let Some(largest) = (0..sizes.len()).max_by_key(|&c| sizes[c]) else { return labels };
     let (backgrounds, count) = components(grid.w, grid.h, |i| objects[i] != Some(largest));
     let mut open = vec![false; count.len()];
-    for i in 0..labels.len() {
+    for (i, background) in backgrounds.iter().enumerate() {
         let (x, y) = (i % grid.w, i / grid.w);
         let on_edge = x == 0 || y == 0 || x + 1 == grid.w || y + 1 == grid.h;
-        if let Some(c) = backgrounds[i].filter(|_| on_edge || !grid.in_box[i]) {
+        if let Some(c) = background.filter(|_| on_edge || !grid.in_box[i]) {
             open[c] = true;
         }
     }
