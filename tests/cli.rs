@@ -111,7 +111,23 @@ fn estimate_writes_the_result_json_and_overlay() {
     }
     assert!(image::open(&overlay).is_ok());
 
-    // Bad inputs: more scores than masks, a missing mask file, a camera of another size.
+    // A box instead of the mask: the object is segmented inside it.
+    let (x0, y0, x1, y1) = b2tfpose::features::mask_bbox(&image::open(&mask).unwrap().to_luma8()).unwrap();
+    let bbox = format!("{x0},{y0},{},{}", x1 - x0 + 1, y1 - y0 + 1);
+    let (ok, out, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--box", &bbox, "--no-rrc", "--out", s(&result)]);
+    assert!(ok && out.contains("GraphCut"), "{out}{err}");
+    let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&result).unwrap()).unwrap();
+    let t: Vec<f64> = doc["poses"][0]["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert!((t[2] - 0.6).abs() < 0.06, "depth from a box {t:?}");
+
+    // Bad inputs: boxes outside the image or of zero area, neither mask nor box, more
+    // scores than masks, a missing mask file, a camera of another size.
+    for (bad, needle) in [("400,10,20,20", "lies outside the 320×240 image"), ("10,10,0,5", "zero area"), ("1,2,3", "X,Y,W,H")] {
+        let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--box", bad, "--out", s(&result)]);
+        assert!(!ok && err.contains(needle), "{bad}: {err}");
+    }
+    let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--out", s(&result)]);
+    assert!(!ok && err.contains("--mask"), "{err}");
     let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--mask", s(&mask), "--score", "1", "--score", "2", "--out", s(&result)]);
     assert!(!ok && err.contains("--score values"), "{err}");
     let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--mask", s(&d.join("none.png")), "--out", s(&result)]);

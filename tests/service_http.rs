@@ -145,8 +145,20 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     assert_eq!(s, 200, "{est_raw}");
     assert_eq!(est_raw["results"][0]["pose"], res["pose"]);
 
+    // A box alone: the object is segmented inside it, and the pose is as good.
+    let (x0, y0, x1, y1) = b2tfpose::features::mask_bbox(&r.mask).unwrap();
+    let box_dets = json!([{"object_id": "box", "bbox": [x0, y0, x1 - x0 + 1, y1 - y0 + 1], "score": 0.9}]);
+    let (s, est_box) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&request(good_image.clone(), intrinsics.clone(), box_dets)));
+    assert_eq!(s, 200, "{est_box}");
+    let pose = &est_box["results"][0]["pose"];
+    let floats = |v: &Value| v.as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect::<Vec<f64>>();
+    let (rot, trans) = pose_errors(&floats(&pose["R"]), &floats(&pose["t"]), truth);
+    assert!(rot < 10.0 && trans < 0.03, "from a box: rotation error {rot:.1}°, translation error {:.1} mm", trans * 1e3);
+
     // Bad inputs: each gets its status and names the problem; the server keeps serving.
     let small_mask = png(&image::GrayImage::new(10, 10));
+    let empty_mask = png(&image::GrayImage::new(320, 240));
+    let good_det = json!({"object_id": "box", "mask_png": png(&r.mask)});
     let cases: Vec<(Value, u16, &str)> = vec![
         (request(json!({"encoded": b64(b"not an image")}), intrinsics.clone(), good_dets.clone()), 400, "image.encoded"),
         (request(good_image.clone(), intrinsics.clone(), json!([{"object_id": "nope", "mask_png": png(&r.mask)}])), 404, "nope"),
@@ -156,6 +168,9 @@ fn onboard_estimate_and_bad_inputs_over_http() {
         (request(good_image.clone(), intrinsics.clone(), json!([])), 400, "at least one"),
         (request(good_image.clone(), intrinsics.clone(), json!([{"object_id": "../x", "mask_png": png(&r.mask)}])), 400, "object_id"),
         (json!({"image": "wrong"}), 400, "request body"),
+        (request(good_image.clone(), intrinsics.clone(), json!([{"object_id": "box", "bbox": [400.0, 10.0, 20.0, 20.0]}])), 400, "detections[0].bbox: box [400.0, 10.0, 20.0, 20.0] ([x, y, w, h]) lies outside the 320×240 image"),
+        (request(good_image.clone(), intrinsics.clone(), json!([good_det, {"object_id": "box", "bbox": [10.0, 10.0, 0.0, 20.0]}])), 400, "detections[1].bbox: box [10.0, 10.0, 0.0, 20.0] ([x, y, w, h]) has zero area"),
+        (request(good_image.clone(), intrinsics.clone(), json!([{"object_id": "box", "mask_png": empty_mask}])), 400, "detections[0].mask_png: the mask is empty"),
     ];
     for (body, want, needle) in cases {
         let (s, v) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&body));

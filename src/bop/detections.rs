@@ -13,10 +13,11 @@ use std::fs;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use image::{GrayImage, Luma};
+use image::{GrayImage, RgbImage};
 use serde_json::{Map, Value};
 
-use crate::bop::rle::{json_kind, Rle};
+use crate::masks::rle::{json_kind, Rle};
+use crate::masks::{box_to_mask, mask_from_rle, require_nonempty, BoxMask};
 
 /// Why a detections file could not be read or written.
 #[derive(Debug, thiserror::Error)]
@@ -196,44 +197,17 @@ pub fn write_detections(path: &Path, dets: &[DetectionRecord]) -> Result<(), Det
 }
 
 impl DetectionRecord {
-    /// The detection's mask on a `width × height` image (object = 255): the
-    /// decoded segmentation, which must have the image's size, or, for a
-    /// box-only detection, the box filled and clipped to the image. Pixels
-    /// partly covered by a fractional box count as inside. An empty
-    /// decoded segmentation is returned as is; an empty clipped box is an
-    /// error because it means the box lies outside the image.
-    pub fn mask(&self, width: u32, height: u32) -> Result<GrayImage, String> {
-        match &self.segmentation {
-            Some(rle) => {
-                if rle.width() != width || rle.height() != height {
-                    return Err(format!(
-                        "segmentation is {}×{} (w×h) but the image is {width}×{height}",
-                        rle.width(),
-                        rle.height()
-                    ));
-                }
-                rle.decode().map_err(|e| format!("segmentation: {e}"))
-            }
-            None => self.box_mask(width, height),
-        }
-    }
-
-    fn box_mask(&self, width: u32, height: u32) -> Result<GrayImage, String> {
-        let [x, y, w, h] = self.bbox;
-        // Saturating float→int casts keep huge or NaN boxes panic-free.
-        let clip = |v: f64, limit: u32| (v as i64).clamp(0, limit as i64) as u32;
-        let (x0, x1) = (clip(x.floor(), width), clip((x + w).ceil(), width));
-        let (y0, y1) = (clip(y.floor(), height), clip((y + h).ceil(), height));
-        if x0 >= x1 || y0 >= y1 {
-            return Err(format!("bbox {:?} is empty after clipping to the {width}×{height} image", self.bbox));
-        }
-        let mut mask = GrayImage::new(width, height);
-        for yy in y0..y1 {
-            for xx in x0..x1 {
-                mask.put_pixel(xx, yy, Luma([255]));
-            }
-        }
-        Ok(mask)
+    /// The detection's mask on `image` (object = 255): the decoded segmentation, which
+    /// must have the image's size, or, for a box-only detection, the object segmented
+    /// inside the box (or the box filled, as `how` says). An empty mask, a box outside
+    /// the image or of zero area is an error: the detection is unusable.
+    pub fn mask(&self, image: &RgbImage, how: BoxMask) -> Result<GrayImage, String> {
+        let (width, height) = image.dimensions();
+        let mask = match &self.segmentation {
+            Some(rle) => mask_from_rle(rle, width, height).map_err(|e| format!("segmentation: {e}"))?,
+            None => box_to_mask(image, self.bbox, how).map_err(|e| format!("bbox: {e}"))?.mask,
+        };
+        require_nonempty(mask).map_err(|e| format!("segmentation: {e}"))
     }
 }
 
@@ -445,32 +419,34 @@ mod tests {
     }
 
     #[test]
-    fn mask_from_segmentation_checks_size() {
+    fn mask_from_segmentation_checks_size_and_emptiness() {
         let mut d = record(1, 1, 1, 1.0);
         d.segmentation = Some(Rle::new([3, 2], vec![0, 1, 2, 1, 1, 1]).unwrap());
-        let mask = d.mask(2, 3).unwrap();
+        let mask = d.mask(&RgbImage::new(2, 3), BoxMask::Segment).unwrap();
         assert_eq!(mask.get_pixel(0, 0)[0], 255);
         assert_eq!(mask.get_pixel(0, 1)[0], 0);
         assert_eq!(mask.get_pixel(1, 2)[0], 255);
-        let err = d.mask(3, 2).unwrap_err();
-        assert_eq!(err, "segmentation is 2×3 (w×h) but the image is 3×2");
+        let err = d.mask(&RgbImage::new(3, 2), BoxMask::Segment).unwrap_err();
+        assert_eq!(err, "segmentation: mask is 2×3 (w×h) but the image is 3×2");
+        d.segmentation = Some(Rle::new([3, 2], vec![6]).unwrap());
+        assert_eq!(d.mask(&RgbImage::new(2, 3), BoxMask::Segment).unwrap_err(), "segmentation: the mask is empty (no nonzero pixel)");
     }
 
     #[test]
-    fn mask_from_bbox_is_filled_and_clipped() {
+    fn mask_from_bbox_is_filled_or_segmented_and_checked() {
         let mut d = record(1, 1, 1, 1.0);
+        let image = RgbImage::new(10, 10);
         d.bbox = [1.5, 1.0, 2.0, 2.0]; // covers x 1.5..3.5 -> pixels 1..=3, y 1..=2
-        let mask = d.mask(10, 10).unwrap();
+        let mask = d.mask(&image, BoxMask::Fill).unwrap();
         let on: Vec<(u32, u32)> = mask.enumerate_pixels().filter(|p| p.2[0] == 255).map(|p| (p.0, p.1)).collect();
         assert_eq!(on, vec![(1, 1), (2, 1), (3, 1), (1, 2), (2, 2), (3, 2)]);
-
-        d.bbox = [-5.0, 8.0, 7.0, 100.0]; // clipped to x 0..2, y 8..10
-        let mask = d.mask(10, 10).unwrap();
-        assert_eq!(mask.pixels().filter(|p| p[0] == 255).count(), 2 * 2);
+        // Too small to segment: the inscribed ellipse, inside the box.
+        let segmented = d.mask(&image, BoxMask::Segment).unwrap();
+        assert!(segmented.enumerate_pixels().all(|p| p.2[0] == 0 || on.contains(&(p.0, p.1))));
 
         d.bbox = [20.0, 0.0, 5.0, 5.0];
-        assert!(d.mask(10, 10).unwrap_err().contains("empty after clipping to the 10×10 image"));
+        assert!(d.mask(&image, BoxMask::Fill).unwrap_err().contains("bbox: box [20.0, 0.0, 5.0, 5.0] ([x, y, w, h]) lies outside the 10×10 image"));
         d.bbox = [2.0, 2.0, 0.0, 3.0];
-        assert!(d.mask(10, 10).is_err());
+        assert!(d.mask(&image, BoxMask::Segment).unwrap_err().contains("zero area"));
     }
 }

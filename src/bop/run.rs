@@ -2,7 +2,8 @@
 //! detections of that object, into the BOP results CSV.
 //!
 //! Per target (image, object, `inst_count`): the object's detections in the image are
-//! grouped into instances by mask overlap (`instances.rs`); the `inst_count` best groups are
+//! grouped into instances by mask overlap (`masks::instances`); box-only detections are
+//! segmented inside their box (`masks::segment`); the `inst_count` best groups are
 //! estimated, each group's masks being the candidates of the paper's multi-mask selection.
 //! `time` is the wall time of the whole image (decoding included), on every row of it.
 //! Results are appended image by image, and images already in the CSV are skipped, so an
@@ -11,9 +12,9 @@
 use super::dataset::{load_rgb, load_scene_cameras, load_targets, ImageCamera};
 use super::detections::DetectionIndex;
 use super::format::{scene_dir, TargetRecord};
-use super::instances::group_instances;
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
 use crate::estimate::{Detection, EstimateConfig, EstimateError, Estimator};
+use crate::masks::{group_instances, BoxMask};
 use crate::onboard::ObjectModel;
 use anyhow::{Context, Result};
 use std::collections::BTreeMap;
@@ -28,11 +29,13 @@ pub struct RunOptions {
     /// Masks of one object overlapping their group's best mask at least this much are
     /// treated as candidates for the same instance.
     pub same_instance_iou: f64,
+    /// How box-only detections become masks.
+    pub box_mask: BoxMask,
 }
 
 impl Default for RunOptions {
     fn default() -> Self {
-        Self { split: "test".into(), estimate: EstimateConfig::default(), same_instance_iou: 0.5 }
+        Self { split: "test".into(), estimate: EstimateConfig::default(), same_instance_iou: 0.5, box_mask: BoxMask::Segment }
     }
 }
 
@@ -97,7 +100,7 @@ pub fn run(
             let dets = detections.get(scene_id, im_id, t.obj_id);
             let mut masks = Vec::with_capacity(dets.len());
             for d in dets {
-                match d.mask(camera.cam.width, camera.cam.height) {
+                match d.mask(&rgb, opts.box_mask) {
                     Ok(m) => masks.push((m, d.score)),
                     Err(_) => summary.unusable_detections += 1,
                 }

@@ -10,7 +10,7 @@
 use super::dataset::{load_split_gt, model_path};
 use super::detections::{write_detections, DetectionRecord};
 use super::format::{MODELS_INFO, TEST_SPLIT};
-use super::rle::Rle;
+use crate::masks::rle::Rle;
 use super::synth_masks::{area, morph, shift};
 use crate::eval::scenes::{generate_dataset, SceneConfig, SCENE_ID};
 use crate::mesh::procedural::Rng;

@@ -56,6 +56,9 @@ pub struct RunArgs {
     /// Memory for loaded objects, MB (least recently used ones are dropped beyond it).
     #[arg(long, default_value_t = 4000)]
     pub cache_mb: u64,
+    /// Box-only detections: segment the object inside the box, or fill the box.
+    #[arg(long, default_value = "segment")]
+    pub box_mask: crate::masks::BoxMask,
 }
 
 #[derive(Args, Debug)]
@@ -113,7 +116,8 @@ fn run_cmd(a: RunArgs) -> Result<()> {
         }
         Ok(models.get(&id)?)
     };
-    let opts = RunOptions { split: a.split.clone(), estimate: EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: crate::estimate::verify::VerifyConfig { enabled: a.verify, ..Default::default() }, ..Default::default() }, ..Default::default() };
+    let estimate = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: crate::estimate::verify::VerifyConfig { enabled: a.verify, ..Default::default() }, ..Default::default() };
+    let opts = RunOptions { split: a.split.clone(), estimate, box_mask: a.box_mask, ..Default::default() };
     let pb = super::progress::bar(0, "images");
     let progress = |done: usize, total: usize| {
         pb.set_length(total as u64);

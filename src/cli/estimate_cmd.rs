@@ -23,9 +23,14 @@ pub struct EstimateArgs {
     #[arg(long)]
     pub camera: PathBuf,
     /// Object mask PNG, image-sized, nonzero = object. Repeat for candidate masks.
-    #[arg(long = "mask", required = true)]
+    #[arg(long = "mask", required_unless_present = "boxes")]
     pub masks: Vec<PathBuf>,
-    /// Detector score of each mask, in the order of --mask (default 1.0).
+    /// Box X,Y,W,H in pixels around the object, when there is no mask: the object is
+    /// segmented inside it. Repeatable, and can be mixed with --mask.
+    #[arg(long = "box", value_parser = parse_box)]
+    pub boxes: Vec<[f64; 4]>,
+    /// Detector score of each mask then each box, in the order of --mask then --box
+    /// (default 1.0).
     #[arg(long = "score")]
     pub scores: Vec<f32>,
     /// Skip render-guided re-correspondence.
@@ -52,28 +57,46 @@ pub struct EstimateArgs {
 
 pub fn load_mask(path: &Path) -> Result<image::GrayImage> {
     let img = image::open(path).with_context(|| format!("cannot read mask {}", path.display()))?;
-    // Any nonzero channel marks the object (masks come as L, LA, RGB or RGBA PNGs).
-    let rgba = img.to_rgba8();
-    Ok(image::GrayImage::from_fn(rgba.width(), rgba.height(), |x, y| {
-        let p = rgba.get_pixel(x, y);
-        image::Luma([if p[0] > 0 || p[1] > 0 || p[2] > 0 { 255 } else { 0 }])
-    }))
+    Ok(crate::masks::decode::binarise(&img))
+}
+
+fn parse_box(s: &str) -> Result<[f64; 4], String> {
+    let v: Vec<f64> = s.split(',').map(|x| x.trim().parse::<f64>().map_err(|e| format!("{x:?}: {e}"))).collect::<Result<_, _>>()?;
+    <[f64; 4]>::try_from(v).map_err(|v| format!("expected X,Y,W,H (4 numbers), got {}", v.len()))
+}
+
+/// The candidate detections: masks as given, boxes segmented on the image.
+fn detections(a: &EstimateArgs, image: &image::RgbImage) -> Result<Vec<Detection>> {
+    let (width, height) = image.dimensions();
+    let score = |i: usize| a.scores.get(i).copied().unwrap_or(1.0);
+    let mut out = Vec::new();
+    for (i, p) in a.masks.iter().enumerate() {
+        let mask = crate::masks::decode::check_size(load_mask(p)?, width, height)
+            .and_then(crate::masks::require_nonempty)
+            .with_context(|| format!("--mask {}", p.display()))?;
+        out.push(Detection { mask, score: score(i) });
+    }
+    for (j, b) in a.boxes.iter().enumerate() {
+        let s = crate::masks::box_to_mask(image, *b, crate::masks::BoxMask::Segment).with_context(|| format!("--box {}", b.map(|v| v.to_string()).join(",")))?;
+        println!("box {j}: {:?}, {:.0} % of the box, {:.0} ms{}", s.method, s.fill * 100.0, s.ms, s.note.map(|n| format!(" ({n})")).unwrap_or_default());
+        out.push(Detection { mask: s.mask, score: score(a.masks.len() + j) });
+    }
+    Ok(out)
 }
 
 pub fn run(a: EstimateArgs) -> Result<()> {
-    if a.scores.len() > a.masks.len() {
-        bail!("{} --score values for {} --mask files", a.scores.len(), a.masks.len());
+    let given = a.masks.len() + a.boxes.len();
+    if given == 0 {
+        bail!("give at least one --mask or --box");
+    }
+    if a.scores.len() > given {
+        bail!("{} --score values for {} --mask files and {} --box values", a.scores.len(), a.masks.len(), a.boxes.len());
     }
     let store = crate::store::open(&a.store.clone().unwrap_or_else(crate::store::default_url))?;
     let model = store.get(&a.object).with_context(|| format!("loading object {:?} from {}", a.object, store.url()))?;
     let image = image::open(&a.image).with_context(|| format!("cannot read image {}", a.image.display()))?.to_rgb8();
     let k = super::camera_file::load_camera(&a.camera)?;
-    let detections = a
-        .masks
-        .iter()
-        .enumerate()
-        .map(|(i, p)| Ok(Detection { mask: load_mask(p)?, score: a.scores.get(i).copied().unwrap_or(1.0) }))
-        .collect::<Result<Vec<_>>>()?;
+    let detections = detections(&a, &image)?;
     let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?);
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
     let estimator = crate::estimate::Estimator::new(backbone, renderer.clone());

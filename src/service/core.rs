@@ -228,7 +228,7 @@ impl Core {
                 return Err(ServiceError::invalid(format!("detections[{i}].score is not a finite number")));
             }
             crate::store::validate_id(&d.object_id).map_err(|e| ServiceError::invalid(format!("detections[{i}].object_id: {e}")))?;
-            by_object.entry(d.object_id.as_str()).or_default().push((i, d.mask(i, k.width, k.height)?, d.score));
+            by_object.entry(d.object_id.as_str()).or_default().push((i, d.mask(i, &image, crate::masks::BoxMask::Segment)?, d.score));
         }
         // Every object must exist before any work starts.
         let models: BTreeMap<&str, _> = by_object.keys().map(|&id| Ok((id, self.cache.get(id)?))).collect::<Result<_, ServiceError>>()?;
@@ -239,7 +239,7 @@ impl Core {
         for (object_id, dets) in &by_object {
             let model = &models[object_id];
             let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, m, s)| (m, *s as f64)).collect();
-            for (instance, group) in crate::bop::instances::group_instances(&refs, 0.5).into_iter().take(o.instances_per_object).enumerate() {
+            for (instance, group) in crate::masks::group_instances(&refs, 0.5).into_iter().take(o.instances_per_object).enumerate() {
                 if deadline.is_some_and(|d| Instant::now() >= d) {
                     return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", results.len())));
                 }

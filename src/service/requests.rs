@@ -6,6 +6,7 @@
 use super::base64_bytes::Base64Bytes;
 use super::error::ServiceError;
 use crate::geometry::Intrinsics;
+use crate::masks::{box_to_mask, mask_from_png, mask_from_rle, require_nonempty, BoxMask, MaskError, Rle};
 use image::{GrayImage, RgbImage};
 
 /// An image: encoded PNG/JPEG bytes, or raw 8-bit RGB rows with their size.
@@ -71,7 +72,7 @@ pub struct RleInput {
 }
 
 /// One detection of one object: a mask (PNG, base64, non-zero = object; or RLE) and/or a
-/// box `[x, y, w, h]` in pixels (a box alone is used as a filled mask).
+/// box `[x, y, w, h]` in pixels (a box alone is segmented: the object inside the box).
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct DetectionInput {
     pub object_id: String,
@@ -90,24 +91,26 @@ fn one() -> f32 {
 }
 
 impl DetectionInput {
-    /// The mask at the image's size; `index` names the detection in errors.
-    pub fn mask(&self, index: usize, width: u32, height: u32) -> Result<GrayImage, ServiceError> {
-        let field = |f: &str| format!("detections[{index}].{f}");
-        let mask = if let Some(png) = &self.mask_png {
-            image::load_from_memory(png.as_slice()).map_err(|e| ServiceError::invalid(format!("{}: not a readable image: {e}", field("mask_png"))))?.to_luma8()
+    /// The mask on `image`; `index` names the detection in errors. A box alone is
+    /// segmented inside the box (`how`), which is why the image is needed.
+    pub fn mask(&self, index: usize, image: &RgbImage, how: BoxMask) -> Result<GrayImage, ServiceError> {
+        let (width, height) = image.dimensions();
+        let bad = |f: &'static str| move |e: MaskError| ServiceError::invalid(format!("detections[{index}].{f}: {e}"));
+        let (mask, field) = if let Some(png) = &self.mask_png {
+            (mask_from_png(png.as_slice(), width, height).map_err(bad("mask_png"))?, "mask_png")
         } else if let Some(rle) = &self.mask_rle {
-            let r = crate::bop::rle::Rle::new(rle.size, rle.counts.clone()).map_err(|e| ServiceError::invalid(format!("{}: {e}", field("mask_rle"))))?;
-            r.decode().map_err(|e| ServiceError::invalid(format!("{}: {e}", field("mask_rle"))))?
+            let r = Rle::new(rle.size, rle.counts.clone()).map_err(|e| bad("mask_rle")(e.into()))?;
+            (mask_from_rle(&r, width, height).map_err(bad("mask_rle"))?, "mask_rle")
         } else if let Some(b) = self.bbox {
-            let rec = crate::bop::detections::DetectionRecord { scene_id: 0, image_id: 0, obj_id: 0, bbox: b, score: self.score as f64, time: 0.0, segmentation: None };
-            rec.mask(width, height).map_err(|e| ServiceError::invalid(format!("{}: {e}", field("bbox"))))?
+            let s = box_to_mask(image, b, how).map_err(bad("bbox"))?;
+            if let Some(note) = &s.note {
+                log::info!("detections[{index}].bbox: {note}");
+            }
+            (s.mask, "bbox")
         } else {
             return Err(ServiceError::invalid(format!("detections[{index}]: give a mask_png, a mask_rle or a bbox")));
         };
-        if mask.dimensions() != (width, height) {
-            return Err(ServiceError::invalid(format!("detections[{index}]: mask is {}×{} but the image is {width}×{height}", mask.width(), mask.height())));
-        }
-        Ok(mask)
+        require_nonempty(mask).map_err(bad(field))
     }
 }
 

@@ -1,0 +1,232 @@
+//! Masks from what callers send: PNG/JPEG bytes, an RLE, or a box `[x, y, w, h]`. Every
+//! error says what is wrong with the input, so the service can put the field name in front
+//! and answer 400, and the BOP runner can count the detection as unusable.
+
+use super::rle::{Rle, RleError};
+use super::segment::{segment_box, Method, SegmentConfig, Segmentation};
+use image::{DynamicImage, GrayImage, Luma, RgbImage};
+use std::time::Instant;
+
+/// Value of an object pixel in every mask made here.
+pub const OBJECT: u8 = 255;
+
+/// Why a mask could not be made from the input.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MaskError {
+    #[error("box {bbox:?} ([x, y, w, h]) has a non-finite value")]
+    NonFiniteBox { bbox: [f64; 4] },
+    #[error("box {bbox:?} ([x, y, w, h]) has zero area: width and height must be positive")]
+    ZeroAreaBox { bbox: [f64; 4] },
+    #[error("box {bbox:?} ([x, y, w, h]) lies outside the {width}×{height} image")]
+    BoxOutsideImage { bbox: [f64; 4], width: u32, height: u32 },
+    #[error("mask is {mask_width}×{mask_height} (w×h) but the image is {width}×{height}")]
+    SizeMismatch { mask_width: u32, mask_height: u32, width: u32, height: u32 },
+    #[error("the mask is empty (no nonzero pixel)")]
+    Empty,
+    #[error("not a readable PNG/JPEG image: {0}")]
+    Unreadable(String),
+    #[error(transparent)]
+    Rle(#[from] RleError),
+}
+
+/// How a box-only detection becomes a mask.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum BoxMask {
+    /// Segment the object inside the box ([`segment_box`]).
+    #[default]
+    Segment,
+    /// The whole box (the behaviour before segmentation existed; a poor outline).
+    Fill,
+}
+
+impl std::str::FromStr for BoxMask {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "segment" => Ok(BoxMask::Segment),
+            "fill" => Ok(BoxMask::Fill),
+            other => Err(format!("box mask {other:?}: expected segment or fill")),
+        }
+    }
+}
+
+/// A box clipped to the image, in whole pixels: columns `x0..x1`, rows `y0..y1`. Pixels
+/// partly covered by a fractional box count as inside.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PixelBox {
+    pub x0: u32,
+    pub y0: u32,
+    pub x1: u32,
+    pub y1: u32,
+}
+
+impl PixelBox {
+    /// Checks `[x, y, w, h]` (pixels) and clips it to a `width × height` image.
+    pub fn from_xywh(bbox: [f64; 4], width: u32, height: u32) -> Result<PixelBox, MaskError> {
+        if bbox.iter().any(|v| !v.is_finite()) {
+            return Err(MaskError::NonFiniteBox { bbox });
+        }
+        let [x, y, w, h] = bbox;
+        if w <= 0.0 || h <= 0.0 {
+            return Err(MaskError::ZeroAreaBox { bbox });
+        }
+        // Saturating float→int casts keep huge boxes panic-free.
+        let clip = |v: f64, limit: u32| (v as i64).clamp(0, limit as i64) as u32;
+        let (x0, x1) = (clip(x.floor(), width), clip((x + w).ceil(), width));
+        let (y0, y1) = (clip(y.floor(), height), clip((y + h).ceil(), height));
+        if x0 >= x1 || y0 >= y1 {
+            return Err(MaskError::BoxOutsideImage { bbox, width, height });
+        }
+        Ok(PixelBox { x0, y0, x1, y1 })
+    }
+
+    pub fn width(&self) -> u32 {
+        self.x1 - self.x0
+    }
+
+    pub fn height(&self) -> u32 {
+        self.y1 - self.y0
+    }
+
+    pub fn area(&self) -> u64 {
+        self.width() as u64 * self.height() as u64
+    }
+
+    pub fn contains(&self, x: u32, y: u32) -> bool {
+        (self.x0..self.x1).contains(&x) && (self.y0..self.y1).contains(&y)
+    }
+
+    /// A `width × height` mask with this box filled.
+    pub fn filled(&self, width: u32, height: u32) -> GrayImage {
+        GrayImage::from_fn(width, height, |x, y| Luma([if self.contains(x, y) { OBJECT } else { 0 }]))
+    }
+}
+
+/// Object = any nonzero colour channel, whatever the PNG's colour type (L, LA, RGB,
+/// RGBA): a red-on-black mask has a nonzero luma but a blue one may not. Alpha is ignored.
+pub fn binarise(img: &DynamicImage) -> GrayImage {
+    let rgb = img.to_rgb8();
+    GrayImage::from_fn(rgb.width(), rgb.height(), |x, y| {
+        Luma([if rgb.get_pixel(x, y).0.iter().any(|&c| c > 0) { OBJECT } else { 0 }])
+    })
+}
+
+/// A `width × height` mask from PNG (or JPEG) bytes.
+pub fn mask_from_png(bytes: &[u8], width: u32, height: u32) -> Result<GrayImage, MaskError> {
+    let img = image::load_from_memory(bytes).map_err(|e| MaskError::Unreadable(e.to_string()))?;
+    check_size(binarise(&img), width, height)
+}
+
+/// A `width × height` mask from an RLE, whose size must be the image's.
+pub fn mask_from_rle(rle: &Rle, width: u32, height: u32) -> Result<GrayImage, MaskError> {
+    if (rle.width(), rle.height()) != (width, height) {
+        return Err(MaskError::SizeMismatch { mask_width: rle.width(), mask_height: rle.height(), width, height });
+    }
+    Ok(rle.decode()?)
+}
+
+pub fn check_size(mask: GrayImage, width: u32, height: u32) -> Result<GrayImage, MaskError> {
+    if mask.dimensions() != (width, height) {
+        return Err(MaskError::SizeMismatch { mask_width: mask.width(), mask_height: mask.height(), width, height });
+    }
+    Ok(mask)
+}
+
+/// An empty mask gives no crop, no silhouette and no pose: refuse it where it enters.
+pub fn require_nonempty(mask: GrayImage) -> Result<GrayImage, MaskError> {
+    if mask.as_raw().iter().all(|&v| v == 0) {
+        return Err(MaskError::Empty);
+    }
+    Ok(mask)
+}
+
+/// The mask of a box-only detection on `image`: the object segmented inside the box, or
+/// the filled box. The box is validated and clipped first.
+pub fn box_to_mask(image: &RgbImage, bbox: [f64; 4], how: BoxMask) -> Result<Segmentation, MaskError> {
+    let b = PixelBox::from_xywh(bbox, image.width(), image.height())?;
+    Ok(match how {
+        BoxMask::Segment => segment_box(image, &b, &SegmentConfig::default()),
+        BoxMask::Fill => {
+            let t = Instant::now();
+            let mask = b.filled(image.width(), image.height());
+            Segmentation { mask, method: Method::Fill, fill: 1.0, ms: t.elapsed().as_secs_f64() * 1e3, note: None }
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ones(m: &GrayImage) -> usize {
+        m.pixels().filter(|p| p[0] == OBJECT).count()
+    }
+
+    #[test]
+    fn fractional_box_covers_partly_covered_pixels_and_is_clipped() {
+        let b = PixelBox::from_xywh([1.5, 1.0, 2.0, 2.0], 10, 10).unwrap();
+        assert_eq!(b, PixelBox { x0: 1, y0: 1, x1: 4, y1: 3 });
+        let on: Vec<(u32, u32)> =
+            b.filled(10, 10).enumerate_pixels().filter(|p| p.2[0] == OBJECT).map(|p| (p.0, p.1)).collect();
+        assert_eq!(on, vec![(1, 1), (2, 1), (3, 1), (1, 2), (2, 2), (3, 2)]);
+        let clipped = PixelBox::from_xywh([-5.0, 8.0, 7.0, 100.0], 10, 10).unwrap();
+        assert_eq!(ones(&clipped.filled(10, 10)), 2 * 2);
+        // Touching the border from inside is fine.
+        assert_eq!(PixelBox::from_xywh([0.0, 0.0, 10.0, 10.0], 10, 10).unwrap().area(), 100);
+    }
+
+    #[test]
+    fn bad_boxes_say_what_is_wrong() {
+        let cases: [([f64; 4], &str); 6] = [
+            ([20.0, 0.0, 5.0, 5.0], "lies outside the 10×10 image"),
+            ([-8.0, -8.0, 8.0, 8.0], "lies outside the 10×10 image"),
+            ([2.0, 2.0, 0.0, 3.0], "zero area"),
+            ([2.0, 2.0, 3.0, -1.0], "zero area"),
+            ([f64::NAN, 2.0, 3.0, 3.0], "non-finite"),
+            ([2.0, 2.0, f64::INFINITY, 3.0], "non-finite"),
+        ];
+        for (bbox, expected) in cases {
+            let err = PixelBox::from_xywh(bbox, 10, 10).unwrap_err().to_string();
+            assert!(err.contains(expected), "{bbox:?}: {err}");
+            let image = RgbImage::new(10, 10);
+            for how in [BoxMask::Segment, BoxMask::Fill] {
+                assert_eq!(box_to_mask(&image, bbox, how).unwrap_err().to_string(), err);
+            }
+        }
+    }
+
+    #[test]
+    fn png_masks_are_binarised_and_size_checked() {
+        let mut rgb = RgbImage::new(4, 3);
+        rgb.put_pixel(1, 1, image::Rgb([0, 0, 1])); // luma 0, still object
+        let mut png = Vec::new();
+        DynamicImage::ImageRgb8(rgb).write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).unwrap();
+        let mask = mask_from_png(&png, 4, 3).unwrap();
+        assert_eq!(ones(&mask), 1);
+        assert_eq!(mask.get_pixel(1, 1)[0], OBJECT);
+        let err = mask_from_png(&png, 3, 4).unwrap_err().to_string();
+        assert_eq!(err, "mask is 4×3 (w×h) but the image is 3×4");
+        assert!(mask_from_png(b"not a png", 4, 3).unwrap_err().to_string().starts_with("not a readable PNG/JPEG image"));
+    }
+
+    #[test]
+    fn rle_masks_are_size_checked_and_empty_masks_refused() {
+        let rle = Rle::new([3, 2], vec![0, 1, 2, 1, 1, 1]).unwrap();
+        let mask = mask_from_rle(&rle, 2, 3).unwrap();
+        assert_eq!(ones(&mask), 3);
+        assert_eq!(mask_from_rle(&rle, 3, 2).unwrap_err().to_string(), "mask is 2×3 (w×h) but the image is 3×2");
+        let empty = Rle::encode(&GrayImage::new(5, 5));
+        let err = require_nonempty(mask_from_rle(&empty, 5, 5).unwrap()).unwrap_err();
+        assert_eq!(err.to_string(), "the mask is empty (no nonzero pixel)");
+        assert!(require_nonempty(mask).is_ok());
+    }
+
+    #[test]
+    fn fill_gives_the_old_filled_box() {
+        let image = RgbImage::new(10, 10);
+        let s = box_to_mask(&image, [1.5, 1.0, 2.0, 2.0], BoxMask::Fill).unwrap();
+        assert_eq!((s.method, ones(&s.mask)), (Method::Fill, 6));
+        assert_eq!("fill".parse::<BoxMask>().unwrap(), BoxMask::Fill);
+        assert!("grabcut".parse::<BoxMask>().is_err());
+    }
+}

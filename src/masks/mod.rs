@@ -1,0 +1,19 @@
+//! Object masks from whatever a caller has: PNG bytes, run-length encodings, or only a
+//! box, which is segmented (GrabCut-style) rather than filled, because a filled rectangle
+//! poisons everything that uses the outline (silhouette retrieval, selection IoU,
+//! refiners). Also the grouping of one object's detections into instances.
+//!
+//! The service, the CLI and the BOP runner all decode detections here, so this module
+//! sits below them and depends on nothing of the crate above `image`/`nalgebra`.
+
+pub mod decode;
+pub mod gmm;
+pub mod instances;
+pub mod maxflow;
+pub mod rle;
+pub mod segment;
+
+pub use decode::{box_to_mask, mask_from_png, mask_from_rle, require_nonempty, BoxMask, MaskError, PixelBox};
+pub use instances::{group_instances, mask_iou};
+pub use rle::{Rle, RleError};
+pub use segment::{ellipse_in_box, segment_box, Method, SegmentConfig, Segmentation};
