@@ -191,15 +191,15 @@ fn onboard_rows(data: &Path, default_units: Units, meshes: &[PathBuf], store: &d
     let pool = super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?;
     let config = OnboardConfig::default();
     println!("{}", store.url());
-    println!("| mesh | units | vertices | faces | diameter (mm) | load (s) | onboarding (s) | store put (s) | templates | patches | model (MB) |");
-    println!("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("| mesh | units | vertices | faces | diameter (mm) | load (s) | onboarding (s) | of which contour model (s) | store put (s) | templates | patches | model (MB) | of which contour model (MB) |");
+    println!("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for path in meshes {
         let units = units_for(path, default_units);
         let t = Instant::now();
         let mesh = match load_mesh(path, units) {
             Ok(m) => m,
             Err(e) => {
-                println!("| {} | | | | | | failed: {e} | | | | |", path.display());
+                println!("| {} | | | | | | failed: {e} | | | | | | |", path.display());
                 continue;
             }
         };
@@ -208,12 +208,17 @@ fn onboard_rows(data: &Path, default_units: Units, meshes: &[PathBuf], store: &d
         let t = Instant::now();
         let model = onboard(&id, &mesh, &config, &backbone, &pool, &|_| {})?;
         let onboard_s = t.elapsed().as_secs_f64();
+        // Onboarding builds the contour model last; build it again alone to see its share.
+        let t = Instant::now();
+        let contour = crate::onboard::ContourModel::build(&mesh, &pool, &Default::default())?;
+        let contour_s = t.elapsed().as_secs_f64();
+        let contour_mb = contour.memory_bytes() as f64 / 1e6;
         let t = Instant::now();
         let info = store.put(&model, true)?;
         let put_s = t.elapsed().as_secs_f64();
         let mb = info.bytes as f64 / 1e6;
         println!(
-            "| {} | {} | {} | {} | {:.1} | {load_s:.2} | {onboard_s:.1} | {put_s:.2} | {} | {} | {mb:.1} |",
+            "| {} | {} | {} | {} | {:.1} | {load_s:.2} | {onboard_s:.1} | {contour_s:.1} | {put_s:.2} | {} | {} | {mb:.1} | {contour_mb:.1} |",
             path.strip_prefix(data).unwrap_or(path).display(),
             units.map(|u| u.as_str()).unwrap_or("m (glTF)"),
             mesh.positions().len(),

@@ -164,7 +164,8 @@ mod tests {
         let probs = [0.9, 0.9, 0.9, 0.9, 0.9, 0.9, 0.1, 0.1, 0.1, 0.1];
         let (mean, var) = outline_distribution(&probs, 4, s);
         assert!((mean - 4.0).abs() < 0.5, "mean {mean}");
-        assert!(var < 2.0, "variance {var}");
+        // About one segment's uncertainty: the smoothed step and the 0.9 / 0.1 contrast.
+        assert!(var < 1.5 * s * s, "variance {var}");
         // Uninformative segments: a flat distribution centred on the line's middle.
         let (mean, var) = outline_distribution(&[0.5; 8], 4, s);
         assert!(mean.abs() < 1e-9 && var > 10.0);

@@ -99,8 +99,11 @@ pub fn gauss_newton_update(lines: &[Line], pose: &Pose, start: &Pose, k: &Intrin
     let since = start.inverse().compose(pose);
     let so_far = since.rotation.scaled_axis();
     let moved = [so_far.x, so_far.y, so_far.z, since.translation.x, since.translation.y, since.translation.z];
+    // A trace-relative floor keeps the system solvable when the lines leave a direction
+    // entirely unseen and the prior is off.
+    let floor = 1e-9 * h.trace();
     for i in 0..6 {
-        h[(i, i)] += prior[i];
+        h[(i, i)] += prior[i] + floor;
         g[i] -= prior[i] * moved[i];
     }
     let step = h.cholesky()?.solve(&g);
