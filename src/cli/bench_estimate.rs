@@ -57,10 +57,10 @@ pub struct BenchEstimateArgs {
     /// the best silhouette IoU) or contour (aligns the outline with the mask).
     #[arg(long, value_enum, default_value_t = crate::estimate::RefinerKind::default())]
     pub refiner: crate::estimate::RefinerKind,
-    /// Hypothesis verification: refine and verify the pose's axis flips and the best
-    /// templates placed at the mask too (off: the pipeline's pose alone).
+    /// No hypothesis verification: refine the pipeline's pose alone, not also its axis
+    /// flips and the best templates placed at the mask.
     #[arg(long)]
-    pub verify: bool,
+    pub no_verify: bool,
     /// Retrieved templates added as hypotheses, and hypotheses rendered in verification.
     #[arg(long)]
     pub verify_templates: Option<usize>,
@@ -212,7 +212,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     if let Some(d) = a.nms_degrees {
         base.retrieval.nms_degrees = d;
     }
-    base.verify.enabled = a.verify;
+    base.verify.enabled = !a.no_verify;
     if let Some(n) = a.verify_templates {
         base.verify.templates = n;
     }

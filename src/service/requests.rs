@@ -128,13 +128,13 @@ pub struct EstimateOptions {
     /// Refinement after PnP/RRC.
     pub refiner: crate::estimate::RefinerKind,
     /// Hypothesis verification: also refine the pose's axis flips and the best templates
-    /// placed at the mask, and keep the best verified one.
+    /// placed at the mask, and keep the best verified one (default on).
     pub verify: bool,
 }
 
 impl Default for EstimateOptions {
     fn default() -> Self {
-        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default(), verify: false }
+        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default(), verify: true }
     }
 }
 
