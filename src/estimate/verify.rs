@@ -62,9 +62,12 @@ const EDGE: f32 = 40.0;
 
 /// How well the render's interior edges (its texture, colours and creases; not its
 /// outline, which the other terms judge) line up with the photo's, in [0, 1]: over the
-/// render's edge pixels well inside both its silhouette and the mask, the mean squared
-/// cosine between the two gradient orientations where the photo has an edge too (0 where
-/// it has none). Orientation, not sign or strength: lighting changes both across the gap.
+/// pixels well inside both the render's silhouette and the mask where either image has an
+/// edge, the mean squared cosine between the two gradient orientations (0 where only one
+/// has an edge). Counting the photo's edges too matters: a plain side of the object (its
+/// back, with the label on the front) must not score well against a printed photo just
+/// because its few edges happen to agree. Orientation, not sign or strength: lighting
+/// changes both across the gap.
 pub fn appearance_agreement(render: &RenderOutput, image: &RgbImage, mask: &GrayImage, window: (u32, u32, u32, u32)) -> f64 {
     let (x0, y0, w, h) = window;
     if w < 7 || h < 7 {
@@ -80,14 +83,14 @@ pub fn appearance_agreement(render: &RenderOutput, image: &RgbImage, mask: &Gray
                 continue;
             }
             let (rx, ry) = sobel(&r_at, x, y);
-            let rm = rx * rx + ry * ry;
-            if rm < EDGE * EDGE {
+            let (ix, iy) = sobel(&i_at, x, y);
+            let (rm, im) = (rx * rx + ry * ry, ix * ix + iy * iy);
+            let (r_edge, i_edge) = (rm >= EDGE * EDGE, im >= EDGE * EDGE);
+            if !(r_edge || i_edge) {
                 continue;
             }
             count += 1;
-            let (ix, iy) = sobel(&i_at, x, y);
-            let im = ix * ix + iy * iy;
-            if im >= EDGE * EDGE {
+            if r_edge && i_edge {
                 let dot = (rx * ix + ry * iy) as f64;
                 sum += dot * dot / (rm as f64 * im as f64);
             }
@@ -130,5 +133,9 @@ mod tests {
         let turned = appearance_agreement(&render, &striped(40, false), &full, (0, 0, 40, 40));
         assert!(same > 0.9, "{same}");
         assert!(turned < 0.1, "{turned}");
+        // A plain render against a printed photo: the photo's edges go unexplained.
+        let plain = RenderOutput { rgb: RgbImage::from_pixel(40, 40, image::Rgb([128, 128, 128])), depth: vec![1.0; 1600], mask: full.clone() };
+        let unexplained = appearance_agreement(&plain, &striped(40, true), &full, (0, 0, 40, 40));
+        assert!(unexplained < 0.05, "{unexplained}");
     }
 }
