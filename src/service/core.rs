@@ -279,3 +279,27 @@ fn others_mask(by_object: &BTreeMap<&str, Vec<(usize, image::GrayImage, f32)>>, 
     }
     union
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dot(x: u32) -> image::GrayImage {
+        let mut m = image::GrayImage::new(4, 1);
+        m.put_pixel(x, 0, image::Luma([255]));
+        m
+    }
+
+    #[test]
+    fn others_are_every_detection_but_the_instance_itself() {
+        let mut by_object: BTreeMap<&str, Vec<(usize, image::GrayImage, f32)>> = BTreeMap::new();
+        by_object.insert("a", vec![(0, dot(0), 1.0), (1, dot(1), 0.5)]);
+        by_object.insert("b", vec![(2, dot(2), 1.0)]);
+        let o = others_mask(&by_object, "a", &[0], 4, 1).unwrap();
+        assert_eq!(o.as_raw(), &vec![0, 255, 255, 0]);
+        let o = others_mask(&by_object, "b", &[0], 4, 1).unwrap();
+        assert_eq!(o.as_raw(), &vec![255, 255, 0, 0]);
+        let alone: BTreeMap<&str, Vec<(usize, image::GrayImage, f32)>> = BTreeMap::from([("a", vec![(0, dot(0), 1.0)])]);
+        assert!(others_mask(&alone, "a", &[0], 4, 1).is_none());
+    }
+}
