@@ -94,17 +94,22 @@ pub fn run(
         let started = Instant::now();
         let rgb = load_rgb(&camera.rgb_path)?;
         let mut rows = Vec::new();
+        // Every target's masks first: each instance's refiner learns where the other
+        // detections of the image are (it may be hidden there).
+        let mut decoded: Vec<Vec<(image::GrayImage, f64)>> = Vec::with_capacity(targets.len());
         for t in &targets {
-            summary.targets += 1;
-            summary.instances_requested += t.inst_count as usize;
-            let dets = detections.get(scene_id, im_id, t.obj_id);
-            let mut masks = Vec::with_capacity(dets.len());
-            for d in dets {
+            let mut masks = Vec::new();
+            for d in detections.get(scene_id, im_id, t.obj_id) {
                 match d.mask(&rgb, opts.box_mask) {
                     Ok(m) => masks.push((m, d.score)),
                     Err(_) => summary.unusable_detections += 1,
                 }
             }
+            decoded.push(masks);
+        }
+        for (ti, (t, masks)) in targets.iter().zip(&decoded).enumerate() {
+            summary.targets += 1;
+            summary.instances_requested += t.inst_count as usize;
             if masks.is_empty() {
                 summary.targets_without_detection += 1;
                 continue;
@@ -113,7 +118,10 @@ pub fn run(
             let refs: Vec<_> = masks.iter().map(|(m, s)| (m, *s)).collect();
             for group in group_instances(&refs, opts.same_instance_iou).into_iter().take(t.inst_count as usize) {
                 let candidates: Vec<Detection> = group.iter().map(|&i| Detection { mask: masks[i].0.clone(), score: masks[i].1 as f32 }).collect();
-                match estimator.estimate(&m, &rgb, &camera.cam, &candidates, &opts.estimate) {
+                let group = &group;
+                let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, (m, _))| m));
+                let others = crate::masks::union(others, camera.cam.width, camera.cam.height);
+                match estimator.estimate_among(&m, &rgb, &camera.cam, &candidates, others.as_ref(), &opts.estimate) {
                     Ok(r) => match r.pose {
                         Some(pose) => rows.push(ResultRow { scene_id, im_id, obj_id: t.obj_id, score: r.score as f64, pose, time: 0.0 }),
                         None => summary.instances_without_pose += 1,

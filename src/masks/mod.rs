@@ -12,8 +12,10 @@ pub mod instances;
 pub mod maxflow;
 pub mod rle;
 pub mod segment;
+pub mod union;
 
 pub use decode::{box_to_mask, mask_from_png, mask_from_rle, require_nonempty, BoxMask, MaskError, PixelBox};
 pub use instances::{group_instances, mask_iou};
 pub use rle::{Rle, RleError};
+pub use union::union;
 pub use segment::{ellipse_in_box, segment_box, Method, SegmentConfig, Segmentation};

@@ -265,19 +265,8 @@ impl Core {
 /// Union of every detection's mask except those of `object_id`'s instance `group`: where
 /// another detection is, this instance may be hidden. `None` when there is no other.
 fn others_mask(by_object: &BTreeMap<&str, Vec<(usize, image::GrayImage, f32)>>, object_id: &str, group: &[usize], width: u32, height: u32) -> Option<image::GrayImage> {
-    let mut union: Option<image::GrayImage> = None;
-    for (&id, dets) in by_object {
-        for (g, (_, mask, _)) in dets.iter().enumerate() {
-            if id == object_id && group.contains(&g) {
-                continue;
-            }
-            let u = union.get_or_insert_with(|| image::GrayImage::new(width, height));
-            for (o, m) in u.pixels_mut().zip(mask.pixels()) {
-                o[0] |= m[0];
-            }
-        }
-    }
-    union
+    let others = by_object.iter().flat_map(|(&id, dets)| dets.iter().enumerate().filter(move |(g, _)| !(id == object_id && group.contains(g))).map(|(_, (_, mask, _))| mask));
+    crate::masks::union(others, width, height)
 }
 
 #[cfg(test)]
