@@ -119,7 +119,8 @@ pub struct Estimator {
     renderer: Arc<RenderPool>,
     /// One per `RefinerKind`, in `RefinerKind::ALL` order.
     refiners: Vec<Arc<dyn Refiner>>,
-    /// Scores the outline of every hypothesis in verification, whichever refiner runs.
+    /// Scores the outline of every hypothesis in verification, whichever refiner runs (the
+    /// same instance as the `Contour` slot unless `with_refiner` replaced that).
     contour: Arc<ContourRefiner>,
 }
 
@@ -129,17 +130,17 @@ fn ms(t: Instant) -> f64 {
 
 impl Estimator {
     pub fn new(backbone: Arc<dyn Backbone>, renderer: Arc<RenderPool>) -> Self {
+        let contour = Arc::new(ContourRefiner::new(renderer.clone()));
         let refiners: Vec<Arc<dyn Refiner>> = RefinerKind::ALL
             .iter()
             .map(|k| -> Arc<dyn Refiner> {
                 match k {
                     RefinerKind::None => Arc::new(PassThrough),
                     RefinerKind::SilhouetteDepth => Arc::new(SilhouetteDepthRefiner::new(renderer.clone())),
-                    RefinerKind::Contour => Arc::new(ContourRefiner::new(renderer.clone())),
+                    RefinerKind::Contour => contour.clone(),
                 }
             })
             .collect();
-        let contour = Arc::new(ContourRefiner::new(renderer.clone()));
         Self { backbone, renderer, refiners, contour }
     }
 

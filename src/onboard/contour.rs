@@ -9,7 +9,7 @@ use crate::geometry::views::{fitted_distance, icosphere, view_pose};
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Mesh;
 use crate::render::{RenderError, RenderOptions, RenderOutput, RenderPool};
-use nalgebra::{Point3, Vector3};
+use nalgebra::Vector3;
 use rayon::prelude::*;
 
 /// How a contour model is sampled; stored with it.
@@ -250,11 +250,6 @@ fn rim_point(r: &RenderOutput, inv: &Pose, k: &Intrinsics, (x, y): (i64, i64)) -
         foreground_m: (run_length(mask, x as f64, y as f64, -nx, -ny, true) * px_to_m) as f32,
         background_m: (run_length(mask, x as f64, y as f64, nx, ny, false) * px_to_m) as f32,
     })
-}
-
-/// Camera-frame position of an object point.
-pub fn to_camera(pose: &Pose, p: &[f32; 3]) -> Point3<f64> {
-    pose.transform_point(&Point3::new(p[0] as f64, p[1] as f64, p[2] as f64))
 }
 
 #[cfg(test)]

@@ -47,8 +47,7 @@ pub fn projection_jacobian(k: &Intrinsics, p: &Point3<f64>) -> Matrix2x3<f64> {
 
 /// Direction from the object's bounding-box centre to the camera, object frame.
 pub fn camera_direction(pose: &Pose, centre: &Vector3<f64>) -> Vector3<f64> {
-    let camera = -(pose.rotation.inverse() * pose.translation);
-    camera - centre
+    pose.inverse().translation - centre
 }
 
 /// Builds the lines of the view nearest to `pose` and measures the outline on each.
@@ -59,33 +58,28 @@ pub fn build_lines(cm: &ContourModel, centre: &Vector3<f64>, pose: &Pose, k: &In
 
 /// Line `i` of the model at `pose`; `None` when it cannot be measured at this scale.
 fn line(cm: &ContourModel, i: usize, pose: &Pose, k: &Intrinsics, post: &Posterior<'_>, scale: LineScale) -> Option<Line> {
-    {
-        let x = Vector3::new(cm.points[i][0] as f64, cm.points[i][1] as f64, cm.points[i][2] as f64);
-        let n = Vector3::new(cm.normals[i][0] as f64, cm.normals[i][1] as f64, cm.normals[i][2] as f64);
-        let p = Point3::from(pose.rotation * x + pose.translation);
-        if p.z <= 1e-6 {
-            return None;
-        }
-        let n2 = projection_jacobian(k, &p) * (pose.rotation * n);
-        let len = n2.norm();
-        if len < 1e-9 {
-            return None;
-        }
-        let normal = n2 / len;
-        let centre_px = Vector2::new(k.fx * p.x / p.z + k.cx, k.fy * p.y / p.z + k.cy);
-        let px_per_m = k.fx.max(k.fy) / p.z;
-        let inner = ((cm.foreground_m[i] as f64 * px_per_m / scale.segment_px).floor() as usize).min(scale.segments);
-        let outer = ((cm.background_m[i] as f64 * px_per_m / scale.segment_px).floor() as usize).min(scale.segments);
-        // Fewer than two segments a side cannot place an outline (a thin part at a coarse
-        // scale): the line waits for a finer scale.
-        if inner < 2 || outer < 2 {
-            return None;
-        }
-        let probs = segment_probabilities(post, &centre_px, &normal, scale.segment_px, inner, outer);
-        let (mean, variance) = outline_distribution(&probs, inner, scale.segment_px);
-        let edge = probs.iter().any(|&p| p > 0.7) && probs.iter().any(|&p| p < 0.3);
-        Some(Line { object_point: x, centre: centre_px, normal, mean, variance, edge })
+    let x = Vector3::new(cm.points[i][0] as f64, cm.points[i][1] as f64, cm.points[i][2] as f64);
+    let n = Vector3::new(cm.normals[i][0] as f64, cm.normals[i][1] as f64, cm.normals[i][2] as f64);
+    let p = Point3::from(pose.rotation * x + pose.translation);
+    let centre_px = k.project(&p)?;
+    let n2 = projection_jacobian(k, &p) * (pose.rotation * n);
+    let len = n2.norm();
+    if len < 1e-9 {
+        return None;
     }
+    let normal = n2 / len;
+    let px_per_m = k.fx.max(k.fy) / p.z;
+    let inner = ((cm.foreground_m[i] as f64 * px_per_m / scale.segment_px).floor() as usize).min(scale.segments);
+    let outer = ((cm.background_m[i] as f64 * px_per_m / scale.segment_px).floor() as usize).min(scale.segments);
+    // Fewer than two segments a side cannot place an outline (a thin part at a coarse
+    // scale): the line waits for a finer scale.
+    if inner < 2 || outer < 2 {
+        return None;
+    }
+    let probs = segment_probabilities(post, &centre_px, &normal, scale.segment_px, inner, outer);
+    let (mean, variance) = outline_distribution(&probs, inner, scale.segment_px);
+    let edge = probs.iter().any(|&p| p > 0.7) && probs.iter().any(|&p| p < 0.3);
+    Some(Line { object_point: x, centre: centre_px, normal, mean, variance, edge })
 }
 
 /// Mean foreground probability of each segment, innermost first: `inner` segments inside

@@ -8,6 +8,7 @@ use super::posterior::Posterior;
 use super::solve::{apply_update, gauss_newton_update, Regularisation};
 use crate::estimate::refine::{RefineContext, RefineReport, Refined, Refiner};
 use crate::geometry::Pose;
+use crate::onboard::ContourModel;
 use crate::render::RenderPool;
 use nalgebra::Vector3;
 use std::sync::Arc;
@@ -56,6 +57,12 @@ pub struct Agreement {
     pub residual_px: f64,
 }
 
+impl Agreement {
+    fn report(&self, moved: bool, note: Option<String>) -> RefineReport {
+        RefineReport { moved, residual_px: self.residual_px, lines: self.lines, lines_with_edge: self.lines_with_edge, agreement: self.score, note }
+    }
+}
+
 fn agreement(lines: &[Line], scale: &LineScale) -> Agreement {
     let tolerance = 2.0 * scale.segment_px;
     let mut a = Agreement { lines: lines.len(), ..Default::default() };
@@ -92,14 +99,24 @@ impl ContourRefiner {
         self.config.scale_factors.iter().map(|f| LineScale { segment_px: (first * f).max(1.0), segments: self.config.segments }).collect()
     }
 
+    /// What every measurement at a pose needs: the contour model (built now for an object
+    /// stored without one), the object centre and the mask's posterior.
+    fn inputs<'a>(&self, ctx: &RefineContext<'a>) -> Result<(Arc<ContourModel>, Vector3<f64>, Posterior<'a>), String> {
+        let cm = ctx.model.contour_model_or_build(&self.renderer).map_err(|e| e.to_string())?;
+        Ok((cm, Vector3::from(ctx.model.mesh.bbox_center()), Posterior::new(ctx.mask, ctx.unknown)))
+    }
+
+    /// Agreement at `pose` on the verification scale for the object's size there.
+    fn agreement_at(&self, ctx: &RefineContext<'_>, cm: &ContourModel, centre: &Vector3<f64>, post: &Posterior<'_>, pose: &Pose) -> Agreement {
+        let scale = self.verification_scale(Self::apparent_diameter(ctx, pose, centre));
+        agreement(&build_lines(cm, centre, pose, ctx.intrinsics, post, scale), &scale)
+    }
+
     /// The agreement of `pose` with the mask on the verification scale (what `refine`
     /// compares before and after, and what hypothesis verification reads).
     pub fn agreement(&self, ctx: &RefineContext<'_>, pose: &Pose) -> Result<Agreement, String> {
-        let cm = ctx.model.contour_model_or_build(&self.renderer).map_err(|e| e.to_string())?;
-        let centre = Vector3::from(ctx.model.mesh.bbox_center());
-        let post = Posterior::new(ctx.mask, ctx.unknown);
-        let scale = self.verification_scale(Self::apparent_diameter(ctx, pose, &centre));
-        Ok(agreement(&build_lines(&cm, &centre, pose, ctx.intrinsics, &post, scale), &scale))
+        let (cm, centre, post) = self.inputs(ctx)?;
+        Ok(self.agreement_at(ctx, &cm, &centre, &post, pose))
     }
 
     /// Lines of the second scale, twice as long: wide enough to see an outline a few
@@ -117,21 +134,17 @@ impl Refiner for ContourRefiner {
     }
 
     fn refine(&self, ctx: &RefineContext<'_>, start: Pose) -> Result<Refined, String> {
-        let cm = ctx.model.contour_model_or_build(&self.renderer).map_err(|e| e.to_string())?;
-        let centre = Vector3::from(ctx.model.mesh.bbox_center());
-        let post = Posterior::new(ctx.mask, ctx.unknown);
+        let (cm, centre, post) = self.inputs(ctx)?;
         let k = ctx.intrinsics;
-        let scales = self.scales(Self::apparent_diameter(ctx, &start, &centre));
-        let verify = self.verification_scale(Self::apparent_diameter(ctx, &start, &centre));
-        let before = agreement(&build_lines(&cm, &centre, &start, k, &post, verify), &verify);
-        let mut report = RefineReport { moved: false, residual_px: before.residual_px, lines: before.lines, lines_with_edge: before.lines_with_edge, agreement: before.score, ..Default::default() };
+        let before = self.agreement_at(ctx, &cm, &centre, &post, &start);
+        let keep = |note: String| Ok(Refined { pose: start, report: before.report(false, Some(note)) });
         // Too few lines see the mask's outline (empty, wrong or far-off mask): no update
         // could be trusted.
+        let scales = self.scales(Self::apparent_diameter(ctx, &start, &centre));
         let coarse = build_lines(&cm, &centre, &start, k, &post, scales[0]);
         let edges = coarse.iter().filter(|l| l.edge).count();
         if (edges as f64) < self.config.min_edge_share * coarse.len().max(1) as f64 {
-            report.note = Some(format!("no improvement: {edges} of {} lines see the mask's outline", coarse.len()));
-            return Ok(Refined { pose: start, report });
+            return keep(format!("no improvement: {edges} of {} lines see the mask's outline", coarse.len()));
         }
         let radius = ctx.model.mesh.bounding_radius();
         let mut pose = start;
@@ -143,18 +156,14 @@ impl Refiner for ContourRefiner {
                     pose = apply_update(&pose, &w, &v);
                 }
                 if pose.translation.z <= 0.0 || !pose.translation.iter().all(|x| x.is_finite()) {
-                    report.note = Some("no improvement: the update left the camera's field of view".into());
-                    return Ok(Refined { pose: start, report });
+                    return keep("no improvement: the update left the camera's field of view".into());
                 }
             }
         }
-        let verify = self.verification_scale(Self::apparent_diameter(ctx, &pose, &centre));
-        let after = agreement(&build_lines(&cm, &centre, &pose, k, &post, verify), &verify);
+        let after = self.agreement_at(ctx, &cm, &centre, &post, &pose);
         if after.score < before.score {
-            report.note = Some(format!("no improvement: contour agreement {:.3} after, {:.3} before", after.score, before.score));
-            return Ok(Refined { pose: start, report });
+            return keep(format!("no improvement: contour agreement {:.3} after, {:.3} before", after.score, before.score));
         }
-        report = RefineReport { moved: true, residual_px: after.residual_px, lines: after.lines, lines_with_edge: after.lines_with_edge, agreement: after.score, note: None };
-        Ok(Refined { pose, report })
+        Ok(Refined { pose, report: after.report(true, None) })
     }
 }

@@ -4,7 +4,7 @@
 
 use super::lines::{projection_jacobian, Line};
 use crate::geometry::{Intrinsics, Pose};
-use nalgebra::{Matrix6, Point3, Rotation3, Vector2, Vector3, Vector6};
+use nalgebra::{Matrix6, Point3, Rotation3, Vector3, Vector6};
 
 
 /// Regularisation, separate for rotation and translation (Tikhonov): a prior that the
@@ -48,11 +48,8 @@ pub fn gauss_newton_update(lines: &[Line], pose: &Pose, start: &Pose, k: &Intrin
     let mut depth = 0.0;
     for l in lines.iter().filter(|l| l.edge) {
         let p = Point3::from(pose.rotation * l.object_point + pose.translation);
-        if p.z <= 1e-6 {
-            continue;
-        }
+        let Some(uv) = k.project(&p) else { continue };
         depth += p.z;
-        let uv = Vector2::new(k.fx * p.x / p.z + k.cx, k.fy * p.y / p.z + k.cy);
         let residual = l.mean - l.normal.dot(&(uv - l.centre));
         // b = (nᵀ·J_π·R)ᵀ: how the offset changes with an object-frame translation.
         let b: Vector3<f64> = pose.rotation.inverse() * (projection_jacobian(k, &p).transpose() * l.normal);
