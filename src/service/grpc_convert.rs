@@ -128,4 +128,16 @@ mod tests {
         assert_eq!((o.level, o.in_plane, o.pca), (0, 1, Some(16)));
         assert!(onboard_request(pb::OnboardRequest { object_id: "x".into(), mesh: None, options: None, replace: false }).unwrap_err().message.contains("mesh is required"));
     }
+
+    #[test]
+    fn refiner_is_parsed_and_an_unknown_one_is_named() {
+        let with = |refiner: &str| {
+            let options = Some(pb::EstimateOptions { refiner: refiner.into(), ..Default::default() });
+            estimate_request(pb::EstimateRequest { image: Some(pb::Image::default()), intrinsics: Some(pb::Intrinsics::default()), detections: vec![], options })
+        };
+        assert_eq!(with("").unwrap().options.refiner, crate::estimate::RefinerKind::default());
+        assert_eq!(with("silhouette-depth").unwrap().options.refiner, crate::estimate::RefinerKind::SilhouetteDepth);
+        let e = with("magic").unwrap_err();
+        assert!(e.message.contains("options.refiner") && e.message.contains("magic"), "{}", e.message);
+    }
 }
