@@ -90,6 +90,9 @@ pub struct Hypothesis {
     /// What the refiner did to the kept pose (absent when there was no pose to refine).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub refinement: Option<super::refine::RefineReport>,
+    /// The kept pose rendered in the mask's window, when verification rendered it.
+    #[serde(skip)]
+    pub render: Option<crate::render::RenderOutput>,
     /// Every verified hypothesis of this mask, best first (empty without verification).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub verified: Vec<Verified>,
@@ -232,9 +235,10 @@ impl Estimator {
                 let t = Instant::now();
                 if cfg.verify.enabled {
                     h.verified = self.verify(&ctx, p, &retrieved, &q.crop_box, cfg)?;
-                    if let Some(best) = h.verified.first() {
+                    if let Some(best) = h.verified.first_mut() {
                         h.pose = Some(best.pose);
                         h.refinement = Some(best.refinement.clone());
+                        h.render = best.render.take();
                     }
                 } else {
                     match self.refiner(cfg.refiner).refine(&ctx, p) {
@@ -268,7 +272,7 @@ impl Estimator {
             .filter_map(|&(source, p)| {
                 let r = refiner.refine(ctx, p).ok()?;
                 let contour = if cfg.refiner == RefinerKind::Contour { r.report.agreement } else { self.contour.agreement(ctx, &r.pose).ok()?.score };
-                Some(Verified { source, pose: r.pose, refinement: r.report, contour, iou: f64::NAN, appearance: f64::NAN, score: f64::NAN })
+                Some(Verified { source, pose: r.pose, refinement: r.report, contour, iou: f64::NAN, appearance: f64::NAN, score: f64::NAN, render: None })
             })
             .collect();
         verified.sort_by(|a, b| b.contour.total_cmp(&a.contour));
@@ -277,14 +281,19 @@ impl Estimator {
         let pipeline = verified.iter().position(|v| v.source == super::hypotheses::Source::Pipeline);
         let rendered: Vec<usize> = (0..verified.len().min(cfg.verify.rendered)).chain(pipeline.filter(|&i| i >= cfg.verify.rendered)).collect();
         for i in rendered {
-            let (iou, appearance) = render_evidence(&self.renderer, &ctx.model.mesh, &verified[i].pose, ctx.intrinsics, ctx.image, ctx.mask, window)?;
+            let (iou, appearance, render) = render_evidence(&self.renderer, &ctx.model.mesh, &verified[i].pose, ctx.intrinsics, ctx.image, ctx.mask, window)?;
             verified[i].iou = iou;
             verified[i].appearance = appearance;
+            verified[i].render = Some(render);
         }
         for v in &mut verified {
             v.score = verification_score(v, &cfg.verify.weights);
         }
         verified.sort_by(|a, b| b.score.total_cmp(&a.score));
+        // Only the winner's render is reused (by selection); the others are dropped now.
+        for v in verified.iter_mut().skip(1) {
+            v.render = None;
+        }
         Ok(verified)
     }
 
@@ -352,7 +361,11 @@ impl Estimator {
             let Some(pose) = h.pose else { continue };
             let mask = &detections[chosen[i]].mask;
             let window = mask_window(mask).expect("validated non-empty");
-            let render = render_window(&self.renderer, &model.mesh, &pose, k, window)?;
+            // Verification already rendered the kept pose in this window.
+            let render = match h.render.take() {
+                Some(r) => r,
+                None => render_window(&self.renderer, &model.mesh, &pose, k, window)?,
+            };
             h.iou = window_iou(&render, mask, window);
             if h.iou < cfg.selection.iou_gate {
                 h.failure = Some(format!("rendered mask IoU {:.2} < gate {:.2}", h.iou, cfg.selection.iou_gate));

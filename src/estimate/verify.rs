@@ -43,6 +43,10 @@ pub struct Verified {
     pub iou: f64,
     pub appearance: f64,
     pub score: f64,
+    /// The window render behind `iou` and `appearance`, kept for the winner so that
+    /// selection does not render the same pose again.
+    #[serde(skip)]
+    pub render: Option<RenderOutput>,
 }
 
 /// Grey level of an sRGB pixel (0–255).
@@ -100,9 +104,9 @@ pub fn appearance_agreement(render: &RenderOutput, image: &RgbImage, mask: &Gray
 }
 
 /// Renders `pose` over the mask's window and measures silhouette IoU and appearance.
-pub fn render_evidence(renderer: &RenderPool, mesh: &crate::mesh::Mesh, pose: &Pose, k: &Intrinsics, image: &RgbImage, mask: &GrayImage, window: (u32, u32, u32, u32)) -> Result<(f64, f64), crate::render::RenderError> {
+pub fn render_evidence(renderer: &RenderPool, mesh: &crate::mesh::Mesh, pose: &Pose, k: &Intrinsics, image: &RgbImage, mask: &GrayImage, window: (u32, u32, u32, u32)) -> Result<(f64, f64, RenderOutput), crate::render::RenderError> {
     let r = render_window(renderer, mesh, pose, k, window)?;
-    Ok((window_iou(&r, mask, window) as f64, appearance_agreement(&r, image, mask, window)))
+    Ok((window_iou(&r, mask, window) as f64, appearance_agreement(&r, image, mask, window), r))
 }
 
 /// Weighted score of the three terms; an unrendered hypothesis counts its contour alone,
