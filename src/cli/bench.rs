@@ -29,6 +29,9 @@ pub enum BenchCommand {
     /// Pose accuracy (MSSD < 0.1 × diameter) and per-stage median times on generated scenes,
     /// with and without RRC.
     Estimate(super::bench_estimate::BenchEstimateArgs),
+    /// The refiners alone, from the true pose and from known perturbations of it, by the
+    /// object's apparent size.
+    Refine(super::bench_refine::BenchRefineArgs),
     /// The HTTP service under concurrent estimate load: req/s, p50/p99, server memory.
     Serve(super::bench_serve::BenchServeArgs),
     /// Object store costs: bytes per object (f16, PCA), put time, cold and warm loads.
@@ -68,6 +71,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Reid { mesh, units, pairs, seed } => reid(mesh_or_box(mesh, units)?, pairs, seed),
         BenchCommand::Estimate(a) => super::bench_estimate::run(a),
+        BenchCommand::Refine(a) => super::bench_refine::run(a),
         BenchCommand::Store(a) => super::bench_store::run(a),
         BenchCommand::Serve(a) => super::bench_serve::run(a),
         BenchCommand::Render { mesh, units, size, count } => render(mesh_or_box(mesh, units)?, size, count),

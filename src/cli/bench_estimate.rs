@@ -138,7 +138,7 @@ struct Tally {
     by_size: [(usize, usize); 3],
 }
 
-fn size_bucket(mask: &image::GrayImage) -> usize {
+pub(super) fn size_bucket(mask: &image::GrayImage) -> usize {
     let side = crate::features::mask_bbox(mask).map(|(a, b, c, d)| (c - a).max(d - b) + 1).unwrap_or(0);
     match side {
         0..100 => 0,
@@ -164,11 +164,11 @@ fn parse_weights(s: &str) -> Result<[f64; 3], String> {
     }
 }
 
-fn share((n, ok): (usize, usize)) -> String {
+pub(super) fn share((n, ok): (usize, usize)) -> String {
     if n == 0 { "–".into() } else { format!("{:.0} % of {n}", 100.0 * ok as f64 / n as f64) }
 }
 
-fn median(v: &mut [f64]) -> f64 {
+pub(super) fn median(v: &mut [f64]) -> f64 {
     if v.is_empty() {
         return f64::NAN;
     }
@@ -176,25 +176,37 @@ fn median(v: &mut [f64]) -> f64 {
     v[v.len() / 2]
 }
 
+/// The benchmark's meshes, named by file stem (the procedural sample box without any).
+pub(super) fn bench_meshes(paths: &[PathBuf], units: Option<Units>) -> Result<Vec<(String, Mesh)>> {
+    if paths.is_empty() {
+        return Ok(vec![("box".into(), crate::mesh::procedural::textured_box([0.10, 0.06, 0.16], 3))]);
+    }
+    paths.iter().map(|p| Ok((p.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh").replace(' ', "_"), load_mesh(p, units)?))).collect()
+}
+
+/// The onboarded models of `meshes`, cached in `store`. Across the gap, templates come
+/// from the bare geometry while scenes stay textured.
+pub(super) fn bench_models(meshes: &[(String, Mesh)], gap: bool, store: &str, backbone: &dyn crate::features::Backbone, pool: &RenderPool) -> Result<Vec<crate::onboard::ObjectModel>> {
+    let store = crate::store::open(store)?;
+    meshes
+        .iter()
+        .map(|(name, mesh)| {
+            let (id, template_mesh) = if gap { (format!("{name}-untextured"), mesh.without_appearance()) } else { (name.clone(), mesh.clone()) };
+            super::cached_model(&id, &template_mesh, store.as_ref(), backbone, pool)
+        })
+        .collect()
+}
+
 pub fn run(a: BenchEstimateArgs) -> Result<()> {
     let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?);
     let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
-    let meshes: Vec<(String, Mesh)> = if a.meshes.is_empty() {
-        vec![("box".into(), crate::mesh::procedural::textured_box([0.10, 0.06, 0.16], 3))]
-    } else {
-        a.meshes.iter().map(|p| Ok((p.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh").replace(' ', "_"), load_mesh(p, a.units)?))).collect::<Result<_>>()?
-    };
-    let store = crate::store::open(&a.store)?;
-    let mut models = Vec::new();
-    for (name, mesh) in &meshes {
-        // Across the gap, templates come from the bare geometry while scenes stay textured.
-        let (id, template_mesh) = if a.gap { (format!("{name}-untextured"), mesh.without_appearance()) } else { (name.clone(), mesh.clone()) };
-        let mut model = super::cached_model(&id, &template_mesh, store.as_ref(), backbone.as_ref(), &pool)?;
-        // The same PCA onboarding with `pca_dim` would fit, applied to the cached model.
-        if let Some(d) = a.pca {
-            crate::onboard::compress(&mut model, d)?;
+    let meshes = bench_meshes(&a.meshes, a.units)?;
+    let mut models = bench_models(&meshes, a.gap, &a.store, backbone.as_ref(), &pool)?;
+    // The same PCA onboarding with `pca_dim` would fit, applied to the cached models.
+    if let Some(d) = a.pca {
+        for model in &mut models {
+            crate::onboard::compress(model, d)?;
         }
-        models.push(model);
     }
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
     let scene_cfg = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, max_occlusion: a.max_occlusion, fill_range: a.fill, render_to_real_gap: a.gap || a.harsh_scenes, seed: a.seed, ..Default::default() };
@@ -229,7 +241,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     if let Some(dir) = &a.overlays {
         std::fs::create_dir_all(dir)?;
     }
-    let mut rows = String::from("image,obj_id,setting,size_px,visible,found,rot_err_deg,trans_err_mm,depth_err_mm,mssd_over_diameter,inliers\n");
+    let mut rows = String::from("image,obj_id,setting,size_px,visible,found,rot_err_deg,trans_err_mm,depth_err_mm,mssd_over_diameter,inliers,best_candidate_mssd_over_diameter,best_candidate_rank\n");
     let pb = super::progress::bar(a.images as u64, "estimating");
     for im in 0..a.images as u32 {
         let scene = generate_image(&objects, &scene_cfg, &pool, im)?;
@@ -246,9 +258,13 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                 t.by_size[bucket].0 += 1;
                 let size_px = crate::features::mask_bbox(&inst.mask).map_or(0, |b| (b.2 - b.0).max(b.3 - b.1));
                 let inliers = r.hypotheses.iter().map(|h| h.inliers.max(h.rrc_inliers)).max().unwrap_or(0);
+                // How good verification's best candidate was, and where verification ranked
+                // it: tells a candidate that never existed from one that lost the vote.
+                let oracle = r.hypotheses.iter().flat_map(|h| h.verified.iter().enumerate()).map(|(rank, v)| (mssd(&v.pose, &inst.pose, model.mesh.positions()) / model.diameter(), rank)).min_by(|a, b| a.0.total_cmp(&b.0));
+                let oracle = oracle.map_or(",".to_string(), |(m, rank)| format!("{m:.3},{rank}"));
                 match &r.pose {
                     Some(p) => rows.push_str(&format!(
-                        "{im},{},{},{size_px},{:.3},1,{:.2},{:.1},{:.1},{:.3},{inliers}\n",
+                        "{im},{},{},{size_px},{:.3},1,{:.2},{:.1},{:.1},{:.3},{inliers},{oracle}\n",
                         inst.obj_id,
                         t.name,
                         inst.visib_fract(),
@@ -257,7 +273,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                         (p.translation.z - inst.pose.translation.z) * 1e3,
                         mssd(p, &inst.pose, model.mesh.positions()) / model.diameter(),
                     )),
-                    None => rows.push_str(&format!("{im},{},{},{size_px},{:.3},0,,,,,{inliers}\n", inst.obj_id, t.name, inst.visib_fract())),
+                    None => rows.push_str(&format!("{im},{},{},{size_px},{:.3},0,,,,,{inliers},{oracle}\n", inst.obj_id, t.name, inst.visib_fract())),
                 }
                 if let Some(p) = r.pose {
                     t.found += 1;

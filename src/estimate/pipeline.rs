@@ -157,7 +157,8 @@ impl Estimator {
         RefinerKind::ALL.iter().position(|&k| k == kind).expect("every kind has a slot")
     }
 
-    fn refiner(&self, kind: RefinerKind) -> &dyn Refiner {
+    /// The refiner this estimator runs for `kind`.
+    pub fn refiner(&self, kind: RefinerKind) -> &dyn Refiner {
         self.refiners[Self::slot(kind)].as_ref()
     }
 
@@ -263,7 +264,8 @@ impl Estimator {
 
     /// Refines the pose, its axis flips and the best templates placed at the mask, and
     /// verifies them: contour agreement for all, then a render (IoU, appearance) for the
-    /// `rendered` best. Best first.
+    /// best by contour and those the outline cannot tell from it (`verify::to_render`).
+    /// Best first.
     fn verify(&self, ctx: &RefineContext<'_>, pose: Pose, retrieved: &[usize], crop: &crate::geometry::CropBox, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
         let candidates = super::hypotheses::candidates(ctx.model, &pose, retrieved, cfg.verify.templates, crop, ctx.intrinsics);
         let refiner = self.refiner(cfg.refiner);
@@ -279,7 +281,7 @@ impl Estimator {
         let window = mask_window(ctx.mask).expect("validated non-empty");
         // The pipeline's own pose is always rendered: it must be beaten on the evidence.
         let pipeline = verified.iter().position(|v| v.source == super::hypotheses::Source::Pipeline);
-        let rendered: Vec<usize> = (0..verified.len().min(cfg.verify.rendered)).chain(pipeline.filter(|&i| i >= cfg.verify.rendered)).collect();
+        let rendered = super::verify::to_render(&verified, pipeline, &cfg.verify);
         for i in rendered {
             let (iou, appearance, render) = render_evidence(&self.renderer, &ctx.model.mesh, &verified[i].pose, ctx.intrinsics, ctx.image, ctx.mask, window)?;
             verified[i].iou = iou;

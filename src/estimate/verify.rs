@@ -11,6 +11,7 @@ use crate::render::{RenderOutput, RenderPool};
 use image::{GrayImage, RgbImage};
 
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct VerifyConfig {
     /// Refine and verify the extra hypotheses at all (off: the pipeline's pose alone). On by
     /// default: on generated HOPE scenes it gained 2–16 points of MSSD recall for about
@@ -20,13 +21,19 @@ pub struct VerifyConfig {
     pub templates: usize,
     /// Hypotheses (best contour agreement first) that get a render for IoU and appearance.
     pub rendered: usize,
+    /// Beyond those, every hypothesis whose contour agreement is within this of the best
+    /// gets a render too, up to `max_rendered` in all: where the outline cannot tell the
+    /// hypotheses apart (a can turned about its axis, a box half-turned), only its render
+    /// against the photo can, and a cut at a fixed count would be arbitrary.
+    pub contour_tie: f64,
+    pub max_rendered: usize,
     /// Weights of silhouette IoU, contour agreement and appearance agreement.
     pub weights: [f64; 3],
 }
 
 impl Default for VerifyConfig {
     fn default() -> Self {
-        Self { enabled: true, templates: 3, rendered: 3, weights: [0.4, 0.3, 0.3] }
+        Self { enabled: true, templates: 3, rendered: 3, contour_tie: 0.05, max_rendered: 8, weights: [0.4, 0.3, 0.3] }
     }
 }
 
@@ -109,6 +116,19 @@ pub fn render_evidence(renderer: &RenderPool, mesh: &crate::mesh::Mesh, pose: &P
     Ok((window_iou(&r, mask, window) as f64, appearance_agreement(&r, image, mask, window), r))
 }
 
+/// Which hypotheses (sorted by contour agreement, best first) get a render: the first
+/// `rendered`, then any within `contour_tie` of the best up to `max_rendered`, and the
+/// pipeline's own pose (index `pipeline`) in any case: it must be beaten on the evidence.
+pub fn to_render(sorted: &[Verified], pipeline: Option<usize>, cfg: &VerifyConfig) -> Vec<usize> {
+    let best = sorted.first().map_or(0.0, |v| v.contour);
+    let cap = cfg.max_rendered.max(cfg.rendered);
+    let mut out: Vec<usize> = (0..sorted.len()).filter(|&i| i < cfg.rendered || sorted[i].contour >= best - cfg.contour_tie).take(cap).collect();
+    if let Some(p) = pipeline.filter(|p| !out.contains(p)) {
+        out.push(p);
+    }
+    out
+}
+
 /// Weighted score of the three terms; an unrendered hypothesis counts its contour alone,
 /// scaled as if the others matched it (it only competes when nothing was rendered).
 pub fn score(v: &Verified, w: &[f64; 3]) -> f64 {
@@ -141,5 +161,18 @@ mod tests {
         let plain = RenderOutput { rgb: RgbImage::from_pixel(40, 40, image::Rgb([128, 128, 128])), depth: vec![1.0; 1600], mask: full.clone() };
         let unexplained = appearance_agreement(&plain, &striped(40, true), &full, (0, 0, 40, 40));
         assert!(unexplained < 0.05, "{unexplained}");
+    }
+
+    #[test]
+    fn hypotheses_the_outline_cannot_separate_all_get_a_render() {
+        let v = |contour: f64| Verified { source: Source::Pipeline, pose: Pose::identity(), refinement: RefineReport::default(), contour, iou: f64::NAN, appearance: f64::NAN, score: f64::NAN, render: None };
+        let sorted: Vec<Verified> = [0.95, 0.94, 0.93, 0.92, 0.91, 0.7, 0.6].into_iter().map(v).collect();
+        let cfg = VerifyConfig { rendered: 2, contour_tie: 0.035, max_rendered: 8, ..Default::default() };
+        assert_eq!(to_render(&sorted, None, &cfg), vec![0, 1, 2, 3]);
+        // The pipeline's pose is rendered wherever it ranks.
+        assert_eq!(to_render(&sorted, Some(6), &cfg), vec![0, 1, 2, 3, 6]);
+        // The cap holds, and never cuts below `rendered`.
+        assert_eq!(to_render(&sorted, None, &VerifyConfig { max_rendered: 3, ..cfg.clone() }), vec![0, 1, 2]);
+        assert_eq!(to_render(&sorted, None, &VerifyConfig { rendered: 3, contour_tie: 0.0, max_rendered: 1, ..cfg }), vec![0, 1, 2]);
     }
 }
