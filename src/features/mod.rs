@@ -1,12 +1,15 @@
-//! Backbones: the `Backbone` trait, the embedded weight-free backbone, and the crop
+//! Backbones: the `Backbone` trait, the embedded weight-free backbone, ONNX models run by
+//! ONNX Runtime, and the crop
 //! resampling shared by templates and queries.
 
 pub mod backbone;
 pub mod batch_queue;
 pub mod crop;
 pub mod embedded;
+pub mod onnx;
 
 pub use batch_queue::BatchingBackbone;
 pub use backbone::{Backbone, BackboneIdentity, FeatureError, FeatureMap};
 pub use crop::{crop_query, mask_bbox, sample_crop, CropInput};
 pub use embedded::{EmbeddedBackbone, EmbeddedConfig};
+pub use onnx::{Device, OnnxBackbone};
