@@ -66,6 +66,10 @@ fn bad_inputs_give_clear_errors() {
         (vec!["onboard".into(), "--mesh".into(), s(&d.join("nope.ply")).into(), "--units".into(), "mm".into(), "--id".into(), "x".into(), "--store".into(), store.clone()], "nope.ply"),
         (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "../evil".into(), "--store".into(), store.clone()], "invalid"),
         (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--level".into(), "7".into()], "level"),
+        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--backbone".into(), "dinov3".into()], "unknown backbone \"dinov3\""),
+        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--backbone".into(), format!("onnx:{}", d.join("absent.onnx").display())], "absent.onnx"),
+        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--device".into(), "cuda:0".into()], "needs an ONNX backbone"),
+        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--device".into(), "gpu".into()], "unknown device \"gpu\""),
         (vec!["render".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--camera".into(), s(&d.join("missing.json")).into(), "--out".into(), s(d).into()], "missing.json"),
         (vec!["render".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "furlongs".into(), "--camera".into(), "c.json".into(), "--out".into(), s(d).into()], "unknown length unit"),
     ];
@@ -176,6 +180,7 @@ fn serve_and_demo_client_refuse_bad_settings_at_start() {
         (vec!["serve".into(), "--config".into(), s(&d.join("absent.toml")).into()], "absent.toml"),
         (vec!["serve".into(), "--http".into(), "none".into(), "--grpc".into(), "none".into(), "--store".into(), store.clone()], "both listeners are off"),
         (vec!["serve".into(), "--backbone".into(), "dinov3".into(), "--store".into(), store.clone()], "dinov3"),
+        (vec!["serve".into(), "--device".into(), "cuda:0".into(), "--store".into(), store.clone()], "needs an ONNX backbone"),
         (vec!["serve".into(), "--tls-cert".into(), s(&d.join("junk.pem")).into(), "--tls-key".into(), s(&d.join("junk.pem")).into(), "--store".into(), store.clone()], "junk.pem"),
         (vec!["serve".into(), "--http".into(), "not-an-address".into(), "--grpc".into(), "none".into(), "--store".into(), store.clone()], "not-an-address"),
         (vec!["demo".into(), "--out".into(), s(d).into(), "--server".into(), "ftp://x".into()], "grpc://HOST:PORT"),

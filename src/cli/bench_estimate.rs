@@ -3,7 +3,6 @@
 use crate::estimate::{Detection, EstimateConfig, EstimateResult};
 use crate::eval::pose_error::{mssd, rotation_error_deg, translation_error_m};
 use crate::eval::scenes::{generate_image, SceneConfig};
-use crate::features::{EmbeddedBackbone, EmbeddedConfig};
 use crate::mesh::{load_mesh, Mesh, Units};
 use crate::render::RenderPool;
 use anyhow::{bail, Result};
@@ -12,6 +11,8 @@ use std::sync::Arc;
 
 #[derive(clap::Args, Debug)]
 pub struct BenchEstimateArgs {
+    #[command(flatten)]
+    pub backbone: super::backbone_args::BackboneArgs,
     /// Mesh files to place in the scenes (default: the generated sample box).
     #[arg(long = "mesh")]
     pub meshes: Vec<PathBuf>,
@@ -192,13 +193,16 @@ pub(super) fn bench_models(meshes: &[(String, Mesh)], gap: bool, store: &str, ba
         .iter()
         .map(|(name, mesh)| {
             let (id, template_mesh) = if gap { (format!("{name}-untextured"), mesh.without_appearance()) } else { (name.clone(), mesh.clone()) };
+            // Objects of another backbone are cached under their own ids, not overwritten.
+            let identity = backbone.identity();
+            let id = if identity.name.starts_with("onnx:") { format!("{id}.{}", &identity.weights_hash[..identity.weights_hash.len().min(12)]) } else { id };
             super::cached_model(&id, &template_mesh, store.as_ref(), backbone, pool)
         })
         .collect()
 }
 
 pub fn run(a: BenchEstimateArgs) -> Result<()> {
-    let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?);
+    let backbone = a.backbone.open()?;
     let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
     let meshes = bench_meshes(&a.meshes, a.units)?;
     let mut models = bench_models(&meshes, a.gap, &a.store, backbone.as_ref(), &pool)?;

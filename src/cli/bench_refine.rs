@@ -7,7 +7,6 @@ use super::bench_estimate::{bench_meshes, bench_models, median, parse_range};
 use crate::estimate::{RefineContext, RefinerKind};
 use crate::eval::pose_error::{mssd, rotation_error_deg};
 use crate::eval::scenes::{generate_image, SceneConfig};
-use crate::features::{EmbeddedBackbone, EmbeddedConfig};
 use crate::geometry::Pose;
 use crate::mesh::{Mesh, Units};
 use crate::render::RenderPool;
@@ -19,6 +18,8 @@ use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
 pub struct BenchRefineArgs {
+    #[command(flatten)]
+    pub backbone: super::backbone_args::BackboneArgs,
     /// Mesh files to place in the scenes (default: the generated sample box).
     #[arg(long = "mesh")]
     pub meshes: Vec<PathBuf>,
@@ -97,14 +98,14 @@ fn perturbed(pose: &Pose, centre: &Vector3<f64>, axis: Vector3<f64>, degrees: f6
 }
 
 pub fn run(a: BenchRefineArgs) -> Result<()> {
-    let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?;
+    let backbone = a.backbone.open()?;
     let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
     let meshes = bench_meshes(&a.meshes, a.units)?;
-    let models = bench_models(&meshes, false, &a.store, &backbone, &pool)?;
+    let models = bench_models(&meshes, false, &a.store, backbone.as_ref(), &pool)?;
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
     let scene_cfg = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, max_occlusion: a.max_occlusion, fill_range: a.fill, render_to_real_gap: a.harsh_scenes, seed: a.seed, ..Default::default() };
     let kinds = if a.refiners.is_empty() { vec![RefinerKind::Contour, RefinerKind::SilhouetteDepth] } else { a.refiners.clone() };
-    let estimator = crate::estimate::Estimator::new(Arc::new(backbone), pool.clone());
+    let estimator = crate::estimate::Estimator::new(backbone, pool.clone());
     let axes = [Vector3::new(1.0, 0.3, 0.0), Vector3::new(-0.2, 1.0, 0.5), Vector3::new(0.3, -0.4, 1.0)];
     let buckets = SIZE_EDGES.len() + 1;
     // [refiner][start: 0 truth, 1 perturbed][size]

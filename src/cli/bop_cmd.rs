@@ -6,7 +6,6 @@ use crate::bop::synth::{synth, SynthOptions};
 use crate::bop::model_path;
 use crate::estimate::EstimateConfig;
 use crate::eval::scenes::SceneConfig;
-use crate::features::{EmbeddedBackbone, EmbeddedConfig};
 use crate::mesh::{load_mesh, Units};
 use crate::onboard::ObjectModel;
 use crate::render::RenderPool;
@@ -28,6 +27,8 @@ pub enum BopCommand {
 
 #[derive(Args, Debug)]
 pub struct RunArgs {
+    #[command(flatten)]
+    pub backbone: super::backbone_args::BackboneArgs,
     /// Dataset root (holding models/, test/ and test_targets_bop19.json).
     #[arg(long)]
     pub dataset: PathBuf,
@@ -98,7 +99,7 @@ pub fn run(cmd: BopCommand) -> Result<()> {
 
 fn run_cmd(a: RunArgs) -> Result<()> {
     let detections = DetectionIndex::new(read_detections(&a.detections)?);
-    let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?);
+    let backbone = a.backbone.open()?;
     let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
     let estimator = crate::estimate::Estimator::new(backbone.clone(), pool.clone());
     let url = a.store.clone().unwrap_or_else(|| format!("sqlite://{}", a.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new(".")).join("b2tf-objects.db").display()));

@@ -1,5 +1,4 @@
 use crate::estimate::{Detection, EstimateConfig, EstimateResult};
-use crate::features::{EmbeddedBackbone, EmbeddedConfig};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
 use anyhow::{bail, Context, Result};
@@ -9,6 +8,8 @@ use std::sync::Arc;
 
 #[derive(clap::Args, Debug)]
 pub struct EstimateArgs {
+    #[command(flatten)]
+    pub backbone: super::backbone_args::BackboneArgs,
     /// Object store the object was onboarded into (default: $B2TF_STORE, else
     /// sqlite://~/.local/share/b2tfpose/objects.db).
     #[arg(long)]
@@ -97,7 +98,7 @@ pub fn run(a: EstimateArgs) -> Result<()> {
     let image = image::open(&a.image).with_context(|| format!("cannot read image {}", a.image.display()))?.to_rgb8();
     let k = super::camera_file::load_camera(&a.camera)?;
     let detections = detections(&a, &image)?;
-    let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?);
+    let backbone = a.backbone.open()?;
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
     let estimator = crate::estimate::Estimator::new(backbone, renderer.clone());
     let mut cfg = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: crate::estimate::verify::VerifyConfig { enabled: !a.no_verify, ..Default::default() }, ..Default::default() };

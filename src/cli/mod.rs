@@ -1,5 +1,6 @@
 //! The `b2tf` command line: argument parsing and one file per command.
 
+pub mod backbone_args;
 pub mod bench;
 pub mod bench_estimate;
 pub mod bench_refine;

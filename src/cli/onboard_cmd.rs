@@ -1,4 +1,3 @@
-use crate::features::{Backbone, EmbeddedBackbone, EmbeddedConfig};
 use crate::geometry::ViewSampling;
 use crate::mesh::{load_mesh, Units};
 use crate::onboard::{onboard, OnboardConfig};
@@ -36,6 +35,8 @@ pub struct OnboardArgs {
     /// Number of render contexts.
     #[arg(long, default_value_t = crate::render::RenderPool::DEFAULT_SIZE)]
     pub render_pool: usize,
+    #[command(flatten)]
+    pub backbone: super::backbone_args::BackboneArgs,
 }
 
 pub fn run(a: OnboardArgs) -> Result<()> {
@@ -49,12 +50,12 @@ pub fn run(a: OnboardArgs) -> Result<()> {
     if store.exists(&a.id)? && !a.replace {
         anyhow::bail!("object {:?} already exists in {}; pass --replace to overwrite it", a.id, store.url());
     }
-    let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?;
+    let backbone = a.backbone.open()?;
     let pool = super::open_renderer(a.render_pool)?;
     let total = (crate::geometry::icosphere(a.level).len() as u32 * a.in_plane) as u64;
     let pb = super::progress::bar(total, "onboarding");
     let t1 = Instant::now();
-    let model = onboard(&a.id, &mesh, &config, &backbone, &pool, &|p| pb.set_position(p.templates_done as u64))?;
+    let model = onboard(&a.id, &mesh, &config, backbone.as_ref(), &pool, &|p| pb.set_position(p.templates_done as u64))?;
     pb.finish_and_clear();
     let onboard_s = t1.elapsed().as_secs_f64();
     let t2 = Instant::now();

@@ -6,7 +6,8 @@
 //! http = "0.0.0.0:8080"          # "none" turns a listener off
 //! grpc = "0.0.0.0:50051"
 //! store = "sqlite:///var/lib/b2tf/objects.db"
-//! backbone = "embedded"
+//! backbone = "embedded"         # or "onnx:/models/dinov3-vitl16.onnx" (its .json beside it)
+//! device = "cpu"                 # for an ONNX backbone: "cuda:0", "tensorrt:0"
 //! backbone_batch = 32            # crops per backbone pass of the batching queue; 0: none
 //! render_pool = 2
 //! max_estimates = 2
@@ -35,9 +36,13 @@ pub struct ServeSettings {
     /// Object store URL [default: sqlite://~/.local/share/b2tfpose/objects.db]
     #[arg(long, env = "B2TF_STORE")]
     pub store: Option<String>,
-    /// Backbone: "embedded" (weight-free, the only one built in) [default: embedded]
+    /// Backbone: "embedded" (weight-free, built in) or "onnx:PATH" (an ONNX export with
+    /// its .json sidecar; ONNX Runtime from $B2TF_ORT_LIB) [default: embedded]
     #[arg(long, env = "B2TF_BACKBONE")]
     pub backbone: Option<String>,
+    /// Where an ONNX backbone runs: cpu, cuda[:N], tensorrt[:N] [default: cpu]
+    #[arg(long, env = "B2TF_DEVICE")]
+    pub device: Option<String>,
     /// Most crops per backbone forward pass of the shared batching queue; 0: no queue
     /// [default: 32]
     #[arg(long, env = "B2TF_BACKBONE_BATCH")]
@@ -82,6 +87,8 @@ pub struct Resolved {
     pub grpc: Option<String>,
     pub store: String,
     pub render_pool: usize,
+    pub backbone: crate::features::BackboneChoice,
+    pub device: crate::features::Device,
     pub backbone_batch: usize,
     pub max_estimates: usize,
     pub max_onboardings: usize,
@@ -126,10 +133,8 @@ impl ServeSettings {
         if http.is_none() && grpc.is_none() {
             bail!("both listeners are off: set --http or --grpc to an address");
         }
-        match pick!(backbone).as_deref().unwrap_or("embedded") {
-            "embedded" => {}
-            other => bail!("backbone {other:?} is not available in this build (built in: \"embedded\")"),
-        }
+        let backbone: crate::features::BackboneChoice = pick!(backbone).as_deref().unwrap_or("embedded").parse().map_err(anyhow::Error::msg)?;
+        let device: crate::features::Device = pick!(device).as_deref().unwrap_or("cpu").parse().map_err(anyhow::Error::msg)?;
         let positive = |name: &str, v: usize| -> Result<usize> {
             if v == 0 {
                 bail!("{name} must be at least 1");
@@ -150,6 +155,8 @@ impl ServeSettings {
             grpc,
             store: pick!(store).unwrap_or_else(crate::store::default_url),
             render_pool: positive("render_pool", pick!(render_pool).unwrap_or(crate::render::RenderPool::DEFAULT_SIZE))?,
+            backbone,
+            device,
             backbone_batch: pick!(backbone_batch).unwrap_or(32),
             max_estimates: positive("max_estimates", pick!(max_estimates).unwrap_or(2))?,
             max_onboardings: positive("max_onboardings", pick!(max_onboardings).unwrap_or(1))?,
@@ -197,6 +204,7 @@ mod tests {
         let err = |s: ServeSettings| format!("{:#}", s.resolve(none()).unwrap_err());
         assert!(err(ServeSettings { max_estimates: Some(0), ..none() }).contains("max_estimates"));
         assert!(err(ServeSettings { backbone: Some("dinov3".into()), ..none() }).contains("dinov3"));
+        assert!(err(ServeSettings { device: Some("gpu".into()), ..none() }).contains("gpu"));
         assert!(err(ServeSettings { tls_cert: Some("c.pem".into()), ..none() }).contains("tls_key"));
         assert!(err(ServeSettings { http: Some("none".into()), grpc: Some("off".into()), ..none() }).contains("both listeners"));
         assert!(err(ServeSettings { request_timeout_s: Some(-1.0), ..none() }).contains("request_timeout_s"));

@@ -4,6 +4,7 @@
 
 pub mod backbone;
 pub mod batch_queue;
+pub mod choice;
 pub mod crop;
 pub mod embedded;
 pub mod onnx;
@@ -12,4 +13,5 @@ pub use batch_queue::BatchingBackbone;
 pub use backbone::{Backbone, BackboneIdentity, FeatureError, FeatureMap};
 pub use crop::{crop_query, mask_bbox, sample_crop, CropInput};
 pub use embedded::{EmbeddedBackbone, EmbeddedConfig};
+pub use choice::{open_backbone, BackboneChoice};
 pub use onnx::{Device, OnnxBackbone};

@@ -8,7 +8,7 @@ use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput};
 use crate::estimate::{Detection, EstimateConfig, Estimator};
-use crate::features::{Backbone, EmbeddedBackbone, EmbeddedConfig};
+use crate::features::Backbone;
 use crate::geometry::ViewSampling;
 use crate::onboard::{onboard_cancellable, OnboardConfig, OnboardError};
 use crate::render::{RenderPool, RendererConfig};
@@ -31,11 +31,14 @@ pub struct CoreConfig {
     /// Most crops in one backbone pass of the shared batching queue (0: no queue, every
     /// request calls the backbone itself).
     pub backbone_batch: usize,
+    /// The backbone and, for an ONNX one, where it runs.
+    pub backbone: crate::features::BackboneChoice,
+    pub device: crate::features::Device,
 }
 
 impl Default for CoreConfig {
     fn default() -> Self {
-        Self { store_url: crate::store::default_url(), render_pool: RenderPool::DEFAULT_SIZE, cache_bytes: 4_000_000_000, max_estimates: 2, max_onboardings: 1, backbone_batch: 32 }
+        Self { store_url: crate::store::default_url(), render_pool: RenderPool::DEFAULT_SIZE, cache_bytes: 4_000_000_000, max_estimates: 2, max_onboardings: 1, backbone_batch: 32, backbone: Default::default(), device: Default::default() }
     }
 }
 
@@ -70,11 +73,11 @@ impl Core {
     /// Opens the store, loads the backbone and starts the render pool.
     pub fn new(config: CoreConfig) -> Result<Self, ServiceError> {
         let store = crate::store::open(&config.store_url)?;
-        let embedded: Arc<dyn Backbone> = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(ServiceError::internal)?);
-        let queue = (config.backbone_batch > 0).then(|| Arc::new(crate::features::BatchingBackbone::new(embedded.clone(), config.backbone_batch)));
+        let inner = crate::features::open_backbone(&config.backbone, &config.device).map_err(|e| ServiceError::new(ErrorKind::Unavailable, format!("backbone {}: {e}", config.backbone)))?;
+        let queue = (config.backbone_batch > 0).then(|| Arc::new(crate::features::BatchingBackbone::new(inner.clone(), config.backbone_batch)));
         let backbone: Arc<dyn Backbone> = match &queue {
             Some(q) => q.clone(),
-            None => embedded,
+            None => inner,
         };
         let pool = Arc::new(RenderPool::new(config.render_pool.max(1), RendererConfig::default()).map_err(|e| ServiceError::new(ErrorKind::Unavailable, e.to_string()))?);
         let estimator = Estimator::new(backbone.clone(), pool.clone());
