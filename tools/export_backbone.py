@@ -1,0 +1,206 @@
+#!/usr/bin/env python3
+"""Exports a DINOv3 (or DINOv2-with-registers) ViT to the ONNX backbone b2tfpose runs.
+
+Runs on the user's machine, where the licence-gated weights are: from a local checkpoint
+folder (or a Hugging Face model id that is already in the local cache) to one ONNX file
+with a fixed [batch, 3, S, S] input (S = 32 × patch size; dynamic batch) and two outputs
+of patch tokens only (class and register tokens dropped): `local_tokens`, the output of
+block `--local-layer`, and `global_tokens`, the last block after the final norm; plus
+the JSON sidecar b2tfpose checks (docs/onnx_backbone.md). The ONNX model is compared
+with PyTorch on one input and nothing is written when they disagree.
+
+    python3 tools/export_backbone.py --model PATH_OR_ID --out models/dinov3-vitl16.onnx
+        [--local-layer N] [--fp16] [--size S] [--opset 18]
+    python3 tools/export_backbone.py --random-init dinov3-tiny --out /tmp/t.onnx   # tests
+
+Default local layer: 18 for a 24-block ViT-L (the paper), else three quarters of the
+depth. Needs torch, transformers (≥ 4.56 for DINOv3), onnx and onnxruntime.
+"""
+
+import argparse
+import hashlib
+import json
+import os
+import sys
+import tempfile
+
+import numpy as np
+
+IMAGENET_MEAN = [0.485, 0.456, 0.406]
+IMAGENET_STD = [0.229, 0.224, 0.225]
+GRID = 32  # patches per side of a crop, as the embedded backbone's (512 px at patch 16)
+
+
+def random_model(kind):
+    """A small randomly initialised ViT of the real architecture (no weights needed)."""
+    if kind == "dinov3-tiny":
+        from transformers import DINOv3ViTConfig, DINOv3ViTModel
+
+        cfg = DINOv3ViTConfig(hidden_size=64, intermediate_size=128, num_hidden_layers=4, num_attention_heads=2, patch_size=16, image_size=512, num_register_tokens=4)
+        return DINOv3ViTModel(cfg).eval(), f"random-init {kind}"
+    if kind == "dinov2reg-tiny":
+        from transformers import Dinov2WithRegistersConfig, Dinov2WithRegistersModel
+
+        cfg = Dinov2WithRegistersConfig(hidden_size=64, intermediate_size=128, num_hidden_layers=4, num_attention_heads=2, patch_size=14, image_size=448, num_register_tokens=4)
+        return Dinov2WithRegistersModel(cfg).eval(), f"random-init {kind}"
+    sys.exit(f"unknown --random-init {kind!r}: dinov3-tiny or dinov2reg-tiny")
+
+
+def load_model(name):
+    from transformers import AutoModel
+
+    try:
+        model = AutoModel.from_pretrained(name, local_files_only=not os.path.isdir(name) and os.environ.get("HF_HUB_OFFLINE") == "1")
+    except Exception as e:  # noqa: BLE001 - the message is what the user needs
+        sys.exit(f"cannot load {name!r}: {e}\n(DINOv3 is licence-gated: accept the licence on its model page, download it, and pass the folder)")
+    return model.eval(), name
+
+
+def normalisation(name):
+    """Mean and std from the checkpoint's image processor, else ImageNet's."""
+    try:
+        from transformers import AutoImageProcessor
+
+        p = AutoImageProcessor.from_pretrained(name)
+        return [float(x) for x in p.image_mean], [float(x) for x in p.image_std]
+    except Exception:  # noqa: BLE001 - no processor config: the ViTs' shared default
+        return IMAGENET_MEAN, IMAGENET_STD
+
+
+def freeze_position_embeddings(model, size, patch, dim):
+    """DINOv2's learned position embeddings are resized to the input on every call, with an
+    antialiased bicubic that ONNX lacks (and that traces even when the size already
+    matches). The export has one input size: resize once here, in PyTorch, and let the
+    graph hold the result as a constant. (DINOv3's rotary positions need nothing.)"""
+    import torch
+
+    emb = getattr(model, "embeddings", None)
+    if emb is None or not hasattr(emb, "interpolate_pos_encoding"):
+        return
+    with torch.no_grad():
+        fixed = emb.interpolate_pos_encoding(torch.zeros(1, 1 + (size // patch) ** 2, dim), size, size).detach()
+    emb.interpolate_pos_encoding = lambda embeddings, height, width: fixed.to(embeddings.dtype)
+
+
+class PatchTokens:
+    """Wraps the ViT: pixels in, (local block's patch tokens, final-norm patch tokens) out."""
+
+    def __init__(self, model, local_layer, half):
+        import torch
+
+        class Wrapper(torch.nn.Module):
+            def __init__(self):
+                super().__init__()
+                self.model = model
+                self.prefix = 1 + int(getattr(model.config, "num_register_tokens", 0))
+
+            def forward(self, pixel_values):
+                x = pixel_values.half() if half else pixel_values
+                out = self.model(pixel_values=x, output_hidden_states=True)
+                local = out.hidden_states[local_layer][:, self.prefix :, :]
+                final = out.last_hidden_state[:, self.prefix :, :]
+                return local.float(), final.float()
+
+        self.module = Wrapper().eval()
+        if half:
+            self.module.half()
+
+
+def export(args):
+    import onnx
+    import onnxruntime as ort
+    import torch
+
+    if args.random_init:
+        model, source = random_model(args.random_init)
+        mean, std = IMAGENET_MEAN, IMAGENET_STD
+        name = args.random_init
+    else:
+        model, source = load_model(args.model)
+        mean, std = normalisation(args.model)
+        name = os.path.basename(os.path.normpath(args.model))
+    cfg = model.config
+    depth = int(cfg.num_hidden_layers)
+    patch = int(cfg.patch_size)
+    dim = int(cfg.hidden_size)
+    local_layer = args.local_layer or (18 if depth == 24 else max(1, round(0.75 * depth)))
+    if not 1 <= local_layer <= depth:
+        sys.exit(f"--local-layer {local_layer} is outside 1–{depth}")
+    size = args.size or GRID * patch
+    if size % patch:
+        sys.exit(f"--size {size} is not a multiple of the patch size {patch}")
+    freeze_position_embeddings(model, size, patch, dim)
+    wrapped = PatchTokens(model, local_layer, args.fp16).module
+    example = torch.randn(2, 3, size, size, generator=torch.Generator().manual_seed(0))
+    out_dir = os.path.dirname(os.path.abspath(args.out))
+    os.makedirs(out_dir, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out_dir) as tmp:
+        path = os.path.join(tmp, "model.onnx")
+        with torch.no_grad():
+            torch.onnx.export(
+                wrapped,
+                (example,),
+                path,
+                input_names=["pixel_values"],
+                output_names=["local_tokens", "global_tokens"],
+                dynamic_axes={"pixel_values": {0: "batch"}, "local_tokens": {0: "batch"}, "global_tokens": {0: "batch"}},
+                opset_version=args.opset,
+                dynamo=False,
+            )
+            ref_local, ref_global = (t.numpy() for t in wrapped(example))
+        # Weights of large models may land in a side file: fold everything into one file.
+        m = onnx.load(path, load_external_data=True)
+        data = m.SerializeToString() if m.ByteSize() < 2**31 - 1 else None
+        if data is None:
+            sys.exit("the model is over 2 GB: ONNX's single-file limit (export with --fp16)")
+        sess = ort.InferenceSession(data, providers=["CPUExecutionProvider"])
+        got_local, got_global = sess.run(["local_tokens", "global_tokens"], {"pixel_values": example.numpy()})
+        tol = 5e-2 if args.fp16 else 1e-3
+        for label, ref, got in (("local", ref_local, got_local), ("global", ref_global, got_global)):
+            err = float(np.max(np.abs(ref - got)))
+            scale = float(np.max(np.abs(ref))) or 1.0
+            print(f"{label} tokens {list(got.shape)}: largest |ONNX − PyTorch| {err:.2e} (values up to {scale:.2f})")
+            if got.shape != ref.shape or not err <= tol * max(scale, 1.0):
+                sys.exit(f"ONNX output {label} disagrees with PyTorch ({err:.3e} > {tol * max(scale, 1.0):.3e}): nothing written")
+        sidecar = {
+            "format": "b2tfpose-backbone",
+            "version": 1,
+            "model": f"{name}{'-fp16' if args.fp16 else ''}",
+            "source": source,
+            "patch_size": patch,
+            "input_size": size,
+            "mean": mean,
+            "std": std,
+            "input": "pixel_values",
+            "local_output": "local_tokens",
+            "global_output": "global_tokens",
+            "depth": depth,
+            "local_layer": local_layer,
+            "global_layer": depth,
+            "local_dim": dim,
+            "global_dim": dim,
+            "dtype": "float32",
+            "onnx_sha256": hashlib.sha256(data).hexdigest(),
+        }
+    with open(args.out, "wb") as f:
+        f.write(data)
+    with open(os.path.splitext(args.out)[0] + ".json", "w") as f:
+        json.dump(sidecar, f, indent=2)
+    print(f"wrote {args.out} ({len(data) / 1e6:.1f} MB) and its .json: {depth} blocks, local block {local_layer}, dim {dim}, {size}² input")
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--model", help="checkpoint folder (or a model id in the local Hugging Face cache)")
+    src.add_argument("--random-init", help="dinov3-tiny or dinov2reg-tiny: a small random model, for tests")
+    p.add_argument("--out", required=True, help="the .onnx file to write (its .json beside it)")
+    p.add_argument("--local-layer", type=int, help="block giving the local descriptors (default: 18 of 24, else 3/4 of the depth)")
+    p.add_argument("--size", type=int, help="input side in pixels (default: 32 patches)")
+    p.add_argument("--fp16", action="store_true", help="half-precision weights and activations (inputs and outputs stay float32)")
+    p.add_argument("--opset", type=int, default=18)
+    export(p.parse_args())
+
+
+if __name__ == "__main__":
+    main()
