@@ -29,6 +29,8 @@ pub enum BenchCommand {
     /// Pose accuracy (MSSD < 0.1 × diameter) and per-stage median times on generated scenes,
     /// with and without RRC.
     Estimate(super::bench_estimate::BenchEstimateArgs),
+    /// Backbone speed: ms per crop and crops/s at several batch sizes, embedded and ONNX.
+    Backbone(super::bench_backbone::BenchBackboneArgs),
     /// The refiners alone, from the true pose and from known perturbations of it, by the
     /// object's apparent size.
     Refine(super::bench_refine::BenchRefineArgs),
@@ -72,6 +74,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Reid { mesh, units, pairs, seed } => reid(mesh_or_box(mesh, units)?, pairs, seed),
         BenchCommand::Estimate(a) => super::bench_estimate::run(a),
         BenchCommand::Refine(a) => super::bench_refine::run(a),
+        BenchCommand::Backbone(a) => super::bench_backbone::run(a),
         BenchCommand::Store(a) => super::bench_store::run(a),
         BenchCommand::Serve(a) => super::bench_serve::run(a),
         BenchCommand::Render { mesh, units, size, count } => render(mesh_or_box(mesh, units)?, size, count),

@@ -2,6 +2,7 @@
 
 pub mod backbone_args;
 pub mod bench;
+pub mod bench_backbone;
 pub mod bench_estimate;
 pub mod bench_refine;
 pub mod bench_serve;
