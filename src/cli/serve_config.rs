@@ -9,6 +9,7 @@
 //! backbone = "embedded"         # or "onnx:/models/dinov3-vitl16.onnx" (its .json beside it)
 //! device = "cpu"                 # for an ONNX backbone: "cuda:0", "tensorrt:0"
 //! backbone_batch = 32            # crops per backbone pass of the batching queue; 0: none
+//! backbone_max_wait_ms = 0       # how long a pass may wait for more requests (GPU: a few ms)
 //! render_pool = 2
 //! max_estimates = 2
 //! max_onboardings = 1
@@ -47,6 +48,10 @@ pub struct ServeSettings {
     /// [default: 32]
     #[arg(long, env = "B2TF_BACKBONE_BATCH")]
     pub backbone_batch: Option<usize>,
+    /// Longest a backbone pass waits after its first request for more, ms; 0: runs at once
+    /// with what is queued [default: 0]
+    #[arg(long, env = "B2TF_BACKBONE_MAX_WAIT_MS")]
+    pub backbone_max_wait_ms: Option<f64>,
     /// Render contexts [default: 2]
     #[arg(long, env = "B2TF_RENDER_POOL")]
     pub render_pool: Option<usize>,
@@ -90,6 +95,7 @@ pub struct Resolved {
     pub backbone: crate::features::BackboneChoice,
     pub device: crate::features::Device,
     pub backbone_batch: usize,
+    pub backbone_max_wait: std::time::Duration,
     pub max_estimates: usize,
     pub max_onboardings: usize,
     pub max_body_bytes: usize,
@@ -141,6 +147,10 @@ impl ServeSettings {
             }
             Ok(v)
         };
+        let max_wait_ms = pick!(backbone_max_wait_ms).unwrap_or(0.0);
+        if !max_wait_ms.is_finite() || !(0.0..=10_000.0).contains(&max_wait_ms) {
+            bail!("backbone_max_wait_ms must be a number of milliseconds from 0 to 10000, not {max_wait_ms}");
+        }
         let timeout = pick!(request_timeout_s).unwrap_or(120.0);
         if !timeout.is_finite() || timeout < 0.0 {
             bail!("request_timeout_s must be a number of seconds ≥ 0 (0: no limit), not {timeout}");
@@ -158,6 +168,7 @@ impl ServeSettings {
             backbone,
             device,
             backbone_batch: pick!(backbone_batch).unwrap_or(32),
+            backbone_max_wait: std::time::Duration::from_secs_f64(max_wait_ms / 1e3),
             max_estimates: positive("max_estimates", pick!(max_estimates).unwrap_or(2))?,
             max_onboardings: positive("max_onboardings", pick!(max_onboardings).unwrap_or(1))?,
             max_body_bytes: positive("max_body_mb", pick!(max_body_mb).unwrap_or(64))? * 1_000_000,
@@ -205,6 +216,7 @@ mod tests {
         assert!(err(ServeSettings { max_estimates: Some(0), ..none() }).contains("max_estimates"));
         assert!(err(ServeSettings { backbone: Some("dinov3".into()), ..none() }).contains("dinov3"));
         assert!(err(ServeSettings { device: Some("gpu".into()), ..none() }).contains("gpu"));
+        assert!(err(ServeSettings { backbone_max_wait_ms: Some(-1.0), ..none() }).contains("backbone_max_wait_ms"));
         assert!(err(ServeSettings { tls_cert: Some("c.pem".into()), ..none() }).contains("tls_key"));
         assert!(err(ServeSettings { http: Some("none".into()), grpc: Some("off".into()), ..none() }).contains("both listeners"));
         assert!(err(ServeSettings { request_timeout_s: Some(-1.0), ..none() }).contains("request_timeout_s"));

@@ -1,21 +1,24 @@
 //! A single-owner batching queue in front of a backbone: requests from many threads (one
 //! estimate's query and RRC crops, an onboarding's view batches) go through one channel
 //! to one worker, which runs whatever has queued up as one forward pass. An accelerator
-//! then sees large batches under load, and no request waits for a batch to fill: the
-//! worker never delays a pass to collect more (the layout of text-embeddings-inference's
-//! router → queue → backend).
+//! then sees large batches under load. By default no request waits for a batch to fill;
+//! `max_wait` lets the worker hold a pass that long after its first request to collect
+//! more (worth it where a pass costs about the same for 1 crop as for 32, on a GPU), the
+//! layout of text-embeddings-inference's router → queue → backend.
 
 use super::backbone::{Backbone, BackboneIdentity, FeatureError, FeatureMap};
 use super::crop::CropInput;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender};
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 /// Upper bounds of the batch-size histogram (crops per forward pass).
 pub const BATCH_BUCKETS: [usize; 8] = [1, 2, 4, 8, 16, 32, 64, 128];
 
 struct Job {
     crops: Vec<CropInput>,
+    queued_at: Instant,
     reply: SyncSender<Result<Vec<FeatureMap>, FeatureError>>,
 }
 
@@ -25,6 +28,11 @@ struct Counters {
     queued: AtomicUsize,
     passes: AtomicU64,
     crops: AtomicU64,
+    /// Requests served, their summed wait before their pass started, and the passes'
+    /// summed run time, microseconds.
+    jobs: AtomicU64,
+    wait_us: AtomicU64,
+    pass_us: AtomicU64,
     /// Passes per `BATCH_BUCKETS` bound (cumulative like Prometheus' `le`), then +Inf.
     buckets: [AtomicU64; BATCH_BUCKETS.len()],
 }
@@ -37,6 +45,10 @@ pub struct QueueStats {
     pub crops: u64,
     /// Cumulative counts per `BATCH_BUCKETS` bound.
     pub batch_buckets: Vec<u64>,
+    /// Requests served; their total wait in the queue and the passes' total time, seconds.
+    pub jobs: u64,
+    pub wait_seconds: f64,
+    pub pass_seconds: f64,
 }
 
 pub struct BatchingBackbone {
@@ -47,15 +59,21 @@ pub struct BatchingBackbone {
 
 impl BatchingBackbone {
     /// Starts the worker. A pass takes whole requests in arrival order up to `max_batch`
-    /// crops (a larger single request runs alone, whole).
+    /// crops (a larger single request runs alone, whole), without waiting for more.
     pub fn new(inner: Arc<dyn Backbone>, max_batch: usize) -> Self {
+        Self::with_max_wait(inner, max_batch, Duration::ZERO)
+    }
+
+    /// As `new`, but a pass waits up to `max_wait` after its first request for more
+    /// requests, until it holds `max_batch` crops.
+    pub fn with_max_wait(inner: Arc<dyn Backbone>, max_batch: usize, max_wait: Duration) -> Self {
         let (tx, rx) = channel::<Job>();
         let counters = Arc::new(Counters::default());
         let identity = inner.identity();
         let worker_counters = counters.clone();
         std::thread::Builder::new()
             .name("backbone-queue".into())
-            .spawn(move || worker(inner, rx, max_batch.max(1), worker_counters))
+            .spawn(move || worker(inner, rx, max_batch.max(1), max_wait, worker_counters))
             .expect("spawning the backbone queue thread");
         Self { identity, jobs: tx, counters }
     }
@@ -67,11 +85,14 @@ impl BatchingBackbone {
             passes: c.passes.load(Ordering::Relaxed),
             crops: c.crops.load(Ordering::Relaxed),
             batch_buckets: c.buckets.iter().map(|b| b.load(Ordering::Relaxed)).collect(),
+            jobs: c.jobs.load(Ordering::Relaxed),
+            wait_seconds: c.wait_us.load(Ordering::Relaxed) as f64 * 1e-6,
+            pass_seconds: c.pass_us.load(Ordering::Relaxed) as f64 * 1e-6,
         }
     }
 }
 
-fn worker(inner: Arc<dyn Backbone>, rx: Receiver<Job>, max_batch: usize, counters: Arc<Counters>) {
+fn worker(inner: Arc<dyn Backbone>, rx: Receiver<Job>, max_batch: usize, max_wait: Duration, counters: Arc<Counters>) {
     // The backbone runs on a thread pool of its own: callers may be rayon tasks of the
     // global pool (onboarding runs views in parallel) blocked on their replies, and a
     // backbone parallelising on that same pool would wait for them forever.
@@ -95,25 +116,34 @@ fn worker(inner: Arc<dyn Backbone>, rx: Receiver<Job>, max_batch: usize, counter
         };
         let mut batch = vec![first];
         let mut size = batch[0].crops.len();
+        let deadline = Instant::now() + max_wait;
         while size < max_batch {
-            match rx.try_recv() {
-                Ok(j) if size + j.crops.len() <= max_batch => {
+            // Without a wait (or past it) only what is already queued joins the pass.
+            let left = deadline.saturating_duration_since(Instant::now());
+            let next = if left.is_zero() { rx.try_recv().ok() } else { rx.recv_timeout(left).ok() };
+            match next {
+                Some(j) if size + j.crops.len() <= max_batch => {
                     size += j.crops.len();
                     batch.push(j);
                 }
-                Ok(j) => {
+                Some(j) => {
                     carry = Some(j);
                     break;
                 }
-                Err(_) => break,
+                None => break,
             }
         }
+        let started = Instant::now();
+        let waited: u64 = batch.iter().map(|j| started.duration_since(j.queued_at).as_micros() as u64).sum();
         counters.queued.fetch_sub(size, Ordering::Relaxed);
         let lens: Vec<usize> = batch.iter().map(|j| j.crops.len()).collect();
         let crops: Vec<CropInput> = batch.iter_mut().flat_map(|j| std::mem::take(&mut j.crops)).collect();
         // A panicking backend fails this pass's requests, not the queue.
         let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| pool.install(|| inner.extract(&crops)))).unwrap_or_else(|_| Err(FeatureError::Backend("the backbone panicked".into())));
         counters.passes.fetch_add(1, Ordering::Relaxed);
+        counters.jobs.fetch_add(batch.len() as u64, Ordering::Relaxed);
+        counters.wait_us.fetch_add(waited, Ordering::Relaxed);
+        counters.pass_us.fetch_add(started.elapsed().as_micros() as u64, Ordering::Relaxed);
         counters.crops.fetch_add(size as u64, Ordering::Relaxed);
         for (bound, count) in BATCH_BUCKETS.iter().zip(&counters.buckets) {
             if size <= *bound {
@@ -154,7 +184,7 @@ impl Backbone for BatchingBackbone {
         super::backbone::check_sizes(crops, self.identity.input_size)?;
         let (reply, answer) = sync_channel(1);
         self.counters.queued.fetch_add(crops.len(), Ordering::Relaxed);
-        let sent = self.jobs.send(Job { crops: crops.to_vec(), reply });
+        let sent = self.jobs.send(Job { crops: crops.to_vec(), queued_at: Instant::now(), reply });
         if sent.is_err() {
             self.counters.queued.fetch_sub(crops.len(), Ordering::Relaxed);
             return Err(FeatureError::Backend("the backbone queue has stopped".into()));
@@ -207,6 +237,27 @@ mod tests {
         bad[1].rgb = image::RgbImage::new(64, 64);
         assert!(matches!(queue.extract(&bad), Err(FeatureError::WrongSize { index: 1, .. })));
         assert!(queue.extract(&[]).unwrap().is_empty());
+    }
+
+    #[test]
+    fn a_pass_waits_for_more_requests_up_to_max_wait() {
+        let inner: Arc<dyn Backbone> = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap());
+        // Two requests 50 ms apart: a 5 s wait puts them in one pass (the wait ends as soon
+        // as the batch is full, so the test does not take 5 s).
+        let queue = Arc::new(BatchingBackbone::with_max_wait(inner, 2, Duration::from_secs(5)));
+        let t = Instant::now();
+        std::thread::scope(|s| {
+            let a = s.spawn(|| queue.extract(&crops(1, 1)).unwrap());
+            std::thread::sleep(Duration::from_millis(50));
+            let b = s.spawn(|| queue.extract(&crops(1, 2)).unwrap());
+            a.join().unwrap();
+            b.join().unwrap();
+        });
+        let st = queue.stats();
+        assert_eq!((st.passes, st.crops, st.jobs), (1, 2, 2), "{st:?}");
+        assert!(t.elapsed() < Duration::from_secs(4), "the full batch still waited {:?}", t.elapsed());
+        // The first request waited for the second: at least the 50 ms between them.
+        assert!(st.wait_seconds >= 0.04 && st.pass_seconds > 0.0, "{st:?}");
     }
 
     #[test]

@@ -31,6 +31,8 @@ pub struct CoreConfig {
     /// Most crops in one backbone pass of the shared batching queue (0: no queue, every
     /// request calls the backbone itself).
     pub backbone_batch: usize,
+    /// Longest a queued pass waits after its first request for more (0: none).
+    pub backbone_max_wait: std::time::Duration,
     /// The backbone and, for an ONNX one, where it runs.
     pub backbone: crate::features::BackboneChoice,
     pub device: crate::features::Device,
@@ -38,7 +40,7 @@ pub struct CoreConfig {
 
 impl Default for CoreConfig {
     fn default() -> Self {
-        Self { store_url: crate::store::default_url(), render_pool: RenderPool::DEFAULT_SIZE, cache_bytes: 4_000_000_000, max_estimates: 2, max_onboardings: 1, backbone_batch: 32, backbone: Default::default(), device: Default::default() }
+        Self { store_url: crate::store::default_url(), render_pool: RenderPool::DEFAULT_SIZE, cache_bytes: 4_000_000_000, max_estimates: 2, max_onboardings: 1, backbone_batch: 32, backbone_max_wait: std::time::Duration::ZERO, backbone: Default::default(), device: Default::default() }
     }
 }
 
@@ -74,7 +76,7 @@ impl Core {
     pub fn new(config: CoreConfig) -> Result<Self, ServiceError> {
         let store = crate::store::open(&config.store_url)?;
         let inner = crate::features::open_backbone(&config.backbone, &config.device).map_err(|e| ServiceError::new(ErrorKind::Unavailable, format!("backbone {}: {e}", config.backbone)))?;
-        let queue = (config.backbone_batch > 0).then(|| Arc::new(crate::features::BatchingBackbone::new(inner.clone(), config.backbone_batch)));
+        let queue = (config.backbone_batch > 0).then(|| Arc::new(crate::features::BatchingBackbone::with_max_wait(inner.clone(), config.backbone_batch, config.backbone_max_wait)));
         let backbone: Arc<dyn Backbone> = match &queue {
             Some(q) => q.clone(),
             None => inner,

@@ -123,6 +123,11 @@ impl Metrics {
             out.push_str("# HELP b2tf_backbone_batch_crops Crops per backbone forward pass (requests batched together).\n# TYPE b2tf_backbone_batch_crops histogram\n");
             let buckets = crate::features::batch_queue::BATCH_BUCKETS.iter().map(|b| b.to_string()).zip(q.batch_buckets.iter().copied());
             write_histogram(&mut out, "b2tf_backbone_batch_crops", "", buckets, q.passes, q.crops as f64);
+            let summary = |out: &mut String, name: &str, help: &str, count: u64, sum: f64| {
+                let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} summary\n{name}_sum {sum}\n{name}_count {count}");
+            };
+            summary(&mut out, "b2tf_backbone_queue_wait_seconds", "Time requests waited for their backbone pass.", q.jobs, q.wait_seconds);
+            summary(&mut out, "b2tf_backbone_pass_seconds", "Backbone forward pass time.", q.passes, q.pass_seconds);
         }
         out
     }
@@ -140,13 +145,14 @@ mod tests {
         m.request("POST", "/v1/estimate", "429", 0.001);
         m.request("grpc", "/b2tfpose.v1.PoseService/Estimate", "NOT_FOUND", 0.001);
         m.stages(&serde_json::json!({"pnp": 4.0, "total": 150.0}), 2);
-        let text = m.render(&Gauges { estimates_running: 1, onboardings_running: 0, objects_loaded: 3, cache_bytes: 42, ready: true, queue: Some(crate::features::batch_queue::QueueStats { queued_crops: 3, passes: 2, crops: 11, batch_buckets: vec![0, 0, 0, 1, 2, 2, 2, 2] }) });
+        let text = m.render(&Gauges { estimates_running: 1, onboardings_running: 0, objects_loaded: 3, cache_bytes: 42, ready: true, queue: Some(crate::features::batch_queue::QueueStats { queued_crops: 3, passes: 2, crops: 11, batch_buckets: vec![0, 0, 0, 1, 2, 2, 2, 2], jobs: 5, wait_seconds: 0.25, pass_seconds: 0.5 }) });
         assert!(text.contains("b2tf_requests_total{method=\"POST\",route=\"/v1/estimate\",status=\"200\"} 2"), "{text}");
         assert!(text.contains("b2tf_request_seconds_bucket{method=\"POST\",route=\"/v1/estimate\",le=\"0.05\"} 2"), "{text}");
         assert!(text.contains("b2tf_request_seconds_count{method=\"POST\",route=\"/v1/estimate\"} 3"), "{text}");
         assert!(text.contains("b2tf_requests_total{method=\"grpc\",route=\"/b2tfpose.v1.PoseService/Estimate\",status=\"NOT_FOUND\"} 1"), "{text}");
         assert!(text.contains("b2tf_stage_seconds_bucket{stage=\"pnp\",le=\"0.005\"} 1"), "{text}");
         assert!(text.contains("b2tf_backbone_queue_depth 3") && text.contains("b2tf_backbone_batch_crops_bucket{le=\"8\"} 1") && text.contains("b2tf_backbone_batch_crops_count 2"), "{text}");
+        assert!(text.contains("b2tf_backbone_queue_wait_seconds_sum 0.25\nb2tf_backbone_queue_wait_seconds_count 5") && text.contains("b2tf_backbone_pass_seconds_count 2"), "{text}");
         assert!(text.contains("b2tf_objects_loaded 3") && text.contains("b2tf_cache_bytes 42") && text.contains("b2tf_ready 1"), "{text}");
     }
 }
