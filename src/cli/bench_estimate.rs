@@ -2,7 +2,7 @@
 
 use crate::estimate::{Detection, EstimateConfig, EstimateResult};
 use crate::eval::pose_error::{mssd, rotation_error_deg, translation_error_m};
-use crate::eval::scenes::{generate_image, SceneConfig};
+use crate::eval::scenes::generate_image;
 use crate::mesh::{load_mesh, Mesh, Units};
 use crate::render::RenderPool;
 use anyhow::{bail, Result};
@@ -12,24 +12,7 @@ use std::sync::Arc;
 #[derive(clap::Args, Debug)]
 pub struct BenchEstimateArgs {
     #[command(flatten)]
-    pub backbone: super::backbone_args::BackboneArgs,
-    /// Mesh files to place in the scenes (default: the generated sample box).
-    #[arg(long = "mesh")]
-    pub meshes: Vec<PathBuf>,
-    /// Length unit of the PLY/OBJ meshes.
-    #[arg(long)]
-    pub units: Option<Units>,
-    /// Generated images; each holds --objects-per-image instances.
-    #[arg(long, default_value_t = 25)]
-    pub images: usize,
-    #[arg(long, default_value_t = 2)]
-    pub objects_per_image: usize,
-    /// Largest hidden share of an instance's silhouette.
-    #[arg(long, default_value_t = 0.3)]
-    pub max_occlusion: f64,
-    /// Object diameter as a share of the image height, drawn per instance: MIN,MAX.
-    #[arg(long, value_parser = parse_range, default_value = "0.10,0.40")]
-    pub fill: (f64, f64),
+    pub scenes: super::bench_scenes::BenchSceneArgs,
     /// Simulate the render-to-real gap: templates from the untextured mesh, harsher scenes.
     #[arg(long)]
     pub gap: bool,
@@ -37,11 +20,6 @@ pub struct BenchEstimateArgs {
     /// case of a user with a textured CAD model and a real camera.
     #[arg(long, conflicts_with = "gap")]
     pub harsh_scenes: bool,
-    #[arg(long, default_value_t = 1)]
-    pub seed: u64,
-    /// Object store that caches onboarded objects between runs.
-    #[arg(long, default_value = "dir://out/bench-models")]
-    pub store: String,
     /// Weight of the silhouette IoU in template retrieval (default: the library's).
     #[arg(long)]
     pub silhouette_weight: Option<f32>,
@@ -202,10 +180,10 @@ pub(super) fn bench_models(meshes: &[(String, Mesh)], gap: bool, store: &str, ba
 }
 
 pub fn run(a: BenchEstimateArgs) -> Result<()> {
-    let backbone = a.backbone.open()?;
+    let backbone = a.scenes.backbone.open()?;
     let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
-    let meshes = bench_meshes(&a.meshes, a.units)?;
-    let mut models = bench_models(&meshes, a.gap, &a.store, backbone.as_ref(), &pool)?;
+    let meshes = bench_meshes(&a.scenes.meshes, a.scenes.units)?;
+    let mut models = bench_models(&meshes, a.gap, &a.scenes.store, backbone.as_ref(), &pool)?;
     // The same PCA onboarding with `pca_dim` would fit, applied to the cached models.
     if let Some(d) = a.pca {
         for model in &mut models {
@@ -213,7 +191,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         }
     }
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
-    let scene_cfg = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, max_occlusion: a.max_occlusion, fill_range: a.fill, render_to_real_gap: a.gap || a.harsh_scenes, seed: a.seed, ..Default::default() };
+    let scene_cfg = a.scenes.scene_config(a.gap || a.harsh_scenes);
     let estimator = crate::estimate::Estimator::new(backbone, pool.clone());
     let mut base = EstimateConfig { refiner: a.refiner, ..Default::default() };
     if let Some(w) = a.silhouette_weight {
@@ -246,8 +224,8 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         std::fs::create_dir_all(dir)?;
     }
     let mut rows = String::from("image,obj_id,setting,size_px,visible,found,rot_err_deg,trans_err_mm,depth_err_mm,mssd_over_diameter,inliers,best_candidate_mssd_over_diameter,best_candidate_rank\n");
-    let pb = super::progress::bar(a.images as u64, "estimating");
-    for im in 0..a.images as u32 {
+    let pb = super::progress::bar(a.scenes.images as u64, "estimating");
+    for im in 0..a.scenes.images as u32 {
         let scene = generate_image(&objects, &scene_cfg, &pool, im)?;
         let mut overlay = scene.rgb.clone();
         for inst in &scene.instances {
@@ -323,12 +301,12 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     println!(
         "{} instances in {} generated images ({} objects/image, diameter {:.2}–{:.2} of the image height, ≤{:.0} % occluded, seed {}){}; objects: {}",
         instances,
-        a.images,
-        a.objects_per_image,
-        a.fill.0,
-        a.fill.1,
-        a.max_occlusion * 100.0,
-        a.seed,
+        a.scenes.images,
+        a.scenes.objects_per_image,
+        a.scenes.fill.0,
+        a.scenes.fill.1,
+        a.scenes.max_occlusion * 100.0,
+        a.scenes.seed,
         if a.gap {
             ", render-to-real gap: untextured templates, harsher scenes"
         } else if a.harsh_scenes {

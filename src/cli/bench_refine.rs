@@ -3,45 +3,26 @@
 //! it pulls a pose back, how much it drifts a right one, how its depth precision falls
 //! with the object's apparent size) from the rest of the pipeline.
 
-use super::bench_estimate::{bench_meshes, bench_models, median, parse_range};
+use super::bench_estimate::{bench_meshes, bench_models, median};
 use crate::estimate::{RefineContext, RefinerKind};
 use crate::eval::pose_error::{mssd, rotation_error_deg};
-use crate::eval::scenes::{generate_image, SceneConfig};
+use crate::eval::scenes::generate_image;
 use crate::geometry::Pose;
-use crate::mesh::{Mesh, Units};
+use crate::mesh::Mesh;
 use crate::render::RenderPool;
 use anyhow::{bail, Result};
 use nalgebra::{Rotation3, Unit, Vector3};
-use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
 pub struct BenchRefineArgs {
     #[command(flatten)]
-    pub backbone: super::backbone_args::BackboneArgs,
-    /// Mesh files to place in the scenes (default: the generated sample box).
-    #[arg(long = "mesh")]
-    pub meshes: Vec<PathBuf>,
-    #[arg(long)]
-    pub units: Option<Units>,
-    #[arg(long, default_value_t = 25)]
-    pub images: usize,
-    #[arg(long, default_value_t = 2)]
-    pub objects_per_image: usize,
-    #[arg(long, default_value_t = 0.3)]
-    pub max_occlusion: f64,
-    /// Object diameter as a share of the image height: MIN,MAX.
-    #[arg(long, value_parser = parse_range, default_value = "0.10,0.40")]
-    pub fill: (f64, f64),
+    pub scenes: super::bench_scenes::BenchSceneArgs,
     /// Harsher scenes (lighting, blur, noise): the refiners read the mask, so this mostly
     /// changes what colour statistics would see.
     #[arg(long)]
     pub harsh_scenes: bool,
-    #[arg(long, default_value_t = 1)]
-    pub seed: u64,
-    #[arg(long, default_value = "dir://out/bench-models")]
-    pub store: String,
     /// Rotation of each perturbation, degrees (about three fixed axes in turn).
     #[arg(long, default_value_t = 10.0)]
     pub degrees: f64,
@@ -98,21 +79,21 @@ fn perturbed(pose: &Pose, centre: &Vector3<f64>, axis: Vector3<f64>, degrees: f6
 }
 
 pub fn run(a: BenchRefineArgs) -> Result<()> {
-    let backbone = a.backbone.open()?;
+    let backbone = a.scenes.backbone.open()?;
     let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
-    let meshes = bench_meshes(&a.meshes, a.units)?;
-    let models = bench_models(&meshes, false, &a.store, backbone.as_ref(), &pool)?;
+    let meshes = bench_meshes(&a.scenes.meshes, a.scenes.units)?;
+    let models = bench_models(&meshes, false, &a.scenes.store, backbone.as_ref(), &pool)?;
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
-    let scene_cfg = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, max_occlusion: a.max_occlusion, fill_range: a.fill, render_to_real_gap: a.harsh_scenes, seed: a.seed, ..Default::default() };
+    let scene_cfg = a.scenes.scene_config(a.harsh_scenes);
     let kinds = if a.refiners.is_empty() { vec![RefinerKind::Contour, RefinerKind::SilhouetteDepth] } else { a.refiners.clone() };
     let estimator = crate::estimate::Estimator::new(backbone, pool.clone());
     let axes = [Vector3::new(1.0, 0.3, 0.0), Vector3::new(-0.2, 1.0, 0.5), Vector3::new(0.3, -0.4, 1.0)];
     let buckets = SIZE_EDGES.len() + 1;
     // [refiner][start: 0 truth, 1 perturbed][size]
     let mut out = vec![[vec![Outcomes::default(); buckets], vec![Outcomes::default(); buckets]]; kinds.len()];
-    let pb = super::progress::bar(a.images as u64, "refining");
+    let pb = super::progress::bar(a.scenes.images as u64, "refining");
     let mut instances = 0;
-    for im in 0..a.images as u32 {
+    for im in 0..a.scenes.images as u32 {
         let scene = generate_image(&objects, &scene_cfg, &pool, im)?;
         for inst in &scene.instances {
             instances += 1;
@@ -151,11 +132,11 @@ pub fn run(a: BenchRefineArgs) -> Result<()> {
     }
     println!(
         "{instances} instances in {} generated images (diameter {:.2}–{:.2} of the image height, ≤{:.0} % occluded, seed {}); perturbed starts: {}° about 3 axes, depth ×(1 ± {}); cells: MSSD < 0.1·d · median rotation error · median |Δz|/z of the object centre",
-        a.images,
-        a.fill.0,
-        a.fill.1,
-        a.max_occlusion * 100.0,
-        a.seed,
+        a.scenes.images,
+        a.scenes.fill.0,
+        a.scenes.fill.1,
+        a.scenes.max_occlusion * 100.0,
+        a.scenes.seed,
         a.degrees,
         a.depth
     );

@@ -5,6 +5,7 @@ pub mod bench;
 pub mod bench_backbone;
 pub mod bench_estimate;
 pub mod bench_refine;
+pub mod bench_scenes;
 pub mod bench_serve;
 pub mod bench_store;
 pub mod bop_cmd;

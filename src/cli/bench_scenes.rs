@@ -1,0 +1,41 @@
+//! What `bench estimate` and `bench refine` share: the backbone, the meshes and the
+//! generated scenes they are measured on, and the store that caches the onboarded models.
+
+use super::bench_estimate::parse_range;
+use crate::mesh::Units;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct BenchSceneArgs {
+    #[command(flatten)]
+    pub backbone: super::backbone_args::BackboneArgs,
+    /// Mesh files to place in the scenes (default: the generated sample box).
+    #[arg(long = "mesh")]
+    pub meshes: Vec<PathBuf>,
+    /// Length unit of the PLY/OBJ meshes.
+    #[arg(long)]
+    pub units: Option<Units>,
+    /// Generated images; each holds --objects-per-image instances.
+    #[arg(long, default_value_t = 25)]
+    pub images: usize,
+    #[arg(long, default_value_t = 2)]
+    pub objects_per_image: usize,
+    /// Largest hidden share of an instance's silhouette.
+    #[arg(long, default_value_t = 0.3)]
+    pub max_occlusion: f64,
+    /// Object diameter as a share of the image height, drawn per instance: MIN,MAX.
+    #[arg(long, value_parser = parse_range, default_value = "0.10,0.40")]
+    pub fill: (f64, f64),
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Object store that caches onboarded objects between runs.
+    #[arg(long, default_value = "dir://out/bench-models")]
+    pub store: String,
+}
+
+impl BenchSceneArgs {
+    /// The scene generator's settings; `harsh`: the scene side of the render-to-real gap.
+    pub fn scene_config(&self, harsh: bool) -> crate::eval::scenes::SceneConfig {
+        crate::eval::scenes::SceneConfig { images: self.images, objects_per_image: self.objects_per_image, max_occlusion: self.max_occlusion, fill_range: self.fill, render_to_real_gap: harsh, seed: self.seed, ..Default::default() }
+    }
+}
