@@ -163,6 +163,15 @@ pub(super) fn bench_meshes(paths: &[PathBuf], units: Option<Units>) -> Result<Ve
     paths.iter().map(|p| Ok((p.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh").replace(' ', "_"), load_mesh(p, units)?))).collect()
 }
 
+/// The id a benchmark caches object `name` under: objects of an ONNX backbone (whose
+/// weights hash is given) get their own ids instead of overwriting the embedded ones.
+pub(super) fn cached_object_id(name: &str, onnx_weights_hash: Option<&str>) -> String {
+    match onnx_weights_hash {
+        Some(h) => format!("{name}.{}", &h[..h.len().min(12)]),
+        None => name.to_string(),
+    }
+}
+
 /// The onboarded models of `meshes`, cached in `store`. Across the gap, templates come
 /// from the bare geometry while scenes stay textured.
 pub(super) fn bench_models(meshes: &[(String, Mesh)], gap: bool, store: &str, backbone: &dyn crate::features::Backbone, pool: &RenderPool) -> Result<Vec<crate::onboard::ObjectModel>> {
@@ -171,9 +180,8 @@ pub(super) fn bench_models(meshes: &[(String, Mesh)], gap: bool, store: &str, ba
         .iter()
         .map(|(name, mesh)| {
             let (id, template_mesh) = if gap { (format!("{name}-untextured"), mesh.without_appearance()) } else { (name.clone(), mesh.clone()) };
-            // Objects of another backbone are cached under their own ids, not overwritten.
             let identity = backbone.identity();
-            let id = if identity.name.starts_with("onnx:") { format!("{id}.{}", &identity.weights_hash[..identity.weights_hash.len().min(12)]) } else { id };
+            let id = cached_object_id(&id, identity.name.starts_with("onnx:").then_some(identity.weights_hash.as_str()));
             super::cached_model(&id, &template_mesh, store.as_ref(), backbone, pool)
         })
         .collect()

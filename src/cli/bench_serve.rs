@@ -17,8 +17,8 @@ use std::time::{Duration, Instant};
 
 #[derive(clap::Args, Debug)]
 pub struct BenchServeArgs {
-    /// Store the server uses; it must hold the sample box as "box" (`b2tf bench estimate`
-    /// puts it into the default) or the bench onboards it through the API.
+    /// Store the server uses; it must hold the sample box onboarded with the same backbone
+    /// (`b2tf bench estimate [--backbone …]` with the same store puts it there).
     #[arg(long, default_value = "dir://out/bench-models")]
     pub store: String,
     /// Concurrent clients, one measurement each.
@@ -33,6 +33,8 @@ pub struct BenchServeArgs {
     /// Crops per backbone pass of the server's batching queue (0: no queue).
     #[arg(long, default_value_t = 32)]
     pub backbone_batch: usize,
+    #[command(flatten)]
+    pub backbone: super::backbone_args::BackboneArgs,
     /// Protocols measured: http, grpc or both.
     #[arg(long, value_delimiter = ',', default_value = "http,grpc")]
     pub protocols: Vec<String>,
@@ -68,10 +70,19 @@ fn b64(bytes: &[u8]) -> String {
     base64::engine::general_purpose::STANDARD.encode(bytes)
 }
 
+/// The sample box's id in the store for the chosen backbone (as `bench estimate` caches it).
+fn object_id(a: &BenchServeArgs) -> Result<String> {
+    Ok(match &a.backbone.backbone {
+        crate::features::BackboneChoice::Embedded => "box".into(),
+        crate::features::BackboneChoice::Onnx(p) => super::bench_estimate::cached_object_id("box", Some(&crate::features::onnx::read_sidecar(p)?.onnx_sha256)),
+    })
+}
+
 pub fn run(a: BenchServeArgs) -> Result<()> {
     let max_clients = a.clients.iter().copied().max().unwrap_or(1);
+    let object = object_id(&a)?;
     let mut child = std::process::Command::new(std::env::current_exe()?)
-        .args(["serve", "--http", "127.0.0.1:0", "--grpc", "127.0.0.1:0", "--store", &a.store, "--max-estimates", &max_clients.to_string(), "--backbone-batch", &a.backbone_batch.to_string()])
+        .args(["serve", "--http", "127.0.0.1:0", "--grpc", "127.0.0.1:0", "--store", &a.store, "--max-estimates", &max_clients.to_string(), "--backbone-batch", &a.backbone_batch.to_string(), "--backbone", &a.backbone.backbone.to_string(), "--device", &a.backbone.device.to_string()])
         .stdout(std::process::Stdio::piped())
         .spawn()
         .context("starting b2tf serve")?;
@@ -80,14 +91,14 @@ pub fn run(a: BenchServeArgs) -> Result<()> {
     BufReader::new(child.stdout.take().ok_or_else(|| anyhow!("no stdout"))?).read_line(&mut line)?;
     let addr = line.split_whitespace().find_map(|w| w.strip_prefix("http://")).ok_or_else(|| anyhow!("server said {line:?}"))?.to_string();
     let grpc = line.split_whitespace().find_map(|w| w.strip_prefix("grpc://")).ok_or_else(|| anyhow!("server said {line:?}"))?.to_string();
-    let result = measure(&a, &addr, &grpc, pid);
+    let result = measure(&a, &object, &addr, &grpc, pid);
     // SAFETY: kill(2) on our own child's pid.
     unsafe { libc::kill(pid as i32, libc::SIGTERM) };
     let _ = child.wait();
     result
 }
 
-fn measure(a: &BenchServeArgs, addr: &str, grpc: &str, pid: u32) -> Result<()> {
+fn measure(a: &BenchServeArgs, object: &str, addr: &str, grpc: &str, pid: u32) -> Result<()> {
     let t = Instant::now();
     while json_call(addr, "GET", "/readyz", None).map(|r| r.0).unwrap_or(0) != 200 {
         if t.elapsed() > Duration::from_secs(120) {
@@ -96,8 +107,8 @@ fn measure(a: &BenchServeArgs, addr: &str, grpc: &str, pid: u32) -> Result<()> {
         std::thread::sleep(Duration::from_millis(100));
     }
     let mesh = crate::mesh::procedural::textured_box([0.10, 0.06, 0.16], 3);
-    if json_call(addr, "GET", "/v1/objects/box", None)?.0 != 200 {
-        bail!("the store {} has no object \"box\": run `b2tf bench estimate --store {}` once (it onboards the sample box)", a.store, a.store);
+    if json_call(addr, "GET", &format!("/v1/objects/{object}"), None)?.0 != 200 {
+        bail!("the store {} has no object {object:?}: run `b2tf bench estimate --store {} --backbone {}` once (it onboards the sample box)", a.store, a.store, a.backbone.backbone);
     }
     let pool = RenderPool::new(1, Default::default())?;
     let k = Intrinsics::new(600.0, 600.0, 319.5, 239.5, 640, 480)?;
@@ -105,8 +116,8 @@ fn measure(a: &BenchServeArgs, addr: &str, grpc: &str, pid: u32) -> Result<()> {
     let r = pool.render(&mesh, &truth, &k, &RenderOptions::default())?;
     let intrinsics = json!({"fx": 600.0, "fy": 600.0, "cx": 319.5, "cy": 239.5, "width": 640, "height": 480});
     let (rgb_png, mask_png) = (png_bytes(&r.rgb)?, png_bytes(&r.mask)?);
-    let request = json!({"image": {"encoded": b64(&rgb_png)}, "intrinsics": intrinsics, "detections": [{"object_id": "box", "mask_png": b64(&mask_png), "score": 1.0}], "options": {"rrc": !a.no_rrc}});
-    let grpc_request = one_mask_request("box", rgb_png, mask_png, &k, !a.no_rrc);
+    let request = json!({"image": {"encoded": b64(&rgb_png)}, "intrinsics": intrinsics, "detections": [{"object_id": object, "mask_png": b64(&mask_png), "score": 1.0}], "options": {"rrc": !a.no_rrc}});
+    let grpc_request = one_mask_request(object, rgb_png, mask_png, &k, !a.no_rrc);
     let body = serde_json::to_vec(&request)?;
     // One request first, so every measurement starts with the object loaded.
     let (s, v) = http(addr, "POST", "/v1/estimate", Some(&body))?;

@@ -129,12 +129,19 @@ pub fn sidecar_path(model: &Path) -> PathBuf {
     model.with_extension("json")
 }
 
+/// The sidecar of `model`, parsed but not yet checked against the file.
+pub fn read_sidecar(model: &Path) -> Result<BackboneSpec, OnnxError> {
+    let path = sidecar_path(model);
+    let bad = |reason: String| OnnxError::Sidecar { path: path.clone(), reason };
+    let text = std::fs::read(&path).map_err(|e| bad(e.to_string()))?;
+    serde_json::from_slice(&text).map_err(|e| bad(e.to_string()))
+}
+
 /// Reads and checks the sidecar against the ONNX file's bytes.
 pub fn read_spec(model: &Path, onnx: &[u8]) -> Result<BackboneSpec, OnnxError> {
     let path = sidecar_path(model);
     let bad = |reason: String| OnnxError::Sidecar { path: path.clone(), reason };
-    let text = std::fs::read(&path).map_err(|e| bad(e.to_string()))?;
-    let spec: BackboneSpec = serde_json::from_slice(&text).map_err(|e| bad(e.to_string()))?;
+    let spec = read_sidecar(model)?;
     if spec.format != "b2tfpose-backbone" || spec.version != 1 {
         return Err(bad(format!("format {:?} version {}, expected \"b2tfpose-backbone\" version 1", spec.format, spec.version)));
     }
