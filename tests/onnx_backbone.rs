@@ -83,6 +83,11 @@ fn feature_maps_are_normalised_and_batches_agree_with_single_crops() {
         assert_eq!(one.local.len(), one.grid.len() * one.local_dim);
         assert!(one.foreground(0.5).len() > 50);
     }
+    // A sliver of a mask that covers no patch by half still gets a unit global descriptor.
+    let mut sliver = crop(90);
+    sliver.mask = image::GrayImage::from_fn(size, size, |x, y| image::Luma([if (100..104).contains(&x) && (100..104).contains(&y) { 255 } else { 0 }]));
+    let g = b.extract(&[sliver]).unwrap().remove(0).global;
+    assert!((g.iter().map(|x| x * x).sum::<f32>().sqrt() - 1.0).abs() < 1e-4, "sliver's global descriptor is not unit length");
     // A crop of the wrong size is refused, naming the size expected.
     let small = CropInput { rgb: image::RgbImage::new(64, 64), mask: image::GrayImage::new(64, 64) };
     let e = b.extract(&[small]).unwrap_err().to_string();

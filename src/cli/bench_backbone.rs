@@ -2,7 +2,7 @@
 //! embedded backbone and any ONNX models given, on the chosen device. The crops are renders
 //! of the sample box (speed does not depend on what a crop shows, nor on weight values).
 
-use crate::features::{open_backbone, Backbone, BackboneChoice, CropInput, Device};
+use crate::features::{open_backbone, BackboneChoice, CropInput, Device};
 use crate::geometry::views::view_pose;
 use crate::geometry::Intrinsics;
 use crate::render::RenderOptions;
@@ -46,16 +46,14 @@ pub fn run(a: BenchBackboneArgs) -> Result<()> {
     if a.batches.is_empty() || a.batches.contains(&0) || a.passes == 0 {
         bail!("batch sizes and passes must be at least 1");
     }
-    let mut backbones: Vec<(String, Box<dyn Fn() -> Result<std::sync::Arc<dyn Backbone>>>)> = vec![("embedded (cpu)".into(), Box::new(|| open_backbone(&BackboneChoice::Embedded, &Device::Cpu).map_err(anyhow::Error::msg)))];
-    for p in &a.onnx {
-        let (p, d) = (p.clone(), a.device.clone());
-        backbones.push((format!("{} ({})", p.display(), a.device), Box::new(move || open_backbone(&BackboneChoice::Onnx(p.clone()), &d).map_err(anyhow::Error::msg))));
-    }
+    // Opened one at a time, so that only one model's session is held at once.
+    let backbones = std::iter::once((BackboneChoice::Embedded, Device::Cpu)).chain(a.onnx.iter().map(|p| (BackboneChoice::Onnx(p.clone()), a.device.clone())));
     let largest = *a.batches.iter().max().expect("non-empty");
     println!("| backbone | input | batch | ms per pass | ms per crop | crops/s |");
     println!("|---|---:|---:|---:|---:|---:|");
-    for (name, open) in backbones {
-        let b = open()?;
+    for (choice, device) in backbones {
+        let name = format!("{choice} ({device})");
+        let b = open_backbone(&choice, &device).map_err(anyhow::Error::msg)?;
         let id = b.identity();
         let all = crops(largest, id.input_size)?;
         b.extract(&all[..1])?; // warm-up: allocation, kernel selection

@@ -7,7 +7,7 @@
 //! to `model.onnx`) that names its inputs, outputs, layers, normalisation and the sha256
 //! of the ONNX file; the file must match it, and the session's shapes must match both.
 
-use super::backbone::{check_sizes, l2_normalize, patch_coverage, Backbone, BackboneIdentity, FeatureError, FeatureMap};
+use super::backbone::{check_sizes, l2_normalize, mean_descriptor, patch_coverage, Backbone, BackboneIdentity, FeatureError, FeatureMap};
 use super::crop::CropInput;
 use crate::geometry::PatchGrid;
 use ort::session::Session;
@@ -254,17 +254,19 @@ impl OnnxBackbone {
         let mut local = local.to_vec();
         local.chunks_exact_mut(ld).for_each(l2_normalize);
         let coverage = patch_coverage(&crop.mask, &self.grid);
-        // Masked mean pooling of the last layer's patch tokens; a crop with no patch that
-        // reaches the coverage threshold pools every patch it touches, by coverage.
-        let threshold = if coverage.iter().any(|&c| c >= self.min_coverage) { self.min_coverage } else { f32::MIN_POSITIVE };
-        let mut pooled = vec![0f32; gd];
-        for (k, &c) in coverage.iter().enumerate() {
-            if c >= threshold {
-                let w = if threshold == self.min_coverage { 1.0 } else { c };
-                pooled.iter_mut().zip(&global[k * gd..(k + 1) * gd]).for_each(|(p, g)| *p += w * g);
+        // Masked mean pooling of the last layer's patch tokens (as the embedded backbone
+        // pools); a crop with no patch that reaches the coverage threshold pools every patch
+        // it touches instead, weighted by coverage.
+        let pooled = if coverage.iter().any(|&c| c >= self.min_coverage) {
+            mean_descriptor(global, gd, &coverage, self.min_coverage)
+        } else {
+            let mut pooled = vec![0f32; gd];
+            for (k, &c) in coverage.iter().enumerate().filter(|(_, &c)| c > 0.0) {
+                pooled.iter_mut().zip(&global[k * gd..(k + 1) * gd]).for_each(|(p, g)| *p += c * g);
             }
-        }
-        l2_normalize(&mut pooled);
+            l2_normalize(&mut pooled);
+            pooled
+        };
         FeatureMap { grid: self.grid, local_dim: ld, local, global: pooled, coverage }
     }
 }
