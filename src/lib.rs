@@ -9,6 +9,7 @@ pub mod estimate;
 pub mod eval;
 pub mod features;
 pub mod geometry;
+pub mod linalg;
 pub mod mesh;
 pub mod onboard;
 pub mod render;

@@ -166,7 +166,7 @@ fn silhouette_depth_refiner_pulls_a_wrong_depth_back() {
 fn pca_compressed_model_stores_smaller_and_still_finds_the_pose() {
     let f = fixture();
     let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap();
-    let cfg = OnboardConfig { views: ViewSampling { level: 1, in_plane_steps: 12 }, render_size: 256, pca_dim: Some(24), ..Default::default() };
+    let cfg = OnboardConfig { views: ViewSampling { level: 1, in_plane_steps: 12 }, render_size: 256, pca: b2tfpose::onboard::PcaSetting::Components(24), ..Default::default() };
     let small = onboard("box", &textured_box([0.10, 0.06, 0.16], 3), &cfg, &backbone, &f.pool, &|_| {}).unwrap();
     assert_eq!((small.local_dim, small.pca.as_ref().unwrap().input_dim), (24, f.model.local_dim));
     assert_eq!(small.patch_descriptors.len() * f.model.local_dim, f.model.patch_descriptors.len() * 24);

@@ -84,6 +84,14 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     assert!(s == 200 && list["objects"][0]["id"] == "box", "{list}");
     // The same id again without replace: 409.
     assert_eq!(call(&c, "POST", &format!("{base}/v1/objects"), Some(&onboard)).0, 409);
+    // PCA settings the backbone cannot give, or that are no setting at all: 400 at once.
+    for (pca, needle) in [(json!(65), "cannot keep 65 components of the backbone's 64-dimensional"), (json!(0), "at least 1"), (json!("lots"), "lots")] {
+        let mut bad = onboard.clone();
+        bad["object_id"] = json!("box_pca");
+        bad["options"]["pca"] = pca;
+        let (s, v) = call(&c, "POST", &format!("{base}/v1/objects"), Some(&bad));
+        assert!(s == 400 && v.to_string().contains(needle), "{needle}: {s} {v}");
+    }
 
     // The same files as multipart/form-data, as they are (12 templates: quick).
     let part = |(name, bytes): &(String, Vec<u8>)| reqwest::blocking::multipart::Part::bytes(bytes.clone()).file_name(name.clone());
@@ -115,6 +123,7 @@ fn onboard_estimate_and_bad_inputs_over_http() {
         (reqwest::blocking::multipart::Form::new().text("object_id", "x"), "mesh file part is missing"),
         (reqwest::blocking::multipart::Form::new().part("mesh", part(&files[0])), "object_id"),
         (reqwest::blocking::multipart::Form::new().text("object_id", "x").text("level", "two").part("mesh", part(&files[0])), "level"),
+        (reqwest::blocking::multipart::Form::new().text("object_id", "x").text("pca", "half").part("mesh", part(&files[0])), "pca: PCA setting"),
     ] {
         let r = c.post(format!("{base}/v1/objects")).multipart(form).send().unwrap();
         let (s, v) = (r.status().as_u16(), r.text().unwrap());

@@ -38,6 +38,9 @@ pub enum BenchCommand {
     Serve(super::bench_serve::BenchServeArgs),
     /// Object store costs: bytes per object (f16, PCA), put time, cold and warm loads.
     Store(super::bench_store::BenchStoreArgs),
+    /// What descriptor size costs: mutual-NN matching (GEMM) per query against pools of
+    /// template patches, and the PCA's fit and projection.
+    Matching(super::bench_matching::BenchMatchingArgs),
     /// Renders per second.
     Render {
         #[arg(long)]
@@ -76,6 +79,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Refine(a) => super::bench_refine::run(a),
         BenchCommand::Backbone(a) => super::bench_backbone::run(a),
         BenchCommand::Store(a) => super::bench_store::run(a),
+        BenchCommand::Matching(a) => super::bench_matching::run(a),
         BenchCommand::Serve(a) => super::bench_serve::run(a),
         BenchCommand::Render { mesh, units, size, count } => render(mesh_or_box(mesh, units)?, size, count),
         BenchCommand::Onboard { data, default_units, store, filter } => onboard_table(&data, default_units, store, filter),

@@ -51,9 +51,9 @@ pub struct BenchEstimateArgs {
     /// Write an overlay PNG per image into this folder.
     #[arg(long)]
     pub overlays: Option<PathBuf>,
-    /// Onboard with patch descriptors compressed to this many PCA components.
-    #[arg(long)]
-    pub pca: Option<usize>,
+    /// PCA of the patch descriptors, as `b2tf onboard --pca`: auto, off or a component count.
+    #[arg(long, default_value = "auto")]
+    pub pca: crate::onboard::PcaSetting,
     /// Write one CSV row per instance and setting (errors, apparent size) into this file.
     #[arg(long)]
     pub per_instance: Option<PathBuf>,
@@ -172,6 +172,11 @@ pub(super) fn cached_object_id(name: &str, onnx_weights_hash: Option<&str>) -> S
     }
 }
 
+/// `cached_object_id` for a model of `identity`.
+pub(super) fn cached_id_for(name: &str, identity: &crate::features::BackboneIdentity) -> String {
+    cached_object_id(name, identity.name.starts_with("onnx:").then_some(identity.weights_hash.as_str()))
+}
+
 /// The onboarded models of `meshes`, cached in `store`. Across the gap, templates come
 /// from the bare geometry while scenes stay textured.
 pub(super) fn bench_models(meshes: &[(String, Mesh)], gap: bool, store: &str, backbone: &dyn crate::features::Backbone, pool: &RenderPool) -> Result<Vec<crate::onboard::ObjectModel>> {
@@ -180,9 +185,10 @@ pub(super) fn bench_models(meshes: &[(String, Mesh)], gap: bool, store: &str, ba
         .iter()
         .map(|(name, mesh)| {
             let (id, template_mesh) = if gap { (format!("{name}-untextured"), mesh.without_appearance()) } else { (name.clone(), mesh.clone()) };
-            let identity = backbone.identity();
-            let id = cached_object_id(&id, identity.name.starts_with("onnx:").then_some(identity.weights_hash.as_str()));
-            super::cached_model(&id, &template_mesh, store.as_ref(), backbone, pool)
+            let id = cached_id_for(&id, &backbone.identity());
+            // Cached uncompressed: any PCA setting applies to it in memory (as onboarding
+            // with that setting would) without onboarding again.
+            super::cached_model(&id, &template_mesh, store.as_ref(), backbone, pool, crate::onboard::PcaSetting::Off)
         })
         .collect()
 }
@@ -192,11 +198,8 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
     let meshes = bench_meshes(&a.scenes.meshes, a.scenes.units)?;
     let mut models = bench_models(&meshes, a.gap, &a.scenes.store, backbone.as_ref(), &pool)?;
-    // The same PCA onboarding with `pca_dim` would fit, applied to the cached models.
-    if let Some(d) = a.pca {
-        for model in &mut models {
-            crate::onboard::compress(model, d)?;
-        }
+    for model in &mut models {
+        crate::onboard::apply_pca(model, a.pca)?;
     }
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
     let scene_cfg = a.scenes.scene_config(a.gap || a.harsh_scenes);

@@ -1,7 +1,6 @@
 //! `b2tf bench store`: what the object stores cost: bytes per object (f16, PCA), put time,
 //! and load time from each backend, cold (page cache dropped, when allowed) and warm.
 
-use crate::features::{EmbeddedBackbone, EmbeddedConfig};
 use crate::mesh::{load_mesh, Units};
 use crate::onboard::{compress, ObjectModel};
 use crate::render::RenderPool;
@@ -27,6 +26,8 @@ pub struct BenchStoreArgs {
     /// Loads timed per backend and variant.
     #[arg(long, default_value_t = 3)]
     pub repeats: usize,
+    #[command(flatten)]
+    pub backbone: super::backbone_args::BackboneArgs,
 }
 
 /// Drops the kernel's page cache so the next read comes from the disk (root only).
@@ -42,18 +43,22 @@ extern "C" {
 }
 
 pub fn run(a: BenchStoreArgs) -> Result<()> {
-    let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).map_err(anyhow::Error::msg)?;
+    let backbone = a.backbone.open()?;
     let pool = super::open_renderer(RenderPool::DEFAULT_SIZE)?;
     let (name, mesh) = match &a.mesh {
         Some(p) => (p.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh").replace(' ', "_"), load_mesh(p, a.units)?),
         None => ("box".to_string(), crate::mesh::procedural::textured_box([0.10, 0.06, 0.16], 3)),
     };
     let cache = crate::store::open(&a.cache_store)?;
-    let full = super::cached_model(&name, &mesh, cache.as_ref(), &backbone, &pool)?;
-    let mut variants: Vec<(String, ObjectModel)> = vec![("f16".into(), full.clone())];
+    let id = super::bench_estimate::cached_id_for(&name, &backbone.identity());
+    let full = super::cached_model(&id, &mesh, cache.as_ref(), backbone.as_ref(), &pool, crate::onboard::PcaSetting::Off)?;
+    let mut variants: Vec<(String, ObjectModel)> = vec![(format!("{} dims (f16)", full.local_dim), full.clone())];
+    let mut compress_s = vec![];
     for &d in &a.pca {
         let mut m = full.clone();
+        let t = Instant::now();
         compress(&mut m, d)?;
+        compress_s.push((d, t.elapsed().as_secs_f64()));
         variants.push((format!("PCA {d} (f16)"), m));
     }
     let tmp = std::env::temp_dir().join(format!("b2tf-bench-store-{}", std::process::id()));
@@ -94,6 +99,9 @@ pub fn run(a: BenchStoreArgs) -> Result<()> {
                 };
                 println!("| {backend} | {label} | {:.1} | {put_s:.2} | {:.3} | {:.3} | {hit_ms:.3} |", info.bytes as f64 / 1e6, med(&mut cold), med(&mut warm));
             }
+        }
+        for (d, s) in compress_s {
+            println!("PCA {} → {d}: fitted and projected in {s:.2} s", full.local_dim);
         }
         if !dropped_all {
             println!("(the page cache could not be dropped (needs root): \"cold\" loads read from memory)");

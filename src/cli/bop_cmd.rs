@@ -112,7 +112,7 @@ fn run_cmd(a: RunArgs) -> Result<()> {
         let id = format!("obj_{obj_id:06}");
         if checked.insert(obj_id) {
             let mesh = load_mesh(&model_path(&a.dataset, obj_id), Some(Units::Mm))?;
-            super::cached_model(&id, &mesh, store.as_ref(), backbone.as_ref(), &pool)?;
+            super::cached_model(&id, &mesh, store.as_ref(), backbone.as_ref(), &pool, Default::default())?;
             models.invalidate(&id);
         }
         Ok(models.get(&id)?)

@@ -26,9 +26,11 @@ pub struct OnboardArgs {
     /// In-plane rotations per viewpoint.
     #[arg(long, default_value_t = 12)]
     pub in_plane: u32,
-    /// Compress patch descriptors to this many PCA components (default: keep all, f16).
-    #[arg(long)]
-    pub pca: Option<usize>,
+    /// PCA compression of the patch descriptors: `auto` keeps descriptors of up to 256
+    /// dims (the embedded backbone's) and compresses wider ones (DINOv3) to at most 256
+    /// components within a 360 MB budget; `off` keeps all (f16); or a component count.
+    #[arg(long, default_value = "auto")]
+    pub pca: crate::onboard::PcaSetting,
     /// Replace an existing object with the same id.
     #[arg(long)]
     pub replace: bool,
@@ -43,7 +45,7 @@ pub fn run(a: OnboardArgs) -> Result<()> {
     let t0 = Instant::now();
     let mesh = load_mesh(&a.mesh, a.units)?;
     let load_s = t0.elapsed().as_secs_f64();
-    let config = OnboardConfig { views: ViewSampling { level: a.level, in_plane_steps: a.in_plane }, pca_dim: a.pca, ..Default::default() };
+    let config = OnboardConfig { views: ViewSampling { level: a.level, in_plane_steps: a.in_plane }, pca: a.pca, ..Default::default() };
     config.views.validate().map_err(anyhow::Error::msg)?;
     crate::onboard::validate_object_id(&a.id)?;
     let store = crate::store::open(&a.store.clone().unwrap_or_else(crate::store::default_url))?;
@@ -51,6 +53,7 @@ pub fn run(a: OnboardArgs) -> Result<()> {
         anyhow::bail!("object {:?} already exists in {}; pass --replace to overwrite it", a.id, store.url());
     }
     let backbone = a.backbone.open()?;
+    a.pca.check(backbone.identity().local_dim as usize).map_err(anyhow::Error::msg)?;
     let pool = super::open_renderer(a.render_pool)?;
     let total = (crate::geometry::icosphere(a.level).len() as u32 * a.in_plane) as u64;
     let pb = super::progress::bar(total, "onboarding");
@@ -70,6 +73,10 @@ pub fn run(a: OnboardArgs) -> Result<()> {
         backbone.identity().name,
         backbone.identity().weights_hash
     );
+    match &model.pca {
+        Some(p) => println!("patch descriptors: {} PCA components of {} (--pca {})", p.output_dim, p.input_dim, a.pca),
+        None => println!("patch descriptors: all {} dimensions (--pca {})", model.local_dim, a.pca),
+    }
     println!("mesh load {load_s:.2} s, onboarding {onboard_s:.1} s, storing {store_s:.2} s; {:.1} MB in {}", info.bytes as f64 / 1e6, store.url());
     Ok(())
 }

@@ -29,10 +29,19 @@ impl PatchPool {
             let tp = &model.templates[t];
             let range = tp.patch_start as usize..(tp.patch_start + tp.patch_count) as usize;
             pool.points.extend_from_slice(&model.patch_points[range.clone()]);
-            pool.descriptors.extend(model.patch_descriptors[range.start * model.local_dim..range.end * model.local_dim].iter().map(|h| h.to_f32()));
+            widen_into(&model.patch_descriptors[range.start * model.local_dim..range.end * model.local_dim], &mut pool.descriptors);
         }
         pool
     }
+}
+
+/// Appends `stored` widened to f32 by half's slice conversion, which uses the CPU's f16
+/// instructions where it has them (`bench matching`: 5–10× the per-value conversion).
+pub fn widen_into(stored: &[half::f16], out: &mut Vec<f32>) {
+    use half::slice::HalfFloatSliceExt;
+    let start = out.len();
+    out.resize(start + stored.len(), 0.0);
+    stored.convert_to_f32_slice(&mut out[start..]);
 }
 
 /// Matched pairs ready for PnP.

@@ -29,7 +29,7 @@ pub fn mutual_matches(query: &[f32], pool: &[f32], dim: usize, k_nn: usize) -> V
     for start in (0..p).step_by(BLOCK) {
         let n = BLOCK.min(p - start);
         let block = &pool[start * dim..(start + n) * dim];
-        similarity(query, block, q, n, dim, &mut sims[..q * n]);
+        crate::linalg::mul_transposed(query, block, q, n, dim, &mut sims[..q * n]);
         for i in 0..q {
             let row = &sims[i * n..(i + 1) * n];
             let t = &mut top[i];
@@ -58,35 +58,6 @@ pub fn mutual_matches(query: &[f32], pool: &[f32], dim: usize, k_nn: usize) -> V
     out
 }
 
-/// `out[i·n + j] = a_i · b_j` for `a` (m × dim) and `b` (n × dim), multi-threaded GEMM.
-fn similarity(a: &[f32], b: &[f32], m: usize, n: usize, dim: usize, out: &mut [f32]) {
-    // SAFETY: the slices hold m×dim, n×dim and m×n elements, and the strides below describe
-    // exactly those row-major layouts, so gemm reads and writes in bounds only.
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            dim,
-            out.as_mut_ptr(),
-            1,          // dst column stride
-            n as isize, // dst row stride
-            false,
-            a.as_ptr(),
-            1,
-            dim as isize, // lhs (m × dim) row-major
-            b.as_ptr(),
-            dim as isize,
-            1, // rhs viewed as dim × n: element (k, j) = b[j·dim + k]
-            0.0,
-            1.0,
-            false,
-            false,
-            false,
-            gemm::Parallelism::Rayon(0),
-        );
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -96,20 +67,6 @@ mod tests {
             let n = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
             r.map(|x| x / n)
         }).collect()
-    }
-
-    #[test]
-    fn gemm_matches_naive_dot_products() {
-        let a: Vec<f32> = (0..5 * 7).map(|i| ((i * 37 % 11) as f32) - 5.0).collect();
-        let b: Vec<f32> = (0..9 * 7).map(|i| ((i * 13 % 7) as f32) - 3.0).collect();
-        let mut out = vec![0f32; 5 * 9];
-        similarity(&a, &b, 5, 9, 7, &mut out);
-        for i in 0..5 {
-            for j in 0..9 {
-                let naive: f32 = (0..7).map(|k| a[i * 7 + k] * b[j * 7 + k]).sum();
-                assert!((out[i * 9 + j] - naive).abs() < 1e-4);
-            }
-        }
     }
 
     #[test]

@@ -1,6 +1,7 @@
 //! An onboarded object: the templates (pose, global descriptor, silhouette) and, for each
 //! template, its foreground patches (descriptor, 3D object-frame point, patch index).
 
+use super::pca_setting::PcaSetting;
 use crate::features::BackboneIdentity;
 use crate::geometry::{CropBox, Intrinsics, PatchGrid, Pose, ViewSampling};
 use crate::mesh::Mesh;
@@ -29,14 +30,15 @@ pub struct OnboardConfig {
     pub crop_padding: f64,
     /// A patch is foreground when the object covers at least this share of it.
     pub min_coverage: f32,
-    /// Keep this many PCA components of the patch descriptors (None: all, as f16).
-    #[serde(default)]
-    pub pca_dim: Option<usize>,
+    /// PCA compression of the patch descriptors as asked for (what was applied is the
+    /// model's `pca`). Records before the setting had `pca_dim`: null (keep all) or a count.
+    #[serde(default = "PcaSetting::off", alias = "pca_dim")]
+    pub pca: PcaSetting,
 }
 
 impl Default for OnboardConfig {
     fn default() -> Self {
-        Self { views: ViewSampling::default(), render_size: 512, render_fill: 0.9, crop_padding: 0.1, min_coverage: 0.5, pca_dim: None }
+        Self { views: ViewSampling::default(), render_size: 512, render_fill: 0.9, crop_padding: 0.1, min_coverage: 0.5, pca: PcaSetting::Auto }
     }
 }
 
@@ -206,4 +208,27 @@ pub fn pack_silhouette(mask: &image::GrayImage) -> Vec<u64> {
         }
     }
     words
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn records_from_before_the_pca_setting_still_read() {
+        let current = serde_json::to_value(OnboardConfig::default()).unwrap();
+        assert_eq!(current["pca"], "auto");
+        let with = |pca_dim: Option<serde_json::Value>| {
+            let mut v = current.clone();
+            v.as_object_mut().unwrap().remove("pca");
+            if let Some(p) = pca_dim {
+                v["pca_dim"] = p;
+            }
+            serde_json::from_value::<OnboardConfig>(v).unwrap().pca
+        };
+        // Older records: no field or null meant every dimension kept, a number a PCA.
+        assert_eq!(with(None), PcaSetting::Off);
+        assert_eq!(with(Some(serde_json::Value::Null)), PcaSetting::Off);
+        assert_eq!(with(Some(serde_json::json!(16))), PcaSetting::Components(16));
+    }
 }

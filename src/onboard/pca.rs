@@ -3,6 +3,7 @@
 //! queries are projected the same way before matching. Rows are re-normalised after the
 //! projection because matching compares by cosine.
 
+use half::f16;
 use nalgebra::{DMatrix, SymmetricEigen};
 
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -14,13 +15,16 @@ pub struct Pca {
     pub components: Vec<f32>,
 }
 
-/// Rows used for the fit at most (evenly strided): the covariance of 64-d descriptors is
-/// settled long before the hundreds of thousands of patches an object has.
+/// Rows used for the fit at most (evenly strided): the covariance is settled long before the
+/// hundreds of thousands of patches an object has.
 const MAX_FIT_ROWS: usize = 50_000;
 
+/// Rows centred and multiplied at once: bounds the f32 scratch (rows × input dims).
+const CHUNK_ROWS: usize = 4096;
+
 impl Pca {
-    /// Fits on `rows` (`n × dim`, row-major) keeping `k` components.
-    pub fn fit(rows: &[f32], dim: usize, k: usize) -> Result<Self, String> {
+    /// Fits on `rows` (`n × dim`, row-major, f32 or f16) keeping `k` components.
+    pub fn fit<T: Copy + Into<f32>>(rows: &[T], dim: usize, k: usize) -> Result<Self, String> {
         if dim == 0 || !rows.len().is_multiple_of(dim) {
             return Err(format!("PCA: {} values are not rows of {dim}", rows.len()));
         }
@@ -32,51 +36,66 @@ impl Pca {
             return Err("PCA: needs at least 2 descriptors".into());
         }
         let stride = n.div_ceil(MAX_FIT_ROWS);
-        let picked: Vec<&[f32]> = rows.chunks_exact(dim).step_by(stride).collect();
+        let picked: Vec<&[T]> = rows.chunks_exact(dim).step_by(stride).collect();
         let mut mean = vec![0f64; dim];
         for r in &picked {
             for (m, &v) in mean.iter_mut().zip(r.iter()) {
-                *m += v as f64;
+                *m += v.into() as f64;
             }
         }
         mean.iter_mut().for_each(|m| *m /= picked.len() as f64);
-        let mut cov = DMatrix::<f64>::zeros(dim, dim);
-        for r in &picked {
-            let c: Vec<f64> = r.iter().zip(&mean).map(|(&v, m)| v as f64 - m).collect();
-            for i in 0..dim {
-                for j in i..dim {
-                    cov[(i, j)] += c[i] * c[j];
-                }
-            }
+        let mean: Vec<f32> = mean.iter().map(|&m| m as f32).collect();
+        // Scatter matrix of the centred rows by GEMM, a chunk at a time (the mean removed
+        // first, so f32 accumulation loses nothing that matters to the leading components).
+        let mut scatter = vec![0f32; dim * dim];
+        let mut centred = Vec::with_capacity(CHUNK_ROWS * dim);
+        for chunk in picked.chunks(CHUNK_ROWS) {
+            centred.clear();
+            centred.extend(chunk.iter().flat_map(|r| r.iter().zip(&mean).map(|(&v, m)| v.into() - m)));
+            crate::linalg::add_gram(&centred, chunk.len(), dim, &mut scatter);
         }
-        for i in 0..dim {
-            for j in 0..i {
-                cov[(i, j)] = cov[(j, i)];
-            }
-        }
+        let cov = DMatrix::<f64>::from_fn(dim, dim, |i, j| 0.5 * (scatter[i * dim + j] as f64 + scatter[j * dim + i] as f64));
         let eig = SymmetricEigen::new(cov);
         let mut order: Vec<usize> = (0..dim).collect();
         order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
         let components = order[..k].iter().flat_map(|&c| eig.eigenvectors.column(c).iter().map(|&v| v as f32).collect::<Vec<_>>()).collect();
-        Ok(Self { input_dim: dim, output_dim: k, mean: mean.iter().map(|&m| m as f32).collect(), components })
+        Ok(Self { input_dim: dim, output_dim: k, mean, components })
     }
 
     /// Projects `rows` (`n × input_dim`) to `n × output_dim`, each row L2-normalised.
     pub fn project(&self, rows: &[f32]) -> Vec<f32> {
         let mut out = Vec::with_capacity(rows.len() / self.input_dim * self.output_dim);
-        let mut centred = vec![0f32; self.input_dim];
-        for r in rows.chunks_exact(self.input_dim) {
-            for ((c, &v), &m) in centred.iter_mut().zip(r).zip(&self.mean) {
-                *c = v - m;
-            }
-            let start = out.len();
-            out.extend(self.components.chunks_exact(self.input_dim).map(|w| w.iter().zip(&centred).map(|(a, b)| a * b).sum::<f32>()));
-            let norm = out[start..].iter().map(|v| v * v).sum::<f32>().sqrt();
-            if norm > 0.0 {
-                out[start..].iter_mut().for_each(|v| *v /= norm);
-            }
-        }
+        self.project_chunks(rows, |projected| out.extend_from_slice(projected));
         out
+    }
+
+    /// `project` for stored f16 descriptors, to f16, without widening all rows at once.
+    pub fn project_f16(&self, rows: &[f16]) -> Vec<f16> {
+        let mut out = Vec::with_capacity(rows.len() / self.input_dim * self.output_dim);
+        self.project_chunks(rows, |projected| out.extend(projected.iter().map(|&v| f16::from_f32(v))));
+        out
+    }
+
+    /// Centres, projects (GEMM) and normalises `rows` a chunk at a time, handing each
+    /// projected chunk to `sink`.
+    fn project_chunks<T: Copy + Into<f32>>(&self, rows: &[T], mut sink: impl FnMut(&[f32])) {
+        let (d, k) = (self.input_dim, self.output_dim);
+        let mut centred = Vec::with_capacity(CHUNK_ROWS * d);
+        let mut projected = vec![0f32; CHUNK_ROWS * k];
+        for chunk in rows.chunks(CHUNK_ROWS * d) {
+            let n = chunk.len() / d;
+            centred.clear();
+            centred.extend(chunk[..n * d].chunks_exact(d).flat_map(|r| r.iter().zip(&self.mean).map(|(&v, m)| v.into() - m)));
+            let out = &mut projected[..n * k];
+            crate::linalg::mul_transposed(&centred, &self.components, n, k, d, out);
+            for r in out.chunks_exact_mut(k) {
+                let norm = r.iter().map(|v| v * v).sum::<f32>().sqrt();
+                if norm > 0.0 {
+                    r.iter_mut().for_each(|v| *v /= norm);
+                }
+            }
+            sink(out);
+        }
     }
 
     pub fn validate(&self) -> Result<(), String> {
@@ -109,5 +128,24 @@ mod tests {
         assert!(Pca::fit(&rows, 3, 4).is_err());
         assert!(Pca::fit(&rows[..4], 3, 2).is_err());
         assert!(Pca::fit(&rows[..3], 3, 2).is_err());
+    }
+
+    #[test]
+    fn f16_projection_in_chunks_equals_the_f32_one() {
+        // More rows than one chunk, so the chunk boundary is crossed.
+        let (n, dim, k) = (CHUNK_ROWS + 37, 24, 8);
+        let mut rng = crate::mesh::procedural::Rng::new(5);
+        let rows: Vec<f32> = (0..n * dim).map(|i| rng.normal() as f32 * (1.0 + (i % dim) as f32)).collect();
+        let halves: Vec<f16> = rows.iter().map(|&v| f16::from_f32(v)).collect();
+        let p = Pca::fit(&halves, dim, k).unwrap();
+        let wide = p.project(&halves.iter().map(|h| h.to_f32()).collect::<Vec<_>>());
+        let narrow = p.project_f16(&halves);
+        assert_eq!((wide.len(), narrow.len()), (n * k, n * k));
+        let worst = wide.iter().zip(&narrow).map(|(a, b)| (a - b.to_f32()).abs()).fold(0f32, f32::max);
+        assert!(worst < 1e-3, "f16 projection differs by {worst}");
+        // The leading component carries the widest input dimension (σ grows with the index).
+        let lead = &p.components[..dim];
+        let widest = (0..dim).max_by(|&a, &b| lead[a].abs().total_cmp(&lead[b].abs())).unwrap();
+        assert_eq!(widest, dim - 1, "{lead:?}");
     }
 }

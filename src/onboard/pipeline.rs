@@ -114,24 +114,30 @@ pub fn onboard_cancellable(
     }
     let contours = super::contour::ContourModel::build(mesh, renderer, &Default::default())?;
     model.contours = std::sync::OnceLock::from(std::sync::Arc::new(contours));
-    if let Some(dim) = config.pca_dim {
-        compress(&mut model, dim)?;
-    }
+    apply_pca(&mut model, config.pca)?;
     Ok(model)
 }
 
+/// Compresses an uncompressed model as `setting` asks (for its descriptor size and patch
+/// count); leaves it as it is where the setting resolves to no PCA.
+pub fn apply_pca(m: &mut ObjectModel, setting: crate::onboard::PcaSetting) -> Result<(), OnboardError> {
+    match setting.resolve(m.local_dim, m.patch_count()) {
+        Some(dim) => compress(m, dim),
+        None => Ok(()),
+    }
+}
+
 /// Fits the PCA on the model's own patch descriptors and stores them projected (what
-/// onboarding with `pca_dim` does; also usable on an uncompressed model afterwards).
+/// onboarding does when its PCA setting resolves to a count; also usable on an
+/// uncompressed model afterwards, as the benchmarks do).
 pub fn compress(m: &mut ObjectModel, dim: usize) -> Result<(), OnboardError> {
     if m.pca.is_some() {
         return Err(OnboardError::Config("the model is already PCA-compressed".into()));
     }
-    let full: Vec<f32> = m.patch_descriptors.iter().map(|h| h.to_f32()).collect();
-    let pca = super::pca::Pca::fit(&full, m.local_dim, dim).map_err(OnboardError::Config)?;
-    m.patch_descriptors = pca.project(&full).into_iter().map(f16::from_f32).collect();
+    let pca = super::pca::Pca::fit(&m.patch_descriptors, m.local_dim, dim).map_err(OnboardError::Config)?;
+    m.patch_descriptors = pca.project_f16(&m.patch_descriptors);
     m.local_dim = dim;
     m.pca = Some(pca);
-    m.config.pca_dim = Some(dim);
     Ok(())
 }
 

@@ -149,6 +149,7 @@ impl Core {
         crate::store::validate_id(&req.object_id)?;
         let views = ViewSampling { level: req.options.level, in_plane_steps: req.options.in_plane };
         views.validate().map_err(|e| ServiceError::invalid(format!("options: {e}")))?;
+        req.options.pca.check(self.backbone.identity().local_dim as usize).map_err(|e| ServiceError::invalid(format!("options: {e}")))?;
         if !req.replace && self.store.exists(&req.object_id)? {
             return Err(ServiceError::new(ErrorKind::AlreadyExists, format!("object {:?} already exists (set replace to overwrite it)", req.object_id)));
         }
@@ -160,7 +161,7 @@ impl Core {
         let mesh = req.mesh.load(&staging);
         let _ = std::fs::remove_dir_all(&staging);
         let mesh = mesh?;
-        let config = OnboardConfig { views, pca_dim: req.options.pca, ..Default::default() };
+        let config = OnboardConfig { views, pca: req.options.pca, ..Default::default() };
         let total = (crate::geometry::icosphere(views.level).len() as u32 * views.in_plane_steps) as u64;
         // The slot is taken now (refusing at once) and held by the worker thread.
         let slot = take_slot(&self.onboardings_running, self.config.max_onboardings).ok_or_else(|| ServiceError::new(ErrorKind::ResourceExhausted, format!("{} onboarding(s) already running; retry later", self.config.max_onboardings)))?;

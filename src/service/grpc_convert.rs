@@ -6,6 +6,7 @@ use super::error::ServiceError;
 use super::operations::{OperationState, OperationStatus};
 use super::proto as pb;
 use super::requests::{self as rq, EstimateOptions, OnboardOptions};
+use crate::onboard::PcaSetting;
 use crate::store::ObjectInfo;
 
 fn required<T>(v: Option<T>, field: &str) -> Result<T, ServiceError> {
@@ -78,7 +79,13 @@ pub fn onboard_request(r: pb::OnboardRequest) -> Result<rq::OnboardRequest, Serv
     let mesh = required(r.mesh, "mesh")?;
     let defaults = OnboardOptions::default();
     let o = r.options.unwrap_or_default();
-    let options = OnboardOptions { level: o.level.unwrap_or(defaults.level), in_plane: non_zero(o.in_plane, defaults.in_plane), pca: (o.pca > 0).then_some(o.pca as usize) };
+    let pca = match (o.pca, o.full_descriptors) {
+        (0, false) => PcaSetting::Auto,
+        (0, true) => PcaSetting::Off,
+        (k, false) => PcaSetting::Components(k as usize),
+        (k, true) => return Err(ServiceError::invalid(format!("options: pca {k} and full_descriptors contradict each other; set one"))),
+    };
+    let options = OnboardOptions { level: o.level.unwrap_or(defaults.level), in_plane: non_zero(o.in_plane, defaults.in_plane), pca };
     let mesh = rq::MeshInput {
         data: mesh.data.into(),
         format: mesh.format,
@@ -123,9 +130,15 @@ mod tests {
     fn unset_options_take_defaults_and_level_zero_is_kept() {
         let d = OnboardOptions::default();
         let o = onboard_with(None);
-        assert_eq!((o.level, o.in_plane, o.pca), (d.level, d.in_plane, None));
-        let o = onboard_with(Some(pb::OnboardOptions { level: Some(0), in_plane: 1, pca: 16 }));
-        assert_eq!((o.level, o.in_plane, o.pca), (0, 1, Some(16)));
+        assert_eq!((o.level, o.in_plane, o.pca), (d.level, d.in_plane, PcaSetting::Auto));
+        let o = onboard_with(Some(pb::OnboardOptions { level: Some(0), in_plane: 1, pca: 16, full_descriptors: false }));
+        assert_eq!((o.level, o.in_plane, o.pca), (0, 1, PcaSetting::Components(16)));
+        let o = onboard_with(Some(pb::OnboardOptions { level: None, in_plane: 0, pca: 0, full_descriptors: true }));
+        assert_eq!(o.pca, PcaSetting::Off);
+        let mesh = Some(pb::Mesh { data: vec![1], format: "obj".into(), units: "m".into(), resources: vec![] });
+        let both = pb::OnboardOptions { level: None, in_plane: 0, pca: 8, full_descriptors: true };
+        let err = onboard_request(pb::OnboardRequest { object_id: "x".into(), mesh, options: Some(both), replace: false }).unwrap_err();
+        assert!(err.message.contains("pca 8 and full_descriptors contradict"), "{}", err.message);
         assert!(onboard_request(pb::OnboardRequest { object_id: "x".into(), mesh: None, options: None, replace: false }).unwrap_err().message.contains("mesh is required"));
     }
 

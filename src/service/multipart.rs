@@ -42,7 +42,7 @@ pub async fn onboard_request(mut form: Multipart) -> Result<OnboardRequest, Serv
                     "replace" => replace = matches!(text.trim(), "true" | "1" | "yes"),
                     "level" => options.level = number(&name, &text)?,
                     "in_plane" => options.in_plane = number(&name, &text)?,
-                    _ => options.pca = Some(number(&name, &text)?),
+                    _ => options.pca = text.parse().map_err(|e| ServiceError::invalid(format!("pca: {e}")))?,
                 }
             }
             other => return Err(ServiceError::invalid(format!("unknown multipart part {other:?} (expected object_id, mesh, resource, format, units, replace, level, in_plane, pca)"))),

@@ -217,13 +217,14 @@ pub struct OnboardOptions {
     /// Icosphere level 0–3 and in-plane steps (defaults: 2 and 12, 1944 templates).
     pub level: u32,
     pub in_plane: u32,
-    /// PCA components for the patch descriptors (none: keep all).
-    pub pca: Option<usize>,
+    /// PCA of the patch descriptors: "auto" (default: compress only descriptors wider than
+    /// 256), null/"off" (keep all) or a component count.
+    pub pca: crate::onboard::PcaSetting,
 }
 
 impl Default for OnboardOptions {
     fn default() -> Self {
-        Self { level: 2, in_plane: 12, pca: None }
+        Self { level: 2, in_plane: 12, pca: crate::onboard::PcaSetting::Auto }
     }
 }
 
