@@ -23,6 +23,12 @@ where
     b64(&png_bytes(img).unwrap())
 }
 
+/// A metric's value in the server's Prometheus text (0 when absent).
+fn metric(c: &reqwest::blocking::Client, base: &str, name: &str) -> f64 {
+    let text = c.get(format!("{base}/metrics")).send().unwrap().text().unwrap();
+    text.lines().find_map(|l| l.strip_prefix(name).and_then(|rest| rest.strip_prefix(' ')).and_then(|v| v.trim().parse().ok())).unwrap_or(0.0)
+}
+
 fn client() -> reqwest::blocking::Client {
     reqwest::blocking::Client::builder().timeout(Duration::from_secs(300)).build().unwrap()
 }
@@ -80,6 +86,9 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     };
     assert_eq!(done["state"], "succeeded", "{done}");
     assert_eq!(done["object"]["templates"], 42 * 6);
+    // Onboarding went through the backbone queue with many templates per pass.
+    let (passes, crops) = (metric(&c, &base, "b2tf_backbone_batch_crops_count"), metric(&c, &base, "b2tf_backbone_batch_crops_sum"));
+    assert!(crops >= 252.0 && passes * 4.0 <= crops, "{passes} queue passes for {crops} crops");
     let (s, list) = call(&c, "GET", &format!("{base}/v1/objects"), None);
     assert!(s == 200 && list["objects"][0]["id"] == "box", "{list}");
     // The same id again without replace: 409.
@@ -138,8 +147,19 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     let request = |image: Value, intrinsics: Value, detections: Value| json!({"image": image, "intrinsics": intrinsics, "detections": detections, "options": {"rrc": false}});
     let good_image = json!({"encoded": png(&r.rgb)});
     let good_dets = json!([{"object_id": "box", "mask_png": png(&r.mask), "score": 0.9}]);
+    let jobs = || metric(&c, &base, "b2tf_backbone_queue_wait_seconds_count");
+    let jobs_before = jobs();
     let (s, est) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&request(good_image.clone(), intrinsics.clone(), good_dets.clone())));
     assert_eq!(s, 200, "{est}");
+    // Estimates' backbone passes go through the same queue: the query crop, and with RRC
+    // its renders as well.
+    let plain_jobs = jobs() - jobs_before;
+    let mut with_rrc = request(good_image.clone(), intrinsics.clone(), good_dets.clone());
+    with_rrc["options"]["rrc"] = json!(true);
+    let jobs_before = jobs();
+    assert_eq!(call(&c, "POST", &format!("{base}/v1/estimate"), Some(&with_rrc)).0, 200);
+    let rrc_jobs = jobs() - jobs_before;
+    assert!(plain_jobs >= 1.0 && rrc_jobs > plain_jobs, "queue jobs: {plain_jobs} without RRC, {rrc_jobs} with");
     let res = &est["results"][0];
     assert_eq!(res["object_id"], "box");
     let tv: Vec<f64> = res["pose"]["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
