@@ -307,3 +307,45 @@ fn api_keys_guard_everything_but_health() {
     let ok = c.get(format!("{base}/metrics")).header("Authorization", "Bearer other").send().unwrap();
     assert_eq!(ok.status().as_u16(), 200);
 }
+
+/// A replica started with --read-only serves a store that `b2tf onboard` (an onboarding
+/// job) fills, objects added after it started included, and refuses writes with 403.
+#[test]
+fn read_only_replica_serves_a_store_it_never_writes() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("objects");
+    std::fs::create_dir(&root).unwrap();
+    let url = format!("dir://{}", root.display());
+    let server = start(&url, None, &["--read-only"]);
+    let (c, base) = (client(), server.http.clone());
+    let t = Instant::now();
+    while call(&c, "GET", &format!("{base}/readyz"), None).0 != 200 {
+        assert!(t.elapsed() < Duration::from_secs(60), "never ready");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert_eq!(call(&c, "GET", &format!("{base}/v1/objects"), None).1["objects"], json!([]));
+
+    // The onboarding job writes after the replica started.
+    let files = sample_files(dir.path());
+    let job = std::process::Command::new(env!("CARGO_BIN_EXE_b2tf"))
+        .args(["onboard", "--id", "box", "--units", "m", "--level", "0", "--in-plane", "2", "--render-pool", "1", "--store", &url])
+        .arg("--mesh")
+        .arg(dir.path().join(&files[0].0))
+        .output()
+        .unwrap();
+    assert!(job.status.success(), "{}", String::from_utf8_lossy(&job.stderr));
+    let (s, list) = call(&c, "GET", &format!("{base}/v1/objects"), None);
+    assert!(s == 200 && list["objects"][0]["id"] == "box", "{list}");
+    let sc = scene();
+    let estimate = json!({"image": {"encoded": png(&sc.render.rgb)}, "intrinsics": intrinsics_again(), "detections": good_dets_again(&sc.render.mask), "options": {"rrc": false}});
+    let (s, est) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&estimate));
+    assert!(s == 200 && est["results"][0]["object_id"] == "box", "{est}");
+
+    // Writes are refused, naming why, and the store keeps its object.
+    let onboard = json!({"object_id": "box2", "mesh": {"data": b64(&files[0].1), "format": "obj", "units": "m"}, "options": {"level": 0, "in_plane": 1}});
+    for (method, path, body) in [("POST", "/v1/objects".to_string(), Some(&onboard)), ("DELETE", "/v1/objects/box".to_string(), None)] {
+        let (s, v) = call(&c, method, &format!("{base}{path}"), body);
+        assert!(s == 403 && v.to_string().contains("read-only"), "{method} {path}: {s} {v}");
+    }
+    assert!(root.join("box").is_dir() && !root.join("box2").exists());
+}

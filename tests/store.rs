@@ -581,6 +581,39 @@ fn check_list_info_exists_delete(url: &str) {
     assert_same(&with_id(m, "obj-b"), &store.get("obj-b").expect("get"));
 }
 
+/// A read-only store (replicas serving a store another process writes) reads what the
+/// writer put, before and after it opened, refuses puts and deletes naming the store, and
+/// neither creates a missing store nor removes a writer's leftovers.
+fn check_read_only(url: &str) {
+    let Some(m) = model() else { return };
+    let path = store_path(url);
+    assert!(store::open_read_only(url).is_err(), "a missing store is refused");
+    assert!(!path.exists(), "a read-only open created {}", path.display());
+    let writer = store::open(url).expect("open");
+    writer.put(&with_id(m, "obj-a"), false).expect("put");
+    // A temporary folder of a writer in another container: its pid means nothing here, so
+    // only a writer's open may judge it abandoned.
+    let leftover = path.join(".obj-z.tmp-999999999-0");
+    if !is_sqlite(url) {
+        std::fs::create_dir(&leftover).expect("leftover");
+    }
+    let ro = store::open_read_only(url).expect("open read-only");
+    assert!(is_sqlite(url) || leftover.is_dir(), "a read-only open removed a writer's temporary folder");
+    assert_same(&with_id(m, "obj-a"), &ro.get("obj-a").expect("get"));
+    assert_eq!(ro.info("obj-a").expect("info"), writer.info("obj-a").expect("info"));
+    // Objects the writer adds later are served without reopening.
+    writer.put(&with_id(m, "obj-b"), false).expect("put");
+    assert_eq!(ro.list().expect("list").iter().map(|i| i.id.as_str()).collect::<Vec<_>>(), ["obj-a", "obj-b"]);
+    let refused = |r: Result<(), StoreError>, what: &str| match r {
+        Err(e @ StoreError::ReadOnly(_)) => assert!(e.to_string().contains(&path.display().to_string()), "{what}: {e}"),
+        other => panic!("{what} on a read-only store: {other:?}"),
+    };
+    refused(ro.put(&with_id(m, "obj-c"), false).map(|_| ()), "put");
+    refused(ro.put(&with_id(m, "obj-a"), true).map(|_| ()), "replacing put");
+    refused(ro.delete("obj-a"), "delete");
+    assert!(ro.exists("obj-a").expect("exists") && !writer.exists("obj-c").expect("exists"));
+}
+
 /// Ids that could escape the store (traversal, separators, hidden names) or are out of
 /// bounds are refused with BadId by every operation, and nothing on disk changes.
 fn check_bad_ids(url: &str) {
@@ -895,11 +928,13 @@ shared_suite! {
     writer_killed_mid_put_leaves_no_object => check_killed_put,
     two_readers_beside_a_writer => check_readers_beside_a_writer,
     cache_over_the_store => check_cache,
+    read_only_reads_and_refuses_writes => check_read_only,
 }
 
 #[test]
 fn open_refuses_unknown_urls() {
     for url in ["", "objects.db", "ftp://host/objects", "dir://", "sqlite://", "sqlite://:memory:", "file:///tmp/x"] {
         assert!(matches!(store::open(url), Err(StoreError::BadUrl(_))), "{url:?}");
+        assert!(matches!(store::open_read_only(url), Err(StoreError::BadUrl(_))), "{url:?}");
     }
 }

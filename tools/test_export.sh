@@ -24,4 +24,11 @@ for spec in "dinov3-tiny:" "dinov3-tiny:--fp16" "dinov2reg-tiny:"; do
   PYTHONPATH="$torch_deps:$PYTHONPATH" python3 tools/export_backbone.py --random-init "$kind" $flags --out "$out/$name.onnx" 2>&1 | grep -E "tokens \[|wrote"
   target/release/b2tf bench estimate --backbone "onnx:$out/$name.onnx" --images 1 --store "dir://$out/models" | grep -E "^\| with RRC"
 done
+# The parity check refuses: fp16 cannot meet a 1e-7 tolerance, so nothing may be written.
+rm -f "$out/refused.onnx" "$out/refused.json"
+if PYTHONPATH="$torch_deps:$PYTHONPATH" python3 tools/export_backbone.py --random-init dinov3-tiny --fp16 --tolerance 1e-7 --out "$out/refused.onnx" 2>"$out/refused.err"; then
+  echo "export with an unreachable tolerance succeeded" >&2; exit 1
+fi
+grep -q "disagrees with PyTorch" "$out/refused.err" || { cat "$out/refused.err" >&2; exit 1; }
+[ ! -e "$out/refused.onnx" ] && [ ! -e "$out/refused.json" ] || { echo "a refused export left files behind" >&2; exit 1; }
 echo "export test passed: $out"

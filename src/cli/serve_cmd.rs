@@ -29,13 +29,13 @@ pub fn run(a: ServeArgs) -> Result<()> {
         Some((cert, key)) => Some(crate::service::tls::TlsIdentity::load(cert, key).map_err(anyhow::Error::msg)?),
         None => None,
     };
-    let config = CoreConfig { store_url: s.store.clone(), render_pool: s.render_pool, cache_bytes: s.cache_bytes, max_estimates: s.max_estimates, max_onboardings: s.max_onboardings, backbone: s.backbone.clone(), device: s.device.clone(), backbone_batch: s.backbone_batch, backbone_max_wait: s.backbone_max_wait };
+    let config = CoreConfig { store_url: s.store.clone(), render_pool: s.render_pool, cache_bytes: s.cache_bytes, max_estimates: s.max_estimates, max_onboardings: s.max_onboardings, backbone: s.backbone.clone(), device: s.device.clone(), backbone_batch: s.backbone_batch, backbone_max_wait: s.backbone_max_wait, read_only: s.read_only };
     let core = Arc::new(Core::new(config).context("starting the service core")?);
     let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
     let api = Api { core: core.clone(), ready: Arc::new(AtomicBool::new(false)), metrics: Default::default(), keys: keys.clone(), request_timeout: s.request_timeout };
     let scheme = if tls.is_some() { ("https", "grpcs") } else { ("http", "grpc") };
     let options = ServerOptions { http: s.http.clone(), grpc: s.grpc.clone(), max_body_bytes: s.max_body_bytes, tls };
-    let store_url = core.store_url();
+    let store_url = if s.read_only { format!("{}, read-only", core.store_url()) } else { core.store_url() };
     let on_bound = move |b: Bound| {
         let mut line = String::from("listening on");
         if let Some(h) = b.http {

@@ -19,6 +19,7 @@
 //! api_keys_file = "/run/secrets/b2tf_keys"
 //! tls_cert = "/etc/b2tf/cert.pem"
 //! tls_key = "/etc/b2tf/key.pem"
+//! read_only = false              # true: a replica serving a store another process writes
 //! ```
 
 use anyhow::{bail, Context, Result};
@@ -83,6 +84,11 @@ pub struct ServeSettings {
     /// PEM private key for --tls-cert.
     #[arg(long, env = "B2TF_TLS_KEY")]
     pub tls_key: Option<PathBuf>,
+    /// Serve a store that another process writes (replicas sharing one store): open it
+    /// read-only, never create or clean anything in it, refuse onboard and delete (403 /
+    /// PERMISSION_DENIED) [default: false]
+    #[arg(long, env = "B2TF_READ_ONLY", num_args = 0..=1, default_missing_value = "true", value_parser = clap::builder::BoolishValueParser::new())]
+    pub read_only: Option<bool>,
 }
 
 /// The settings in force.
@@ -104,6 +110,7 @@ pub struct Resolved {
     pub api_keys_file: Option<PathBuf>,
     pub api_keys: Option<String>,
     pub tls: Option<(PathBuf, PathBuf)>,
+    pub read_only: bool,
 }
 
 impl ServeSettings {
@@ -177,6 +184,7 @@ impl ServeSettings {
             api_keys_file: pick!(api_keys_file),
             api_keys: pick!(api_keys),
             tls,
+            read_only: pick!(read_only).unwrap_or(false),
         })
     }
 }
@@ -201,6 +209,22 @@ mod tests {
         let d = ServeSettings::default().resolve(ServeSettings::default()).unwrap();
         assert_eq!((d.http.as_deref(), d.grpc.as_deref(), d.max_onboardings), (Some("127.0.0.1:8080"), Some("127.0.0.1:50051"), 1));
         assert_eq!(d.request_timeout, Some(std::time::Duration::from_secs(120)));
+        assert!(!d.read_only);
+        std::fs::write(&f, "read_only = true\n").unwrap();
+        assert!(ServeSettings::default().resolve(ServeSettings::from_file(&f).unwrap()).unwrap().read_only);
+    }
+
+    #[test]
+    fn read_only_is_a_flag_or_a_boolish_variable() {
+        use clap::Parser;
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            s: ServeSettings,
+        }
+        assert_eq!(Cli::try_parse_from(["b2tf", "--read-only"]).unwrap().s.read_only, Some(true));
+        assert_eq!(Cli::try_parse_from(["b2tf", "--read-only", "false"]).unwrap().s.read_only, Some(false));
+        assert!(Cli::try_parse_from(["b2tf", "--read-only", "maybe"]).is_err());
     }
 
     #[test]

@@ -36,11 +36,13 @@ pub struct CoreConfig {
     /// The backbone and, for an ONNX one, where it runs.
     pub backbone: crate::features::BackboneChoice,
     pub device: crate::features::Device,
+    /// Serve a store another process writes: open it read-only, refuse onboard and delete.
+    pub read_only: bool,
 }
 
 impl Default for CoreConfig {
     fn default() -> Self {
-        Self { store_url: crate::store::default_url(), render_pool: RenderPool::DEFAULT_SIZE, cache_bytes: 4_000_000_000, max_estimates: 2, max_onboardings: 1, backbone_batch: 32, backbone_max_wait: std::time::Duration::ZERO, backbone: Default::default(), device: Default::default() }
+        Self { store_url: crate::store::default_url(), render_pool: RenderPool::DEFAULT_SIZE, cache_bytes: 4_000_000_000, max_estimates: 2, max_onboardings: 1, backbone_batch: 32, backbone_max_wait: std::time::Duration::ZERO, backbone: Default::default(), device: Default::default(), read_only: false }
     }
 }
 
@@ -74,7 +76,7 @@ pub struct Core {
 impl Core {
     /// Opens the store, loads the backbone and starts the render pool.
     pub fn new(config: CoreConfig) -> Result<Self, ServiceError> {
-        let store = crate::store::open(&config.store_url)?;
+        let store = if config.read_only { crate::store::open_read_only(&config.store_url)? } else { crate::store::open(&config.store_url)? };
         let inner = crate::features::open_backbone(&config.backbone, &config.device).map_err(|e| ServiceError::new(ErrorKind::Unavailable, format!("backbone {}: {e}", config.backbone)))?;
         let queue = (config.backbone_batch > 0).then(|| Arc::new(crate::features::BatchingBackbone::with_max_wait(inner.clone(), config.backbone_batch, config.backbone_max_wait)));
         let backbone: Arc<dyn Backbone> = match &queue {
@@ -131,11 +133,20 @@ impl Core {
 
     /// Removes the object; estimates already using it finish with their copy.
     pub fn delete_object(&self, id: &str) -> Result<(), ServiceError> {
+        self.refuse_if_read_only("delete")?;
         if self.operations.running_for(id) {
             return Err(ServiceError::new(ErrorKind::AlreadyExists, format!("object {id:?} is being onboarded; cancel that operation first")));
         }
         self.store.delete(id)?;
         self.cache.invalidate(id);
+        Ok(())
+    }
+
+    /// Writes are refused by a read-only server before any upload is decoded.
+    fn refuse_if_read_only(&self, what: &str) -> Result<(), ServiceError> {
+        if self.config.read_only {
+            return Err(ServiceError::new(ErrorKind::PermissionDenied, format!("this server is read-only (--read-only / B2TF_READ_ONLY): it cannot {what} objects; do that with a writer on the same store ({}), e.g. `b2tf onboard --store URL` or a server without --read-only", self.store.url())));
+        }
         Ok(())
     }
 
@@ -146,6 +157,7 @@ impl Core {
 
     /// Validates the upload and starts onboarding on its own thread; returns at once.
     pub fn start_onboard(&self, req: OnboardRequest) -> Result<OperationStatus, ServiceError> {
+        self.refuse_if_read_only("onboard")?;
         crate::store::validate_id(&req.object_id)?;
         let views = ViewSampling { level: req.options.level, in_plane_steps: req.options.in_plane };
         views.validate().map_err(|e| ServiceError::invalid(format!("options: {e}")))?;
@@ -172,19 +184,22 @@ impl Core {
         std::thread::spawn(move || {
             let progress = |p: crate::onboard::Progress| op.done.store(p.templates_done as u64, Ordering::Relaxed);
             let result = onboard_cancellable(&op.object_id, &mesh, &config, backbone.as_ref(), &pool, &progress, &op.cancel);
-            match result {
+            let (state, error, info) = match result {
                 Ok(model) => match store.put(&model, replace) {
                     Ok(info) => {
                         // A replaced object must not be served from the cache's old copy.
                         cache.invalidate(&op.object_id);
-                        op.finish(OperationState::Succeeded, None, Some(info))
+                        (OperationState::Succeeded, None, Some(info))
                     }
-                    Err(e) => op.finish(OperationState::Failed, Some(e.to_string()), None),
+                    Err(e) => (OperationState::Failed, Some(e.to_string()), None),
                 },
-                Err(OnboardError::Cancelled) => op.finish(OperationState::Cancelled, None, None),
-                Err(e) => op.finish(OperationState::Failed, Some(e.to_string()), None),
-            }
+                Err(OnboardError::Cancelled) => (OperationState::Cancelled, None, None),
+                Err(e) => (OperationState::Failed, Some(e.to_string()), None),
+            };
+            // The slot is free before anyone can see the operation end, so a client that
+            // starts its next onboarding on seeing it finish is not refused.
             drop(slot);
+            op.finish(state, error, info);
         });
         Ok(status)
     }

@@ -8,6 +8,8 @@ pub enum ErrorKind {
     InvalidArgument,
     /// 401 / UNAUTHENTICATED
     Unauthenticated,
+    /// 403 / PERMISSION_DENIED
+    PermissionDenied,
     /// 404 / NOT_FOUND
     NotFound,
     /// 409 / ALREADY_EXISTS
@@ -53,6 +55,7 @@ impl From<crate::store::StoreError> for ServiceError {
             S::BadId(_) => ErrorKind::InvalidArgument,
             S::NotFound(_) => ErrorKind::NotFound,
             S::AlreadyExists(_) => ErrorKind::AlreadyExists,
+            S::ReadOnly(_) => ErrorKind::PermissionDenied,
             _ => ErrorKind::Internal,
         };
         Self::new(kind, e.to_string())

@@ -17,6 +17,7 @@ pub fn code_of(kind: &ErrorKind) -> Code {
     match kind {
         ErrorKind::InvalidArgument | ErrorKind::TooLarge => Code::InvalidArgument,
         ErrorKind::Unauthenticated => Code::Unauthenticated,
+        ErrorKind::PermissionDenied => Code::PermissionDenied,
         ErrorKind::NotFound => Code::NotFound,
         ErrorKind::AlreadyExists => Code::AlreadyExists,
         ErrorKind::ResourceExhausted => Code::ResourceExhausted,

@@ -67,6 +67,16 @@ impl DirStore {
         Ok(Self { root })
     }
 
+    /// Opens an existing folder as it is: no folder created, no leftovers removed (their
+    /// writer may run in another container, where its pid means nothing here).
+    pub fn open_read_only(root: impl Into<PathBuf>) -> Result<Self, StoreError> {
+        let root = root.into();
+        if !root.is_dir() {
+            return Err(StoreError::Io { context: format!("opening store folder {} read-only", root.display()), source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such folder (a read-only store is never created)") });
+        }
+        Ok(Self { root })
+    }
+
     fn object_dir(&self, id: &str) -> Result<PathBuf, StoreError> {
         validate_id(id)?;
         Ok(self.root.join(id))

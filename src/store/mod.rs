@@ -10,6 +10,7 @@
 pub mod cache;
 pub mod codec;
 pub mod dir;
+pub mod read_only;
 pub mod sqlite;
 
 pub use cache::ModelCache;
@@ -55,6 +56,8 @@ pub enum StoreError {
     SchemaTooNew { path: PathBuf, found: u32, supported: u32 },
     #[error("store URL {0:?}: expected dir://PATH or sqlite://PATH")]
     BadUrl(String),
+    #[error("store {0} is open read-only: onboard and delete objects with a writer on the same store (e.g. `b2tf onboard --store {0}`, or a server without --read-only)")]
+    ReadOnly(String),
 }
 
 impl StoreError {
@@ -119,6 +122,18 @@ pub fn open(url: &str) -> Result<Arc<dyn ObjectStore>, StoreError> {
     } else {
         Err(StoreError::BadUrl(url.into()))
     }
+}
+
+/// Opens an existing `dir://PATH` or `sqlite://PATH` without ever writing to it: nothing is
+/// created, migrated or cleaned up (a writer elsewhere may be mid-put), and puts and
+/// deletes are refused. For replicas that share a store another process writes.
+pub fn open_read_only(url: &str) -> Result<Arc<dyn ObjectStore>, StoreError> {
+    let inner: Arc<dyn ObjectStore> = match (url.strip_prefix("dir://"), url.strip_prefix("sqlite://")) {
+        (Some(p), _) if !p.is_empty() => Arc::new(dir::DirStore::open_read_only(p)?),
+        (_, Some(p)) if !p.is_empty() => Arc::new(sqlite::SqliteStore::open_read_only(p)?),
+        _ => return Err(StoreError::BadUrl(url.into())),
+    };
+    Ok(Arc::new(read_only::ReadOnlyStore::new(inner)))
 }
 
 /// A name part unique to this process and moment, for temporary files and folders.

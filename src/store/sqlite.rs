@@ -54,7 +54,13 @@ pub struct SqliteStore {
     writer: Mutex<Connection>,
     readers: Mutex<Vec<Connection>>,
     chunk_size: usize,
+    /// Opened by `open_read_only`: every connection is read-only.
+    read_only: bool,
 }
+
+/// Connections of a read-only store (the `ReadOnlyStore` wrapper refuses writes before
+/// they reach SQLite; these flags make sure nothing else writes either).
+const READ_ONLY_FLAGS: OpenFlags = OpenFlags::SQLITE_OPEN_READ_ONLY.union(OpenFlags::SQLITE_OPEN_NO_MUTEX);
 
 /// Maps a rusqlite error to `StoreError::Database` with `context`.
 fn db(context: &str) -> impl Fn(rusqlite::Error) -> StoreError + '_ {
@@ -198,7 +204,32 @@ impl SqliteStore {
         configure_writer(&conn, &ctx)?;
         migrate(&mut conn, &given)?;
         let abs = std::fs::canonicalize(&given).unwrap_or_else(|_| given.clone());
-        Ok(Self { given: path.to_string(), path: abs, writer: Mutex::new(conn), readers: Mutex::new(Vec::new()), chunk_size: CHUNK_SIZE })
+        Ok(Self { given: path.to_string(), path: abs, writer: Mutex::new(conn), readers: Mutex::new(Vec::new()), chunk_size: CHUNK_SIZE, read_only: false })
+    }
+
+    /// Opens an existing database with read-only connections: nothing created, no pragma
+    /// or migration written; a schema older than this program's is refused (a writer
+    /// migrates it on its next open).
+    pub fn open_read_only(path: &str) -> Result<Self, StoreError> {
+        if path.is_empty() || path == ":memory:" {
+            return Err(StoreError::BadUrl(format!("sqlite://{path}")));
+        }
+        let given = PathBuf::from(path);
+        let ctx = context_for(&given, "opening read-only", None);
+        if !given.is_file() {
+            return Err(StoreError::Database { context: ctx, message: "no such database file (a read-only store is never created)".into() });
+        }
+        let conn = Connection::open_with_flags(&given, READ_ONLY_FLAGS).map_err(db(&ctx))?;
+        conn.busy_timeout(BUSY_TIMEOUT).map_err(db(&ctx))?;
+        let found: i64 = conn.pragma_query_value(None, "user_version", |r| r.get(0)).map_err(db(&ctx))?;
+        let supported = MIGRATIONS.len() as u32;
+        match u32::try_from(found) {
+            Ok(v) if v == supported => {}
+            Ok(v) if v > supported => return Err(StoreError::SchemaTooNew { path: given, found: v, supported }),
+            _ => return Err(StoreError::Database { context: ctx, message: format!("schema version {found}, older than this program's {supported}: open it once with a writer to migrate it") }),
+        }
+        let abs = std::fs::canonicalize(&given).unwrap_or_else(|_| given.clone());
+        Ok(Self { given: path.to_string(), path: abs, writer: Mutex::new(conn), readers: Mutex::new(Vec::new()), chunk_size: CHUNK_SIZE, read_only: true })
     }
 
     fn ctx(&self, op: &str, id: Option<&str>) -> String {
@@ -211,7 +242,7 @@ impl SqliteStore {
         if let Some(conn) = lock(&self.readers).pop() {
             return Ok(Reader { store: self, conn: Some(conn) });
         }
-        let flags = OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_NO_MUTEX;
+        let flags = if self.read_only { READ_ONLY_FLAGS } else { OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_NO_MUTEX };
         let conn = Connection::open_with_flags(&self.path, flags).map_err(db(ctx))?;
         conn.busy_timeout(BUSY_TIMEOUT).map_err(db(ctx))?;
         conn.execute_batch("PRAGMA query_only = ON;").map_err(db(ctx))?;
