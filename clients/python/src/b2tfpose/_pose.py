@@ -37,7 +37,8 @@ def rvec_to_rotation(rvec: npt.ArrayLike) -> FloatArray:
         return np.eye(3)
     k = v / angle
     K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * (K @ K)
+    R: FloatArray = np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * (K @ K)
+    return R
 
 
 def rotation_to_quaternion_wxyz(R: FloatArray) -> FloatArray:

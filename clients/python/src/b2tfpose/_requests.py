@@ -69,8 +69,8 @@ def estimate_request(
 
 
 class ProgressFilter:
-    """Calls ``progress`` once per distinct state of a watched operation (the stream
-    starts with the current state, which the caller may already have reported)."""
+    """Calls ``progress`` once per distinct state of a watched operation (a stream may
+    repeat a state, e.g. after a reconnect)."""
 
     def __init__(self, progress: Optional[ProgressCallback]) -> None:
         self._progress = progress

@@ -126,8 +126,6 @@ class AsyncClient:
         op = AsyncOperation(self, status)
         if not wait:
             return op
-        if progress is not None:
-            progress(status)
         return await op.wait(progress=progress, timeout=timeout)
 
     async def get_operation(self, operation_id: str, *, timeout: Optional[float] = None, retry: RetryArg = None) -> OperationStatus:

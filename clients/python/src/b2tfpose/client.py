@@ -148,8 +148,6 @@ class Client:
         op = Operation(self, status)
         if not wait:
             return op
-        if progress is not None:
-            progress(status)
         return op.wait(progress=progress, timeout=timeout)
 
     def get_operation(self, operation_id: str, *, timeout: Optional[float] = None, retry: RetryArg = None) -> OperationStatus:

@@ -60,7 +60,7 @@ def _mesh_arrays(mesh: Any, units: str) -> Tuple[npt.NDArray[np.float64], npt.ND
     if isinstance(mesh, (str, os.PathLike)):
         import trimesh
 
-        mesh = trimesh.load(mesh, force="mesh")
+        mesh = trimesh.load(os.fspath(mesh), force="mesh")
     if hasattr(mesh, "to_geometry"):  # a Scene: flatten with its node transforms
         mesh = mesh.to_geometry()
     elif hasattr(mesh, "dump") and not hasattr(mesh, "faces"):
