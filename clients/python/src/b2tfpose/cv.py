@@ -95,6 +95,7 @@ def draw_pose(
     color: Color = (0, 255, 0),
     thickness: int = 2,
     bgr: bool = False,
+    axes: bool = True,
     copy: bool = True,
 ) -> npt.NDArray[np.uint8]:
     """Draws ``pose`` on ``image`` (HxWx3 uint8): the object's x/y/z axes in red / green /
@@ -104,8 +105,8 @@ def draw_pose(
 
     ``units``: of the mesh / box (poses are metres). ``bgr``: the image is OpenCV's BGR,
     so colours are swapped to match (``color`` is always given as RGB). ``axis_length``
-    defaults to half the box's / mesh's largest side, else 5 cm. Returns the drawn image
-    (a copy unless ``copy=False``)."""
+    defaults to half the box's / mesh's largest side, else 5 cm; ``axes=False`` leaves
+    them out. Returns the drawn image (a copy unless ``copy=False``)."""
     cv2 = _cv2()
     if isinstance(pose, Result):
         if pose.pose is None:
@@ -135,6 +136,8 @@ def draw_pose(
             mask = outline_mask(V, F, pose, K, out.shape[:2])
             contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
             cv2.drawContours(out, contours, -1, c(color), thickness, cv2.LINE_AA)
+    if not axes:
+        return out
     length = axis_length if axis_length is not None else (extent / 2 if extent else 0.05)
     axes = np.array([[0, 0, 0], [length, 0, 0], [0, length, 0], [0, 0, length]], dtype=np.float64)
     uv, z = project(axes, pose, K)
