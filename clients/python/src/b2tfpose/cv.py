@@ -85,7 +85,7 @@ def outline_mask(vertices: npt.ArrayLike, faces: npt.ArrayLike, pose: Pose, K: I
 
 
 def draw_pose(
-    image: npt.NDArray[np.uint8],
+    image: npt.NDArray[Any],
     pose: Union[Pose, Result],
     K: IntrinsicsInput,
     mesh_or_box: Shape = None,
@@ -112,9 +112,9 @@ def draw_pose(
         if pose.pose is None:
             raise ValueError(f"draw_pose: the result has no pose ({pose.reason})")
         pose = pose.pose
-    out = image.copy() if copy else image
-    if out.ndim != 3 or out.shape[2] != 3 or out.dtype != np.uint8:
-        raise ValueError(f"draw_pose: expected an HxWx3 uint8 image, got {out.shape} {out.dtype}")
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        raise ValueError(f"draw_pose: expected an HxWx3 uint8 image, got {image.shape} {image.dtype}")
+    out: npt.NDArray[np.uint8] = image.copy() if copy else image
 
     def c(rgb: Color) -> Color:
         return (rgb[2], rgb[1], rgb[0]) if bgr else rgb
