@@ -12,6 +12,11 @@ REPO="$(cd ../.. && pwd)"
 VENV="$REPO/.deps/pyclient-venv"
 REQ=scripts/requirements-test.txt
 
+# Debian's Python may come without venv/ensurepip (the tests also make a fresh venv).
+if ! python3 -c "import ensurepip, venv" >/dev/null 2>&1; then
+  SUDO=""; [ "$(id -u)" = 0 ] || SUDO=sudo
+  $SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq python3-venv >/dev/null
+fi
 [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"
 want="$(sha256sum "$REQ" | cut -d' ' -f1)"
 if [ "$(cat "$VENV/.requirements-test.sha256" 2>/dev/null)" != "$want" ]; then

@@ -22,7 +22,7 @@ MaskInput = Union[npt.NDArray[Any], bytes, PathLike]
 BoxInput = Sequence[float]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # masks are arrays: identity, not element-wise, equality
 class Detection:
     """One detection of one object: a mask (numpy bool/uint8 HxW, PNG bytes or a PNG
     path), or an RLE (COCO dict, uncompressed or compressed counts), and/or a box

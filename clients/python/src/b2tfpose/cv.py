@@ -139,8 +139,8 @@ def draw_pose(
     if not axes:
         return out
     length = axis_length if axis_length is not None else (extent / 2 if extent else 0.05)
-    axes = np.array([[0, 0, 0], [length, 0, 0], [0, length, 0], [0, 0, length]], dtype=np.float64)
-    uv, z = project(axes, pose, K)
+    axis_points = np.array([[0, 0, 0], [length, 0, 0], [0, length, 0], [0, 0, length]], dtype=np.float64)
+    uv, z = project(axis_points, pose, K)
     if np.all(z > 1e-6):
         o = tuple(int(round(v)) for v in uv[0])
         for i, rgb in ((1, (255, 0, 0)), (2, (0, 255, 0)), (3, (0, 0, 255))):
