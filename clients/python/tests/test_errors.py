@@ -118,6 +118,17 @@ def test_unauthenticated(work: Path, store: str, onboarded: Onboarded) -> None:
         s.stop()
 
 
+def test_internal_from_a_damaged_object(client: b2tfpose.Client, sample_obj: Path, work: Path, scene: Scene) -> None:
+    client.onboard("damaged-box", sample_obj, units="m", level=0, in_plane=1, replace=True)
+    tensors = work / "store" / "damaged-box" / "tensors.safetensors"  # the dir:// store's layout
+    tensors.write_bytes(tensors.read_bytes()[:1000])
+    try:
+        with pytest.raises(b2tfpose.Internal, match="damaged"):
+            client.estimate(scene.rgb, scene.K, [b2tfpose.Detection("damaged-box", mask=scene.mask)])
+    finally:
+        client.delete_object("damaged-box")
+
+
 def test_operation_failed(client: b2tfpose.Client) -> None:
     with pytest.raises(b2tfpose.OperationFailed) as e:
         client.onboard("degenerate", DEGENERATE_OBJ, format="obj", units="m", level=0, in_plane=1)
@@ -131,7 +142,7 @@ def test_hierarchy_and_mapping() -> None:
         assert issubclass(cls, b2tfpose.RpcError) and issubclass(cls, b2tfpose.B2TFPoseError)
     assert issubclass(b2tfpose.OperationCancelled, b2tfpose.OperationFailed) and issubclass(b2tfpose.OperationFailed, b2tfpose.B2TFPoseError)
     assert error_class(grpc.StatusCode.INTERNAL) is b2tfpose.Internal
-    assert error_class(grpc.StatusCode.DATA_LOSS) is b2tfpose.RpcError
+    assert error_class(grpc.StatusCode.PERMISSION_DENIED) is b2tfpose.RpcError  # never sent by the service
 
 
 def test_retry_schedule() -> None:

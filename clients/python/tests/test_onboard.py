@@ -117,3 +117,40 @@ def test_health(client: b2tfpose.Client) -> None:
     assert client.health("") == "SERVING"
     with pytest.raises(b2tfpose.NotFound):
         client.health("no.such.Service")  # the standard health service's answer
+
+
+def test_onboard_a_gltf_path_with_external_buffer_and_texture(client: b2tfpose.Client, tmp_path: Path) -> None:
+    mesh = textured_box_mm()
+    mesh.apply_scale(0.001)
+    files = mesh.export(file_type="gltf")  # {"model.gltf": ..., "gltf_buffer_*.bin": ..., texture}
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    assert len(files) >= 2
+    gltf = tmp_path / "model.gltf"
+    from b2tfpose._mesh import mesh_from_path
+
+    m = mesh_from_path(gltf, None)
+    assert m.format == "gltf" and sorted(r.name for r in m.resources) == sorted(n for n in files if n != "model.gltf")
+    info = client.onboard("gltf-box", gltf, level=0, in_plane=1, replace=True)
+    assert info.diameter_m == pytest.approx(float(np.linalg.norm([0.04, 0.06, 0.08])), rel=1e-3)
+    client.delete_object("gltf-box")
+
+
+def test_obj_references_are_found(tmp_path: Path) -> None:
+    from b2tfpose._mesh import mesh_from_path
+
+    (tmp_path / "m.obj").write_text("mtllib my lib.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (tmp_path / "my lib.mtl").write_text("newmtl a\nmap_Kd -s 1 1 1 -bm 0.5 wood grain.png\nnewmtl b\nmap_Kd wood grain.png\nbump n.png\n")
+    (tmp_path / "wood grain.png").write_bytes(b"png")
+    (tmp_path / "n.png").write_bytes(b"png2")
+    m = mesh_from_path(tmp_path / "m.obj", "mm")
+    assert [(r.name, r.data) for r in m.resources] == [("my lib.mtl", (tmp_path / "my lib.mtl").read_bytes()), ("wood grain.png", b"png"), ("n.png", b"png2")]
+    assert m.units == "mm" and m.format == "obj"
+    with pytest.raises(ValueError, match="units"):
+        mesh_from_path(tmp_path / "m.obj", None)
+    (tmp_path / "my lib.mtl").write_text("map_Kd textures/w.png\n")
+    with pytest.raises(ValueError, match="plain names"):
+        mesh_from_path(tmp_path / "m.obj", "mm")
+    (tmp_path / "my lib.mtl").write_text("map_Kd missing.png\n")
+    with pytest.raises(FileNotFoundError, match="missing.png"):
+        mesh_from_path(tmp_path / "m.obj", "mm")

@@ -1,4 +1,5 @@
-"""The exceptions: one class per gRPC status the service answers with, under one base.
+"""The exceptions: one class per gRPC status the service answers with, under one base
+(any other status, which the service does not send, raises :class:`RpcError` itself).
 
 Every failed call raises a subclass of :class:`RpcError` carrying the status code and the
 server's message (which names the offending field for INVALID_ARGUMENT). A finished
@@ -47,10 +48,6 @@ class Unauthenticated(RpcError):
     """Missing or unknown API key."""
 
 
-class PermissionDenied(RpcError):
-    """The key is known but not allowed to do this."""
-
-
 class ResourceExhausted(RpcError):
     """Too many estimates or onboardings running on the server: retry later (the client
     retries these with backoff unless told not to)."""
@@ -65,12 +62,8 @@ class Unavailable(RpcError):
     down."""
 
 
-class Cancelled(RpcError):
-    """The call was cancelled."""
-
-
 class Internal(RpcError):
-    """The server failed unexpectedly."""
+    """The server failed, e.g. on a damaged object in its store (the message names it)."""
 
 
 _BY_CODE: Dict[grpc.StatusCode, Type[RpcError]] = {
@@ -81,11 +74,9 @@ _BY_CODE: Dict[grpc.StatusCode, Type[RpcError]] = {
     grpc.StatusCode.NOT_FOUND: NotFound,
     grpc.StatusCode.ALREADY_EXISTS: AlreadyExists,
     grpc.StatusCode.UNAUTHENTICATED: Unauthenticated,
-    grpc.StatusCode.PERMISSION_DENIED: PermissionDenied,
     grpc.StatusCode.RESOURCE_EXHAUSTED: ResourceExhausted,
     grpc.StatusCode.DEADLINE_EXCEEDED: DeadlineExceeded,
     grpc.StatusCode.UNAVAILABLE: Unavailable,
-    grpc.StatusCode.CANCELLED: Cancelled,
     grpc.StatusCode.INTERNAL: Internal,
 }
 
@@ -127,11 +118,9 @@ __all__ = [
     "NotFound",
     "AlreadyExists",
     "Unauthenticated",
-    "PermissionDenied",
     "ResourceExhausted",
     "DeadlineExceeded",
     "Unavailable",
-    "Cancelled",
     "Internal",
     "OperationFailed",
     "OperationCancelled",
