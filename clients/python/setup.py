@@ -9,7 +9,6 @@ the subpackage `b2tfpose.v1` (the proto's own path), with mypy-protobuf's .pyi s
 
 from __future__ import annotations
 
-import os
 import shutil
 import stat
 import sys

@@ -4,7 +4,6 @@ forms users want: R, t, T, the quaternion, and OpenCV's rvec / tvec."""
 from __future__ import annotations
 
 import math
-from typing import Sequence, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -159,5 +158,3 @@ class Pose:
         t = ", ".join(f"{v:.4f}" for v in self._t)
         return f"Pose(t=[{t}] m, quaternion_wxyz=[{q}])"
 
-
-PoseLike = Union[Pose, Sequence[float], npt.NDArray[np.float64]]

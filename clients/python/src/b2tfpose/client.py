@@ -18,7 +18,6 @@ from .errors import DeadlineExceeded, from_grpc
 from .v1 import pose_service_pb2 as pb
 from .v1 import pose_service_pb2_grpc as pb_grpc
 
-Req = TypeVar("Req")
 Resp = TypeVar("Resp")
 
 

@@ -8,7 +8,7 @@ onboarding that failed or was cancelled raises :class:`OperationFailed`.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Dict, Optional, Type
+from typing import TYPE_CHECKING, Dict, Type
 
 import grpc
 
