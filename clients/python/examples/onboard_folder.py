@@ -45,8 +45,10 @@ def main() -> None:
             def progress(s: b2tfpose.OperationStatus, oid: str = oid) -> None:
                 print(f"  {oid}: {s.state.lower()} {s.templates_done}/{s.templates_total}", flush=True)
 
+            # retry=True: the server refuses at once (RESOURCE_EXHAUSTED) while its
+            # onboarding slots are busy, before starting anything, so retrying is safe.
             try:
-                info = client.onboard(oid, path, units=units, level=a.level, in_plane=a.in_plane, replace=a.replace, progress=progress)
+                info = client.onboard(oid, path, units=units, level=a.level, in_plane=a.in_plane, replace=a.replace, progress=progress, retry=True)
             except (b2tfpose.B2TFPoseError, ValueError, OSError) as e:
                 print(f"{path.name}: {e}")
                 failed += 1

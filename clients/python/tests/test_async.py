@@ -61,10 +61,10 @@ def test_async_onboard_objects_and_health(server: Server, onboarded: Onboarded, 
             assert await c.health() == "SERVING"
             assert await c.get_object(SAMPLE_ID) == onboarded.info
             seen: List[b2tfpose.OperationStatus] = []
-            info = await c.onboard("async-box", sample_obj, units="m", level=0, in_plane=1, progress=seen.append, replace=True)
+            info = await c.onboard("async-box", sample_obj, units="m", level=0, in_plane=1, progress=seen.append, replace=True, retry=True)
             assert info.templates == 12 and seen[-1].state == "SUCCEEDED"
             assert "async-box" in [o.id for o in await c.list_objects()]
-            op = await c.onboard("async-big", sample_obj, units="m", level=3, wait=False)
+            op = await c.onboard("async-big", sample_obj, units="m", level=3, wait=False, retry=True)
             assert isinstance(op, b2tfpose.AsyncOperation) and (await op.status()).state == "RUNNING"
             await op.cancel()
             with pytest.raises(b2tfpose.OperationCancelled):

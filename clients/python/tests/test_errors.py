@@ -45,7 +45,7 @@ def test_already_exists(client: b2tfpose.Client, onboarded: Onboarded, sample_ob
 
 def test_resource_exhausted_without_retries(client: b2tfpose.Client, sample_obj: Path) -> None:
     # One onboarding at a time: a second one is refused at once.
-    op = client.onboard("slow-box", sample_obj, units="m", level=3, wait=False, replace=True)
+    op = client.onboard("slow-box", sample_obj, units="m", level=3, wait=False, replace=True, retry=True)
     try:
         with pytest.raises(b2tfpose.ResourceExhausted):
             client.onboard("other-box", sample_obj, units="m", level=0)
@@ -119,7 +119,7 @@ def test_unauthenticated(work: Path, store: str, onboarded: Onboarded) -> None:
 
 
 def test_internal_from_a_damaged_object(client: b2tfpose.Client, sample_obj: Path, work: Path, scene: Scene) -> None:
-    client.onboard("damaged-box", sample_obj, units="m", level=0, in_plane=1, replace=True)
+    client.onboard("damaged-box", sample_obj, units="m", level=0, in_plane=1, replace=True, retry=True)
     tensors = work / "store" / "damaged-box" / "tensors.safetensors"  # the dir:// store's layout
     tensors.write_bytes(tensors.read_bytes()[:1000])
     try:
@@ -131,7 +131,7 @@ def test_internal_from_a_damaged_object(client: b2tfpose.Client, sample_obj: Pat
 
 def test_operation_failed(client: b2tfpose.Client) -> None:
     with pytest.raises(b2tfpose.OperationFailed) as e:
-        client.onboard("degenerate", DEGENERATE_OBJ, format="obj", units="m", level=0, in_plane=1)
+        client.onboard("degenerate", DEGENERATE_OBJ, format="obj", units="m", level=0, in_plane=1, retry=True)
     assert not isinstance(e.value, b2tfpose.OperationCancelled)
     assert e.value.status.state == "FAILED" and e.value.status.error and "empty" in e.value.status.error
 

@@ -45,14 +45,14 @@ def textured_box_mm() -> trimesh.Trimesh:
 def test_onboard_from_a_textured_trimesh_in_millimetres(client: b2tfpose.Client) -> None:
     mesh = textured_box_mm()
     assert isinstance(mesh.visual, trimesh.visual.TextureVisuals)
-    info = client.onboard("trimesh-box", mesh, units="mm", level=0, in_plane=4, replace=True)
+    info = client.onboard("trimesh-box", mesh, units="mm", level=0, in_plane=4, replace=True, retry=True)
     # Scaled to metres on the way (GLB is metres): diagonal of 40 x 60 x 80 mm.
     assert info.diameter_m == pytest.approx(float(np.linalg.norm([0.04, 0.06, 0.08])), rel=1e-3)
     assert info.templates == 12 * 4 and info.mesh_units == "m"
     # The texture went along: the stored object holds it (a GLB with an image is larger
     # than the same box untextured would need; the server stores textures as PNG).
     scene = trimesh.Scene([mesh])
-    info2 = client.onboard("trimesh-scene", scene, units="mm", level=0, in_plane=1, replace=True)
+    info2 = client.onboard("trimesh-scene", scene, units="mm", level=0, in_plane=1, replace=True, retry=True)
     assert info2.diameter_m == pytest.approx(info.diameter_m, rel=1e-6)
     client.delete_object("trimesh-scene")
 
@@ -72,17 +72,17 @@ def test_trimesh_export_carries_the_texture() -> None:
 def test_onboard_from_bytes_with_resources_and_replace(client: b2tfpose.Client, sample_dir: Path) -> None:
     files = {p.name: p.read_bytes() for p in sample_dir.iterdir()}
     obj = files.pop("sample_box.obj")
-    info = client.onboard("bytes-box", obj, format="obj", units="m", resources=files, level=0, in_plane=1, replace=True)
+    info = client.onboard("bytes-box", obj, format="obj", units="m", resources=files, level=0, in_plane=1, replace=True, retry=True)
     assert info.templates == 12
     with pytest.raises(b2tfpose.AlreadyExists):
         client.onboard("bytes-box", obj, format="obj", units="m", resources=files, level=0, in_plane=1)
-    info2 = client.onboard("bytes-box", obj, format="obj", units="m", resources=files, level=0, in_plane=2, replace=True)
+    info2 = client.onboard("bytes-box", obj, format="obj", units="m", resources=files, level=0, in_plane=2, replace=True, retry=True)
     assert info2.templates == 24
     client.delete_object("bytes-box")
 
 
 def test_operation_handle_wait_and_cancel(client: b2tfpose.Client, sample_obj: Path) -> None:
-    op = client.onboard("handle-box", sample_obj, units="m", level=0, in_plane=1, wait=False, replace=True)
+    op = client.onboard("handle-box", sample_obj, units="m", level=0, in_plane=1, wait=False, replace=True, retry=True)
     assert isinstance(op, b2tfpose.Operation) and op.object_id == "handle-box"
     seen: List[b2tfpose.OperationStatus] = []
     info = op.wait(progress=seen.append)
@@ -91,7 +91,7 @@ def test_operation_handle_wait_and_cancel(client: b2tfpose.Client, sample_obj: P
     client.delete_object("handle-box")
 
     # Level 3 (642 views x 12) takes long enough to be cancelled while running.
-    big = client.onboard("cancelled-box", sample_obj, units="m", level=3, wait=False)
+    big = client.onboard("cancelled-box", sample_obj, units="m", level=3, wait=False, retry=True)
     assert big.last_status.templates_total == 642 * 12
     big.cancel()
     with pytest.raises(b2tfpose.OperationCancelled) as e:
@@ -104,7 +104,7 @@ def test_operation_handle_wait_and_cancel(client: b2tfpose.Client, sample_obj: P
 def test_list_get_delete(client: b2tfpose.Client, onboarded: Onboarded, sample_obj: Path) -> None:
     assert client.get_object(SAMPLE_ID) == onboarded.info
     assert SAMPLE_ID in [o.id for o in client.list_objects()]
-    client.onboard("to-delete", sample_obj, units="m", level=0, in_plane=1, replace=True)
+    client.onboard("to-delete", sample_obj, units="m", level=0, in_plane=1, replace=True, retry=True)
     assert "to-delete" in [o.id for o in client.list_objects()]
     assert client.delete_object("to-delete") is None
     assert "to-delete" not in [o.id for o in client.list_objects()]
@@ -131,7 +131,7 @@ def test_onboard_a_gltf_path_with_external_buffer_and_texture(client: b2tfpose.C
 
     m = mesh_from_path(gltf, None)
     assert m.format == "gltf" and sorted(r.name for r in m.resources) == sorted(n for n in files if n != "model.gltf")
-    info = client.onboard("gltf-box", gltf, level=0, in_plane=1, replace=True)
+    info = client.onboard("gltf-box", gltf, level=0, in_plane=1, replace=True, retry=True)
     assert info.diameter_m == pytest.approx(float(np.linalg.norm([0.04, 0.06, 0.08])), rel=1e-3)
     client.delete_object("gltf-box")
 
