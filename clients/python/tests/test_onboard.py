@@ -154,3 +154,13 @@ def test_obj_references_are_found(tmp_path: Path) -> None:
     (tmp_path / "my lib.mtl").write_text("map_Kd missing.png\n")
     with pytest.raises(FileNotFoundError, match="missing.png"):
         mesh_from_path(tmp_path / "m.obj", "mm")
+
+
+def test_ply_texture_file_is_sent(tmp_path: Path) -> None:
+    from b2tfpose._mesh import mesh_from_path
+
+    header = "ply\nformat binary_little_endian 1.0\ncomment TextureFile tex.png\nelement vertex 0\nproperty float x\nend_header\n"
+    (tmp_path / "m.ply").write_bytes(header.encode() + b"\x00\xff")  # binary body after the header
+    (tmp_path / "tex.png").write_bytes(b"texture")
+    m = mesh_from_path(tmp_path / "m.ply", "mm")
+    assert m.format == "ply" and [(r.name, r.data) for r in m.resources] == [("tex.png", b"texture")]
