@@ -3,6 +3,7 @@
 # given as $1). `python -m build` makes the sdist first and the wheel from it, so the
 # wheel proves the sdist is complete (it carries proto/; setup.py generates the stubs).
 set -euo pipefail
+unset PYTHONPATH  # scripts/env.sh's .deps/python would leak into the isolated build
 cd "$(dirname "$0")/.."
 REPO="$(cd ../.. && pwd)"
 PY="${PYTHON:-$REPO/.deps/pyclient-venv/bin/python}"

@@ -7,6 +7,10 @@
 # pytest, which also installs the wheel into a fresh venv and runs mypy --strict on the
 # examples.
 set -euo pipefail
+# scripts/env.sh (sourced by the repository's scripts/test.sh before this, and below) puts
+# .deps/python (the Rust tools' numpy, protobuf, onnxruntime) on PYTHONPATH, which would
+# shadow the venv's pinned packages and the build's own.
+unset PYTHONPATH
 cd "$(dirname "$0")/.."
 REPO="$(cd ../.. && pwd)"
 VENV="$REPO/.deps/pyclient-venv"
@@ -31,5 +35,6 @@ PYTHON="$VENV/bin/python" bash scripts/build.sh dist
 rm -rf build
 
 source "$REPO/scripts/env.sh"
+unset PYTHONPATH
 export B2TFPOSE_DIST="$PWD/dist"
 "$VENV/bin/python" -m pytest -q -p no:cacheprovider tests "$@"
