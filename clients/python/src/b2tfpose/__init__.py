@@ -1,0 +1,58 @@
+"""b2tfpose: Python client of the b2tfpose 6DoF pose-estimation service.
+
+>>> import b2tfpose
+>>> with b2tfpose.Client("localhost:50051") as c:
+...     c.onboard("box", "box.obj", units="m", level=1)
+...     [r] = c.estimate(rgb, K, [b2tfpose.Detection("box", mask=mask)])
+...     r.pose.R, r.pose.t, r.pose.rvec
+"""
+
+from ._convert import Detection
+from ._pose import Pose
+from ._retry import NO_RETRY, RetryPolicy
+from ._types import Estimates, ObjectInfo, OperationStatus, Result
+from .aio import AsyncClient, AsyncOperation
+from .client import Client, Operation
+from .errors import (
+    AlreadyExists,
+    B2TFPoseError,
+    DeadlineExceeded,
+    Internal,
+    InvalidArgument,
+    NotFound,
+    OperationCancelled,
+    OperationFailed,
+    ResourceExhausted,
+    RpcError,
+    Unauthenticated,
+    Unavailable,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Client",
+    "AsyncClient",
+    "Operation",
+    "AsyncOperation",
+    "Detection",
+    "Pose",
+    "Result",
+    "Estimates",
+    "ObjectInfo",
+    "OperationStatus",
+    "RetryPolicy",
+    "NO_RETRY",
+    "B2TFPoseError",
+    "RpcError",
+    "InvalidArgument",
+    "NotFound",
+    "AlreadyExists",
+    "Unauthenticated",
+    "ResourceExhausted",
+    "DeadlineExceeded",
+    "Unavailable",
+    "Internal",
+    "OperationFailed",
+    "OperationCancelled",
+]

@@ -1,0 +1,91 @@
+"""Request messages from the clients' arguments, and the end of an onboarding, shared by
+:class:`b2tfpose.Client` and :class:`b2tfpose.AsyncClient` so both send and accept exactly
+the same."""
+
+from __future__ import annotations
+
+from typing import Callable, Mapping, Optional, Sequence
+
+from ._convert import DetectionInput, ImageInput, IntrinsicsInput, detection_message, image_message, intrinsics_message
+from ._mesh import MeshInput, mesh_message
+from ._types import CANCELLED, SUCCEEDED, ObjectInfo, OperationStatus
+from .errors import OperationCancelled, OperationFailed
+from .v1 import pose_service_pb2 as pb
+
+ProgressCallback = Callable[[OperationStatus], None]
+
+REFINERS = ("none", "silhouette-depth", "contour")
+
+
+def onboard_request(
+    object_id: str,
+    mesh: MeshInput,
+    *,
+    units: Optional[str],
+    level: Optional[int],
+    in_plane: Optional[int],
+    pca: Optional[int],
+    replace: bool,
+    format: Optional[str],
+    resources: Optional[Mapping[str, bytes]],
+) -> pb.OnboardRequest:
+    options = pb.OnboardOptions(in_plane=in_plane or 0, pca=pca or 0)
+    if level is not None:
+        options.level = level  # optional field: 0 is a real level, unset is the default
+    return pb.OnboardRequest(object_id=object_id, mesh=mesh_message(mesh, units, format, resources), options=options, replace=replace)
+
+
+def estimate_request(
+    image: ImageInput,
+    K: IntrinsicsInput,
+    detections: Sequence[DetectionInput],
+    *,
+    bgr: bool,
+    rrc: Optional[bool],
+    refiner: Optional[str],
+    k: Optional[int],
+    max_masks: Optional[int],
+    instances_per_object: Optional[int],
+    verify: Optional[bool],
+) -> pb.EstimateRequest:
+    if isinstance(detections, Mapping) or not isinstance(detections, Sequence) or isinstance(detections, (str, bytes)):
+        raise TypeError("detections: a list of b2tfpose.Detection (or dicts)")
+    if not detections:
+        raise ValueError("detections: at least one is needed")
+    if refiner is not None and refiner not in REFINERS:
+        raise ValueError(f"refiner {refiner!r}: expected one of {', '.join(REFINERS)}")
+    img, w, h = image_message(image, bgr=bgr)
+    options = pb.EstimateOptions(k=k or 0, max_masks=max_masks or 0, instances_per_object=instances_per_object or 0, refiner=refiner or "")
+    if rrc is not None:
+        options.rrc = rrc
+    if verify is not None:
+        options.verify = verify
+    return pb.EstimateRequest(
+        image=img,
+        intrinsics=intrinsics_message(K, w, h),
+        detections=[detection_message(d, w, h) for d in detections],
+        options=options,
+    )
+
+
+class ProgressFilter:
+    """Calls ``progress`` once per distinct state of a watched operation (a stream may
+    repeat a state, e.g. after a reconnect)."""
+
+    def __init__(self, progress: Optional[ProgressCallback]) -> None:
+        self._progress = progress
+        self._last: Optional[OperationStatus] = None
+
+    def __call__(self, status: OperationStatus) -> None:
+        if self._progress is not None and status != self._last:
+            self._progress(status)
+        self._last = status
+
+
+def finish(status: OperationStatus) -> ObjectInfo:
+    """The object of a finished operation, or its failure as an exception."""
+    if status.state == SUCCEEDED and status.object is not None:
+        return status.object
+    if status.state == CANCELLED:
+        raise OperationCancelled(status)
+    raise OperationFailed(status)

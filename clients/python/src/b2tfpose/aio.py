@@ -1,0 +1,216 @@
+"""The asyncio client, :class:`AsyncClient` (grpc.aio), with the same methods as
+:class:`b2tfpose.Client` as coroutines; requests and responses go through the same
+shared builders and parsers."""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Any, AsyncIterator, Awaitable, Callable, List, Literal, Mapping, Optional, Sequence, Tuple, TypeVar, Union, overload
+
+import grpc
+
+from . import _requests
+from ._channel import HEALTH_CHECK, SERVICE, CaCert, Settings, decode_health_response, encode_health_request, identity
+from ._convert import DetectionInput, ImageInput, IntrinsicsInput
+from ._mesh import MeshInput
+from ._requests import ProgressCallback, ProgressFilter, finish
+from ._retry import Attempts, RetryArg, RetryPolicy, resolve
+from ._types import Estimates, ObjectInfo, OperationStatus
+from .errors import DeadlineExceeded, from_grpc
+from .v1 import pose_service_pb2 as pb
+from .v1 import pose_service_pb2_grpc as pb_grpc
+
+Resp = TypeVar("Resp")
+
+
+class AsyncOperation:
+    """A running onboarding (asyncio): ``await status()``, ``await wait()``,
+    ``await cancel()``."""
+
+    def __init__(self, client: "AsyncClient", status: OperationStatus) -> None:
+        self._client = client
+        self.id = status.id
+        self.object_id = status.object_id
+        self.last_status = status
+
+    async def status(self) -> OperationStatus:
+        self.last_status = await self._client.get_operation(self.id)
+        return self.last_status
+
+    async def wait(self, progress: Optional[ProgressCallback] = None, timeout: Optional[float] = None) -> ObjectInfo:
+        """As :meth:`b2tfpose.Operation.wait`."""
+        report = ProgressFilter(progress)
+        async for status in self._client.watch_operation(self.id, timeout=timeout):
+            self.last_status = status
+            report(status)
+        if not self.last_status.done:
+            await self.status()
+        return finish(self.last_status)
+
+    async def cancel(self) -> OperationStatus:
+        self.last_status = await self._client.cancel_operation(self.id)
+        return self.last_status
+
+    def __repr__(self) -> str:
+        return f"AsyncOperation(id={self.id!r}, object_id={self.object_id!r}, state={self.last_status.state})"
+
+
+class AsyncClient:
+    """An asyncio client of a b2tfpose server; arguments as :class:`b2tfpose.Client`.
+
+    >>> async with b2tfpose.AsyncClient("localhost:50051") as c:
+    ...     results = await asyncio.gather(*(c.estimate(img, K, dets) for img in images))
+
+    Create it inside the running event loop (grpc.aio binds its channel to it).
+    """
+
+    def __init__(
+        self,
+        address: str,
+        api_key: Optional[str] = None,
+        *,
+        tls: Optional[bool] = None,
+        ca_cert: Optional[CaCert] = None,
+        server_name: Optional[str] = None,
+        timeout: Optional[float] = 60.0,
+        retry: Optional[RetryPolicy] = None,
+        options: Optional[Sequence[Tuple[str, Union[str, int]]]] = None,
+    ) -> None:
+        self._settings = Settings.make(address, api_key, tls, ca_cert, server_name, timeout, retry, options)
+        self._channel = self._settings.open_aio()
+        self._stub = pb_grpc.PoseServiceStub(self._channel)
+
+    async def _call(self, method: str, fn: Callable[..., Awaitable[Resp]], request: Any, timeout: Optional[float], retry: RetryArg, idempotent: bool) -> Resp:
+        policy = resolve(retry, self._settings.retry, idempotent)
+        attempts = Attempts(method, policy, self._settings.timeout if timeout is None else timeout)
+        while True:
+            try:
+                return await fn(request, timeout=attempts.timeout(), metadata=self._settings.metadata)
+            except grpc.RpcError as e:
+                await asyncio.sleep(attempts.after_failure(e))
+
+    @overload
+    async def onboard(
+        self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
+        pca: Optional[int] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
+        progress: Optional[ProgressCallback] = ..., wait: Literal[True] = ..., timeout: Optional[float] = ..., retry: RetryArg = ...,
+    ) -> ObjectInfo: ...
+
+    @overload
+    async def onboard(
+        self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
+        pca: Optional[int] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
+        progress: Optional[ProgressCallback] = ..., wait: Literal[False], timeout: Optional[float] = ..., retry: RetryArg = ...,
+    ) -> AsyncOperation: ...
+
+    async def onboard(
+        self,
+        object_id: str,
+        mesh: MeshInput,
+        *,
+        units: Optional[str] = None,
+        level: Optional[int] = None,
+        in_plane: Optional[int] = None,
+        pca: Optional[int] = None,
+        replace: bool = False,
+        format: Optional[str] = None,
+        resources: Optional[Mapping[str, bytes]] = None,
+        progress: Optional[ProgressCallback] = None,
+        wait: bool = True,
+        timeout: Optional[float] = None,
+        retry: RetryArg = None,
+    ) -> Union[ObjectInfo, AsyncOperation]:
+        """As :meth:`b2tfpose.Client.onboard`."""
+        request = _requests.onboard_request(object_id, mesh, units=units, level=level, in_plane=in_plane, pca=pca, replace=replace, format=format, resources=resources)
+        status = OperationStatus.from_pb(await self._call("Onboard", self._stub.Onboard, request, None, retry, idempotent=False))
+        op = AsyncOperation(self, status)
+        if not wait:
+            return op
+        return await op.wait(progress=progress, timeout=timeout)
+
+    async def get_operation(self, operation_id: str, *, timeout: Optional[float] = None, retry: RetryArg = None) -> OperationStatus:
+        m = await self._call("GetOperation", self._stub.GetOperation, pb.GetOperationRequest(id=operation_id), timeout, retry, idempotent=True)
+        return OperationStatus.from_pb(m)
+
+    async def operation(self, operation_id: str) -> AsyncOperation:
+        return AsyncOperation(self, await self.get_operation(operation_id))
+
+    async def watch_operation(self, operation_id: str, *, timeout: Optional[float] = None) -> AsyncIterator[OperationStatus]:
+        """As :meth:`b2tfpose.Client.watch_operation`."""
+        stream = self._stub.WatchOperation(pb.GetOperationRequest(id=operation_id), timeout=timeout, metadata=self._settings.metadata)
+        try:
+            async for m in stream:
+                yield OperationStatus.from_pb(m)
+        except grpc.RpcError as e:
+            raise from_grpc(e, "WatchOperation") from None
+        finally:
+            stream.cancel()
+
+    async def cancel_operation(self, operation_id: str, *, timeout: Optional[float] = None, retry: RetryArg = None) -> OperationStatus:
+        m = await self._call("CancelOperation", self._stub.CancelOperation, pb.GetOperationRequest(id=operation_id), timeout, retry, idempotent=False)
+        return OperationStatus.from_pb(m)
+
+    async def estimate(
+        self,
+        image: ImageInput,
+        K: IntrinsicsInput,
+        detections: Sequence[DetectionInput],
+        *,
+        bgr: bool = False,
+        rrc: Optional[bool] = None,
+        refiner: Optional[str] = None,
+        k: Optional[int] = None,
+        max_masks: Optional[int] = None,
+        instances_per_object: Optional[int] = None,
+        verify: Optional[bool] = None,
+        timeout: Optional[float] = None,
+        retry: RetryArg = None,
+    ) -> Estimates:
+        """As :meth:`b2tfpose.Client.estimate`."""
+        request = _requests.estimate_request(
+            image, K, detections, bgr=bgr, rrc=rrc, refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify
+        )
+        return Estimates.from_pb(await self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
+
+    async def list_objects(self, *, timeout: Optional[float] = None, retry: RetryArg = None) -> List[ObjectInfo]:
+        m = await self._call("ListObjects", self._stub.ListObjects, pb.ListObjectsRequest(), timeout, retry, idempotent=True)
+        return [ObjectInfo.from_pb(o) for o in m.objects]
+
+    async def get_object(self, object_id: str, *, timeout: Optional[float] = None, retry: RetryArg = None) -> ObjectInfo:
+        m = await self._call("GetObject", self._stub.GetObject, pb.GetObjectRequest(object_id=object_id), timeout, retry, idempotent=True)
+        return ObjectInfo.from_pb(m)
+
+    async def delete_object(self, object_id: str, *, timeout: Optional[float] = None, retry: RetryArg = None) -> None:
+        await self._call("DeleteObject", self._stub.DeleteObject, pb.GetObjectRequest(object_id=object_id), timeout, retry, idempotent=False)
+
+    async def health(self, service: str = SERVICE, *, timeout: Optional[float] = None, retry: RetryArg = None) -> str:
+        """As :meth:`b2tfpose.Client.health`."""
+        check = self._channel.unary_unary(HEALTH_CHECK, request_serializer=identity, response_deserializer=identity)
+        return decode_health_response(await self._call("Health/Check", check, encode_health_request(service), timeout, retry, idempotent=True))
+
+    async def wait_ready(self, timeout: float = 60.0, interval: float = 0.2) -> None:
+        """As :meth:`b2tfpose.Client.wait_ready`."""
+        loop = asyncio.get_running_loop()
+        end = loop.time() + timeout
+        last = "no answer"
+        while loop.time() < end:
+            try:
+                last = await self.health(timeout=max(0.1, min(5.0, end - loop.time())), retry=False)
+                if last == "SERVING":
+                    return
+            except Exception as e:  # noqa: BLE001 - any failure is "not yet"
+                last = str(e)
+            await asyncio.sleep(interval)
+        raise DeadlineExceeded(grpc.StatusCode.DEADLINE_EXCEEDED, f"server at {self._settings.target} not ready within {timeout} s ({last})", "wait_ready")
+
+    async def close(self) -> None:
+        await self._channel.close()
+
+    async def __aenter__(self) -> "AsyncClient":
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    def __repr__(self) -> str:
+        return f"AsyncClient({self._settings.target!r}, tls={self._settings.credentials is not None})"

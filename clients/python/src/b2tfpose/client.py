@@ -1,0 +1,256 @@
+"""The blocking client, :class:`Client`, and its onboarding handle, :class:`Operation`."""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Callable, Iterator, List, Literal, Mapping, Optional, Sequence, Tuple, TypeVar, Union, overload
+
+import grpc
+
+from . import _requests
+from ._channel import HEALTH_CHECK, SERVICE, CaCert, Settings, decode_health_response, encode_health_request, identity
+from ._convert import DetectionInput, ImageInput, IntrinsicsInput
+from ._mesh import MeshInput
+from ._requests import ProgressCallback, ProgressFilter, finish
+from ._retry import Attempts, RetryArg, RetryPolicy, resolve
+from ._types import Estimates, ObjectInfo, OperationStatus
+from .errors import DeadlineExceeded, from_grpc
+from .v1 import pose_service_pb2 as pb
+from .v1 import pose_service_pb2_grpc as pb_grpc
+
+Resp = TypeVar("Resp")
+
+
+class Operation:
+    """A running onboarding: ``status()``, ``wait()`` for its object, ``cancel()``."""
+
+    def __init__(self, client: "Client", status: OperationStatus) -> None:
+        self._client = client
+        self.id = status.id
+        self.object_id = status.object_id
+        self.last_status = status
+
+    def status(self) -> OperationStatus:
+        """Its current state (GetOperation)."""
+        self.last_status = self._client.get_operation(self.id)
+        return self.last_status
+
+    def wait(self, progress: Optional[ProgressCallback] = None, timeout: Optional[float] = None) -> ObjectInfo:
+        """Follows the operation (WatchOperation) to its end and returns the object;
+        raises :class:`~b2tfpose.OperationFailed` / ``OperationCancelled`` otherwise.
+        ``progress`` gets every new state."""
+        report = ProgressFilter(progress)
+        for status in self._client.watch_operation(self.id, timeout=timeout):
+            self.last_status = status
+            report(status)
+        if not self.last_status.done:  # the stream ended early: ask once more
+            self.status()
+        return finish(self.last_status)
+
+    def cancel(self) -> OperationStatus:
+        """Asks the server to stop it; nothing of it is stored. Returns its state (it turns
+        CANCELLED shortly after)."""
+        self.last_status = self._client.cancel_operation(self.id)
+        return self.last_status
+
+    def __repr__(self) -> str:
+        return f"Operation(id={self.id!r}, object_id={self.object_id!r}, state={self.last_status.state})"
+
+
+class Client:
+    """A blocking client of a b2tfpose server.
+
+    >>> with b2tfpose.Client("localhost:50051") as c:
+    ...     results = c.estimate(rgb, K, [b2tfpose.Detection("bbq", mask=mask)])
+
+    ``address``: ``host:port``, ``grpc://host:port`` or ``grpcs://host:port`` (TLS).
+    ``api_key``: sent as ``authorization: Bearer KEY``. ``tls`` / ``ca_cert`` (PEM bytes or
+    a path: the certificate to trust) / ``server_name`` (the name to verify, when it is not
+    the host of ``address``). ``timeout``: default deadline of each call, seconds (None:
+    none), retries included. ``retry``: the policy for RESOURCE_EXHAUSTED / UNAVAILABLE;
+    idempotent calls use it by default, onboard / delete / cancel only with ``retry=`` per
+    call.
+    """
+
+    def __init__(
+        self,
+        address: str,
+        api_key: Optional[str] = None,
+        *,
+        tls: Optional[bool] = None,
+        ca_cert: Optional[CaCert] = None,
+        server_name: Optional[str] = None,
+        timeout: Optional[float] = 60.0,
+        retry: Optional[RetryPolicy] = None,
+        options: Optional[Sequence[Tuple[str, Union[str, int]]]] = None,
+    ) -> None:
+        self._settings = Settings.make(address, api_key, tls, ca_cert, server_name, timeout, retry, options)
+        self._channel = self._settings.open_sync()
+        self._stub = pb_grpc.PoseServiceStub(self._channel)
+
+    # ------------------------------------------------------------------ plumbing
+
+    def _call(self, method: str, fn: Callable[..., Resp], request: Any, timeout: Optional[float], retry: RetryArg, idempotent: bool) -> Resp:
+        policy = resolve(retry, self._settings.retry, idempotent)
+        attempts = Attempts(method, policy, self._settings.timeout if timeout is None else timeout)
+        while True:
+            try:
+                return fn(request, timeout=attempts.timeout(), metadata=self._settings.metadata)
+            except grpc.RpcError as e:
+                time.sleep(attempts.after_failure(e))
+
+    # ------------------------------------------------------------------ onboarding
+
+    @overload
+    def onboard(
+        self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
+        pca: Optional[int] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
+        progress: Optional[ProgressCallback] = ..., wait: Literal[True] = ..., timeout: Optional[float] = ..., retry: RetryArg = ...,
+    ) -> ObjectInfo: ...
+
+    @overload
+    def onboard(
+        self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
+        pca: Optional[int] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
+        progress: Optional[ProgressCallback] = ..., wait: Literal[False], timeout: Optional[float] = ..., retry: RetryArg = ...,
+    ) -> Operation: ...
+
+    def onboard(
+        self,
+        object_id: str,
+        mesh: MeshInput,
+        *,
+        units: Optional[str] = None,
+        level: Optional[int] = None,
+        in_plane: Optional[int] = None,
+        pca: Optional[int] = None,
+        replace: bool = False,
+        format: Optional[str] = None,
+        resources: Optional[Mapping[str, bytes]] = None,
+        progress: Optional[ProgressCallback] = None,
+        wait: bool = True,
+        timeout: Optional[float] = None,
+        retry: RetryArg = None,
+    ) -> Union[ObjectInfo, Operation]:
+        """Onboards a mesh as ``object_id``.
+
+        ``mesh``: a path (PLY / OBJ with its MTL and textures beside it / glTF / GLB),
+        bytes (with ``format`` and ``resources`` {name: bytes}), or a trimesh object.
+        ``units``: the mesh's length unit, "mm", "cm" or "m" (required but for glTF).
+        ``level``: template viewpoints, 0-3 (12, 42, 162, 642; server default 2);
+        ``in_plane``: rotations per viewpoint; ``pca``: descriptor components kept.
+        Waits for the object (``progress`` gets each state; ``timeout`` bounds the wait,
+        None: no limit), or with ``wait=False`` returns the :class:`Operation` at once.
+        """
+        request = _requests.onboard_request(object_id, mesh, units=units, level=level, in_plane=in_plane, pca=pca, replace=replace, format=format, resources=resources)
+        status = OperationStatus.from_pb(self._call("Onboard", self._stub.Onboard, request, None, retry, idempotent=False))
+        op = Operation(self, status)
+        if not wait:
+            return op
+        return op.wait(progress=progress, timeout=timeout)
+
+    def get_operation(self, operation_id: str, *, timeout: Optional[float] = None, retry: RetryArg = None) -> OperationStatus:
+        m = self._call("GetOperation", self._stub.GetOperation, pb.GetOperationRequest(id=operation_id), timeout, retry, idempotent=True)
+        return OperationStatus.from_pb(m)
+
+    def operation(self, operation_id: str) -> Operation:
+        """A handle on an operation by id (e.g. one started by another process)."""
+        return Operation(self, self.get_operation(operation_id))
+
+    def watch_operation(self, operation_id: str, *, timeout: Optional[float] = None) -> Iterator[OperationStatus]:
+        """Each state of the operation until its final one (WatchOperation). ``timeout``
+        bounds the whole watch (None: no limit)."""
+        stream = self._stub.WatchOperation(pb.GetOperationRequest(id=operation_id), timeout=timeout, metadata=self._settings.metadata)
+        try:
+            for m in stream:
+                yield OperationStatus.from_pb(m)
+        except grpc.RpcError as e:
+            raise from_grpc(e, "WatchOperation") from None
+        finally:
+            stream.cancel()
+
+    def cancel_operation(self, operation_id: str, *, timeout: Optional[float] = None, retry: RetryArg = None) -> OperationStatus:
+        m = self._call("CancelOperation", self._stub.CancelOperation, pb.GetOperationRequest(id=operation_id), timeout, retry, idempotent=False)
+        return OperationStatus.from_pb(m)
+
+    # ------------------------------------------------------------------ estimation
+
+    def estimate(
+        self,
+        image: ImageInput,
+        K: IntrinsicsInput,
+        detections: Sequence[DetectionInput],
+        *,
+        bgr: bool = False,
+        rrc: Optional[bool] = None,
+        refiner: Optional[str] = None,
+        k: Optional[int] = None,
+        max_masks: Optional[int] = None,
+        instances_per_object: Optional[int] = None,
+        verify: Optional[bool] = None,
+        timeout: Optional[float] = None,
+        retry: RetryArg = None,
+    ) -> Estimates:
+        """Estimates the pose of each object instance in ``image``.
+
+        ``image``: numpy HxWx3 uint8 RGB (``bgr=True`` for OpenCV frames), PNG/JPEG bytes,
+        or a path. ``K``: 3x3 or (fx, fy, cx, cy), pixels. ``detections``:
+        :class:`~b2tfpose.Detection` objects or dicts with the same keys. ``rrc``,
+        ``refiner`` ("contour", "silhouette-depth", "none"), ``k``, ``max_masks``,
+        ``instances_per_object``, ``verify``: the server's options (None: its default).
+        Returns a list of :class:`~b2tfpose.Result` (``.total_ms``: the server's time).
+        """
+        request = _requests.estimate_request(
+            image, K, detections, bgr=bgr, rrc=rrc, refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify
+        )
+        return Estimates.from_pb(self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
+
+    # ------------------------------------------------------------------ objects
+
+    def list_objects(self, *, timeout: Optional[float] = None, retry: RetryArg = None) -> List[ObjectInfo]:
+        m = self._call("ListObjects", self._stub.ListObjects, pb.ListObjectsRequest(), timeout, retry, idempotent=True)
+        return [ObjectInfo.from_pb(o) for o in m.objects]
+
+    def get_object(self, object_id: str, *, timeout: Optional[float] = None, retry: RetryArg = None) -> ObjectInfo:
+        m = self._call("GetObject", self._stub.GetObject, pb.GetObjectRequest(object_id=object_id), timeout, retry, idempotent=True)
+        return ObjectInfo.from_pb(m)
+
+    def delete_object(self, object_id: str, *, timeout: Optional[float] = None, retry: RetryArg = None) -> None:
+        self._call("DeleteObject", self._stub.DeleteObject, pb.GetObjectRequest(object_id=object_id), timeout, retry, idempotent=False)
+
+    # ------------------------------------------------------------------ health
+
+    def health(self, service: str = SERVICE, *, timeout: Optional[float] = None, retry: RetryArg = None) -> str:
+        """The standard health check: "SERVING" once the server is warmed up, else
+        "NOT_SERVING" (or "SERVICE_UNKNOWN"). Needs no API key."""
+        check = self._channel.unary_unary(HEALTH_CHECK, request_serializer=identity, response_deserializer=identity)
+        return decode_health_response(self._call("Health/Check", check, encode_health_request(service), timeout, retry, idempotent=True))
+
+    def wait_ready(self, timeout: float = 60.0, interval: float = 0.2) -> None:
+        """Blocks until the server answers SERVING; raises DeadlineExceeded after
+        ``timeout`` seconds."""
+        end = time.monotonic() + timeout
+        last = "no answer"
+        while time.monotonic() < end:
+            try:
+                last = self.health(timeout=max(0.1, min(5.0, end - time.monotonic())), retry=False)
+                if last == "SERVING":
+                    return
+            except Exception as e:  # noqa: BLE001 - any failure is "not yet"
+                last = str(e)
+            time.sleep(interval)
+        raise DeadlineExceeded(grpc.StatusCode.DEADLINE_EXCEEDED, f"server at {self._settings.target} not ready within {timeout} s ({last})", "wait_ready")
+
+    # ------------------------------------------------------------------ lifetime
+
+    def close(self) -> None:
+        self._channel.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"Client({self._settings.target!r}, tls={self._settings.credentials is not None})"

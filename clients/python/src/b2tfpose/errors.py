@@ -1,0 +1,129 @@
+"""The exceptions: one class per gRPC status the service answers with, under one base
+(any other status, which the service does not send, raises :class:`RpcError` itself).
+
+Every failed call raises a subclass of :class:`RpcError` carrying the status code and the
+server's message (which names the offending field for INVALID_ARGUMENT). A finished
+onboarding that failed or was cancelled raises :class:`OperationFailed`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Dict, Type
+
+import grpc
+
+if TYPE_CHECKING:
+    from ._types import OperationStatus
+
+
+class B2TFPoseError(Exception):
+    """Base of every error this package raises on purpose (bad inputs raise ValueError /
+    TypeError before anything is sent)."""
+
+
+class RpcError(B2TFPoseError):
+    """A gRPC call failed. ``code`` is the status, ``message`` the server's explanation."""
+
+    def __init__(self, code: grpc.StatusCode, message: str, method: str = "") -> None:
+        self.code = code
+        self.message = message
+        self.method = method
+        where = f"{method}: " if method else ""
+        super().__init__(f"{where}{code.name}: {message}")
+
+
+class InvalidArgument(RpcError):
+    """A field of the request is invalid; the message names it."""
+
+
+class NotFound(RpcError):
+    """Unknown object or operation."""
+
+
+class AlreadyExists(RpcError):
+    """The object id is taken (onboard without ``replace``) or is being onboarded."""
+
+
+class Unauthenticated(RpcError):
+    """Missing or unknown API key."""
+
+
+class ResourceExhausted(RpcError):
+    """Too many estimates or onboardings running on the server: retry later (the client
+    retries these with backoff unless told not to)."""
+
+
+class DeadlineExceeded(RpcError):
+    """The call's deadline (``timeout``) or the server's request limit passed."""
+
+
+class Unavailable(RpcError):
+    """The server cannot be reached (down, wrong address, TLS mismatch) or is shutting
+    down."""
+
+
+class Internal(RpcError):
+    """The server failed, e.g. on a damaged object in its store (the message names it)."""
+
+
+_BY_CODE: Dict[grpc.StatusCode, Type[RpcError]] = {
+    grpc.StatusCode.INVALID_ARGUMENT: InvalidArgument,
+    # The server rewrites oversized messages to INVALID_ARGUMENT; a client-side limit
+    # still says OUT_OF_RANGE.
+    grpc.StatusCode.OUT_OF_RANGE: InvalidArgument,
+    grpc.StatusCode.NOT_FOUND: NotFound,
+    grpc.StatusCode.ALREADY_EXISTS: AlreadyExists,
+    grpc.StatusCode.UNAUTHENTICATED: Unauthenticated,
+    grpc.StatusCode.RESOURCE_EXHAUSTED: ResourceExhausted,
+    grpc.StatusCode.DEADLINE_EXCEEDED: DeadlineExceeded,
+    grpc.StatusCode.UNAVAILABLE: Unavailable,
+    grpc.StatusCode.INTERNAL: Internal,
+}
+
+
+def error_class(code: grpc.StatusCode) -> Type[RpcError]:
+    """The exception class for a status code (:class:`RpcError` itself for the rest)."""
+    return _BY_CODE.get(code, RpcError)
+
+
+def from_grpc(err: grpc.RpcError, method: str = "") -> RpcError:
+    """Turns grpcio's exception (sync or aio) into ours."""
+    code_fn = getattr(err, "code", None)
+    details_fn = getattr(err, "details", None)
+    code = code_fn() if callable(code_fn) else grpc.StatusCode.UNKNOWN
+    message = details_fn() if callable(details_fn) else str(err)
+    if not isinstance(code, grpc.StatusCode):
+        code = grpc.StatusCode.UNKNOWN
+    return error_class(code)(code, message or "", method)
+
+
+class OperationFailed(B2TFPoseError):
+    """An onboarding ended without an object; ``status`` is its final state and
+    ``status.error`` says why."""
+
+    def __init__(self, status: "OperationStatus") -> None:
+        self.status = status
+        why = status.error or status.state
+        super().__init__(f"onboarding {status.object_id!r} (operation {status.id}) ended {status.state}: {why}")
+
+
+class OperationCancelled(OperationFailed):
+    """The onboarding was cancelled; nothing of it is stored."""
+
+
+__all__ = [
+    "B2TFPoseError",
+    "RpcError",
+    "InvalidArgument",
+    "NotFound",
+    "AlreadyExists",
+    "Unauthenticated",
+    "ResourceExhausted",
+    "DeadlineExceeded",
+    "Unavailable",
+    "Internal",
+    "OperationFailed",
+    "OperationCancelled",
+    "error_class",
+    "from_grpc",
+]

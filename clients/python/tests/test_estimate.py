@@ -1,0 +1,138 @@
+"""Estimating through the client from the inputs users hold (numpy RGB / BGR, encoded
+bytes, paths; masks, RLE, boxes; K in both forms), compared with `b2tf estimate` on the
+same inputs and with the truth the scene was rendered at."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+import b2tfpose
+from b2tfpose.masks import compress_rle, mask_to_rle, rle_to_mask
+from conftest import SAMPLE_ID, Onboarded, Scene, assert_same_pose
+
+
+@pytest.fixture(scope="module")
+def rgb_result(client: b2tfpose.Client, onboarded: Onboarded, scene: Scene) -> b2tfpose.Result:
+    results = client.estimate(scene.rgb, scene.K, [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)])
+    assert len(results) == 1 and results.total_ms > 0
+    return results[0]
+
+
+def test_numpy_rgb_with_mask_matches_the_cli(rgb_result: b2tfpose.Result, cli_mask_pose: b2tfpose.Pose, scene: Scene) -> None:
+    r = rgb_result
+    assert r.ok and r.pose is not None and r.object_id == SAMPLE_ID and r.instance == 0 and r.detection_index == 0
+    assert r.reason is None and 0.5 < r.score <= 1.0
+    assert_same_pose(r.pose, cli_mask_pose)
+    # And it is right: the scene was rendered at the truth.
+    assert r.pose.rotation_error_deg(scene.truth) < 3.0 and r.pose.translation_error_m(scene.truth) < 0.01
+    assert {"retrieval", "matching", "pnp", "total"} <= set(r.timings_ms) and all(v >= 0 for v in r.timings_ms.values())
+    assert isinstance(r.diagnostics, list) and r.diagnostics[0]["inliers"] > 0
+
+
+def test_bgr_frame_gives_the_same_pose(client: b2tfpose.Client, rgb_result: b2tfpose.Result, scene: Scene) -> None:
+    [r] = client.estimate(scene.bgr, scene.K, [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask.astype(np.uint8) * 255)], bgr=True)
+    assert r.pose is not None and rgb_result.pose is not None
+    assert_same_pose(r.pose, rgb_result.pose)
+    # Without bgr=True the colours are swapped: the server sees another image.
+    [swapped] = client.estimate(scene.bgr, scene.K, [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)])
+    assert swapped.diagnostics != r.diagnostics
+
+
+@pytest.mark.parametrize("form", ["rle", "compressed-rle", "dict", "png-path", "png-bytes"])
+def test_mask_forms_agree(client: b2tfpose.Client, rgb_result: b2tfpose.Result, scene: Scene, form: str) -> None:
+    rle = mask_to_rle(scene.mask)
+    assert np.array_equal(rle_to_mask(rle), scene.mask) and np.array_equal(rle_to_mask(compress_rle(rle)), scene.mask)
+    det = {
+        "rle": b2tfpose.Detection(SAMPLE_ID, rle=rle),
+        "compressed-rle": b2tfpose.Detection(SAMPLE_ID, rle=compress_rle(rle)),
+        "dict": {"object_id": SAMPLE_ID, "segmentation": rle, "score": 1.0},
+        "png-path": b2tfpose.Detection(SAMPLE_ID, mask=scene.mask_path),
+        "png-bytes": b2tfpose.Detection(SAMPLE_ID, mask=scene.mask_path.read_bytes()),
+    }[form]
+    [r] = client.estimate(scene.rgb, scene.K, [det])
+    assert r.pose is not None and rgb_result.pose is not None
+    assert_same_pose(r.pose, rgb_result.pose)
+
+
+def test_encoded_image_path_and_fx_fy_cx_cy(client: b2tfpose.Client, rgb_result: b2tfpose.Result, scene: Scene) -> None:
+    fx, fy, cx, cy = scene.K[0, 0], scene.K[1, 1], scene.K[0, 2], scene.K[1, 2]
+    for image in (scene.rgb_path, str(scene.rgb_path), scene.rgb_path.read_bytes()):
+        [r] = client.estimate(image, (fx, fy, cx, cy), [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)])
+        assert r.pose is not None and rgb_result.pose is not None
+        assert_same_pose(r.pose, rgb_result.pose)
+    ok, jpg = cv2.imencode(".jpg", scene.bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    assert ok
+    [r] = client.estimate(jpg.tobytes(), scene.K, [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)])
+    assert r.pose is not None and r.pose.rotation_error_deg(scene.truth) < 5 and r.pose.translation_error_m(scene.truth) < 0.02
+
+
+def test_box_only_matches_the_cli(client: b2tfpose.Client, scene: Scene, cli_box_pose: b2tfpose.Pose) -> None:
+    [r] = client.estimate(scene.rgb, scene.K, [{"object_id": SAMPLE_ID, "bbox": scene.box}])
+    assert r.pose is not None
+    assert_same_pose(r.pose, cli_box_pose)
+    assert r.pose.rotation_error_deg(scene.truth) < 5 and r.pose.translation_error_m(scene.truth) < 0.02
+
+
+def test_options_reach_the_server(client: b2tfpose.Client, rgb_result: b2tfpose.Result, scene: Scene) -> None:
+    [r] = client.estimate(scene.rgb, scene.K, [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)], rrc=False, refiner="none", verify=False, k=20)
+    d = r.diagnostics[0]
+    assert r.pose is not None and d["rrc_used"] is False and d["retrieved_templates"] == 20 and "verified" not in d
+    assert r.pose.rotation_error_deg(scene.truth) < 10
+
+
+def test_two_detections_one_instance_and_a_low_score_mask(client: b2tfpose.Client, scene: Scene) -> None:
+    empty_corner = np.zeros_like(scene.mask)
+    empty_corner[:20, :20] = True
+    dets = [b2tfpose.Detection(SAMPLE_ID, mask=empty_corner, score=0.2), b2tfpose.Detection(SAMPLE_ID, mask=scene.mask, score=0.9)]
+    results = client.estimate(scene.rgb, scene.K, dets, instances_per_object=1)
+    assert len(results) == 1
+    best = results.best(SAMPLE_ID)
+    assert best is not None and best.detection_index == 1 and best.pose is not None
+    assert best.pose.rotation_error_deg(scene.truth) < 3
+
+
+def test_pose_forms(rgb_result: b2tfpose.Result) -> None:
+    p = rgb_result.pose
+    assert p is not None
+    assert np.allclose(p.R @ p.R.T, np.eye(3), atol=1e-9) and np.isclose(np.linalg.det(p.R), 1.0)
+    assert p.T.shape == (4, 4) and np.allclose(p.T[:3, :3], p.R) and np.allclose(p.T[:3, 3], p.t) and np.allclose(p.T[3], [0, 0, 0, 1])
+    R_cv, _ = cv2.Rodrigues(p.rvec)
+    assert np.allclose(R_cv, p.R, atol=1e-9)
+    rvec_cv, _ = cv2.Rodrigues(p.R)
+    assert np.allclose(rvec_cv, p.rvec, atol=1e-9) and p.tvec.shape == (3, 1) and np.allclose(p.tvec.ravel(), p.t)
+    w, x, y, z = p.quaternion_wxyz
+    Rq = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    assert np.allclose(Rq, p.R, atol=1e-9) and w >= 0
+    assert np.allclose(b2tfpose.Pose.from_matrix(p.T).T, p.T) and np.allclose(b2tfpose.Pose.from_rvec_tvec(p.rvec, p.tvec).R, p.R)
+    assert np.allclose((p @ p.inverse()).T, np.eye(4), atol=1e-12)
+    # OpenCV projects with rvec / tvec exactly as the pose transforms.
+    pts = np.array([[0.05, 0.03, 0.08], [-0.05, 0.0, 0.0]])
+    K = np.array([[500.0, 0, 159.5], [0, 500.0, 119.5], [0, 0, 1]])
+    uv_cv, _ = cv2.projectPoints(pts, p.rvec, p.tvec, K, None)
+    cam = p.transform(pts)
+    uv = (cam @ K.T)[:, :2] / cam[:, 2:]
+    assert np.allclose(uv_cv.reshape(-1, 2), uv, atol=1e-6)
+
+
+def test_bad_inputs_are_refused_before_sending(client: b2tfpose.Client, scene: Scene) -> None:
+    det = [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)]
+    with pytest.raises(ValueError, match="uint8"):
+        client.estimate(scene.rgb.astype(np.float32), scene.K, det)
+    with pytest.raises(ValueError, match="K"):
+        client.estimate(scene.rgb, [1, 2, 3], det)
+    with pytest.raises(ValueError, match="mask is"):
+        client.estimate(scene.rgb, scene.K, [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask[:10])])
+    with pytest.raises(ValueError, match="at least one"):
+        client.estimate(scene.rgb, scene.K, [])
+    with pytest.raises(ValueError, match="refiner"):
+        client.estimate(scene.rgb, scene.K, det, refiner="magic")
+    with pytest.raises(ValueError, match="mask, an rle or a box"):
+        b2tfpose.Detection(SAMPLE_ID)
