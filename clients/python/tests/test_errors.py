@@ -118,6 +118,20 @@ def test_unauthenticated(work: Path, store: str, onboarded: Onboarded) -> None:
         s.stop()
 
 
+def test_permission_denied_on_a_read_only_replica(work: Path, store: str, onboarded: Onboarded, sample_obj: Path) -> None:
+    s = Server(store, work / "read-only.log", ["--read-only"])
+    try:
+        with b2tfpose.Client(s.address) as c:
+            assert c.get_object(SAMPLE_ID).id == SAMPLE_ID  # reads are served
+            with pytest.raises(b2tfpose.PermissionDenied, match="read-only"):
+                c.onboard("never", sample_obj, units="m", level=0, in_plane=1)
+            with pytest.raises(b2tfpose.PermissionDenied, match="read-only"):
+                c.delete_object(SAMPLE_ID)
+            assert c.get_object(SAMPLE_ID).id == SAMPLE_ID
+    finally:
+        s.stop()
+
+
 def test_internal_from_a_damaged_object(client: b2tfpose.Client, sample_obj: Path, work: Path, scene: Scene) -> None:
     client.onboard("damaged-box", sample_obj, units="m", level=0, in_plane=1, replace=True, retry=True)
     tensors = work / "store" / "damaged-box" / "tensors.safetensors"  # the dir:// store's layout
@@ -137,12 +151,13 @@ def test_operation_failed(client: b2tfpose.Client) -> None:
 
 
 def test_hierarchy_and_mapping() -> None:
-    classes = [b2tfpose.InvalidArgument, b2tfpose.NotFound, b2tfpose.AlreadyExists, b2tfpose.Unauthenticated, b2tfpose.ResourceExhausted, b2tfpose.DeadlineExceeded, b2tfpose.Unavailable, b2tfpose.Internal]
+    classes = [b2tfpose.InvalidArgument, b2tfpose.NotFound, b2tfpose.PermissionDenied, b2tfpose.AlreadyExists, b2tfpose.Unauthenticated, b2tfpose.ResourceExhausted, b2tfpose.DeadlineExceeded, b2tfpose.Unavailable, b2tfpose.Internal]
     for cls in classes:
         assert issubclass(cls, b2tfpose.RpcError) and issubclass(cls, b2tfpose.B2TFPoseError)
     assert issubclass(b2tfpose.OperationCancelled, b2tfpose.OperationFailed) and issubclass(b2tfpose.OperationFailed, b2tfpose.B2TFPoseError)
     assert error_class(grpc.StatusCode.INTERNAL) is b2tfpose.Internal
-    assert error_class(grpc.StatusCode.PERMISSION_DENIED) is b2tfpose.RpcError  # never sent by the service
+    assert error_class(grpc.StatusCode.PERMISSION_DENIED) is b2tfpose.PermissionDenied
+    assert error_class(grpc.StatusCode.DATA_LOSS) is b2tfpose.RpcError  # never sent by the service
 
 
 def test_retry_schedule() -> None:

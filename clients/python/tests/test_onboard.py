@@ -112,6 +112,22 @@ def test_list_get_delete(client: b2tfpose.Client, onboarded: Onboarded, sample_o
         client.delete_object("to-delete")
 
 
+def test_pca_settings(client: b2tfpose.Client, sample_obj: Path) -> None:
+    from b2tfpose._requests import pca_fields
+
+    assert pca_fields(None) == pca_fields("auto") == {"pca": 0}
+    assert pca_fields("off") == {"full_descriptors": True} and pca_fields(24) == {"pca": 24}
+    for bad in (0, -1, True, "half", 2.5):
+        with pytest.raises(ValueError, match="pca must be"):
+            pca_fields(bad)  # type: ignore[arg-type]
+    info = client.onboard("pca-off", sample_obj, units="m", level=0, in_plane=1, pca="off", replace=True, retry=True)
+    assert isinstance(info, b2tfpose.ObjectInfo) and info.id == "pca-off"
+    client.delete_object("pca-off")
+    # The embedded backbone's descriptors have 64 values: 65 components cannot be kept.
+    with pytest.raises(b2tfpose.InvalidArgument, match="65 components"):
+        client.onboard("pca-65", sample_obj, units="m", level=0, in_plane=1, pca=65)
+
+
 def test_health(client: b2tfpose.Client) -> None:
     assert client.health() == "SERVING"
     assert client.health("") == "SERVING"

@@ -4,7 +4,7 @@ the same."""
 
 from __future__ import annotations
 
-from typing import Callable, Mapping, Optional, Sequence
+from typing import Any, Callable, Dict, Literal, Mapping, Optional, Sequence, Union
 
 from ._convert import DetectionInput, ImageInput, IntrinsicsInput, detection_message, image_message, intrinsics_message
 from ._mesh import MeshInput, mesh_message
@@ -13,8 +13,22 @@ from .errors import OperationCancelled, OperationFailed
 from .v1 import pose_service_pb2 as pb
 
 ProgressCallback = Callable[[OperationStatus], None]
+PcaSetting = Union[None, int, Literal["auto", "off"]]
 
 REFINERS = ("none", "silhouette-depth", "contour")
+
+
+def pca_fields(pca: PcaSetting) -> Dict[str, Any]:
+    """The proto's two PCA fields for ``pca``: None / "auto" (the server's default: only
+    descriptors wider than 256 values are compressed), "off" (every dimension kept) or a
+    number of components."""
+    if pca is None or pca == "auto":
+        return {"pca": 0}
+    if pca == "off":
+        return {"full_descriptors": True}
+    if isinstance(pca, bool) or not isinstance(pca, int) or pca < 1:
+        raise ValueError(f"pca must be 'auto', 'off' or a number of components >= 1, not {pca!r}")
+    return {"pca": pca}
 
 
 def onboard_request(
@@ -24,12 +38,12 @@ def onboard_request(
     units: Optional[str],
     level: Optional[int],
     in_plane: Optional[int],
-    pca: Optional[int],
+    pca: PcaSetting,
     replace: bool,
     format: Optional[str],
     resources: Optional[Mapping[str, bytes]],
 ) -> pb.OnboardRequest:
-    options = pb.OnboardOptions(in_plane=in_plane or 0, pca=pca or 0)
+    options = pb.OnboardOptions(in_plane=in_plane or 0, **pca_fields(pca))
     if level is not None:
         options.level = level  # optional field: 0 is a real level, unset is the default
     return pb.OnboardRequest(object_id=object_id, mesh=mesh_message(mesh, units, format, resources), options=options, replace=replace)

@@ -13,7 +13,7 @@ from . import _requests
 from ._channel import HEALTH_CHECK, SERVICE, CaCert, Settings, decode_health_response, encode_health_request, identity
 from ._convert import DetectionInput, ImageInput, IntrinsicsInput
 from ._mesh import MeshInput
-from ._requests import ProgressCallback, ProgressFilter, finish
+from ._requests import PcaSetting, ProgressCallback, ProgressFilter, finish
 from ._retry import Attempts, RetryArg, RetryPolicy, resolve
 from ._types import Estimates, ObjectInfo, OperationStatus
 from .errors import DeadlineExceeded, from_grpc
@@ -92,14 +92,14 @@ class AsyncClient:
     @overload
     async def onboard(
         self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
-        pca: Optional[int] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
+        pca: PcaSetting = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
         progress: Optional[ProgressCallback] = ..., wait: Literal[True] = ..., timeout: Optional[float] = ..., retry: RetryArg = ...,
     ) -> ObjectInfo: ...
 
     @overload
     async def onboard(
         self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
-        pca: Optional[int] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
+        pca: PcaSetting = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
         progress: Optional[ProgressCallback] = ..., wait: Literal[False], timeout: Optional[float] = ..., retry: RetryArg = ...,
     ) -> AsyncOperation: ...
 
@@ -111,7 +111,7 @@ class AsyncClient:
         units: Optional[str] = None,
         level: Optional[int] = None,
         in_plane: Optional[int] = None,
-        pca: Optional[int] = None,
+        pca: PcaSetting = None,
         replace: bool = False,
         format: Optional[str] = None,
         resources: Optional[Mapping[str, bytes]] = None,

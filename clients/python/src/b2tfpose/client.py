@@ -11,7 +11,7 @@ from . import _requests
 from ._channel import HEALTH_CHECK, SERVICE, CaCert, Settings, decode_health_response, encode_health_request, identity
 from ._convert import DetectionInput, ImageInput, IntrinsicsInput
 from ._mesh import MeshInput
-from ._requests import ProgressCallback, ProgressFilter, finish
+from ._requests import PcaSetting, ProgressCallback, ProgressFilter, finish
 from ._retry import Attempts, RetryArg, RetryPolicy, resolve
 from ._types import Estimates, ObjectInfo, OperationStatus
 from .errors import DeadlineExceeded, from_grpc
@@ -104,14 +104,14 @@ class Client:
     @overload
     def onboard(
         self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
-        pca: Optional[int] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
+        pca: PcaSetting = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
         progress: Optional[ProgressCallback] = ..., wait: Literal[True] = ..., timeout: Optional[float] = ..., retry: RetryArg = ...,
     ) -> ObjectInfo: ...
 
     @overload
     def onboard(
         self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
-        pca: Optional[int] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
+        pca: PcaSetting = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
         progress: Optional[ProgressCallback] = ..., wait: Literal[False], timeout: Optional[float] = ..., retry: RetryArg = ...,
     ) -> Operation: ...
 
@@ -123,7 +123,7 @@ class Client:
         units: Optional[str] = None,
         level: Optional[int] = None,
         in_plane: Optional[int] = None,
-        pca: Optional[int] = None,
+        pca: PcaSetting = None,
         replace: bool = False,
         format: Optional[str] = None,
         resources: Optional[Mapping[str, bytes]] = None,
@@ -138,7 +138,8 @@ class Client:
         bytes (with ``format`` and ``resources`` {name: bytes}), or a trimesh object.
         ``units``: the mesh's length unit, "mm", "cm" or "m" (required but for glTF).
         ``level``: template viewpoints, 0-3 (12, 42, 162, 642; server default 2);
-        ``in_plane``: rotations per viewpoint; ``pca``: descriptor components kept.
+        ``in_plane``: rotations per viewpoint; ``pca``: PCA of the patch descriptors, "auto" (None: the server's default,
+        compressing only descriptors wider than 256 values), "off" or a component count.
         Waits for the object (``progress`` gets each state; ``timeout`` bounds the wait,
         None: no limit), or with ``wait=False`` returns the :class:`Operation` at once.
         """

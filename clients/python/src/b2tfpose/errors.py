@@ -36,6 +36,11 @@ class InvalidArgument(RpcError):
     """A field of the request is invalid; the message names it."""
 
 
+class PermissionDenied(RpcError):
+    """The server refuses this kind of call: onboard and delete on a read-only replica
+    (``b2tf serve --read-only``); the message says where to do it instead."""
+
+
 class NotFound(RpcError):
     """Unknown object or operation."""
 
@@ -72,6 +77,7 @@ _BY_CODE: Dict[grpc.StatusCode, Type[RpcError]] = {
     # still says OUT_OF_RANGE.
     grpc.StatusCode.OUT_OF_RANGE: InvalidArgument,
     grpc.StatusCode.NOT_FOUND: NotFound,
+    grpc.StatusCode.PERMISSION_DENIED: PermissionDenied,
     grpc.StatusCode.ALREADY_EXISTS: AlreadyExists,
     grpc.StatusCode.UNAUTHENTICATED: Unauthenticated,
     grpc.StatusCode.RESOURCE_EXHAUSTED: ResourceExhausted,
