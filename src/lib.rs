@@ -4,6 +4,7 @@
 pub mod bop;
 pub mod masks;
 pub mod store;
+pub mod track;
 pub mod cli;
 pub mod estimate;
 pub mod eval;

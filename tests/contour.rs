@@ -70,7 +70,7 @@ fn refiner_pulls_perturbed_poses_back_and_keeps_the_true_one() {
     for seed in 1..=4u64 {
         let s = scene(seed);
         let inst = &s.instances[0];
-        let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None };
+        let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false };
         // The truth stays where it is, within what the outline of a partly hidden box pins
         // down (a face-on tilt of a few degrees barely changes it).
         let kept = refiner.refine(&ctx, inst.pose).unwrap();
@@ -110,7 +110,7 @@ fn wrong_or_empty_masks_change_nothing() {
         }
     }
     for (name, mask) in [("empty", &empty), ("elsewhere", &elsewhere)] {
-        let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask, unknown: None };
+        let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask, unknown: None, mask_is_probability: false };
         let r = refiner.refine(&ctx, start).unwrap();
         assert_eq!(r.pose, start, "{name} mask moved the pose");
         assert!(!r.report.moved && r.report.note.as_deref().unwrap_or("").contains("no improvement"), "{name}: {:?}", r.report);

@@ -41,6 +41,8 @@ pub enum BenchCommand {
     /// What descriptor size costs: mutual-NN matching (GEMM) per query against pools of
     /// template patches, and the PCA's fit and projection.
     Matching(super::bench_matching::BenchMatchingArgs),
+    /// The tracker on generated sequences: ms per frame, MSSD recall, losses.
+    Track(super::bench_track::BenchTrackArgs),
     /// Renders per second.
     Render {
         #[arg(long)]
@@ -80,6 +82,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Backbone(a) => super::bench_backbone::run(a),
         BenchCommand::Store(a) => super::bench_store::run(a),
         BenchCommand::Matching(a) => super::bench_matching::run(a),
+        BenchCommand::Track(a) => super::bench_track::run(a),
         BenchCommand::Serve(a) => super::bench_serve::run(a),
         BenchCommand::Render { mesh, units, size, count } => render(mesh_or_box(mesh, units)?, size, count),
         BenchCommand::Onboard { data, default_units, store, filter } => onboard_table(&data, default_units, store, filter),

@@ -9,6 +9,7 @@ pub mod bench_refine;
 pub mod bench_scenes;
 pub mod bench_serve;
 pub mod bench_store;
+pub mod bench_track;
 pub mod bop_cmd;
 pub mod bop_eval_cmd;
 pub mod camera_file;

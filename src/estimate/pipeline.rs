@@ -232,7 +232,7 @@ impl Estimator {
             let mut h = Hypothesis { mask_index: mi, detector_score: detections[mi].score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() };
             let retrieved = self.pose_for_mask(model, q, k, cfg, &mut h, &mut timings)?;
             if let Some(p) = h.pose {
-                let ctx = RefineContext { model, image, intrinsics: k, mask: &detections[mi].mask, unknown: others };
+                let ctx = RefineContext { model, image, intrinsics: k, mask: &detections[mi].mask, unknown: others, mask_is_probability: false };
                 let t = Instant::now();
                 if cfg.verify.enabled {
                     h.verified = self.verify(&ctx, p, &retrieved, &q.crop_box, cfg)?;

@@ -49,6 +49,9 @@ pub struct RefineContext<'a> {
     /// Pixels where the mask's outline says nothing about this object (e.g. other
     /// detections that may hide it); `None`: the mask holds everywhere.
     pub unknown: Option<&'a GrayImage>,
+    /// The mask holds foreground probabilities (value / 255, e.g. from colour histograms
+    /// while tracking) rather than object / not object (any non-zero value).
+    pub mask_is_probability: bool,
 }
 
 /// What a refiner did to one hypothesis.

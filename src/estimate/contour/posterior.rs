@@ -11,11 +11,19 @@ pub struct Posterior<'a> {
     unknown: Option<&'a GrayImage>,
     /// Probability given to a background mask pixel (1 − this to an object pixel).
     softness: f32,
+    /// The mask's values are probabilities (value / 255), kept within the softness bounds.
+    graded: bool,
 }
 
 impl<'a> Posterior<'a> {
     pub fn new(mask: &'a GrayImage, unknown: Option<&'a GrayImage>) -> Self {
-        Self { mask, unknown: unknown.filter(|u| u.dimensions() == mask.dimensions()), softness: 0.1 }
+        Self { mask, unknown: unknown.filter(|u| u.dimensions() == mask.dimensions()), softness: 0.1, graded: false }
+    }
+
+    /// From an image of foreground probabilities (0 = surely background, 255 = surely the
+    /// object), e.g. a tracker's colour posterior.
+    pub fn probabilities(probs: &'a GrayImage) -> Self {
+        Self { mask: probs, unknown: None, softness: 0.1, graded: true }
     }
 
     /// Foreground probability at image point (u, v) (pixel centres at integers),
@@ -37,6 +45,10 @@ impl<'a> Posterior<'a> {
             return 0.5;
         }
         let (x, y) = (x as u32, y as u32);
+        if self.graded {
+            let p = self.mask.get_pixel(x, y)[0] as f32 / 255.0;
+            return p.clamp(self.softness, 1.0 - self.softness);
+        }
         if self.mask.get_pixel(x, y)[0] > 0 {
             return 1.0 - self.softness;
         }
@@ -66,5 +78,10 @@ mod tests {
         assert_eq!(p.foreground(2.0, 2.0), 0.5);
         assert_eq!(p.foreground(-1.0, 2.0), 0.5);
         assert_eq!(p.foreground(4.0, 2.0), 0.5);
+        // Graded: the value is the probability, within the same bounds.
+        m.put_pixel(2, 1, image::Luma([128]));
+        let g = Posterior::probabilities(&m);
+        assert_eq!((g.foreground(1.0, 1.0), g.foreground(0.0, 0.0), g.foreground(-1.0, 0.0)), (0.9, 0.1, 0.5));
+        assert!((g.foreground(2.0, 1.0) - 128.0 / 255.0).abs() < 1e-6);
     }
 }

@@ -103,7 +103,7 @@ impl ContourRefiner {
     /// stored without one), the object centre and the mask's posterior.
     fn inputs<'a>(&self, ctx: &RefineContext<'a>) -> Result<(Arc<ContourModel>, Vector3<f64>, Posterior<'a>), String> {
         let cm = ctx.model.contour_model_or_build(&self.renderer).map_err(|e| e.to_string())?;
-        Ok((cm, Vector3::from(ctx.model.mesh.bbox_center()), Posterior::new(ctx.mask, ctx.unknown)))
+        Ok((cm, Vector3::from(ctx.model.mesh.bbox_center()), if ctx.mask_is_probability { Posterior::probabilities(ctx.mask) } else { Posterior::new(ctx.mask, ctx.unknown) }))
     }
 
     /// Agreement at `pose` on the verification scale for the object's size there.

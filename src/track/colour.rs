@@ -1,0 +1,134 @@
+//! The object's and the background's colour statistics, for tracking without a mask: two
+//! RGB histograms (16 levels per channel), learnt from the pixels under the object's
+//! silhouette and from a band around it, blended over time so that slow lighting changes
+//! are followed. A pixel's foreground probability is P(colour | object) /
+//! (P(colour | object) + P(colour | background)), the posterior of the region-based
+//! trackers (SRT3D, ICG), with equal priors.
+
+use image::{GrayImage, RgbImage};
+
+const LEVELS: usize = 16;
+const BINS: usize = LEVELS * LEVELS * LEVELS;
+
+/// A pixel window: x0, y0 inclusive, x1, y1 exclusive.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Window {
+    pub x0: u32,
+    pub y0: u32,
+    pub x1: u32,
+    pub y1: u32,
+}
+
+impl Window {
+    /// The square of half-side `half` around (u, v), clipped to a `width × height` image;
+    /// None when nothing of it is inside.
+    pub fn around(u: f64, v: f64, half: f64, width: u32, height: u32) -> Option<Self> {
+        let clip = |a: f64, n: u32| a.clamp(0.0, n as f64) as u32;
+        let w = Self { x0: clip(u - half, width), y0: clip(v - half, height), x1: clip((u + half).ceil(), width), y1: clip((v + half).ceil(), height) };
+        (w.x1 > w.x0 && w.y1 > w.y0).then_some(w)
+    }
+
+    fn pixels(&self) -> impl Iterator<Item = (u32, u32)> + '_ {
+        (self.y0..self.y1).flat_map(move |y| (self.x0..self.x1).map(move |x| (x, y)))
+    }
+}
+
+fn bin(p: &image::Rgb<u8>) -> usize {
+    let q = |c: u8| c as usize * LEVELS / 256;
+    (q(p[0]) * LEVELS + q(p[1])) * LEVELS + q(p[2])
+}
+
+#[derive(Clone)]
+pub struct ColourModel {
+    foreground: Vec<f32>,
+    background: Vec<f32>,
+    learnt: bool,
+}
+
+impl Default for ColourModel {
+    fn default() -> Self {
+        Self { foreground: vec![0.0; BINS], background: vec![0.0; BINS], learnt: false }
+    }
+}
+
+impl ColourModel {
+    /// Learns from `image` where `silhouette` (same size, non-zero on the object) covers
+    /// it (object) and from the rest of `window` (background), blending the new histograms
+    /// in with weight `rate` (1: replace; the first call always replaces). Returns false,
+    /// learning nothing, when either side has no pixel.
+    pub fn learn(&mut self, image: &RgbImage, silhouette: &GrayImage, window: Window, rate: f32) -> bool {
+        let (mut fg, mut bg) = (vec![0f32; BINS], vec![0f32; BINS]);
+        let (mut nf, mut nb) = (0usize, 0usize);
+        for (x, y) in window.pixels() {
+            let b = bin(image.get_pixel(x, y));
+            if silhouette.get_pixel(x, y)[0] > 0 {
+                fg[b] += 1.0;
+                nf += 1;
+            } else {
+                bg[b] += 1.0;
+                nb += 1;
+            }
+        }
+        if nf == 0 || nb == 0 {
+            return false;
+        }
+        let rate = if self.learnt { rate.clamp(0.0, 1.0) } else { 1.0 };
+        for (h, new, n) in [(&mut self.foreground, &fg, nf), (&mut self.background, &bg, nb)] {
+            for (old, &c) in h.iter_mut().zip(new.iter()) {
+                *old = (1.0 - rate) * *old + rate * c / n as f32;
+            }
+        }
+        self.learnt = true;
+        true
+    }
+
+    /// Foreground probability of one colour; 0.5 for colours neither side has seen.
+    pub fn probability(&self, p: &image::Rgb<u8>) -> f32 {
+        let b = bin(p);
+        let (f, g) = (self.foreground[b], self.background[b]);
+        // A floor of one count in ten thousand keeps unseen colours undecided rather than
+        // certain either way.
+        let floor = 1e-4;
+        (f + floor) / (f + g + 2.0 * floor)
+    }
+
+    /// An image of foreground probabilities (value / 255) inside `window`, 128 (undecided)
+    /// elsewhere.
+    pub fn probability_image(&self, image: &RgbImage, window: Window) -> GrayImage {
+        let mut out = GrayImage::from_pixel(image.width(), image.height(), image::Luma([128]));
+        for (x, y) in window.pixels() {
+            out.put_pixel(x, y, image::Luma([(self.probability(image.get_pixel(x, y)) * 255.0).round() as u8]));
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn learns_which_colours_are_the_object() {
+        // A red square on a blue-green background.
+        let mut img = RgbImage::from_pixel(40, 40, image::Rgb([20, 120, 200]));
+        let mut sil = GrayImage::new(40, 40);
+        for y in 10..30 {
+            for x in 10..30 {
+                img.put_pixel(x, y, image::Rgb([220, 30, 30]));
+                sil.put_pixel(x, y, image::Luma([255]));
+            }
+        }
+        let mut m = ColourModel::default();
+        let all = Window::around(20.0, 20.0, 20.0, 40, 40).unwrap();
+        assert!(m.learn(&img, &sil, all, 0.2));
+        assert!(m.probability(&image::Rgb([220, 30, 30])) > 0.99);
+        assert!(m.probability(&image::Rgb([20, 120, 200])) < 0.01);
+        assert!((m.probability(&image::Rgb([0, 255, 0])) - 0.5).abs() < 1e-6);
+        let probs = m.probability_image(&img, Window::around(20.0, 20.0, 5.0, 40, 40).unwrap());
+        assert_eq!((probs.get_pixel(20, 20)[0], probs.get_pixel(0, 0)[0]), (255, 128));
+        // Nothing to learn from a window without background.
+        let inner = Window::around(20.0, 20.0, 5.0, 40, 40).unwrap();
+        assert!(!m.learn(&img, &sil, inner, 0.2));
+        assert_eq!(Window::around(-50.0, -50.0, 5.0, 40, 40), None);
+    }
+}

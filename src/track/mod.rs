@@ -1,0 +1,9 @@
+//! Video: tracking an object's pose frame to frame with the contour refiner on a colour
+//! posterior (no retrieval or PnP per frame), for camera-rate poses once a first estimate
+//! is known.
+
+pub mod colour;
+pub mod sequence;
+pub mod tracker;
+
+pub use tracker::{TrackStep, Tracker, TrackerConfig};
