@@ -4,7 +4,8 @@
 # 1. starts the image's ENTRYPOINT (read from the image) with the store volume at /data,
 #    times start → /readyz 200, and runs the image's HEALTHCHECK command;
 # 2. onboards the sample box (multipart, as in the README) and estimates its pose in a
-#    rendered photo (both made by the image's own b2tf), checks the pose and /metrics;
+#    rendered photo (both made by the image's own b2tf), checks the pose and /metrics
+#    (and that the Grafana dashboard's queries name only metrics found there);
 # 3. stops it with SIGTERM (exit 0, "stopped") and checks the store on the volume (owned by
 #    the image's non-root user);
 # 4. starts it again with the volume read-only (a Kubernetes replica): ready, lists and
@@ -58,6 +59,7 @@ stop_server() {
     [ -n "$next" ] || { echo "no b2tf process under $runner" >&2; return 1; }
     pid="$next"
   done
+  echo "server memory: $(awk '/^VmRSS|^VmHWM/ { printf "%s %d MB  ", $1, $2 / 1024 }' "/proc/$pid/status")"
   kill -TERM "$pid"
   local rc=0
   wait "$runner" || rc=$?
@@ -91,8 +93,12 @@ while state="$(curl -sf "$base/v1/operations/$id" | python3 -c 'import json,sys;
 [ "$state" = succeeded ] || { curl -s "$base/v1/operations/$id" >&2; exit 1; }
 echo "onboarded box (252 templates) in $(since "$t0") s"
 estimate
-curl -sf "$base/metrics" | grep -q '^b2tf_requests_total{method="POST",route="/v1/estimate",status="200"} 1$' \
+curl -sf "$base/metrics" >"$work/metrics.txt"
+grep -q '^b2tf_requests_total{method="POST",route="/v1/estimate",status="200"} 1$' "$work/metrics.txt" \
   || { echo "/metrics lacks the estimate" >&2; exit 1; }
+[ -z "${SMOKE_METRICS_OUT:-}" ] || cp "$work/metrics.txt" "$SMOKE_METRICS_OUT"
+# The dashboard (deploy/monitoring) must only use metrics the server has.
+python3 "$here/dashboard_metrics.py" "$here/../monitoring/grafana/dashboards/b2tfpose.json" "$work/metrics.txt"
 stop_server
 
 # The store on the volume: written by the image's user, readable by b2tf outside the server.
