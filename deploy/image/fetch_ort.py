@@ -9,17 +9,24 @@ usage: fetch_ort.py URL SHA256 OUT_DIR
 import hashlib
 import os
 import shutil
+import ssl
 import sys
 import tempfile
 import urllib.request
 import zipfile
 
 
+# Behind a TLS-intercepting proxy the build passes the proxy's CA as the build secret build_ca.
+BUILD_CA = "/run/secrets/build_ca"
+
+
 def main(url: str, sha256: str, out_dir: str) -> None:
     os.makedirs(out_dir, exist_ok=True)
+    ca = BUILD_CA if os.path.isfile(BUILD_CA) and os.path.getsize(BUILD_CA) > 0 else None
+    tls = ssl.create_default_context(cafile=ca)
     with tempfile.TemporaryFile() as wheel:
         digest = hashlib.sha256()
-        with urllib.request.urlopen(url, timeout=300) as r:
+        with urllib.request.urlopen(url, timeout=300, context=tls) as r:
             while chunk := r.read(1 << 20):
                 digest.update(chunk)
                 wheel.write(chunk)

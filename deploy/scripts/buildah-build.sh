@@ -4,18 +4,20 @@
 #   buildah-build.sh CONTEXT TAG [FLAVOR=cpu|gpu] [BINARY_FROM=build|prebuilt] [buildah bud args…]
 # CONTEXT holds the repository's files (the repository root for a full build; deploy/test.sh
 # makes a small one with prebuilt/b2tf). Behind a TLS-intercepting proxy the host's CA
-# bundle ($SSL_CERT_FILE) is mounted for the build's downloads only, never copied into a layer.
+# bundle ($SSL_CERT_FILE) goes in as the build secret build_ca: mounted only for the steps
+# that download, never in a layer.
 set -euo pipefail
 context="$1" tag="$2" flavor="${3:-cpu}" binary_from="${4:-build}"
 shift $(( $# < 4 ? $# : 4 ))
 extra=()
 if [ -n "${SSL_CERT_FILE:-}" ] && [ -f "$SSL_CERT_FILE" ]; then
-  extra+=(--volume "$SSL_CERT_FILE:/run/host-ca.pem:ro" --build-arg SSL_CERT_FILE=/run/host-ca.pem)
+  extra+=(--secret "id=build_ca,src=$SSL_CERT_FILE")
 fi
 # chroot isolation: works unprivileged in CI containers; it shares the host's network.
 # FLAVOR and BINARY_FROM are passed even at their defaults: buildah 1.28 keeps the stages
 # an argument-named FROM needs only for arguments given on the command line.
-exec buildah bud --isolation chroot --pull=never --layers \
+# docker format: OCI image configs have no HEALTHCHECK (buildah would drop it).
+exec buildah bud --isolation chroot --pull=never --layers --format docker \
   --build-arg FLAVOR="$flavor" --build-arg BINARY_FROM="$binary_from" \
   --build-arg REVISION="$(git -C "$(dirname "$0")" rev-parse --short HEAD 2>/dev/null || echo unknown)" \
   "${extra[@]}" "$@" -f "$context/deploy/Dockerfile" -t "$tag" "$context"
