@@ -16,3 +16,4 @@ export B2TF_REQUIRE_GPU=1
 # setup.sh installed ONNX Runtime: the ONNX backbone's tests run, they do not skip.
 : "${B2TF_ORT_LIB:?scripts/env.sh found no ONNX Runtime library in .deps/python}"
 cargo test --all-targets
+bash deploy/test.sh

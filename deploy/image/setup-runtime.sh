@@ -7,6 +7,6 @@ apt-get update
 DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends "$@"
 apt-get clean
 rm -rf /var/lib/apt/lists/* /var/cache/apt/* /var/log/apt /var/log/dpkg.log
-groupadd --system --gid 10001 b2tf
-useradd --system --uid 10001 --gid b2tf --home-dir /data --no-create-home --shell /usr/sbin/nologin b2tf
+groupadd --gid 10001 b2tf
+useradd --uid 10001 --gid b2tf --home-dir /data --no-create-home --shell /usr/sbin/nologin b2tf
 install -d -o b2tf -g b2tf -m 0750 /data

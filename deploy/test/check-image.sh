@@ -24,12 +24,12 @@ grep -q '"B2TF_STORE=dir:///data/objects"' <<<"$env" || fail "store is not on /d
 ctr="$(buildah from --pull=never "$image")"
 trap 'buildah rm "$ctr" >/dev/null' EXIT
 in_ctr() { buildah run --isolation chroot "$ctr" -- "$@"; }
-buildah run --isolation chroot --user root "$ctr" -- sh -c '! ls -d /run/secrets/* /root/.cargo /usr/local/cargo /src 2>/dev/null' \
+buildah run --isolation chroot --user root "$ctr" -- sh -c '! ls -d /run/secrets/* /root/.cargo /usr/local/cargo /src 2>/dev/null' 2>/dev/null \
   || fail "build-time files left in the image"
 in_ctr b2tf --version >/dev/null || fail "b2tf does not run"
 # The library B2TF_ORT_LIB names loads; a provider's unmet libraries (CUDA on a stand-in
 # base) are listed: the real base must supply them.
-in_ctr sh -c 'ldd "$B2TF_ORT_LIB" | grep "not found"' && fail "ONNX Runtime library: libraries missing"
+in_ctr sh -c 'ldd "$B2TF_ORT_LIB" | grep "not found"' 2>/dev/null && fail "ONNX Runtime library: libraries missing"
 for lib in $(in_ctr sh -c 'ls /usr/local/lib/onnxruntime/libonnxruntime_providers_*.so'); do
   missing="$(in_ctr sh -c "ldd $lib | awk '/not found/ { print \$1 }' | tr '\n' ' '")"
   [ -z "$missing" ] || echo "  $(basename "$lib") needs from the base: $missing"

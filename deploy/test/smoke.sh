@@ -104,7 +104,7 @@ stop_server
 # The store on the volume: written by the image's user, readable by b2tf outside the server.
 [ -f "$data/objects/box/manifest.json" ] || { echo "no box in the store on the volume" >&2; ls -R "$data" >&2; exit 1; }
 [ "$(stat -c %u "$data/objects/box")" = "${uid%%:*}" ] || { echo "store not owned by uid ${uid%%:*}" >&2; exit 1; }
-buildah run --isolation chroot -v "$data:/data:ro" "$ctr" -- b2tf objects list --json --store dir:///data/objects | grep -q '"box"' \
+buildah run --isolation chroot -v "$data:/data:ro" "$ctr" -- b2tf objects list --json --store dir:///data/objects | grep '"box"' >/dev/null \
   || { echo "b2tf objects list does not show box" >&2; exit 1; }
 echo "store on the volume: objects/box, $(du -sh "$data/objects/box" | cut -f1), owned by uid ${uid%%:*}"
 
