@@ -26,8 +26,11 @@ binary="${B2TF_BINARY:-$(ls -t target/release/b2tf target/debug/b2tf 2>/dev/null
 [ -x "$binary" ] || { echo "no b2tf binary: build it first (cargo build) or set B2TF_BINARY" >&2; exit 1; }
 ctx="$(mktemp -d)"
 images=()
+# The test images go; so do the untagged layers they leave (a new binary each run), while
+# the base images stay for the next run.
 cleanup() {
   for i in "${images[@]}"; do buildah rmi "$i" >/dev/null 2>&1 || true; done
+  buildah rmi --prune >/dev/null 2>&1 || true
   rm -rf "$ctx"
 }
 trap cleanup EXIT

@@ -39,6 +39,8 @@ in_ctr() { buildah run --isolation chroot "${env_args[@]}" -v "$files:/files" "$
 
 # Starts the entrypoint in the background with the volume mounted as $1 ("rw" or "ro").
 start_server() {
+  # Another server on the port would answer for ours (SMOKE_HTTP_PORT / SMOKE_GRPC_PORT move them).
+  if curl -s -o /dev/null "$base/healthz"; then echo "port $http_port is taken" >&2; exit 1; fi
   local t0; t0="$(date +%s.%N)"
   buildah run --isolation chroot "${env_args[@]}" -v "$data:/data:$1" "$ctr" -- "${entrypoint[@]}" >"$work/server.log" 2>&1 &
   runner=$!
@@ -104,6 +106,7 @@ stop_server
 # The store on the volume: written by the image's user, readable by b2tf outside the server.
 [ -f "$data/objects/box/manifest.json" ] || { echo "no box in the store on the volume" >&2; ls -R "$data" >&2; exit 1; }
 [ "$(stat -c %u "$data/objects/box")" = "${uid%%:*}" ] || { echo "store not owned by uid ${uid%%:*}" >&2; exit 1; }
+[ "$(ls -A "$data")" = objects ] || { echo "the volume holds more than the store: $(ls -A "$data")" >&2; exit 1; }
 buildah run --isolation chroot -v "$data:/data:ro" "$ctr" -- b2tf objects list --json --store dir:///data/objects | grep '"box"' >/dev/null \
   || { echo "b2tf objects list does not show box" >&2; exit 1; }
 echo "store on the volume: objects/box, $(du -sh "$data/objects/box" | cut -f1), owned by uid ${uid%%:*}"
