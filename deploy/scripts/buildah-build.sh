@@ -16,8 +16,13 @@ fi
 # chroot isolation: works unprivileged in CI containers; it shares the host's network.
 # FLAVOR and BINARY_FROM are passed even at their defaults: buildah 1.28 keeps the stages
 # an argument-named FROM needs only for arguments given on the command line.
+# buildah 1.28 leaves the working container of the one-line alias stage (FROM
+# ${BINARY_FROM} AS binary) behind: remove the containers this build created.
+before="$(buildah containers --quiet --notruncate | sort)"
+leftovers() { comm -13 <(echo "$before") <(buildah containers --quiet --notruncate | sort); }
+trap 'leftovers | xargs -r buildah rm >/dev/null' EXIT
 # docker format: OCI image configs have no HEALTHCHECK (buildah would drop it).
-exec buildah bud --isolation chroot --pull=never --layers --format docker \
+buildah bud --isolation chroot --pull=never --layers --format docker \
   --build-arg FLAVOR="$flavor" --build-arg BINARY_FROM="$binary_from" \
   --build-arg REVISION="$(git -C "$(dirname "$0")" rev-parse --short HEAD 2>/dev/null || echo unknown)" \
   "${extra[@]}" "$@" -f "$context/deploy/Dockerfile" -t "$tag" "$context"
