@@ -9,7 +9,7 @@
 #    compiling inside the image takes ~10 min, deploy/scripts/build-image.sh does that),
 #    checked (user, entrypoint, ports, volume, HEALTHCHECK, labels, no secrets) and run:
 #    ready, onboard + estimate over loopback, SIGTERM, the store on the volume, a read-only
-#    replica (deploy/test/smoke.sh);
+#    replica (deploy/test/smoke.sh), and with a read-only root file system (readonly-root.sh);
 # 3. the GPU image's stages on the Debian base standing in for CUDA's (none can be pulled
 #    here), checked the same way; the CUDA libraries it lacks are listed.
 set -euo pipefail
@@ -47,6 +47,7 @@ bash deploy/scripts/buildah-build.sh "$ctx" localhost/b2tfpose:test-cpu cpu preb
 echo "CPU image built (runtime stages) in $(( $(date +%s) - t )) s"
 bash deploy/test/check-image.sh localhost/b2tfpose:test-cpu
 bash deploy/test/smoke.sh localhost/b2tfpose:test-cpu
+bash deploy/test/readonly-root.sh localhost/b2tfpose:test-cpu
 
 t="$(date +%s)"
 images+=(localhost/b2tfpose:test-gpu)
