@@ -9,7 +9,7 @@
 # 3. stops it with SIGTERM (exit 0, "stopped") and checks the store on the volume (owned by
 #    the image's non-root user);
 # 4. starts it again with the volume read-only (a Kubernetes replica): ready, lists and
-#    estimates the object, stops cleanly.
+#    estimates the object, cannot add one, stops cleanly.
 # buildah's chroot isolation shares the host network: the server listens on host loopback.
 set -euo pipefail
 image="$1"
@@ -115,5 +115,16 @@ echo "store on the volume: objects/box, $(du -sh "$data/objects/box" | cut -f1),
 start_server ro
 curl -sf "$base/v1/objects" | grep -q '"box"' || { echo "read-only replica does not list box" >&2; exit 1; }
 estimate
+# It cannot write the store: an onboarding is refused (server-side read-only mode) or fails
+# when it stores (the volume), and nothing is added.
+code="$(curl -s -o "$work/op.json" -w '%{http_code}' -F object_id=box2 -F units=m -F level=0 -F in_plane=1 \
+  -F mesh=@"$s/sample_box.obj" -F resource=@"$s/sample_box.mtl" -F resource=@"$s/sample_box_m0.png" "$base/v1/objects")"
+if [ "$code" = 202 ]; then
+  id="$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["id"])' "$work/op.json")"
+  while state="$(curl -sf "$base/v1/operations/$id" | python3 -c 'import json,sys; print(json.load(sys.stdin)["state"])')" && [ "$state" = running ]; do sleep 0.2; done
+  [ "$state" = failed ] || { echo "onboarding on a read-only replica: $state" >&2; exit 1; }
+fi
+[ "$(ls -A "$data/objects")" = box ] || { echo "the read-only replica wrote: $(ls -A "$data/objects")" >&2; exit 1; }
+echo "read-only replica: onboarding $([ "$code" = 202 ] && echo "accepted, then failed to store" || echo "refused ($code)"); store unchanged"
 stop_server
 echo "smoke test passed: $image"
