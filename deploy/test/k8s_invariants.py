@@ -22,10 +22,11 @@ def main(path: str) -> None:
     store = [v for v in pod["volumes"] if v.get("persistentVolumeClaim", {}).get("claimName") == "b2tf-store"]
     if not store or not store[0]["persistentVolumeClaim"].get("readOnly"):
         problems.append("Deployment: the b2tf-store claim is not mounted readOnly")
-    for c in pod["containers"]:
+    for c in pod.get("initContainers", []) + pod["containers"]:
         for m in c.get("volumeMounts", []):
             if store and m["name"] == store[0]["name"] and not m.get("readOnly"):
                 problems.append(f"Deployment container {c['name']}: store mount {m['mountPath']} is writable")
+    for c in pod["containers"]:
         # The drain: preStop, then running estimates up to the request timeout.
         pre_stop = int(c["lifecycle"]["preStop"]["exec"]["command"][-1])
         needed = pre_stop + float(config["B2TF_REQUEST_TIMEOUT_S"])
