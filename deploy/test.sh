@@ -22,7 +22,8 @@ bash deploy/scripts/install-tools.sh
 bash deploy/test/validate.sh .deps/deploy-tools
 bash deploy/scripts/build-base.sh
 
-binary="${B2TF_BINARY:-$(ls -t target/release/b2tf target/debug/b2tf 2>/dev/null | head -1)}"
+# (ls fails when one of the two is missing, as release is in CI: `|| true`.)
+binary="${B2TF_BINARY:-$( (ls -t target/release/b2tf target/debug/b2tf 2>/dev/null || true) | head -1)}"
 [ -x "$binary" ] || { echo "no b2tf binary: build it first (cargo build) or set B2TF_BINARY" >&2; exit 1; }
 ctx="$(mktemp -d)"
 images=()
