@@ -17,3 +17,4 @@ export B2TF_REQUIRE_GPU=1
 : "${B2TF_ORT_LIB:?scripts/env.sh found no ONNX Runtime library in .deps/python}"
 cargo test --all-targets
 bash clients/python/scripts/test.sh
+bash deploy/test.sh
