@@ -16,7 +16,7 @@ use std::sync::Arc;
 fn setup() -> (Arc<b2tfpose::onboard::ObjectModel>, Arc<RenderPool>, Intrinsics) {
     let pool = Arc::new(RenderPool::new(1, RendererConfig::default()).unwrap());
     let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap();
-    let cfg = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps: 1 }, render_size: 128, ..Default::default() };
+    let cfg = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps: 4 }, render_size: 128, ..Default::default() };
     let model = onboard("box", &textured_box([0.10, 0.06, 0.16], 3), &cfg, &backbone, &pool, &|_| {}).unwrap();
     (Arc::new(model), pool, Intrinsics::new(400.0, 400.0, 159.5, 119.5, 320, 240).unwrap())
 }
@@ -59,4 +59,66 @@ fn follows_a_moving_object_and_reports_a_jump_lost() {
     // A frame of another size than the intrinsics: refused, naming both.
     let err = tracker.track(&image::RgbImage::new(64, 48), &k).unwrap_err();
     assert!(err.contains("64×48") && err.contains("320×240"), "{err}");
+}
+
+/// `b2tf track` on a folder of generated frames: a full estimate from the first mask, then
+/// one JSON line per frame, close to the truth; bad folders and frames are named.
+#[test]
+fn track_command_writes_a_pose_per_frame() {
+    let (model, pool, k) = setup();
+    let dir = tempfile::tempdir().unwrap();
+    let store_url = format!("dir://{}", dir.path().join("objects").display());
+    b2tfpose::store::open(&store_url).unwrap().put(&model, false).unwrap();
+    let seq = generate(&model.mesh, &k, &SequenceConfig { frames: 12, seed: 5, ..Default::default() }, &pool).unwrap();
+    let frames = dir.path().join("frames");
+    std::fs::create_dir(&frames).unwrap();
+    for (i, f) in seq.iter().enumerate() {
+        f.rgb.save(frames.join(format!("{i:04}.png"))).unwrap();
+    }
+    let mask = dir.path().join("mask0.png");
+    pool.render(&model.mesh, &seq[0].truth, &k, &Default::default()).unwrap().mask.save(&mask).unwrap();
+    let camera = dir.path().join("camera.json");
+    std::fs::write(&camera, r#"{"K": [[400, 0, 159.5], [0, 400, 119.5], [0, 0, 1]], "resolution": [240, 320]}"#).unwrap();
+    let out = dir.path().join("poses.jsonl");
+    let run = |video: &std::path::Path| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_b2tf"))
+            .args(["track", "--object", "box", "--store", &store_url])
+            .arg("--video")
+            .arg(video)
+            .arg("--camera")
+            .arg(&camera)
+            .arg("--mask")
+            .arg(&mask)
+            .arg("--out")
+            .arg(&out)
+            .env("XDG_RUNTIME_DIR", "/tmp")
+            .output()
+            .unwrap()
+    };
+    let done = run(&frames);
+    assert!(done.status.success(), "{}", String::from_utf8_lossy(&done.stderr));
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(&out).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(lines.len(), seq.len());
+    assert_eq!(lines[0]["mode"], "estimated");
+    for (l, f) in lines.iter().zip(&seq) {
+        assert!(l["mode"] != "lost", "{l}");
+        let r: Vec<f64> = l["R"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let t: Vec<f64> = l["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let est = Pose::from_row_major(&r.try_into().unwrap(), [t[0], t[1], t[2]]);
+        let (rot, trans) = (rotation_error_deg(&est, &f.truth), translation_error_m(&est, &f.truth));
+        assert!(rot < 10.0 && trans < 0.02, "frame {}: {rot:.1}°, {:.1} mm", l["frame"], trans * 1e3);
+    }
+    assert!(lines.iter().filter(|l| l["mode"] == "tracked").count() >= 9, "{lines:?}");
+
+    // An empty folder, and a frame of another size than the camera's.
+    let empty = dir.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    let e = run(&empty);
+    assert!(!e.status.success() && String::from_utf8_lossy(&e.stderr).contains("no PNG or JPEG frames"));
+    image::RgbImage::new(64, 48).save(frames.join("0099.png")).unwrap();
+    let e = run(&frames);
+    let err = String::from_utf8_lossy(&e.stderr);
+    assert!(!e.status.success() && err.contains("0099.png") && err.contains("64×48"), "{err}");
+    // The frames before it were written.
+    assert_eq!(std::fs::read_to_string(&out).unwrap().lines().count(), seq.len());
 }

@@ -23,6 +23,7 @@ pub mod progress;
 pub mod render_cmd;
 pub mod serve_cmd;
 pub mod serve_config;
+pub mod track_cmd;
 
 use clap::{Parser, Subcommand};
 
@@ -41,6 +42,9 @@ pub enum Command {
     Demo(demo_cmd::DemoArgs),
     /// Estimate an object's pose in an image from one or more candidate masks.
     Estimate(estimate_cmd::EstimateArgs),
+    /// Poses through a video (a folder of frames): a full estimate from the first frame's
+    /// mask, then frame-to-frame tracking, re-initialised when lost; one JSON line per frame.
+    Track(track_cmd::TrackArgs),
     /// Render a mesh at a pose through a camera (RGB, depth and mask PNGs) for debugging.
     Render(render_cmd::RenderArgs),
     /// Write the generated sample object (a textured box, OBJ + MTL + PNG, metres).
@@ -69,6 +73,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Onboard(a) => onboard_cmd::run(a),
         Command::Demo(a) => demo_cmd::run(a),
         Command::Estimate(a) => estimate_cmd::run(a),
+        Command::Track(a) => track_cmd::run(a),
         Command::Render(a) => render_cmd::run(a),
         Command::Sample { out, seed } => {
             let mesh = crate::mesh::procedural::textured_box([0.10, 0.06, 0.16], seed);
