@@ -9,14 +9,7 @@ use std::sync::Arc;
 #[derive(clap::Args, Debug)]
 pub struct EstimateArgs {
     #[command(flatten)]
-    pub backbone: super::backbone_args::BackboneArgs,
-    /// Object store the object was onboarded into (default: $B2TF_STORE, else
-    /// sqlite://~/.local/share/b2tfpose/objects.db).
-    #[arg(long)]
-    pub store: Option<String>,
-    /// Id of the onboarded object.
-    #[arg(long)]
-    pub object: String,
+    pub target: super::object_args::StoredObjectArgs,
     /// RGB image (PNG or JPEG).
     #[arg(long)]
     pub image: PathBuf,
@@ -93,12 +86,11 @@ pub fn run(a: EstimateArgs) -> Result<()> {
     if a.scores.len() > given {
         bail!("{} --score values for {} --mask files and {} --box values", a.scores.len(), a.masks.len(), a.boxes.len());
     }
-    let store = crate::store::open(&a.store.clone().unwrap_or_else(crate::store::default_url))?;
-    let model = store.get(&a.object).with_context(|| format!("loading object {:?} from {}", a.object, store.url()))?;
+    let model = a.target.load()?;
     let image = image::open(&a.image).with_context(|| format!("cannot read image {}", a.image.display()))?.to_rgb8();
     let k = super::camera_file::load_camera(&a.camera)?;
     let detections = detections(&a, &image)?;
-    let backbone = a.backbone.open()?;
+    let backbone = a.target.backbone.open()?;
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
     let estimator = crate::estimate::Estimator::new(backbone, renderer.clone());
     let mut cfg = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: crate::estimate::verify::VerifyConfig { enabled: !a.no_verify, ..Default::default() }, ..Default::default() };

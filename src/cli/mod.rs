@@ -16,6 +16,7 @@ pub mod camera_file;
 pub mod demo_client;
 pub mod demo_cmd;
 pub mod estimate_cmd;
+pub mod object_args;
 pub mod objects_cmd;
 pub mod onboard_cmd;
 pub mod pose_arg;

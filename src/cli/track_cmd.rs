@@ -19,14 +19,7 @@ use std::time::Instant;
 #[derive(clap::Args, Debug)]
 pub struct TrackArgs {
     #[command(flatten)]
-    pub backbone: super::backbone_args::BackboneArgs,
-    /// Object store the object was onboarded into (default: $B2TF_STORE, else
-    /// sqlite://~/.local/share/b2tfpose/objects.db).
-    #[arg(long)]
-    pub store: Option<String>,
-    /// Id of the onboarded object.
-    #[arg(long)]
-    pub object: String,
+    pub target: super::object_args::StoredObjectArgs,
     /// Folder of frames (PNG or JPEG), taken in name order.
     #[arg(long)]
     pub video: PathBuf,
@@ -95,8 +88,7 @@ fn pose_line(frame: usize, file: &Path, pose: Option<&Pose>, quality: f64, mode:
 }
 
 pub fn run(a: TrackArgs) -> Result<()> {
-    let store = crate::store::open(&a.store.clone().unwrap_or_else(crate::store::default_url))?;
-    let model = Arc::new(store.get(&a.object).with_context(|| format!("loading object {:?} from {}", a.object, store.url()))?);
+    let model = Arc::new(a.target.load()?);
     let k = super::camera_file::load_camera(&a.camera)?;
     let frames = frame_paths(&a.video)?;
     let first = load_frame(&frames[0], &k)?;
@@ -105,7 +97,7 @@ pub fn run(a: TrackArgs) -> Result<()> {
         std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
     }
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
-    let estimator = Estimator::new(a.backbone.open()?, renderer.clone());
+    let estimator = Estimator::new(a.target.backbone.open()?, renderer.clone());
     let mut out = std::io::BufWriter::new(std::fs::File::create(&a.out).with_context(|| format!("writing {}", a.out.display()))?);
 
     let t = Instant::now();
