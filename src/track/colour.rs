@@ -28,6 +28,16 @@ impl Window {
         (w.x1 > w.x0 && w.y1 > w.y0).then_some(w)
     }
 
+    pub fn size(&self) -> (u32, u32) {
+        (self.x1 - self.x0, self.y1 - self.y0)
+    }
+
+    /// `k` seeing only this window: a render through it covers the window's pixels alone.
+    pub fn intrinsics(&self, k: &crate::geometry::Intrinsics) -> Option<crate::geometry::Intrinsics> {
+        let (w, h) = self.size();
+        crate::geometry::Intrinsics::new(k.fx, k.fy, k.cx - self.x0 as f64, k.cy - self.y0 as f64, w, h).ok()
+    }
+
     fn pixels(&self) -> impl Iterator<Item = (u32, u32)> + '_ {
         (self.y0..self.y1).flat_map(move |y| (self.x0..self.x1).map(move |x| (x, y)))
     }
@@ -52,16 +62,20 @@ impl Default for ColourModel {
 }
 
 impl ColourModel {
-    /// Learns from `image` where `silhouette` (same size, non-zero on the object) covers
-    /// it (object) and from the rest of `window` (background), blending the new histograms
-    /// in with weight `rate` (1: replace; the first call always replaces). Returns false,
-    /// learning nothing, when either side has no pixel.
+    /// Learns from the pixels of `image` in `window`: the object where `silhouette` (the
+    /// window's size, non-zero on the object; a render through the window alone) covers
+    /// them, the background elsewhere, blending the new histograms in with weight `rate`
+    /// (1: replace; the first call always replaces). Returns false, learning nothing, when
+    /// either side has no pixel or the silhouette is not the window's size.
     pub fn learn(&mut self, image: &RgbImage, silhouette: &GrayImage, window: Window, rate: f32) -> bool {
+        if silhouette.dimensions() != window.size() {
+            return false;
+        }
         let (mut fg, mut bg) = (vec![0f32; BINS], vec![0f32; BINS]);
         let (mut nf, mut nb) = (0usize, 0usize);
         for (x, y) in window.pixels() {
             let b = bin(image.get_pixel(x, y));
-            if silhouette.get_pixel(x, y)[0] > 0 {
+            if silhouette.get_pixel(x - window.x0, y - window.y0)[0] > 0 {
                 fg[b] += 1.0;
                 nf += 1;
             } else {
@@ -120,6 +134,7 @@ mod tests {
         }
         let mut m = ColourModel::default();
         let all = Window::around(20.0, 20.0, 20.0, 40, 40).unwrap();
+        assert!(!m.learn(&img, &GrayImage::new(10, 10), all, 0.2), "a silhouette of another size than the window");
         assert!(m.learn(&img, &sil, all, 0.2));
         assert!(m.probability(&image::Rgb([220, 30, 30])) > 0.99);
         assert!(m.probability(&image::Rgb([20, 120, 200])) < 0.01);
@@ -128,7 +143,11 @@ mod tests {
         assert_eq!((probs.get_pixel(20, 20)[0], probs.get_pixel(0, 0)[0]), (255, 128));
         // Nothing to learn from a window without background.
         let inner = Window::around(20.0, 20.0, 5.0, 40, 40).unwrap();
-        assert!(!m.learn(&img, &sil, inner, 0.2));
+        assert!(!m.learn(&img, &image::imageops::crop_imm(&sil, 15, 15, 10, 10).to_image(), inner, 0.2));
+        // A window's own intrinsics move the principal point to its corner.
+        let k = crate::geometry::Intrinsics::new(50.0, 50.0, 19.5, 19.5, 40, 40).unwrap();
+        let wk = inner.intrinsics(&k).unwrap();
+        assert_eq!((wk.cx, wk.cy, wk.width, wk.height), (4.5, 4.5, 10, 10));
         assert_eq!(Window::around(-50.0, -50.0, 5.0, 40, 40), None);
     }
 }

@@ -88,7 +88,9 @@ impl Tracker {
 
     fn relearn(&mut self, image: &RgbImage, k: &Intrinsics, pose: &Pose, rate: f32) -> Result<bool, String> {
         let Some(window) = self.window(k, pose, self.config.window_radii) else { return Ok(false) };
-        let silhouette = self.renderer.render(&self.model.mesh, pose, k, &RenderOptions::default()).map_err(|e| e.to_string())?.mask;
+        // Rendered through the window only: a fraction of the frame's pixels.
+        let Some(wk) = window.intrinsics(k) else { return Ok(false) };
+        let silhouette = self.renderer.render(&self.model.mesh, pose, &wk, &RenderOptions::default()).map_err(|e| e.to_string())?.mask;
         Ok(self.colours.learn(image, &silhouette, window, rate))
     }
 
