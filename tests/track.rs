@@ -33,7 +33,7 @@ fn follows_a_moving_object_and_reports_a_jump_lost() {
         if step.lost {
             // As a caller would: a full estimate (here the truth) starts the track again.
             lost += 1;
-            tracker = Tracker::new(model.clone(), pool.clone(), &f.rgb, &k, f.truth, TrackerConfig::default()).unwrap();
+            tracker.restart(&f.rgb, &k, f.truth).unwrap();
             continue;
         }
         rot.push(rotation_error_deg(&step.pose, &f.truth));

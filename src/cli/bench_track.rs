@@ -61,7 +61,7 @@ pub fn run(a: BenchTrackArgs) -> Result<()> {
                 frames += 1;
                 if step.lost {
                     lost += 1;
-                    tracker = Tracker::new(model.clone(), pool.clone(), &f.rgb, &k, f.truth, TrackerConfig::default()).map_err(anyhow::Error::msg)?;
+                    tracker.restart(&f.rgb, &k, f.truth).map_err(anyhow::Error::msg)?;
                     continue;
                 }
                 ms.push(t.elapsed().as_secs_f64() * 1e3);

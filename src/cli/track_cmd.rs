@@ -7,7 +7,6 @@ use super::estimate_cmd::{load_mask, write_overlay};
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
-use crate::track::colour::Window;
 use crate::track::{Tracker, TrackerConfig};
 use anyhow::{bail, Context, Result};
 use serde_json::json;
@@ -65,12 +64,10 @@ fn estimate(estimator: &Estimator, model: &ObjectModel, image: &image::RgbImage,
     Ok(r.pose)
 }
 
-/// The object segmented inside the box its last pose projects to (None when that box
+/// The object segmented inside the box around the tracker's last pose (None when that box
 /// leaves the image or nothing is segmented there).
-fn mask_near(model: &ObjectModel, image: &image::RgbImage, k: &Intrinsics, last: &Pose) -> Option<image::GrayImage> {
-    let c = last.transform_point(&nalgebra::Point3::from(nalgebra::Vector3::from(model.mesh.bbox_center())));
-    let uv = k.project(&c).filter(|_| c.z > 0.0)?;
-    let w = Window::around(uv.x, uv.y, 1.2 * k.fx.max(k.fy) * model.mesh.bounding_radius() / c.z, k.width, k.height)?;
+fn mask_near(tracker: &Tracker, image: &image::RgbImage, k: &Intrinsics) -> Option<image::GrayImage> {
+    let w = tracker.window(k, &tracker.pose(), 1.2)?;
     let b = [w.x0 as f64, w.y0 as f64, (w.x1 - w.x0) as f64, (w.y1 - w.y0) as f64];
     crate::masks::box_to_mask(image, b, crate::masks::BoxMask::Segment).ok().map(|s| s.mask)
 }
@@ -122,9 +119,9 @@ pub fn run(a: TrackArgs) -> Result<()> {
             counts[1] += 1;
             (Some(step.pose), "tracked")
         } else {
-            match mask_near(&model, &image, &k, &tracker.pose()).map(|m| estimate(&estimator, &model, &image, &k, m)).transpose()?.flatten() {
+            match mask_near(&tracker, &image, &k).map(|m| estimate(&estimator, &model, &image, &k, m)).transpose()?.flatten() {
                 Some(p) => {
-                    tracker = Tracker::new(model.clone(), renderer.clone(), &image, &k, p, TrackerConfig::default()).map_err(anyhow::Error::msg)?;
+                    tracker.restart(&image, &k, p).map_err(anyhow::Error::msg)?;
                     counts[2] += 1;
                     (Some(p), "reinitialised")
                 }

@@ -65,9 +65,7 @@ impl Tracker {
     pub fn new(model: Arc<ObjectModel>, renderer: Arc<RenderPool>, image: &RgbImage, k: &Intrinsics, pose: Pose, config: TrackerConfig) -> Result<Self, String> {
         let refiner = ContourRefiner::new(renderer.clone());
         let mut t = Self { model, renderer, refiner, colours: ColourModel::default(), config, pose, velocity: None, frames: 0 };
-        if !t.relearn(image, k, &pose, 1.0)? {
-            return Err("the object is not visible at the starting pose".into());
-        }
+        t.restart(image, k, pose)?;
         Ok(t)
     }
 
@@ -75,8 +73,22 @@ impl Tracker {
         self.pose
     }
 
-    /// The window around the object at `pose`: `radii` bounding radii around its centre.
-    fn window(&self, k: &Intrinsics, pose: &Pose, radii: f64) -> Option<Window> {
+    /// Starts over at `pose` in `image` (a re-initialisation after a loss): colours learnt
+    /// afresh, no motion carried over.
+    pub fn restart(&mut self, image: &RgbImage, k: &Intrinsics, pose: Pose) -> Result<(), String> {
+        self.colours = ColourModel::default();
+        self.velocity = None;
+        self.frames = 0;
+        self.pose = pose;
+        if !self.relearn(image, k, &pose, 1.0)? {
+            return Err("the object is not visible at the restarting pose".into());
+        }
+        Ok(())
+    }
+
+    /// The window around the object at `pose`: `radii` bounding radii around its centre
+    /// (None when it is behind the camera or outside the image).
+    pub fn window(&self, k: &Intrinsics, pose: &Pose, radii: f64) -> Option<Window> {
         let centre = pose.transform_point(&Point3::from(Vector3::from(self.model.mesh.bbox_center())));
         if centre.z <= 0.0 {
             return None;
