@@ -29,7 +29,7 @@ pub fn run(a: ServeArgs) -> Result<()> {
         Some((cert, key)) => Some(crate::service::tls::TlsIdentity::load(cert, key).map_err(anyhow::Error::msg)?),
         None => None,
     };
-    let config = CoreConfig { store_url: s.store.clone(), render_pool: s.render_pool, cache_bytes: s.cache_bytes, max_estimates: s.max_estimates, max_onboardings: s.max_onboardings, backbone: s.backbone.clone(), device: s.device.clone(), backbone_batch: s.backbone_batch, backbone_max_wait: s.backbone_max_wait, read_only: s.read_only };
+    let config = CoreConfig { store_url: s.store.clone(), render_pool: s.render_pool, cache_bytes: s.cache_bytes, max_estimates: s.max_estimates, max_onboardings: s.max_onboardings, backbone: s.backbone.clone(), device: s.device.clone(), backbone_batch: s.backbone_batch, backbone_max_wait: s.backbone_max_wait, read_only: s.read_only, max_track_sessions: s.max_track_sessions, track_idle_timeout: s.track_idle_timeout };
     let core = Arc::new(Core::new(config).context("starting the service core")?);
     let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
     let api = Api { core: core.clone(), ready: Arc::new(AtomicBool::new(false)), metrics: Default::default(), keys: keys.clone(), request_timeout: s.request_timeout };

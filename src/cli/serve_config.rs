@@ -20,6 +20,8 @@
 //! tls_cert = "/etc/b2tf/cert.pem"
 //! tls_key = "/etc/b2tf/key.pem"
 //! read_only = false              # true: a replica serving a store another process writes
+//! max_track_sessions = 8         # tracking sessions / Track streams open at once
+//! track_idle_timeout_s = 60      # a session with no frame for this long is closed
 //! ```
 
 use anyhow::{bail, Context, Result};
@@ -89,6 +91,13 @@ pub struct ServeSettings {
     /// PERMISSION_DENIED) [default: false]
     #[arg(long, env = "B2TF_READ_ONLY", num_args = 0..=1, default_missing_value = "true", value_parser = clap::builder::BoolishValueParser::new())]
     pub read_only: Option<bool>,
+    /// Tracking sessions (HTTP sessions and gRPC Track streams) open at once; more are
+    /// refused (429 / RESOURCE_EXHAUSTED) [default: 8]
+    #[arg(long, env = "B2TF_MAX_TRACK_SESSIONS")]
+    pub max_track_sessions: Option<usize>,
+    /// A tracking session with no frame for this long is closed, seconds [default: 60]
+    #[arg(long, env = "B2TF_TRACK_IDLE_TIMEOUT_S")]
+    pub track_idle_timeout_s: Option<f64>,
 }
 
 /// The settings in force.
@@ -111,6 +120,8 @@ pub struct Resolved {
     pub api_keys: Option<String>,
     pub tls: Option<(PathBuf, PathBuf)>,
     pub read_only: bool,
+    pub max_track_sessions: usize,
+    pub track_idle_timeout: std::time::Duration,
 }
 
 impl ServeSettings {
@@ -162,6 +173,10 @@ impl ServeSettings {
         if !timeout.is_finite() || timeout < 0.0 {
             bail!("request_timeout_s must be a number of seconds ≥ 0 (0: no limit), not {timeout}");
         }
+        let idle = pick!(track_idle_timeout_s).unwrap_or(60.0);
+        if !idle.is_finite() || !(0.1..=86_400.0).contains(&idle) {
+            bail!("track_idle_timeout_s must be a number of seconds from 0.1 to 86400, not {idle}");
+        }
         let tls = match (pick!(tls_cert), pick!(tls_key)) {
             (Some(c), Some(k)) => Some((c, k)),
             (None, None) => None,
@@ -185,6 +200,8 @@ impl ServeSettings {
             api_keys: pick!(api_keys),
             tls,
             read_only: pick!(read_only).unwrap_or(false),
+            max_track_sessions: positive("max_track_sessions", pick!(max_track_sessions).unwrap_or(8))?,
+            track_idle_timeout: std::time::Duration::from_secs_f64(idle),
         })
     }
 }

@@ -1,19 +1,18 @@
 //! `b2tf track`: poses through a video given as a folder of frames. The first frame gets a
-//! full estimate from its mask; later frames are tracked (track::Tracker), and a lost frame
-//! is re-initialised by a full estimate of the object segmented inside the box around its
-//! last pose. One JSON line per frame, written as it is known.
+//! full estimate from its mask; later frames are tracked (track::TrackSession, as the
+//! service's streams), and a lost frame is re-initialised by a full estimate of the object
+//! segmented inside the box around its last pose. One JSON line per frame, written as it is
+//! known.
 
 use super::estimate_cmd::{load_mask, write_overlay};
-use crate::estimate::{Detection, EstimateConfig, Estimator};
+use crate::estimate::Estimator;
 use crate::geometry::{Intrinsics, Pose};
-use crate::onboard::ObjectModel;
-use crate::track::{Tracker, TrackerConfig};
+use crate::track::{FrameDetection, SessionConfig, TrackMode, TrackSession};
 use anyhow::{bail, Context, Result};
 use serde_json::json;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
 pub struct TrackArgs {
@@ -58,20 +57,6 @@ fn load_frame(path: &Path, k: &Intrinsics) -> Result<image::RgbImage> {
     Ok(img)
 }
 
-/// A full estimate of `model` from `mask`.
-fn estimate(estimator: &Estimator, model: &ObjectModel, image: &image::RgbImage, k: &Intrinsics, mask: image::GrayImage) -> Result<Option<Pose>> {
-    let r = estimator.estimate(model, image, k, &[Detection { mask, score: 1.0 }], &EstimateConfig::default())?;
-    Ok(r.pose)
-}
-
-/// The object segmented inside the box around the tracker's last pose (None when that box
-/// leaves the image or nothing is segmented there).
-fn mask_near(tracker: &Tracker, image: &image::RgbImage, k: &Intrinsics) -> Option<image::GrayImage> {
-    let w = tracker.window(k, &tracker.pose(), 1.2)?;
-    let b = [w.x0 as f64, w.y0 as f64, (w.x1 - w.x0) as f64, (w.y1 - w.y0) as f64];
-    crate::masks::box_to_mask(image, b, crate::masks::BoxMask::Segment).ok().map(|s| s.mask)
-}
-
 fn pose_line(frame: usize, file: &Path, pose: Option<&Pose>, quality: f64, mode: &str, ms: f64) -> serde_json::Value {
     json!({
         "frame": frame,
@@ -96,48 +81,42 @@ pub fn run(a: TrackArgs) -> Result<()> {
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
     let estimator = Estimator::new(a.target.backbone.open()?, renderer.clone());
     let mut out = std::io::BufWriter::new(std::fs::File::create(&a.out).with_context(|| format!("writing {}", a.out.display()))?);
-
-    let t = Instant::now();
-    let pose = estimate(&estimator, &model, &first, &k, mask)?.with_context(|| format!("no pose in the first frame {} from its mask", frames[0].display()))?;
-    let mut tracker = Tracker::new(model.clone(), renderer.clone(), &first, &k, pose, TrackerConfig::default()).map_err(anyhow::Error::msg)?;
-    let mut counts = [1usize, 0, 0, 0]; // estimated, tracked, re-initialised, lost
+    // One object, searched for around its last pose for as long as the video lasts.
+    let mut session = TrackSession::new(renderer.clone(), SessionConfig { drop_after_lost: usize::MAX, ..Default::default() });
+    let object_id = model.object_id.clone();
+    let resolve = |_: &str| Ok(model.clone());
+    let mut counts = std::collections::BTreeMap::<&str, usize>::new();
     let mut tracked_ms = Vec::new();
-    let emit = |out: &mut std::io::BufWriter<std::fs::File>, line: serde_json::Value| -> Result<()> {
-        writeln!(out, "{line}")?;
-        out.flush().with_context(|| format!("writing {}", a.out.display()))
-    };
-    emit(&mut out, pose_line(0, &frames[0], Some(&pose), 1.0, "estimated", t.elapsed().as_secs_f64() * 1e3))?;
-    if let Some(d) = &a.overlay_dir {
-        write_overlay(&first, &renderer, &model, &pose, &k, &d.join(frames[0].file_name().unwrap_or_default()).with_extension("png"))?;
-    }
-    for (i, path) in frames.iter().enumerate().skip(1) {
-        let image = load_frame(path, &k)?;
-        let t = Instant::now();
-        let step = tracker.track(&image, &k).map_err(anyhow::Error::msg)?;
-        let (pose, mode) = if !step.lost {
-            tracked_ms.push(t.elapsed().as_secs_f64() * 1e3);
-            counts[1] += 1;
-            (Some(step.pose), "tracked")
-        } else {
-            match mask_near(&tracker, &image, &k).map(|m| estimate(&estimator, &model, &image, &k, m)).transpose()?.flatten() {
-                Some(p) => {
-                    tracker.restart(&image, &k, p).map_err(anyhow::Error::msg)?;
-                    counts[2] += 1;
-                    (Some(p), "reinitialised")
-                }
-                None => {
-                    counts[3] += 1;
-                    (None, "lost")
-                }
-            }
-        };
-        emit(&mut out, pose_line(i, path, pose.as_ref(), step.quality, mode, t.elapsed().as_secs_f64() * 1e3))?;
-        if let (Some(d), Some(p)) = (&a.overlay_dir, &pose) {
+    let mut first_detection = Some(FrameDetection { object_id, mask, score: 1.0 });
+    for (i, path) in frames.iter().enumerate() {
+        let image = if i == 0 { first.clone() } else { load_frame(path, &k)? };
+        let detections = first_detection.take().into_iter().collect();
+        let (_, outcomes) = session.frame(Some(i as u64), &image, &k, detections, &resolve, &estimator).map_err(anyhow::Error::msg)?;
+        let Some(o) = outcomes.into_iter().next() else { bail!("frame {}: the track ended", path.display()) };
+        if i == 0 && o.pose.is_none() {
+            bail!("no pose in the first frame {} from its mask: {}", path.display(), o.reason.unwrap_or_default());
+        }
+        if o.mode == TrackMode::Tracked {
+            tracked_ms.push(o.ms);
+        }
+        *counts.entry(o.mode.as_str()).or_default() += 1;
+        writeln!(out, "{}", pose_line(i, path, o.pose.as_ref(), o.quality, o.mode.as_str(), o.ms))?;
+        out.flush().with_context(|| format!("writing {}", a.out.display()))?;
+        if let (Some(d), Some(p)) = (&a.overlay_dir, &o.pose) {
             write_overlay(&image, &renderer, &model, p, &k, &d.join(path.file_name().unwrap_or_default()).with_extension("png"))?;
         }
     }
     tracked_ms.sort_by(f64::total_cmp);
     let median = tracked_ms.get(tracked_ms.len() / 2).copied().unwrap_or(f64::NAN);
-    println!("{} frames: {} estimated, {} tracked (median {median:.1} ms), {} re-initialised, {} lost; wrote {}", frames.len(), counts[0], counts[1], counts[2], counts[3], a.out.display());
+    let count = |m: TrackMode| counts.get(m.as_str()).copied().unwrap_or(0);
+    println!(
+        "{} frames: {} estimated, {} tracked (median {median:.1} ms), {} re-initialised, {} lost; wrote {}",
+        frames.len(),
+        count(TrackMode::Estimated),
+        count(TrackMode::Tracked),
+        count(TrackMode::Reinitialised),
+        count(TrackMode::Lost),
+        a.out.display()
+    );
     Ok(())
 }

@@ -9,6 +9,7 @@ use super::error::{ErrorKind, ServiceError};
 use super::metrics::{Gauges, Metrics};
 use super::operations::OperationStatus;
 use super::requests::{EstimateRequest, EstimateResponse, OnboardRequest};
+use super::track_requests::{TrackFrameRequest, TrackFrameResponse, TrackSessionInfo, TrackSessionOptions};
 use crate::store::ObjectInfo;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -37,7 +38,7 @@ impl Api {
 
     pub fn gauges(&self) -> Gauges {
         let c = self.core.cache_stats();
-        Gauges { estimates_running: self.core.estimates_running(), onboardings_running: self.core.onboardings_running(), objects_loaded: c.objects, cache_bytes: c.bytes, ready: self.is_ready(), queue: self.core.queue_stats() }
+        Gauges { estimates_running: self.core.estimates_running(), onboardings_running: self.core.onboardings_running(), objects_loaded: c.objects, cache_bytes: c.bytes, ready: self.is_ready(), queue: self.core.queue_stats(), track_sessions: self.core.track_sessions_open() }
     }
 
     /// The time this request may take: the server's limit or the client's deadline,
@@ -90,6 +91,22 @@ impl Api {
     pub async fn delete_object(&self, id: String) -> Result<(), ServiceError> {
         let core = self.core.clone();
         blocking(move || core.delete_object(&id)).await
+    }
+}
+
+/// Tracking sessions over HTTP (the gRPC stream drives the core itself, grpc_track.rs).
+impl Api {
+    pub async fn open_track(&self, options: TrackSessionOptions) -> Result<TrackSessionInfo, ServiceError> {
+        let core = self.core.clone();
+        blocking(move || core.open_track(&options, false)).await
+    }
+
+    /// One frame of session `id`, counted in the tracking metrics.
+    pub async fn track_frame(&self, id: String, req: TrackFrameRequest) -> Result<TrackFrameResponse, ServiceError> {
+        let core = self.core.clone();
+        let resp = blocking(move || core.track_frame(&id, &req)).await?;
+        self.metrics.track_frame(resp.objects.iter().map(|o| o.mode.as_str()));
+        Ok(resp)
     }
 }
 

@@ -38,11 +38,15 @@ pub struct CoreConfig {
     pub device: crate::features::Device,
     /// Serve a store another process writes: open it read-only, refuse onboard and delete.
     pub read_only: bool,
+    /// Tracking sessions (HTTP sessions and gRPC streams) open at once; more are refused.
+    pub max_track_sessions: usize,
+    /// A tracking session with no frame for this long is closed.
+    pub track_idle_timeout: std::time::Duration,
 }
 
 impl Default for CoreConfig {
     fn default() -> Self {
-        Self { store_url: crate::store::default_url(), render_pool: RenderPool::DEFAULT_SIZE, cache_bytes: 4_000_000_000, max_estimates: 2, max_onboardings: 1, backbone_batch: 32, backbone_max_wait: std::time::Duration::ZERO, backbone: Default::default(), device: Default::default(), read_only: false }
+        Self { store_url: crate::store::default_url(), render_pool: RenderPool::DEFAULT_SIZE, cache_bytes: 4_000_000_000, max_estimates: 2, max_onboardings: 1, backbone_batch: 32, backbone_max_wait: std::time::Duration::ZERO, backbone: Default::default(), device: Default::default(), read_only: false, max_track_sessions: 8, track_idle_timeout: std::time::Duration::from_secs(60) }
     }
 }
 
@@ -62,13 +66,14 @@ fn take_slot(counter: &Arc<AtomicUsize>, max: usize) -> Option<Slot> {
 pub struct Core {
     pub config: CoreConfig,
     store: Arc<dyn ObjectStore>,
-    cache: Arc<ModelCache>,
+    pub(super) cache: Arc<ModelCache>,
     backbone: Arc<dyn Backbone>,
     /// The batching queue in front of the backbone, when configured (for its stats).
     queue: Option<Arc<crate::features::BatchingBackbone>>,
-    pool: Arc<RenderPool>,
-    estimator: Estimator,
+    pub(super) pool: Arc<RenderPool>,
+    pub(super) estimator: Estimator,
     operations: Operations,
+    pub(super) tracks: super::track_sessions::TrackSessions,
     estimates_running: Arc<AtomicUsize>,
     onboardings_running: Arc<AtomicUsize>,
 }
@@ -86,7 +91,8 @@ impl Core {
         let pool = Arc::new(RenderPool::new(config.render_pool.max(1), RendererConfig::default()).map_err(|e| ServiceError::new(ErrorKind::Unavailable, e.to_string()))?);
         let estimator = Estimator::new(backbone.clone(), pool.clone());
         let cache = Arc::new(ModelCache::new(store.clone(), config.cache_bytes));
-        Ok(Self { config, store, cache, backbone, queue, pool, estimator, operations: Operations::default(), estimates_running: Arc::new(AtomicUsize::new(0)), onboardings_running: Arc::new(AtomicUsize::new(0)) })
+        let tracks = super::track_sessions::TrackSessions::new(config.max_track_sessions, config.track_idle_timeout);
+        Ok(Self { config, store, cache, backbone, queue, pool, estimator, operations: Operations::default(), tracks, estimates_running: Arc::new(AtomicUsize::new(0)), onboardings_running: Arc::new(AtomicUsize::new(0)) })
     }
 
     /// One render and one backbone pass, so the first request does not pay for shader

@@ -146,6 +146,12 @@ impl PoseService for GrpcService {
         Ok(Response::new(convert::object_info(info)))
     }
 
+    type TrackStream = super::grpc_track::TrackStream;
+
+    async fn track(&self, req: Request<tonic::Streaming<pb::TrackFrame>>) -> Result<Response<Self::TrackStream>, Status> {
+        Ok(Response::new(super::grpc_track::serve(self.api.clone(), req.into_inner())))
+    }
+
     async fn delete_object(&self, req: Request<pb::GetObjectRequest>) -> Result<Response<pb::DeleteObjectResponse>, Status> {
         self.observed("DeleteObject", self.api.delete_object(req.into_inner().object_id)).await?;
         Ok(Response::new(pb::DeleteObjectResponse {}))

@@ -9,7 +9,7 @@ use super::requests::{self as rq, EstimateOptions, OnboardOptions};
 use crate::onboard::PcaSetting;
 use crate::store::ObjectInfo;
 
-fn required<T>(v: Option<T>, field: &str) -> Result<T, ServiceError> {
+pub fn required<T>(v: Option<T>, field: &str) -> Result<T, ServiceError> {
     v.ok_or_else(|| ServiceError::invalid(format!("{field} is required")))
 }
 
@@ -21,20 +21,22 @@ fn non_zero<T: Default + PartialEq>(v: T, default: T) -> T {
     }
 }
 
-pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, ServiceError> {
-    let image = required(r.image, "image")?;
+pub fn image(image: pb::Image) -> rq::ImageInput {
     let (encoded, raw_rgb8) = match image.data {
         Some(pb::image::Data::Encoded(b)) => (Some(b.into()), None),
         Some(pb::image::Data::RawRgb8(b)) => (None, Some(b.into())),
         None => (None, None),
     };
     let size = |v: u32| (v > 0).then_some(v);
-    let image = rq::ImageInput { encoded, raw_rgb8, width: size(image.width), height: size(image.height) };
-    let k = required(r.intrinsics, "intrinsics")?;
-    let intrinsics = rq::IntrinsicsInput { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy, width: k.width, height: k.height };
-    let detections = r
-        .detections
-        .into_iter()
+    rq::ImageInput { encoded, raw_rgb8, width: size(image.width), height: size(image.height) }
+}
+
+pub fn intrinsics(k: pb::Intrinsics) -> rq::IntrinsicsInput {
+    rq::IntrinsicsInput { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy, width: k.width, height: k.height }
+}
+
+pub fn detections(d: Vec<pb::Detection>) -> Vec<rq::DetectionInput> {
+    d.into_iter()
         .map(|d| {
             let (mask_png, mask_rle) = match d.mask {
                 Some(pb::detection::Mask::MaskPng(b)) => (Some(b.into()), None),
@@ -43,7 +45,17 @@ pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, S
             };
             rq::DetectionInput { object_id: d.object_id, mask_png, mask_rle, bbox: d.bbox.map(|b| [b.x, b.y, b.width, b.height]), score: d.score.unwrap_or(1.0) }
         })
-        .collect();
+        .collect()
+}
+
+pub fn pose(p: rq::PoseOutput) -> pb::Pose {
+    pb::Pose { r: p.r.to_vec(), t: p.t.to_vec(), quaternion_wxyz: p.quaternion_wxyz.to_vec() }
+}
+
+pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, ServiceError> {
+    let image = image(required(r.image, "image")?);
+    let intrinsics = intrinsics(required(r.intrinsics, "intrinsics")?);
+    let detections = detections(r.detections);
     let defaults = EstimateOptions::default();
     let o = r.options.unwrap_or_default();
     let options = EstimateOptions {
@@ -64,7 +76,7 @@ pub fn estimate_response(r: rq::EstimateResponse) -> pb::EstimateResponse {
         .map(|i| pb::InstanceResult {
             object_id: i.object_id,
             instance: i.instance as u32,
-            pose: i.pose.map(|p| pb::Pose { r: p.r.to_vec(), t: p.t.to_vec(), quaternion_wxyz: p.quaternion_wxyz.to_vec() }),
+            pose: i.pose.map(pose),
             score: i.score,
             detection_index: i.detection_index.map_or(-1, |d| d as i32),
             reason: i.reason.unwrap_or_default(),

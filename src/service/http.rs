@@ -38,7 +38,7 @@ impl IntoResponse for ServiceError {
 }
 
 /// A JSON body, or the reason it is not one (too large → 413, anything else → 400).
-fn body<T>(b: Result<Json<T>, JsonRejection>) -> Result<T, ServiceError> {
+pub(super) fn body<T>(b: Result<Json<T>, JsonRejection>) -> Result<T, ServiceError> {
     match b {
         Ok(Json(v)) => Ok(v),
         Err(e) if e.status() == StatusCode::PAYLOAD_TOO_LARGE => Err(ServiceError::new(ErrorKind::TooLarge, format!("request body too large: {}", e.body_text()))),
@@ -138,6 +138,7 @@ pub fn router(state: Api, max_body_bytes: usize) -> Router {
         .route("/v1/operations/{id}", get(get_operation))
         .route("/v1/operations/{id}/cancel", post(cancel_operation))
         .route("/v1/estimate", post(estimate))
+        .merge(super::http_track::routes())
         .route("/metrics", get(metrics))
         .route("/openapi.json", get(openapi))
         .route_layer(from_fn_with_state(state.clone(), guard))

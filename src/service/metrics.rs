@@ -52,6 +52,7 @@ struct Inner {
     latency: BTreeMap<String, Histogram>,
     stages: BTreeMap<String, Histogram>,
     detections_per_estimate: Histogram,
+    track_objects: BTreeMap<String, u64>,
 }
 
 #[derive(Default)]
@@ -68,6 +69,8 @@ pub struct Gauges {
     pub ready: bool,
     /// The backbone batching queue, when there is one.
     pub queue: Option<crate::features::batch_queue::QueueStats>,
+    /// Tracking sessions open (HTTP sessions and gRPC streams).
+    pub track_sessions: usize,
 }
 
 impl Metrics {
@@ -92,6 +95,14 @@ impl Metrics {
         g.detections_per_estimate.observe(detections as f64);
     }
 
+    /// The objects of one tracked frame, by how each pose came about.
+    pub fn track_frame<'a>(&self, modes: impl Iterator<Item = &'a str>) {
+        let mut g = self.inner.lock().expect("metrics lock");
+        for m in modes {
+            *g.track_objects.entry(m.to_string()).or_default() += 1;
+        }
+    }
+
     pub fn render(&self, gauges: &Gauges) -> String {
         let g = self.inner.lock().expect("metrics lock");
         let mut out = String::new();
@@ -110,6 +121,10 @@ impl Metrics {
         }
         out.push_str("# HELP b2tf_detections_per_estimate Detections in one estimate request.\n# TYPE b2tf_detections_per_estimate histogram\n");
         g.detections_per_estimate.write(&mut out, "b2tf_detections_per_estimate", "");
+        out.push_str("# HELP b2tf_track_objects_total Objects in tracked frames, by mode (tracked, reinitialised, lost, ...).\n# TYPE b2tf_track_objects_total counter\n");
+        for (mode, n) in &g.track_objects {
+            let _ = writeln!(out, "b2tf_track_objects_total{{mode=\"{mode}\"}} {n}");
+        }
         let gauge = |out: &mut String, name: &str, help: &str, v: f64| {
             let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} gauge\n{name} {v}");
         };
@@ -118,6 +133,7 @@ impl Metrics {
         gauge(&mut out, "b2tf_objects_loaded", "Objects held in the model cache.", gauges.objects_loaded as f64);
         gauge(&mut out, "b2tf_cache_bytes", "Bytes held by the model cache.", gauges.cache_bytes as f64);
         gauge(&mut out, "b2tf_ready", "1 once warmed up.", if gauges.ready { 1.0 } else { 0.0 });
+        gauge(&mut out, "b2tf_track_sessions_open", "Tracking sessions open (HTTP sessions and gRPC Track streams).", gauges.track_sessions as f64);
         if let Some(q) = &gauges.queue {
             gauge(&mut out, "b2tf_backbone_queue_depth", "Crops waiting for the backbone.", q.queued_crops as f64);
             out.push_str("# HELP b2tf_backbone_batch_crops Crops per backbone forward pass (requests batched together).\n# TYPE b2tf_backbone_batch_crops histogram\n");
@@ -145,7 +161,7 @@ mod tests {
         m.request("POST", "/v1/estimate", "429", 0.001);
         m.request("grpc", "/b2tfpose.v1.PoseService/Estimate", "NOT_FOUND", 0.001);
         m.stages(&serde_json::json!({"pnp": 4.0, "total": 150.0}), 2);
-        let text = m.render(&Gauges { estimates_running: 1, onboardings_running: 0, objects_loaded: 3, cache_bytes: 42, ready: true, queue: Some(crate::features::batch_queue::QueueStats { queued_crops: 3, passes: 2, crops: 11, batch_buckets: vec![0, 0, 0, 1, 2, 2, 2, 2], jobs: 5, wait_seconds: 0.25, pass_seconds: 0.5 }) });
+        let text = m.render(&Gauges { estimates_running: 1, onboardings_running: 0, objects_loaded: 3, cache_bytes: 42, ready: true, queue: Some(crate::features::batch_queue::QueueStats { queued_crops: 3, passes: 2, crops: 11, batch_buckets: vec![0, 0, 0, 1, 2, 2, 2, 2], jobs: 5, wait_seconds: 0.25, pass_seconds: 0.5 }), track_sessions: 2 });
         assert!(text.contains("b2tf_requests_total{method=\"POST\",route=\"/v1/estimate\",status=\"200\"} 2"), "{text}");
         assert!(text.contains("b2tf_request_seconds_bucket{method=\"POST\",route=\"/v1/estimate\",le=\"0.05\"} 2"), "{text}");
         assert!(text.contains("b2tf_request_seconds_count{method=\"POST\",route=\"/v1/estimate\"} 3"), "{text}");

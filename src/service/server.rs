@@ -51,6 +51,18 @@ pub async fn run(api: Api, opts: ServerOptions, on_bound: impl FnOnce(Bound), sh
             let _ = rx.wait_for(|s| *s).await;
         }
     };
+    // Idle tracking sessions are closed even when no request comes to notice them.
+    let sweeper = {
+        let core = api.core.clone();
+        let every = (core.config.track_idle_timeout / 2).clamp(Duration::from_millis(50), Duration::from_secs(10));
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(every);
+            loop {
+                tick.tick().await;
+                core.expire_tracks();
+            }
+        })
+    };
     let mut tasks = tokio::task::JoinSet::new();
     if let Some(listener) = http {
         let app = super::http::router(api.clone(), opts.max_body_bytes);
@@ -69,10 +81,15 @@ pub async fn run(api: Api, opts: ServerOptions, on_bound: impl FnOnce(Bound), sh
     if let Some(listener) = grpc {
         tasks.spawn(serve_grpc(api.clone(), listener, opts.max_body_bytes, opts.tls.clone(), stopped()));
     }
-    while let Some(done) = tasks.join_next().await {
-        done.context("server task")??;
+    let result = async {
+        while let Some(done) = tasks.join_next().await {
+            done.context("server task")??;
+        }
+        Ok(())
     }
-    Ok(())
+    .await;
+    sweeper.abort();
+    result
 }
 
 async fn serve_grpc(api: Api, listener: TcpListener, max_message_bytes: usize, tls: Option<TlsIdentity>, stopped: impl std::future::Future<Output = ()> + Send + 'static) -> Result<()> {

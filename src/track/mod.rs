@@ -4,6 +4,8 @@
 
 pub mod colour;
 pub mod sequence;
+pub mod session;
 pub mod tracker;
 
+pub use session::{FrameDetection, SessionConfig, SessionError, TrackMode, TrackOutcome, TrackSession};
 pub use tracker::{TrackStep, Tracker, TrackerConfig};

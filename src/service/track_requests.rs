@@ -1,0 +1,109 @@
+//! The tracking API's messages as plain serde types (HTTP bodies; the gRPC stream maps its
+//! protobuf messages onto the same): opening a session, one frame in, one pose per tracked
+//! object out, and a session's state.
+
+use super::error::ServiceError;
+use super::requests::{DetectionInput, ImageInput, IntrinsicsInput, PoseOutput};
+use crate::track::{SessionConfig, TrackOutcome};
+
+/// Options of a new session; every field optional.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrackSessionOptions {
+    /// Objects tracked at once (1–32; default 8).
+    pub max_tracks: Option<usize>,
+    /// Consecutive lost frames before a track is dropped (default 30).
+    pub drop_after_lost: Option<usize>,
+    /// Outline agreement (0–1) under which a frame is lost (default 0.3).
+    pub lost_below: Option<f64>,
+}
+
+pub const MAX_TRACKS_PER_SESSION: usize = 32;
+
+impl TrackSessionOptions {
+    pub fn config(&self) -> Result<SessionConfig, ServiceError> {
+        let mut c = SessionConfig::default();
+        if let Some(n) = self.max_tracks {
+            if n == 0 || n > MAX_TRACKS_PER_SESSION {
+                return Err(ServiceError::invalid(format!("options.max_tracks must be 1–{MAX_TRACKS_PER_SESSION}, not {n}")));
+            }
+            c.max_tracks = n;
+        }
+        if let Some(n) = self.drop_after_lost {
+            if n == 0 {
+                return Err(ServiceError::invalid("options.drop_after_lost must be at least 1"));
+            }
+            c.drop_after_lost = n;
+        }
+        if let Some(q) = self.lost_below {
+            if !(0.0..=1.0).contains(&q) {
+                return Err(ServiceError::invalid(format!("options.lost_below must be in [0, 1], not {q}")));
+            }
+            c.tracker.lost_below = q;
+        }
+        Ok(c)
+    }
+}
+
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct OpenTrackRequest {
+    pub options: TrackSessionOptions,
+}
+
+/// One video frame.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct TrackFrameRequest {
+    pub image: ImageInput,
+    pub intrinsics: IntrinsicsInput,
+    /// Detections in this frame: one that no track explains starts a track; one over a
+    /// lost track re-initialises it. None needed while tracking goes well.
+    #[serde(default)]
+    pub detections: Vec<DetectionInput>,
+    /// The frame's number; when given it must be above the last one (else the next).
+    #[serde(default)]
+    pub frame_index: Option<u64>,
+}
+
+/// One object in one frame.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct TrackedObject {
+    /// The track's number in the session (absent for a refused detection).
+    pub track_id: Option<u32>,
+    pub object_id: String,
+    pub pose: Option<PoseOutput>,
+    pub quality: f64,
+    /// estimated | tracked | reinitialised | lost | dropped | refused
+    pub mode: String,
+    /// Index into this frame's detections of the one used, if any.
+    pub detection_index: Option<usize>,
+    pub ms: f64,
+    pub reason: Option<String>,
+}
+
+impl From<TrackOutcome> for TrackedObject {
+    fn from(o: TrackOutcome) -> Self {
+        Self { track_id: o.track_id, object_id: o.object_id, pose: o.pose.as_ref().map(PoseOutput::from), quality: o.quality, mode: o.mode.as_str().to_string(), detection_index: o.detection_index, ms: o.ms, reason: o.reason }
+    }
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct TrackFrameResponse {
+    pub frame_index: u64,
+    pub objects: Vec<TrackedObject>,
+    /// The whole frame on the server, decoding included, milliseconds.
+    pub total_ms: f64,
+}
+
+/// A session's state.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct TrackSessionInfo {
+    pub id: String,
+    pub frames: u64,
+    pub last_frame: Option<u64>,
+    pub tracks: Vec<crate::track::session::TrackSummary>,
+    pub max_tracks: usize,
+    pub idle_s: f64,
+    /// Idle this long, the session is closed (streams: the stream is ended).
+    pub idle_timeout_s: f64,
+}

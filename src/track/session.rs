@@ -1,0 +1,371 @@
+//! Several tracked objects in one video stream: a detection that no track explains starts
+//! a track with a full estimate; every frame then tracks each object from its last pose
+//! (milliseconds, no retrieval); a lost track is re-initialised by a full estimate from the
+//! caller's detection for that frame when one overlaps it, else from the object segmented
+//! inside the box around its last pose, and is dropped after too many lost frames. Frames
+//! are numbered and must come in order. The CLI, the gRPC stream and the HTTP sessions all
+//! run this, so they track alike.
+
+use super::{Tracker, TrackerConfig};
+use crate::estimate::{Detection, EstimateConfig, Estimator};
+use crate::geometry::{Intrinsics, Pose};
+use crate::onboard::ObjectModel;
+use crate::render::RenderPool;
+use image::{GrayImage, RgbImage};
+use std::sync::Arc;
+use std::time::Instant;
+
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct SessionConfig {
+    pub tracker: TrackerConfig,
+    /// Objects tracked at once; detections beyond are answered `refused`.
+    pub max_tracks: usize,
+    /// Consecutive lost frames after which a track is dropped.
+    pub drop_after_lost: usize,
+    /// Half-side of the box searched for a lost object, in object radii around its last
+    /// pose.
+    pub search_radii: f64,
+}
+
+impl Default for SessionConfig {
+    fn default() -> Self {
+        Self { tracker: TrackerConfig::default(), max_tracks: 8, drop_after_lost: 30, search_radii: 1.2 }
+    }
+}
+
+/// How a track's pose in a frame came about.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrackMode {
+    /// A new track, from a full estimate of a detection.
+    Estimated,
+    /// Followed from the last frame.
+    Tracked,
+    /// Lost, then found again by a full estimate.
+    Reinitialised,
+    /// Not found in this frame; the pose is absent.
+    Lost,
+    /// Lost for too long: this track ends here.
+    Dropped,
+    /// A detection that started no track (no pose from it, or too many tracks).
+    Refused,
+}
+
+impl TrackMode {
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            TrackMode::Estimated => "estimated",
+            TrackMode::Tracked => "tracked",
+            TrackMode::Reinitialised => "reinitialised",
+            TrackMode::Lost => "lost",
+            TrackMode::Dropped => "dropped",
+            TrackMode::Refused => "refused",
+        }
+    }
+}
+
+/// One object in one frame.
+#[derive(Clone, Debug)]
+pub struct TrackOutcome {
+    /// The track's number in this session (None for a refused detection).
+    pub track_id: Option<u32>,
+    pub object_id: String,
+    pub pose: Option<Pose>,
+    /// Outline agreement 0–1 (1 for a pose fresh from a full estimate).
+    pub quality: f64,
+    pub mode: TrackMode,
+    /// Index of the frame's detection this came from, when one was used.
+    pub detection_index: Option<usize>,
+    pub ms: f64,
+    /// Why there is no pose, when there is none.
+    pub reason: Option<String>,
+}
+
+/// A detection of one object in a frame (a mask; boxes are segmented by the caller).
+pub struct FrameDetection {
+    pub object_id: String,
+    pub mask: GrayImage,
+    pub score: f32,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    #[error("frame_index {given} is not after the last frame ({last}): frames must come in order")]
+    OutOfOrder { given: u64, last: u64 },
+    #[error("{0}")]
+    BadFrame(String),
+    /// The model of an object could not be had (unknown id, store error).
+    #[error("{object_id}: {message}")]
+    Object { object_id: String, message: String },
+    #[error("{0}")]
+    Internal(String),
+}
+
+struct Track {
+    id: u32,
+    object_id: String,
+    model: Arc<ObjectModel>,
+    tracker: Tracker,
+    lost_frames: usize,
+}
+
+pub struct TrackSession {
+    pub config: SessionConfig,
+    renderer: Arc<RenderPool>,
+    tracks: Vec<Track>,
+    next_track: u32,
+    last_frame: Option<u64>,
+    frames: u64,
+}
+
+/// A track's state as a caller may list it.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct TrackSummary {
+    pub track_id: u32,
+    pub object_id: String,
+    pub lost_frames: usize,
+}
+
+impl TrackSession {
+    pub fn new(renderer: Arc<RenderPool>, config: SessionConfig) -> Self {
+        Self { config, renderer, tracks: Vec::new(), next_track: 0, last_frame: None, frames: 0 }
+    }
+
+    /// Frames processed so far.
+    pub fn frames(&self) -> u64 {
+        self.frames
+    }
+
+    pub fn last_frame(&self) -> Option<u64> {
+        self.last_frame
+    }
+
+    pub fn tracks(&self) -> Vec<TrackSummary> {
+        self.tracks.iter().map(|t| TrackSummary { track_id: t.id, object_id: t.object_id.clone(), lost_frames: t.lost_frames }).collect()
+    }
+
+    /// The number the next frame gets: `given` when it is after the last one, else the next.
+    pub fn check_order(&self, given: Option<u64>) -> Result<u64, SessionError> {
+        frame_number(given, self.last_frame)
+    }
+
+    /// Tracks every object into this frame and starts tracks for the detections no track
+    /// explains. `models` gives an object's model by id; every detection's object must
+    /// resolve before any work starts.
+    pub fn frame(
+        &mut self,
+        index: Option<u64>,
+        image: &RgbImage,
+        k: &Intrinsics,
+        detections: Vec<FrameDetection>,
+        models: &dyn Fn(&str) -> Result<Arc<ObjectModel>, String>,
+        estimator: &Estimator,
+    ) -> Result<(u64, Vec<TrackOutcome>), SessionError> {
+        let index = self.check_order(index)?;
+        if image.dimensions() != (k.width, k.height) {
+            return Err(SessionError::BadFrame(format!("image is {}×{} but intrinsics say {}×{}", image.width(), image.height(), k.width, k.height)));
+        }
+        if let Some(d) = detections.iter().find(|d| d.mask.dimensions() != (k.width, k.height)) {
+            return Err(SessionError::BadFrame(format!("a mask of {} is {}×{}, not the frame's {}×{}", d.object_id, d.mask.width(), d.mask.height(), k.width, k.height)));
+        }
+        let mut new_models = std::collections::BTreeMap::new();
+        for d in &detections {
+            if !new_models.contains_key(d.object_id.as_str()) {
+                let m = models(&d.object_id).map_err(|message| SessionError::Object { object_id: d.object_id.clone(), message })?;
+                new_models.insert(d.object_id.as_str(), m);
+            }
+        }
+        // Every track is followed first; detections are then matched against where the
+        // tracks are now, so a lost track can take a detection wherever it is.
+        let mut steps = Vec::with_capacity(self.tracks.len());
+        for track in &mut self.tracks {
+            let t = Instant::now();
+            steps.push((track.tracker.track(image, k).map_err(SessionError::Internal)?, t));
+        }
+        let lost: Vec<bool> = steps.iter().map(|(s, _)| s.lost).collect();
+        let claimed = self.associate(k, &detections, &lost);
+        let mut out = Vec::new();
+        for (ti, (track, (step, t))) in self.tracks.iter_mut().zip(steps).enumerate() {
+            let detection = claimed.iter().position(|c| *c == Some(ti)).map(|d| (d, &detections[d]));
+            out.push(finish_track(track, step, t, image, k, detection, estimator, &self.config)?);
+        }
+        let dropped: Vec<u32> = out.iter().filter(|o| o.mode == TrackMode::Dropped).filter_map(|o| o.track_id).collect();
+        self.tracks.retain(|t| !dropped.contains(&t.id));
+        for (di, d) in detections.iter().enumerate().filter(|(di, _)| claimed[*di].is_none()) {
+            out.push(self.start_track(di, d, new_models[d.object_id.as_str()].clone(), image, k, estimator)?);
+        }
+        self.last_frame = Some(index);
+        self.frames += 1;
+        Ok((index, out))
+    }
+
+    /// For each detection, the track it belongs to, best-scoring detections first, each
+    /// track taking at most one: a track of the same object whose box at its current pose
+    /// overlaps the detection's box most (at least a third of the smaller box); then a
+    /// lost track of the same object takes a detection that overlaps none, wherever it is.
+    /// A detection that no track takes starts a new one.
+    fn associate(&self, k: &Intrinsics, detections: &[FrameDetection], lost: &[bool]) -> Vec<Option<usize>> {
+        let mut claimed = vec![None; detections.len()];
+        let mut order: Vec<usize> = (0..detections.len()).collect();
+        order.sort_by(|&a, &b| detections[b].score.total_cmp(&detections[a].score));
+        let boxes: Vec<Option<[u32; 4]>> = detections.iter().map(|d| mask_box(&d.mask)).collect();
+        let mut taken = vec![false; self.tracks.len()];
+        for &di in &order {
+            let Some(db) = boxes[di] else { continue };
+            let best = self
+                .tracks
+                .iter()
+                .enumerate()
+                .filter(|(ti, t)| !taken[*ti] && t.object_id == detections[di].object_id)
+                .filter_map(|(ti, t)| {
+                    let w = t.tracker.window(k, &t.tracker.pose(), 1.0)?;
+                    Some((ti, overlap(db, [w.x0, w.y0, w.x1, w.y1])))
+                })
+                .filter(|(_, o)| *o >= 1.0 / 3.0)
+                .max_by(|a, b| a.1.total_cmp(&b.1));
+            if let Some((ti, _)) = best {
+                taken[ti] = true;
+                claimed[di] = Some(ti);
+            }
+        }
+        for &di in &order {
+            if claimed[di].is_some() {
+                continue;
+            }
+            if let Some(ti) = (0..self.tracks.len()).find(|&ti| !taken[ti] && lost[ti] && self.tracks[ti].object_id == detections[di].object_id) {
+                taken[ti] = true;
+                claimed[di] = Some(ti);
+            }
+        }
+        claimed
+    }
+
+    fn start_track(&mut self, di: usize, d: &FrameDetection, model: Arc<ObjectModel>, image: &RgbImage, k: &Intrinsics, estimator: &Estimator) -> Result<TrackOutcome, SessionError> {
+        let t = Instant::now();
+        let refused = |reason: String, t: Instant| TrackOutcome { track_id: None, object_id: d.object_id.clone(), pose: None, quality: 0.0, mode: TrackMode::Refused, detection_index: Some(di), ms: ms(t), reason: Some(reason) };
+        if self.tracks.len() >= self.config.max_tracks {
+            return Ok(refused(format!("this session already tracks {} objects (its limit)", self.tracks.len()), t));
+        }
+        let pose = match full_estimate(estimator, &model, image, k, d.mask.clone(), d.score)? {
+            Ok(p) => p,
+            Err(reason) => return Ok(refused(reason, t)),
+        };
+        let tracker = Tracker::new(model.clone(), self.renderer.clone(), image, k, pose, self.config.tracker.clone()).map_err(SessionError::Internal)?;
+        let id = self.next_track;
+        self.next_track += 1;
+        self.tracks.push(Track { id, object_id: d.object_id.clone(), model, tracker, lost_frames: 0 });
+        Ok(TrackOutcome { track_id: Some(id), object_id: d.object_id.clone(), pose: Some(pose), quality: 1.0, mode: TrackMode::Estimated, detection_index: Some(di), ms: ms(t), reason: None })
+    }
+}
+
+/// A track's frame after its tracking step: kept when tracked, else re-initialised from
+/// the detection it took (or a segmentation around its last pose), else lost or dropped.
+#[allow(clippy::too_many_arguments)]
+fn finish_track(track: &mut Track, step: super::TrackStep, t: Instant, image: &RgbImage, k: &Intrinsics, detection: Option<(usize, &FrameDetection)>, estimator: &Estimator, config: &SessionConfig) -> Result<TrackOutcome, SessionError> {
+    let outcome = |pose: Option<Pose>, quality: f64, mode: TrackMode, detection_index: Option<usize>, reason: Option<String>| TrackOutcome { track_id: Some(track.id), object_id: track.object_id.clone(), pose, quality, mode, detection_index, ms: ms(t), reason };
+    if !step.lost {
+        track.lost_frames = 0;
+        return Ok(outcome(Some(step.pose), step.quality, TrackMode::Tracked, None, None));
+    }
+    let (mask, score, used) = match detection {
+        Some((di, d)) => (Some(d.mask.clone()), d.score, Some(di)),
+        None => (mask_near(&track.tracker, image, k, config.search_radii), 1.0, None),
+    };
+    let mut why = step.report.note.clone().unwrap_or_else(|| format!("outline agreement {:.2} under {:.2}", step.quality, config.tracker.lost_below));
+    if let Some(mask) = mask {
+        match full_estimate(estimator, &track.model, image, k, mask, score)? {
+            Ok(pose) => {
+                track.tracker.restart(image, k, pose).map_err(SessionError::Internal)?;
+                track.lost_frames = 0;
+                return Ok(outcome(Some(pose), 1.0, TrackMode::Reinitialised, used, None));
+            }
+            Err(reason) => why = format!("{why}; re-initialising: {reason}"),
+        }
+    }
+    track.lost_frames += 1;
+    let mode = if track.lost_frames >= config.drop_after_lost.max(1) { TrackMode::Dropped } else { TrackMode::Lost };
+    Ok(outcome(None, step.quality, mode, used, Some(why)))
+}
+
+fn frame_number(given: Option<u64>, last: Option<u64>) -> Result<u64, SessionError> {
+    match (given, last) {
+        (Some(g), Some(last)) if g <= last => Err(SessionError::OutOfOrder { given: g, last }),
+        (Some(g), _) => Ok(g),
+        (None, Some(last)) => Ok(last + 1),
+        (None, None) => Ok(0),
+    }
+}
+
+/// A full estimate from one mask: the pose, or why there is none.
+fn full_estimate(estimator: &Estimator, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, mask: GrayImage, score: f32) -> Result<Result<Pose, String>, SessionError> {
+    match estimator.estimate(model, image, k, &[Detection { mask, score }], &EstimateConfig::default()) {
+        Ok(r) => Ok(r.pose.ok_or_else(|| r.reason.unwrap_or_else(|| "no pose".into()))),
+        Err(crate::estimate::EstimateError::BadInput(m)) => Ok(Err(m)),
+        Err(e) => Err(SessionError::Internal(e.to_string())),
+    }
+}
+
+/// The object segmented inside the box around the tracker's last pose (None when that box
+/// leaves the image or nothing is segmented there).
+fn mask_near(tracker: &Tracker, image: &RgbImage, k: &Intrinsics, radii: f64) -> Option<GrayImage> {
+    let w = tracker.window(k, &tracker.pose(), radii)?;
+    let b = [w.x0 as f64, w.y0 as f64, (w.x1 - w.x0) as f64, (w.y1 - w.y0) as f64];
+    crate::masks::box_to_mask(image, b, crate::masks::BoxMask::Segment).ok().map(|s| s.mask)
+}
+
+/// [x0, y0, x1, y1) of a mask's non-zero pixels.
+fn mask_box(mask: &GrayImage) -> Option<[u32; 4]> {
+    let mut b: Option<[u32; 4]> = None;
+    for (x, y, p) in mask.enumerate_pixels() {
+        if p[0] > 0 {
+            let e = b.get_or_insert([x, y, x + 1, y + 1]);
+            *e = [e[0].min(x), e[1].min(y), e[2].max(x + 1), e[3].max(y + 1)];
+        }
+    }
+    b
+}
+
+/// Intersection over the smaller box's area.
+fn overlap(a: [u32; 4], b: [u32; 4]) -> f64 {
+    let area = |r: [u32; 4]| (r[2].saturating_sub(r[0]) as f64) * (r[3].saturating_sub(r[1]) as f64);
+    let i = [a[0].max(b[0]), a[1].max(b[1]), a[2].min(b[2]), a[3].min(b[3])];
+    let smaller = area(a).min(area(b));
+    if smaller <= 0.0 {
+        0.0
+    } else {
+        area(i) / smaller
+    }
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn boxes_and_overlap() {
+        let mut m = GrayImage::new(10, 10);
+        assert_eq!(mask_box(&m), None);
+        m.put_pixel(2, 3, image::Luma([1]));
+        m.put_pixel(5, 7, image::Luma([1]));
+        assert_eq!(mask_box(&m), Some([2, 3, 6, 8]));
+        assert_eq!(overlap([0, 0, 10, 10], [5, 5, 7, 7]), 1.0);
+        assert_eq!(overlap([0, 0, 4, 4], [2, 0, 6, 4]), 0.5);
+        assert_eq!(overlap([0, 0, 4, 4], [4, 4, 6, 6]), 0.0);
+        assert_eq!(overlap([0, 0, 0, 4], [0, 0, 4, 4]), 0.0);
+    }
+
+    #[test]
+    fn frames_must_come_in_order() {
+        assert_eq!(frame_number(None, None).unwrap(), 0);
+        assert_eq!(frame_number(Some(7), None).unwrap(), 7);
+        assert_eq!(frame_number(None, Some(7)).unwrap(), 8);
+        assert_eq!(frame_number(Some(9), Some(7)).unwrap(), 9);
+        assert!(matches!(frame_number(Some(7), Some(7)), Err(SessionError::OutOfOrder { given: 7, last: 7 })));
+        assert!(matches!(frame_number(Some(3), Some(7)), Err(SessionError::OutOfOrder { .. })));
+    }
+}
