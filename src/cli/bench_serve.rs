@@ -6,10 +6,10 @@
 use crate::geometry::views::view_pose;
 use crate::geometry::Intrinsics;
 use crate::render::{RenderOptions, RenderPool};
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, bail, Result};
 use base64::Engine as _;
 use serde_json::{json, Value};
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{Read, Write};
 use std::net::TcpStream;
 use crate::service::client::{one_mask_request, png_bytes};
 use crate::service::proto as pb;
@@ -81,21 +81,9 @@ fn object_id(a: &BenchServeArgs) -> Result<String> {
 pub fn run(a: BenchServeArgs) -> Result<()> {
     let max_clients = a.clients.iter().copied().max().unwrap_or(1);
     let object = object_id(&a)?;
-    let mut child = std::process::Command::new(std::env::current_exe()?)
-        .args(["serve", "--http", "127.0.0.1:0", "--grpc", "127.0.0.1:0", "--store", &a.store, "--max-estimates", &max_clients.to_string(), "--backbone-batch", &a.backbone_batch.to_string(), "--backbone", &a.backbone.backbone.to_string(), "--device", &a.backbone.device.to_string()])
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .context("starting b2tf serve")?;
-    let pid = child.id();
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().ok_or_else(|| anyhow!("no stdout"))?).read_line(&mut line)?;
-    let addr = line.split_whitespace().find_map(|w| w.strip_prefix("http://")).ok_or_else(|| anyhow!("server said {line:?}"))?.to_string();
-    let grpc = line.split_whitespace().find_map(|w| w.strip_prefix("grpc://")).ok_or_else(|| anyhow!("server said {line:?}"))?.to_string();
-    let result = measure(&a, &object, &addr, &grpc, pid);
-    // SAFETY: kill(2) on our own child's pid.
-    unsafe { libc::kill(pid as i32, libc::SIGTERM) };
-    let _ = child.wait();
-    result
+    let extra: Vec<String> = ["--max-estimates", &max_clients.to_string(), "--backbone-batch", &a.backbone_batch.to_string(), "--backbone", &a.backbone.backbone.to_string(), "--device", &a.backbone.device.to_string()].map(String::from).to_vec();
+    let server = super::child_server::ChildServer::start(&a.store, &extra)?;
+    measure(&a, &object, &server.http, &server.grpc, server.pid())
 }
 
 fn measure(a: &BenchServeArgs, object: &str, addr: &str, grpc: &str, pid: u32) -> Result<()> {

@@ -1,12 +1,16 @@
 //! `b2tf bench track`: the tracker on generated sequences (track::sequence): ms per
-//! frame, share of frames with MSSD < 0.1·d, losses. Each sequence starts from its true
-//! first pose; a lost frame restarts the track at the true pose of that frame (standing
-//! in for a full estimate from a detection), counted as a re-initialisation.
+//! frame, share of frames with MSSD < 0.1·d, ADD and ADD-S AUC, losses. In process, each
+//! sequence starts from its true first pose and a lost frame restarts the track at the
+//! true pose of that frame (standing in for a full estimate from a detection), counted as
+//! a re-initialisation. With `--grpc` the same sequences also go through a `b2tf serve`
+//! child's `Track` stream, which re-initialises by itself: frames per second end to end.
 
-use crate::eval::pose_error::mssd;
-use crate::geometry::Intrinsics;
+use super::bench_track_grpc::{stream_sequence, StreamStats};
+use crate::eval::pose_error::{add, add_s, auc, mssd, sample_points};
+use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Units;
-use crate::track::sequence::{generate, SequenceConfig};
+use crate::onboard::ObjectModel;
+use crate::track::sequence::{generate, Frame, SequenceConfig};
 use crate::track::{Tracker, TrackerConfig};
 use anyhow::Result;
 use std::path::PathBuf;
@@ -29,6 +33,15 @@ pub struct BenchTrackArgs {
     pub degrees: f64,
     #[arg(long, default_value_t = 0.01)]
     pub metres: f64,
+    /// A bar crossing the view once per sequence, hiding the object as it passes.
+    #[arg(long)]
+    pub occluder: bool,
+    /// Gaussian blur of every frame, pixels.
+    #[arg(long, default_value_t = 0.0)]
+    pub blur: f64,
+    /// Gaussian noise of every frame, grey levels.
+    #[arg(long, default_value_t = 0.0)]
+    pub noise: f64,
     /// Image size (the intrinsics scale with it: fx = 1.25 × width).
     #[arg(long, default_value_t = 640)]
     pub width: u32,
@@ -37,6 +50,39 @@ pub struct BenchTrackArgs {
     /// Store that caches the onboarded models.
     #[arg(long, default_value = "dir://out/bench-models")]
     pub store: String,
+    /// Also stream every sequence through a `b2tf serve` child's gRPC Track stream.
+    #[arg(long)]
+    pub grpc: bool,
+}
+
+/// Per-frame accuracy of one object's frames; a missing pose counts as a miss.
+#[derive(Default)]
+struct Accuracy {
+    frames: usize,
+    mssd_ok: usize,
+    add: Vec<f64>,
+    add_s: Vec<f64>,
+}
+
+impl Accuracy {
+    fn push(&mut self, pose: Option<&Pose>, f: &Frame, model: &ObjectModel, sample: &[[f32; 3]]) {
+        self.frames += 1;
+        let Some(p) = pose else {
+            self.add.push(f64::INFINITY);
+            self.add_s.push(f64::INFINITY);
+            return;
+        };
+        if mssd(p, &f.truth, model.mesh.positions()) < 0.1 * model.diameter() {
+            self.mssd_ok += 1;
+        }
+        self.add.push(add(p, &f.truth, sample));
+        self.add_s.push(add_s(p, &f.truth, sample));
+    }
+
+    /// "MSSD %, ADD AUC, ADD-S AUC" table cells.
+    fn cells(&self) -> String {
+        format!("{:.1} % | {:.3} | {:.3}", 100.0 * self.mssd_ok as f64 / self.frames.max(1) as f64, auc(&self.add, 0.1), auc(&self.add_s, 0.1))
+    }
 }
 
 pub fn run(a: BenchTrackArgs) -> Result<()> {
@@ -45,34 +91,58 @@ pub fn run(a: BenchTrackArgs) -> Result<()> {
     let meshes = super::bench_estimate::bench_meshes(&a.meshes, a.units)?;
     let store = crate::store::open(&a.store)?;
     let k = Intrinsics::new(1.25 * a.width as f64, 1.25 * a.width as f64, (a.width as f64 - 1.0) / 2.0, (a.height as f64 - 1.0) / 2.0, a.width, a.height)?;
-    println!("| object | frames | tracked | MSSD < 0.1·d | lost → re-initialised | ms per tracked frame, median | p95 |");
-    println!("|---|---:|---:|---:|---:|---:|---:|");
+    let mut models = Vec::new();
     for (name, mesh) in &meshes {
-        let model = Arc::new(super::cached_model(name, mesh, store.as_ref(), &backbone, &pool, crate::onboard::PcaSetting::Off)?);
-        let (mut frames, mut good, mut lost) = (0usize, 0usize, 0usize);
-        let mut ms = Vec::new();
+        models.push((name.clone(), Arc::new(super::cached_model(name, mesh, store.as_ref(), &backbone, &pool, crate::onboard::PcaSetting::Off)?)));
+    }
+    drop(store); // the server below opens it
+    let config = |s: usize| SequenceConfig { frames: a.frames, max_degrees_per_frame: a.degrees, max_metres_per_frame: a.metres, seed: 1 + s as u64, occluder: a.occluder, blur_sigma: a.blur, noise_sigma: a.noise, ..Default::default() };
+    let server = if a.grpc { Some(super::child_server::ChildServer::start(&a.store, &[])?) } else { None };
+    let mut grpc_rows = Vec::new();
+    println!("In process (a lost frame restarts at the truth):\n");
+    println!("| object | frames | tracked | MSSD < 0.1·d | ADD AUC | ADD-S AUC | lost → re-initialised | ms per tracked frame, median | p95 |");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for (name, model) in &models {
+        let sample = sample_points(model.mesh.positions(), 500);
+        let (mut acc, mut lost, mut ms) = (Accuracy::default(), 0usize, Vec::new());
+        let (mut grpc_acc, mut grpc_stats) = (Accuracy::default(), StreamStats::default());
         for s in 0..a.sequences {
-            let cfg = SequenceConfig { frames: a.frames, max_degrees_per_frame: a.degrees, max_metres_per_frame: a.metres, seed: 1 + s as u64, ..Default::default() };
-            let seq = generate(&model.mesh, &k, &cfg, &pool)?;
+            let seq = generate(&model.mesh, &k, &config(s), &pool)?;
             let mut tracker = Tracker::new(model.clone(), pool.clone(), &seq[0].rgb, &k, seq[0].truth, TrackerConfig::default()).map_err(anyhow::Error::msg)?;
             for f in &seq[1..] {
                 let t = Instant::now();
                 let step = tracker.track(&f.rgb, &k).map_err(anyhow::Error::msg)?;
-                frames += 1;
                 if step.lost {
                     lost += 1;
+                    acc.push(None, f, model, &sample);
                     tracker.restart(&f.rgb, &k, f.truth).map_err(anyhow::Error::msg)?;
                     continue;
                 }
                 ms.push(t.elapsed().as_secs_f64() * 1e3);
-                if mssd(&step.pose, &f.truth, model.mesh.positions()) < 0.1 * model.diameter() {
-                    good += 1;
+                acc.push(Some(&step.pose), f, model, &sample);
+            }
+            if let Some(server) = &server {
+                let first_mask = pool.render(&model.mesh, &seq[0].truth, &k, &Default::default())?.mask;
+                let poses = stream_sequence(&server.grpc, &model.object_id, &seq, &first_mask, &k, &mut grpc_stats)?;
+                for (pose, f) in poses.iter().zip(&seq).skip(1) {
+                    grpc_acc.push(pose.as_ref(), f, model, &sample);
                 }
             }
         }
         ms.sort_by(f64::total_cmp);
         let pick = |q: f64| ms.get(((ms.len() as f64 - 1.0) * q).round() as usize).copied().unwrap_or(f64::NAN);
-        println!("| {name} | {frames} | {} | {:.1} % | {lost} | {:.1} | {:.1} |", ms.len(), 100.0 * good as f64 / frames.max(1) as f64, pick(0.5), pick(0.95));
+        println!("| {name} | {} | {} | {} | {lost} | {:.1} | {:.1} |", acc.frames, ms.len(), acc.cells(), pick(0.5), pick(0.95));
+        if server.is_some() {
+            grpc_rows.push(format!("| {name} | {} | {} | {} | {} | {} | {:.1} | {:.1} |", grpc_acc.frames, grpc_stats.tracked, grpc_stats.reinitialised, grpc_stats.lost, grpc_acc.cells(), grpc_stats.server_ms_median(), grpc_stats.frames_per_second()));
+        }
+    }
+    if !grpc_rows.is_empty() {
+        println!("\nThrough the gRPC Track stream of a `b2tf serve` child (raw RGB frames, the server re-initialises by itself; frames/s end to end, client to answer):\n");
+        println!("| object | frames | tracked | re-initialised | lost | MSSD < 0.1·d | ADD AUC | ADD-S AUC | server ms per frame, median | frames/s |");
+        println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+        for r in grpc_rows {
+            println!("{r}");
+        }
     }
     Ok(())
 }

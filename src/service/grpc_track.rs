@@ -98,7 +98,7 @@ async fn run(api: Api, mut inbound: Streaming<pb::TrackFrame>, tx: Sender<Result
         };
         let started = Instant::now();
         if session.is_none() {
-            let opened = { api.core.open_track(&options(frame.options.clone()), true) };
+            let opened = api.core.open_track(&options(frame.options), true);
             match opened {
                 Ok(info) => session = Some(SessionGuard(api.clone(), info.id)),
                 Err(e) => {

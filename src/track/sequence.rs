@@ -1,13 +1,13 @@
 //! Generated video sequences for testing and measuring trackers: an object moving along a
-//! smooth random 6-DoF trajectory in front of a cluttered background, with its true pose
-//! per frame.
+//! smooth random 6-DoF trajectory in front of a cluttered background, optionally with a
+//! passing occluder, blur and noise, with its true pose and visible mask per frame.
 
 use crate::geometry::views::view_pose;
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::procedural::Rng;
 use crate::mesh::Mesh;
 use crate::render::{RenderError, RenderOptions, RenderPool};
-use image::RgbImage;
+use image::{GrayImage, RgbImage};
 use nalgebra::{Rotation3, Unit, Vector3};
 
 #[derive(Clone, Debug)]
@@ -19,17 +19,25 @@ pub struct SequenceConfig {
     pub max_degrees_per_frame: f64,
     pub max_metres_per_frame: f64,
     pub seed: u64,
+    /// A bar of a tenth of the image's width that crosses the view once over the
+    /// sequence, hiding whatever is behind it.
+    pub occluder: bool,
+    /// Gaussian blur (pixels) and noise (grey levels) of every frame, after compositing.
+    pub blur_sigma: f64,
+    pub noise_sigma: f64,
 }
 
 impl Default for SequenceConfig {
     fn default() -> Self {
-        Self { frames: 60, distance: 0.5, max_degrees_per_frame: 3.0, max_metres_per_frame: 0.01, seed: 1 }
+        Self { frames: 60, distance: 0.5, max_degrees_per_frame: 3.0, max_metres_per_frame: 0.01, seed: 1, occluder: false, blur_sigma: 0.0, noise_sigma: 0.0 }
     }
 }
 
 pub struct Frame {
     pub rgb: RgbImage,
     pub truth: Pose,
+    /// The object's visible pixels (its silhouette less what the occluder hides).
+    pub visible: GrayImage,
 }
 
 /// Coloured rectangles of many sizes on a gradient: edges and colours for the tracker to
@@ -79,21 +87,56 @@ pub fn trajectory(mesh: &Mesh, cfg: &SequenceConfig) -> Vec<Pose> {
 }
 
 /// Renders the sequence: each frame the object over the background, lit from a fixed
-/// direction.
+/// direction, then the occluder, blur and noise as configured.
 pub fn generate(mesh: &Mesh, k: &Intrinsics, cfg: &SequenceConfig, pool: &RenderPool) -> Result<Vec<Frame>, RenderError> {
     let mut rng = Rng::new(cfg.seed ^ 0x5eed);
     let background = cluttered_background(k.width, k.height, &mut rng);
+    let occluder_colour = image::Rgb([(rng.uniform() * 255.0) as u8, (rng.uniform() * 255.0) as u8, (rng.uniform() * 255.0) as u8]);
+    let frames = cfg.frames.max(1);
     trajectory(mesh, cfg)
         .into_iter()
-        .map(|truth| {
+        .enumerate()
+        .map(|(i, truth)| {
             let r = pool.render(mesh, &truth, k, &RenderOptions::default())?;
-            let mut rgb = background.clone();
-            for (x, y, m) in r.mask.enumerate_pixels() {
-                if m[0] > 0 {
-                    rgb.put_pixel(x, y, *r.rgb.get_pixel(x, y));
+            let mut rgb = crate::eval::degrade::composite(&r.rgb, &r.mask, &background);
+            let mut visible = r.mask;
+            if cfg.occluder {
+                // From just off the left edge to just off the right one.
+                let bar = (k.width / 10).max(1);
+                let x0 = ((i as f64 / frames as f64) * (k.width + bar) as f64) as i64 - bar as i64;
+                for x in x0.max(0) as u32..((x0 + bar as i64).max(0) as u32).min(k.width) {
+                    for y in 0..k.height {
+                        rgb.put_pixel(x, y, occluder_colour);
+                        visible.put_pixel(x, y, image::Luma([0]));
+                    }
                 }
             }
-            Ok(Frame { rgb, truth })
+            if cfg.blur_sigma > 0.0 {
+                rgb = crate::eval::degrade::gaussian_blur(&rgb, cfg.blur_sigma);
+            }
+            if cfg.noise_sigma > 0.0 {
+                rgb = crate::eval::degrade::add_noise(&rgb, cfg.noise_sigma, &mut rng);
+            }
+            Ok(Frame { rgb, truth, visible })
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn trajectory_keeps_within_its_limits() {
+        let mesh = crate::mesh::procedural::textured_box([0.1, 0.06, 0.16], 3);
+        let cfg = SequenceConfig { frames: 50, max_degrees_per_frame: 10.0, max_metres_per_frame: 0.05, seed: 4, ..Default::default() };
+        let poses = trajectory(&mesh, &cfg);
+        assert_eq!(poses.len(), 50);
+        for w in poses.windows(2) {
+            let turn = crate::geometry::geodesic_distance(&w[0].rotation, &w[1].rotation).to_degrees();
+            let centre = Vector3::from(mesh.bbox_center());
+            let moved = ((w[1].rotation * centre + w[1].translation) - (w[0].rotation * centre + w[0].translation)).norm();
+            assert!(turn <= 10.0 + 1e-9 && moved <= 0.05 + 1e-9, "{turn}° {moved} m");
+        }
+    }
 }
