@@ -115,7 +115,8 @@ pub fn run(a: BenchTrackArgs) -> Result<()> {
                 if step.lost {
                     lost += 1;
                     acc.push(None, f, model, &sample);
-                    tracker.restart(&f.rgb, &k, f.truth).map_err(anyhow::Error::msg)?;
+                    // Out of view at the truth too: the track waits where it was.
+                    let _ = tracker.restart(&f.rgb, &k, f.truth);
                     continue;
                 }
                 ms.push(t.elapsed().as_secs_f64() * 1e3);

@@ -78,6 +78,14 @@ pub fn trajectory(mesh: &Mesh, cfg: &SequenceConfig) -> Vec<Pose> {
         if velocity.norm() > cfg.max_metres_per_frame {
             velocity *= cfg.max_metres_per_frame / velocity.norm();
         }
+        // Bounced back at the edges of a box around the start (±15 % of the distance
+        // sideways, ±20 % in depth), so fast motions stay in view too.
+        let offset = c + velocity - Vector3::new(0.0, 0.0, cfg.distance);
+        for (i, limit) in [0.15, 0.15, 0.2].into_iter().enumerate() {
+            if offset[i].abs() > limit * cfg.distance && offset[i] * velocity[i] > 0.0 {
+                velocity[i] = -velocity[i];
+            }
+        }
         // Turn about the object's centre, then move.
         let rotation = turn * pose.rotation;
         let translation = c + velocity - rotation * centre;

@@ -251,7 +251,10 @@ impl TrackSession {
             Ok(p) => p,
             Err(reason) => return Ok(refused(reason, t)),
         };
-        let tracker = Tracker::new(model.clone(), self.renderer.clone(), image, k, pose, self.config.tracker.clone()).map_err(SessionError::Internal)?;
+        let tracker = match Tracker::new(model.clone(), self.renderer.clone(), image, k, pose, self.config.tracker.clone()) {
+            Ok(t) => t,
+            Err(reason) => return Ok(refused(format!("the estimated pose cannot start a track: {reason}"), t)),
+        };
         let id = self.next_track;
         self.next_track += 1;
         self.tracks.push(Track { id, object_id: d.object_id.clone(), model, tracker, lost_frames: 0 });
@@ -275,11 +278,13 @@ fn finish_track(track: &mut Track, step: super::TrackStep, t: Instant, image: &R
     let mut why = step.report.note.clone().unwrap_or_else(|| format!("outline agreement {:.2} under {:.2}", step.quality, config.tracker.lost_below));
     if let Some(mask) = mask {
         match full_estimate(estimator, &track.model, image, k, mask, score)? {
-            Ok(pose) => {
-                track.tracker.restart(image, k, pose).map_err(SessionError::Internal)?;
-                track.lost_frames = 0;
-                return Ok(outcome(Some(pose), 1.0, TrackMode::Reinitialised, used, None));
-            }
+            Ok(pose) => match track.tracker.restart(image, k, pose) {
+                Ok(()) => {
+                    track.lost_frames = 0;
+                    return Ok(outcome(Some(pose), 1.0, TrackMode::Reinitialised, used, None));
+                }
+                Err(reason) => why = format!("{why}; re-initialising: {reason}"),
+            },
             Err(reason) => why = format!("{why}; re-initialising: {reason}"),
         }
     }

@@ -75,14 +75,16 @@ impl Tracker {
 
     /// Starts over at `pose` in `image` (a re-initialisation after a loss): colours learnt
     /// afresh, no motion carried over.
+    /// On failure (the object not in view at `pose`) the track is left as it was.
     pub fn restart(&mut self, image: &RgbImage, k: &Intrinsics, pose: Pose) -> Result<(), String> {
-        self.colours = ColourModel::default();
+        let kept = std::mem::take(&mut self.colours);
+        if !self.relearn(image, k, &pose, 1.0)? {
+            self.colours = kept;
+            return Err("the object is not visible at the restarting pose".into());
+        }
         self.velocity = None;
         self.frames = 0;
         self.pose = pose;
-        if !self.relearn(image, k, &pose, 1.0)? {
-            return Err("the object is not visible at the restarting pose".into());
-        }
         Ok(())
     }
 
