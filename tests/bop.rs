@@ -5,7 +5,7 @@ use b2tfpose::bop::detections::{read_detections, DetectionIndex};
 use b2tfpose::bop::evaluate::evaluate;
 use b2tfpose::bop::results_csv::{read_results, write_results, ResultRow};
 use b2tfpose::bop::run::{run, RunOptions};
-use b2tfpose::bop::scoring::Bop19Params;
+use b2tfpose::bop::scoring::{ArReport, Bop19Params};
 use b2tfpose::bop::synth::{synth, SynthOptions, SynthSummary};
 use b2tfpose::bop::{load_models_info, load_split_gt, load_targets, TEST_SPLIT};
 use b2tfpose::estimate::Estimator;
@@ -34,6 +34,24 @@ fn dataset(root: &Path, images: usize, pool: &RenderPool) -> SynthSummary {
 
 fn no_progress(_: usize, _: usize) {}
 
+/// BOP'19 scores of `rows`, with the warnings the files gave.
+fn score_warned(ds: &Path, rows: &[ResultRow], pool: &RenderPool) -> (ArReport, Vec<String>) {
+    let mut warnings = Vec::new();
+    let r = evaluate(ds, TEST_SPLIT, rows, pool, &Bop19Params::default(), &no_progress, &mut warnings).unwrap();
+    (r, warnings)
+}
+
+/// BOP'19 scores of `rows`; the generated ground truth is exact, so nothing is worth a warning.
+fn score(ds: &Path, rows: &[ResultRow], pool: &RenderPool) -> ArReport {
+    let (r, warnings) = score_warned(ds, rows, pool);
+    assert!(warnings.is_empty(), "{warnings:?}");
+    r
+}
+
+fn read(csv: &Path) -> Vec<ResultRow> {
+    read_results(csv, &mut Vec::new()).unwrap()
+}
+
 #[test]
 fn ground_truth_scores_one_and_a_known_shift_scores_exactly() {
     let dir = tempfile::tempdir().unwrap();
@@ -46,7 +64,7 @@ fn ground_truth_scores_one_and_a_known_shift_scores_exactly() {
     assert!(dets.len() >= 3 && dets.iter().filter(|d| d.score == 1.0).count() == 3, "{}", dets.len());
     assert_eq!(load_targets(&ds).unwrap().len(), 3);
 
-    let gt = load_split_gt(&ds, TEST_SPLIT).unwrap();
+    let gt = load_split_gt(&ds, TEST_SPLIT, &mut Vec::new()).unwrap();
     let rows = |shift: f64| -> Vec<ResultRow> {
         gt.iter()
             .flat_map(|im| im.instances.iter().map(move |g| (im, g)))
@@ -55,8 +73,7 @@ fn ground_truth_scores_one_and_a_known_shift_scores_exactly() {
     };
     let csv = dir.path().join("truth.csv");
     write_results(&csv, &rows(0.0)).unwrap();
-    let params = Bop19Params::default();
-    let r = evaluate(&ds, TEST_SPLIT, &read_results(&csv).unwrap(), &pool, &params, &no_progress).unwrap();
+    let r = score(&ds, &read(&csv), &pool);
     assert_eq!(r.targets, 3);
     assert!((r.ar - 1.0).abs() < 1e-12 && r.ar_vsd == 1.0 && r.ar_mssd == 1.0 && r.ar_mspd == 1.0, "{r:?}");
 
@@ -64,12 +81,12 @@ fn ground_truth_scores_one_and_a_known_shift_scores_exactly() {
     // i.e. 8 of 10.
     let d_mm = load_models_info(&ds).unwrap()[&1].diameter;
     write_results(&csv, &rows(0.12 * d_mm / 1000.0)).unwrap();
-    let r = evaluate(&ds, TEST_SPLIT, &read_results(&csv).unwrap(), &pool, &params, &no_progress).unwrap();
+    let r = score(&ds, &read(&csv), &pool);
     assert!((r.ar_mssd - 0.8).abs() < 1e-9, "{r:?}");
     assert!(r.ar_vsd < 1.0 && r.ar_mspd < 1.0, "{r:?}");
 
     // No results at all: every recall is 0.
-    let r = evaluate(&ds, TEST_SPLIT, &[], &pool, &params, &no_progress).unwrap();
+    let r = score(&ds, &[], &pool);
     assert_eq!((r.ar, r.targets, r.estimates), (0.0, 3, 0));
 }
 
@@ -96,7 +113,7 @@ fn run_estimates_every_target_resumes_and_is_scored() {
     let summary = run(&ds, &index, &csv, &estimator, &mut get, &RunOptions::default(), &no_progress).unwrap();
     assert_eq!((summary.images, summary.targets, summary.images_done_before), (2, 2, 0), "{summary:?}");
     assert_eq!(summary.estimates_written + summary.instances_without_pose, 2, "{summary:?}");
-    let rows = read_results(&csv).unwrap();
+    let rows = read(&csv);
     assert_eq!(rows.len(), summary.estimates_written);
     assert!(rows.iter().all(|r| r.time > 0.0 && (0.0..=1.0).contains(&r.score)));
 
@@ -106,7 +123,59 @@ fn run_estimates_every_target_resumes_and_is_scored() {
     assert_eq!((again.images, again.images_done_before), (0, 2));
     assert_eq!(std::fs::read_to_string(&csv).unwrap(), before);
 
-    let r = evaluate(&ds, TEST_SPLIT, &rows, &pool, &Bop19Params::default(), &no_progress).unwrap();
+    let r = score(&ds, &rows, &pool);
     eprintln!("AR {:.3} (VSD {:.3}, MSSD {:.3}, MSPD {:.3})", r.ar, r.ar_vsd, r.ar_mssd, r.ar_mspd);
     assert!(r.ar_mspd > 0.5, "{r:?}");
+}
+
+/// The only scene folder of a generated dataset.
+fn scene_folder(ds: &Path) -> std::path::PathBuf {
+    std::fs::read_dir(ds.join(TEST_SPLIT)).unwrap().next().unwrap().unwrap().path()
+}
+
+/// Rewrites every instance of a scene JSON file (`{"im_id": [instance, …]}`).
+fn edit_instances(path: &Path, edit: impl Fn(&mut serde_json::Map<String, serde_json::Value>)) {
+    let mut json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    for list in json.as_object_mut().unwrap().values_mut() {
+        list.as_array_mut().unwrap().iter_mut().for_each(|i| edit(i.as_object_mut().unwrap()));
+    }
+    std::fs::write(path, json.to_string()).unwrap();
+}
+
+#[test]
+fn ground_truth_as_real_datasets_ship_it_is_scored_and_broken_files_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let pool = pool();
+    dataset(dir.path(), 1, &pool);
+    let ds = dir.path().join("ds");
+    let scene = scene_folder(&ds);
+    // LM-O-like annotation noise: R's first row 0.3 % too long (R·Rᵀ 6·10⁻³ off the
+    // identity); and a scene_gt_info.json with nothing but visib_fract.
+    edit_instances(&scene.join("scene_gt.json"), |i| {
+        let r = i["cam_R_m2c"].as_array_mut().unwrap();
+        r.iter_mut().take(3).for_each(|v| *v = serde_json::json!(v.as_f64().unwrap() * 1.003));
+    });
+    edit_instances(&scene.join("scene_gt_info.json"), |i| i.retain(|k, _| k == "visib_fract"));
+
+    // Results made from that ground truth, as the toolkit's own test files are: perfect.
+    let gt = load_split_gt(&ds, TEST_SPLIT, &mut Vec::new()).unwrap();
+    let rows: Vec<ResultRow> = gt.iter().flat_map(|im| im.instances.iter().map(move |g| ResultRow { scene_id: im.scene_id, im_id: im.im_id, obj_id: g.obj_id, score: 1.0, pose: g.pose, time: 0.5 })).collect();
+    let csv = dir.path().join("rough.csv");
+    write_results(&csv, &rows).unwrap();
+    let mut read_warnings = Vec::new();
+    let read_back = read_results(&csv, &mut read_warnings).unwrap();
+    assert_eq!(read_back.len(), 1);
+    assert_eq!(read_back[0].pose.rotation_row_major(), gt[0].instances[0].pose.rotation_row_major());
+    assert!(read_warnings.len() == 1 && read_warnings[0].contains("rough.csv") && read_warnings[0].contains("scored as given"), "{read_warnings:?}");
+    let (r, warnings) = score_warned(&ds, &read_back, &pool);
+    assert!((r.ar - 1.0).abs() < 1e-12, "{r:?}");
+    assert!(warnings.len() == 1 && warnings[0].contains("scene_gt.json: 1 of 1 cam_R_m2c matrices are rotations only to within 6.0e-3"), "{warnings:?}");
+
+    // A mirrored rotation is no annotation noise.
+    edit_instances(&scene.join("scene_gt.json"), |i| {
+        let r = i["cam_R_m2c"].as_array_mut().unwrap();
+        r.iter_mut().take(3).for_each(|v| *v = serde_json::json!(-v.as_f64().unwrap()));
+    });
+    let err = evaluate(&ds, TEST_SPLIT, &read_back, &pool, &Bop19Params::default(), &no_progress, &mut Vec::new()).unwrap_err().to_string();
+    assert!(err.contains("scene_gt.json: image 0, instance 0: cam_R_m2c: not a rotation: determinant is -1.00"), "{err}");
 }

@@ -6,60 +6,30 @@
 //! errors, against every GT instance of the object in the image: MSSD (∞ when the bounding
 //! spheres do not overlap), MSPD, and VSD from depth renders of the model at both poses
 //! (all 1.0 when the spheres' projections do not overlap).
+//!
+//! Where the toolkit's conventions differ from the product's, its are followed: rotations
+//! are the files' matrices unchanged (`rotation.rs`), MSSD and MSPD use the PLY's vertices
+//! in f64 (`eval_models.rs`), and VSD's depth renders put pixel centres where OpenGL does
+//! (`vsd_render.rs`).
 
-use super::dataset::{load_depth_mm, load_models_info, load_split_gt, load_targets, model_path, ImageGt};
-use super::format::MODELS_INFO;
+use super::dataset::{load_depth_mm, load_split_gt, load_targets, ImageGt};
+use super::eval_models::{load_models, mm};
 use super::pose_errors::{mspd, mssd, sphere_projections_overlap, spheres_overlap, vsd, DepthMap, Intrinsics as K4, VsdCost};
 use super::results_csv::ResultRow;
 use super::scoring::{evaluate_bop19, select_estimates, ArReport, Bop19Params, GtInstance, TargetEval};
-use super::symmetry::{parse_models_info, ObjectSymmetries};
+use super::vsd_render::render_depth_mm;
 use crate::geometry::Pose;
-use crate::mesh::{load_mesh, Mesh, Units};
-use crate::render::{RenderOptions, RenderPool};
+use crate::render::RenderPool;
 use anyhow::{anyhow, Context, Result};
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::path::Path;
 
-/// One object as the metrics see it.
-struct EvalModel {
-    mesh: Mesh,
-    /// Vertices, mm.
-    points: Vec<[f64; 3]>,
-    /// Symmetry transforms with mm translations, identity first.
-    symmetries: Vec<Pose>,
-    diameter_mm: f64,
-}
-
-fn mm(p: &Pose) -> Pose {
-    Pose::new(p.rotation, p.translation * 1000.0)
-}
-
-fn load_models(dataset: &Path, ids: impl IntoIterator<Item = u32>, step: f64) -> Result<BTreeMap<u32, EvalModel>> {
-    let info = load_models_info(dataset)?;
-    let info_path = dataset.join(MODELS_INFO);
-    let text = std::fs::read_to_string(&info_path).with_context(|| format!("reading {}", info_path.display()))?;
-    let symmetries = parse_models_info(&text).with_context(|| info_path.display().to_string())?;
-    let mut out = BTreeMap::new();
-    for id in ids {
-        let diameter_mm = info.get(&id).ok_or_else(|| anyhow!("{}: no entry for object {id}, which the targets list", info_path.display()))?.diameter;
-        let mesh = load_mesh(&model_path(dataset, id), Some(Units::Mm))?;
-        let points = mesh.positions().iter().map(|v| v.map(|c| c as f64 * 1000.0)).collect();
-        let symmetries = symmetries.get(&id).cloned().unwrap_or_else(ObjectSymmetries::default).transformations(step).with_context(|| format!("object {id}"))?;
-        out.insert(id, EvalModel { mesh, points, symmetries, diameter_mm });
-    }
-    Ok(out)
-}
-
-/// Depth of `model` rendered alone at `pose` (metres) through the image's camera, mm.
-fn render_depth_mm(pool: &RenderPool, model: &EvalModel, pose: &Pose, img: &ImageGt) -> Result<DepthMap> {
-    let r = pool.render(&model.mesh, pose, &img.cam, &RenderOptions::default())?;
-    Ok(DepthMap::new(img.cam.width as usize, img.cam.height as usize, r.depth.iter().map(|&z| z * 1000.0).collect())?)
-}
-
 /// Scores `results` against the dataset's `split`; `progress(done, total)` per target.
-pub fn evaluate(dataset: &Path, split: &str, results: &[ResultRow], pool: &RenderPool, params: &Bop19Params, progress: &dyn Fn(usize, usize)) -> Result<ArReport> {
+/// What the ground truth holds that was accepted but is worth a look is added to
+/// `warnings`, one line per file.
+pub fn evaluate(dataset: &Path, split: &str, results: &[ResultRow], pool: &RenderPool, params: &Bop19Params, progress: &dyn Fn(usize, usize), warnings: &mut Vec<String>) -> Result<ArReport> {
     let targets = load_targets(dataset)?;
-    let images: HashMap<(u32, u32), ImageGt> = load_split_gt(dataset, split)?.into_iter().map(|g| ((g.scene_id, g.im_id), g)).collect();
+    let images: HashMap<(u32, u32), ImageGt> = load_split_gt(dataset, split, warnings)?.into_iter().map(|g| ((g.scene_id, g.im_id), g)).collect();
     let models = load_models(dataset, targets.iter().map(|t| t.obj_id).collect::<std::collections::BTreeSet<_>>(), params.max_sym_disc_step)?;
     let mut estimates: HashMap<(u32, u32, u32), Vec<&ResultRow>> = HashMap::new();
     for r in results {
@@ -84,10 +54,10 @@ pub fn evaluate(dataset: &Path, split: &str, results: &[ResultRow], pool: &Rende
             let (w, h, d) = load_depth_mm(&img.depth_path, img.depth_scale)?;
             Some(DepthMap::new(w as usize, h as usize, d).with_context(|| img.depth_path.display().to_string())?)
         };
-        let gt_depths: Vec<DepthMap> = if test_depth.is_some() { gts.iter().map(|(p, _)| render_depth_mm(pool, model, p, img)).collect::<Result<_>>()? } else { Vec::new() };
+        let gt_depths: Vec<DepthMap> = if test_depth.is_some() { gts.iter().map(|(p, _)| render_depth_mm(pool, &model.mesh, p, &img.cam)).collect::<Result<_>>()? } else { Vec::new() };
         for &e in &selected {
             let est = mm(&ests[e].pose);
-            let est_depth = test_depth.as_ref().map(|_| render_depth_mm(pool, model, &ests[e].pose, img)).transpose()?;
+            let est_depth = test_depth.as_ref().map(|_| render_depth_mm(pool, &model.mesh, &ests[e].pose, &img.cam)).transpose()?;
             for (g, (gt_pose, _)) in gts.iter().enumerate() {
                 let gt = mm(gt_pose);
                 mssd_table[e][g] = if spheres_overlap(&est.translation, &gt.translation, model.diameter_mm) { mssd(&est, &gt, &model.points, &model.symmetries)? } else { f64::INFINITY };

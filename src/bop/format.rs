@@ -42,28 +42,63 @@ pub struct CameraRecord {
     pub depth_scale: f64,
 }
 
-/// One instance of `scene_gt.json`: `T_cam_obj` with the translation in mm.
+/// One instance of `scene_gt.json`: `T_cam_obj` with the translation in mm. The rotation
+/// is read as written; `rotation::check_rotation` judges it.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct GtRecord {
     pub obj_id: u32,
     /// Row-major.
-    #[serde(rename = "cam_R_m2c")]
+    #[serde(rename = "cam_R_m2c", deserialize_with = "numbers::rotation")]
     pub cam_r_m2c: [f64; 9],
     /// Millimetres.
+    #[serde(deserialize_with = "numbers::translation")]
     pub cam_t_m2c: [f64; 3],
 }
 
 /// One instance of `scene_gt_info.json`. Boxes are `[x, y, width, height]`, all −1 when
-/// the region is empty.
+/// the region is empty. Only `visib_fract` is required: it is all the toolkit's evaluation
+/// reads (`eval_calc_errors.py`, `inout.get_im_targets`), and some datasets' files lack
+/// the other fields, which are then not written back either.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct GtInfoRecord {
-    pub bbox_obj: [i64; 4],
-    pub bbox_visib: [i64; 4],
-    pub px_count_all: u64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bbox_obj: Option<[i64; 4]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bbox_visib: Option<[i64; 4]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub px_count_all: Option<u64>,
     /// Silhouette pixels with a non-zero depth value.
-    pub px_count_valid: u64,
-    pub px_count_visib: u64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub px_count_valid: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub px_count_visib: Option<u64>,
     pub visib_fract: f64,
+}
+
+/// Fixed-length number lists whose errors name their field: serde's own message for a
+/// `[f64; 9]` says "invalid length 8" without saying which list.
+mod numbers {
+    use serde::de::{Deserialize, Deserializer, Error};
+
+    pub fn rotation<'de, D: Deserializer<'de>>(d: D) -> Result<[f64; 9], D::Error> {
+        exactly(d, "cam_R_m2c", "a row-major 3×3 matrix")
+    }
+
+    pub fn translation<'de, D: Deserializer<'de>>(d: D) -> Result<[f64; 3], D::Error> {
+        exactly(d, "cam_t_m2c", "x, y, z in mm")
+    }
+
+    fn exactly<'de, D: Deserializer<'de>, const N: usize>(d: D, field: &str, what: &str) -> Result<[f64; N], D::Error> {
+        let values = Vec::<serde_json::Value>::deserialize(d).map_err(|e| D::Error::custom(format!("{field}: {e}")))?;
+        if values.len() != N {
+            return Err(D::Error::custom(format!("{field}: expected {N} numbers ({what}), got {}", values.len())));
+        }
+        let mut out = [0.0; N];
+        for (i, (slot, v)) in out.iter_mut().zip(&values).enumerate() {
+            *slot = v.as_f64().ok_or_else(|| D::Error::custom(format!("{field}: value {} is {v}, not a number", i + 1)))?;
+        }
+        Ok(out)
+    }
 }
 
 /// One entry of `test_targets_bop19.json`: how many instances of an object to estimate.

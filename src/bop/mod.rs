@@ -5,15 +5,18 @@
 
 pub mod dataset;
 pub mod detections;
+pub mod eval_models;
 pub mod evaluate;
 pub mod format;
 pub mod pose_errors;
 pub mod results_csv;
+pub mod rotation;
 pub mod run;
 pub mod scoring;
 pub mod symmetry;
 pub mod synth;
 pub mod synth_masks;
+pub mod vsd_render;
 
 pub use dataset::{load_depth_mm, load_models_info, load_rgb, load_scene_cameras, load_scene_gt, load_split_gt, load_targets, model_path, DatasetError, GtInstance, ImageCamera, ImageGt};
 pub use format::{scene_dir, CameraRecord, GtInfoRecord, GtRecord, ModelInfo, TargetRecord, TEST_SPLIT};

@@ -27,7 +27,10 @@ pub struct EvalArgs {
 }
 
 pub fn run(a: EvalArgs) -> Result<()> {
-    let results = read_results(&a.results)?;
+    // What the files hold that the toolkit accepts but is worth a look (rotations that are
+    // rotations only roughly), printed once the progress bar is gone.
+    let mut warnings = Vec::new();
+    let results = read_results(&a.results, &mut warnings)?;
     let pool = super::open_renderer(RenderPool::DEFAULT_SIZE)?;
     let params = Bop19Params { vsd_delta: a.vsd_delta, ..Default::default() };
     let pb = super::progress::bar(0, "targets");
@@ -35,8 +38,11 @@ pub fn run(a: EvalArgs) -> Result<()> {
         pb.set_length(total as u64);
         pb.set_position(done as u64);
     };
-    let report = evaluate(&a.dataset, &a.split, &results, &pool, &params, &progress)?;
+    let report = evaluate(&a.dataset, &a.split, &results, &pool, &params, &progress, &mut warnings)?;
     pb.finish_and_clear();
+    for w in &warnings {
+        eprintln!("warning: {w}");
+    }
     if a.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {

@@ -16,7 +16,7 @@ mod types;
 pub use self::gltf::load_gltf;
 pub use load::load_mesh;
 pub use obj::load_obj;
-pub use ply::load_ply;
+pub use ply::{load_ply, load_ply_points};
 pub use types::*;
 
 pub mod procedural;

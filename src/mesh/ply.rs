@@ -23,9 +23,25 @@ pub fn load_ply(path: &Path, units: Units) -> Result<Mesh, MeshError> {
     Mesh::new(path.display().to_string(), units, data)
 }
 
+/// The vertices' x, y, z exactly as the file holds them, in file order and file units: ascii
+/// text parsed as f64, binary floats widened. This is what bop_toolkit's `inout.load_ply`
+/// returns as `pts` and scores poses on; a `Mesh`'s f32 metres round them by up to 6·10⁻⁸
+/// relative, which now and then moves an error across a BOP threshold.
+pub fn load_ply_points(path: &Path) -> Result<Vec<[f64; 3]>, MeshError> {
+    let bytes = std::fs::read(path).map_err(|source| MeshError::Io { path: path.to_path_buf(), source })?;
+    let (raw, _texture) = parse_raw(&bytes).map_err(|m| MeshError::format(path, m))?;
+    Ok(raw.positions)
+}
+
 /// Parses a whole PLY file into mesh arrays (positions scaled to metres) and the texture file
 /// name from the header, if any. Errors are messages without the file name.
 fn parse_ply(bytes: &[u8], units: Units) -> Result<(MeshData, Option<String>), String> {
+    let (raw, texture) = parse_raw(bytes)?;
+    Ok((raw.into_mesh_data(units.to_metres()), texture))
+}
+
+/// Everything the file holds, as read, and the texture file name from the header, if any.
+fn parse_raw(bytes: &[u8]) -> Result<(Raw, Option<String>), String> {
     let header = parse_header(bytes)?;
     let plan = Plan::new(&header)?;
     let body = &bytes[header.body_offset..];
@@ -42,7 +58,7 @@ fn parse_ply(bytes: &[u8], units: Units) -> Result<(MeshData, Option<String>), S
             read_body(&mut src, &header, &plan, &mut raw)?;
         }
     }
-    Ok((raw.into_mesh_data(units.to_metres()), header.texture))
+    Ok((raw, header.texture))
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -745,6 +761,28 @@ mod tests {
             let colours = mesh.colors().unwrap();
             assert_close(&colours[2], &[60.0 / 255.0, 195.0 / 255.0, 100.0 / 255.0]);
         }
+    }
+
+    #[test]
+    fn points_are_the_file_values_unrounded() {
+        // As the BOP toolkit reads them: ascii text as f64 whatever the declared type, binary
+        // floats widened exactly. Through a Mesh's f32 metres 2.5 mm comes back as 2.4999999441.
+        let dir = tempfile::tempdir().unwrap();
+        let header = |format: &str| {
+            format!("ply\nformat {format} 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n")
+        };
+        let ascii = write(dir.path(), "a.ply", header("ascii") + "2.5 0 0\n0 4.3674882 0\n0 0 0.1\n3 0 1 2\n");
+        assert_eq!(load_ply_points(&ascii).unwrap(), vec![[2.5, 0.0, 0.0], [0.0, 4.3674882, 0.0], [0.0, 0.0, 0.1]]);
+        let via_mesh = load_ply(&ascii, Units::Mm).unwrap().positions()[0][0] as f64 * 1000.0;
+        assert_eq!(via_mesh, 2.4999999441206455);
+
+        let mut b = Bin { bytes: header("binary_little_endian").into_bytes(), big: false };
+        [2.5f32, 0.0, 0.0, 0.0, 4.3674882, 0.0, 0.0, 0.0, 0.1].into_iter().for_each(|v| b.f32(v));
+        b.u8(3);
+        (0..3).for_each(|i| b.i32(i));
+        let binary = write(dir.path(), "b.ply", b.bytes);
+        let f = |v: f32| v as f64;
+        assert_eq!(load_ply_points(&binary).unwrap(), vec![[2.5, 0.0, 0.0], [0.0, f(4.3674882), 0.0], [0.0, 0.0, f(0.1)]]);
     }
 
     #[test]

@@ -53,11 +53,11 @@ impl SceneWriter {
             gts.push(GtRecord { obj_id: inst.obj_id, cam_r_m2c: inst.pose.rotation_row_major(), cam_t_m2c: [t.x, t.y, t.z] });
             let valid = inst.mask.as_raw().iter().zip(&img.depth).filter(|&(&m, &z)| m > 0 && z > 0.0).count();
             infos.push(GtInfoRecord {
-                bbox_obj: bbox_xywh(&inst.mask),
-                bbox_visib: bbox_xywh(&inst.mask_visib),
-                px_count_all: inst.px_count_all as u64,
-                px_count_valid: valid as u64,
-                px_count_visib: inst.px_count_visib as u64,
+                bbox_obj: Some(bbox_xywh(&inst.mask)),
+                bbox_visib: Some(bbox_xywh(&inst.mask_visib)),
+                px_count_all: Some(inst.px_count_all as u64),
+                px_count_valid: Some(valid as u64),
+                px_count_visib: Some(inst.px_count_visib as u64),
                 visib_fract: inst.visib_fract(),
             });
         }
