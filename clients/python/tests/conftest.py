@@ -1,6 +1,7 @@
 """Session fixtures: one `b2tf serve` (small estimate limit, so that concurrent estimates
 really meet RESOURCE_EXHAUSTED), the generated sample object onboarded once through the
-client, and a rendered scene of it at a known pose with its mask and camera file."""
+client, a rendered scene of it at a known pose with its mask and camera file, and a short
+rendered video of it moving."""
 
 from __future__ import annotations
 
@@ -82,6 +83,24 @@ def sample_obj(sample_dir: Path) -> Path:
 @pytest.fixture(scope="session")
 def scene(work: Path, sample_obj: Path) -> Scene:
     return render_scene(work / "scene", sample_obj, TRUTH_R, TRUTH_T)
+
+
+# A short video: the object moves a few millimetres a frame, turning a little about the
+# camera's axis (dx, dy in metres, degrees), then stands still.
+VIDEO_STEPS = [(0.004, 0.0, 2.0), (0.008, 0.002, 4.0), (0.012, 0.004, 6.0)]
+
+
+def turned(R: np.ndarray, deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    Rz = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    return Rz @ R
+
+
+@pytest.fixture(scope="session")
+def video(scene: Scene, sample_obj: Path, work: Path) -> List[Scene]:
+    """Six frames: the scene, three frames moving, then the last one twice more (still)."""
+    moved = [render_scene(work / f"video{i}", sample_obj, turned(TRUTH_R, deg), TRUTH_T + [dx, dy, 0.0]) for i, (dx, dy, deg) in enumerate(VIDEO_STEPS, 1)]
+    return [scene, *moved, moved[-1], moved[-1]]
 
 
 @pytest.fixture(scope="session")

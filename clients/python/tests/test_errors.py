@@ -100,7 +100,8 @@ def test_unauthenticated(work: Path, store: str, onboarded: Onboarded) -> None:
     s = Server(store, work / "keyed.log", ["--api-keys-file", str(keys)])
     try:
         with b2tfpose.Client(s.address) as c:
-            assert c.health() == "SERVING"  # open without a key
+            c.wait_ready(timeout=30)  # the health check is open without a key; SERVING a moment after /readyz
+            assert c.health() == "SERVING"
             with pytest.raises(b2tfpose.Unauthenticated):
                 c.list_objects()
         with b2tfpose.Client(s.address, api_key="wrong") as c, pytest.raises(b2tfpose.Unauthenticated):

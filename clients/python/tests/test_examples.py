@@ -13,7 +13,7 @@ import numpy as np
 
 import b2tfpose
 from conftest import SAMPLE_ID, TRUTH_T, Onboarded, Scene, assert_same_pose, render_scene
-from servers import Server
+from servers import Server, run_cli
 from test_onboard import textured_box_mm
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -56,6 +56,31 @@ def test_camera_loop_falls_back_to_a_folder(server: Server, onboarded: Onboarded
     xs = [line["t"][0] for line in lines]
     assert np.allclose(xs, [TRUTH_T[0] - 0.02, TRUTH_T[0], TRUTH_T[0] + 0.02], atol=0.01) and xs == sorted(xs)
     assert sorted(p.name for p in out_dir.iterdir()) == ["frame0.png", "frame1.png", "frame2.png"]
+
+
+def test_track_video_matches_the_cli(server: Server, onboarded: Onboarded, video: List[Scene], store: str, sample_obj: Path, tmp_path: Path) -> None:
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i, s in enumerate(video):
+        (frames / f"frame{i:03d}.png").write_bytes(s.rgb_path.read_bytes())
+    first = video[0]
+    overlays = tmp_path / "overlays"
+    lines = run_example(
+        "track_video.py", "--server", server.address, "--object", SAMPLE_ID, "--video", str(frames), "--camera", str(first.camera_path),
+        "--mask", str(first.mask_path), "--mesh", str(sample_obj), "--overlay-dir", str(overlays),
+    )
+    # `b2tf track` runs the same tracking session on the same frames.
+    cli_out = tmp_path / "cli.jsonl"
+    run_cli("track", "--store", store, "--object", SAMPLE_ID, "--video", str(frames), "--camera", str(first.camera_path), "--mask", str(first.mask_path), "--out", str(cli_out))
+    cli = [json.loads(line) for line in cli_out.read_text().splitlines()]
+    assert [line["frame"] for line in lines] == list(range(len(video))) and len(cli) == len(video)
+    assert [line["mode"] for line in lines] == [c["mode"] for c in cli] == ["estimated"] + ["tracked"] * (len(video) - 1)
+    for line, c, s in zip(lines, cli, video):
+        assert line["file"] == c["file"] and abs(line["quality"] - c["quality"]) < 1e-6
+        pose = b2tfpose.Pose(line["R"], line["t"])
+        assert_same_pose(pose, b2tfpose.Pose(c["R"], c["t"]))
+        assert pose.rotation_error_deg(s.truth) < 3.0 and pose.translation_error_m(s.truth) < 0.005
+    assert sorted(p.name for p in overlays.iterdir()) == sorted(p.name for p in frames.iterdir())
 
 
 def test_onboard_folder(server: Server, client: b2tfpose.Client, sample_dir: Path, tmp_path: Path) -> None:

@@ -5,12 +5,14 @@
 ...     c.onboard("box", "box.obj", units="m", level=1)
 ...     [r] = c.estimate(rgb, K, [b2tfpose.Detection("box", mask=mask)])
 ...     r.pose.R, r.pose.t, r.pose.rvec
+...     for f in c.track(video, K=K):  # the first frame a TrackFrame with a detection
+...         f.objects[0].mode, f.objects[0].pose
 """
 
-from ._convert import Detection
+from ._convert import Detection, TrackFrame
 from ._pose import Pose
 from ._retry import NO_RETRY, RetryPolicy
-from ._types import Estimates, ObjectInfo, OperationStatus, Result
+from ._types import Estimates, ObjectInfo, OperationStatus, Result, TrackedObject, TrackMode, TrackResult
 from .aio import AsyncClient, AsyncOperation
 from .client import Client, Operation
 from .errors import (
@@ -40,6 +42,10 @@ __all__ = [
     "Pose",
     "Result",
     "Estimates",
+    "TrackFrame",
+    "TrackResult",
+    "TrackedObject",
+    "TrackMode",
     "ObjectInfo",
     "OperationStatus",
     "RetryPolicy",

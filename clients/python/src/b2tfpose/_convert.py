@@ -1,13 +1,14 @@
 """Inputs as users hold them -> the request messages: images (numpy RGB/BGR, encoded
-bytes, paths), intrinsics (3x3 or fx, fy, cx, cy), detections (masks, RLE, boxes)."""
+bytes, paths), intrinsics (3x3 or fx, fy, cx, cy), detections (masks, RLE, boxes), and
+the frames of a tracking stream."""
 
 from __future__ import annotations
 
 import os
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Mapping, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -64,6 +65,68 @@ def as_detection(d: DetectionInput) -> Detection:
         raise ValueError("a detection dict needs 'object_id'")
     obj = kw.pop("object_id")
     return Detection(str(obj), **kw)
+
+
+# ---------------------------------------------------------------------------- frames
+
+
+@dataclass(frozen=True, eq=False)  # images are arrays: identity, not element-wise, equality
+class TrackFrame:
+    """One video frame for :meth:`b2tfpose.Client.track`.
+
+    ``image`` and ``detections`` as :meth:`~b2tfpose.Client.estimate` takes them (numpy
+    RGB / BGR, PNG / JPEG bytes or a path; :class:`Detection` objects or dicts). ``K``: 3x3
+    or (fx, fy, cx, cy); None takes the ``K`` given to ``track()``. ``detections`` may be
+    empty: once an object is tracked it is followed without them; a detection that no track
+    of its object overlaps starts a track, one over a lost track re-initialises it.
+    ``frame_index``: the frame's number, above the last frame's (None: the next)."""
+
+    image: ImageInput
+    K: Optional[IntrinsicsInput] = None
+    detections: Sequence[DetectionInput] = ()
+    frame_index: Optional[int] = None
+
+
+FrameInput = Union[TrackFrame, Mapping[str, Any], Tuple[Any, ...], ImageInput]
+
+_FRAME_KEYS = {"image": "image", "K": "K", "intrinsics": "K", "detections": "detections", "frame_index": "frame_index"}
+
+
+def as_track_frame(f: FrameInput, K: Optional[IntrinsicsInput]) -> TrackFrame:
+    """A frame in any accepted form as a :class:`TrackFrame` whose ``K`` is set: a
+    TrackFrame, a dict with its keys (``intrinsics`` for ``K``), a tuple ``(image, K)`` or
+    ``(image, K, detections)``, or a bare image (then ``K`` is the call's)."""
+    if isinstance(f, TrackFrame):
+        frame = f
+    elif isinstance(f, Mapping):
+        kw: Dict[str, Any] = {}
+        for k, v in f.items():
+            if k not in _FRAME_KEYS:
+                raise ValueError(f"frame key {k!r}: expected image, K (intrinsics), detections or frame_index")
+            kw[_FRAME_KEYS[k]] = v
+        if "image" not in kw:
+            raise ValueError("a frame dict needs 'image'")
+        frame = TrackFrame(**kw)
+    elif isinstance(f, tuple):
+        if not 2 <= len(f) <= 3:
+            raise ValueError(f"a frame tuple is (image, K) or (image, K, detections), not {len(f)} values")
+        frame = TrackFrame(*f)
+    elif isinstance(f, (np.ndarray, bytes, bytearray, memoryview, str, os.PathLike)):
+        frame = TrackFrame(f)
+    else:
+        raise TypeError(f"a frame must be a b2tfpose.TrackFrame, a dict, an (image, K[, detections]) tuple or an image, not {type(f).__name__}")
+    dets = frame.detections
+    if dets is None:
+        frame = replace(frame, detections=())
+    elif isinstance(dets, (Mapping, str, bytes)) or not isinstance(dets, Sequence):
+        raise TypeError("a frame's detections: a list of b2tfpose.Detection (or dicts)")
+    if frame.frame_index is not None and (isinstance(frame.frame_index, bool) or not isinstance(frame.frame_index, (int, np.integer)) or frame.frame_index < 0):
+        raise ValueError(f"frame_index must be an integer >= 0, not {frame.frame_index!r}")
+    if frame.K is None:
+        if K is None:
+            raise ValueError("a frame without K: give K in the frame or to track(K=...)")
+        frame = replace(frame, K=K)
+    return frame
 
 
 # ---------------------------------------------------------------------------- images

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Any, Callable, Dict, Literal, Mapping, Optional, Sequence, Union
 
-from ._convert import DetectionInput, ImageInput, IntrinsicsInput, detection_message, image_message, intrinsics_message
+from ._convert import DetectionInput, ImageInput, IntrinsicsInput, TrackFrame, detection_message, image_message, intrinsics_message
 from ._mesh import MeshInput, mesh_message
 from ._types import CANCELLED, SUCCEEDED, ObjectInfo, OperationStatus
 from .errors import OperationCancelled, OperationFailed
@@ -80,6 +80,33 @@ def estimate_request(
         detections=[detection_message(d, w, h) for d in detections],
         options=options,
     )
+
+
+def track_options(max_tracks: Optional[int], drop_after_lost: Optional[int], lost_below: Optional[float]) -> pb.TrackOptions:
+    """The session's options (sent with the first frame); None leaves the server's default
+    (8 tracks, dropped after 30 lost frames, lost below 0.3)."""
+    for name, n in (("max_tracks", max_tracks), ("drop_after_lost", drop_after_lost)):
+        if n is not None and (isinstance(n, bool) or not isinstance(n, int) or n < 1):
+            raise ValueError(f"{name} must be an integer >= 1 (None: the server's default), not {n!r}")
+    options = pb.TrackOptions(max_tracks=max_tracks or 0, drop_after_lost=drop_after_lost or 0)
+    if lost_below is not None:
+        if isinstance(lost_below, bool) or not isinstance(lost_below, (int, float)) or not 0.0 <= lost_below <= 1.0:
+            raise ValueError(f"lost_below must be in [0, 1] (None: the server's default), not {lost_below!r}")
+        options.lost_below = float(lost_below)
+    return options
+
+
+def track_frame_message(frame: TrackFrame, *, bgr: bool, options: Optional[pb.TrackOptions]) -> pb.TrackFrame:
+    """One frame of the Track stream (``frame.K`` set, see :func:`as_track_frame`);
+    ``options`` go with the stream's first frame only."""
+    assert frame.K is not None
+    img, w, h = image_message(frame.image, bgr=bgr)
+    m = pb.TrackFrame(image=img, intrinsics=intrinsics_message(frame.K, w, h), detections=[detection_message(d, w, h) for d in frame.detections])
+    if frame.frame_index is not None:
+        m.frame_index = int(frame.frame_index)
+    if options is not None:
+        m.options.CopyFrom(options)
+    return m
 
 
 class ProgressFilter:

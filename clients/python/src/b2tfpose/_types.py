@@ -5,10 +5,17 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional
+from enum import Enum
+from typing import TYPE_CHECKING, Any, Dict, List, Optional
+
+import grpc
 
 from ._pose import Pose
+from .errors import RpcError, error_class
 from .v1 import pose_service_pb2 as pb
+
+if TYPE_CHECKING:
+    from ._convert import TrackFrame
 
 
 @dataclass(frozen=True)
@@ -80,6 +87,12 @@ class OperationStatus:
         )
 
 
+def pose_from_pb(m: pb.Pose) -> Pose:
+    if len(m.r) != 9 or len(m.t) != 3:
+        raise ValueError(f"the server sent a pose with {len(m.r)} rotation and {len(m.t)} translation values")
+    return Pose(list(m.r), list(m.t))
+
+
 @dataclass(frozen=True)
 class Result:
     """The estimate of one object instance. ``pose`` is None when none was found; then
@@ -106,11 +119,7 @@ class Result:
 
     @classmethod
     def from_pb(cls, m: pb.InstanceResult) -> "Result":
-        pose = None
-        if m.HasField("pose"):
-            if len(m.pose.r) != 9 or len(m.pose.t) != 3:
-                raise ValueError(f"the server sent a pose with {len(m.pose.r)} rotation and {len(m.pose.t)} translation values")
-            pose = Pose(list(m.pose.r), list(m.pose.t))
+        pose = pose_from_pb(m.pose) if m.HasField("pose") else None
         try:
             diagnostics = json.loads(m.diagnostics_json) if m.diagnostics_json else None
         except json.JSONDecodeError:
@@ -145,3 +154,129 @@ class Estimates(List[Result]):
         """The highest-scoring result with a pose (of ``object_id`` if given)."""
         found = [r for r in self if r.pose is not None and (object_id is None or r.object_id == object_id)]
         return max(found, key=lambda r: r.score) if found else None
+
+
+# ---------------------------------------------------------------------------- tracking
+
+
+class TrackMode(str, Enum):
+    """How a tracked object's pose in a frame came about (compares equal to its lower-case
+    name, as the HTTP API writes it: ``mode == "tracked"``)."""
+
+    ESTIMATED = "estimated"
+    """A new track, from a full estimate of a detection."""
+    TRACKED = "tracked"
+    """Followed from the last frame."""
+    REINITIALISED = "reinitialised"
+    """Lost, then found again by a full estimate (of a detection over it, or searching near
+    its last pose)."""
+    LOST = "lost"
+    """Not found in this frame (no pose)."""
+    DROPPED = "dropped"
+    """Lost for too long: the track ends here (no pose)."""
+    REFUSED = "refused"
+    """A detection that started no track (no pose; ``reason`` says why)."""
+    UNSPECIFIED = "unspecified"
+    """A mode this client does not know (a newer server)."""
+
+    def __str__(self) -> str:
+        return str(self.value)
+
+    @classmethod
+    def from_pb(cls, mode: int) -> "TrackMode":
+        return _MODES.get(mode, cls.UNSPECIFIED)
+
+
+_MODES: Dict[int, TrackMode] = {
+    pb.TrackedObject.ESTIMATED: TrackMode.ESTIMATED,
+    pb.TrackedObject.TRACKED: TrackMode.TRACKED,
+    pb.TrackedObject.REINITIALISED: TrackMode.REINITIALISED,
+    pb.TrackedObject.LOST: TrackMode.LOST,
+    pb.TrackedObject.DROPPED: TrackMode.DROPPED,
+    pb.TrackedObject.REFUSED: TrackMode.REFUSED,
+}
+
+
+@dataclass(frozen=True)
+class TrackedObject:
+    """One tracked object in one frame, or a detection that started no track (``mode``
+    REFUSED, ``track_id`` None). ``pose`` is None when lost, dropped or refused; then
+    ``reason`` says why."""
+
+    track_id: Optional[int]
+    """The track's number in this stream (None for a refused detection)."""
+    object_id: str
+    pose: Optional[Pose]
+    quality: float
+    """Outline agreement in [0, 1] (1 for a pose fresh from a full estimate)."""
+    mode: TrackMode
+    detection_index: Optional[int]
+    """Index into this frame's detections of the one used."""
+    ms: float
+    """Time the server spent on this object in this frame, milliseconds."""
+    reason: Optional[str]
+
+    @property
+    def ok(self) -> bool:
+        return self.pose is not None
+
+    @classmethod
+    def from_pb(cls, m: pb.TrackedObject) -> "TrackedObject":
+        return cls(
+            track_id=m.track_id if m.HasField("track_id") else None,
+            object_id=m.object_id,
+            pose=pose_from_pb(m.pose) if m.HasField("pose") else None,
+            quality=m.quality,
+            mode=TrackMode.from_pb(m.mode),
+            detection_index=m.detection_index if m.detection_index >= 0 else None,
+            ms=m.ms,
+            reason=m.reason or None,
+        )
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """The answer to one frame of a tracking stream: ``objects``, one per tracked object
+    (and one per detection that started no track), ``total_ms`` (the frame on the server)
+    and ``session_id`` (the stream's session, as GET /v1/tracks lists it).
+
+    A frame the server refused (malformed, out of order, unknown object) has ``error`` set,
+    the exception it would raise (:class:`~b2tfpose.InvalidArgument`,
+    :class:`~b2tfpose.NotFound`, ...), no objects, and ``frame_index`` None unless the frame
+    gave one; the session is as it was before it. ``frame`` is the frame this answers, as
+    sent (its image included)."""
+
+    frame_index: Optional[int]
+    """The frame's number in the stream (from 0, or as the frames gave them)."""
+    objects: List[TrackedObject]
+    total_ms: float
+    session_id: str
+    error: Optional[RpcError] = None
+    frame: Optional["TrackFrame"] = field(default=None, compare=False, repr=False)
+
+    @property
+    def ok(self) -> bool:
+        """The frame was not refused (its objects may still be lost)."""
+        return self.error is None
+
+    def best(self, object_id: Optional[str] = None) -> Optional[TrackedObject]:
+        """The object with a pose of highest quality (of ``object_id`` if given)."""
+        found = [o for o in self.objects if o.pose is not None and (object_id is None or o.object_id == object_id)]
+        return max(found, key=lambda o: o.quality) if found else None
+
+    @classmethod
+    def from_pb(cls, m: pb.TrackFrameResult, frame: Optional["TrackFrame"] = None) -> "TrackResult":
+        if m.HasField("error"):
+            code = getattr(grpc.StatusCode, m.error.code, grpc.StatusCode.UNKNOWN)
+            if not isinstance(code, grpc.StatusCode):
+                code = grpc.StatusCode.UNKNOWN
+            index = frame.frame_index if frame is not None and frame.frame_index is not None else None
+            error = error_class(code)(code, m.error.message, "Track")
+            return cls(frame_index=None if index is None else int(index), objects=[], total_ms=m.total_ms, session_id=m.session_id, error=error, frame=frame)
+        return cls(
+            frame_index=m.frame_index,
+            objects=[TrackedObject.from_pb(o) for o in m.objects],
+            total_ms=m.total_ms,
+            session_id=m.session_id,
+            frame=frame,
+        )

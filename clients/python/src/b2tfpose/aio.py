@@ -5,17 +5,18 @@ shared builders and parsers."""
 from __future__ import annotations
 
 import asyncio
-from typing import Any, AsyncIterator, Awaitable, Callable, List, Literal, Mapping, Optional, Sequence, Tuple, TypeVar, Union, overload
+from typing import Any, AsyncGenerator, AsyncIterable, AsyncIterator, Awaitable, Callable, Iterable, Iterator, List, Literal, Mapping, Optional, Sequence, Tuple, TypeVar, Union, overload
 
 import grpc
 
 from . import _requests
 from ._channel import HEALTH_CHECK, SERVICE, CaCert, Settings, decode_health_response, encode_health_request, identity
-from ._convert import DetectionInput, ImageInput, IntrinsicsInput
+from ._convert import DetectionInput, FrameInput, ImageInput, IntrinsicsInput
 from ._mesh import MeshInput
-from ._requests import PcaSetting, ProgressCallback, ProgressFilter, finish
+from ._requests import PcaSetting, ProgressCallback, ProgressFilter, finish, track_options
 from ._retry import Attempts, RetryArg, RetryPolicy, resolve
-from ._types import Estimates, ObjectInfo, OperationStatus
+from ._track import METHOD as TRACK, TrackState
+from ._types import Estimates, ObjectInfo, OperationStatus, TrackResult
 from .errors import DeadlineExceeded, from_grpc
 from .v1 import pose_service_pb2 as pb
 from .v1 import pose_service_pb2_grpc as pb_grpc
@@ -53,6 +54,65 @@ class AsyncOperation:
 
     def __repr__(self) -> str:
         return f"AsyncOperation(id={self.id!r}, object_id={self.object_id!r}, state={self.last_status.state})"
+
+
+class _Frames:
+    """The caller's frames, an async or a plain iterable, taken one at a time."""
+
+    def __init__(self, frames: Union[AsyncIterable[FrameInput], Iterable[FrameInput]]) -> None:
+        self._async: Optional[AsyncIterator[FrameInput]] = None
+        self._sync: Optional[Iterator[FrameInput]] = None
+        if isinstance(frames, AsyncIterable):
+            self._async = frames.__aiter__()
+        else:
+            self._sync = iter(frames)
+
+    async def next(self) -> FrameInput:
+        """The next frame; StopAsyncIteration once they have run out."""
+        if self._async is not None:
+            return await self._async.__anext__()
+        assert self._sync is not None
+        try:
+            return next(self._sync)
+        except StopIteration:
+            raise StopAsyncIteration from None
+
+
+# Event-loop turns given before each write to a Track stream, so that a status the server
+# already sent (an idle stream ended while the loop was busy) is taken in first: grpc.aio
+# replaces the status of a call that ended under a write with INTERNAL "Internal error from
+# Core", so the real one (DEADLINE_EXCEEDED...) would be lost. Three turns sufficed in the
+# tests (tests/test_track.py blocks the loop past the server's idle timeout).
+_SETTLE_TURNS = 5
+
+
+async def _ended(call: Any) -> bool:
+    for _ in range(_SETTLE_TURNS):
+        await asyncio.sleep(0)
+    return bool(call.done())
+
+
+async def _send(call: Any, m: pb.TrackFrame) -> bool:
+    """Writes a frame; False when the stream has ended (its status comes with the next
+    read, where it is raised)."""
+    if await _ended(call):
+        return False
+    try:
+        await call.write(m)
+        return True
+    except (grpc.RpcError, asyncio.InvalidStateError):
+        return False
+
+
+async def _close_sending(call: Any) -> None:
+    """Half-closes the stream (no more frames), unless it has ended (its status comes with
+    the next read)."""
+    if await _ended(call):
+        return
+    try:
+        await call.done_writing()
+    except Exception:  # noqa: BLE001 - an ended call (grpc's internal error type): the read raises its status
+        pass
 
 
 class AsyncClient:
@@ -171,6 +231,66 @@ class AsyncClient:
             image, K, detections, bgr=bgr, rrc=rrc, refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify
         )
         return Estimates.from_pb(await self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
+
+    def track(
+        self,
+        frames: Union[AsyncIterable[FrameInput], Iterable[FrameInput]],
+        *,
+        K: Optional[IntrinsicsInput] = None,
+        bgr: bool = False,
+        max_tracks: Optional[int] = None,
+        drop_after_lost: Optional[int] = None,
+        lost_below: Optional[float] = None,
+        raise_errors: bool = True,
+        prefetch: int = 1,
+        timeout: Optional[float] = None,
+        retry: RetryArg = None,
+    ) -> AsyncGenerator[TrackResult, None]:
+        """As :meth:`b2tfpose.Client.track`, as an async iterator (``async for result in
+        client.track(frames)``); ``frames`` is an async iterable or a plain one. Leaving the
+        loop early ends the stream when the iterator is closed (``aclose()``, or when it is
+        garbage-collected)."""
+        state = TrackState(
+            track_options(max_tracks, drop_after_lost, lost_below),
+            K,
+            bgr,
+            raise_errors,
+            prefetch,
+            Attempts(TRACK, resolve(retry, self._settings.retry, idempotent=True), timeout),
+        )
+        return self._track(_Frames(frames), state)
+
+    async def _track(self, source: _Frames, state: TrackState) -> AsyncGenerator[TrackResult, None]:
+        while True:  # one stream per attempt
+            call = self._stub.Track(timeout=state.attempts.timeout(), metadata=self._settings.metadata)
+            writable, closed = True, False
+            try:
+                for m in state.replay():
+                    writable = writable and await _send(call, m)
+                while True:
+                    while writable and state.wants_frame():
+                        try:
+                            frame = await source.next()
+                        except StopAsyncIteration:
+                            state.exhausted = True
+                            break
+                        writable = await _send(call, state.add(frame))
+                    if writable and state.exhausted and not closed:
+                        await _close_sending(call)
+                        closed = True
+                    if state.exhausted and not state.pending:
+                        while await call.read() is not grpc.aio.EOF:  # the stream's end (and its status)
+                            pass
+                        return
+                    answer = await call.read()  # a stream that ended raises its status here
+                    if not isinstance(answer, pb.TrackFrameResult):  # EOF
+                        raise state.ended_early()
+                    yield state.answer(answer)
+            except grpc.RpcError as e:
+                delay = state.failure(e)  # raises unless the opening is retried
+            finally:
+                call.cancel()
+            await asyncio.sleep(delay)
 
     async def list_objects(self, *, timeout: Optional[float] = None, retry: RetryArg = None) -> List[ObjectInfo]:
         m = await self._call("ListObjects", self._stub.ListObjects, pb.ListObjectsRequest(), timeout, retry, idempotent=True)

@@ -2,18 +2,20 @@
 
 from __future__ import annotations
 
+import queue
 import time
-from typing import Any, Callable, Iterator, List, Literal, Mapping, Optional, Sequence, Tuple, TypeVar, Union, overload
+from typing import Any, Callable, Generator, Iterable, Iterator, List, Literal, Mapping, Optional, Sequence, Tuple, TypeVar, Union, overload
 
 import grpc
 
 from . import _requests
 from ._channel import HEALTH_CHECK, SERVICE, CaCert, Settings, decode_health_response, encode_health_request, identity
-from ._convert import DetectionInput, ImageInput, IntrinsicsInput
+from ._convert import DetectionInput, FrameInput, ImageInput, IntrinsicsInput
 from ._mesh import MeshInput
-from ._requests import PcaSetting, ProgressCallback, ProgressFilter, finish
+from ._requests import PcaSetting, ProgressCallback, ProgressFilter, finish, track_options
 from ._retry import Attempts, RetryArg, RetryPolicy, resolve
-from ._types import Estimates, ObjectInfo, OperationStatus
+from ._track import METHOD as TRACK, TrackState
+from ._types import Estimates, ObjectInfo, OperationStatus, TrackResult
 from .errors import DeadlineExceeded, from_grpc
 from .v1 import pose_service_pb2 as pb
 from .v1 import pose_service_pb2_grpc as pb_grpc
@@ -55,6 +57,34 @@ class Operation:
 
     def __repr__(self) -> str:
         return f"Operation(id={self.id!r}, object_id={self.object_id!r}, state={self.last_status.state})"
+
+
+class _Outbox:
+    """The request iterator of a Track stream: grpc's sending thread takes from it what the
+    caller's thread puts, so frames are taken from the caller's iterable in the caller's
+    thread (its exceptions are the caller's), as the answers come back."""
+
+    def __init__(self) -> None:
+        self._queue: "queue.Queue[Optional[pb.TrackFrame]]" = queue.Queue()
+        self._closed = False
+
+    def put(self, m: pb.TrackFrame) -> None:
+        self._queue.put(m)
+
+    def close(self) -> None:
+        """No more frames: the stream is half-closed once the ones put are sent."""
+        if not self._closed:
+            self._closed = True
+            self._queue.put(None)
+
+    def __iter__(self) -> "_Outbox":
+        return self
+
+    def __next__(self) -> pb.TrackFrame:
+        m = self._queue.get()
+        if m is None:
+            raise StopIteration
+        return m
 
 
 class Client:
@@ -205,6 +235,93 @@ class Client:
             image, K, detections, bgr=bgr, rrc=rrc, refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify
         )
         return Estimates.from_pb(self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
+
+    # ------------------------------------------------------------------ tracking
+
+    def track(
+        self,
+        frames: Iterable[FrameInput],
+        *,
+        K: Optional[IntrinsicsInput] = None,
+        bgr: bool = False,
+        max_tracks: Optional[int] = None,
+        drop_after_lost: Optional[int] = None,
+        lost_below: Optional[float] = None,
+        raise_errors: bool = True,
+        prefetch: int = 1,
+        timeout: Optional[float] = None,
+        retry: RetryArg = None,
+    ) -> Generator[TrackResult, None, None]:
+        """Tracks objects through a video: one :class:`~b2tfpose.TrackResult` per frame, in
+        order, as the server answers (the Track stream: one tracking session).
+
+        ``frames``: any iterable (a list, a generator reading a camera), taken lazily; each a
+        :class:`~b2tfpose.TrackFrame`, a dict with its keys, an ``(image, K)`` or ``(image, K,
+        detections)`` tuple, or a bare image. ``K``: the intrinsics of frames that give none.
+        ``bgr``: numpy frames are OpenCV's BGR. A detection that no track of its object
+        overlaps starts a track (a full estimate, mode ESTIMATED); later frames need none
+        (TRACKED); a lost track is re-initialised from a detection over it or by searching
+        near its last pose. ``max_tracks`` (1-32), ``drop_after_lost`` (lost frames before a
+        track ends), ``lost_below`` (outline agreement, 0-1, under which a frame is lost): the
+        session's options (None: the server's defaults, 8, 30, 0.3).
+
+        A frame the server refuses (malformed, out of order, unknown object) raises its
+        error (InvalidArgument, NotFound, ...), which ends the stream; with
+        ``raise_errors=False`` it is returned as the frame's ``result.error`` instead and the
+        stream goes on, the session as it was. Frames that cannot be sent at all raise
+        ValueError / TypeError. A status ending the stream raises its class:
+        ResourceExhausted (the server's sessions are all open), DeadlineExceeded (no frame
+        for the server's idle timeout, or past ``timeout``), Unavailable...
+
+        ``prefetch``: frames taken and sent ahead of the answers once the first frame was
+        answered, 0-3 (1: the next frame travels while the server works on this one; 0: each
+        frame is taken once the last one's result was handled, for frames that depend on it). ``timeout`` bounds the whole
+        stream (None: no limit). Only the opening is retried (``retry``: the client's policy
+        by default), re-sending the first frame: once a frame was answered the session has
+        state a new stream would not. Leaving the loop early ends the stream (``close()``
+        ends it at once; a ``break`` does once nothing refers to the iterator).
+        """
+        state = TrackState(
+            track_options(max_tracks, drop_after_lost, lost_below),
+            K,
+            bgr,
+            raise_errors,
+            prefetch,
+            Attempts(TRACK, resolve(retry, self._settings.retry, idempotent=True), timeout),
+        )
+        return self._track(iter(frames), state)
+
+    def _track(self, source: Iterator[FrameInput], state: TrackState) -> Generator[TrackResult, None, None]:
+        while True:  # one stream per attempt
+            outbox = _Outbox()
+            answers = self._stub.Track(outbox, timeout=state.attempts.timeout(), metadata=self._settings.metadata)
+            try:
+                for m in state.replay():
+                    outbox.put(m)
+                while True:
+                    while state.wants_frame():
+                        try:
+                            frame = next(source)
+                        except StopIteration:
+                            state.exhausted = True
+                            break
+                        outbox.put(state.add(frame))
+                    if state.exhausted:
+                        outbox.close()
+                        if not state.pending:
+                            for _ in answers:  # the stream's end (and its status)
+                                pass
+                            return
+                    answer = next(answers, None)
+                    if answer is None:
+                        raise state.ended_early()
+                    yield state.answer(answer)
+            except grpc.RpcError as e:
+                delay = state.failure(e)  # raises unless the opening is retried
+            finally:
+                outbox.close()
+                answers.cancel()
+            time.sleep(delay)
 
     # ------------------------------------------------------------------ objects
 
