@@ -321,14 +321,7 @@ fn mask_near(tracker: &Tracker, image: &RgbImage, k: &Intrinsics, radii: f64) ->
 
 /// [x0, y0, x1, y1) of a mask's non-zero pixels.
 fn mask_box(mask: &GrayImage) -> Option<[u32; 4]> {
-    let mut b: Option<[u32; 4]> = None;
-    for (x, y, p) in mask.enumerate_pixels() {
-        if p[0] > 0 {
-            let e = b.get_or_insert([x, y, x + 1, y + 1]);
-            *e = [e[0].min(x), e[1].min(y), e[2].max(x + 1), e[3].max(y + 1)];
-        }
-    }
-    b
+    crate::features::crop::mask_bbox(mask).map(|(x0, y0, x1, y1)| [x0, y0, x1 + 1, y1 + 1])
 }
 
 /// Intersection over the smaller box's area.
