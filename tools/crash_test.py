@@ -50,6 +50,7 @@ def parse_args() -> argparse.Namespace:
 
 
 def main() -> int:
+    started = time.monotonic()
     a = parse_args()
     print(f"b2tf: {b2tf_bin()}", flush=True)
     work = Path(tempfile.mkdtemp(prefix="b2tf-crash-"))
@@ -97,9 +98,9 @@ def main() -> int:
         else:
             shutil.rmtree(work, ignore_errors=True)
     if problems:
-        print("\nFAILED:\n" + "\n".join(problems))
+        print(f"\nFAILED ({time.monotonic() - started:.0f} s):\n" + "\n".join(problems))
         return 1
-    print("\nOK: after every kill the store opened with only complete objects; a full disk failed the put cleanly")
+    print(f"\nOK: after every kill the store opened with only complete objects; a full disk failed the put cleanly ({time.monotonic() - started:.0f} s)")
     return 0
 
 

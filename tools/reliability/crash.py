@@ -56,7 +56,8 @@ class Estimators:
     server dies; `in_flight` counts requests sent and not yet answered."""
 
     def __init__(self, mix: Mix, n: int) -> None:
-        self.mix, self.stop_flag, self.in_flight, self.errors = mix, threading.Event(), 0, []
+        self.mix, self.stop_flag, self.in_flight = mix, threading.Event(), 0
+        self.errors: List[str] = []
         self.lock = threading.Lock()
         self.threads = [threading.Thread(target=self.run, args=(i,), daemon=True) for i in range(n)]
         for t in self.threads:

@@ -18,6 +18,7 @@ from typing import Callable, Dict, FrozenSet, List, Tuple
 
 import b2tfpose
 
+from . import onboarding
 from .calls import Reply, grpc_call, http_call
 from .fixtures import K, Fixtures, pose_is_right
 
@@ -60,7 +61,7 @@ class Mix:
         self._bad_grpc = itertools.cycle(self._bad_grpc_cases())
         self._reads_http = itertools.cycle(["/v1/objects", f"/v1/objects/{OBJECT}", "/healthz", "/metrics"])
         self._reads_grpc = itertools.cycle(["list", "get", "health"])
-        self._onboards = itertools.cycle(["json", "multipart", "grpc"])
+        self._onboards = itertools.cycle(onboarding.WAYS)
         self._lock = threading.Lock()
 
     def close(self) -> None:
@@ -152,21 +153,12 @@ class Mix:
         with self._lock:
             how, oid = next(self._onboards), f"load-{next(self._ids)}"
         t = time.monotonic()
+        r, op = onboarding.start(self.http, self.client, self.fx, oid, self.level, self.in_plane, how, self.timeout)
         if how == "grpc":
-            r = grpc_call(lambda: self.client.onboard(oid, self.fx.obj, format="obj", units="m", resources=self.fx.resources, level=self.level, in_plane=self.in_plane, wait=False))
             first = outcome("onboard", "grpc", r, t, GRPC_EST)
-            if r.status != "OK":
-                return [first]
-            return [first, *self._follow_grpc(oid, r.body.id, t)]
-        if how == "json":
-            body, ctype = self.fx.onboard_json(oid, self.level, self.in_plane), "application/json"
-        else:
-            body, ctype = self.fx.onboard_multipart(oid, self.level, self.in_plane)
-        r = http_call(self.http, "POST", "/v1/objects", body, ctype, timeout=self.timeout)
+            return [first] if op is None else [first, *self._follow_grpc(oid, op, t)]
         first = outcome("onboard", "http", r, t, frozenset({"202", "429"}), f"{how}: {r.status} {r.body!r}"[:300])
-        if r.status != "202":
-            return [first]
-        return [first, *self._follow_http(oid, json.loads(r.body)["id"], t)]
+        return [first] if op is None else [first, *self._follow_http(oid, op, t)]
 
     def _follow_http(self, oid: str, op: str, t: float) -> List[Outcome]:
         end = t + self.timeout * 4
@@ -179,8 +171,9 @@ class Mix:
         done = Outcome("onboard-done", "http", str(state), time.monotonic() - t, t, state == "succeeded", "" if state == "succeeded" else f"{oid}: {r.status} {r.body!r}"[:300])
         if state != "succeeded":
             return [done]
+        td = time.monotonic()
         d = http_call(self.http, "DELETE", f"/v1/objects/{oid}", timeout=self.timeout)
-        return [done, outcome("delete", "http", d, time.monotonic(), frozenset({"204"}), f"{oid}: {d.status} {d.body!r}"[:300])]
+        return [done, outcome("delete", "http", d, td, frozenset({"204"}), f"{oid}: {d.status} {d.body!r}"[:300])]
 
     def _follow_grpc(self, oid: str, op: str, t: float) -> List[Outcome]:
         end = t + self.timeout * 4
@@ -194,5 +187,6 @@ class Mix:
         done = Outcome("onboard-done", "grpc", str(state), time.monotonic() - t, t, ok, "" if ok else f"{oid}: {r.status} {r.detail} {r.body!r}"[:300])
         if not ok:
             return [done]
+        td = time.monotonic()
         d = grpc_call(lambda: self.client.delete_object(oid))
-        return [done, outcome("delete", "grpc", d, time.monotonic(), frozenset({"OK"}), oid)]
+        return [done, outcome("delete", "grpc", d, td, frozenset({"OK"}), oid)]

@@ -16,8 +16,9 @@ from .fixtures import Fixtures
 WAYS = ("json", "multipart", "grpc")
 
 
-def start(http: str, client: b2tfpose.Client, fx: Fixtures, oid: str, level: int, in_plane: int, how: str) -> Tuple[Reply, Optional[str]]:
-    """(the answer, the operation id when accepted)."""
+def start(http: str, client: b2tfpose.Client, fx: Fixtures, oid: str, level: int, in_plane: int, how: str, timeout: float = 60) -> Tuple[Reply, Optional[str]]:
+    """(the answer, the operation id when accepted). `client` is a b2tfpose.Client made
+    with retries off and the timeout wanted."""
     if how == "grpc":
         r = grpc_call(lambda: client.onboard(oid, fx.obj, format="obj", units="m", resources=fx.resources, level=level, in_plane=in_plane, wait=False))
         return r, (r.body.id if r.status == "OK" else None)
@@ -25,7 +26,7 @@ def start(http: str, client: b2tfpose.Client, fx: Fixtures, oid: str, level: int
         body, ctype = fx.onboard_json(oid, level, in_plane), "application/json"
     else:
         body, ctype = fx.onboard_multipart(oid, level, in_plane)
-    r = http_call(http, "POST", "/v1/objects", body, ctype, timeout=60)
+    r = http_call(http, "POST", "/v1/objects", body, ctype, timeout=timeout)
     return r, (json.loads(r.body)["id"] if r.status == "202" else None)
 
 
