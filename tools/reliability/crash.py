@@ -5,9 +5,10 @@ and checks what the next start finds.
 Three kinds of round, in turn:
 - "onboard": an onboarding (HTTP JSON, multipart or gRPC in turn) with estimates beside
   it, killed at a random point while templates are rendered;
-- "put": the same, killed while the object is written to the store: within 20 ms of the
-  first sign of the write (a dir:// store's hidden `.ID.tmp-…` folder appearing, a SQLite
-  store's -wal file changing), else at a random point after the last template;
+- "put": the same, killed while the object is written to the store: at a random point
+  between the first sign of the write (a dir:// store's hidden `.ID.tmp-…` folder
+  appearing, a SQLite store's -wal file changing) and 1.3 times the time the put took for
+  the first object, so that some kills fall just after it;
 - "estimate": four clients estimating back to back (HTTP and gRPC), killed at a random
   point.
 After each kill the store must open (the server gets ready), list only complete objects
@@ -89,20 +90,17 @@ def run_backend(store_url: str, store_dir: Optional[Path], work: Path, fx: Fixtu
     r, op = onboarding.start(server.http, client, fx, OBJECT, LEVEL, in_plane, "json")
     if op is None:
         raise RuntimeError(f"onboarding {OBJECT}: {r.status} {r.body!r}")
-    # The time the templates take and the time from the last template to the end (the
-    # encoding and the put), to aim kills at either.
-    t0, t_done = time.monotonic(), None
-    while True:
-        s = onboarding.state(server.http, op)
-        if t_done is None and s.get("templates_done") == s.get("templates_total"):
-            t_done = time.monotonic()
-        if s["state"] != "running":
-            break
-        time.sleep(0.01)
+    # How long the work before the put takes, and the put itself (from the first sign of
+    # the write to the operation's end), to aim kills at either.
+    t0 = time.monotonic()
+    if not wait_for_write(store_url, OBJECT, server.http, op):
+        raise RuntimeError(f"onboarding {OBJECT}: its write to the store was not seen: {onboarding.state(server.http, op)}")
+    t_write = time.monotonic()
+    s = onboarding.wait(server.http, op, poll=0.005)
     if s["state"] != "succeeded":
         raise RuntimeError(f"onboarding {OBJECT}: {s}")
-    templates_s, put_s = (t_done or time.monotonic()) - t0, time.monotonic() - (t_done or time.monotonic())
-    log(f"  {OBJECT} onboarded: templates {templates_s:.2f} s, then {put_s * 1e3:.0f} ms to the end (encoding and put)")
+    before_s, put_s = t_write - t0, time.monotonic() - t_write
+    log(f"  {OBJECT} onboarded: {before_s:.2f} s before its put, {put_s * 1e3:.0f} ms from the first write to the end")
     client.close()
 
     rounds: List[Round] = []
@@ -121,12 +119,12 @@ def run_backend(store_url: str, store_dir: Optional[Path], work: Path, fx: Fixtu
             if op is None:
                 raise RuntimeError(f"round {n}: onboarding {oid} refused: {r.status} {r.detail} {r.body!r}")
             if kind == "onboard":
-                time.sleep(rng.uniform(0.05, 0.9) * templates_s)
+                time.sleep(rng.uniform(0.05, 0.9) * before_s)
             elif wait_for_write(store_url, oid, server.http, op):
-                time.sleep(rng.uniform(0, 0.02))
+                # Most kills inside the put; some just after it ended (the object must
+                # then be there, whole).
+                time.sleep(rng.uniform(0, 1.3 * put_s))
                 put_seen = True
-            else:
-                time.sleep(rng.uniform(0, put_s))
             s = onboarding.state(server.http, op)
             doing = f"onboarding {s['state']} {s.get('templates_done')}/{s.get('templates_total')}{', store write seen' if put_seen else ''}, {est.in_flight} estimates in flight"
         killed_after = time.monotonic() - t0

@@ -37,14 +37,14 @@ def state(http: str, op: str) -> Dict[str, Any]:
     return json.loads(r.body) if r.status == "200" else {"state": r.status, "detail": r.detail}
 
 
-def wait(http: str, op: str, timeout: float = 300) -> Dict[str, Any]:
-    """Polls until the operation is no longer running (or `timeout`)."""
+def wait(http: str, op: str, timeout: float = 300, poll: float = 0.1) -> Dict[str, Any]:
+    """Polls every `poll` seconds until the operation is no longer running (or `timeout`)."""
     end = time.monotonic() + timeout
     while True:
         s = state(http, op)
         if s["state"] != "running" or time.monotonic() > end:
             return s
-        time.sleep(0.1)
+        time.sleep(poll)
 
 
 def onboard(http: str, client: b2tfpose.Client, fx: Fixtures, oid: str, level: int, in_plane: int, how: str = "json") -> Dict[str, Any]:
