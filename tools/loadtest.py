@@ -160,11 +160,13 @@ def main() -> int:
             raise RuntimeError("the server died during the capacity run")
 
         phases = ([("warm-up", multipliers[0], a.warmup_s)] if a.warmup_s > 0 else []) + [(f"{m:g}x", m, a.duration) for m in multipliers]
+        sent = 0
         for phase, m, seconds in phases:
             sampler.phase = phase
             rate = m * capacity / ESTIMATE_SHARE
-            arrivals = schedule([(rate, REQUESTS), (m * onboard_cap, ONBOARDINGS)], seconds, a.seed)
+            arrivals = schedule([(rate, REQUESTS), (m * onboard_cap, ONBOARDINGS)], seconds, a.seed + len(rows))
             run = open_loop(mix, arrivals, seconds, workers=256, drain_s=a.timeout * 5)
+            sent += run.sent
             row = stats.summarise(phase, run.outcomes, run.seconds)
             rows.append(row)
             all_out += run.outcomes
@@ -195,10 +197,11 @@ def main() -> int:
         if code != 0:
             problems.append(f"SIGTERM after the load: exit status {code} (expected 0)")
 
-        print(f"\n## Phases (--max-estimates {a.max_estimates}; capacity {capacity:.2f}/s)\n\n{stats.phase_table(rows)}")
+        print(f"\n## Phases (--max-estimates {a.max_estimates}; capacity {capacity:.2f}/s; {sent} requests sent in the open loop)\n\n{stats.phase_table(rows)}")
         print(f"\n## Statuses\n\n{stats.status_table(all_out)}")
         print(f"\n## Server resources (before the load: RSS {base.rss_mb:.0f} MB, {base.threads} threads, {base.fds} fds; "
               f"after: {after.rss_mb:.0f} MB, {after.threads} threads, {after.fds} fds)\n\n{stats.resource_table(sampler.samples, 24)}")
+        print(f"\nEvery reading, by phase:\n\n{stats.range_table(sampler.samples)}")
         problems = stats.violations(all_out) + problems
     except Exception:
         print(f"server log:\n{server.log_tail()}", file=sys.stderr)

@@ -89,6 +89,19 @@ def resource_table(samples: List[Sample], rows: int) -> str:
     return "\n".join(lines)
 
 
+def range_table(samples: List[Sample]) -> str:
+    """Per phase, over every reading: RSS min / median / max, threads and fds min-max."""
+    phases: Dict[str, List[Sample]] = {}
+    for x in samples:
+        phases.setdefault(x.phase, []).append(x)
+    lines = ["| phase | readings | RSS min / median / max (MB) | threads | fds |", "|---|---:|---|---|---|"]
+    for ph, xs in phases.items():
+        rss = sorted(x.rss_mb for x in xs)
+        th, fd = [x.threads for x in xs], [x.fds for x in xs]
+        lines.append(f"| {ph} | {len(xs)} | {rss[0]:.0f} / {rss[len(rss) // 2]:.0f} / {rss[-1]:.0f} | {min(th)}–{max(th)} | {min(fd)}–{max(fd)} |")
+    return "\n".join(lines)
+
+
 def violations(outcomes: List[Outcome], limit: int = 12) -> List[str]:
     bad = [o for o in outcomes if not o.ok]
     by: Dict[str, int] = Counter(f"{o.kind}/{o.proto}/{o.status}" for o in bad)
