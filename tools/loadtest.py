@@ -3,9 +3,9 @@
 
 Starts a server on loopback with a small dir:// store in a temporary folder, onboards the
 generated sample box, measures its capacity (estimates per second that --max-estimates
-closed-loop clients get through), then offers a mix of estimates, onboardings, reads and
-bad requests over HTTP and gRPC at each multiple of that capacity (open loop, Poisson
-arrivals), sampling its RSS, threads and file descriptors every second. Checks:
+closed-loop clients get through), then offers a mix of estimates, onboardings, reads,
+bad requests and clients that give up (a 0.3 s hang-up or gRPC deadline) over HTTP and
+gRPC at each multiple of that capacity (open loop, Poisson arrivals), sampling its RSS, threads and file descriptors every second. Checks:
 
 - every request gets an answer it may get: beyond capacity only 429 / RESOURCE_EXHAUSTED,
   no 5xx, no connection error, no hang (client timeout), no wrong pose; accepted

@@ -16,7 +16,7 @@ from .mix import Mix, Outcome
 
 # The open loop's two streams of arrivals. Requests: estimates are 80 % of them, so that
 # "m x capacity" is the estimate rate (the stream's rate is m x capacity / 0.8), bad
-# requests and reads the rest. Onboardings: their own stream at m x their own capacity
+# requests, clients giving up and reads the rest. Onboardings: their own stream at m x their own capacity
 # (--max-onboardings / one onboarding's time), so that they are overloaded by the same
 # factor (a share of the requests would be far more, or far less, than their capacity).
 ESTIMATE_SHARE = 0.80
@@ -25,8 +25,10 @@ REQUESTS: Sequence[Tuple[str, float]] = (
     ("estimate_grpc", 0.40),
     ("bad_http", 0.06),
     ("bad_grpc", 0.06),
-    ("read_http", 0.04),
-    ("read_grpc", 0.04),
+    ("abandon_http", 0.02),
+    ("abandon_grpc", 0.02),
+    ("read_http", 0.02),
+    ("read_grpc", 0.02),
 )
 ONBOARDINGS: Sequence[Tuple[str, float]] = (("onboard", 1.0),)
 

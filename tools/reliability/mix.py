@@ -1,5 +1,6 @@
-"""The load test's requests: estimates, onboardings, reads and bad requests over HTTP and
-gRPC, each with the statuses it may get. Anything else is a violation: a 5xx, an error
+"""The load test's requests: estimates, onboardings, reads, bad requests and clients that
+give up (hang up, or a short gRPC deadline) over HTTP and gRPC, each with the statuses it
+may get. Anything else is a violation: a 5xx, an error
 the request did not deserve, no answer at all, or a wrong pose.
 
 Why 429 is allowed for some bad requests: an estimate takes its concurrency slot before
@@ -23,6 +24,7 @@ from .calls import Reply, grpc_call, http_call
 from .fixtures import K, Fixtures, pose_is_right
 
 OBJECT = "box"  # onboarded before the load; every estimate names it
+ABANDON_S = 0.3  # how long a client that gives up waits
 
 
 @dataclass
@@ -86,6 +88,22 @@ class Mix:
             if res.pose is None or not pose_is_right(list(res.pose.t)):
                 return [Outcome("estimate", "grpc", "wrong-pose", r.seconds, t, False, repr(res)[:300])]
         return [outcome("estimate", "grpc", r, t, GRPC_EST)]
+
+    # ------------------------------------------------------------------ clients giving up
+
+    def abandon_http(self) -> List[Outcome]:
+        """An estimate whose client hangs up after 0.3 s (an accepted one takes ~1 s):
+        the server must finish or drop the work and free its slot and connection."""
+        t = time.monotonic()
+        r = http_call(self.http, "POST", "/v1/estimate", self.estimate_body, timeout=ABANDON_S)
+        return [outcome("abandon", "http", r, t, HTTP_EST | {"timeout"})]
+
+    def abandon_grpc(self) -> List[Outcome]:
+        """An estimate with a 0.3 s gRPC deadline: DEADLINE_EXCEEDED (shown as "timeout"),
+        and the slot freed once the worker notices."""
+        t = time.monotonic()
+        r = grpc_call(lambda: self.client.estimate(self.fx.rgb_png, K, [b2tfpose.Detection(OBJECT, mask=self.fx.mask_png)], timeout=ABANDON_S))
+        return [outcome("abandon", "grpc", r, t, GRPC_EST | {"timeout"})]
 
     # ------------------------------------------------------------------ reads
 
