@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Every test: unit and integration tests (renderer on lavapipe, onboarding, loaders, CLI,
-# the service over loopback: HTTP, gRPC, TLS) and the OpenAPI document's validity.
+# the service over loopback: HTTP, gRPC, TLS), the OpenAPI document's validity, the Python
+# client's suite, the short overload and crash tests, and the container checks.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -17,4 +18,8 @@ export B2TF_REQUIRE_GPU=1
 : "${B2TF_ORT_LIB:?scripts/env.sh found no ONNX Runtime library in .deps/python}"
 cargo test --all-targets
 bash clients/python/scripts/test.sh
+# Overload and crash safety, short modes (docs/reliability.md; ~1.5 min together): the
+# server cargo test just built, Python from the client's venv that the step above made.
+B2TF_BIN="${B2TF_BIN:-target/debug/b2tf}" tools/reliability/python.sh tools/loadtest.py --short
+B2TF_BIN="${B2TF_BIN:-target/debug/b2tf}" tools/reliability/python.sh tools/crash_test.py --short
 bash deploy/test.sh
