@@ -71,8 +71,12 @@ impl ResultRow {
 /// the final newline is optional. A last line cut short by a killed writer
 /// is an error here; [`ResultsWriter::open`] repairs such a file.
 pub fn read_results(path: &Path) -> Result<Vec<ResultRow>, ResultsError> {
-    let text = fs::read_to_string(path).map_err(io_error(path))?;
-    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
+    parse_results(path, &fs::read_to_string(path).map_err(io_error(path))?)
+}
+
+/// Parses the text of a results file; `path` names it in errors.
+pub fn parse_results(path: &Path, text: &str) -> Result<Vec<ResultRow>, ResultsError> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut lines: Vec<&str> = text.split('\n').collect();
     let unterminated_last = !text.ends_with('\n');
     if !unterminated_last {
