@@ -39,10 +39,10 @@ pub const MAX_MESH_RESOURCE_BYTES: u64 = 1 << 30;
 pub const MAX_MESH_RESOURCES: usize = 64;
 /// Parts of a multipart onboarding body: the text fields, the mesh and its resources.
 pub const MAX_MULTIPART_PARTS: usize = MAX_MESH_RESOURCES + 16;
-/// Nesting of JSON bodies and files: serde_json's own recursion limit, which refuses
-/// deeper documents with "recursion limit exceeded" (stated here to document it; the
-/// tests pin it).
-pub const MAX_JSON_DEPTH: usize = 128;
+/// Nesting of JSON bodies and files: serde_json's own recursion limit (128 levels of
+/// recursion allow 127 nested lists or objects), which refuses deeper documents with
+/// "recursion limit exceeded" (stated here to document it; the tests pin it).
+pub const MAX_JSON_DEPTH: usize = 127;
 
 /// How large a decoded image may be.
 #[derive(Clone, Copy, Debug)]
@@ -146,14 +146,20 @@ pub(crate) mod tests {
         out
     }
 
-    /// A PNG whose header claims `width × height`, with no pixel data.
+    /// A PNG whose header claims `width × height`, with no pixel data (an empty IDAT chunk:
+    /// decoders read the header up to the first one).
     pub(crate) fn png_header_only(width: u32, height: u32) -> Vec<u8> {
-        let mut bytes = png(1, 1);
-        bytes.truncate(33); // signature (8) + IHDR chunk (4 length + 4 type + 13 data + 4 crc)
-        bytes[16..20].copy_from_slice(&width.to_be_bytes());
-        bytes[20..24].copy_from_slice(&height.to_be_bytes());
-        let crc = crc32(&bytes[12..29]);
-        bytes[29..33].copy_from_slice(&crc.to_be_bytes());
+        let mut bytes = png(1, 1)[..8].to_vec();
+        let mut ihdr = [0u8; 13];
+        ihdr[..4].copy_from_slice(&width.to_be_bytes());
+        ihdr[4..8].copy_from_slice(&height.to_be_bytes());
+        ihdr[8] = 8; // 8-bit grey
+        for (kind, data) in [(b"IHDR", &ihdr[..]), (b"IDAT", &[]), (b"IEND", &[])] {
+            bytes.extend((data.len() as u32).to_be_bytes());
+            let typed = [&kind[..], data].concat();
+            bytes.extend(&typed);
+            bytes.extend(crc32(&typed).to_be_bytes());
+        }
         bytes
     }
 
