@@ -17,9 +17,12 @@ pub use images::{image_input, mask_png, mask_rle};
 pub use mesh::{mesh_gltf, mesh_obj, mesh_ply};
 pub use service::{grpc_request, http_json, multipart};
 
+/// A target's body: takes any bytes, returns normally.
+pub type Entry = fn(&[u8]);
+
 /// Every target's name, as `fuzz/fuzz_targets/<name>.rs` and the corpora folders use it,
 /// with its entry function.
-pub const TARGETS: &[(&str, fn(&[u8]))] = &[
+pub const TARGETS: &[(&str, Entry)] = &[
     ("mesh_ply", mesh_ply),
     ("mesh_obj", mesh_obj),
     ("mesh_gltf", mesh_gltf),

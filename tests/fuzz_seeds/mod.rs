@@ -90,18 +90,16 @@ fn grpc_onboard() -> Vec<u8> {
     pb::OnboardRequest { object_id: "box".into(), mesh: Some(mesh), options: Some(options), replace: false }.encode_to_vec()
 }
 
-/// A stored object's files (the test box onboarded at 12 templates of 64 px): the manifest
-/// alone, and with its tensors and texture. None without a GPU adapter.
-fn stored_object() -> Vec<(&'static str, &'static str, Vec<u8>)> {
+/// A stored object's manifest (the test box onboarded at 12 templates of 64 px; its
+/// tensors, megabytes, are too large for a seed). None without a GPU adapter.
+fn stored_manifest() -> Vec<(&'static str, &'static str, Vec<u8>)> {
     use b2tfpose::features::{EmbeddedBackbone, EmbeddedConfig};
     use b2tfpose::onboard::{onboard, OnboardConfig};
     let Ok(pool) = b2tfpose::render::RenderPool::new(1, Default::default()) else { return vec![] };
     let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap();
     let config = OnboardConfig { views: b2tfpose::geometry::ViewSampling { level: 0, in_plane_steps: 1 }, render_size: 64, ..Default::default() };
     let model = onboard("box", &small_box(), &config, &backbone, &pool, &|_| {}).unwrap();
-    let e = b2tfpose::store::codec::encode(&model).unwrap();
-    let whole = joined(&[&e.manifest, &e.tensors, &e.textures[0].1]);
-    vec![("store_manifest", "manifest.json", e.manifest.clone()), ("store_manifest", "object", whole)]
+    vec![("store_manifest", "manifest.json", b2tfpose::store::codec::encode(&model).unwrap().manifest)]
 }
 
 /// (target, file name, bytes) of every seed.
@@ -136,7 +134,7 @@ fn seeds() -> Vec<(&'static str, &'static str, Vec<u8>)> {
         ("bop_detections", "detections.json", DETECTIONS.as_bytes().to_vec()),
         ("results_csv", "results.csv", RESULTS.as_bytes().to_vec()),
     ];
-    out.extend(stored_object());
+    out.extend(stored_manifest());
     // Real files, when the shared data is there: a vertex-coloured GLB.
     let glb = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/meshes/cubevc.glb");
     if let Ok(bytes) = std::fs::read(glb) {
