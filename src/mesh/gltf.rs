@@ -34,7 +34,7 @@ pub(super) fn gltf_from_bytes(path: &Path, bytes: &[u8], units: Option<Units>, f
     if let Some(u) = units.filter(|&u| u != Units::M) {
         return Err(MeshError::format(path, format!("glTF is in metres by specification; units {:?} cannot be applied", u.as_str())));
     }
-    check_glb_length(bytes).map_err(|e| MeshError::format(path, format!("invalid glTF: {e}")))?;
+    check_before_gltf_crate(bytes).map_err(|e| MeshError::format(path, format!("invalid glTF: {e}")))?;
     let ::gltf::Gltf { document, mut blob } = ::gltf::Gltf::from_slice(bytes).map_err(|e| MeshError::format(path, format!("invalid glTF: {e}")))?;
     let mut buffers = Vec::new();
     for b in document.buffers() {
@@ -81,14 +81,28 @@ pub(super) fn gltf_from_bytes(path: &Path, bytes: &[u8], units: Option<Units>, f
     Mesh::new(path.display().to_string(), Units::M, assembler.finish(materials))
 }
 
-/// A GLB's header must declare at least its own 12 bytes: the gltf crate subtracts 12 from
-/// the declared length unchecked (an overflow panic in builds with overflow checks; found
-/// by fuzzing).
-fn check_glb_length(bytes: &[u8]) -> Result<(), String> {
-    match bytes.get(8..12).filter(|_| bytes.starts_with(b"glTF")) {
-        Some(length) if u32::from_le_bytes(length.try_into().expect("4 bytes")) < 12 => Err("GLB header declares fewer than its own 12 bytes".into()),
-        _ => Ok(()),
+/// What the gltf crates panic on while reading the document (both found by fuzzing): a
+/// GLB header declaring fewer than its own 12 bytes (gltf subtracts 12 unchecked), and a
+/// primitive's POSITION naming an accessor that does not exist (gltf-json's validation
+/// indexes the accessors with it before checking it).
+fn check_before_gltf_crate(bytes: &[u8]) -> Result<(), String> {
+    let json = match bytes.get(8..12).filter(|_| bytes.starts_with(b"glTF")) {
+        Some(length) if u32::from_le_bytes(length.try_into().expect("4 bytes")) < 12 => return Err("GLB header declares fewer than its own 12 bytes".into()),
+        // The JSON chunk: its length at 12, its type at 16, its data from 20.
+        Some(_) => bytes.get(12..16).and_then(|n| bytes.get(20..20 + u32::from_le_bytes(n.try_into().expect("4 bytes")) as usize)),
+        None => Some(bytes),
+    };
+    // What is not JSON the gltf crate refuses itself.
+    let Some(doc) = json.and_then(|j| serde_json::from_slice::<serde_json::Value>(j).ok()) else { return Ok(()) };
+    let accessors = doc["accessors"].as_array().map_or(0, Vec::len) as u64;
+    for (m, mesh) in doc["meshes"].as_array().into_iter().flatten().enumerate() {
+        for (p, prim) in mesh["primitives"].as_array().into_iter().flatten().enumerate() {
+            if let Some(i) = prim["attributes"]["POSITION"].as_u64().filter(|&i| i >= accessors) {
+                return Err(format!("mesh {m} primitive {p}: POSITION accessor {i} does not exist"));
+            }
+        }
     }
+    Ok(())
 }
 
 /// The bytes a buffer or image URI names: base64 `data:` URIs, `file:` paths, and paths

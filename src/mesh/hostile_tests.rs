@@ -142,3 +142,23 @@ fn glb_headers_shorter_than_themselves_are_refused() {
     glb.extend(6u32.to_le_bytes());
     assert!(load("a.glb", &glb, &none()).contains("invalid glTF: GLB header declares fewer than its own 12 bytes"));
 }
+
+/// Found by fuzzing (fuzz/regressions/mesh_obj): tobj turned a relative texture index
+/// reaching before the first one into a huge one and multiplied it unchecked.
+#[test]
+fn obj_indices_out_of_range_are_refused() {
+    let obj = |f: &str| format!("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\n{f}\n");
+    assert_eq!(load("m.obj", obj("f 1/1 2/-1 -1/1").as_bytes(), &none()), "loaded");
+    for f in ["f 2/-10 -1 -2", "f 1/9223372036854775807 2/1 3/1", "f -4 1 2"] {
+        let e = load("m.obj", obj(f).as_bytes(), &none());
+        assert!(e.contains("line 5: index") && e.contains("is out of range"), "{f}: {e}");
+    }
+}
+
+/// Found by fuzzing (fuzz/regressions/mesh_gltf): gltf-json's validation indexed the
+/// accessors with a POSITION that names none.
+#[test]
+fn gltf_positions_naming_no_accessor_are_refused() {
+    let e = load("a.glb", &gltf(serde_json::json!({"accessors": []})), &none());
+    assert!(e.contains("invalid glTF: mesh 0 primitive 0: POSITION accessor 0 does not exist"), "{e}");
+}

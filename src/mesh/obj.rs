@@ -22,6 +22,7 @@ pub(super) fn obj_from_bytes(path: &Path, bytes: &[u8], units: Units, files: &dy
     let material_dirs: RefCell<Vec<PathBuf>> = RefCell::default();
     let mtl_failure: RefCell<Option<String>> = RefCell::default();
     let options = tobj::LoadOptions { single_index: true, triangulate: true, ..Default::default() };
+    check_obj(bytes).map_err(|e| MeshError::format(path, e))?;
     let mut reader = LineCounter { inner: std::io::BufReader::new(bytes), newlines: 0, partial: false };
     let (models, materials) = tobj::load_obj_buf(&mut reader, &options, |mtl| {
         let result = files.read(&mtl.to_string_lossy()).map_err(|e| format!("material library {e}")).and_then(|text| {
@@ -76,6 +77,32 @@ pub(super) fn obj_from_bytes(path: &Path, bytes: &[u8], units: Units, files: &dy
         return Err(MeshError::format(path, "no faces"));
     }
     Mesh::new(path.display().to_string(), units, assembler.finish(out))
+}
+
+/// What tobj 4 overflows on (a panic with overflow checks, a wrong vertex without): an
+/// index beyond ±2³², or a relative (negative) one reaching before the first position,
+/// texture coordinate or normal (found by fuzzing: `f 2/-10` after four `vt`).
+fn check_obj(text: &[u8]) -> Result<(), String> {
+    let mut counts = [0u64; 3]; // v, vt, vn so far: what relative indices count back from
+    for (i, line) in String::from_utf8_lossy(text).lines().enumerate() {
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("v") => counts[0] += 1,
+            Some("vt") => counts[1] += 1,
+            Some("vn") => counts[2] += 1,
+            Some("f" | "l" | "p") => {
+                for (k, index) in words.flat_map(|w| w.split('/').enumerate()) {
+                    let Ok(v) = index.parse::<i128>() else { continue };
+                    let before_first = v < 0 && counts.get(k).is_some_and(|&n| v.unsigned_abs() > n as u128);
+                    if v.unsigned_abs() > u32::MAX as u128 || before_first {
+                        return Err(format!("line {}: index {v} is out of range", i + 1));
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(())
 }
 
 /// What tobj 4 panics on instead of refusing: a colour line (`Ka`, `Kd`, `Ks`, `Ke`) with
