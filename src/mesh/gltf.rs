@@ -92,12 +92,36 @@ fn check_before_gltf_crate(bytes: &[u8]) -> Result<(), String> {
         Some(_) => bytes.get(12..16).and_then(|n| bytes.get(20..20 + u32::from_le_bytes(n.try_into().expect("4 bytes")) as usize)),
         None => Some(bytes),
     };
-    // What is not JSON the gltf crate refuses itself.
-    let Some(doc) = json.and_then(|j| serde_json::from_slice::<serde_json::Value>(j).ok()) else { return Ok(()) };
-    let accessors = doc["accessors"].as_array().map_or(0, Vec::len) as u64;
-    for (m, mesh) in doc["meshes"].as_array().into_iter().flatten().enumerate() {
-        for (p, prim) in mesh["primitives"].as_array().into_iter().flatten().enumerate() {
-            if let Some(i) = prim["attributes"]["POSITION"].as_u64().filter(|&i| i >= accessors) {
+    // Read as the gltf crate reads it: the first JSON value whatever follows (a padded
+    // chunk), unknown fields skipped unchecked (even invalid UTF-8 in their strings). What
+    // does not read so, the gltf crate refuses itself.
+    #[derive(serde::Deserialize, Default)]
+    #[serde(default)]
+    struct Doc {
+        accessors: Vec<serde::de::IgnoredAny>,
+        meshes: Vec<DocMesh>,
+    }
+    #[derive(serde::Deserialize, Default)]
+    #[serde(default)]
+    struct DocMesh {
+        primitives: Vec<DocPrimitive>,
+    }
+    #[derive(serde::Deserialize, Default)]
+    #[serde(default)]
+    struct DocPrimitive {
+        attributes: DocAttributes,
+    }
+    #[derive(serde::Deserialize, Default)]
+    #[serde(default)]
+    struct DocAttributes {
+        #[serde(rename = "POSITION")]
+        position: Option<u64>,
+    }
+    let first = |j: &[u8]| serde_json::Deserializer::from_slice(j).into_iter::<Doc>().next().and_then(Result::ok);
+    let Some(doc) = json.and_then(first) else { return Ok(()) };
+    for (m, mesh) in doc.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            if let Some(i) = prim.attributes.position.filter(|&i| i >= doc.accessors.len() as u64) {
                 return Err(format!("mesh {m} primitive {p}: POSITION accessor {i} does not exist"));
             }
         }
