@@ -59,7 +59,12 @@ fn field_error(field: &str, reason: impl std::fmt::Display) -> FieldError {
 /// Reads and validates a detections file.
 pub fn read_detections(path: &Path) -> Result<Vec<DetectionRecord>, DetectionsError> {
     let text = fs::read_to_string(path).map_err(|source| DetectionsError::Io { path: path.into(), source })?;
-    let root: Value = serde_json::from_str(&text).map_err(|source| DetectionsError::Json {
+    parse_detections(path, &text)
+}
+
+/// Validates the text of a detections file; `path` names it in errors.
+pub fn parse_detections(path: &Path, text: &str) -> Result<Vec<DetectionRecord>, DetectionsError> {
+    let root: Value = serde_json::from_str(text).map_err(|source| DetectionsError::Json {
         path: path.into(),
         source,
         // Python's json.dump writes NaN/Infinity, which are not JSON.

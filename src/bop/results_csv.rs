@@ -74,8 +74,16 @@ impl ResultRow {
 /// that are rotations only roughly are accepted and summed up in one line
 /// added to `warnings`.
 pub fn read_results(path: &Path, warnings: &mut Vec<String>) -> Result<Vec<ResultRow>, ResultsError> {
-    let text = fs::read_to_string(path).map_err(io_error(path))?;
-    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
+    parse_results(path, &fs::read_to_string(path).map_err(io_error(path))?, warnings)
+}
+
+/// Parses the text of a results file; `path` names it in errors and warnings.
+pub fn parse_results(
+    path: &Path,
+    text: &str,
+    warnings: &mut Vec<String>,
+) -> Result<Vec<ResultRow>, ResultsError> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut lines: Vec<&str> = text.split('\n').collect();
     let unterminated_last = !text.ends_with('\n');
     if !unterminated_last {

@@ -3,6 +3,7 @@
 //! and answer 400, and the BOP runner can count the detection as unusable.
 
 use super::rle::{Rle, RleError};
+use crate::limits::{ImageRefused, REQUEST_IMAGE};
 use super::segment::{segment_box, Method, SegmentConfig, Segmentation};
 use image::{DynamicImage, GrayImage, Luma, RgbImage};
 use std::time::Instant;
@@ -25,8 +26,20 @@ pub enum MaskError {
     Empty,
     #[error("not a readable PNG/JPEG image: {0}")]
     Unreadable(String),
+    /// Over [`crate::limits::REQUEST_IMAGE`]: refused from the header, before decoding.
+    #[error("mask {0}")]
+    TooLarge(ImageRefused),
     #[error(transparent)]
     Rle(#[from] RleError),
+}
+
+impl From<ImageRefused> for MaskError {
+    fn from(e: ImageRefused) -> Self {
+        match e {
+            ImageRefused::Unreadable(m) => MaskError::Unreadable(m),
+            too_large => MaskError::TooLarge(too_large),
+        }
+    }
 }
 
 /// How a box-only detection becomes a mask.
@@ -111,10 +124,14 @@ pub fn binarise(img: &DynamicImage) -> GrayImage {
     })
 }
 
-/// A `width × height` mask from PNG (or JPEG) bytes.
+/// A `width × height` mask from PNG (or JPEG) bytes; a mask of another size is refused
+/// from its header, before decoding.
 pub fn mask_from_png(bytes: &[u8], width: u32, height: u32) -> Result<GrayImage, MaskError> {
-    let img = image::load_from_memory(bytes).map_err(|e| MaskError::Unreadable(e.to_string()))?;
-    check_size(binarise(&img), width, height)
+    let expect = |mask_width, mask_height| match (mask_width, mask_height) == (width, height) {
+        true => Ok(()),
+        false => Err(MaskError::SizeMismatch { mask_width, mask_height, width, height }),
+    };
+    Ok(binarise(&REQUEST_IMAGE.decode_expecting(bytes, expect)?))
 }
 
 /// A `width × height` mask from an RLE, whose size must be the image's.
@@ -207,6 +224,12 @@ mod tests {
         let err = mask_from_png(&png, 3, 4).unwrap_err().to_string();
         assert_eq!(err, "mask is 4×3 (w×h) but the image is 3×4");
         assert!(mask_from_png(b"not a png", 4, 3).unwrap_err().to_string().starts_with("not a readable PNG/JPEG image"));
+        // A header claiming a huge mask is refused before any pixel is allocated.
+        let huge = crate::limits::tests::png_header_only(40_000, 40_000);
+        assert_eq!(mask_from_png(&huge, 40_000, 40_000).unwrap_err().to_string(), "mask 40000×40000 is over the limit of 16384 pixels a side and 40000000 pixels in all");
+        // One within the limits but of another size is refused from its header too.
+        let other = crate::limits::tests::png_header_only(5_000, 4_000);
+        assert!(matches!(mask_from_png(&other, 4, 3), Err(MaskError::SizeMismatch { mask_width: 5_000, .. })));
     }
 
     #[test]

@@ -13,6 +13,7 @@
 //! (`rleToString` / `rleFrString` in cocoapi's `common/maskApi.c`), which
 //! CNOS and pycocotools emit; both forms are read, the list form is written.
 
+use crate::limits;
 use image::{GrayImage, Luma};
 use serde_json::Value;
 
@@ -36,6 +37,10 @@ const MAX_CHUNKS_PER_COUNT: u32 = 7;
 pub enum RleError {
     #[error("size is {height}×{width}: both must be positive")]
     ZeroSize { height: u32, width: u32 },
+    #[error("size is {height}×{width}: over the limit of {max_side} pixels a side and {max_pixels} pixels in all")]
+    TooLarge { height: u32, width: u32, max_side: u32, max_pixels: u64 },
+    #[error("more than {max} runs: over the limit")]
+    TooManyRuns { max: usize },
     #[error("counts sum to {sum} but size is {height}×{width} ({} pixels)", *.height as u64 * *.width as u64)]
     CountSumMismatch { sum: u64, height: u32, width: u32 },
     #[error("compressed counts: invalid character {ch:?} at byte {pos} (expected '0'..='o')")]
@@ -81,13 +86,20 @@ impl Rle {
         self.height() as u64 * self.width() as u64
     }
 
-    /// The size must be non-zero and the runs must cover every pixel exactly
-    /// once; zero-length runs inside the list are tolerated, as pycocotools
-    /// does.
+    /// The size must be non-zero and within [`limits::REQUEST_IMAGE`] (a mask is
+    /// decoded to that many bytes), there must be at most [`limits::MAX_RLE_RUNS`] runs,
+    /// and they must cover every pixel exactly once; zero-length runs inside the list are
+    /// tolerated, as pycocotools does.
     pub fn validate(&self) -> Result<(), RleError> {
-        if self.height() == 0 || self.width() == 0 {
-            return Err(RleError::ZeroSize { height: self.height(), width: self.width() });
+        let (height, width) = (self.height(), self.width());
+        if height == 0 || width == 0 {
+            return Err(RleError::ZeroSize { height, width });
         }
+        let max = limits::REQUEST_IMAGE;
+        if max.check(width, height).is_err() {
+            return Err(RleError::TooLarge { height, width, max_side: max.max_side, max_pixels: max.max_pixels });
+        }
+        check_runs(self.counts.len())?;
         let sum: u64 = self.counts.iter().map(|&c| c as u64).sum();
         if sum != self.pixel_count() {
             return Err(RleError::CountSumMismatch { sum, height: self.height(), width: self.width() });
@@ -205,42 +217,7 @@ impl Rle {
     /// Parses a COCO compressed counts string (cocoapi `rleFrString`) and
     /// validates the result against `size` (`[height, width]`).
     pub fn from_coco_string(s: &str, size: [u32; 2]) -> Result<Rle, RleError> {
-        let bytes = s.as_bytes();
-        let mut counts: Vec<u32> = Vec::new();
-        let mut pos = 0;
-        while pos < bytes.len() {
-            let index = counts.len();
-            let mut x: i64 = 0;
-            let mut chunks = 0;
-            loop {
-                let Some(&byte) = bytes.get(pos) else {
-                    return Err(RleError::Truncated { index });
-                };
-                if !(CHAR_OFFSET..=CHAR_OFFSET + 63).contains(&byte) {
-                    let ch = s[pos..].chars().next().unwrap_or(char::REPLACEMENT_CHARACTER);
-                    return Err(RleError::InvalidChar { pos, ch });
-                }
-                if chunks == MAX_CHUNKS_PER_COUNT {
-                    return Err(RleError::CountTooLong { index });
-                }
-                let chunk = (byte - CHAR_OFFSET) as i64;
-                x |= (chunk & PAYLOAD_MASK) << (PAYLOAD_BITS * chunks);
-                pos += 1;
-                chunks += 1;
-                if chunk & MORE_BIT == 0 {
-                    if chunk & SIGN_BIT != 0 {
-                        x |= -1i64 << (PAYLOAD_BITS * chunks);
-                    }
-                    break;
-                }
-            }
-            if index > 2 {
-                x += counts[index - 2] as i64;
-            }
-            let count = u32::try_from(x).map_err(|_| RleError::CountOutOfRange { index, value: x })?;
-            counts.push(count);
-        }
-        Rle::new(size, counts)
+        Rle::new(size, coco_counts(s)?)
     }
 
     /// Reads `{"counts": [ints] | "compressed string", "size": [h, w]}`.
@@ -250,6 +227,7 @@ impl Rle {
         match object.get("counts") {
             Some(Value::String(s)) => Rle::from_coco_string(s, size),
             Some(Value::Array(items)) => {
+                check_runs(items.len())?;
                 let counts = items
                     .iter()
                     .enumerate()
@@ -273,6 +251,55 @@ impl Rle {
     /// The uncompressed list form, as the BOP toolkit writes it.
     pub fn to_json_uncompressed(&self) -> Value {
         serde_json::json!({ "counts": self.counts, "size": self.size })
+    }
+}
+
+/// The counts of a COCO compressed string, checked only for their encoding.
+fn coco_counts(s: &str) -> Result<Vec<u32>, RleError> {
+    let bytes = s.as_bytes();
+    let mut counts: Vec<u32> = Vec::new();
+    let mut pos = 0;
+    while pos < bytes.len() {
+        let index = counts.len();
+        check_runs(index + 1)?;
+        let mut x: i64 = 0;
+        let mut chunks = 0;
+        loop {
+            let Some(&byte) = bytes.get(pos) else {
+                return Err(RleError::Truncated { index });
+            };
+            if !(CHAR_OFFSET..=CHAR_OFFSET + 63).contains(&byte) {
+                let ch = s[pos..].chars().next().unwrap_or(char::REPLACEMENT_CHARACTER);
+                return Err(RleError::InvalidChar { pos, ch });
+            }
+            if chunks == MAX_CHUNKS_PER_COUNT {
+                return Err(RleError::CountTooLong { index });
+            }
+            let chunk = (byte - CHAR_OFFSET) as i64;
+            x |= (chunk & PAYLOAD_MASK) << (PAYLOAD_BITS * chunks);
+            pos += 1;
+            chunks += 1;
+            if chunk & MORE_BIT == 0 {
+                if chunk & SIGN_BIT != 0 {
+                    x |= -1i64 << (PAYLOAD_BITS * chunks);
+                }
+                break;
+            }
+        }
+        if index > 2 {
+            x += counts[index - 2] as i64;
+        }
+        let count = u32::try_from(x).map_err(|_| RleError::CountOutOfRange { index, value: x })?;
+        counts.push(count);
+    }
+    Ok(counts)
+}
+
+/// Refuses more than [`limits::MAX_RLE_RUNS`] runs.
+fn check_runs(runs: usize) -> Result<(), RleError> {
+    match runs > limits::MAX_RLE_RUNS {
+        true => Err(RleError::TooManyRuns { max: limits::MAX_RLE_RUNS }),
+        false => Ok(()),
     }
 }
 
@@ -468,8 +495,8 @@ mod tests {
         // Extreme deltas: u32::MAX next to 0 needs all 7 chunks.
         let rle = Rle { size: [u32::MAX, 3], counts: vec![u32::MAX, 0, u32::MAX, 0, 0, u32::MAX] };
         let s = rle.to_coco_string();
-        let back = Rle::from_coco_string(&s, rle.size).unwrap();
-        assert_eq!(back, rle);
+        // (Counts only: a mask this large is over the size limit.)
+        assert_eq!(coco_counts(&s).unwrap(), rle.counts);
     }
 
     #[test]
@@ -490,6 +517,22 @@ mod tests {
         // bbox and area stay inside the image even for an invalid RLE.
         assert_eq!(too_long.area(), 2);
         assert_eq!(too_long.bbox(), Some([0, 0, 2, 2]));
+    }
+
+    #[test]
+    fn sizes_and_run_counts_over_the_limits_are_rejected() {
+        // 65536 × 65536 would decode to 4 GiB: refused before decoding.
+        let huge = Rle::new([65_536, 65_536], vec![u32::MAX, 1]).unwrap_err();
+        assert!(matches!(huge, RleError::TooLarge { height: 65_536, width: 65_536, .. }));
+        assert!(huge.to_string().contains("over the limit of 16384 pixels a side"), "{huge}");
+        assert!(matches!(Rle::from_coco_string("0", [10_000, 10_000]), Err(RleError::TooLarge { .. })));
+        let runs = limits::MAX_RLE_RUNS;
+        let many = Rle { size: [1, 1], counts: vec![0; runs + 1] };
+        assert_eq!(many.validate().unwrap_err(), RleError::TooManyRuns { max: runs });
+        // The string is refused at the run past the limit, not after reading it all.
+        assert_eq!(Rle::from_coco_string(&"0".repeat(runs + 10), [1, 1]).unwrap_err(), RleError::TooManyRuns { max: runs });
+        let e = Rle::from_json(&json!({"counts": vec![0; runs + 1], "size": [1, 1]})).unwrap_err();
+        assert_eq!(e.to_string(), format!("more than {runs} runs: over the limit"));
     }
 
     #[test]

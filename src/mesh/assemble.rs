@@ -47,6 +47,10 @@ impl Assembler {
             return Ok(());
         }
         let d = &mut self.data;
+        let (max_vertices, max_triangles) = (crate::limits::MAX_MESH_VERTICES, crate::limits::MAX_MESH_TRIANGLES);
+        if d.positions.len() + n > max_vertices || d.triangles.len() + piece.triangles.len() > max_triangles {
+            return Err(format!("the mesh grows past the limit of {max_vertices} vertices or {max_triangles} triangles"));
+        }
         let base = d.positions.len();
         match piece.normals {
             Some(normals) if self.all_have_normals => d.normals.extend(normals),

@@ -7,33 +7,42 @@
 //! and converted to sRGB, which is what `MeshData::colors` holds.
 
 use super::assemble::{Assembler, Piece};
+use super::files::{Folder, MeshFiles};
 use super::texture::{decode_texture, texture_error};
 use super::{Material, Mesh, MeshError, Units};
+use crate::limits::{MAX_MESH_TRIANGLES, MAX_MESH_VERTICES};
 use ::gltf::buffer;
 use ::gltf::mesh::Mode;
+use base64::Engine as _;
 use nalgebra::{Matrix3, Matrix4, Point3, Vector3};
 use std::collections::HashMap;
 use std::path::Path;
 use std::sync::Arc;
 
-/// Deeper hierarchies than this are taken to be cyclic (invalid glTF).
+/// Deeper hierarchies than this are refused (the recursion's stack stays small).
 const MAX_NODE_DEPTH: usize = 256;
 
 /// Loads a .gltf or .glb file. `units` may only be `None` or metres: glTF fixes its unit, and
 /// silently ignoring a different request would hide a caller's mistake.
 pub fn load_gltf(path: &Path, units: Option<Units>) -> Result<Mesh, MeshError> {
+    gltf_from_bytes(path, &super::load::read_mesh_file(path)?, units, &Folder::beside(path))
+}
+
+/// A .gltf or .glb file's bytes, the buffers and images it names from `files`; `path`
+/// names it in errors.
+pub(super) fn gltf_from_bytes(path: &Path, bytes: &[u8], units: Option<Units>, files: &dyn MeshFiles) -> Result<Mesh, MeshError> {
     if let Some(u) = units.filter(|&u| u != Units::M) {
         return Err(MeshError::format(path, format!("glTF is in metres by specification; units {:?} cannot be applied", u.as_str())));
     }
-    let ::gltf::Gltf { document, mut blob } = ::gltf::Gltf::open(path).map_err(|e| match e {
-        ::gltf::Error::Io(source) => MeshError::Io { path: path.to_path_buf(), source },
-        e => MeshError::format(path, format!("invalid glTF: {e}")),
-    })?;
-    let base = path.parent().unwrap_or(Path::new(""));
+    check_before_gltf_crate(bytes).map_err(|e| MeshError::format(path, format!("invalid glTF: {e}")))?;
+    let ::gltf::Gltf { document, mut blob } = ::gltf::Gltf::from_slice(bytes).map_err(|e| MeshError::format(path, format!("invalid glTF: {e}")))?;
     let mut buffers = Vec::new();
     for b in document.buffers() {
-        let data = buffer::Data::from_source_and_blob(b.source(), Some(base), &mut blob)
-            .map_err(|e| MeshError::format(path, format!("buffer {} ({}): {e}", b.index(), describe(b.source()))))?;
+        let data = match b.source() {
+            buffer::Source::Bin => blob.take().ok_or_else(|| "the file has no binary chunk".to_string()),
+            buffer::Source::Uri(uri) => read_uri(uri, files),
+        };
+        let data = data.map_err(|e| MeshError::format(path, format!("buffer {} ({}): {e}", b.index(), describe(b.source()))))?;
         if data.len() < b.length() {
             return Err(MeshError::format(
                 path,
@@ -44,12 +53,13 @@ pub fn load_gltf(path: &Path, units: Option<Units>) -> Result<Mesh, MeshError> {
     }
     let mut loader = Loader {
         path,
-        base,
+        files,
         buffers: &buffers,
         assembler: Assembler::new(),
         materials: Vec::new(),
         material_index: HashMap::new(),
         images: HashMap::new(),
+        visited: vec![false; document.nodes().count()],
     };
     match document.default_scene().or_else(|| document.scenes().next()) {
         Some(scene) => {
@@ -71,6 +81,94 @@ pub fn load_gltf(path: &Path, units: Option<Units>) -> Result<Mesh, MeshError> {
     Mesh::new(path.display().to_string(), Units::M, assembler.finish(materials))
 }
 
+/// What the gltf crates panic on while reading the document (both found by fuzzing): a
+/// GLB header declaring fewer than its own 12 bytes (gltf subtracts 12 unchecked), and a
+/// primitive's POSITION naming an accessor that does not exist (gltf-json's validation
+/// indexes the accessors with it before checking it).
+fn check_before_gltf_crate(bytes: &[u8]) -> Result<(), String> {
+    let json = match bytes.get(8..12).filter(|_| bytes.starts_with(b"glTF")) {
+        Some(length) if u32::from_le_bytes(length.try_into().expect("4 bytes")) < 12 => return Err("GLB header declares fewer than its own 12 bytes".into()),
+        // The JSON chunk: its length at 12, its type at 16, its data from 20.
+        Some(_) => bytes.get(12..16).and_then(|n| bytes.get(20..20 + u32::from_le_bytes(n.try_into().expect("4 bytes")) as usize)),
+        None => Some(bytes),
+    };
+    // Read as the gltf crate reads it: the first JSON value whatever follows (a padded
+    // chunk), unknown fields skipped unchecked (even invalid UTF-8 in their strings). What
+    // does not read so, the gltf crate refuses itself.
+    #[derive(serde::Deserialize, Default)]
+    #[serde(default)]
+    struct Doc {
+        accessors: Vec<serde::de::IgnoredAny>,
+        meshes: Vec<DocMesh>,
+    }
+    #[derive(serde::Deserialize, Default)]
+    #[serde(default)]
+    struct DocMesh {
+        primitives: Vec<DocPrimitive>,
+    }
+    #[derive(serde::Deserialize, Default)]
+    #[serde(default)]
+    struct DocPrimitive {
+        attributes: DocAttributes,
+    }
+    #[derive(serde::Deserialize, Default)]
+    #[serde(default)]
+    struct DocAttributes {
+        #[serde(rename = "POSITION")]
+        position: Option<u64>,
+    }
+    let first = |j: &[u8]| serde_json::Deserializer::from_slice(j).into_iter::<Doc>().next().and_then(Result::ok);
+    let Some(doc) = json.and_then(first) else { return Ok(()) };
+    for (m, mesh) in doc.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            if let Some(i) = prim.attributes.position.filter(|&i| i >= doc.accessors.len() as u64) {
+                return Err(format!("mesh {m} primitive {p}: POSITION accessor {i} does not exist"));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The bytes a buffer or image URI names: base64 `data:` URIs, `file:` paths, and paths
+/// relative to the glTF file (percent-encoded). Our own rather than the gltf crate's,
+/// which reads any path it is given and panics on a name that is not UTF-8 once decoded.
+fn read_uri(uri: &str, files: &dyn MeshFiles) -> Result<Vec<u8>, String> {
+    if let Some(rest) = uri.strip_prefix("data:") {
+        let (header, data) = rest.split_once(',').ok_or("data URI without a comma")?;
+        if !header.ends_with(";base64") {
+            return Err("only base64 data URIs are supported".into());
+        }
+        let lenient = base64::engine::GeneralPurpose::new(&base64::alphabet::STANDARD, base64::engine::GeneralPurposeConfig::new().with_decode_padding_mode(base64::engine::DecodePaddingMode::Indifferent));
+        return lenient.decode(data).map_err(|e| format!("data URI is not valid base64: {e}"));
+    }
+    let path = match uri.strip_prefix("file://").or_else(|| uri.strip_prefix("file:")) {
+        Some(path) => path,
+        None if uri.contains(':') => return Err("unsupported URI scheme (expected data:, file: or a relative path)".into()),
+        None => uri,
+    };
+    files.read(&percent_decode(path)?)
+}
+
+/// `%XX` escapes to bytes; the result must be UTF-8.
+fn percent_decode(s: &str) -> Result<String, String> {
+    let (bytes, mut out) = (s.as_bytes(), Vec::with_capacity(s.len()));
+    let mut i = 0;
+    while i < bytes.len() {
+        let hex = bytes.get(i + 1..i + 3).and_then(|h| std::str::from_utf8(h).ok()).and_then(|h| u8::from_str_radix(h, 16).ok());
+        match (bytes[i], hex) {
+            (b'%', Some(b)) => {
+                out.push(b);
+                i += 3;
+            }
+            (b, _) => {
+                out.push(b);
+                i += 1;
+            }
+        }
+    }
+    String::from_utf8(out).map_err(|_| format!("{s:?} is not UTF-8 once percent-decoded"))
+}
+
 /// Names a buffer source for messages without dumping a whole data URI.
 fn describe(source: buffer::Source) -> String {
     match source {
@@ -82,22 +180,25 @@ fn describe(source: buffer::Source) -> String {
 
 struct Loader<'a> {
     path: &'a Path,
-    base: &'a Path,
-    buffers: &'a [buffer::Data],
+    files: &'a dyn MeshFiles,
+    buffers: &'a [Vec<u8>],
     assembler: Assembler,
     materials: Vec<Material>,
     /// glTF material index (None: the spec's default material) to ours.
     material_index: HashMap<Option<usize>, u32>,
     images: HashMap<usize, Arc<image::RgbaImage>>,
+    /// Nodes already placed: glTF's hierarchy is a tree, and a node reached twice (a cycle,
+    /// or shared children) could multiply the work exponentially with depth.
+    visited: Vec<bool>,
 }
 
 impl Loader<'_> {
     fn node(&mut self, node: ::gltf::Node, parent: Matrix4<f64>, depth: usize) -> Result<(), MeshError> {
         if depth > MAX_NODE_DEPTH {
-            return Err(MeshError::format(
-                self.path,
-                format!("node hierarchy deeper than {MAX_NODE_DEPTH} at node {} (a cycle?)", node.index()),
-            ));
+            return Err(MeshError::format(self.path, format!("node hierarchy deeper than {MAX_NODE_DEPTH} at node {}", node.index())));
+        }
+        if std::mem::replace(&mut self.visited[node.index()], true) {
+            return Err(MeshError::format(self.path, format!("node {} is reached twice: the node hierarchy must be a tree", node.index())));
         }
         let local = node.transform().matrix();
         let world = parent * Matrix4::from_fn(|r, c| local[c][r] as f64);
@@ -133,7 +234,23 @@ impl Loader<'_> {
     }
 
     fn piece(&self, prim: &::gltf::Primitive, world: &Matrix4<f64>, uv_set: Option<u32>, material: u32) -> Result<Piece, String> {
-        let reader = prim.reader(|b| self.buffers.get(b.index()).map(|d| &d.0[..]));
+        use ::gltf::accessor::{DataType as T, Dimensions as D};
+        use ::gltf::Semantic as S;
+        for (semantic, accessor) in prim.attributes() {
+            // The attributes read below, with the shapes the reader takes (it panics on others).
+            let shape: (&[D], &[T]) = match semantic {
+                S::Positions | S::Normals => (&[D::Vec3], &[T::F32]),
+                S::Colors(_) => (&[D::Vec3, D::Vec4], &[T::U8, T::U16, T::F32]),
+                S::TexCoords(_) => (&[D::Vec2], &[T::U8, T::U16, T::F32]),
+                _ => continue,
+            };
+            check_accessor(&accessor, shape, MAX_MESH_VERTICES, self.buffers).map_err(|e| format!("{semantic:?} accessor {}: {e}", accessor.index()))?;
+        }
+        if let Some(indices) = prim.indices() {
+            let shape: (&[D], &[T]) = (&[D::Scalar], &[T::U8, T::U16, T::U32]);
+            check_accessor(&indices, shape, 3 * MAX_MESH_TRIANGLES, self.buffers).map_err(|e| format!("index accessor {}: {e}", indices.index()))?;
+        }
+        let reader = prim.reader(|b| self.buffers.get(b.index()).map(|d| &d[..]));
         let positions: Vec<[f32; 3]> = reader
             .read_positions()
             .ok_or("no POSITION attribute")?
@@ -196,22 +313,49 @@ impl Loader<'_> {
             ::gltf::image::Source::View { view, .. } => {
                 let name = format!("image {} (buffer view {})", image.index(), view.index());
                 let data = &self.buffers[view.buffer().index()];
-                let bytes = data.get(view.offset()..view.offset() + view.length());
+                let bytes = view.offset().checked_add(view.length()).and_then(|end| data.get(view.offset()..end));
                 let bytes = bytes.ok_or_else(|| texture_error(self.path, &name, "buffer view beyond its buffer".into()))?;
                 (name, bytes.to_vec())
             }
             ::gltf::image::Source::Uri { uri, .. } => {
                 let name = if uri.starts_with("data:") { format!("image {} (data URI)", image.index()) } else { uri.to_string() };
-                // Buffer loading handles every URI kind (data, relative, file:) the same way.
-                let data = buffer::Data::from_source(buffer::Source::Uri(uri), Some(self.base))
-                    .map_err(|e| texture_error(self.path, &name, e.to_string()))?;
-                (name, data.0)
+                let data = read_uri(uri, self.files).map_err(|e| texture_error(self.path, &name, e))?;
+                (name, data)
             }
         };
         let decoded = decode_texture(self.path, &name, &bytes)?;
         self.images.insert(image.index(), decoded.clone());
         Ok(decoded)
     }
+}
+
+/// Checks what the gltf crate's accessor reader takes on trust (it panics on a count of 0,
+/// a stride shorter than an item or a shape other than `shape`'s dimensions and component
+/// types, and a sparse accessor without a buffer view makes `count` items out of nothing),
+/// and bounds `count` by `max` before anything is read.
+fn check_accessor(a: &::gltf::Accessor, shape: (&[::gltf::accessor::Dimensions], &[::gltf::accessor::DataType]), max: usize, buffers: &[Vec<u8>]) -> Result<(), String> {
+    if !shape.0.contains(&a.dimensions()) || !shape.1.contains(&a.data_type()) {
+        return Err(format!("{:?} of {:?} is not a type this attribute may have", a.dimensions(), a.data_type()));
+    }
+    if a.count() == 0 || a.count() > max {
+        return Err(format!("count {} is outside 1..={max}", a.count()));
+    }
+    let view_ok = |view: &::gltf::buffer::View, item: usize| {
+        let fits = view.offset().checked_add(view.length()).is_some_and(|end| end <= buffers.get(view.buffer().index()).map_or(0, Vec::len));
+        fits && view.stride().is_none_or(|s| s >= item)
+    };
+    if let Some(view) = a.view() {
+        if !view_ok(&view, a.size()) {
+            return Err(format!("buffer view {} is beyond its buffer or its stride is shorter than an item", view.index()));
+        }
+    }
+    if let Some(sparse) = a.sparse() {
+        let (indices, values) = (sparse.indices(), sparse.values());
+        if sparse.count() == 0 || sparse.count() > a.count() || !view_ok(&indices.view(), indices.index_type().size()) || !view_ok(&values.view(), a.size()) {
+            return Err("malformed sparse storage".into());
+        }
+    }
+    Ok(())
 }
 
 /// The TEXCOORD set the material's colour texture reads.

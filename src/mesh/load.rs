@@ -1,19 +1,46 @@
 //! Picks the loader from the file extension and enforces the units rule: PLY and OBJ carry no
 //! unit, so the caller must give one; glTF is metres by specification.
 
+use super::files::{Folder, MeshFiles};
 use super::{gltf, obj, ply, Mesh, MeshError, Units};
 use std::path::Path;
 
-/// Loads a .ply, .obj, .gltf or .glb mesh (extension case-insensitive) into metres.
+/// Loads a .ply, .obj, .gltf or .glb mesh (extension case-insensitive) into metres, with the
+/// files it refers to from its folder.
 pub fn load_mesh(path: &Path, units: Option<Units>) -> Result<Mesh, MeshError> {
-    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    load_mesh_with(path, units, &Folder::beside(path))
+}
+
+/// [`load_mesh`] with the files the mesh refers to from `files`.
+pub fn load_mesh_with(path: &Path, units: Option<Units>, files: &dyn MeshFiles) -> Result<Mesh, MeshError> {
+    format_of(path)?;
+    load_mesh_bytes(path, &read_mesh_file(path)?, units, files)
+}
+
+/// A mesh from its file's bytes; `path` gives the format (extension) and names the file in
+/// errors, `files` gives the files it refers to.
+pub fn load_mesh_bytes(path: &Path, bytes: &[u8], units: Option<Units>, files: &dyn MeshFiles) -> Result<Mesh, MeshError> {
     let required = || units.ok_or_else(|| MeshError::UnitsRequired { path: path.to_path_buf() });
+    match format_of(path)? {
+        "ply" => ply::ply_from_bytes(path, bytes, required()?, files),
+        "obj" => obj::obj_from_bytes(path, bytes, required()?, files),
+        _ => gltf::gltf_from_bytes(path, bytes, units, files),
+    }
+}
+
+fn format_of(path: &Path) -> Result<&'static str, MeshError> {
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
     match ext.as_deref() {
-        Some("ply") => ply::load_ply(path, required()?),
-        Some("obj") => obj::load_obj(path, required()?),
-        Some("gltf" | "glb") => gltf::load_gltf(path, units),
+        Some("ply") => Ok("ply"),
+        Some("obj") => Ok("obj"),
+        Some("gltf" | "glb") => Ok("gltf"),
         _ => Err(MeshError::UnsupportedFormat { path: path.to_path_buf() }),
     }
+}
+
+/// The mesh file itself, named by the caller (not by a file), so read as it is.
+pub(super) fn read_mesh_file(path: &Path) -> Result<Vec<u8>, MeshError> {
+    std::fs::read(path).map_err(|source| MeshError::Io { path: path.to_path_buf(), source })
 }
 
 #[cfg(test)]

@@ -4,7 +4,10 @@
 //! one by file extension.
 
 mod assemble;
+mod files;
 mod gltf;
+#[cfg(test)]
+mod hostile_tests;
 mod load;
 mod obj;
 mod ply;
@@ -14,7 +17,8 @@ mod texture;
 mod types;
 
 pub use self::gltf::load_gltf;
-pub use load::load_mesh;
+pub use files::{Folder, InMemory, MeshFiles};
+pub use load::{load_mesh, load_mesh_bytes, load_mesh_with};
 pub use obj::load_obj;
 pub use ply::{load_ply, load_ply_points};
 pub use types::*;

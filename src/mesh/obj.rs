@@ -2,6 +2,7 @@
 //! colour, `map_Kd` as texture, `v x y z r g b` vertex colours.
 
 use super::assemble::{Assembler, Piece};
+use super::files::{Folder, MeshFiles};
 use super::texture::TextureCache;
 use super::{Material, Mesh, MeshError, Units};
 use std::cell::RefCell;
@@ -9,30 +10,37 @@ use std::path::{Path, PathBuf};
 
 /// Loads an OBJ file (and the MTL libraries and textures it names) whose lengths are in `units`.
 pub fn load_obj(path: &Path, units: Units) -> Result<Mesh, MeshError> {
-    let dir = path.parent().unwrap_or(Path::new(""));
-    let file = std::fs::File::open(path).map_err(|source| MeshError::Io { path: path.to_path_buf(), source })?;
+    obj_from_bytes(path, &super::load::read_mesh_file(path)?, units, &Folder::beside(path))
+}
+
+/// An OBJ file's bytes, the files it names from `files`; `path` names it in errors.
+pub(super) fn obj_from_bytes(path: &Path, bytes: &[u8], units: Units, files: &dyn MeshFiles) -> Result<Mesh, MeshError> {
     // tobj's buffer API hands over the raw mtllib name and merges all libraries' materials,
-    // forgetting where each came from; the closure resolves the name against the OBJ's folder
-    // and records each material's folder (tobj appends them in load order) and any failure,
-    // which tobj would otherwise report without the library's name.
+    // forgetting where each came from; the closure records each material's folder (tobj
+    // appends them in load order), relative to the OBJ's, and any failure, which tobj
+    // would otherwise report without the library's name.
     let material_dirs: RefCell<Vec<PathBuf>> = RefCell::default();
     let mtl_failure: RefCell<Option<String>> = RefCell::default();
     let options = tobj::LoadOptions { single_index: true, triangulate: true, ..Default::default() };
-    let mut reader = LineCounter { inner: std::io::BufReader::new(file), newlines: 0, partial: false };
+    check_obj(bytes).map_err(|e| MeshError::format(path, e))?;
+    let mut reader = LineCounter { inner: std::io::BufReader::new(bytes), newlines: 0, partial: false };
     let (models, materials) = tobj::load_obj_buf(&mut reader, &options, |mtl| {
-        let mtl_path = dir.join(mtl);
-        let result = tobj::load_mtl(&mtl_path);
-        match &result {
-            Ok((mats, _)) => {
-                let mtl_dir = mtl_path.parent().unwrap_or(Path::new("")).to_path_buf();
+        let result = files.read(&mtl.to_string_lossy()).map_err(|e| format!("material library {e}")).and_then(|text| {
+            let unreadable = |e: String| format!("material library {} unreadable ({e})", mtl.display());
+            check_mtl(&text).map_err(unreadable)?;
+            tobj::load_mtl_buf(&mut text.as_slice()).map_err(|e| unreadable(e.to_string()))
+        });
+        match result {
+            Ok((mats, map)) => {
+                let mtl_dir = mtl.parent().unwrap_or(Path::new("")).to_path_buf();
                 material_dirs.borrow_mut().extend(std::iter::repeat_n(mtl_dir, mats.len()));
+                Ok((mats, map))
             }
             Err(e) => {
-                let why = if mtl_path.exists() { format!("unreadable ({e})") } else { "not found".into() };
-                mtl_failure.borrow_mut().get_or_insert(format!("material library {} {why}", mtl_path.display()));
+                mtl_failure.borrow_mut().get_or_insert(e);
+                Err(tobj::LoadError::OpenFileFailed)
             }
         }
-        result
     })
     .map_err(|e| MeshError::format(path, format!("{e} (parsing stopped at line {})", reader.line())))?;
     if let Some(message) = mtl_failure.into_inner() {
@@ -45,7 +53,7 @@ pub fn load_obj(path: &Path, units: Units) -> Result<Mesh, MeshError> {
     let dirs = material_dirs.into_inner();
     let mut out: Vec<Material> = Vec::with_capacity(tobj_materials.len() + 1);
     for (m, mtl_dir) in tobj_materials.iter().zip(&dirs) {
-        out.push(convert_material(path, m, mtl_dir, &mut textures)?);
+        out.push(convert_material(path, m, mtl_dir, files, &mut textures)?);
     }
     let default_material = out.len() as u32;
     out.push(Material::default());
@@ -71,14 +79,55 @@ pub fn load_obj(path: &Path, units: Units) -> Result<Mesh, MeshError> {
     Mesh::new(path.display().to_string(), units, assembler.finish(out))
 }
 
+/// What tobj 4 overflows on (a panic with overflow checks, a wrong vertex without): an
+/// index beyond ±2³², or a relative (negative) one reaching before the first position,
+/// texture coordinate or normal (found by fuzzing: `f 2/-10` after four `vt`).
+fn check_obj(text: &[u8]) -> Result<(), String> {
+    let mut counts = [0u64; 3]; // v, vt, vn so far: what relative indices count back from
+    for (i, line) in String::from_utf8_lossy(text).lines().enumerate() {
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("v") => counts[0] += 1,
+            Some("vt") => counts[1] += 1,
+            Some("vn") => counts[2] += 1,
+            Some("f" | "l" | "p") => {
+                for (k, index) in words.flat_map(|w| w.split('/').enumerate()) {
+                    let Ok(v) = index.parse::<i128>() else { continue };
+                    let before_first = v < 0 && counts.get(k).is_some_and(|&n| v.unsigned_abs() > n as u128);
+                    if v.unsigned_abs() > u32::MAX as u128 || before_first {
+                        return Err(format!("line {}: index {v} is out of range", i + 1));
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// What tobj 4 panics on instead of refusing: a colour line (`Ka`, `Kd`, `Ks`, `Ke`) with
+/// fewer than three values (found by fuzzing: `Kd 0.8 0`).
+fn check_mtl(text: &[u8]) -> Result<(), String> {
+    for (i, line) in String::from_utf8_lossy(text).lines().enumerate() {
+        let mut words = line.split_whitespace();
+        if let Some(key @ ("Ka" | "Kd" | "Ks" | "Ke")) = words.next() {
+            if words.count() < 3 {
+                return Err(format!("line {}: {key} needs three numbers", i + 1));
+            }
+        }
+    }
+    Ok(())
+}
+
 fn triples(values: &[f32]) -> Vec<[f32; 3]> {
     values.chunks_exact(3).map(|v| [v[0], v[1], v[2]]).collect()
 }
 
-fn convert_material(obj: &Path, m: &tobj::Material, mtl_dir: &Path, textures: &mut TextureCache) -> Result<Material, MeshError> {
+fn convert_material(obj: &Path, m: &tobj::Material, mtl_dir: &Path, files: &dyn MeshFiles, textures: &mut TextureCache) -> Result<Material, MeshError> {
     let [r, g, b] = m.diffuse.unwrap_or([1.0; 3]);
     let texture = match m.diffuse_texture.as_deref().map(texture_file_name) {
-        Some(name) if !name.is_empty() => Some(textures.load(obj, &mtl_dir.join(name), name)?),
+        // Relative to the material library's folder, as OBJ readers resolve it.
+        Some(name) if !name.is_empty() => Some(textures.load(obj, files, &mtl_dir.join(name).to_string_lossy())?),
         _ => None,
     };
     Ok(Material { name: m.name.clone(), base_color: [r, g, b, m.dissolve.unwrap_or(1.0)], texture })

@@ -6,18 +6,23 @@
 //! (element, index, line or byte), and the BOP conventions (TextureFile, texcoord lists) need
 //! handling anyway.
 
+use super::files::{Folder, MeshFiles};
 use super::texture::load_texture;
 use super::{Material, Mesh, MeshData, MeshError, Units};
+use crate::limits::{MAX_MESH_TRIANGLES, MAX_MESH_VERTICES};
 use std::collections::HashMap;
 use std::path::Path;
 
 /// Loads a PLY file whose lengths are in `units`.
 pub fn load_ply(path: &Path, units: Units) -> Result<Mesh, MeshError> {
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Io { path: path.to_path_buf(), source })?;
-    let (mut data, texture) = parse_ply(&bytes, units).map_err(|m| MeshError::format(path, m))?;
+    ply_from_bytes(path, &super::load::read_mesh_file(path)?, units, &Folder::beside(path))
+}
+
+/// A PLY file's bytes, its texture from `files`; `path` names it in errors.
+pub(super) fn ply_from_bytes(path: &Path, bytes: &[u8], units: Units, files: &dyn MeshFiles) -> Result<Mesh, MeshError> {
+    let (mut data, texture) = parse_ply(bytes, units).map_err(|m| MeshError::format(path, m))?;
     if let Some(name) = texture {
-        let file = path.parent().unwrap_or(Path::new("")).join(&name);
-        let image = load_texture(path, &file, &name)?;
+        let image = load_texture(path, files, &name)?;
         data.materials = vec![Material { name, texture: Some(image), ..Material::default() }];
     }
     Mesh::new(path.display().to_string(), units, data)
@@ -257,6 +262,12 @@ impl Plan {
         if face.count == 0 {
             return Err("no faces: element face has count 0".into());
         }
+        // Refused from the header, before reading: each face gives at least one triangle.
+        for (element, max) in [(vertex, MAX_MESH_VERTICES), (face, MAX_MESH_TRIANGLES)] {
+            if element.count > max {
+                return Err(format!("element {} has count {}, over the limit of {max}", element.name, element.count));
+            }
+        }
         let find = |names: &[&str]| vertex.props.iter().position(|p| names.contains(&p.name.as_str()));
         // Alternatives per slot, in slot order; an attribute counts only if all its slots exist.
         let slot_names: [&[&str]; SLOTS] = [
@@ -453,6 +464,11 @@ fn read_body<S: Source>(src: &mut S, header: &Header, plan: &Plan, raw: &mut Raw
     let mut indices = Vec::new();
     let mut texcoords = Vec::new();
     for (e, (element, roles)) in header.elements.iter().zip(&plan.roles).enumerate() {
+        // Binary items without properties take no bytes: nothing to read, however many
+        // the header claims (looping over a count of 10^18 would never end).
+        if element.props.is_empty() && header.encoding != Encoding::Ascii {
+            continue;
+        }
         for item in 0..element.count {
             let at = |src: &S, what: String| format!("{} {item} of {} ({}): {what}", element.name, element.count, src.location());
             src.begin_item().map_err(|e| at(src, e))?;
@@ -538,6 +554,9 @@ impl Raw {
             if tc.len() != 2 * n {
                 return Err(format!("texcoord list has {} values for a {n}-vertex face (expected {})", tc.len(), 2 * n));
             }
+        }
+        if self.triangles.len() + n - 2 > MAX_MESH_TRIANGLES {
+            return Err(format!("more than {MAX_MESH_TRIANGLES} triangles, over the limit"));
         }
         let uv = |k: usize| texcoords.map(|tc| [tc[2 * k] as f32, tc[2 * k + 1] as f32]);
         for k in 1..n - 1 {

@@ -135,6 +135,10 @@ impl Mesh {
         if data.triangles.is_empty() {
             return Err(err("mesh has no faces".into()));
         }
+        let (max_vertices, max_triangles) = (crate::limits::MAX_MESH_VERTICES, crate::limits::MAX_MESH_TRIANGLES);
+        if n > max_vertices || data.triangles.len() > max_triangles {
+            return Err(err(format!("{n} vertices and {} triangles: over the limit of {max_vertices} vertices and {max_triangles} triangles", data.triangles.len())));
+        }
         if let Some(i) = data.positions.iter().position(|p| p.iter().any(|c| !c.is_finite())) {
             return Err(err(format!("vertex {i} has a non-finite coordinate {:?}", data.positions[i])));
         }

@@ -237,6 +237,7 @@ impl Core {
     /// `deadline` it stops before the next instance.
     pub fn estimate(&self, req: &EstimateRequest, deadline: Option<Instant>) -> Result<EstimateResponse, ServiceError> {
         let t0 = Instant::now();
+        req.check_limits()?;
         let k = req.intrinsics.decode()?;
         let image = req.image.decode()?;
         if image.dimensions() != (k.width, k.height) {

@@ -6,6 +6,7 @@
 
 use super::error::{ErrorKind, ServiceError};
 use super::requests::{MeshInput, OnboardOptions, OnboardRequest, ResourceInput};
+use crate::limits::MAX_MULTIPART_PARTS;
 use axum::extract::multipart::{Multipart, MultipartError};
 
 fn part_error(e: MultipartError) -> ServiceError {
@@ -22,7 +23,12 @@ pub async fn onboard_request(mut form: Multipart) -> Result<OnboardRequest, Serv
     let mut options = OnboardOptions::default();
     let mut mesh: Option<(Option<String>, Vec<u8>)> = None;
     let mut resources = Vec::new();
+    let mut parts = 0;
     while let Some(field) = form.next_field().await.map_err(part_error)? {
+        parts += 1;
+        if parts > MAX_MULTIPART_PARTS {
+            return Err(ServiceError::invalid(format!("multipart body: more than {MAX_MULTIPART_PARTS} parts, over the limit")));
+        }
         let name = field.name().unwrap_or_default().to_string();
         let file_name = field.file_name().map(str::to_string);
         match name.as_str() {
@@ -53,4 +59,28 @@ pub async fn onboard_request(mut form: Multipart) -> Result<OnboardRequest, Serv
     let from_extension = mesh_name.as_deref().and_then(|n| std::path::Path::new(n).extension()).and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
     let format = format.or(from_extension).ok_or_else(|| ServiceError::invalid("multipart body: give a format part, or a mesh file name with its extension"))?;
     Ok(OnboardRequest { object_id, mesh: MeshInput { data: data.into(), format, units, resources }, options, replace })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use axum::extract::FromRequest;
+
+    async fn parse(body: String) -> Result<OnboardRequest, ServiceError> {
+        let request = axum::http::Request::builder().header("content-type", "multipart/form-data; boundary=B").body(axum::body::Body::from(body)).unwrap();
+        onboard_request(Multipart::from_request(request, &()).await.unwrap()).await
+    }
+
+    fn part(name: &str, file: &str, data: &str) -> String {
+        format!("--B\r\nContent-Disposition: form-data; name=\"{name}\"; filename=\"{file}\"\r\n\r\n{data}\r\n")
+    }
+
+    #[tokio::test]
+    async fn bodies_with_too_many_parts_are_refused() {
+        let head = format!("{}{}", part("object_id", "", "box").replace("; filename=\"\"", ""), part("mesh", "m.obj", "v 0 0 0"));
+        let body = |resources: usize| format!("{head}{}--B--\r\n", (0..resources).map(|i| part("resource", &format!("{i}.png"), "x")).collect::<String>());
+        assert_eq!(parse(body(MAX_MULTIPART_PARTS - 2)).await.unwrap().mesh.resources.len(), MAX_MULTIPART_PARTS - 2);
+        let e = parse(body(MAX_MULTIPART_PARTS - 1)).await.unwrap_err();
+        assert_eq!(e.message, format!("multipart body: more than {MAX_MULTIPART_PARTS} parts, over the limit"));
+    }
 }

@@ -6,6 +6,7 @@
 use super::base64_bytes::Base64Bytes;
 use super::error::ServiceError;
 use crate::geometry::Intrinsics;
+use crate::limits;
 use crate::masks::{box_to_mask, mask_from_png, mask_from_rle, require_nonempty, BoxMask, MaskError, Rle};
 use image::{GrayImage, RgbImage};
 
@@ -27,13 +28,12 @@ pub struct ImageInput {
 impl ImageInput {
     pub fn decode(&self) -> Result<RgbImage, ServiceError> {
         match (&self.encoded, &self.raw_rgb8) {
-            (Some(bytes), None) => {
-                Ok(image::load_from_memory(bytes.as_slice()).map_err(|e| ServiceError::invalid(format!("image.encoded: not a readable PNG/JPEG image: {e}")))?.to_rgb8())
-            }
+            (Some(bytes), None) => Ok(limits::REQUEST_IMAGE.decode(bytes.as_slice()).map_err(|e| ServiceError::invalid(format!("image.encoded: {e}")))?.to_rgb8()),
             (None, Some(r)) => {
                 let (Some(w), Some(h)) = (self.width, self.height) else {
                     return Err(ServiceError::invalid("image.raw_rgb8 needs image.width and image.height"));
                 };
+                limits::REQUEST_IMAGE.check(w, h).map_err(|e| ServiceError::invalid(format!("image.width × image.height: {e}")))?;
                 let bytes = r.0.clone();
                 let expected = w as u64 * h as u64 * 3;
                 if w == 0 || h == 0 || bytes.len() as u64 != expected {
@@ -67,6 +67,7 @@ impl IntrinsicsInput {
 /// background, `size` = [height, width]).
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct RleInput {
+    #[serde(deserialize_with = "limits::bounded_vec::<_, _, { limits::MAX_RLE_RUNS }>")]
     pub counts: Vec<u32>,
     pub size: [u32; 2],
 }
@@ -142,9 +143,37 @@ impl Default for EstimateOptions {
 pub struct EstimateRequest {
     pub image: ImageInput,
     pub intrinsics: IntrinsicsInput,
+    #[serde(deserialize_with = "limits::bounded_vec::<_, _, { limits::MAX_DETECTIONS }>")]
     pub detections: Vec<DetectionInput>,
     #[serde(default)]
     pub options: EstimateOptions,
+}
+
+impl EstimateRequest {
+    /// Refuses a request over the input limits (src/limits.rs) from what it announces,
+    /// before its image and masks are decoded: both adapters' requests pass here.
+    pub fn check_limits(&self) -> Result<(), ServiceError> {
+        let invalid = |m: String| ServiceError::invalid(m);
+        limits::check_count("detections", self.detections.len(), limits::MAX_DETECTIONS).map_err(invalid)?;
+        for (i, d) in self.detections.iter().enumerate() {
+            if let Some(rle) = &d.mask_rle {
+                limits::check_count(&format!("detections[{i}].mask_rle.counts"), rle.counts.len(), limits::MAX_RLE_RUNS).map_err(invalid)?;
+            }
+        }
+        let (w, h) = (self.intrinsics.width, self.intrinsics.height);
+        limits::REQUEST_IMAGE.check(w, h).map_err(|e| invalid(format!("intrinsics.width × intrinsics.height: {e}")))?;
+        let mask_pixels = self.detections.len() as u64 * w as u64 * h as u64;
+        if mask_pixels > limits::MAX_MASK_PIXELS_PER_REQUEST {
+            return Err(invalid(format!("detections: {} masks of {w}×{h} are {mask_pixels} mask pixels, over the limit of {} per request", self.detections.len(), limits::MAX_MASK_PIXELS_PER_REQUEST)));
+        }
+        let o = &self.options;
+        for (name, value, max) in [("options.k", o.k, limits::MAX_RETRIEVAL_K), ("options.max_masks", o.max_masks, limits::MAX_MASKS_PER_INSTANCE), ("options.instances_per_object", o.instances_per_object, limits::MAX_MASKS_PER_INSTANCE)] {
+            if value > max {
+                return Err(invalid(format!("{name} is {value}, over the limit of {max}")));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// A pose `T_cam_obj`: rotation row-major and as a unit quaternion (w, x, y, z), translation
@@ -199,7 +228,7 @@ pub struct MeshInput {
     /// mm | cm | m (PLY and OBJ need it; glTF is metres).
     #[serde(default)]
     pub units: Option<String>,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "limits::bounded_vec::<_, _, { limits::MAX_MESH_RESOURCES }>")]
     pub resources: Vec<ResourceInput>,
 }
 
@@ -249,6 +278,7 @@ impl MeshInput {
             None => None,
             Some(u) => Some(u.parse::<crate::mesh::Units>().map_err(|e| ServiceError::invalid(format!("mesh.units: {e}")))?),
         };
+        limits::check_count("mesh.resources", self.resources.len(), limits::MAX_MESH_RESOURCES).map_err(ServiceError::invalid)?;
         let write = |name: &str, data: &Base64Bytes| -> Result<(), ServiceError> {
             std::fs::write(dir.join(name), data.as_slice()).map_err(|e| ServiceError::internal(format!("staging {name}: {e}")))
         };
@@ -261,6 +291,62 @@ impl MeshInput {
         }
         let path = dir.join(format!("mesh.{ext}"));
         write(path.file_name().and_then(|n| n.to_str()).unwrap_or("mesh"), &self.data)?;
-        crate::mesh::load_mesh(&path, units).map_err(|e| ServiceError::invalid(format!("mesh: {}", e.to_string().replace(&dir.display().to_string(), "<upload>"))))
+        crate::mesh::load_mesh_with(&path, units, &crate::mesh::Folder::confined(dir)).map_err(|e| ServiceError::invalid(format!("mesh: {}", e.to_string().replace(&dir.display().to_string(), "<upload>"))))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn estimate(detections: usize, width: u32, height: u32) -> serde_json::Value {
+        let d = serde_json::json!({"object_id": "a", "bbox": [0, 0, 1, 1]});
+        serde_json::json!({"image": {"raw_rgb8": "", "width": width, "height": height},
+            "intrinsics": {"fx": 1, "fy": 1, "cx": 0, "cy": 0, "width": width, "height": height},
+            "detections": vec![d; detections]})
+    }
+
+    fn refusal(v: serde_json::Value) -> String {
+        match serde_json::from_value::<EstimateRequest>(v) {
+            Ok(r) => r.check_limits().unwrap_err().message,
+            Err(e) => e.to_string(),
+        }
+    }
+
+    #[test]
+    fn requests_over_the_limits_are_refused_before_decoding() {
+        let max = limits::MAX_DETECTIONS;
+        assert!(serde_json::from_value::<EstimateRequest>(estimate(max, 64, 48)).unwrap().check_limits().is_ok());
+        assert!(refusal(estimate(max + 1, 64, 48)).contains(&format!("more than {max} items, over the limit")));
+        assert!(refusal(estimate(1, 20_000, 10)).starts_with("intrinsics.width × intrinsics.height: 20000×10 is over the limit"));
+        assert!(refusal(estimate(200, 8_000, 5_000)).contains("mask pixels, over the limit of 1000000000 per request"));
+        let mut v = estimate(1, 64, 48);
+        v["options"] = serde_json::json!({"k": 1_000_000_000});
+        assert_eq!(refusal(v), "options.k is 1000000000, over the limit of 100000");
+        let mut v = estimate(1, 64, 48);
+        v["detections"][0]["mask_rle"] = serde_json::json!({"counts": vec![0; limits::MAX_RLE_RUNS + 1], "size": [48, 64]});
+        assert!(refusal(v).contains("over the limit"));
+    }
+
+    #[test]
+    fn raw_images_over_the_limits_are_refused_before_their_length_is_checked() {
+        let raw = |w, h| ImageInput { encoded: None, raw_rgb8: Some(vec![0; 12].into()), width: Some(w), height: Some(h) };
+        assert_eq!(raw(2, 2).decode().unwrap().dimensions(), (2, 2));
+        let e = raw(100_000, 100_000).decode().unwrap_err().message;
+        assert!(e.starts_with("image.width × image.height: 100000×100000 is over the limit of 16384 pixels a side"), "{e}");
+        let png = crate::limits::tests::png_header_only(20_000, 20_000);
+        let e = ImageInput { encoded: Some(png.into()), raw_rgb8: None, width: None, height: None }.decode().unwrap_err().message;
+        assert!(e.starts_with("image.encoded: 20000×20000 is over the limit"), "{e}");
+    }
+
+    #[test]
+    fn uploads_with_too_many_files_are_refused() {
+        let resources: Vec<_> = (0..=limits::MAX_MESH_RESOURCES).map(|i| serde_json::json!({"name": format!("{i}.png"), "data": ""})).collect();
+        let v = serde_json::json!({"object_id": "a", "mesh": {"data": "", "format": "obj", "resources": resources}});
+        let e = serde_json::from_value::<OnboardRequest>(v).unwrap_err().to_string();
+        assert!(e.contains(&format!("more than {} items, over the limit", limits::MAX_MESH_RESOURCES)), "{e}");
+        let many = MeshInput { data: vec![].into(), format: "obj".into(), units: None, resources: vec![ResourceInput { name: "a".into(), data: vec![].into() }; limits::MAX_MESH_RESOURCES + 1] };
+        let e = many.load(std::path::Path::new("/nonexistent")).unwrap_err().message;
+        assert_eq!(e, format!("mesh.resources has {} items, over the limit of {}", limits::MAX_MESH_RESOURCES + 1, limits::MAX_MESH_RESOURCES));
     }
 }

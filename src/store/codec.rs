@@ -213,7 +213,7 @@ pub fn decode(manifest: &[u8], tensors: &[u8], texture: &mut dyn FnMut(&str) -> 
         let texture = match &m.texture_file {
             Some(f) => {
                 let bytes = texture(f).map_err(|e| corrupt(format!("texture {f}: {e}")))?;
-                let img = image::load_from_memory(&bytes).map_err(|e| corrupt(format!("texture {f}: {e}")))?.to_rgba8();
+                let img = crate::limits::TEXTURE.decode(&bytes).map_err(|e| corrupt(format!("texture {f}: {e}")))?.to_rgba8();
                 Some(Arc::new(img))
             }
             None => None,
