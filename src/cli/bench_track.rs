@@ -11,6 +11,7 @@ use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Units;
 use crate::onboard::ObjectModel;
 use crate::track::sequence::{generate, Frame, SequenceConfig};
+use crate::track::sequence_bop::{write_sequences, SequenceSpec};
 use crate::track::{Tracker, TrackerConfig};
 use anyhow::Result;
 use std::path::PathBuf;
@@ -53,6 +54,15 @@ pub struct BenchTrackArgs {
     /// Also stream every sequence through a `b2tf serve` child's gRPC Track stream.
     #[arg(long)]
     pub grpc: bool,
+    /// Also write the sequences as a BOP dataset here (one scene per sequence; object ids
+    /// from `obj_NNNNNN` mesh names, else 1, 2, … in the order given).
+    #[arg(long, value_name = "DIR")]
+    pub save_bop: Option<PathBuf>,
+}
+
+/// A mesh's BOP object id: the number of an `obj_000005`-style name, else its place.
+fn bop_object_id(name: &str, place: usize) -> u32 {
+    name.rsplit('/').next().and_then(|n| n.strip_prefix("obj_")).and_then(|n| n.split('.').next()).and_then(|n| n.parse().ok()).filter(|&id| id > 0).unwrap_or(place as u32 + 1)
 }
 
 /// Per-frame accuracy of one object's frames; a missing pose counts as a miss.
@@ -97,6 +107,16 @@ pub fn run(a: BenchTrackArgs) -> Result<()> {
     }
     drop(store); // the server below opens it
     let config = |s: usize| SequenceConfig { frames: a.frames, max_degrees_per_frame: a.degrees, max_metres_per_frame: a.metres, seed: 1 + s as u64, occluder: a.occluder, blur_sigma: a.blur, noise_sigma: a.noise, ..Default::default() };
+    if let Some(dir) = &a.save_bop {
+        let specs: Vec<SequenceSpec> = meshes
+            .iter()
+            .enumerate()
+            .flat_map(|(place, (name, mesh))| (0..a.sequences).map(move |s| (bop_object_id(name, place), mesh, s)))
+            .map(|(obj_id, mesh, s)| SequenceSpec { obj_id, mesh, config: config(s) })
+            .collect();
+        let frames = write_sequences(dir, &k, &specs, &pool)?;
+        println!("Wrote {} sequences ({frames} frames) as a BOP dataset in {}\n", specs.len(), dir.display());
+    }
     let server = if a.grpc { Some(super::child_server::ChildServer::start(&a.store, &[])?) } else { None };
     let mut grpc_rows = Vec::new();
     println!("In process (a lost frame restarts at the truth):\n");

@@ -80,13 +80,20 @@ const EDGE: f32 = 40.0;
 /// because its few edges happen to agree. Orientation, not sign or strength: lighting
 /// changes both across the gap.
 pub fn appearance_agreement(render: &RenderOutput, image: &RgbImage, mask: &GrayImage, window: (u32, u32, u32, u32)) -> f64 {
+    let (x0, y0) = (window.0, window.1);
+    appearance_agreement_where(render, image, window, &|x, y| mask.get_pixel(x0 + x, y0 + y)[0] > 0)
+}
+
+/// [`appearance_agreement`] over the window pixels (window coordinates) that `in_mask`
+/// admits, for callers without a mask image (a tracker checks its own render).
+pub fn appearance_agreement_where(render: &RenderOutput, image: &RgbImage, window: (u32, u32, u32, u32), in_mask: &dyn Fn(u32, u32) -> bool) -> f64 {
     let (x0, y0, w, h) = window;
     if w < 7 || h < 7 {
         return 0.0;
     }
     let r_at = |x: u32, y: u32| grey(render.rgb.get_pixel(x, y));
     let i_at = |x: u32, y: u32| grey(image.get_pixel(x0 + x, y0 + y));
-    let inside = |x: u32, y: u32| (-2i64..=2).all(|d| render.mask.get_pixel((x as i64 + d) as u32, y)[0] > 0 && render.mask.get_pixel(x, (y as i64 + d) as u32)[0] > 0) && mask.get_pixel(x0 + x, y0 + y)[0] > 0;
+    let inside = |x: u32, y: u32| (-2i64..=2).all(|d| render.mask.get_pixel((x as i64 + d) as u32, y)[0] > 0 && render.mask.get_pixel(x, (y as i64 + d) as u32)[0] > 0) && in_mask(x, y);
     let (mut sum, mut count) = (0.0f64, 0usize);
     for y in 3..h - 3 {
         for x in 3..w - 3 {

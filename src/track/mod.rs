@@ -2,8 +2,10 @@
 //! posterior (no retrieval or PnP per frame), for camera-rate poses once a first estimate
 //! is known.
 
+pub mod check;
 pub mod colour;
 pub mod sequence;
+pub mod sequence_bop;
 pub mod session;
 pub mod tracker;
 

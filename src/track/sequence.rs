@@ -8,9 +8,9 @@ use crate::mesh::procedural::Rng;
 use crate::mesh::Mesh;
 use crate::render::{RenderError, RenderOptions, RenderPool};
 use image::{GrayImage, RgbImage};
-use nalgebra::{Rotation3, Unit, Vector3};
+use nalgebra::{Rotation3, Vector3};
 
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize)]
 pub struct SequenceConfig {
     pub frames: usize,
     /// Camera distance of the object's centre at the start, m.
@@ -57,77 +57,144 @@ pub fn cluttered_background(width: u32, height: u32, rng: &mut Rng) -> RgbImage 
     img
 }
 
-/// The object's poses: a smoothly turning rotation axis and a velocity that wanders
-/// within the per-frame limits, kept in the middle half of the view.
+/// A smooth random signal within [-1, 1]: three sinusoids of random frequency (0.5–1.5 per
+/// unit time) and phase, with weights that sum to 1.
+struct Wave([(f64, f64, f64); 3]);
+
+impl Wave {
+    fn new(rng: &mut Rng) -> Self {
+        let w: [f64; 3] = [0.2 + rng.uniform(), 0.2 + rng.uniform(), 0.2 + rng.uniform()];
+        let sum: f64 = w.iter().sum();
+        Self(w.map(|wi| (wi / sum, rng.range(0.5, 1.5), rng.uniform() * std::f64::consts::TAU)))
+    }
+
+    fn at(&self, t: f64) -> f64 {
+        self.0.iter().map(|(w, f, phase)| w * (f * t + phase).sin()).sum()
+    }
+
+    /// A bound on |d/dt| of the signal.
+    fn speed_bound(&self) -> f64 {
+        self.0.iter().map(|(w, f, _)| w * f).sum()
+    }
+}
+
+/// Half-sides of the box the object's centre moves in, as shares of the start distance
+/// (sideways, up-down, depth): the object stays in a 4:3 view at the start distance.
+const TRAVEL: [f64; 3] = [0.2, 0.12, 0.2];
+
+/// Angular velocity's own rate of change, radians of wave phase per frame: the spin turns
+/// over tens of frames, as a thrown or carried part's does.
+const SPIN_CHANGE: f64 = 0.08;
+
+/// The object's poses: its centre moves smoothly through a box around the start (each axis
+/// a [`Wave`], time-scaled so that the fastest frame moves `max_metres_per_frame`) and it
+/// spins with a smoothly changing angular velocity whose fastest frame turns
+/// `max_degrees_per_frame`. Smooth, not a random walk: a real part's velocity does not jump,
+/// so a tracker's motion prior is tested on the accelerations the box forces, not on noise.
 pub fn trajectory(mesh: &Mesh, cfg: &SequenceConfig) -> Vec<Pose> {
     let mut rng = Rng::new(cfg.seed);
     let centre = Vector3::from(mesh.bbox_center());
     let dir = Vector3::new(rng.normal(), rng.normal(), rng.normal().abs() + 0.5).normalize();
-    let mut pose = view_pose(&dir, rng.uniform() * std::f64::consts::TAU, &centre, cfg.distance);
-    let mut axis = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
-    let mut velocity = Vector3::zeros();
-    let mut poses = Vec::with_capacity(cfg.frames);
-    for _ in 0..cfg.frames {
-        poses.push(pose);
-        axis = (axis + 0.2 * Vector3::new(rng.normal(), rng.normal(), rng.normal())).normalize();
-        let turn = Rotation3::from_axis_angle(&Unit::new_normalize(axis), cfg.max_degrees_per_frame.to_radians() * (0.5 + 0.5 * rng.uniform()));
-        velocity += 0.3 * cfg.max_metres_per_frame * Vector3::new(rng.normal(), rng.normal(), 0.5 * rng.normal());
-        // Pulled back towards the start so the object stays in view.
-        let c = pose.rotation * centre + pose.translation;
-        velocity -= 0.05 * (c - Vector3::new(0.0, 0.0, cfg.distance));
-        if velocity.norm() > cfg.max_metres_per_frame {
-            velocity *= cfg.max_metres_per_frame / velocity.norm();
-        }
-        // Bounced back at the edges of a box around the start (±15 % of the distance
-        // sideways, ±20 % in depth), so fast motions stay in view too.
-        let offset = c + velocity - Vector3::new(0.0, 0.0, cfg.distance);
-        for (i, limit) in [0.15, 0.15, 0.2].into_iter().enumerate() {
-            if offset[i].abs() > limit * cfg.distance && offset[i] * velocity[i] > 0.0 {
-                velocity[i] = -velocity[i];
-            }
-        }
-        // Turn about the object's centre, then move.
-        let rotation = turn * pose.rotation;
-        let translation = c + velocity - rotation * centre;
-        pose = Pose::new(rotation, translation);
+    let start = view_pose(&dir, rng.uniform() * std::f64::consts::TAU, &centre, cfg.distance);
+    let n = cfg.frames;
+    let travel: [(f64, Wave); 3] = TRAVEL.map(|share| (share * cfg.distance, Wave::new(&mut rng)));
+    // Starts at the start pose: each wave is measured from its value at t = 0.
+    let offset_at = |t: f64| Vector3::from_fn(|i, _| travel[i].0 * (travel[i].1.at(t) - travel[i].1.at(0.0)) / 2.0);
+    let largest_step = |rate: f64| (1..n).map(|i| (offset_at(rate * i as f64) - offset_at(rate * (i - 1) as f64)).norm()).fold(0.0, f64::max);
+    // The bound's rate never exceeds the limit; the measured one is tried as well so the
+    // fastest frame reaches it, and kept only where it stays within.
+    let bound = travel.iter().map(|(l, w)| (l * w.speed_bound() / 2.0).powi(2)).sum::<f64>().sqrt();
+    let mut rate = cfg.max_metres_per_frame / bound.max(1e-12);
+    let reached = largest_step(rate);
+    if reached > 0.0 && largest_step(rate * cfg.max_metres_per_frame / reached) <= cfg.max_metres_per_frame * (1.0 + 1e-9) {
+        rate *= cfg.max_metres_per_frame / reached;
+    }
+    let spin: [Wave; 3] = std::array::from_fn(|_| Wave::new(&mut rng));
+    let spin_at = |i: usize| Vector3::from_fn(|a, _| spin[a].at(SPIN_CHANGE * i as f64));
+    let peak_spin = (0..n).map(|i| spin_at(i).norm()).fold(0.0, f64::max).max(1e-12);
+    let start_centre = start.rotation * centre + start.translation;
+    let mut rotation = start.rotation;
+    let mut poses = Vec::with_capacity(n);
+    for i in 0..n {
+        let c = start_centre + offset_at(rate * i as f64);
+        poses.push(Pose::new(rotation, c - rotation * centre));
+        // Turn about the object's centre.
+        let turn = spin_at(i) * (cfg.max_degrees_per_frame.to_radians() / peak_spin);
+        rotation = Rotation3::new(turn) * rotation;
     }
     poses
 }
 
-/// Renders the sequence: each frame the object over the background, lit from a fixed
-/// direction, then the occluder, blur and noise as configured.
-pub fn generate(mesh: &Mesh, k: &Intrinsics, cfg: &SequenceConfig, pool: &RenderPool) -> Result<Vec<Frame>, RenderError> {
-    let mut rng = Rng::new(cfg.seed ^ 0x5eed);
-    let background = cluttered_background(k.width, k.height, &mut rng);
-    let occluder_colour = image::Rgb([(rng.uniform() * 255.0) as u8, (rng.uniform() * 255.0) as u8, (rng.uniform() * 255.0) as u8]);
-    let frames = cfg.frames.max(1);
-    trajectory(mesh, cfg)
-        .into_iter()
-        .enumerate()
-        .map(|(i, truth)| {
-            let r = pool.render(mesh, &truth, k, &RenderOptions::default())?;
-            let mut rgb = crate::eval::degrade::composite(&r.rgb, &r.mask, &background);
-            let mut visible = r.mask;
-            if cfg.occluder {
-                // From just off the left edge to just off the right one.
-                let bar = (k.width / 10).max(1);
-                let x0 = ((i as f64 / frames as f64) * (k.width + bar) as f64) as i64 - bar as i64;
-                for x in x0.max(0) as u32..((x0 + bar as i64).max(0) as u32).min(k.width) {
-                    for y in 0..k.height {
-                        rgb.put_pixel(x, y, occluder_colour);
-                        visible.put_pixel(x, y, image::Luma([0]));
-                    }
+/// A sequence ready to render frame by frame: its trajectory and its static background.
+pub struct Sequence<'a> {
+    mesh: &'a Mesh,
+    k: Intrinsics,
+    cfg: SequenceConfig,
+    poses: Vec<Pose>,
+    background: RgbImage,
+    occluder_colour: image::Rgb<u8>,
+}
+
+/// A frame with what only a dataset on disk needs: the object's full silhouette and its
+/// depth where it is visible (m, 0 elsewhere; the occluder is a flat bar without depth).
+pub struct FrameWithDepth {
+    pub frame: Frame,
+    pub silhouette: GrayImage,
+    pub depth: Vec<f32>,
+}
+
+impl<'a> Sequence<'a> {
+    pub fn new(mesh: &'a Mesh, k: &Intrinsics, cfg: &SequenceConfig) -> Self {
+        let mut rng = Rng::new(cfg.seed ^ 0x5eed);
+        let background = cluttered_background(k.width, k.height, &mut rng);
+        let occluder_colour = image::Rgb([(rng.uniform() * 255.0) as u8, (rng.uniform() * 255.0) as u8, (rng.uniform() * 255.0) as u8]);
+        Self { mesh, k: *k, cfg: cfg.clone(), poses: trajectory(mesh, cfg), background, occluder_colour }
+    }
+
+    pub fn len(&self) -> usize {
+        self.poses.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.poses.is_empty()
+    }
+
+    /// Frame `i`: the object over the background, lit from a fixed direction, then the
+    /// occluder, blur and noise as configured. Each frame's noise has its own seed, so
+    /// frames can be made in any order.
+    pub fn frame(&self, i: usize, pool: &RenderPool) -> Result<FrameWithDepth, RenderError> {
+        let (k, cfg) = (&self.k, &self.cfg);
+        let truth = self.poses[i];
+        let r = pool.render(self.mesh, &truth, k, &RenderOptions::default())?;
+        let mut rgb = crate::eval::degrade::composite(&r.rgb, &r.mask, &self.background);
+        let mut visible = r.mask.clone();
+        if cfg.occluder {
+            // From just off the left edge to just off the right one.
+            let bar = (k.width / 10).max(1);
+            let x0 = ((i as f64 / self.len().max(1) as f64) * (k.width + bar) as f64) as i64 - bar as i64;
+            for x in x0.max(0) as u32..((x0 + bar as i64).max(0) as u32).min(k.width) {
+                for y in 0..k.height {
+                    rgb.put_pixel(x, y, self.occluder_colour);
+                    visible.put_pixel(x, y, image::Luma([0]));
                 }
             }
-            if cfg.blur_sigma > 0.0 {
-                rgb = crate::eval::degrade::gaussian_blur(&rgb, cfg.blur_sigma);
-            }
-            if cfg.noise_sigma > 0.0 {
-                rgb = crate::eval::degrade::add_noise(&rgb, cfg.noise_sigma, &mut rng);
-            }
-            Ok(Frame { rgb, truth, visible })
-        })
-        .collect()
+        }
+        if cfg.blur_sigma > 0.0 {
+            rgb = crate::eval::degrade::gaussian_blur(&rgb, cfg.blur_sigma);
+        }
+        if cfg.noise_sigma > 0.0 {
+            let mut rng = Rng::new(cfg.seed ^ 0x5eed ^ (i as u64 + 1).wrapping_mul(0x9e37_79b9_7f4a_7c15));
+            rgb = crate::eval::degrade::add_noise(&rgb, cfg.noise_sigma, &mut rng);
+        }
+        let depth = r.depth.iter().zip(visible.as_raw()).map(|(&z, &v)| if v > 0 { z } else { 0.0 }).collect();
+        Ok(FrameWithDepth { frame: Frame { rgb, truth, visible }, silhouette: r.mask, depth })
+    }
+}
+
+/// Renders the whole sequence (see [`Sequence::frame`]).
+pub fn generate(mesh: &Mesh, k: &Intrinsics, cfg: &SequenceConfig, pool: &RenderPool) -> Result<Vec<Frame>, RenderError> {
+    let seq = Sequence::new(mesh, k, cfg);
+    (0..seq.len()).map(|i| seq.frame(i, pool).map(|f| f.frame)).collect()
 }
 
 #[cfg(test)]
@@ -140,11 +207,20 @@ mod tests {
         let cfg = SequenceConfig { frames: 50, max_degrees_per_frame: 10.0, max_metres_per_frame: 0.05, seed: 4, ..Default::default() };
         let poses = trajectory(&mesh, &cfg);
         assert_eq!(poses.len(), 50);
+        let centre = Vector3::from(mesh.bbox_center());
+        let centre_of = |p: &Pose| p.rotation * centre + p.translation;
+        let (mut fastest_turn, mut fastest_move) = (0.0f64, 0.0f64);
         for w in poses.windows(2) {
             let turn = crate::geometry::geodesic_distance(&w[0].rotation, &w[1].rotation).to_degrees();
-            let centre = Vector3::from(mesh.bbox_center());
-            let moved = ((w[1].rotation * centre + w[1].translation) - (w[0].rotation * centre + w[0].translation)).norm();
+            let moved = (centre_of(&w[1]) - centre_of(&w[0])).norm();
             assert!(turn <= 10.0 + 1e-9 && moved <= 0.05 + 1e-9, "{turn}° {moved} m");
+            (fastest_turn, fastest_move) = (fastest_turn.max(turn), fastest_move.max(moved));
+        }
+        // "Up to" the limits: the fastest frames come near them.
+        assert!(fastest_turn > 9.0 && fastest_move > 0.04, "{fastest_turn}° {fastest_move} m");
+        for p in &poses {
+            let offset = centre_of(p) - centre_of(&poses[0]);
+            assert!((0..3).all(|i| offset[i].abs() <= 2.0 * TRAVEL[i] * cfg.distance + 1e-9), "{offset:?}");
         }
     }
 }

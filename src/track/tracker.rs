@@ -5,12 +5,13 @@
 //! few frames. A frame whose outline agreement falls below a threshold is reported lost
 //! and leaves the track where it was, for the caller to re-initialise (a full estimate).
 
+use super::check::silhouette_iou;
 use super::colour::{ColourModel, Window};
 use crate::estimate::contour::ContourRefiner;
 use crate::estimate::refine::{RefineContext, RefineReport, Refiner};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
-use crate::render::{RenderOptions, RenderPool};
+use crate::render::{RenderOptions, RenderOutput, RenderPool};
 use image::RgbImage;
 use nalgebra::{Point3, Vector3};
 use std::sync::Arc;
@@ -28,11 +29,14 @@ pub struct TrackerConfig {
     pub constant_velocity: bool,
     /// Half-side of the window the colours are learnt and read in, in object radii.
     pub window_radii: f64,
+    /// The silhouette check (`check.rs`) at each relearning: below this IoU of the
+    /// render's silhouette with the pixels the colours call object, the frame is lost.
+    pub min_silhouette_iou: f64,
 }
 
 impl Default for TrackerConfig {
     fn default() -> Self {
-        Self { lost_below: 0.3, colour_rate: 0.2, relearn_every: 5, constant_velocity: true, window_radii: 1.6 }
+        Self { lost_below: 0.3, colour_rate: 0.2, relearn_every: 5, constant_velocity: true, window_radii: 1.6, min_silhouette_iou: 0.5 }
     }
 }
 
@@ -45,6 +49,8 @@ pub struct TrackStep {
     /// The frame did not confirm the track: `pose` is the last good one.
     pub lost: bool,
     pub report: RefineReport,
+    /// The silhouette check's IoU, on the frames that had one.
+    pub silhouette_iou: Option<f64>,
 }
 
 pub struct Tracker {
@@ -77,11 +83,14 @@ impl Tracker {
     /// afresh, no motion carried over.
     /// On failure (the object not in view at `pose`) the track is left as it was.
     pub fn restart(&mut self, image: &RgbImage, k: &Intrinsics, pose: Pose) -> Result<(), String> {
-        let kept = std::mem::take(&mut self.colours);
-        if !self.relearn(image, k, &pose, 1.0)? {
-            self.colours = kept;
+        let Some((render, window)) = self.render_window(k, &pose)? else {
+            return Err("the object is not visible at the restarting pose".into());
+        };
+        let mut colours = ColourModel::default();
+        if !colours.learn(image, &render.mask, window, 1.0) {
             return Err("the object is not visible at the restarting pose".into());
         }
+        self.colours = colours;
         self.velocity = None;
         self.frames = 0;
         self.pose = pose;
@@ -100,12 +109,13 @@ impl Tracker {
         Window::around(uv.x, uv.y, half, k.width, k.height)
     }
 
-    fn relearn(&mut self, image: &RgbImage, k: &Intrinsics, pose: &Pose, rate: f32) -> Result<bool, String> {
-        let Some(window) = self.window(k, pose, self.config.window_radii) else { return Ok(false) };
-        // Rendered through the window only: a fraction of the frame's pixels.
-        let Some(wk) = window.intrinsics(k) else { return Ok(false) };
-        let silhouette = self.renderer.render(&self.model.mesh, pose, &wk, &RenderOptions::default()).map_err(|e| e.to_string())?.mask;
-        Ok(self.colours.learn(image, &silhouette, window, rate))
+    /// The object rendered at `pose` through its colour window alone: a fraction of the
+    /// frame's pixels. None when the window leaves the image.
+    fn render_window(&self, k: &Intrinsics, pose: &Pose) -> Result<Option<(RenderOutput, Window)>, String> {
+        let Some(window) = self.window(k, pose, self.config.window_radii) else { return Ok(None) };
+        let Some(wk) = window.intrinsics(k) else { return Ok(None) };
+        let render = self.renderer.render(&self.model.mesh, pose, &wk, &RenderOptions::default()).map_err(|e| e.to_string())?;
+        Ok(Some((render, window)))
     }
 
     /// Tracks the object into the next frame.
@@ -118,7 +128,7 @@ impl Tracker {
             _ => self.pose,
         };
         let Some(window) = self.window(k, &predicted, self.config.window_radii) else {
-            return Ok(TrackStep { pose: self.pose, quality: 0.0, lost: true, report: RefineReport { note: Some("the object left the image".into()), ..Default::default() } });
+            return Ok(TrackStep { pose: self.pose, quality: 0.0, lost: true, report: RefineReport { note: Some("the object left the image".into()), ..Default::default() }, silhouette_iou: None });
         };
         let probs = self.colours.probability_image(image, window);
         let ctx = RefineContext { model: &self.model, image, intrinsics: k, mask: &probs, unknown: None, mask_is_probability: true };
@@ -126,14 +136,24 @@ impl Tracker {
         let quality = refined.report.agreement;
         if quality < self.config.lost_below {
             self.velocity = None;
-            return Ok(TrackStep { pose: self.pose, quality, lost: true, report: refined.report });
+            return Ok(TrackStep { pose: self.pose, quality, lost: true, report: refined.report, silhouette_iou: None });
+        }
+        let mut checked = None;
+        if (self.frames + 1).is_multiple_of(self.config.relearn_every.max(1)) {
+            if let Some((render, window)) = self.render_window(k, &refined.pose)? {
+                let iou = silhouette_iou(&self.colours, image, &render.mask, window);
+                checked = Some(iou);
+                if iou < self.config.min_silhouette_iou {
+                    self.velocity = None;
+                    let note = format!("the pose's silhouette covers too little of the object's colours (IoU {iou:.2} under {:.2})", self.config.min_silhouette_iou);
+                    return Ok(TrackStep { pose: self.pose, quality, lost: true, report: RefineReport { note: Some(note), ..refined.report }, silhouette_iou: checked });
+                }
+                self.colours.learn(image, &render.mask, window, self.config.colour_rate);
+            }
         }
         self.velocity = Some(refined.pose.compose(&self.pose.inverse()));
         self.pose = refined.pose;
         self.frames += 1;
-        if self.frames.is_multiple_of(self.config.relearn_every.max(1)) {
-            self.relearn(image, k, &refined.pose, self.config.colour_rate)?;
-        }
-        Ok(TrackStep { pose: refined.pose, quality, lost: false, report: refined.report })
+        Ok(TrackStep { pose: refined.pose, quality, lost: false, report: refined.report, silhouette_iou: checked })
     }
 }

@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 const TARGET_MIN_VISIB: f64 = 0.1;
 
 /// Collects one scene's records while its images are written, then writes the JSON files.
-pub(super) struct SceneWriter {
+pub(crate) struct SceneWriter {
     dir: PathBuf,
     scene_id: u32,
     camera: BTreeMap<u32, CameraRecord>,
@@ -66,9 +66,9 @@ impl SceneWriter {
         Ok(())
     }
 
-    /// Writes the scene's JSON files and the dataset's `test_targets_bop19.json` (which
-    /// lists this scene only: one generated scene per dataset).
-    pub fn finish(self, dataset: &Path) -> Result<()> {
+    /// Writes the scene's JSON files; returns its test targets, for
+    /// [`write_test_targets`] to write with those of the dataset's other scenes.
+    pub fn finish(self) -> Result<Vec<TargetRecord>> {
         write_json(&self.dir.join(SCENE_CAMERA), &self.camera)?;
         write_json(&self.dir.join(SCENE_GT), &self.gt)?;
         write_json(&self.dir.join(SCENE_GT_INFO), &self.info)?;
@@ -82,14 +82,19 @@ impl SceneWriter {
             }
             targets.extend(counts.into_iter().map(|(obj_id, inst_count)| TargetRecord { im_id, inst_count, obj_id, scene_id: self.scene_id }));
         }
-        write_json(&dataset.join(TEST_TARGETS), &targets)
+        Ok(targets)
     }
+}
+
+/// The dataset's `test_targets_bop19.json`.
+pub(crate) fn write_test_targets(dataset: &Path, targets: &[TargetRecord]) -> Result<()> {
+    write_json(&dataset.join(TEST_TARGETS), &targets)
 }
 
 /// `models/models_info.json`: evaluation needs each object's diameter (mm). Entries
 /// already in the file are kept as they are (a copied BOP models folder carries its
 /// symmetries there); objects without one get their measured diameter and box.
-pub(super) fn write_models_info(dataset: &Path, objects: &[(u32, Mesh)]) -> Result<()> {
+pub(crate) fn write_models_info(dataset: &Path, objects: &[(u32, Mesh)]) -> Result<()> {
     let path = dataset.join(MODELS_INFO);
     let mut info: BTreeMap<u32, serde_json::Value> = if path.exists() {
         let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;

@@ -19,7 +19,7 @@
 //! The object models themselves are not written.
 
 mod appearance;
-mod bop_write;
+pub(crate) mod bop_write;
 mod config;
 mod generate;
 mod layers;
@@ -65,7 +65,7 @@ pub fn generate_dataset(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &Rende
         writer.add(im_id, &img)?;
     }
     let scene_dir = writer.dir().to_path_buf();
-    writer.finish(dataset)?;
+    bop_write::write_test_targets(dataset, &writer.finish()?)?;
     bop_write::write_models_info(dataset, objects)?;
     // Not part of BOP: records how the dataset was made, so results can name it.
     let path = dataset.join(CONFIG_FILE);
