@@ -6,6 +6,7 @@
 //! are numbered and must come in order. The CLI, the gRPC stream and the HTTP sessions all
 //! run this, so they track alike.
 
+use super::colour::Window;
 use super::{Tracker, TrackerConfig};
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::geometry::{Intrinsics, Pose};
@@ -26,11 +27,16 @@ pub struct SessionConfig {
     /// Half-side of the box searched for a lost object, in object radii around its last
     /// pose.
     pub search_radii: f64,
+    /// A re-initialising estimate must explain the mask it came from: its rendered
+    /// silhouette needs at least this IoU with it. A segmentation that caught clutter, or
+    /// an estimate that put the object at the wrong depth, would otherwise restart the
+    /// track on a wrong pose that the outline then follows with middling agreement.
+    pub min_reinit_iou: f64,
 }
 
 impl Default for SessionConfig {
     fn default() -> Self {
-        Self { tracker: TrackerConfig::default(), max_tracks: 8, drop_after_lost: 30, search_radii: 1.2 }
+        Self { tracker: TrackerConfig::default(), max_tracks: 8, drop_after_lost: 30, search_radii: 1.2, min_reinit_iou: 0.5 }
     }
 }
 
@@ -248,7 +254,7 @@ impl TrackSession {
             return Ok(refused(format!("this session already tracks {} objects (its limit)", self.tracks.len()), t));
         }
         let pose = match full_estimate(estimator, &model, image, k, d.mask.clone(), d.score)? {
-            Ok(p) => p,
+            Ok((p, _)) => p,
             Err(reason) => return Ok(refused(reason, t)),
         };
         let tracker = match Tracker::new(model.clone(), self.renderer.clone(), image, k, pose, self.config.tracker.clone()) {
@@ -271,14 +277,22 @@ fn finish_track(track: &mut Track, step: super::TrackStep, t: Instant, image: &R
         track.lost_frames = 0;
         return Ok(outcome(Some(step.pose), step.quality, TrackMode::Tracked, None, None));
     }
-    let (mask, score, used) = match detection {
-        Some((di, d)) => (Some(d.mask.clone()), d.score, Some(di)),
-        None => (mask_near(&track.tracker, image, k, config.search_radii), 1.0, None),
+    let (mask, score, used, searched) = match detection {
+        Some((di, d)) => (Some(d.mask.clone()), d.score, Some(di), None),
+        None => match mask_near(&track.tracker, image, k, config.search_radii) {
+            Some((mask, window)) => (Some(mask), 1.0, None, Some(window)),
+            None => (None, 1.0, None, None),
+        },
     };
     let mut why = step.report.note.clone().unwrap_or_else(|| format!("outline agreement {:.2} under {:.2}", step.quality, config.tracker.lost_below));
     if let Some(mask) = mask {
         match full_estimate(estimator, &track.model, image, k, mask, score)? {
-            Ok(pose) => match track.tracker.restart(image, k, pose) {
+            Ok((_, iou)) if iou < config.min_reinit_iou => why = format!("{why}; re-initialising: the estimate explains its mask poorly (silhouette IoU {iou:.2} under {:.2})", config.min_reinit_iou),
+            // What was segmented inside the searched box must be an object inside it: an
+            // estimate that puts the object much nearer (its outline far beyond the box)
+            // explains a segmentation that caught clutter too.
+            Ok((pose, _)) if searched.is_some_and(|w| !within(track.tracker.window(k, &pose, 1.0), w)) => why = format!("{why}; re-initialising: the estimate puts the object beyond the box searched around its last pose"),
+            Ok((pose, _)) => match track.tracker.restart(image, k, pose) {
                 Ok(()) => {
                     track.lost_frames = 0;
                     return Ok(outcome(Some(pose), 1.0, TrackMode::Reinitialised, used, None));
@@ -302,21 +316,34 @@ fn frame_number(given: Option<u64>, last: Option<u64>) -> Result<u64, SessionErr
     }
 }
 
-/// A full estimate from one mask: the pose, or why there is none.
-fn full_estimate(estimator: &Estimator, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, mask: GrayImage, score: f32) -> Result<Result<Pose, String>, SessionError> {
+/// A full estimate from one mask: the pose and its rendered silhouette's IoU with the
+/// mask, or why there is none.
+fn full_estimate(estimator: &Estimator, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, mask: GrayImage, score: f32) -> Result<Result<(Pose, f64), String>, SessionError> {
     match estimator.estimate(model, image, k, &[Detection { mask, score }], &EstimateConfig::default()) {
-        Ok(r) => Ok(r.pose.ok_or_else(|| r.reason.unwrap_or_else(|| "no pose".into()))),
+        Ok(r) => {
+            let iou = r.hypotheses.iter().find(|h| Some(h.mask_index) == r.mask_index).map_or(f64::NAN, |h| h.iou as f64);
+            Ok(r.pose.map(|p| (p, iou)).ok_or_else(|| r.reason.unwrap_or_else(|| "no pose".into())))
+        }
         Err(crate::estimate::EstimateError::BadInput(m)) => Ok(Err(m)),
         Err(e) => Err(SessionError::Internal(e.to_string())),
     }
 }
 
-/// The object segmented inside the box around the tracker's last pose (None when that box
-/// leaves the image or nothing is segmented there).
-fn mask_near(tracker: &Tracker, image: &RgbImage, k: &Intrinsics, radii: f64) -> Option<GrayImage> {
+/// The object segmented inside the box around the tracker's last pose, and that box (None
+/// when the box leaves the image or nothing is segmented there).
+fn mask_near(tracker: &Tracker, image: &RgbImage, k: &Intrinsics, radii: f64) -> Option<(GrayImage, Window)> {
     let w = tracker.window(k, &tracker.pose(), radii)?;
     let b = [w.x0 as f64, w.y0 as f64, (w.x1 - w.x0) as f64, (w.y1 - w.y0) as f64];
-    crate::masks::box_to_mask(image, b, crate::masks::BoxMask::Segment).ok().map(|s| s.mask)
+    crate::masks::box_to_mask(image, b, crate::masks::BoxMask::Segment).ok().map(|s| (s.mask, w))
+}
+
+/// Whether `inner` (None: out of view) lies within `outer`, give or take a tenth of
+/// `outer`'s size on each side.
+fn within(inner: Option<Window>, outer: Window) -> bool {
+    let Some(i) = inner else { return false };
+    let (w, h) = outer.size();
+    let (mx, my) = (w as f64 / 10.0, h as f64 / 10.0);
+    i.x0 as f64 >= outer.x0 as f64 - mx && i.y0 as f64 >= outer.y0 as f64 - my && i.x1 as f64 <= outer.x1 as f64 + mx && i.y1 as f64 <= outer.y1 as f64 + my
 }
 
 /// [x0, y0, x1, y1) of a mask's non-zero pixels.
@@ -355,6 +382,11 @@ mod tests {
         assert_eq!(overlap([0, 0, 4, 4], [2, 0, 6, 4]), 0.5);
         assert_eq!(overlap([0, 0, 4, 4], [4, 4, 6, 6]), 0.0);
         assert_eq!(overlap([0, 0, 0, 4], [0, 0, 4, 4]), 0.0);
+        let outer = Window { x0: 100, y0: 100, x1: 200, y1: 200 };
+        assert!(within(Some(Window { x0: 95, y0: 120, x1: 205, y1: 180 }), outer));
+        assert!(!within(Some(Window { x0: 80, y0: 120, x1: 180, y1: 180 }), outer), "a tenth beyond on the left");
+        assert!(!within(Some(Window { x0: 50, y0: 50, x1: 250, y1: 250 }), outer), "an object twice as near");
+        assert!(!within(None, outer));
     }
 
     #[test]
