@@ -87,6 +87,8 @@ pub enum Needs {
 pub fn http(method: &str, route: &str) -> Needs {
     use Needs::Scope as S;
     use Scope::*;
+    // axum answers HEAD with the GET handler (body dropped): it needs what GET needs.
+    let method = if method == "HEAD" { "GET" } else { method };
     match (method, route) {
         ("GET", "/healthz" | "/readyz") => Needs::Nothing,
         ("GET", "/v1/objects" | "/v1/objects/{id}" | "/openapi.json") => S(Read),
@@ -145,6 +147,7 @@ mod tests {
         }
         assert_eq!(n, 16);
         assert_eq!(http("PUT", "/v1/objects"), Needs::AnyKey);
+        assert_eq!(http("HEAD", "/metrics"), Needs::Scope(Scope::Admin));
     }
 
     #[test]
