@@ -5,8 +5,9 @@
 //! timing, and they are never logged: logs and metrics name a key by its identity, the
 //! `name=` it was given or `key-` and the first 8 hex digits of its digest.
 //!
-//! The key file: one key per line, `#` comments, blank lines ignored; after the key,
-//! optional attributes separated by spaces:
+//! The key file: one key per line, `#` comments (whole lines, or after the key and its
+//! attributes), blank lines ignored; after the key, optional attributes separated by
+//! spaces:
 //!
 //! ```text
 //! # a bare key: every scope (what every key meant before scopes)
@@ -62,7 +63,7 @@ fn parse_line(line: &str) -> Result<(String, Option<Scopes>, Option<String>), St
     let mut words = line.split_whitespace();
     let key = words.next().unwrap_or_default().to_string();
     let (mut scopes, mut name) = (None, None);
-    for w in words {
+    for w in words.take_while(|w| !w.starts_with('#')) {
         match w.split_once('=') {
             Some(("scopes", v)) if scopes.is_none() => scopes = Some(Scopes::parse(v)?),
             Some(("name", v)) if name.is_none() => {
@@ -196,9 +197,7 @@ mod tests {
     fn key_lines_with_scopes_and_names() {
         let dir = tempfile::tempdir().unwrap();
         let f = dir.path().join("keys");
-        std::fs::write(&f, "bare\n  reader   scopes=read name=cell-7  # not a comment here\n").unwrap();
-        assert!(ApiKeys::load(Some(&f), None).unwrap_err().contains("line 2"));
-        std::fs::write(&f, "bare\n  reader   scopes=read name=cell-7\nwriter scopes=write,read\nbare\n").unwrap();
+        std::fs::write(&f, "bare\n  reader   scopes=read name=cell-7  # the camera cell\nwriter scopes=write,read #\nbare\n").unwrap();
         let keys = ApiKeys::load(Some(&f), Some("bare")).unwrap();
         assert_eq!(keys.len(), 3);
         let r = keys.authenticate(Some("Bearer reader")).unwrap();
