@@ -3,7 +3,7 @@
 # bans (several versions of a crate: warned), sources (crates.io only). Advisories need the
 # RustSec database, which lives on GitHub: checked when GitHub answers, or always with
 # B2TF_DENY_ADVISORIES=1 (then an unreachable database fails); B2TF_DENY_ADVISORIES=0 skips.
-# Installs cargo-deny from crates.io when absent: about 3 minutes on 2 cores with the
+# Installs cargo-deny from crates.io when absent: 3 to 4 minutes on 2 shared cores with the
 # profile below, against 8.5 with the crate's own (fat LTO, one codegen unit), measured.
 set -euo pipefail
 cd "$(dirname "$0")/.."
