@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Every test: unit and integration tests (renderer on lavapipe, onboarding, loaders, CLI,
-# the service over loopback: HTTP, gRPC, TLS), the OpenAPI document's validity, the Python
-# client's suite, the short overload and crash tests, and the container checks.
+# the service over loopback: HTTP, gRPC, TLS), the OpenAPI document's validity, cargo-deny
+# (scripts/deny.sh), the Python client's suite, the short overload and crash tests, and the
+# container checks.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -12,6 +13,8 @@ python3 -c "import openapi_spec_validator" 2>/dev/null \
   || python3 -m pip install --quiet openapi-spec-validator 2>/dev/null \
   || python3 -m pip install --quiet --break-system-packages openapi-spec-validator
 python3 tools/validate_openapi.py src/service/openapi.json
+# Licences, bans, sources (and advisories when GitHub answers): installs cargo-deny once.
+bash scripts/deny.sh
 # setup.sh installed lavapipe, so a missing adapter is a failure here, not a skip.
 export B2TF_REQUIRE_GPU=1
 # setup.sh installed ONNX Runtime: the ONNX backbone's tests run, they do not skip.

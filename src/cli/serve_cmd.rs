@@ -26,14 +26,16 @@ pub fn run(a: ServeArgs) -> Result<()> {
     let s: Resolved = a.settings.resolve(file)?;
     let keys = crate::service::auth::ApiKeys::load(s.api_keys_file.as_deref(), s.api_keys.as_deref()).map_err(anyhow::Error::msg)?;
     let tls = match &s.tls {
-        Some((cert, key)) => Some(crate::service::tls::TlsIdentity::load(cert, key).map_err(anyhow::Error::msg)?),
+        Some((cert, key)) => Some(crate::service::tls::TlsIdentity::load(cert, key, s.tls_client_ca.as_deref()).map_err(anyhow::Error::msg)?),
         None => None,
     };
     let config = CoreConfig { store_url: s.store.clone(), render_pool: s.render_pool, cache_bytes: s.cache_bytes, max_estimates: s.max_estimates, max_onboardings: s.max_onboardings, backbone: s.backbone.clone(), device: s.device.clone(), backbone_batch: s.backbone_batch, backbone_max_wait: s.backbone_max_wait, read_only: s.read_only, max_track_sessions: s.max_track_sessions, track_idle_timeout: s.track_idle_timeout };
     let core = Arc::new(Core::new(config).context("starting the service core")?);
     let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
-    let api = Api { core: core.clone(), ready: Arc::new(AtomicBool::new(false)), metrics: Default::default(), keys: keys.clone(), request_timeout: s.request_timeout };
+    let api = Api { core: core.clone(), ready: Arc::new(AtomicBool::new(false)), metrics: Default::default(), keys: keys.clone(), rate: s.rate_limit.map(|r| Arc::new(crate::service::rate_limit::RateLimiter::new(r))), request_timeout: s.request_timeout };
     let scheme = if tls.is_some() { ("https", "grpcs") } else { ("http", "grpc") };
+    let mtls = tls.as_ref().is_some_and(|t| t.client_ca_pem.is_some());
+    let rate = s.rate_limit;
     let options = ServerOptions { http: s.http.clone(), grpc: s.grpc.clone(), max_body_bytes: s.max_body_bytes, tls };
     let store_url = if s.read_only { format!("{}, read-only", core.store_url()) } else { core.store_url() };
     let on_bound = move |b: Bound| {
@@ -44,7 +46,13 @@ pub fn run(a: ServeArgs) -> Result<()> {
         if let Some(g) = b.grpc {
             line += &format!(" {}://{g}", scheme.1);
         }
-        let auth = if keys.enabled() { format!("{} API key(s) required", keys.len()) } else { "no API keys".into() };
+        let mut auth = if keys.enabled() { format!("{} API key(s) required", keys.len()) } else { "no API keys".into() };
+        if mtls {
+            auth += ", client certificates required";
+        }
+        if let Some(r) = rate {
+            auth += &format!(", rate limit {} requests/s burst {} per {}", r.rate, r.burst, if keys.enabled() { "key" } else { "client address" });
+        }
         println!("{line} (store {store_url}; {auth})");
         let _ = std::io::stdout().flush();
     };

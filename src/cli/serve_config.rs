@@ -19,6 +19,9 @@
 //! api_keys_file = "/run/secrets/b2tf_keys"
 //! tls_cert = "/etc/b2tf/cert.pem"
 //! tls_key = "/etc/b2tf/key.pem"
+//! tls_client_ca = "/etc/b2tf/clients-ca.pem"  # mTLS: client certificates from these CAs
+//! rate_limit = "20/s"            # per API key (per client address without keys); off if unset
+//! rate_burst = 40                # requests at once after idling [default: the rate per second]
 //! read_only = false              # true: a replica serving a store another process writes
 //! max_track_sessions = 8         # tracking sessions / Track streams open at once
 //! track_idle_timeout_s = 60      # a session with no frame for this long is closed
@@ -74,10 +77,12 @@ pub struct ServeSettings {
     /// shorter deadlines always apply) [default: 120]
     #[arg(long, env = "B2TF_REQUEST_TIMEOUT_S")]
     pub request_timeout_s: Option<f64>,
-    /// File of API keys (one per line); with keys, only the health checks are open.
+    /// File of API keys, one per line: `KEY [scopes=read,write,admin] [name=NAME]` (a bare
+    /// key has every scope); with keys, only the health checks are open.
     #[arg(long, env = "B2TF_API_KEYS_FILE")]
     pub api_keys_file: Option<PathBuf>,
-    /// API keys, comma-separated (prefer the file: command lines are visible to others).
+    /// API keys, comma-separated, each with every scope (prefer the file: command lines are
+    /// visible to others).
     #[arg(long, env = "B2TF_API_KEYS", hide_env_values = true)]
     pub api_keys: Option<String>,
     /// PEM certificate chain: serve both ports over TLS (needs --tls-key).
@@ -86,6 +91,18 @@ pub struct ServeSettings {
     /// PEM private key for --tls-cert.
     #[arg(long, env = "B2TF_TLS_KEY")]
     pub tls_key: Option<PathBuf>,
+    /// PEM of the CA certificate(s) client certificates must chain to: mTLS on both ports,
+    /// a client without such a certificate fails the handshake (needs --tls-cert/--tls-key).
+    #[arg(long, env = "B2TF_TLS_CLIENT_CA")]
+    pub tls_client_ca: Option<PathBuf>,
+    /// Requests per API key (per client address when there are no keys): RATE[/s|/m|/h];
+    /// over it, 429 / RESOURCE_EXHAUSTED with Retry-After [default: no limit]
+    #[arg(long, env = "B2TF_RATE_LIMIT")]
+    pub rate_limit: Option<String>,
+    /// Requests a client may make at once after idling, with --rate-limit [default: the
+    /// per-second rate, rounded up]
+    #[arg(long, env = "B2TF_RATE_BURST")]
+    pub rate_burst: Option<u32>,
     /// Serve a store that another process writes (replicas sharing one store): open it
     /// read-only, never create or clean anything in it, refuse onboard and delete (403 /
     /// PERMISSION_DENIED) [default: false]
@@ -119,6 +136,8 @@ pub struct Resolved {
     pub api_keys_file: Option<PathBuf>,
     pub api_keys: Option<String>,
     pub tls: Option<(PathBuf, PathBuf)>,
+    pub tls_client_ca: Option<PathBuf>,
+    pub rate_limit: Option<crate::service::rate_limit::RateSpec>,
     pub read_only: bool,
     pub max_track_sessions: usize,
     pub track_idle_timeout: std::time::Duration,
@@ -130,7 +149,7 @@ impl ServeSettings {
         let mut s: Self = toml::from_str(&text).with_context(|| format!("config file {}", path.display()))?;
         // Relative paths in the file are relative to the file, not to the working folder.
         let base = path.parent().unwrap_or(Path::new("."));
-        for p in [&mut s.api_keys_file, &mut s.tls_cert, &mut s.tls_key].into_iter().flatten() {
+        for p in [&mut s.api_keys_file, &mut s.tls_cert, &mut s.tls_key, &mut s.tls_client_ca].into_iter().flatten() {
             if p.is_relative() {
                 *p = base.join(&*p);
             }
@@ -182,6 +201,16 @@ impl ServeSettings {
             (None, None) => None,
             _ => bail!("TLS needs both tls_cert and tls_key"),
         };
+        let tls_client_ca = pick!(tls_client_ca);
+        if tls_client_ca.is_some() && tls.is_none() {
+            bail!("tls_client_ca (mTLS) needs TLS: set tls_cert and tls_key too");
+        }
+        let rate_burst = pick!(rate_burst);
+        let rate_limit = match pick!(rate_limit) {
+            Some(r) => Some(crate::service::rate_limit::RateSpec::parse(&r, rate_burst).map_err(anyhow::Error::msg)?),
+            None if rate_burst.is_some() => bail!("rate_burst needs rate_limit"),
+            None => None,
+        };
         Ok(Resolved {
             http,
             grpc,
@@ -199,6 +228,8 @@ impl ServeSettings {
             api_keys_file: pick!(api_keys_file),
             api_keys: pick!(api_keys),
             tls,
+            tls_client_ca,
+            rate_limit,
             read_only: pick!(read_only).unwrap_or(false),
             max_track_sessions: positive("max_track_sessions", pick!(max_track_sessions).unwrap_or(8))?,
             track_idle_timeout: std::time::Duration::from_secs_f64(idle),
@@ -261,5 +292,11 @@ mod tests {
         assert!(err(ServeSettings { tls_cert: Some("c.pem".into()), ..none() }).contains("tls_key"));
         assert!(err(ServeSettings { http: Some("none".into()), grpc: Some("off".into()), ..none() }).contains("both listeners"));
         assert!(err(ServeSettings { request_timeout_s: Some(-1.0), ..none() }).contains("request_timeout_s"));
+        assert!(err(ServeSettings { tls_client_ca: Some("ca.pem".into()), ..none() }).contains("tls_client_ca (mTLS) needs TLS"));
+        assert!(err(ServeSettings { rate_limit: Some("fast".into()), ..none() }).contains("\"fast\""));
+        assert!(err(ServeSettings { rate_limit: Some("5/s".into()), rate_burst: Some(0), ..none() }).contains("rate_burst"));
+        assert!(err(ServeSettings { rate_burst: Some(3), ..none() }).contains("rate_burst needs rate_limit"));
+        let r = ServeSettings { rate_limit: Some("120/m".into()), ..none() }.resolve(none()).unwrap();
+        assert_eq!(r.rate_limit, Some(crate::service::rate_limit::RateSpec { rate: 2.0, burst: 2 }));
     }
 }

@@ -8,6 +8,7 @@ use super::core::Core;
 use super::error::{ErrorKind, ServiceError};
 use super::metrics::{Gauges, Metrics};
 use super::operations::OperationStatus;
+use super::rate_limit::RateLimiter;
 use super::requests::{EstimateRequest, EstimateResponse, OnboardRequest};
 use super::track_requests::{TrackFrameRequest, TrackFrameResponse, TrackSessionInfo, TrackSessionOptions};
 use crate::store::ObjectInfo;
@@ -22,6 +23,8 @@ pub struct Api {
     pub ready: Arc<AtomicBool>,
     pub metrics: Arc<Metrics>,
     pub keys: ApiKeys,
+    /// Per-client rate limit (access.rs); `None`: off.
+    pub rate: Option<Arc<RateLimiter>>,
     /// Longest an estimate may take on the server (a client's shorter deadline wins).
     pub request_timeout: Option<Duration>,
 }

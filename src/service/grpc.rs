@@ -4,11 +4,13 @@
 //! Deadlines: the client's `grpc-timeout` and the server's request timeout, whichever is
 //! shorter, bound an estimate (DEADLINE_EXCEEDED).
 
+use super::access;
 use super::api::Api;
 use super::error::{ErrorKind, ServiceError};
 use super::grpc_convert as convert;
 use super::proto::pose_service_server::{PoseService, PoseServiceServer};
 use super::proto::{self as pb};
+use super::scopes;
 use std::time::{Duration, Instant};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Code, Request, Response, Status};
@@ -158,22 +160,75 @@ impl PoseService for GrpcService {
     }
 }
 
-/// The PoseService with its message size limit and, when keys are configured, the API-key
-/// check in front.
-pub fn pose_service(api: Api, max_message_bytes: usize) -> tonic::service::interceptor::InterceptedService<PoseServiceServer<GrpcService>, impl tonic::service::Interceptor + Clone> {
-    let keys = api.keys.clone();
-    let metrics = api.metrics.clone();
+/// The request path ("/b2tfpose.v1.PoseService/Estimate"): an interceptor sees only
+/// metadata and extensions, and tonic names the method (`GrpcMethod`) only later, inside
+/// the generated service.
+#[derive(Clone)]
+struct RpcPath(String);
+
+/// Puts the `RpcPath` in the extensions, then calls the service.
+#[derive(Clone)]
+pub struct WithRpcPath<S>(S);
+
+impl<S: tonic::server::NamedService> tonic::server::NamedService for WithRpcPath<S> {
+    const NAME: &'static str = S::NAME;
+}
+
+impl<S: tower::Service<http::Request<B>>, B> tower::Service<http::Request<B>> for WithRpcPath<S> {
+    type Response = S::Response;
+    type Error = S::Error;
+    type Future = S::Future;
+
+    fn poll_ready(&mut self, cx: &mut std::task::Context<'_>) -> std::task::Poll<Result<(), Self::Error>> {
+        self.0.poll_ready(cx)
+    }
+
+    fn call(&mut self, mut req: http::Request<B>) -> Self::Future {
+        let path = RpcPath(req.uri().path().to_string());
+        req.extensions_mut().insert(path);
+        self.0.call(req)
+    }
+}
+
+/// The PoseService with its message size limit and admission (API key, scope, rate limit:
+/// access.rs) in front. It runs on the call's headers, before any message is read, for
+/// streams (Track, WatchOperation) once when they open. The caller goes on in the
+/// request's extensions.
+pub fn pose_service(api: Api, max_message_bytes: usize) -> WithRpcPath<tonic::service::interceptor::InterceptedService<PoseServiceServer<GrpcService>, impl tonic::service::Interceptor + Clone>> {
+    let admission = api.clone();
     let server = PoseServiceServer::new(GrpcService::new(api)).max_decoding_message_size(max_message_bytes);
-    let check = move |req: Request<()>| -> Result<Request<()>, Status> {
-        let header = req.metadata().get("authorization").and_then(|v| v.to_str().ok());
-        if !keys.enabled() || keys.accepts_header(header) {
-            return Ok(req);
+    let check = move |mut req: Request<()>| -> Result<Request<()>, Status> {
+        let rpc = req.extensions().get::<RpcPath>().map_or_else(|| "unknown".to_string(), |p| p.0.clone());
+        let method = rpc.rsplit('/').next().unwrap_or_default();
+        let admitted = access::admit(
+            &admission,
+            &access::Request {
+                needs: scopes::grpc(method),
+                authorization: req.metadata().get("authorization").and_then(|v| v.to_str().ok()),
+                peer: req.remote_addr().map(|a| a.ip()),
+                endpoint: &rpc,
+                key_hint: "send authorization: Bearer <key> metadata",
+            },
+        );
+        match admitted {
+            Ok(caller) => {
+                if let Some(c) = caller {
+                    req.extensions_mut().insert(c);
+                }
+                Ok(req)
+            }
+            Err(refused) => {
+                let code = code_of(&refused.error.kind);
+                admission.metrics.request("grpc", &rpc, &code_name(code), 0.0);
+                let mut meta = tonic::metadata::MetadataMap::new();
+                if let Some(secs) = refused.retry_after {
+                    meta.insert("retry-after", secs.into());
+                }
+                Err(Status::with_metadata(code, refused.error.message, meta))
+            }
         }
-        let rpc = req.extensions().get::<tonic::GrpcMethod>().map_or_else(|| "unknown".to_string(), |m| format!("/{}/{}", m.service(), m.method()));
-        metrics.request("grpc", &rpc, "UNAUTHENTICATED", 0.0);
-        Err(Status::unauthenticated("missing or unknown API key (send authorization: Bearer <key> metadata)"))
     };
-    tonic::service::interceptor::InterceptedService::new(server, check)
+    WithRpcPath(tonic::service::interceptor::InterceptedService::new(server, check))
 }
 
 #[cfg(test)]

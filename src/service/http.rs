@@ -2,16 +2,21 @@
 //! the core (blocking work on the blocking pool, after taking a slot) and maps
 //! `ServiceError` to a status with a JSON body `{"error": {"kind", "message"}}`.
 
+use super::access;
 use super::api::Api;
 use super::error::{ErrorKind, ServiceError};
 use super::requests::{EstimateRequest, OnboardRequest};
+use super::scopes;
 use axum::extract::rejection::JsonRejection;
-use axum::extract::{DefaultBodyLimit, FromRequest, MatchedPath, Multipart, Path, Request, State};
+use axum::extract::connect_info::Connected;
+use axum::extract::{ConnectInfo, DefaultBodyLimit, FromRequest, MatchedPath, Multipart, Path, Request, State};
 use axum::http::{header, StatusCode};
 use axum::middleware::{from_fn_with_state, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
+use axum::serve::IncomingStream;
 use axum::{Json, Router};
+use std::net::SocketAddr;
 
 /// The OpenAPI 3 description of these routes, served at `/openapi.json`.
 pub const OPENAPI: &str = include_str!("openapi.json");
@@ -46,16 +51,59 @@ pub(super) fn body<T>(b: Result<Json<T>, JsonRejection>) -> Result<T, ServiceErr
     }
 }
 
-/// API keys (all routes but the health checks) and request metrics, after routing so the
-/// route template (not the raw path with ids) labels the metrics.
-async fn guard(State(s): State<Api>, req: Request, next: Next) -> Response {
+/// Admission (API key, scope, rate limit: access.rs) and request metrics, after routing so
+/// the route template (not the raw path with ids) picks the scope and labels the metrics.
+/// The caller goes on in the request's extensions.
+async fn guard(State(s): State<Api>, mut req: Request, next: Next) -> Response {
     let method = req.method().to_string();
     let route = req.extensions().get::<MatchedPath>().map_or_else(|| "unmatched".to_string(), |m| m.as_str().to_string());
-    let open = matches!(route.as_str(), "/healthz" | "/readyz");
     let t = std::time::Instant::now();
-    let authorised = open || !s.keys.enabled() || s.keys.accepts_header(req.headers().get(header::AUTHORIZATION).and_then(|v| v.to_str().ok()));
-    let resp = if authorised { next.run(req).await } else { ServiceError::new(ErrorKind::Unauthenticated, "missing or unknown API key (send Authorization: Bearer <key>)").into_response() };
+    let endpoint = format!("{method} {route}");
+    let admitted = access::admit(
+        &s,
+        &access::Request {
+            needs: scopes::http(&method, &route),
+            authorization: req.headers().get(header::AUTHORIZATION).and_then(|v| v.to_str().ok()),
+            peer: req.extensions().get::<ConnectInfo<Peer>>().map(|c| c.0 .0.ip()),
+            endpoint: &endpoint,
+            key_hint: "send Authorization: Bearer <key>",
+        },
+    );
+    let resp = match admitted {
+        Ok(caller) => {
+            if let Some(c) = caller {
+                req.extensions_mut().insert(c);
+            }
+            next.run(req).await
+        }
+        Err(refused) => refusal(refused),
+    };
     s.metrics.request(&method, &route, resp.status().as_str(), t.elapsed().as_secs_f64());
+    resp
+}
+
+/// The client's address on either listener (axum provides `SocketAddr` for its own
+/// `TcpListener` only, not for `TlsListener`).
+#[derive(Clone, Copy, Debug)]
+pub struct Peer(pub SocketAddr);
+
+impl Connected<IncomingStream<'_, tokio::net::TcpListener>> for Peer {
+    fn connect_info(stream: IncomingStream<'_, tokio::net::TcpListener>) -> Self {
+        Peer(*stream.remote_addr())
+    }
+}
+
+impl Connected<IncomingStream<'_, super::tls::TlsListener>> for Peer {
+    fn connect_info(stream: IncomingStream<'_, super::tls::TlsListener>) -> Self {
+        Peer(*stream.remote_addr())
+    }
+}
+
+fn refusal(r: access::Refused) -> Response {
+    let mut resp = r.error.into_response();
+    if let Some(secs) = r.retry_after {
+        resp.headers_mut().insert(header::RETRY_AFTER, secs.into());
+    }
     resp
 }
 

@@ -53,6 +53,9 @@ struct Inner {
     stages: BTreeMap<String, Histogram>,
     detections_per_estimate: Histogram,
     track_objects: BTreeMap<String, u64>,
+    /// By API key identity; both bounded by the number of keys.
+    key_requests: BTreeMap<String, u64>,
+    rate_limited: BTreeMap<String, u64>,
 }
 
 #[derive(Default)]
@@ -103,6 +106,17 @@ impl Metrics {
         }
     }
 
+    /// A request admitted with the key of this identity (never the key itself).
+    pub fn key_request(&self, identity: &str) {
+        *self.inner.lock().expect("metrics lock").key_requests.entry(identity.to_string()).or_default() += 1;
+    }
+
+    /// A request refused by the rate limit: the key identity, or "address" when limited
+    /// by client address (addresses themselves would make unbounded labels).
+    pub fn rate_limited(&self, client: &str) {
+        *self.inner.lock().expect("metrics lock").rate_limited.entry(client.to_string()).or_default() += 1;
+    }
+
     pub fn render(&self, gauges: &Gauges) -> String {
         let g = self.inner.lock().expect("metrics lock");
         let mut out = String::new();
@@ -124,6 +138,14 @@ impl Metrics {
         out.push_str("# HELP b2tf_track_objects_total Objects in tracked frames, by mode (tracked, reinitialised, lost, ...).\n# TYPE b2tf_track_objects_total counter\n");
         for (mode, n) in &g.track_objects {
             let _ = writeln!(out, "b2tf_track_objects_total{{mode=\"{mode}\"}} {n}");
+        }
+        out.push_str("# HELP b2tf_key_requests_total Requests admitted, by API key identity (its name= or key-<digest prefix>).\n# TYPE b2tf_key_requests_total counter\n");
+        for (key, n) in &g.key_requests {
+            let _ = writeln!(out, "b2tf_key_requests_total{{key=\"{key}\"}} {n}");
+        }
+        out.push_str("# HELP b2tf_rate_limited_total Requests refused by the rate limit, by API key identity (\"address\": limited by client address).\n# TYPE b2tf_rate_limited_total counter\n");
+        for (client, n) in &g.rate_limited {
+            let _ = writeln!(out, "b2tf_rate_limited_total{{client=\"{client}\"}} {n}");
         }
         let gauge = |out: &mut String, name: &str, help: &str, v: f64| {
             let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} gauge\n{name} {v}");
@@ -161,6 +183,9 @@ mod tests {
         m.request("POST", "/v1/estimate", "429", 0.001);
         m.request("grpc", "/b2tfpose.v1.PoseService/Estimate", "NOT_FOUND", 0.001);
         m.stages(&serde_json::json!({"pnp": 4.0, "total": 150.0}), 2);
+        m.key_request("cell-7");
+        m.rate_limited("cell-7");
+        m.rate_limited("cell-7");
         let text = m.render(&Gauges { estimates_running: 1, onboardings_running: 0, objects_loaded: 3, cache_bytes: 42, ready: true, queue: Some(crate::features::batch_queue::QueueStats { queued_crops: 3, passes: 2, crops: 11, batch_buckets: vec![0, 0, 0, 1, 2, 2, 2, 2], jobs: 5, wait_seconds: 0.25, pass_seconds: 0.5 }), track_sessions: 2 });
         assert!(text.contains("b2tf_requests_total{method=\"POST\",route=\"/v1/estimate\",status=\"200\"} 2"), "{text}");
         assert!(text.contains("b2tf_request_seconds_bucket{method=\"POST\",route=\"/v1/estimate\",le=\"0.05\"} 2"), "{text}");
@@ -169,6 +194,7 @@ mod tests {
         assert!(text.contains("b2tf_stage_seconds_bucket{stage=\"pnp\",le=\"0.005\"} 1"), "{text}");
         assert!(text.contains("b2tf_backbone_queue_depth 3") && text.contains("b2tf_backbone_batch_crops_bucket{le=\"8\"} 1") && text.contains("b2tf_backbone_batch_crops_count 2"), "{text}");
         assert!(text.contains("b2tf_backbone_queue_wait_seconds_sum 0.25\nb2tf_backbone_queue_wait_seconds_count 5") && text.contains("b2tf_backbone_pass_seconds_count 2"), "{text}");
+        assert!(text.contains("b2tf_key_requests_total{key=\"cell-7\"} 1") && text.contains("b2tf_rate_limited_total{client=\"cell-7\"} 2"), "{text}");
         assert!(text.contains("b2tf_objects_loaded 3") && text.contains("b2tf_cache_bytes 42") && text.contains("b2tf_ready 1"), "{text}");
     }
 }

@@ -4,10 +4,12 @@
 //! gRPC (`grpc.rs`, tonic, API in `proto/`). `server.rs` runs both listeners. No pipeline
 //! logic lives here.
 
+pub mod access;
 pub mod api;
 pub mod auth;
 pub mod base64_bytes;
 pub mod client;
+pub mod client_ca;
 pub mod core;
 pub mod core_track;
 pub mod error;
@@ -21,7 +23,9 @@ pub mod metrics;
 pub mod multipart;
 pub mod operations;
 pub mod proto;
+pub mod rate_limit;
 pub mod requests;
+pub mod scopes;
 pub mod server;
 pub mod tls;
 pub mod track_requests;

@@ -51,21 +51,26 @@ pub async fn run(api: Api, opts: ServerOptions, on_bound: impl FnOnce(Bound), sh
             let _ = rx.wait_for(|s| *s).await;
         }
     };
-    // Idle tracking sessions are closed even when no request comes to notice them.
+    // Idle tracking sessions are closed even when no request comes to notice them, and
+    // idle clients' rate-limit buckets are forgotten.
     let sweeper = {
-        let core = api.core.clone();
+        let (core, rate) = (api.core.clone(), api.rate.clone());
         let every = (core.config.track_idle_timeout / 2).clamp(Duration::from_millis(50), Duration::from_secs(10));
         tokio::spawn(async move {
             let mut tick = tokio::time::interval(every);
             loop {
                 tick.tick().await;
                 core.expire_tracks();
+                if let Some(r) = &rate {
+                    r.forget_idle(std::time::Instant::now());
+                }
             }
         })
     };
     let mut tasks = tokio::task::JoinSet::new();
     if let Some(listener) = http {
-        let app = super::http::router(api.clone(), opts.max_body_bytes);
+        // The peer address reaches the handlers (the rate limit without keys uses it).
+        let app = super::http::router(api.clone(), opts.max_body_bytes).into_make_service_with_connect_info::<super::http::Peer>();
         let signal = stopped();
         match &opts.tls {
             Some(id) => {
@@ -116,7 +121,12 @@ async fn serve_grpc(api: Api, listener: TcpListener, max_message_bytes: usize, t
     let (reflection_v1, reflection_v1alpha) = (reflection().build_v1()?, reflection().build_v1alpha()?);
     let mut builder = tonic::transport::Server::builder();
     if let Some(id) = &tls {
-        builder = builder.tls_config(tonic::transport::ServerTlsConfig::new().identity(tonic::transport::Identity::from_pem(&id.cert_pem, &id.key_pem)))?;
+        let mut config = tonic::transport::ServerTlsConfig::new().identity(tonic::transport::Identity::from_pem(&id.cert_pem, &id.key_pem));
+        if let Some(ca) = &id.client_ca_pem {
+            // Required, not optional: tonic's default, as on the HTTP port.
+            config = config.client_ca_root(tonic::transport::Certificate::from_pem(ca));
+        }
+        builder = builder.tls_config(config)?;
     }
     let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
     let shutdown = async move {

@@ -1,4 +1,6 @@
-//! TLS for both listeners from one PEM certificate chain and key (rustls, ring provider).
+//! TLS for both listeners from one PEM certificate chain and key (rustls, ring provider),
+//! and optionally mTLS: client certificates required, chaining to the CAs of
+//! `--tls-client-ca` (client_ca.rs); a client without one fails the handshake.
 //! gRPC hands the PEM to tonic; HTTP accepts TLS through `TlsListener`, which does each
 //! handshake in its own task (bounded in time) so a slow or silent client cannot hold up
 //! the accept loop.
@@ -10,7 +12,8 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::net::{TcpListener, TcpStream};
-use tokio_rustls::rustls::ServerConfig;
+use tokio_rustls::rustls::server::WebPkiClientVerifier;
+use tokio_rustls::rustls::{RootCertStore, ServerConfig};
 use tokio_rustls::server::TlsStream;
 
 /// Longest a client may take to finish its TLS handshake.
@@ -20,14 +23,24 @@ const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 pub struct TlsIdentity {
     pub cert_pem: Vec<u8>,
     pub key_pem: Vec<u8>,
+    /// mTLS: the PEM of the CAs client certificates must chain to.
+    pub client_ca_pem: Option<Vec<u8>>,
+}
+
+/// Names the files' parts, never the key's bytes.
+impl std::fmt::Debug for TlsIdentity {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "TlsIdentity(cert {} bytes, key hidden, client CA: {})", self.cert_pem.len(), self.client_ca_pem.is_some())
+    }
 }
 
 impl TlsIdentity {
-    /// Reads and checks both files, naming the one that is wrong.
-    pub fn load(cert: &Path, key: &Path) -> Result<Self, String> {
+    /// Reads and checks the files, naming the one that is wrong.
+    pub fn load(cert: &Path, key: &Path, client_ca: Option<&Path>) -> Result<Self, String> {
         let cert_pem = std::fs::read(cert).map_err(|e| format!("TLS certificate {}: {e}", cert.display()))?;
         let key_pem = std::fs::read(key).map_err(|e| format!("TLS key {}: {e}", key.display()))?;
-        let id = Self { cert_pem, key_pem };
+        let client_ca_pem = client_ca.map(super::client_ca::load).transpose()?;
+        let id = Self { cert_pem, key_pem, client_ca_pem };
         id.server_config(&[]).map_err(|e| format!("TLS certificate {} / key {}: {e}", cert.display(), key.display()))?;
         Ok(id)
     }
@@ -39,10 +52,19 @@ impl TlsIdentity {
         }
         let key = PrivateKeyDer::from_pem_slice(&self.key_pem).map_err(|e| format!("private key PEM: {e}"))?;
         let provider = Arc::new(tokio_rustls::rustls::crypto::ring::default_provider());
-        let mut config = ServerConfig::builder_with_provider(provider)
-            .with_safe_default_protocol_versions()
-            .map_err(|e| e.to_string())?
-            .with_no_client_auth()
+        let builder = ServerConfig::builder_with_provider(provider.clone()).with_safe_default_protocol_versions().map_err(|e| e.to_string())?;
+        let builder = match &self.client_ca_pem {
+            None => builder.with_no_client_auth(),
+            Some(pem) => {
+                let mut roots = RootCertStore::empty();
+                for c in super::client_ca::certificates(pem)? {
+                    roots.add(c).map_err(|e| format!("client CA: {e}"))?;
+                }
+                let verifier = WebPkiClientVerifier::builder_with_provider(Arc::new(roots), provider).build().map_err(|e| format!("client CA: {e}"))?;
+                builder.with_client_cert_verifier(verifier)
+            }
+        };
+        let mut config = builder
             .with_single_cert(certs, key)
             .map_err(|e| format!("certificate and key do not make an identity: {e}"))?;
         config.alpn_protocols = alpn.iter().map(|p| p.to_vec()).collect();

@@ -75,3 +75,37 @@ pub fn pose_errors(r: &[f64], t: &[f64], truth: &Pose) -> (f64, f64) {
     let est = Pose::from_row_major(&r.try_into().unwrap(), [t[0], t[1], t[2]]);
     (b2tfpose::geometry::geodesic_distance(&est.rotation, &truth.rotation).to_degrees(), (est.translation - truth.translation).norm())
 }
+
+/// One HTTPS exchange by hand with rustls: sends `request` (request line and headers, with
+/// `Connection: close`), trusting only `ca_pem`, presenting `client` (certificate PEM, key
+/// PEM) when given. The raw response, or why the connection failed (a refused client
+/// certificate shows here: in TLS 1.3 the server's alert arrives after the client's side of
+/// the handshake is done).
+pub async fn https_exchange(base: &str, request: &str, ca_pem: &str, client: Option<(&str, &str)>) -> Result<String, String> {
+    use rustls_pki_types::pem::PemObject;
+    use rustls_pki_types::{CertificateDer, PrivateKeyDer};
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    use tokio_rustls::rustls;
+    let addr = base.trim_start_matches("https://");
+    let mut roots = rustls::RootCertStore::empty();
+    roots.add(CertificateDer::from_pem_slice(ca_pem.as_bytes()).unwrap()).unwrap();
+    let provider = std::sync::Arc::new(rustls::crypto::ring::default_provider());
+    let builder = rustls::ClientConfig::builder_with_provider(provider).with_safe_default_protocol_versions().unwrap().with_root_certificates(roots);
+    let config = match client {
+        Some((cert, key)) => {
+            let chain = CertificateDer::pem_slice_iter(cert.as_bytes()).collect::<Result<Vec<_>, _>>().unwrap();
+            builder.with_client_auth_cert(chain, PrivateKeyDer::from_pem_slice(key.as_bytes()).unwrap()).unwrap()
+        }
+        None => builder.with_no_client_auth(),
+    };
+    let tcp = tokio::net::TcpStream::connect(addr).await.map_err(|e| e.to_string())?;
+    let name = rustls_pki_types::ServerName::try_from("localhost").unwrap();
+    let mut tls = tokio_rustls::TlsConnector::from(std::sync::Arc::new(config)).connect(name, tcp).await.map_err(|e| format!("handshake: {e}"))?;
+    tls.write_all(request.as_bytes()).await.map_err(|e| format!("write: {e}"))?;
+    let mut out = Vec::new();
+    match tls.read_to_end(&mut out).await {
+        // A server may close without close_notify after answering: the answer counts.
+        Err(e) if out.is_empty() => Err(format!("read: {e}")),
+        _ => Ok(String::from_utf8_lossy(&out).into_owned()),
+    }
+}

@@ -96,7 +96,7 @@ def test_unavailable_and_its_retries() -> None:
 
 def test_unauthenticated(work: Path, store: str, onboarded: Onboarded) -> None:
     keys = work / "keys.txt"
-    keys.write_text("# test keys\nk-123\n")
+    keys.write_text("# test keys\nk-123\nk-reader scopes=read name=reader\n")
     s = Server(store, work / "keyed.log", ["--api-keys-file", str(keys)])
     try:
         with b2tfpose.Client(s.address) as c:
@@ -108,6 +108,10 @@ def test_unauthenticated(work: Path, store: str, onboarded: Onboarded) -> None:
             c.get_object(SAMPLE_ID)
         with b2tfpose.Client(s.address, api_key="k-123") as c:
             assert c.get_object(SAMPLE_ID).id == SAMPLE_ID
+        with b2tfpose.Client(s.address, api_key="k-reader") as c:
+            assert c.get_object(SAMPLE_ID).id == SAMPLE_ID  # the read scope reads
+            with pytest.raises(b2tfpose.PermissionDenied, match="`write` scope"):
+                c.delete_object(SAMPLE_ID)
 
         async def aio() -> None:
             async with b2tfpose.AsyncClient(s.address, api_key="nope") as c:

@@ -37,8 +37,10 @@ class InvalidArgument(RpcError):
 
 
 class PermissionDenied(RpcError):
-    """The server refuses this kind of call: onboard and delete on a read-only replica
-    (``b2tf serve --read-only``); the message says where to do it instead."""
+    """The server refuses this kind of call: the API key lacks the scope the call needs
+    (``read``, ``write`` or ``admin``; the message names it), or onboard and delete on a
+    read-only replica (``b2tf serve --read-only``; the message says where to do it
+    instead)."""
 
 
 class NotFound(RpcError):
@@ -54,8 +56,9 @@ class Unauthenticated(RpcError):
 
 
 class ResourceExhausted(RpcError):
-    """Too many estimates or onboardings running on the server: retry later (the client
-    retries these with backoff unless told not to)."""
+    """Too many estimates or onboardings running on the server, or the API key over its
+    rate limit (``b2tf serve --rate-limit``): retry later (the client retries these with
+    backoff unless told not to)."""
 
 
 class DeadlineExceeded(RpcError):
