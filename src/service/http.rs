@@ -52,6 +52,7 @@ async fn guard(State(s): State<Api>, req: Request, next: Next) -> Response {
     let method = req.method().to_string();
     let route = req.extensions().get::<MatchedPath>().map_or_else(|| "unmatched".to_string(), |m| m.as_str().to_string());
     let open = matches!(route.as_str(), "/healthz" | "/readyz");
+    tracing::Span::current().record("route", route.as_str());
     let t = std::time::Instant::now();
     let authorised = open || !s.keys.enabled() || s.keys.accepts_header(req.headers().get(header::AUTHORIZATION).and_then(|v| v.to_str().ok()));
     let resp = if authorised { next.run(req).await } else { ServiceError::new(ErrorKind::Unauthenticated, "missing or unknown API key (send Authorization: Bearer <key>)").into_response() };
@@ -104,6 +105,7 @@ async fn delete_object(State(s): State<Api>, Path(id): Path<String>) -> Result<R
 
 /// JSON with base64 files, or multipart/form-data with the files as they are.
 async fn onboard(State(s): State<Api>, req: Request) -> Result<Response, ServiceError> {
+    let request_id = req.extensions().get::<crate::telemetry::RequestId>().cloned();
     let multipart = req.headers().get(header::CONTENT_TYPE).and_then(|v| v.to_str().ok()).is_some_and(|v| v.starts_with("multipart/form-data"));
     let parsed: OnboardRequest = if multipart {
         let form = Multipart::from_request(req, &()).await.map_err(|e| ServiceError::invalid(format!("multipart body: {}", e.body_text())))?;
@@ -111,7 +113,7 @@ async fn onboard(State(s): State<Api>, req: Request) -> Result<Response, Service
     } else {
         body(Json::from_request(req, &()).await)?
     };
-    let op = s.onboard(parsed).await?;
+    let op = s.onboard(parsed, request_id).await?;
     Ok((StatusCode::ACCEPTED, Json(op)).into_response())
 }
 
@@ -144,5 +146,6 @@ pub fn router(state: Api, max_body_bytes: usize) -> Router {
         .route_layer(from_fn_with_state(state.clone(), guard))
         .layer(DefaultBodyLimit::max(max_body_bytes))
         .layer(from_fn_with_state(max_body_bytes, announced_size))
+        .layer(axum::middleware::from_fn(super::http_observe::observe))
         .with_state(state)
 }

@@ -4,6 +4,7 @@
 //! gRPC (`grpc.rs`, tonic, API in `proto/`). `server.rs` runs both listeners. No pipeline
 //! logic lives here.
 
+pub mod access_log;
 pub mod api;
 pub mod auth;
 pub mod base64_bytes;
@@ -13,9 +14,12 @@ pub mod core_track;
 pub mod error;
 pub mod grpc;
 pub mod grpc_convert;
+pub mod grpc_observe;
 pub mod grpc_oversized;
 pub mod grpc_track;
+pub mod grpc_trailers;
 pub mod http;
+pub mod http_observe;
 pub mod http_track;
 pub mod metrics;
 pub mod multipart;
