@@ -24,5 +24,5 @@ for _ in $(seq 1 300); do
 done
 grpc=$(grep -o 'grpc://[0-9.:]*' "$log" | head -1)
 [ -n "$grpc" ] || { echo "server did not report its gRPC address" >&2; cat "$log" >&2; exit 1; }
-echo "server: $(head -1 "$log")"
+echo "server: $(grep -m1 "listening on" "$log")"
 target/release/b2tf demo --out out/demo --server "$grpc" "$@"

@@ -17,3 +17,4 @@ pub mod mesh;
 pub mod onboard;
 pub mod render;
 pub mod service;
+pub mod telemetry;

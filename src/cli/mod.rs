@@ -35,6 +35,8 @@ use clap::{Parser, Subcommand};
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
+    #[command(flatten)]
+    pub telemetry: crate::telemetry::TelemetryArgs,
 }
 
 #[derive(Subcommand, Debug)]
@@ -69,6 +71,18 @@ pub enum Command {
     /// Benchmarks that print figures (re-identification, rendering, onboarding).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+}
+
+impl Command {
+    /// Log levels when B2TF_LOG / RUST_LOG say nothing: the service logs one line per
+    /// request (info); one-shot commands only warnings, since their output is the result
+    /// and a progress bar.
+    pub fn default_log_filter(&self) -> &'static str {
+        match self {
+            Command::Serve(_) => "warn,b2tfpose=info",
+            _ => "warn",
+        }
+    }
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {

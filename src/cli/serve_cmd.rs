@@ -53,7 +53,9 @@ pub fn run(a: ServeArgs) -> Result<()> {
         if let Some(r) = rate {
             auth += &format!(", rate limit {} requests/s burst {} per {}", r.rate, r.burst, if keys.enabled() { "key" } else { "client address" });
         }
+        // Stdout's line is the one scripts wait for; the log line is for log collectors.
         println!("{line} (store {store_url}; {auth})");
+        tracing::info!(http = b.http.map(tracing::field::display), grpc = b.grpc.map(tracing::field::display), tls = scheme.0 == "https", store = %store_url, api_keys = keys.len(), "listening");
         let _ = std::io::stdout().flush();
     };
     runtime.block_on(async move {
@@ -61,14 +63,15 @@ pub fn run(a: ServeArgs) -> Result<()> {
             let (core, ready) = (core.clone(), api.ready.clone());
             tokio::task::spawn_blocking(move || match core.warm_up() {
                 Ok(()) => ready.store(true, Ordering::Release),
-                Err(e) => eprintln!("warm-up failed, staying not ready: {e}"),
+                Err(e) => tracing::error!("warm-up failed, staying not ready: {e}"),
             });
         }
         crate::service::server::run(api, options, on_bound, shutdown_signal()).await?;
+        tracing::info!("stopped accepting; in-flight requests finished");
         let stopping = core.clone();
         let cancelled = tokio::task::spawn_blocking(move || stopping.stop_onboardings(std::time::Duration::from_secs(30))).await?;
         if cancelled > 0 {
-            eprintln!("shutdown: cancelled {cancelled} running onboarding(s); nothing of them was stored");
+            tracing::warn!("shutdown: cancelled {cancelled} running onboarding(s); nothing of them was stored");
         }
         // The reader of stdout may be gone by now (a supervisor that only wanted the address).
         let _ = writeln!(std::io::stdout(), "stopped");

@@ -219,21 +219,27 @@ impl Estimator {
         let chosen = Self::candidate_masks(detections, cfg);
         let size = model.grid.n * model.grid.patch;
 
+        // Spans mark the stages the timings measure (exported traces, log context); the
+        // loops inside the stages have none.
         let t = Instant::now();
+        let span = tracing::info_span!("crop", masks = chosen.len()).entered();
         let masks: Vec<&GrayImage> = chosen.iter().map(|&i| &detections[i].mask).collect();
         let crops: Vec<_> = crop_all(image, &masks, model.config.crop_padding, size).into_iter().map(|c| c.expect("validated non-empty")).collect();
+        drop(span);
         timings.crop = ms(t);
         let t = Instant::now();
-        let queries = encode(self.backbone.as_ref(), crops, model.config.min_coverage)?;
+        let queries = tracing::info_span!("features").in_scope(|| encode(self.backbone.as_ref(), crops, model.config.min_coverage))?;
         timings.features = ms(t);
 
         let mut hyps = Vec::new();
         for (q, &mi) in queries.iter().zip(&chosen) {
+            let _mask_span = tracing::info_span!("mask", index = mi).entered();
             let mut h = Hypothesis { mask_index: mi, detector_score: detections[mi].score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() };
             let retrieved = self.pose_for_mask(model, q, k, cfg, &mut h, &mut timings)?;
             if let Some(p) = h.pose {
                 let ctx = RefineContext { model, image, intrinsics: k, mask: &detections[mi].mask, unknown: others, mask_is_probability: false };
                 let t = Instant::now();
+                let _span = tracing::info_span!("refine", refiner = cfg.refiner.name(), verify = cfg.verify.enabled).entered();
                 if cfg.verify.enabled {
                     h.verified = self.verify(&ctx, p, &retrieved, &q.crop_box, cfg)?;
                     if let Some(best) = h.verified.first_mut() {
@@ -256,7 +262,7 @@ impl Estimator {
         }
 
         let t = Instant::now();
-        let result = self.select(model, &queries, &chosen, k, detections, hyps, cfg)?;
+        let result = tracing::info_span!("selection").in_scope(|| self.select(model, &queries, &chosen, k, detections, hyps, cfg))?;
         timings.selection = ms(t);
         timings.total = ms(t_total);
         Ok(EstimateResult { timings, ..result })
@@ -303,6 +309,7 @@ impl Estimator {
     /// templates, best first.
     fn pose_for_mask(&self, model: &ObjectModel, q: &QueryView, k: &Intrinsics, cfg: &EstimateConfig, h: &mut Hypothesis, timings: &mut StageTimings) -> Result<Vec<usize>, EstimateError> {
         let t = Instant::now();
+        let span = tracing::info_span!("retrieval").entered();
         let retrieved = retrieve(model, &q.features.global, &q.silhouette, &cfg.retrieval);
         h.retrieved_templates = retrieved.len();
         if let Some(top) = retrieved.first() {
@@ -311,16 +318,17 @@ impl Estimator {
         }
         let pool = PatchPool::from_templates(model, retrieved.iter().map(|r| r.template));
         let ranked: Vec<usize> = retrieved.iter().map(|r| r.template).collect();
+        drop(span);
         timings.retrieval += ms(t);
 
         let t = Instant::now();
         // Templates may hold PCA-compressed descriptors; the query goes into their space.
-        let corr = correspond(q, &model.to_stored_space(&q.descriptors), &pool, cfg.k_nn);
+        let corr = tracing::info_span!("matching").in_scope(|| correspond(q, &model.to_stored_space(&q.descriptors), &pool, cfg.k_nn));
         h.matches = corr.len();
         timings.matching += ms(t);
 
         let t = Instant::now();
-        let first = run_pnp(&corr, k, &cfg.pnp);
+        let first = tracing::info_span!("pnp", matches = corr.len()).in_scope(|| run_pnp(&corr, k, &cfg.pnp));
         timings.pnp += ms(t);
         let first = match first {
             Ok(r) => r,
@@ -335,6 +343,7 @@ impl Estimator {
 
         if cfg.rrc {
             let t = Instant::now();
+            let _span = tracing::info_span!("rrc").entered();
             let pool = rrc_pool(model, &first.pose, k, self.backbone.as_ref(), &self.renderer)?;
             // RRC's pool comes straight from the backbone: the query's own descriptors.
             let corr = correspond(q, &q.descriptors, &pool, cfg.k_nn);

@@ -100,7 +100,7 @@ fn worker(inner: Arc<dyn Backbone>, rx: Receiver<Job>, max_batch: usize, max_wai
     let pool = match rayon::ThreadPoolBuilder::new().num_threads(threads).thread_name(|i| format!("backbone-{i}")).build() {
         Ok(p) => p,
         Err(e) => {
-            log::error!("backbone queue: cannot start its thread pool: {e}");
+            tracing::error!("backbone queue: cannot start its thread pool: {e}");
             return; // callers then get "the backbone queue worker stopped"
         }
     };

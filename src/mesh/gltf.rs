@@ -216,7 +216,7 @@ impl Loader<'_> {
         for prim in mesh.primitives() {
             let at = |e: String| MeshError::format(path, format!("mesh {} primitive {}: {e}", mesh.index(), prim.index()));
             if !matches!(prim.mode(), Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) {
-                log::warn!(
+                tracing::warn!(
                     "{}: mesh {} primitive {} skipped: {:?} has no surface",
                     self.path.display(),
                     mesh.index(),

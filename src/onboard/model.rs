@@ -122,7 +122,7 @@ impl ObjectModel {
         }
         let t = std::time::Instant::now();
         let built = Arc::new(ContourModel::build(&self.mesh, renderer, &Default::default())?);
-        log::warn!(
+        tracing::warn!(
             "object {:?} was stored without a contour model (format < 3): computed it in {:.1} s for this session; onboard it again to store it",
             self.object_id,
             t.elapsed().as_secs_f64()

@@ -90,6 +90,8 @@ pub fn onboard_cancellable(
     let opts = RenderOptions::default();
 
     let mut parts: Vec<ViewTemplates> = Vec::with_capacity(dirs.len());
+    // One span for rendering and describing every template; none per view.
+    let span = tracing::info_span!("templates", views = dirs.len(), templates = total).entered();
     for (chunk_idx, chunk) in dirs.chunks(VIEW_CHUNK).enumerate() {
         if cancel.load(std::sync::atomic::Ordering::Relaxed) {
             return Err(OnboardError::Cancelled);
@@ -108,13 +110,14 @@ pub fn onboard_cancellable(
         parts.extend(done);
         progress(Progress { templates_done: parts.len() * angles.len(), templates_total: total });
     }
+    drop(span);
     let mut model = assemble(object_id, mesh, config, identity, k, grid, parts);
     if cancel.load(std::sync::atomic::Ordering::Relaxed) {
         return Err(OnboardError::Cancelled);
     }
-    let contours = super::contour::ContourModel::build(mesh, renderer, &Default::default())?;
+    let contours = tracing::info_span!("contours").in_scope(|| super::contour::ContourModel::build(mesh, renderer, &Default::default()))?;
     model.contours = std::sync::OnceLock::from(std::sync::Arc::new(contours));
-    apply_pca(&mut model, config.pca)?;
+    tracing::info_span!("pca").in_scope(|| apply_pca(&mut model, config.pca))?;
     Ok(model)
 }
 

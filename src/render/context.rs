@@ -27,7 +27,7 @@ impl GpuContext {
             };
             match pollster::block_on(instance.request_adapter(&options)) {
                 Ok(adapter) => return Self::with_adapter(instance, adapter),
-                Err(e) => log::debug!("no adapter on {backends:?}: {e}"),
+                Err(e) => tracing::debug!("no adapter on {backends:?}: {e}"),
             }
         }
         let tried = candidates.iter().map(|b| format!("{b:?}")).collect::<Vec<_>>().join(", ");
@@ -46,7 +46,7 @@ impl GpuContext {
         let (device, queue) = pollster::block_on(adapter.request_device(&desc)).map_err(|e| {
             RenderError::RequestDevice { adapter: format!("{} ({:?})", info.name, info.backend), message: e.to_string() }
         })?;
-        log::info!("renderer on {} ({:?}, {})", info.name, info.backend, info.driver_info);
+        tracing::info!("renderer on {} ({:?}, {})", info.name, info.backend, info.driver_info);
         Ok(Self { _instance: instance, info, device, queue })
     }
 

@@ -137,6 +137,6 @@ fn fit_texture(t: &image::RgbaImage, max_side: u32) -> std::borrow::Cow<'_, imag
     }
     let s = max_side as f64 / w.max(h) as f64;
     let (nw, nh) = (((w as f64 * s) as u32).max(1), ((h as f64 * s) as u32).max(1));
-    log::warn!("texture {w}x{h} exceeds the device limit {max_side}; resized to {nw}x{nh}");
+    tracing::warn!("texture {w}x{h} exceeds the device limit {max_side}; resized to {nw}x{nh}");
     std::borrow::Cow::Owned(image::imageops::resize(t, nw, nh, image::imageops::FilterType::Triangle))
 }

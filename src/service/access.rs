@@ -44,7 +44,7 @@ pub fn admit(api: &Api, r: &Request) -> Result<Option<Caller>, Refused> {
         let c = api.keys.authenticate(r.authorization).ok_or_else(|| ServiceError::new(ErrorKind::Unauthenticated, format!("missing or unknown API key ({})", r.key_hint)))?;
         if let Needs::Scope(s) = r.needs {
             if !c.scopes.has(s) {
-                log::debug!("{}: key {} lacks the {} scope", r.endpoint, c.identity, s.name());
+                tracing::debug!(endpoint = r.endpoint, key = %c.identity, scope = s.name(), "refused: the key lacks the scope");
                 return Err(ServiceError::new(ErrorKind::PermissionDenied, format!("this API key lacks the `{}` scope, which {} needs", s.name(), r.endpoint)).into());
             }
         }

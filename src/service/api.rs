@@ -29,9 +29,11 @@ pub struct Api {
     pub request_timeout: Option<Duration>,
 }
 
-/// Runs blocking core work off the async threads.
+/// Runs blocking core work off the async threads, inside the caller's span (the
+/// request's), so the work's stages and log lines belong to the request.
 pub async fn blocking<T: Send + 'static>(f: impl FnOnce() -> Result<T, ServiceError> + Send + 'static) -> Result<T, ServiceError> {
-    tokio::task::spawn_blocking(f).await.map_err(|e| ServiceError::internal(format!("worker failed: {e}")))?
+    let span = tracing::Span::current();
+    tokio::task::spawn_blocking(move || span.in_scope(f)).await.map_err(|e| ServiceError::internal(format!("worker failed: {e}")))?
 }
 
 impl Api {
@@ -76,9 +78,10 @@ impl Api {
         Ok(resp)
     }
 
-    pub async fn onboard(&self, req: OnboardRequest) -> Result<OperationStatus, ServiceError> {
+    /// `request_id`: the starting request's, for the onboarding's own log lines.
+    pub async fn onboard(&self, req: OnboardRequest, request_id: Option<crate::telemetry::RequestId>) -> Result<OperationStatus, ServiceError> {
         let core = self.core.clone();
-        blocking(move || core.start_onboard(req)).await
+        blocking(move || core.start_onboard(req, request_id.as_ref())).await
     }
 
     pub async fn list_objects(&self) -> Result<Vec<ObjectInfo>, ServiceError> {

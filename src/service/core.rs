@@ -109,6 +109,11 @@ impl Core {
         Ok(())
     }
 
+    /// An object from the cache (the store on a miss), in a span of its own.
+    pub(super) fn load(&self, id: &str) -> Result<Arc<crate::onboard::ObjectModel>, ServiceError> {
+        Ok(tracing::info_span!("store.get", object_id = id).in_scope(|| self.cache.get(id))?)
+    }
+
     pub fn store_url(&self) -> String {
         self.store.url()
     }
@@ -162,7 +167,7 @@ impl Core {
     }
 
     /// Validates the upload and starts onboarding on its own thread; returns at once.
-    pub fn start_onboard(&self, req: OnboardRequest) -> Result<OperationStatus, ServiceError> {
+    pub fn start_onboard(&self, req: OnboardRequest, request_id: Option<&crate::telemetry::RequestId>) -> Result<OperationStatus, ServiceError> {
         self.refuse_if_read_only("onboard")?;
         crate::store::validate_id(&req.object_id)?;
         let views = ViewSampling { level: req.options.level, in_plane_steps: req.options.in_plane };
@@ -187,11 +192,17 @@ impl Core {
         let (backbone, pool, store, cache) = (self.backbone.clone(), self.pool.clone(), self.store.clone(), self.cache.clone());
         let status = op.status();
         let replace = req.replace;
+        tracing::info!(operation = %op.id, object_id = %op.object_id, templates = total, "onboarding started");
+        // The onboarding outlives the request that started it: its own root span, linked to
+        // the request's, with the same request id in its log lines.
+        let span = tracing::info_span!(parent: None, "onboarding", request_id = request_id.map(|r| r.as_str()), operation = %op.id, object_id = %op.object_id);
+        span.follows_from(&tracing::Span::current());
         std::thread::spawn(move || {
+            let _entered = span.enter();
             let progress = |p: crate::onboard::Progress| op.done.store(p.templates_done as u64, Ordering::Relaxed);
             let result = onboard_cancellable(&op.object_id, &mesh, &config, backbone.as_ref(), &pool, &progress, &op.cancel);
             let (state, error, info) = match result {
-                Ok(model) => match store.put(&model, replace) {
+                Ok(model) => match tracing::info_span!("store.put").in_scope(|| store.put(&model, replace)) {
                     Ok(info) => {
                         // A replaced object must not be served from the cache's old copy.
                         cache.invalidate(&op.object_id);
@@ -205,6 +216,7 @@ impl Core {
             // The slot is free before anyone can see the operation end, so a client that
             // starts its next onboarding on seeing it finish is not refused.
             drop(slot);
+            tracing::info!(state = ?state, error = error.as_deref(), "onboarding finished");
             op.finish(state, error, info);
         });
         Ok(status)
@@ -239,18 +251,21 @@ impl Core {
         let t0 = Instant::now();
         req.check_limits()?;
         let k = req.intrinsics.decode()?;
-        let image = req.image.decode()?;
+        let image = tracing::info_span!("decode").in_scope(|| req.image.decode())?;
         if image.dimensions() != (k.width, k.height) {
             return Err(ServiceError::invalid(format!("image is {}×{} but intrinsics say {}×{}", image.width(), image.height(), k.width, k.height)));
         }
         if req.detections.is_empty() {
             return Err(ServiceError::invalid("detections: at least one is needed"));
         }
+        tracing::debug!(width = k.width, height = k.height, detections = req.detections.len(), "estimate request");
         let o = &req.options;
         if o.k == 0 || o.max_masks == 0 || o.instances_per_object == 0 {
             return Err(ServiceError::invalid("options: k, max_masks and instances_per_object must be positive"));
         }
         let mut by_object: BTreeMap<&str, Vec<(usize, image::GrayImage, f32)>> = BTreeMap::new();
+        // Decoding masks, or segmenting inside boxes given without one.
+        let masks_span = tracing::info_span!("masks", detections = req.detections.len()).entered();
         for (i, d) in req.detections.iter().enumerate() {
             if !d.score.is_finite() {
                 return Err(ServiceError::invalid(format!("detections[{i}].score is not a finite number")));
@@ -258,8 +273,9 @@ impl Core {
             crate::store::validate_id(&d.object_id).map_err(|e| ServiceError::invalid(format!("detections[{i}].object_id: {e}")))?;
             by_object.entry(d.object_id.as_str()).or_default().push((i, d.mask(i, &image, crate::masks::BoxMask::Segment)?, d.score));
         }
+        drop(masks_span);
         // Every object must exist before any work starts.
-        let models: BTreeMap<&str, _> = by_object.keys().map(|&id| Ok((id, self.cache.get(id)?))).collect::<Result<_, ServiceError>>()?;
+        let models: BTreeMap<&str, _> = by_object.keys().map(|&id| Ok((id, self.load(id)?))).collect::<Result<_, ServiceError>>()?;
         let mut cfg = EstimateConfig { rrc: o.rrc, max_masks: o.max_masks, refiner: o.refiner, ..Default::default() };
         cfg.retrieval.k = o.k;
         cfg.verify.enabled = o.verify;
@@ -273,7 +289,9 @@ impl Core {
                 }
                 let candidates: Vec<Detection> = group.iter().map(|&g| Detection { mask: dets[g].1.clone(), score: dets[g].2 }).collect();
                 let others = others_mask(&by_object, object_id, &group, k.width, k.height);
-                let r = self.estimator.estimate_among(model, &image, &k, &candidates, others.as_ref(), &cfg)?;
+                let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
+                let r = span.in_scope(|| self.estimator.estimate_among(model, &image, &k, &candidates, others.as_ref(), &cfg))?;
+                span.in_scope(|| tracing::debug!(found = r.pose.is_some(), score = r.score, ms = r.timings.total, "instance estimated"));
                 results.push(InstanceResult {
                     object_id: object_id.to_string(),
                     instance,

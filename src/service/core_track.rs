@@ -49,15 +49,18 @@ impl Core {
     /// being processed; a refused or malformed frame leaves the session as it was.
     pub fn track_frame(&self, id: &str, req: &TrackFrameRequest) -> Result<TrackFrameResponse, ServiceError> {
         let t0 = Instant::now();
+        let span = tracing::info_span!("frame", session = id, index = tracing::field::Empty);
+        let _entered = span.enter();
         let turn = self.tracks.turn(id)?;
         let k = req.intrinsics.decode()?;
-        let image = req.image.decode()?;
+        let image = tracing::info_span!("decode").in_scope(|| req.image.decode())?;
         if image.dimensions() != (k.width, k.height) {
             return Err(ServiceError::invalid(format!("image is {}×{} but intrinsics say {}×{}", image.width(), image.height(), k.width, k.height)));
         }
         // Order first: a late frame is refused before its masks are decoded or segmented.
         let mut session = turn.entry().session.lock().expect("session lock");
-        session.check_order(req.frame_index).map_err(|e| ServiceError::invalid(e.to_string()))?;
+        let index = session.check_order(req.frame_index).map_err(|e| ServiceError::invalid(e.to_string()))?;
+        span.record("index", index);
         let mut detections = Vec::with_capacity(req.detections.len());
         for (i, d) in req.detections.iter().enumerate() {
             if !d.score.is_finite() {
@@ -70,7 +73,7 @@ impl Core {
         let mut models = std::collections::BTreeMap::new();
         for d in &detections {
             if !models.contains_key(&d.object_id) {
-                models.insert(d.object_id.clone(), self.cache.get(&d.object_id)?);
+                models.insert(d.object_id.clone(), self.load(&d.object_id)?);
             }
         }
         let resolve = |object_id: &str| models.get(object_id).cloned().ok_or_else(|| format!("object {object_id:?} was not loaded"));

@@ -91,7 +91,8 @@ pub fn code_name(code: Code) -> String {
 #[tonic::async_trait]
 impl PoseService for GrpcService {
     async fn onboard(&self, req: Request<pb::OnboardRequest>) -> Result<Response<pb::Operation>, Status> {
-        let op = self.observed("Onboard", async { self.api.onboard(convert::onboard_request(req.into_inner())?).await }).await?;
+        let request_id = req.extensions().get::<crate::telemetry::RequestId>().cloned();
+        let op = self.observed("Onboard", async { self.api.onboard(convert::onboard_request(req.into_inner())?, request_id).await }).await?;
         Ok(Response::new(convert::operation(op)))
     }
 
@@ -107,7 +108,7 @@ impl PoseService for GrpcService {
         let mut last = self.observed("WatchOperation", async { self.api.core.operation(&id) }).await?;
         let (tx, rx) = tokio::sync::mpsc::channel(8);
         let core = self.api.core.clone();
-        tokio::spawn(async move {
+        tokio::spawn(tracing::Instrument::in_current_span(async move {
             // Operations keep no subscriber list; polling a few atomics is cheap.
             let mut interval = tokio::time::interval(Duration::from_millis(100));
             if tx.send(Ok(convert::operation(last.clone()))).await.is_err() {
@@ -123,7 +124,7 @@ impl PoseService for GrpcService {
                     last = now;
                 }
             }
-        });
+        }));
         Ok(Response::new(ReceiverStream::new(rx)))
     }
 
@@ -213,6 +214,8 @@ pub fn pose_service(api: Api, max_message_bytes: usize) -> WithRpcPath<tonic::se
         match admitted {
             Ok(caller) => {
                 if let Some(c) = caller {
+                    // The interceptor runs inside the call's span (grpc_observe.rs).
+                    tracing::Span::current().record("api_key", &*c.identity);
                     req.extensions_mut().insert(c);
                 }
                 Ok(req)

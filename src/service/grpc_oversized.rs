@@ -4,10 +4,8 @@
 //! answers) or in the body's trailers, so both are rewritten on the way out. The message
 //! is percent-encoded on the wire.
 
+use super::grpc_trailers::TrailersHook;
 use http::{HeaderMap, HeaderValue};
-use http_body::{Body, Frame};
-use std::pin::Pin;
-use std::task::{Context, Poll};
 
 fn rewrite(headers: &mut HeaderMap) {
     let out_of_range = headers.get("grpc-status").is_some_and(|v| v.as_bytes() == b"11");
@@ -17,39 +15,10 @@ fn rewrite(headers: &mut HeaderMap) {
     }
 }
 
-/// A response body whose trailers get the rewrite.
-pub struct RewrittenBody<B>(B);
-
-impl<B: Body + Unpin> Body for RewrittenBody<B> {
-    type Data = B::Data;
-    type Error = B::Error;
-
-    fn poll_frame(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Result<Frame<Self::Data>, Self::Error>>> {
-        match Pin::new(&mut self.0).poll_frame(cx) {
-            Poll::Ready(Some(Ok(frame))) => Poll::Ready(Some(Ok(match frame.into_trailers() {
-                Ok(mut trailers) => {
-                    rewrite(&mut trailers);
-                    Frame::trailers(trailers)
-                }
-                Err(frame) => frame,
-            }))),
-            other => other,
-        }
-    }
-
-    fn is_end_stream(&self) -> bool {
-        self.0.is_end_stream()
-    }
-
-    fn size_hint(&self) -> http_body::SizeHint {
-        self.0.size_hint()
-    }
-}
-
-pub fn oversized_to_invalid_argument<B>(resp: http::Response<B>) -> http::Response<RewrittenBody<B>> {
+pub fn oversized_to_invalid_argument<B>(resp: http::Response<B>) -> http::Response<TrailersHook<B, fn(&mut HeaderMap)>> {
     let (mut parts, body) = resp.into_parts();
     rewrite(&mut parts.headers);
-    http::Response::from_parts(parts, RewrittenBody(body))
+    http::Response::from_parts(parts, TrailersHook::new(body, rewrite))
 }
 
 #[cfg(test)]

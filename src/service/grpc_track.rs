@@ -75,7 +75,8 @@ impl Drop for SessionGuard {
 /// Starts serving one stream; the answers come through the returned stream.
 pub fn serve(api: Api, inbound: Streaming<pb::TrackFrame>) -> TrackStream {
     let (tx, rx) = tokio::sync::mpsc::channel(ANSWERS_QUEUED);
-    tokio::spawn(run(api, inbound, tx));
+    // The stream's frames are served in the call's span: one request id for the stream.
+    tokio::spawn(tracing::Instrument::in_current_span(run(api, inbound, tx)));
     TrackStream::new(rx)
 }
 
@@ -117,6 +118,7 @@ async fn run(api: Api, mut inbound: Streaming<pb::TrackFrame>, tx: Sender<Result
             Err(e) => Err(e),
         };
         let code = result.as_ref().map_or_else(|e| code_name(code_of(&e.kind)), |_| "OK".to_string());
+        tracing::debug!(code, frame = result.as_ref().ok().map(|r| r.frame_index), ms = started.elapsed().as_secs_f64() * 1e3, "frame answered");
         api.metrics.request("grpc", RPC, &code, started.elapsed().as_secs_f64());
         if let Ok(r) = &result {
             api.metrics.track_frame(r.objects.iter().map(|o| o.mode.as_str()));

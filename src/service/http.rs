@@ -8,15 +8,12 @@ use super::error::{ErrorKind, ServiceError};
 use super::requests::{EstimateRequest, OnboardRequest};
 use super::scopes;
 use axum::extract::rejection::JsonRejection;
-use axum::extract::connect_info::Connected;
 use axum::extract::{ConnectInfo, DefaultBodyLimit, FromRequest, MatchedPath, Multipart, Path, Request, State};
 use axum::http::{header, StatusCode};
 use axum::middleware::{from_fn_with_state, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
-use axum::serve::IncomingStream;
 use axum::{Json, Router};
-use std::net::SocketAddr;
 
 /// The OpenAPI 3 description of these routes, served at `/openapi.json`.
 pub const OPENAPI: &str = include_str!("openapi.json");
@@ -57,6 +54,7 @@ pub(super) fn body<T>(b: Result<Json<T>, JsonRejection>) -> Result<T, ServiceErr
 async fn guard(State(s): State<Api>, mut req: Request, next: Next) -> Response {
     let method = req.method().to_string();
     let route = req.extensions().get::<MatchedPath>().map_or_else(|| "unmatched".to_string(), |m| m.as_str().to_string());
+    tracing::Span::current().record("route", route.as_str());
     let t = std::time::Instant::now();
     let endpoint = format!("{method} {route}");
     let admitted = access::admit(
@@ -64,7 +62,7 @@ async fn guard(State(s): State<Api>, mut req: Request, next: Next) -> Response {
         &access::Request {
             needs: scopes::http(&method, &route),
             authorization: req.headers().get(header::AUTHORIZATION).and_then(|v| v.to_str().ok()),
-            peer: req.extensions().get::<ConnectInfo<Peer>>().map(|c| c.0 .0.ip()),
+            peer: req.extensions().get::<ConnectInfo<super::http_observe::Peer>>().map(|c| c.0 .0.ip()),
             endpoint: &endpoint,
             key_hint: "send Authorization: Bearer <key>",
         },
@@ -72,6 +70,7 @@ async fn guard(State(s): State<Api>, mut req: Request, next: Next) -> Response {
     let resp = match admitted {
         Ok(caller) => {
             if let Some(c) = caller {
+                tracing::Span::current().record("api_key", &*c.identity);
                 req.extensions_mut().insert(c);
             }
             next.run(req).await
@@ -80,23 +79,6 @@ async fn guard(State(s): State<Api>, mut req: Request, next: Next) -> Response {
     };
     s.metrics.request(&method, &route, resp.status().as_str(), t.elapsed().as_secs_f64());
     resp
-}
-
-/// The client's address on either listener (axum provides `SocketAddr` for its own
-/// `TcpListener` only, not for `TlsListener`).
-#[derive(Clone, Copy, Debug)]
-pub struct Peer(pub SocketAddr);
-
-impl Connected<IncomingStream<'_, tokio::net::TcpListener>> for Peer {
-    fn connect_info(stream: IncomingStream<'_, tokio::net::TcpListener>) -> Self {
-        Peer(*stream.remote_addr())
-    }
-}
-
-impl Connected<IncomingStream<'_, super::tls::TlsListener>> for Peer {
-    fn connect_info(stream: IncomingStream<'_, super::tls::TlsListener>) -> Self {
-        Peer(*stream.remote_addr())
-    }
 }
 
 fn refusal(r: access::Refused) -> Response {
@@ -152,6 +134,7 @@ async fn delete_object(State(s): State<Api>, Path(id): Path<String>) -> Result<R
 
 /// JSON with base64 files, or multipart/form-data with the files as they are.
 async fn onboard(State(s): State<Api>, req: Request) -> Result<Response, ServiceError> {
+    let request_id = req.extensions().get::<crate::telemetry::RequestId>().cloned();
     let multipart = req.headers().get(header::CONTENT_TYPE).and_then(|v| v.to_str().ok()).is_some_and(|v| v.starts_with("multipart/form-data"));
     let parsed: OnboardRequest = if multipart {
         let form = Multipart::from_request(req, &()).await.map_err(|e| ServiceError::invalid(format!("multipart body: {}", e.body_text())))?;
@@ -159,7 +142,7 @@ async fn onboard(State(s): State<Api>, req: Request) -> Result<Response, Service
     } else {
         body(Json::from_request(req, &()).await)?
     };
-    let op = s.onboard(parsed).await?;
+    let op = s.onboard(parsed, request_id).await?;
     Ok((StatusCode::ACCEPTED, Json(op)).into_response())
 }
 
@@ -192,5 +175,6 @@ pub fn router(state: Api, max_body_bytes: usize) -> Router {
         .route_layer(from_fn_with_state(state.clone(), guard))
         .layer(DefaultBodyLimit::max(max_body_bytes))
         .layer(from_fn_with_state(max_body_bytes, announced_size))
+        .layer(axum::middleware::from_fn(super::http_observe::observe))
         .with_state(state)
 }

@@ -5,6 +5,7 @@
 //! logic lives here.
 
 pub mod access;
+pub mod access_log;
 pub mod api;
 pub mod auth;
 pub mod base64_bytes;
@@ -15,9 +16,12 @@ pub mod core_track;
 pub mod error;
 pub mod grpc;
 pub mod grpc_convert;
+pub mod grpc_observe;
 pub mod grpc_oversized;
 pub mod grpc_track;
+pub mod grpc_trailers;
 pub mod http;
+pub mod http_observe;
 pub mod http_track;
 pub mod metrics;
 pub mod multipart;

@@ -105,7 +105,7 @@ impl DetectionInput {
         } else if let Some(b) = self.bbox {
             let s = box_to_mask(image, b, how).map_err(bad("bbox"))?;
             if let Some(note) = &s.note {
-                log::info!("detections[{index}].bbox: {note}");
+                tracing::info!("detections[{index}].bbox: {note}");
             }
             (s.mask, "bbox")
         } else {

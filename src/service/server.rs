@@ -69,8 +69,9 @@ pub async fn run(api: Api, opts: ServerOptions, on_bound: impl FnOnce(Bound), sh
     };
     let mut tasks = tokio::task::JoinSet::new();
     if let Some(listener) = http {
-        // The peer address reaches the handlers (the rate limit without keys uses it).
-        let app = super::http::router(api.clone(), opts.max_body_bytes).into_make_service_with_connect_info::<super::http::Peer>();
+        // The peer address reaches the handlers (the rate limit without keys uses it) and
+        // the request's span.
+        let app = super::http::router(api.clone(), opts.max_body_bytes).into_make_service_with_connect_info::<super::http_observe::Peer>();
         let signal = stopped();
         match &opts.tls {
             Some(id) => {
@@ -134,6 +135,7 @@ async fn serve_grpc(api: Api, listener: TcpListener, max_message_bytes: usize, t
         health.set_service_status("", tonic_health::ServingStatus::NotServing).await;
     };
     builder
+        .layer(super::grpc_observe::ObserveLayer)
         .layer(tower::util::MapResponseLayer::new(super::grpc_oversized::oversized_to_invalid_argument))
         .add_service(health_service)
         .add_service(reflection_v1)

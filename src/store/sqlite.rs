@@ -95,7 +95,7 @@ fn configure_writer(conn: &Connection, ctx: &str) -> Result<(), StoreError> {
     let mode: String = conn.query_row("PRAGMA journal_mode = WAL", [], |r| r.get(0)).map_err(db(ctx))?;
     if !mode.eq_ignore_ascii_case("wal") {
         // E.g. a file system without shared memory: still atomic, but readers wait for writers.
-        log::warn!("{ctx}: WAL mode not available (journal mode is {mode}); readers will wait for writers");
+        tracing::warn!("{ctx}: WAL mode not available (journal mode is {mode}); readers will wait for writers");
     }
     Ok(())
 }

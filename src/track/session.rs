@@ -187,6 +187,7 @@ impl TrackSession {
         let mut steps = Vec::with_capacity(self.tracks.len());
         for track in &mut self.tracks {
             let t = Instant::now();
+            let _span = tracing::info_span!("track", track = track.id).entered();
             steps.push((track.tracker.track(image, k).map_err(SessionError::Internal)?, t));
         }
         let lost: Vec<bool> = steps.iter().map(|(s, _)| s.lost).collect();

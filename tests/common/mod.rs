@@ -27,15 +27,47 @@ impl Drop for Server {
 
 /// Starts `b2tf serve` on free ports with `extra` flags; no API keys unless given.
 pub fn start(store: &str, keys: Option<&str>, extra: &[&str]) -> Server {
+    spawn(serve_command(store, keys, extra))
+}
+
+/// The lines the server writes on stderr (its logs), as they come.
+pub type Logs = std::sync::Arc<std::sync::Mutex<Vec<String>>>;
+
+/// `start` with `env` set and stderr collected line by line.
+pub fn start_logged(store: &str, keys: Option<&str>, extra: &[&str], env: &[(&str, &str)]) -> (Server, Logs) {
+    let mut cmd = serve_command(store, keys, extra);
+    cmd.envs(env.iter().copied()).stderr(Stdio::piped());
+    let mut server = spawn(cmd);
+    let logs = Logs::default();
+    let (stderr, sink) = (server.child.stderr.take().unwrap(), logs.clone());
+    std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            sink.lock().unwrap().push(line);
+        }
+    });
+    (server, logs)
+}
+
+fn serve_command(store: &str, keys: Option<&str>, extra: &[&str]) -> Command {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_b2tf"));
     cmd.args(["serve", "--http", "127.0.0.1:0", "--grpc", "127.0.0.1:0", "--store", store, "--max-body-mb", "3", "--max-estimates", "2", "--render-pool", "1"])
         .args(extra)
         .env("XDG_RUNTIME_DIR", "/tmp")
         .env_remove("B2TF_API_KEYS")
-        .env_remove("B2TF_CONFIG");
+        .env_remove("B2TF_CONFIG")
+        .env_remove("B2TF_LOG_FORMAT")
+        .env_remove("OTEL_EXPORTER_OTLP_ENDPOINT")
+        // Warnings only, unless a test asks for more: one line per request would swamp the
+        // test output (the child's stderr is not captured).
+        .env("B2TF_LOG", "warn");
     if let Some(k) = keys {
         cmd.env("B2TF_API_KEYS", k);
     }
+    cmd
+}
+
+/// Runs the server and reads its addresses from the first stdout line.
+fn spawn(mut cmd: Command) -> Server {
     let mut child = cmd.stdout(Stdio::piped()).spawn().expect("server starts");
     let mut line = String::new();
     BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();

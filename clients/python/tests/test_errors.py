@@ -30,8 +30,17 @@ def test_invalid_argument_names_the_field(client: b2tfpose.Client, onboarded: On
 
 
 def test_not_found(client: b2tfpose.Client, scene: Scene) -> None:
-    with pytest.raises(b2tfpose.NotFound, match="no-such-object"):
+    with pytest.raises(b2tfpose.NotFound, match="no-such-object") as e:
         client.get_object("no-such-object")
+    # The server's id of the call, to find its log lines.
+    rid = e.value.request_id
+    assert rid and len(rid) == 32 and all(c in "0123456789abcdef" for c in rid) and rid in str(e.value)
+    # One the caller chose is used instead; a malformed one is refused before sending.
+    with b2tfpose.request_id("job-17.frame:3"), pytest.raises(b2tfpose.NotFound) as e:
+        client.get_object("no-such-object")
+    assert e.value.request_id == "job-17.frame:3"
+    with pytest.raises(ValueError, match="request id"), b2tfpose.request_id("two words"):
+        pass
     with pytest.raises(b2tfpose.NotFound):
         client.estimate(scene.rgb, scene.K, [b2tfpose.Detection("no-such-object", mask=scene.mask)])
     with pytest.raises(b2tfpose.NotFound):

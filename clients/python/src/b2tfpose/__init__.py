@@ -11,6 +11,7 @@
 
 from ._convert import Detection, TrackFrame
 from ._pose import Pose
+from ._request_id import request_id
 from ._retry import NO_RETRY, RetryPolicy
 from ._types import Estimates, ObjectInfo, OperationStatus, Result, TrackedObject, TrackMode, TrackResult
 from .aio import AsyncClient, AsyncOperation
@@ -50,6 +51,7 @@ __all__ = [
     "OperationStatus",
     "RetryPolicy",
     "NO_RETRY",
+    "request_id",
     "B2TFPoseError",
     "RpcError",
     "InvalidArgument",

@@ -10,6 +10,7 @@ from typing import List, Optional, Sequence, Tuple, Union
 
 import grpc
 
+from ._request_id import current as current_request_id
 from ._retry import RetryPolicy
 
 CaCert = Union[bytes, str, "os.PathLike[str]"]
@@ -82,6 +83,12 @@ class Settings:
         opts.extend(options or [])
         metadata: Metadata = (("authorization", f"Bearer {api_key}"),) if api_key else ()
         return cls(target, creds, opts, metadata, timeout, retry or RetryPolicy())
+
+    def call_metadata(self) -> Metadata:
+        """The metadata of a call: the API key, and the caller's request id if one is set
+        (``b2tfpose.request_id``)."""
+        rid = current_request_id()
+        return self.metadata + (("x-request-id", rid),) if rid else self.metadata
 
     def open_sync(self) -> grpc.Channel:
         if self.credentials is not None:

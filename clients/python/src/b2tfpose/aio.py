@@ -145,7 +145,7 @@ class AsyncClient:
         attempts = Attempts(method, policy, self._settings.timeout if timeout is None else timeout)
         while True:
             try:
-                return await fn(request, timeout=attempts.timeout(), metadata=self._settings.metadata)
+                return await fn(request, timeout=attempts.timeout(), metadata=self._settings.call_metadata())
             except grpc.RpcError as e:
                 await asyncio.sleep(attempts.after_failure(e))
 
@@ -197,7 +197,7 @@ class AsyncClient:
 
     async def watch_operation(self, operation_id: str, *, timeout: Optional[float] = None) -> AsyncIterator[OperationStatus]:
         """As :meth:`b2tfpose.Client.watch_operation`."""
-        stream = self._stub.WatchOperation(pb.GetOperationRequest(id=operation_id), timeout=timeout, metadata=self._settings.metadata)
+        stream = self._stub.WatchOperation(pb.GetOperationRequest(id=operation_id), timeout=timeout, metadata=self._settings.call_metadata())
         try:
             async for m in stream:
                 yield OperationStatus.from_pb(m)
@@ -262,7 +262,7 @@ class AsyncClient:
 
     async def _track(self, source: _Frames, state: TrackState) -> AsyncGenerator[TrackResult, None]:
         while True:  # one stream per attempt
-            call = self._stub.Track(timeout=state.attempts.timeout(), metadata=self._settings.metadata)
+            call = self._stub.Track(timeout=state.attempts.timeout(), metadata=self._settings.call_metadata())
             writable, closed = True, False
             try:
                 for m in state.replay():

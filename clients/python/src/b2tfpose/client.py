@@ -125,7 +125,7 @@ class Client:
         attempts = Attempts(method, policy, self._settings.timeout if timeout is None else timeout)
         while True:
             try:
-                return fn(request, timeout=attempts.timeout(), metadata=self._settings.metadata)
+                return fn(request, timeout=attempts.timeout(), metadata=self._settings.call_metadata())
             except grpc.RpcError as e:
                 time.sleep(attempts.after_failure(e))
 
@@ -191,7 +191,7 @@ class Client:
     def watch_operation(self, operation_id: str, *, timeout: Optional[float] = None) -> Iterator[OperationStatus]:
         """Each state of the operation until its final one (WatchOperation). ``timeout``
         bounds the whole watch (None: no limit)."""
-        stream = self._stub.WatchOperation(pb.GetOperationRequest(id=operation_id), timeout=timeout, metadata=self._settings.metadata)
+        stream = self._stub.WatchOperation(pb.GetOperationRequest(id=operation_id), timeout=timeout, metadata=self._settings.call_metadata())
         try:
             for m in stream:
                 yield OperationStatus.from_pb(m)
@@ -294,7 +294,7 @@ class Client:
     def _track(self, source: Iterator[FrameInput], state: TrackState) -> Generator[TrackResult, None, None]:
         while True:  # one stream per attempt
             outbox = _Outbox()
-            answers = self._stub.Track(outbox, timeout=state.attempts.timeout(), metadata=self._settings.metadata)
+            answers = self._stub.Track(outbox, timeout=state.attempts.timeout(), metadata=self._settings.call_metadata())
             try:
                 for m in state.replay():
                     outbox.put(m)

@@ -1,14 +1,16 @@
 """The exceptions: one class per gRPC status the service answers with, under one base
 (any other status, which the service does not send, raises :class:`RpcError` itself).
 
-Every failed call raises a subclass of :class:`RpcError` carrying the status code and the
-server's message (which names the offending field for INVALID_ARGUMENT). A finished
+Every failed call raises a subclass of :class:`RpcError` carrying the status code, the
+server's message (which names the offending field for INVALID_ARGUMENT) and the server's
+request id (``request_id``: the ``x-request-id`` of the answer, the key to the server's log
+lines and trace of the call). A finished
 onboarding that failed or was cancelled raises :class:`OperationFailed`.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Dict, Type
+from typing import TYPE_CHECKING, Dict, Optional, Type
 
 import grpc
 
@@ -22,14 +24,17 @@ class B2TFPoseError(Exception):
 
 
 class RpcError(B2TFPoseError):
-    """A gRPC call failed. ``code`` is the status, ``message`` the server's explanation."""
+    """A gRPC call failed. ``code`` is the status, ``message`` the server's explanation,
+    ``request_id`` the server's id of the call (None when no server answered)."""
 
-    def __init__(self, code: grpc.StatusCode, message: str, method: str = "") -> None:
+    def __init__(self, code: grpc.StatusCode, message: str, method: str = "", request_id: Optional[str] = None) -> None:
         self.code = code
         self.message = message
         self.method = method
+        self.request_id = request_id
         where = f"{method}: " if method else ""
-        super().__init__(f"{where}{code.name}: {message}")
+        rid = f" (request id {request_id})" if request_id else ""
+        super().__init__(f"{where}{code.name}: {message}{rid}")
 
 
 class InvalidArgument(RpcError):
@@ -103,7 +108,21 @@ def from_grpc(err: grpc.RpcError, method: str = "") -> RpcError:
     message = details_fn() if callable(details_fn) else str(err)
     if not isinstance(code, grpc.StatusCode):
         code = grpc.StatusCode.UNKNOWN
-    return error_class(code)(code, message or "", method)
+    return error_class(code)(code, message or "", method, request_id(err))
+
+
+def request_id(call: object) -> Optional[str]:
+    """The ``x-request-id`` a server answered with: in the trailers of an error (where a
+    trailers-only answer's headers end up too), else in the initial headers."""
+    for name in ("trailing_metadata", "initial_metadata"):
+        fn = getattr(call, name, None)
+        try:
+            for key, value in (fn() if callable(fn) else None) or ():
+                if key == "x-request-id":
+                    return value if isinstance(value, str) else value.decode("ascii", "replace")
+        except (TypeError, ValueError, AttributeError):  # no metadata: no server answered
+            continue
+    return None
 
 
 class OperationFailed(B2TFPoseError):
