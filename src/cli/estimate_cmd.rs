@@ -13,7 +13,8 @@ pub struct EstimateArgs {
     /// RGB image (PNG or JPEG).
     #[arg(long)]
     pub image: PathBuf,
-    /// Camera JSON ({"K", "resolution"} or BOP {"cam_K", "width", "height"}).
+    /// Camera JSON ({"K", "resolution"} or BOP {"cam_K"[, "width", "height"]}; a BOP
+    /// scene_camera.json gives its first image's camera).
     #[arg(long)]
     pub camera: PathBuf,
     /// Object mask PNG, image-sized, nonzero = object. Repeat for candidate masks.
@@ -88,7 +89,7 @@ pub fn run(a: EstimateArgs) -> Result<()> {
     }
     let model = a.target.load()?;
     let image = image::open(&a.image).with_context(|| format!("cannot read image {}", a.image.display()))?.to_rgb8();
-    let k = super::camera_file::load_camera(&a.camera)?;
+    let k = super::camera_file::load_camera_for(&a.camera, Some(image.dimensions()))?;
     let detections = detections(&a, &image)?;
     let backbone = a.target.backbone.open()?;
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);

@@ -21,7 +21,8 @@ pub struct TrackArgs {
     /// Folder of frames (PNG or JPEG), taken in name order.
     #[arg(long)]
     pub video: PathBuf,
-    /// Camera JSON ({"K", "resolution"} or BOP {"cam_K", "width", "height"}).
+    /// Camera JSON ({"K", "resolution"} or BOP {"cam_K"[, "width", "height"]}; a BOP
+    /// scene_camera.json gives its first image's camera).
     #[arg(long)]
     pub camera: PathBuf,
     /// The object's mask in the first frame (PNG, nonzero = object).
@@ -71,8 +72,9 @@ fn pose_line(frame: usize, file: &Path, pose: Option<&Pose>, quality: f64, mode:
 
 pub fn run(a: TrackArgs) -> Result<()> {
     let model = Arc::new(a.target.load()?);
-    let k = super::camera_file::load_camera(&a.camera)?;
     let frames = frame_paths(&a.video)?;
+    let size = image::image_dimensions(&frames[0]).with_context(|| format!("cannot read frame {}", frames[0].display()))?;
+    let k = super::camera_file::load_camera_for(&a.camera, Some(size))?;
     let first = load_frame(&frames[0], &k)?;
     let mask = crate::masks::decode::check_size(load_mask(&a.mask)?, k.width, k.height).and_then(crate::masks::require_nonempty).with_context(|| format!("--mask {}", a.mask.display()))?;
     if let Some(d) = &a.overlay_dir {
