@@ -30,6 +30,7 @@ from typing import List
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from reliability import crash, disk_full  # noqa: E402
+from reliability.stats import verdict  # noqa: E402
 from reliability.fixtures import Fixtures  # noqa: E402
 from reliability.server import b2tf_bin  # noqa: E402
 
@@ -97,11 +98,7 @@ def main() -> int:
             print(f"work folder kept: {work}")
         else:
             shutil.rmtree(work, ignore_errors=True)
-    if problems:
-        print(f"\nFAILED ({time.monotonic() - started:.0f} s):\n" + "\n".join(problems))
-        return 1
-    print(f"\nOK: after every kill the store opened with only complete objects; a full disk failed the put cleanly ({time.monotonic() - started:.0f} s)")
-    return 0
+    return verdict(problems, started, "after every kill the store opened with only complete objects; a full disk failed the put cleanly")
 
 
 if __name__ == "__main__":

@@ -220,11 +220,7 @@ def main() -> int:
             shutil.rmtree(work, ignore_errors=True)
         else:
             print(f"work folder kept: {work}")
-    if problems:
-        print(f"\nFAILED ({time.monotonic() - started:.0f} s):\n" + "\n".join(problems))
-        return 1
-    print(f"\nOK: only 429 / RESOURCE_EXHAUSTED beyond capacity, latency bounded, no leaks, serving normally after ({time.monotonic() - started:.0f} s)")
-    return 0
+    return stats.verdict(problems, started, "only 429 / RESOURCE_EXHAUSTED beyond capacity, latency bounded, no leaks, serving normally after")
 
 
 if __name__ == "__main__":

@@ -39,15 +39,8 @@ mod tests {
 
     #[test]
     fn iou_of_silhouette_and_object_colours() {
-        // A red square on blue; the colours learnt from the square itself.
-        let mut img = RgbImage::from_pixel(40, 40, image::Rgb([20, 120, 200]));
-        let mut sil = GrayImage::new(40, 40);
-        for y in 10..30 {
-            for x in 10..30 {
-                img.put_pixel(x, y, image::Rgb([220, 30, 30]));
-                sil.put_pixel(x, y, image::Luma([255]));
-            }
-        }
+        // The colours learnt from the square itself.
+        let (img, sil) = crate::track::colour::tests::red_square();
         let all = Window { x0: 0, y0: 0, x1: 40, y1: 40 };
         let mut colours = ColourModel::default();
         assert!(colours.learn(&img, &sil, all, 1.0));

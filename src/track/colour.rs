@@ -118,12 +118,12 @@ impl ColourModel {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    #[test]
-    fn learns_which_colours_are_the_object() {
-        // A red square on a blue-green background.
+    /// A 40×40 image of a red square (10..30 on both axes) on a blue-green background,
+    /// and the square's silhouette.
+    pub(crate) fn red_square() -> (RgbImage, GrayImage) {
         let mut img = RgbImage::from_pixel(40, 40, image::Rgb([20, 120, 200]));
         let mut sil = GrayImage::new(40, 40);
         for y in 10..30 {
@@ -132,6 +132,12 @@ mod tests {
                 sil.put_pixel(x, y, image::Luma([255]));
             }
         }
+        (img, sil)
+    }
+
+    #[test]
+    fn learns_which_colours_are_the_object() {
+        let (img, sil) = red_square();
         let mut m = ColourModel::default();
         let all = Window::around(20.0, 20.0, 20.0, 40, 40).unwrap();
         assert!(!m.learn(&img, &GrayImage::new(10, 10), all, 0.2), "a silhouette of another size than the window");

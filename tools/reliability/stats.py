@@ -1,8 +1,10 @@
-"""Percentiles, per-phase summaries and Markdown tables of the load test's outcomes."""
+"""Percentiles, per-phase summaries and Markdown tables of the load test's outcomes, and
+the verdict line both scripts end with."""
 
 from __future__ import annotations
 
 import math
+import time
 from collections import Counter
 from dataclasses import dataclass
 from typing import Dict, List, Sequence
@@ -108,3 +110,13 @@ def violations(outcomes: List[Outcome], limit: int = 12) -> List[str]:
     out = [f"{k}: {n}" for k, n in sorted(by.items())]
     out += [f"  e.g. {o.kind}/{o.proto} {o.status} after {o.seconds:.2f} s: {o.detail}" for o in bad[:limit]]
     return out
+
+
+def verdict(problems: list, started: float, ok: str) -> int:
+    """Prints the run's outcome (every problem, or `ok`) with its duration; the exit status."""
+    took = f"{time.monotonic() - started:.0f} s"
+    if problems:
+        print(f"\nFAILED ({took}):\n" + "\n".join(problems))
+        return 1
+    print(f"\nOK: {ok} ({took})")
+    return 0
