@@ -78,8 +78,9 @@ impl PatchGrid {
         Ok(Self { n: crop_size / patch, patch })
     }
 
+    /// `n²`, in `usize`: a grid read from a stored manifest may have any `n`.
     pub fn len(&self) -> usize {
-        (self.n * self.n) as usize
+        self.n as usize * self.n as usize
     }
 
     pub fn is_empty(&self) -> bool {

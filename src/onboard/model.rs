@@ -163,6 +163,11 @@ impl ObjectModel {
         if let Some((_, what)) = checks.iter().find(|(ok, _)| !ok) {
             return Err(format!("object {:?}: {what} do not match the template/patch counts", self.object_id));
         }
+        // Estimation sizes its crops from the grid (`n · patch`): it must be the one the
+        // backbone's input and patch sizes give, as onboarding made it.
+        if PatchGrid::for_crop(self.backbone.input_size, self.backbone.patch_size).ok() != Some(self.grid) {
+            return Err(format!("object {:?}: its {}² grid of {} px patches is not the backbone's ({} px input, {} px patches)", self.object_id, self.grid.n, self.grid.patch, self.backbone.input_size, self.backbone.patch_size));
+        }
         for (i, tp) in self.templates.iter().enumerate() {
             if tp.patch_start as usize + tp.patch_count as usize > p {
                 return Err(format!("object {:?}: template {i} points past the patch arrays", self.object_id));

@@ -203,7 +203,10 @@ pub fn decode(manifest: &[u8], tensors: &[u8], texture: &mut dyn FnMut(&str) -> 
     let get = |name: &str, dt: Dtype, cols: usize| -> Result<&[u8], CodecError> {
         let v = st.tensor(name).map_err(|e| corrupt(format!("tensor {name}: {e}")))?;
         let shape = v.shape();
-        if v.dtype() != dt || (cols > 0 && shape.get(1).copied().unwrap_or(0) != cols && shape[0] != 0) {
+        // A table of `cols` columns is `[rows, cols]` (`[0, _]` when empty); any other shape,
+        // a scalar's `[]` included, is refused.
+        let table = cols == 0 || matches!(shape, [_, c] if *c == cols) || shape.first() == Some(&0);
+        if v.dtype() != dt || !table {
             return Err(corrupt(format!("tensor {name} has dtype {:?} shape {shape:?}, expected {dt:?} with {cols} columns", v.dtype())));
         }
         Ok(v.data())
@@ -264,4 +267,68 @@ pub fn decode(manifest: &[u8], tensors: &[u8], texture: &mut dyn FnMut(&str) -> 
     };
     model.validate().map_err(corrupt)?;
     Ok(model)
+}
+
+/// Hostile stored objects, from the `store_manifest` fuzz seed that carries tensors (a whole
+/// tiny object: `tests/fuzz_seeds`): changed one way each, they are refused with an error.
+#[cfg(test)]
+mod hostile_tests {
+    use super::*;
+
+    /// The seed's manifest, tensors and texture.
+    fn seed() -> (String, Vec<u8>, Vec<u8>) {
+        let data = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/fuzz/seeds/store_manifest/tiny_object")).unwrap();
+        let parts = crate::fuzzing::split(&data);
+        (String::from_utf8(parts[0].to_vec()).unwrap(), parts[1].to_vec(), parts[2].to_vec())
+    }
+
+    fn load(manifest: &str, tensors: &[u8], texture: &[u8]) -> Result<ObjectModel, String> {
+        decode(manifest.as_bytes(), tensors, &mut |_| Ok(texture.to_vec())).map_err(|e| e.to_string())
+    }
+
+    /// `tensors` with `name` replaced (same generation metadata).
+    fn with_tensor(tensors: &[u8], name: &str, dtype: Dtype, shape: Vec<usize>, data: &[u8]) -> Vec<u8> {
+        let (_, meta) = SafeTensors::read_metadata(tensors).unwrap();
+        let st = SafeTensors::deserialize(tensors).unwrap();
+        let mut views: Vec<(String, TensorView)> = st.tensors().into_iter().filter(|(n, _)| n != name).collect();
+        views.push((name.to_string(), TensorView::new(dtype, shape, data).unwrap()));
+        safetensors::serialize(views, meta.metadata().clone()).unwrap()
+    }
+
+    #[test]
+    fn the_seed_loads() {
+        let (manifest, tensors, texture) = seed();
+        let model = load(&manifest, &tensors, &texture).unwrap();
+        assert_eq!((model.template_count(), model.patch_count(), model.grid.len()), (1, 2, 4));
+    }
+
+    /// A scalar (shape `[]`) where a table was expected was indexed as one (`shape[0]`: a
+    /// panic).
+    #[test]
+    fn tables_stored_as_scalars_or_other_shapes_are_refused() {
+        let (manifest, tensors, texture) = seed();
+        let one = 1f32.to_le_bytes();
+        for name in ["mesh_positions", "patch_points", "contour_points"] {
+            let scalar = with_tensor(&tensors, name, Dtype::F32, vec![], &one);
+            assert!(load(&manifest, &scalar, &texture).unwrap_err().contains(&format!("tensor {name} has dtype F32 shape []")), "{name}");
+        }
+        let three_d = with_tensor(&tensors, "mesh_positions", Dtype::F32, vec![1, 3, 1], &[one; 3].concat());
+        assert!(load(&manifest, &three_d, &texture).unwrap_err().contains("shape [1, 3, 1], expected F32 with 3 columns"));
+        // An empty table may have any column count (older writers).
+        let empty = with_tensor(&tensors, "mesh_colors", Dtype::F32, vec![0, 7], &[]);
+        assert!(load(&manifest, &empty, &texture).is_ok());
+    }
+
+    /// A grid side of 65 536 or more overflowed `n · n` (u32) in the patch-cell check; any
+    /// grid other than the backbone's would size estimation's crops wrongly.
+    #[test]
+    fn grids_that_are_not_the_backbones_are_refused() {
+        let (manifest, tensors, texture) = seed();
+        assert!(manifest.contains("\"n\": 2,"));
+        for n in ["3", "65536", "4294967295"] {
+            let err = load(&manifest.replace("\"n\": 2,", &format!("\"n\": {n},")), &tensors, &texture).unwrap_err();
+            assert!(err.contains(&format!("its {n}² grid of 8 px patches is not the backbone's (16 px input, 8 px patches)")), "{n}: {err}");
+        }
+        assert_eq!(crate::geometry::PatchGrid { n: u32::MAX, patch: 1 }.len(), u32::MAX as usize * u32::MAX as usize);
+    }
 }

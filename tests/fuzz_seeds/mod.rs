@@ -91,7 +91,8 @@ fn grpc_onboard() -> Vec<u8> {
 }
 
 /// A stored object's manifest (the test box onboarded at 12 templates of 64 px; its
-/// tensors, megabytes, are too large for a seed). None without a GPU adapter.
+/// tensors, megabytes, are too large for a seed: `tiny_stored_object` is the seed with
+/// tensors). None without a GPU adapter.
 fn stored_manifest() -> Vec<(&'static str, &'static str, Vec<u8>)> {
     use b2tfpose::features::{EmbeddedBackbone, EmbeddedConfig};
     use b2tfpose::onboard::{onboard, OnboardConfig};
@@ -100,6 +101,62 @@ fn stored_manifest() -> Vec<(&'static str, &'static str, Vec<u8>)> {
     let config = OnboardConfig { views: b2tfpose::geometry::ViewSampling { level: 0, in_plane_steps: 1 }, render_size: 64, ..Default::default() };
     let model = onboard("box", &small_box(), &config, &backbone, &pool, &|_| {}).unwrap();
     vec![("store_manifest", "manifest.json", b2tfpose::store::codec::encode(&model).unwrap().manifest)]
+}
+
+/// A whole stored object small enough for a seed, built by hand (no GPU): a textured
+/// tetrahedron, one template with two patches on a 2×2 grid, 4-wide descriptors, one
+/// contour view of 8 points. Encoded by the store's own writer (`store::codec::encode`) and
+/// joined as the target reads it: manifest, tensors (safetensors), texture PNG. It decodes
+/// without error (`tests/fuzz_regressions.rs`), so the fuzzer starts inside the tensors.
+pub fn tiny_stored_object() -> Vec<u8> {
+    use b2tfpose::features::BackboneIdentity;
+    use b2tfpose::geometry::{CropBox, Intrinsics, PatchGrid, Pose, ViewSampling};
+    use b2tfpose::onboard::{ContourConfig, ContourModel, ObjectModel, OnboardConfig, PcaSetting, Template};
+    let texture = image::DynamicImage::ImageRgb8(checker(2, 2)).to_rgba8();
+    let data = MeshData {
+        positions: vec![[0.0, 0.0, 0.0], [0.05, 0.0, 0.0], [0.0, 0.05, 0.0], [0.0, 0.0, 0.05]],
+        colors: vec![[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.5, 0.5, 0.5]],
+        uvs: vec![[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]],
+        triangles: vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+        materials: vec![Material { name: "skin".into(), texture: Some(Arc::new(texture)), ..Material::default() }],
+        ..MeshData::default()
+    };
+    let mesh = Mesh::new("tetra", Units::M, data).unwrap();
+    let (dim, points_per_view) = (4, 8);
+    let backbone = BackboneIdentity { name: "tiny".into(), weights_hash: "0".into(), layers: "-".into(), input_size: 16, patch_size: 8, local_dim: dim as u32, global_dim: dim as u32 };
+    let config = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps: 1 }, render_size: 64, pca: PcaSetting::off(), ..Default::default() };
+    let crop = CropBox { origin_u: 16.0, origin_v: 16.0, side: 32.0, size: 16 };
+    let template = Template { pose: Pose::identity(), view: 0, in_plane: 0, crop, patch_start: 0, patch_count: 2 };
+    let contour = ContourModel {
+        config: ContourConfig { level: 0, render_size: 64, points_per_view },
+        directions: vec![[0.0, 0.0, 1.0]],
+        points: (0..points_per_view).map(|i| [0.01 * i as f32, 0.0, 0.0]).collect(),
+        normals: vec![[1.0, 0.0, 0.0]; points_per_view],
+        foreground_m: vec![0.01; points_per_view],
+        background_m: vec![0.02; points_per_view],
+    };
+    let model = ObjectModel {
+        object_id: "tetra".into(),
+        backbone,
+        config,
+        render_intrinsics: Intrinsics { fx: 80.0, fy: 80.0, cx: 32.0, cy: 32.0, width: 64, height: 64 },
+        grid: PatchGrid { n: 2, patch: 8 },
+        mesh,
+        templates: vec![template],
+        global: vec![0.5; dim],
+        global_dim: dim,
+        patch_descriptors: vec![half::f16::from_f32(0.5); 2 * dim],
+        local_dim: dim,
+        pca: None,
+        patch_points: vec![[0.01, 0.01, 0.0], [0.0, 0.01, 0.01]],
+        patch_cells: vec![0, 3],
+        silhouettes: (0..b2tfpose::onboard::model::SILHOUETTE_WORDS as u64).map(|w| w * 0x0101).collect(),
+        contours: std::sync::OnceLock::from(Arc::new(contour)),
+    };
+    model.validate().unwrap();
+    let encoded = b2tfpose::store::codec::encode(&model).unwrap();
+    let texture_files: Vec<&[u8]> = encoded.textures.iter().map(|(_, png)| png.as_slice()).collect();
+    joined(&[&[encoded.manifest.as_slice(), &encoded.tensors][..], &texture_files].concat())
 }
 
 /// (target, file name, bytes) of every seed.
@@ -135,6 +192,7 @@ fn seeds() -> Vec<(&'static str, &'static str, Vec<u8>)> {
         ("results_csv", "results.csv", RESULTS.as_bytes().to_vec()),
     ];
     out.extend(stored_manifest());
+    out.push(("store_manifest", "tiny_object", tiny_stored_object()));
     // Real files, when the shared data is there: a vertex-coloured GLB.
     let glb = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/meshes/cubevc.glb");
     if let Ok(bytes) = std::fs::read(glb) {
