@@ -44,14 +44,14 @@ start_server() {
   local t0; t0="$(date +%s.%N)"
   # A replica on a read-only volume runs in the server's read-only mode, as deploy/k8s sets it.
   local mode=(); [ "$1" = ro ] && mode=(-e B2TF_READ_ONLY=1)
-  buildah run --isolation chroot "${env_args[@]}" "${mode[@]}" -v "$data:/data:$1" "$ctr" -- "${entrypoint[@]}" >"$work/server.log" 2>&1 &
+  buildah run --isolation chroot "${env_args[@]}" "${mode[@]}" -v "$data:/data:$1" "$ctr" -- "${entrypoint[@]}" >"$work/server.log" 2>"$work/server.err" &
   runner=$!
   for _ in $(seq 1 600); do
     [ "$(curl -s -o /dev/null -w '%{http_code}' "$base/readyz")" = 200 ] && break
-    kill -0 "$runner" 2>/dev/null || { cat "$work/server.log" >&2; echo "server exited" >&2; exit 1; }
+    kill -0 "$runner" 2>/dev/null || { cat "$work/server.log" "$work/server.err" >&2; echo "server exited" >&2; exit 1; }
     sleep 0.1
   done
-  [ "$(curl -s -o /dev/null -w '%{http_code}' "$base/readyz")" = 200 ] || { cat "$work/server.log" >&2; echo "not ready in 60 s" >&2; exit 1; }
+  [ "$(curl -s -o /dev/null -w '%{http_code}' "$base/readyz")" = 200 ] || { cat "$work/server.log" "$work/server.err" >&2; echo "not ready in 60 s" >&2; exit 1; }
   echo "start to ready ($1 volume): $(since "$t0") s; $(head -1 "$work/server.log")"
 }
 
@@ -68,7 +68,9 @@ stop_server() {
   local rc=0
   wait "$runner" || rc=$?
   runner=""
-  tail -1 "$work/server.log" | grep -qx stopped || { cat "$work/server.log" >&2; echo "no clean stop" >&2; return 1; }
+  # stdout alone: buildah relays stdout and stderr through separate pipes, so a log line
+  # written before "stopped" can land after it in a shared file.
+  tail -1 "$work/server.log" | grep -qx stopped || { cat "$work/server.log" "$work/server.err" >&2; echo "no clean stop" >&2; return 1; }
   [ "$rc" = 0 ] || { echo "exit status $rc after SIGTERM" >&2; return 1; }
   echo "SIGTERM: exit status 0, \"stopped\""
 }
