@@ -40,18 +40,10 @@ mod tests {
 
     use super::*;
     use crate::mesh::{MeshData, Units};
-    use crate::render::{RenderError, RendererConfig};
     use nalgebra::{Rotation3, Vector3};
 
     fn pool() -> Option<RenderPool> {
-        match RenderPool::new(1, RendererConfig::default()) {
-            Ok(p) => Some(p),
-            Err(e @ RenderError::NoAdapter { .. }) if std::env::var_os("B2TF_REQUIRE_GPU").is_none() => {
-                eprintln!("SKIPPED (no GPU adapter): {e}");
-                None
-            }
-            Err(e) => panic!("{e}"),
-        }
+        crate::render::tests::test_pool()
     }
 
     /// A square of side 2·`half` metres in the object's z = 0 plane.

@@ -25,7 +25,7 @@ mod renderer;
 mod targets;
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 pub use error::RenderError;
 pub use options::RenderOptions;

@@ -4,20 +4,13 @@
 use super::*;
 use crate::bop::{load_models_info, load_scene_gt, load_split_gt, TEST_SPLIT};
 use crate::mesh::procedural::textured_box;
-use crate::render::{RenderError, RenderOptions, RendererConfig};
+use crate::render::RenderOptions;
 use image::{GrayImage, ImageBuffer, Luma};
 use serde_json::Value;
 use std::collections::BTreeMap;
 
 fn pool() -> Option<RenderPool> {
-    match RenderPool::new(1, RendererConfig::default()) {
-        Ok(p) => Some(p),
-        Err(e @ RenderError::NoAdapter { .. }) if std::env::var_os("B2TF_REQUIRE_GPU").is_none() => {
-            eprintln!("SKIPPED (no GPU adapter): {e}");
-            None
-        }
-        Err(e) => panic!("{e}"),
-    }
+    crate::render::tests::test_pool()
 }
 
 fn objects() -> Vec<(u32, Mesh)> {

@@ -22,6 +22,19 @@ pub(super) fn renderer_with(config: RendererConfig) -> Option<Renderer> {
     }
 }
 
+/// A one-renderer pool for GPU tests elsewhere in the crate: None (after saying why)
+/// without an adapter, unless B2TF_REQUIRE_GPU=1.
+pub(crate) fn test_pool() -> Option<RenderPool> {
+    match RenderPool::new(1, RendererConfig::default()) {
+        Ok(p) => Some(p),
+        Err(e @ RenderError::NoAdapter { .. }) if std::env::var_os("B2TF_REQUIRE_GPU").is_none() => {
+            eprintln!("SKIPPED (no GPU adapter): {e}");
+            None
+        }
+        Err(e) => panic!("{e}"),
+    }
+}
+
 fn renderer() -> Option<Renderer> {
     renderer_with(RendererConfig::default())
 }
