@@ -1,4 +1,5 @@
-//! `b2tf track`: poses through a video given as a folder of frames. The first frame gets a
+//! `b2tf track`: poses through a video given as a folder of frames or a video file
+//! (cli/video_source.rs). The first frame gets a
 //! full estimate from its mask; later frames are tracked (track::TrackSession, as the
 //! service's streams), and a lost frame is re-initialised by a full estimate of the object
 //! segmented inside the box around its last pose. One JSON line per frame, written as it is
@@ -11,14 +12,16 @@ use crate::track::{FrameDetection, SessionConfig, TrackMode, TrackSession};
 use anyhow::{bail, Context, Result};
 use serde_json::json;
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use super::video_source::{Frame, FrameSource};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 #[derive(clap::Args, Debug)]
 pub struct TrackArgs {
     #[command(flatten)]
     pub target: super::object_args::StoredObjectArgs,
-    /// Folder of frames (PNG or JPEG), taken in name order.
+    /// Folder of frames (PNG or JPEG), taken in name order, or an H.264 video file (.mp4,
+    /// .m4v, .mov, or a raw Annex-B .h264 / .264 stream; feature `video`).
     #[arg(long)]
     pub video: PathBuf,
     /// Camera JSON ({"K", "resolution"} or BOP {"cam_K"[, "width", "height"]}; a BOP
@@ -36,32 +39,17 @@ pub struct TrackArgs {
     pub overlay_dir: Option<PathBuf>,
 }
 
-/// The frames of `dir` (PNG / JPEG), sorted by file name.
-pub fn frame_paths(dir: &Path) -> Result<Vec<PathBuf>> {
-    let mut frames: Vec<PathBuf> = std::fs::read_dir(dir)
-        .with_context(|| format!("cannot read the frames folder {}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().and_then(|e| e.to_str()).is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "png" | "jpg" | "jpeg")))
-        .collect();
-    frames.sort();
-    if frames.is_empty() {
-        bail!("no PNG or JPEG frames in {}", dir.display());
+fn check_size(frame: &Frame, k: &Intrinsics) -> Result<()> {
+    if frame.image.dimensions() != (k.width, k.height) {
+        bail!("frame {} is {}×{} but the camera file says {}×{}", frame.name, frame.image.width(), frame.image.height(), k.width, k.height);
     }
-    Ok(frames)
+    Ok(())
 }
 
-fn load_frame(path: &Path, k: &Intrinsics) -> Result<image::RgbImage> {
-    let img = image::open(path).with_context(|| format!("cannot read frame {}", path.display()))?.to_rgb8();
-    if img.dimensions() != (k.width, k.height) {
-        bail!("frame {} is {}×{} but the camera file says {}×{}", path.display(), img.width(), img.height(), k.width, k.height);
-    }
-    Ok(img)
-}
-
-fn pose_line(frame: usize, file: &Path, pose: Option<&Pose>, quality: f64, mode: &str, ms: f64) -> serde_json::Value {
+fn pose_line(frame: &Frame, pose: Option<&Pose>, quality: f64, mode: &str, ms: f64) -> serde_json::Value {
     json!({
-        "frame": frame,
-        "file": file.file_name().map(|n| n.to_string_lossy().into_owned()),
+        "frame": frame.index,
+        "file": frame.name,
         "R": pose.map(|p| p.rotation_row_major()),
         "t": pose.map(|p| [p.translation.x, p.translation.y, p.translation.z]),
         "quality": quality,
@@ -72,10 +60,10 @@ fn pose_line(frame: usize, file: &Path, pose: Option<&Pose>, quality: f64, mode:
 
 pub fn run(a: TrackArgs) -> Result<()> {
     let model = Arc::new(a.target.load()?);
-    let frames = frame_paths(&a.video)?;
-    let size = image::image_dimensions(&frames[0]).with_context(|| format!("cannot read frame {}", frames[0].display()))?;
-    let k = super::camera_file::load_camera_for(&a.camera, Some(size))?;
-    let first = load_frame(&frames[0], &k)?;
+    let mut frames = FrameSource::open(&a.video)?;
+    let first = frames.next().with_context(|| format!("no frame decoded from {}", a.video.display()))??;
+    let k = super::camera_file::load_camera_for(&a.camera, Some(first.image.dimensions()))?;
+    check_size(&first, &k)?;
     let mask = crate::masks::decode::check_size(load_mask(&a.mask)?, k.width, k.height).and_then(crate::masks::require_nonempty).with_context(|| format!("--mask {}", a.mask.display()))?;
     if let Some(d) = &a.overlay_dir {
         std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
@@ -90,22 +78,26 @@ pub fn run(a: TrackArgs) -> Result<()> {
     let mut counts = std::collections::BTreeMap::<&str, usize>::new();
     let mut tracked_ms = Vec::new();
     let mut first_detection = Some(FrameDetection { object_id, mask, score: 1.0 });
-    for (i, path) in frames.iter().enumerate() {
-        let image = if i == 0 { first.clone() } else { load_frame(path, &k)? };
+    let mut n = 0;
+    for frame in std::iter::once(Ok(first)).chain(frames) {
+        let frame = frame?;
+        check_size(&frame, &k)?;
+        let (i, image) = (frame.index, &frame.image);
+        n += 1;
         let detections = first_detection.take().into_iter().collect();
-        let (_, outcomes) = session.frame(Some(i as u64), &image, &k, detections, &resolve, &estimator).map_err(anyhow::Error::msg)?;
-        let Some(o) = outcomes.into_iter().next() else { bail!("frame {}: the track ended", path.display()) };
+        let (_, outcomes) = session.frame(Some(i as u64), image, &k, detections, &resolve, &estimator).map_err(anyhow::Error::msg)?;
+        let Some(o) = outcomes.into_iter().next() else { bail!("frame {}: the track ended", frame.name) };
         if i == 0 && o.pose.is_none() {
-            bail!("no pose in the first frame {} from its mask: {}", path.display(), o.reason.unwrap_or_default());
+            bail!("no pose in the first frame {} from its mask: {}", frame.name, o.reason.unwrap_or_default());
         }
         if o.mode == TrackMode::Tracked {
             tracked_ms.push(o.ms);
         }
         *counts.entry(o.mode.as_str()).or_default() += 1;
-        writeln!(out, "{}", pose_line(i, path, o.pose.as_ref(), o.quality, o.mode.as_str(), o.ms))?;
+        writeln!(out, "{}", pose_line(&frame, o.pose.as_ref(), o.quality, o.mode.as_str(), o.ms))?;
         out.flush().with_context(|| format!("writing {}", a.out.display()))?;
         if let (Some(d), Some(p)) = (&a.overlay_dir, &o.pose) {
-            write_overlay(&image, &renderer, &model, p, &k, &d.join(path.file_name().unwrap_or_default()).with_extension("png"))?;
+            write_overlay(image, &renderer, &model, p, &k, &d.join(&frame.overlay_name))?;
         }
     }
     tracked_ms.sort_by(f64::total_cmp);
@@ -113,7 +105,7 @@ pub fn run(a: TrackArgs) -> Result<()> {
     let count = |m: TrackMode| counts.get(m.as_str()).copied().unwrap_or(0);
     println!(
         "{} frames: {} estimated, {} tracked (median {median:.1} ms), {} re-initialised, {} lost; wrote {}",
-        frames.len(),
+        n,
         count(TrackMode::Estimated),
         count(TrackMode::Tracked),
         count(TrackMode::Reinitialised),
