@@ -1,6 +1,7 @@
 //! The tracker on generated sequences (lavapipe): a smoothly moving box is followed frame
 //! to frame within bounds, a jump is reported lost without moving the track, and a frame
-//! that disagrees with the intrinsics is refused.
+//! that disagrees with the intrinsics is refused; `b2tf track` on a folder of frames and
+//! (feature `video`) on an MP4.
 
 use b2tfpose::eval::pose_error::{rotation_error_deg, translation_error_m};
 use b2tfpose::features::{EmbeddedBackbone, EmbeddedConfig};
@@ -12,6 +13,10 @@ use b2tfpose::track::sequence::{generate, SequenceConfig};
 use b2tfpose::track::{Tracker, TrackerConfig};
 use nalgebra::Vector3;
 use std::sync::Arc;
+
+#[cfg(feature = "video")]
+#[path = "common/h264.rs"]
+mod h264;
 
 fn setup() -> (Arc<b2tfpose::onboard::ObjectModel>, Arc<RenderPool>, Intrinsics) {
     let pool = Arc::new(RenderPool::new(1, RendererConfig::default()).unwrap());
@@ -62,66 +67,115 @@ fn follows_a_moving_object_and_reports_a_jump_lost() {
     assert!(err.contains("64×48") && err.contains("320×240"), "{err}");
 }
 
+/// A stored object, a generated sequence of `frames` frames, the first frame's mask and the
+/// camera, in a temporary folder, for `b2tf track`.
+struct TrackFixture {
+    dir: tempfile::TempDir,
+    store_url: String,
+    seq: Vec<b2tfpose::track::sequence::Frame>,
+    mask: std::path::PathBuf,
+    camera: std::path::PathBuf,
+    out: std::path::PathBuf,
+}
+
+impl TrackFixture {
+    fn new(frames: usize) -> Self {
+        let (model, pool, k) = setup();
+        let dir = tempfile::tempdir().unwrap();
+        let store_url = format!("dir://{}", dir.path().join("objects").display());
+        b2tfpose::store::open(&store_url).unwrap().put(&model, false).unwrap();
+        let seq = generate(&model.mesh, &k, &SequenceConfig { frames, seed: 5, ..Default::default() }, &pool).unwrap();
+        let mask = dir.path().join("mask0.png");
+        pool.render(&model.mesh, &seq[0].truth, &k, &Default::default()).unwrap().mask.save(&mask).unwrap();
+        let camera = dir.path().join("camera.json");
+        std::fs::write(&camera, r#"{"K": [[400, 0, 159.5], [0, 400, 119.5], [0, 0, 1]], "resolution": [240, 320]}"#).unwrap();
+        let out = dir.path().join("poses.jsonl");
+        Self { dir, store_url, seq, mask, camera, out }
+    }
+
+    fn run(&self, video: &std::path::Path) -> std::process::Output {
+        std::process::Command::new(env!("CARGO_BIN_EXE_b2tf"))
+            .args(["track", "--object", "box", "--store", &self.store_url])
+            .arg("--video")
+            .arg(video)
+            .arg("--camera")
+            .arg(&self.camera)
+            .arg("--mask")
+            .arg(&self.mask)
+            .arg("--out")
+            .arg(&self.out)
+            .env("XDG_RUNTIME_DIR", "/tmp")
+            .output()
+            .unwrap()
+    }
+
+    /// The lines `b2tf track` wrote: one per frame, estimated first, then tracked close to
+    /// the truth (within `max_deg` / `max_m`).
+    fn check_lines(&self, max_deg: f64, max_m: f64) -> Vec<serde_json::Value> {
+        let lines: Vec<serde_json::Value> = std::fs::read_to_string(&self.out).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+        assert_eq!(lines.len(), self.seq.len());
+        assert_eq!(lines[0]["mode"], "estimated");
+        let (mut worst_deg, mut worst_m) = (0f64, 0f64);
+        for (l, f) in lines.iter().zip(&self.seq) {
+            assert!(l["mode"] != "lost", "{l}");
+            let r: Vec<f64> = l["R"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+            let t: Vec<f64> = l["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+            let est = Pose::from_row_major(&r.try_into().unwrap(), [t[0], t[1], t[2]]);
+            let (rot, trans) = (rotation_error_deg(&est, &f.truth), translation_error_m(&est, &f.truth));
+            assert!(rot < max_deg && trans < max_m, "frame {}: {rot:.1}°, {:.1} mm", l["frame"], trans * 1e3);
+            (worst_deg, worst_m) = (worst_deg.max(rot), worst_m.max(trans));
+        }
+        eprintln!("{}: worst {worst_deg:.2}°, {:.1} mm", lines[0]["file"], worst_m * 1e3);
+        assert!(lines.iter().filter(|l| l["mode"] == "tracked").count() >= self.seq.len() * 3 / 4, "{lines:?}");
+        lines
+    }
+}
+
 /// `b2tf track` on a folder of generated frames: a full estimate from the first mask, then
 /// one JSON line per frame, close to the truth; bad folders and frames are named.
 #[test]
 fn track_command_writes_a_pose_per_frame() {
-    let (model, pool, k) = setup();
-    let dir = tempfile::tempdir().unwrap();
-    let store_url = format!("dir://{}", dir.path().join("objects").display());
-    b2tfpose::store::open(&store_url).unwrap().put(&model, false).unwrap();
-    let seq = generate(&model.mesh, &k, &SequenceConfig { frames: 12, seed: 5, ..Default::default() }, &pool).unwrap();
-    let frames = dir.path().join("frames");
+    let fx = TrackFixture::new(12);
+    let frames = fx.dir.path().join("frames");
     std::fs::create_dir(&frames).unwrap();
-    for (i, f) in seq.iter().enumerate() {
+    for (i, f) in fx.seq.iter().enumerate() {
         f.rgb.save(frames.join(format!("{i:04}.png"))).unwrap();
     }
-    let mask = dir.path().join("mask0.png");
-    pool.render(&model.mesh, &seq[0].truth, &k, &Default::default()).unwrap().mask.save(&mask).unwrap();
-    let camera = dir.path().join("camera.json");
-    std::fs::write(&camera, r#"{"K": [[400, 0, 159.5], [0, 400, 119.5], [0, 0, 1]], "resolution": [240, 320]}"#).unwrap();
-    let out = dir.path().join("poses.jsonl");
-    let run = |video: &std::path::Path| {
-        std::process::Command::new(env!("CARGO_BIN_EXE_b2tf"))
-            .args(["track", "--object", "box", "--store", &store_url])
-            .arg("--video")
-            .arg(video)
-            .arg("--camera")
-            .arg(&camera)
-            .arg("--mask")
-            .arg(&mask)
-            .arg("--out")
-            .arg(&out)
-            .env("XDG_RUNTIME_DIR", "/tmp")
-            .output()
-            .unwrap()
-    };
-    let done = run(&frames);
+    let done = fx.run(&frames);
     assert!(done.status.success(), "{}", String::from_utf8_lossy(&done.stderr));
-    let lines: Vec<serde_json::Value> = std::fs::read_to_string(&out).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
-    assert_eq!(lines.len(), seq.len());
-    assert_eq!(lines[0]["mode"], "estimated");
-    for (l, f) in lines.iter().zip(&seq) {
-        assert!(l["mode"] != "lost", "{l}");
-        let r: Vec<f64> = l["R"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
-        let t: Vec<f64> = l["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
-        let est = Pose::from_row_major(&r.try_into().unwrap(), [t[0], t[1], t[2]]);
-        let (rot, trans) = (rotation_error_deg(&est, &f.truth), translation_error_m(&est, &f.truth));
-        assert!(rot < 10.0 && trans < 0.02, "frame {}: {rot:.1}°, {:.1} mm", l["frame"], trans * 1e3);
-    }
-    assert!(lines.iter().filter(|l| l["mode"] == "tracked").count() >= 9, "{lines:?}");
+    let lines = fx.check_lines(10.0, 0.02);
+    assert_eq!(lines[3]["file"], "0003.png");
 
     // An empty folder, and a frame of another size than the camera's.
-    let empty = dir.path().join("empty");
+    let empty = fx.dir.path().join("empty");
     std::fs::create_dir(&empty).unwrap();
-    let e = run(&empty);
+    let e = fx.run(&empty);
     assert!(!e.status.success() && String::from_utf8_lossy(&e.stderr).contains("no PNG or JPEG frames"));
     image::RgbImage::new(64, 48).save(frames.join("0099.png")).unwrap();
-    let e = run(&frames);
+    let e = fx.run(&frames);
     let err = String::from_utf8_lossy(&e.stderr);
     assert!(!e.status.success() && err.contains("0099.png") && err.contains("64×48"), "{err}");
     // The frames before it were written.
-    assert_eq!(std::fs::read_to_string(&out).unwrap().lines().count(), seq.len());
+    assert_eq!(std::fs::read_to_string(&fx.out).unwrap().lines().count(), fx.seq.len());
+}
+
+/// `b2tf track --video clip.mp4`: the generated sequence encoded by OpenH264 into an MP4
+/// tracks as its frames do; a camera of another size is refused at the first frame.
+#[cfg(feature = "video")]
+#[test]
+fn track_command_reads_an_mp4() {
+    let fx = TrackFixture::new(12);
+    let clip = fx.dir.path().join("clip.mp4");
+    h264::write_mp4(&h264::encode(&fx.seq.iter().map(|f| f.rgb.clone()).collect::<Vec<_>>()), &clip);
+    let done = fx.run(&clip);
+    assert!(done.status.success(), "{}", String::from_utf8_lossy(&done.stderr));
+    let lines = fx.check_lines(10.0, 0.02);
+    assert!(lines.iter().enumerate().all(|(i, l)| l["frame"] == i && l["file"] == format!("clip.mp4#{i}")), "{lines:?}");
+
+    std::fs::write(&fx.camera, r#"{"K": [[200, 0, 79.5], [0, 200, 59.5], [0, 0, 1]], "resolution": [120, 160]}"#).unwrap();
+    let e = fx.run(&clip);
+    let err = String::from_utf8_lossy(&e.stderr);
+    assert!(!e.status.success() && err.contains("frame clip.mp4#0 is 320×240 but the camera file says 160×120"), "{err}");
 }
 
 #[test]
