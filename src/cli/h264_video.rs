@@ -14,7 +14,7 @@ use openh264::decoder::Decoder;
 use openh264::formats::YUVSource;
 use std::collections::VecDeque;
 use std::fs::File;
-use std::io::{BufReader, Read};
+use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
 /// The container of a video file, from its extension (video_source::is_video_name); None:
@@ -154,6 +154,64 @@ fn guarded<T>(what: &str, f: impl FnOnce() -> mp4::Result<T>) -> Result<T> {
     }
 }
 
+/// Where the child boxes of a box the `mp4` crate walks begin, after its header: None for
+/// a box it does not look into.
+fn children_offset(kind: &[u8; 4], parent: &[u8; 4], payload: &mut (impl Read + Seek)) -> std::io::Result<Option<u64>> {
+    Ok(match kind {
+        // The items of an `ilst` hold `data` boxes.
+        _ if parent == b"ilst" => Some(0),
+        b"moov" | b"trak" | b"mdia" | b"minf" | b"stbl" | b"dinf" | b"udta" | b"mvex" | b"moof" | b"traf" | b"edts" | b"ilst" => Some(0),
+        b"stsd" | b"dref" => Some(8),
+        b"avc1" | b"hev1" => Some(78),
+        b"mp4a" => Some(28),
+        // A full box, or (QuickTime) a plain one that starts with its `hdlr`.
+        b"meta" => {
+            let mut head = [0u8; 8];
+            payload.read_exact(&mut head)?;
+            Some(if &head[4..] == b"hdlr" { 0 } else { 4 })
+        }
+        _ => None,
+    })
+}
+
+/// The box tree from `start` to `end` is sound where the `mp4` crate walks it: every box at
+/// least as long as its header and inside its parent. (The crate loops forever on a child
+/// box shorter than 8 bytes: it seeks back to read the same header again.)
+fn check_boxes(file: &mut (impl Read + Seek), start: u64, end: u64, parent: [u8; 4], depth: usize) -> Result<()> {
+    let mut at = start;
+    while at < end {
+        if depth > 16 {
+            bail!("boxes nested more than 16 deep");
+        }
+        if end - at < 8 {
+            bail!("{} stray bytes at offset {at}", end - at);
+        }
+        file.seek(SeekFrom::Start(at))?;
+        let mut head = [0u8; 8];
+        file.read_exact(&mut head)?;
+        let kind: [u8; 4] = head[4..].try_into()?;
+        let (size, header) = match u32::from_be_bytes(head[..4].try_into()?) {
+            1 => {
+                let mut large = [0u8; 8];
+                file.read_exact(&mut large)?;
+                (u64::from_be_bytes(large), 16)
+            }
+            // To the end of the file: only the last box at the top.
+            0 if depth == 0 => (end - at, 8),
+            n => (u64::from(n), 8),
+        };
+        let name = String::from_utf8_lossy(&kind).into_owned();
+        if size < header || size > end - at {
+            bail!("box '{name}' at offset {at} claims {size} bytes, {} available", end - at);
+        }
+        if let Some(offset) = children_offset(&kind, &parent, file)? {
+            check_boxes(file, (at + header + offset).min(at + size), at + size, kind, depth + 1).with_context(|| format!("in box '{name}' at offset {at}"))?;
+        }
+        at += size;
+    }
+    Ok(())
+}
+
 /// The samples of an MP4's first H.264 track, read one at a time.
 struct Mp4Units {
     reader: mp4::Mp4Reader<BufReader<File>>,
@@ -170,7 +228,10 @@ impl Mp4Units {
     fn open(file: File, label: &str) -> Result<Self> {
         let size = file.metadata().with_context(|| format!("cannot read the video file {label}"))?.len();
         let not_mp4 = format!("{label} is not a readable MP4/QuickTime file");
-        let reader = guarded(&not_mp4, || mp4::Mp4Reader::read_header(BufReader::new(file), size))?;
+        let mut file = BufReader::new(file);
+        check_boxes(&mut file, 0, size, *b"file", 0).with_context(|| not_mp4.clone())?;
+        file.seek(SeekFrom::Start(0)).with_context(|| format!("cannot read the video file {label}"))?;
+        let reader = guarded(&not_mp4, || mp4::Mp4Reader::read_header(file, size))?;
         let mut tracks: Vec<&mp4::Mp4Track> = reader.tracks().values().collect();
         tracks.sort_by_key(|t| t.track_id());
         let Some(track) = tracks.iter().find(|t| matches!(t.media_type(), Ok(mp4::MediaType::H264))) else {
