@@ -160,17 +160,31 @@ fn track_command_writes_a_pose_per_frame() {
 }
 
 /// `b2tf track --video clip.mp4`: the generated sequence encoded by OpenH264 into an MP4
-/// tracks as its frames do; a camera of another size is refused at the first frame.
+/// tracks as its frames do; a raw stream cut inside its last frame gives the lines before
+/// it and fails naming it; a text file and a camera of another size are refused.
 #[cfg(feature = "video")]
 #[test]
 fn track_command_reads_an_mp4() {
     let fx = TrackFixture::new(12);
     let clip = fx.dir.path().join("clip.mp4");
-    h264::write_mp4(&h264::encode(&fx.seq.iter().map(|f| f.rgb.clone()).collect::<Vec<_>>()), &clip);
+    let encoded = h264::encode(&fx.seq.iter().map(|f| f.rgb.clone()).collect::<Vec<_>>());
+    h264::write_mp4(&encoded, &clip);
     let done = fx.run(&clip);
     assert!(done.status.success(), "{}", String::from_utf8_lossy(&done.stderr));
     let lines = fx.check_lines(10.0, 0.02);
     assert!(lines.iter().enumerate().all(|(i, l)| l["frame"] == i && l["file"] == format!("clip.mp4#{i}")), "{lines:?}");
+
+    let cut = fx.dir.path().join("cut.h264");
+    std::fs::write(&cut, &encoded.annex_b[..encoded.annex_b.len() - encoded.frames[11][0].len() / 2]).unwrap();
+    let e = fx.run(&cut);
+    let err = String::from_utf8_lossy(&e.stderr);
+    assert!(!e.status.success() && err.contains("cut.h264: cannot decode frame 11 (the stream is cut or corrupt)") && !err.contains("panicked"), "{err}");
+    assert_eq!(std::fs::read_to_string(&fx.out).unwrap().lines().count(), 11);
+    let text = fx.dir.path().join("notes.mp4");
+    std::fs::write(&text, "not a video\n".repeat(10)).unwrap();
+    let e = fx.run(&text);
+    let err = String::from_utf8_lossy(&e.stderr);
+    assert!(!e.status.success() && err.contains("notes.mp4 is not a readable MP4/QuickTime file") && !err.contains("panicked"), "{err}");
 
     std::fs::write(&fx.camera, r#"{"K": [[200, 0, 79.5], [0, 200, 59.5], [0, 0, 1]], "resolution": [120, 160]}"#).unwrap();
     let e = fx.run(&clip);

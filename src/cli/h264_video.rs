@@ -17,23 +17,7 @@ use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
-/// The container of a video file, from its extension (video_source::is_video_name); None:
-/// not a video file name.
-pub fn container_of(path: &Path) -> Option<Container> {
-    match path.extension()?.to_str()?.to_ascii_lowercase().as_str() {
-        "mp4" | "m4v" | "mov" => Some(Container::Mp4),
-        "h264" | "264" => Some(Container::AnnexB),
-        _ => None,
-    }
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Container {
-    /// ISO base media file (MP4, M4V) or QuickTime (MOV) with an `avc1` track.
-    Mp4,
-    /// A raw H.264 elementary stream: NAL units after 00 00 01 start codes.
-    AnnexB,
-}
+pub use super::video_source::Container;
 
 /// Access units (the NAL units of one picture, each after a 4-byte start code) in
 /// decoding order.

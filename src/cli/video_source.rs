@@ -29,11 +29,29 @@ enum Inner {
 /// The file names a video file may have.
 pub const VIDEO_EXTENSIONS: &str = ".mp4, .m4v, .mov (H.264), .h264, .264 (Annex-B)";
 
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Container {
+    /// ISO base media file (MP4, M4V) or QuickTime (MOV) with an `avc1` track.
+    Mp4,
+    /// A raw H.264 elementary stream: NAL units after 00 00 01 start codes.
+    AnnexB,
+}
+
+/// The container of a video file, from its extension (whether or not this build reads
+/// it); None: not a video file's name.
+pub fn container_of(path: &Path) -> Option<Container> {
+    match path.extension()?.to_str()?.to_ascii_lowercase().as_str() {
+        "mp4" | "m4v" | "mov" => Some(Container::Mp4),
+        "h264" | "264" => Some(Container::AnnexB),
+        _ => None,
+    }
+}
+
 impl FrameSource {
     pub fn open(path: &Path) -> Result<Self> {
         let inner = if path.is_dir() {
             Inner::Folder(frame_paths(path)?.into_iter())
-        } else if !path.exists() && !is_video_name(path) {
+        } else if !path.exists() && container_of(path).is_none() {
             bail!("--video {}: no such folder or file", path.display());
         } else {
             Self::open_video(path)?
@@ -43,7 +61,7 @@ impl FrameSource {
 
     #[cfg(feature = "video")]
     fn open_video(path: &Path) -> Result<Inner> {
-        let Some(container) = super::h264_video::container_of(path) else {
+        let Some(container) = container_of(path) else {
             bail!("--video {}: neither a folder of frames nor a video file ({VIDEO_EXTENSIONS})", path.display());
         };
         let file_name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
@@ -54,11 +72,6 @@ impl FrameSource {
     fn open_video(path: &Path) -> Result<Inner> {
         bail!("--video {}: not a folder of frames; video files need b2tf built with the `video` feature", path.display());
     }
-}
-
-/// Whether `path` is named like a video file (whether or not this build can read it).
-fn is_video_name(path: &Path) -> bool {
-    path.extension().and_then(|e| e.to_str()).is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "mp4" | "m4v" | "mov" | "h264" | "264"))
 }
 
 impl Iterator for FrameSource {
