@@ -5,7 +5,7 @@ use crate::eval::pose_error::{mssd, rotation_error_deg, translation_error_m};
 use crate::eval::scenes::generate_image;
 use crate::mesh::{load_mesh, Mesh, Units};
 use crate::render::RenderPool;
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -36,15 +36,17 @@ pub struct BenchEstimateArgs {
     /// the best silhouette IoU) or contour (aligns the outline with the mask).
     #[arg(long, value_enum, default_value_t = crate::estimate::RefinerKind::default())]
     pub refiner: crate::estimate::RefinerKind,
-    /// No hypothesis verification: refine the pipeline's pose alone, not also its axis
-    /// flips and the best templates placed at the mask.
-    #[arg(long)]
-    pub no_verify: bool,
-    /// Retrieved templates added as hypotheses, and hypotheses rendered in verification.
-    #[arg(long)]
-    pub verify_templates: Option<usize>,
+    #[command(flatten)]
+    pub verify: super::verify_args::VerifyArgs,
+    /// Hypotheses rendered in verification (best by contour agreement).
     #[arg(long)]
     pub verify_rendered: Option<usize>,
+    /// Most hypotheses rendered in verification (those the outline cannot tell apart).
+    #[arg(long)]
+    pub verify_max_rendered: Option<usize>,
+    /// Share of colour agreement (the rest edge agreement) in verification's appearance term.
+    #[arg(long)]
+    pub colour_share: Option<f64>,
     /// Verification weights of silhouette IoU, contour agreement and appearance: A,B,C.
     #[arg(long, value_parser = parse_weights)]
     pub verify_weights: Option<[f64; 3]>,
@@ -57,6 +59,10 @@ pub struct BenchEstimateArgs {
     /// Write one CSV row per instance and setting (errors, apparent size) into this file.
     #[arg(long)]
     pub per_instance: Option<PathBuf>,
+    /// Write one CSV row per verified hypothesis of each instance (with RRC): its error and
+    /// every verification term, to study choices of weights and candidates offline.
+    #[arg(long)]
+    pub per_candidate: Option<PathBuf>,
     /// Give the estimator the mask segmented inside the visible mask's box (as from a
     /// box-only detector) instead of the true visible mask; prints the masks' IoU.
     #[arg(long)]
@@ -217,12 +223,15 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     if let Some(d) = a.nms_degrees {
         base.retrieval.nms_degrees = d;
     }
-    base.verify.enabled = !a.no_verify;
-    if let Some(n) = a.verify_templates {
-        base.verify.templates = n;
-    }
+    base.verify = a.verify.config();
     if let Some(n) = a.verify_rendered {
         base.verify.rendered = n;
+    }
+    if let Some(n) = a.verify_max_rendered {
+        base.verify.max_rendered = n;
+    }
+    if let Some(c) = a.colour_share {
+        base.verify.colour_share = c;
     }
     if let Some(w) = a.verify_weights {
         base.verify.weights = w;
@@ -234,6 +243,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     if let Some(dir) = &a.overlays {
         std::fs::create_dir_all(dir)?;
     }
+    let mut candidate_rows = String::from("image,obj_id,size_px,mask,source,mssd_over_diameter,rot_err_deg,contour,iou,edges,colour,score,lines,lines_with_edge\n");
     let mut rows = String::from("image,obj_id,setting,size_px,visible,found,rot_err_deg,trans_err_mm,depth_err_mm,mssd_over_diameter,inliers,best_candidate_mssd_over_diameter,best_candidate_rank\n");
     let pb = super::progress::bar(a.scenes.images as u64, "estimating");
     for im in 0..a.scenes.images as u32 {
@@ -255,6 +265,26 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                 // it: tells a candidate that never existed from one that lost the vote.
                 let oracle = r.hypotheses.iter().flat_map(|h| h.verified.iter().enumerate()).map(|(rank, v)| (mssd(&v.pose, &inst.pose, model.mesh.positions()) / model.diameter(), rank)).min_by(|a, b| a.0.total_cmp(&b.0));
                 let oracle = oracle.map_or(",".to_string(), |(m, rank)| format!("{m:.3},{rank}"));
+                if t.name == "with RRC" {
+                    for (mask, h) in r.hypotheses.iter().enumerate() {
+                        for v in &h.verified {
+                            candidate_rows.push_str(&format!(
+                                "{im},{},{size_px},{mask},{},{:.4},{:.2},{:.4},{:.4},{:.4},{:.4},{:.4},{},{}\n",
+                                inst.obj_id,
+                                v.source,
+                                mssd(&v.pose, &inst.pose, model.mesh.positions()) / model.diameter(),
+                                rotation_error_deg(&v.pose, &inst.pose),
+                                v.contour,
+                                v.iou,
+                                v.edges,
+                                v.colour,
+                                v.score,
+                                v.refinement.lines,
+                                v.refinement.lines_with_edge,
+                            ));
+                        }
+                    }
+                }
                 match &r.pose {
                     Some(p) => rows.push_str(&format!(
                         "{im},{},{},{size_px},{:.3},1,{:.2},{:.1},{:.1},{:.3},{inliers},{oracle}\n",
@@ -293,6 +323,9 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     pb.finish_and_clear();
     if instances == 0 {
         bail!("no instances generated");
+    }
+    if let Some(path) = &a.per_candidate {
+        std::fs::write(path, &candidate_rows).with_context(|| format!("writing {}", path.display()))?;
     }
     if let Some(path) = &a.per_instance {
         std::fs::write(path, rows)?;

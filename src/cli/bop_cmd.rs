@@ -50,10 +50,8 @@ pub struct RunArgs {
     /// the best silhouette IoU) or contour (aligns the outline with the mask).
     #[arg(long, value_enum, default_value_t = crate::estimate::RefinerKind::default())]
     pub refiner: crate::estimate::RefinerKind,
-    /// No hypothesis verification: refine the pipeline's pose alone, not also its axis
-    /// flips and the best retrieved templates placed at the mask (faster, less accurate).
-    #[arg(long)]
-    pub no_verify: bool,
+    #[command(flatten)]
+    pub verify: super::verify_args::VerifyArgs,
     /// Memory for loaded objects, MB (least recently used ones are dropped beyond it).
     #[arg(long, default_value_t = 4000)]
     pub cache_mb: u64,
@@ -117,7 +115,7 @@ fn run_cmd(a: RunArgs) -> Result<()> {
         }
         Ok(models.get(&id)?)
     };
-    let estimate = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: crate::estimate::verify::VerifyConfig { enabled: !a.no_verify, ..Default::default() }, ..Default::default() };
+    let estimate = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), ..Default::default() };
     let opts = RunOptions { split: a.split.clone(), estimate, box_mask: a.box_mask, ..Default::default() };
     let pb = super::progress::bar(0, "images");
     let progress = |done: usize, total: usize| {

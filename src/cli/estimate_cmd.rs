@@ -35,10 +35,8 @@ pub struct EstimateArgs {
     /// the best silhouette IoU) or contour (aligns the outline with the mask).
     #[arg(long, value_enum, default_value_t = crate::estimate::RefinerKind::default())]
     pub refiner: crate::estimate::RefinerKind,
-    /// No hypothesis verification: refine the pipeline's pose alone, not also its axis
-    /// flips and the best retrieved templates placed at the mask (faster, less accurate).
-    #[arg(long)]
-    pub no_verify: bool,
+    #[command(flatten)]
+    pub verify: super::verify_args::VerifyArgs,
     /// Templates kept by retrieval.
     #[arg(long, default_value_t = 125)]
     pub k: usize,
@@ -94,7 +92,7 @@ pub fn run(a: EstimateArgs) -> Result<()> {
     let backbone = a.target.backbone.open()?;
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
     let estimator = crate::estimate::Estimator::new(backbone, renderer.clone());
-    let mut cfg = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: crate::estimate::verify::VerifyConfig { enabled: !a.no_verify, ..Default::default() }, ..Default::default() };
+    let mut cfg = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), ..Default::default() };
     cfg.retrieval.k = a.k;
     let result = estimator.estimate(&model, &image, &k, &detections, &cfg)?;
     let doc = result_json(&model, &result);

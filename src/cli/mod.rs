@@ -27,6 +27,7 @@ pub mod render_cmd;
 pub mod serve_cmd;
 pub mod serve_config;
 pub mod track_cmd;
+pub mod verify_args;
 pub mod video_source;
 #[cfg(feature = "video")]
 pub mod h264_video;

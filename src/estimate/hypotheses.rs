@@ -1,7 +1,9 @@
 //! Pose hypotheses for one mask beyond PnP's: the RRC axis variants (90°/180°/270° about
-//! the object's axes: the flips an outline cannot tell apart from the pose itself) and the
-//! poses of the best retrieved templates placed where the mask is. Hypothesis
-//! verification refines them all and keeps the one the evidence favours.
+//! the object's axes: the flips an outline cannot tell apart from the pose itself), finer
+//! spins about the same axes (a can or bottle turned about its axis keeps its outline at
+//! every angle, not only at quarter turns), and the poses of the best retrieved templates
+//! placed where the mask is. Hypothesis verification refines them all and keeps the one
+//! the evidence favours.
 
 use super::rrc::{variant_pose, variant_rotations};
 use crate::geometry::{CropBox, Intrinsics, Pose};
@@ -18,20 +20,53 @@ pub enum Source {
     Flip(usize),
     /// Retrieved template number `i` (0 = best), placed at the mask.
     Template(usize),
+    /// That pose turned `degrees` about the object's `axis` (0 = x, 1 = y, 2 = z) through its
+    /// centre: the angles between the quarter turns of `Flip`.
+    Spin { axis: usize, degrees: u32 },
 }
 
-/// The pipeline's pose, its nine axis variants, and the first `templates` retrieved
-/// templates placed in the query crop.
-pub fn candidates(model: &ObjectModel, pose: &Pose, retrieved: &[usize], templates: usize, query_crop: &CropBox, k: &Intrinsics) -> Vec<(Source, Pose)> {
+impl std::fmt::Display for Source {
+    /// A short label for tables: `pipeline`, `flip-3`, `template-0`, `spin-z-45`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Source::Pipeline => write!(f, "pipeline"),
+            Source::Flip(i) => write!(f, "flip-{i}"),
+            Source::Template(i) => write!(f, "template-{i}"),
+            Source::Spin { axis, degrees } => write!(f, "spin-{}-{degrees}", ['x', 'y', 'z'].get(*axis).copied().unwrap_or('?')),
+        }
+    }
+}
+
+/// The pipeline's pose, its nine axis variants, its spins (`spin_steps` equal steps of a
+/// whole turn about each object axis, the quarter turns left out as the variants hold
+/// them; 0 or 4 adds none), and the first `templates` retrieved templates placed in the
+/// query crop.
+pub fn candidates(model: &ObjectModel, pose: &Pose, retrieved: &[usize], templates: usize, spin_steps: usize, query_crop: &CropBox, k: &Intrinsics) -> Vec<(Source, Pose)> {
     let centre = Vector3::from(model.mesh.bbox_center());
     let mut out = vec![(Source::Pipeline, *pose)];
     for (i, delta) in variant_rotations().iter().enumerate().skip(1) {
         out.push((Source::Flip(i), variant_pose(pose, delta, &centre)));
     }
+    out.extend(spins(pose, &centre, spin_steps));
     for (i, &t) in retrieved.iter().take(templates).enumerate() {
         if let Some(p) = place_template(model, t, query_crop, k) {
             out.push((Source::Template(i), p));
         }
+    }
+    out
+}
+
+/// `pose` turned about the object axes through `centre` by every multiple of a
+/// `steps`-th of a turn that is not a quarter turn.
+fn spins(pose: &Pose, centre: &Vector3<f64>, steps: usize) -> Vec<(Source, Pose)> {
+    let mut out = Vec::new();
+    for (axis, step) in (0..3).flat_map(|axis| (1..steps).map(move |step| (axis, step))) {
+        let degrees = 360.0 * step as f64 / steps as f64;
+        if (degrees / 90.0).fract().abs() < 1e-9 {
+            continue;
+        }
+        let delta = Rotation3::from_axis_angle(&[Vector3::x_axis(), Vector3::y_axis(), Vector3::z_axis()][axis], degrees.to_radians());
+        out.push((Source::Spin { axis, degrees: degrees.round() as u32 }, variant_pose(pose, &delta, centre)));
     }
     out
 }
@@ -54,4 +89,29 @@ pub fn place_template(model: &ObjectModel, t: usize, query_crop: &CropBox, k: &I
     let rotation = turn * tp.pose.rotation;
     let c_q = ray * z;
     Some(Pose::new(rotation, c_q - rotation * centre))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spins_fill_the_turns_between_the_flips() {
+        let pose = Pose::new(Rotation3::from_euler_angles(0.3, -0.2, 1.0), Vector3::new(0.01, 0.02, 0.5));
+        let centre = Vector3::new(0.01, -0.02, 0.03);
+        assert!(spins(&pose, &centre, 0).is_empty() && spins(&pose, &centre, 4).is_empty());
+        let eight = spins(&pose, &centre, 8);
+        assert_eq!(eight.len(), 12, "45°, 135°, 225° and 315° about three axes");
+        for (s, p) in &eight {
+            let Source::Spin { axis, degrees } = *s else { unreachable!() };
+            assert!(degrees % 90 != 0 && axis < 3, "{s:?}");
+            // Turned about the object's centre: the centre stays where it was seen.
+            assert!(((p.rotation * centre + p.translation) - (pose.rotation * centre + pose.translation)).norm() < 1e-12);
+            let turn = (pose.rotation.inverse() * p.rotation).angle().to_degrees();
+            assert!((turn - degrees.min(360 - degrees) as f64).abs() < 1e-6, "{s:?}: {turn}");
+        }
+        assert_eq!(spins(&pose, &centre, 12).len(), 24);
+        assert_eq!(eight[0].0.to_string(), "spin-x-45");
+        assert_eq!(eight[11].0.to_string(), "spin-z-315");
+    }
 }

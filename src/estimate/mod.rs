@@ -17,6 +17,7 @@ pub mod verify;
 
 pub use pipeline::{Detection, EstimateConfig, EstimateResult, Estimator, Hypothesis, StageTimings};
 pub use refine::{PassThrough, RefineContext, RefineReport, Refined, Refiner, RefinerKind};
+pub use verify::VerifyConfig;
 
 #[derive(Debug, thiserror::Error)]
 pub enum EstimateError {

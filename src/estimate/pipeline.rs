@@ -273,14 +273,14 @@ impl Estimator {
     /// best by contour and those the outline cannot tell from it (`verify::to_render`).
     /// Best first.
     fn verify(&self, ctx: &RefineContext<'_>, pose: Pose, retrieved: &[usize], crop: &crate::geometry::CropBox, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
-        let candidates = super::hypotheses::candidates(ctx.model, &pose, retrieved, cfg.verify.templates, crop, ctx.intrinsics);
+        let candidates = super::hypotheses::candidates(ctx.model, &pose, retrieved, cfg.verify.templates, cfg.verify.spin_steps, crop, ctx.intrinsics);
         let refiner = self.refiner(cfg.refiner);
         let mut verified: Vec<Verified> = candidates
             .par_iter()
             .filter_map(|&(source, p)| {
                 let r = refiner.refine(ctx, p).ok()?;
                 let contour = if cfg.refiner == RefinerKind::Contour { r.report.agreement } else { self.contour.agreement(ctx, &r.pose).ok()?.score };
-                Some(Verified { source, pose: r.pose, refinement: r.report, contour, iou: f64::NAN, appearance: f64::NAN, score: f64::NAN, render: None })
+                Some(Verified { source, pose: r.pose, refinement: r.report, contour, iou: f64::NAN, appearance: f64::NAN, edges: f64::NAN, colour: f64::NAN, score: f64::NAN, render: None })
             })
             .collect();
         verified.sort_by(|a, b| b.contour.total_cmp(&a.contour));
@@ -289,10 +289,12 @@ impl Estimator {
         let pipeline = verified.iter().position(|v| v.source == super::hypotheses::Source::Pipeline);
         let rendered = super::verify::to_render(&verified, pipeline, &cfg.verify);
         for i in rendered {
-            let (iou, appearance, render) = render_evidence(&self.renderer, &ctx.model.mesh, &verified[i].pose, ctx.intrinsics, ctx.image, ctx.mask, window)?;
-            verified[i].iou = iou;
-            verified[i].appearance = appearance;
-            verified[i].render = Some(render);
+            let e = render_evidence(&self.renderer, &ctx.model.mesh, &verified[i].pose, ctx.intrinsics, ctx.image, ctx.mask, window)?;
+            verified[i].iou = e.iou;
+            verified[i].appearance = super::verify::appearance(e.edges, e.colour, cfg.verify.colour_share);
+            verified[i].edges = e.edges;
+            verified[i].colour = e.colour;
+            verified[i].render = Some(e.render);
         }
         for v in &mut verified {
             v.score = verification_score(v, &cfg.verify.weights);

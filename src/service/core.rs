@@ -279,6 +279,8 @@ impl Core {
         let mut cfg = EstimateConfig { rrc: o.rrc, max_masks: o.max_masks, refiner: o.refiner, ..Default::default() };
         cfg.retrieval.k = o.k;
         cfg.verify.enabled = o.verify;
+        cfg.verify.templates = o.verify_templates;
+        cfg.verify.spin_steps = o.spin_steps;
         let mut results = Vec::new();
         for (object_id, dets) in &by_object {
             let model = &models[object_id];

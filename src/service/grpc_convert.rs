@@ -64,6 +64,8 @@ pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, S
         max_masks: non_zero(o.max_masks as usize, defaults.max_masks),
         instances_per_object: non_zero(o.instances_per_object as usize, defaults.instances_per_object),
         verify: o.verify.unwrap_or(defaults.verify),
+        verify_templates: o.verify_templates.map_or(defaults.verify_templates, |n| n as usize),
+        spin_steps: o.spin_steps.map_or(defaults.spin_steps, |n| n as usize),
         refiner: if o.refiner.is_empty() { defaults.refiner } else { o.refiner.parse().map_err(|e: String| ServiceError::invalid(format!("options.refiner: {e}")))? },
     };
     Ok(rq::EstimateRequest { image, intrinsics, detections, options })
@@ -164,5 +166,20 @@ mod tests {
         assert_eq!(with("silhouette-depth").unwrap().options.refiner, crate::estimate::RefinerKind::SilhouetteDepth);
         let e = with("magic").unwrap_err();
         assert!(e.message.contains("options.refiner") && e.message.contains("magic"), "{}", e.message);
+    }
+
+    #[test]
+    fn verification_hypotheses_default_when_unset_and_zero_means_none() {
+        let with = |verify_templates, spin_steps| {
+            let options = Some(pb::EstimateOptions { verify_templates, spin_steps, ..Default::default() });
+            estimate_request(pb::EstimateRequest { image: Some(pb::Image::default()), intrinsics: Some(pb::Intrinsics::default()), detections: vec![], options }).unwrap().options
+        };
+        let d = crate::estimate::VerifyConfig::default();
+        let unset = with(None, None);
+        assert_eq!((unset.verify_templates, unset.spin_steps), (d.templates, d.spin_steps));
+        let none = with(Some(0), Some(0));
+        assert_eq!((none.verify_templates, none.spin_steps), (0, 0));
+        let more = with(Some(20), Some(12));
+        assert_eq!((more.verify_templates, more.spin_steps), (20, 12));
     }
 }

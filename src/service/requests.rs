@@ -131,11 +131,16 @@ pub struct EstimateOptions {
     /// Hypothesis verification: also refine the pose's axis flips and the best templates
     /// placed at the mask, and keep the best verified one (default on).
     pub verify: bool,
+    /// Retrieved templates placed at the mask as hypotheses in verification.
+    pub verify_templates: usize,
+    /// Spins of the pose about each object axis verified: steps of a whole turn.
+    pub spin_steps: usize,
 }
 
 impl Default for EstimateOptions {
     fn default() -> Self {
-        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default(), verify: true }
+        let v = crate::estimate::VerifyConfig::default();
+        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default(), verify: true, verify_templates: v.templates, spin_steps: v.spin_steps }
     }
 }
 
@@ -167,7 +172,7 @@ impl EstimateRequest {
             return Err(invalid(format!("detections: {} masks of {w}×{h} are {mask_pixels} mask pixels, over the limit of {} per request", self.detections.len(), limits::MAX_MASK_PIXELS_PER_REQUEST)));
         }
         let o = &self.options;
-        for (name, value, max) in [("options.k", o.k, limits::MAX_RETRIEVAL_K), ("options.max_masks", o.max_masks, limits::MAX_MASKS_PER_INSTANCE), ("options.instances_per_object", o.instances_per_object, limits::MAX_MASKS_PER_INSTANCE)] {
+        for (name, value, max) in [("options.k", o.k, limits::MAX_RETRIEVAL_K), ("options.max_masks", o.max_masks, limits::MAX_MASKS_PER_INSTANCE), ("options.instances_per_object", o.instances_per_object, limits::MAX_MASKS_PER_INSTANCE), ("options.verify_templates", o.verify_templates, limits::MAX_VERIFY_TEMPLATES), ("options.spin_steps", o.spin_steps, limits::MAX_SPIN_STEPS)] {
             if value > max {
                 return Err(invalid(format!("{name} is {value}, over the limit of {max}")));
             }
@@ -323,6 +328,12 @@ mod tests {
         let mut v = estimate(1, 64, 48);
         v["options"] = serde_json::json!({"k": 1_000_000_000});
         assert_eq!(refusal(v), "options.k is 1000000000, over the limit of 100000");
+        let mut v = estimate(1, 64, 48);
+        v["options"] = serde_json::json!({"verify_templates": 65});
+        assert_eq!(refusal(v), "options.verify_templates is 65, over the limit of 64");
+        let mut v = estimate(1, 64, 48);
+        v["options"] = serde_json::json!({"spin_steps": 360});
+        assert_eq!(refusal(v), "options.spin_steps is 360, over the limit of 72");
         let mut v = estimate(1, 64, 48);
         v["detections"][0]["mask_rle"] = serde_json::json!({"counts": vec![0; limits::MAX_RLE_RUNS + 1], "size": [48, 64]});
         assert!(refusal(v).contains("over the limit"));

@@ -61,6 +61,8 @@ def estimate_request(
     max_masks: Optional[int],
     instances_per_object: Optional[int],
     verify: Optional[bool],
+    verify_templates: Optional[int] = None,
+    spin_steps: Optional[int] = None,
 ) -> pb.EstimateRequest:
     if isinstance(detections, Mapping) or not isinstance(detections, Sequence) or isinstance(detections, (str, bytes)):
         raise TypeError("detections: a list of b2tfpose.Detection (or dicts)")
@@ -74,6 +76,10 @@ def estimate_request(
         options.rrc = rrc
     if verify is not None:
         options.verify = verify
+    if verify_templates is not None:
+        options.verify_templates = verify_templates
+    if spin_steps is not None:
+        options.spin_steps = spin_steps
     return pb.EstimateRequest(
         image=img,
         intrinsics=intrinsics_message(K, w, h),

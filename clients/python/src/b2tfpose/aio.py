@@ -223,12 +223,15 @@ class AsyncClient:
         max_masks: Optional[int] = None,
         instances_per_object: Optional[int] = None,
         verify: Optional[bool] = None,
+        verify_templates: Optional[int] = None,
+        spin_steps: Optional[int] = None,
         timeout: Optional[float] = None,
         retry: RetryArg = None,
     ) -> Estimates:
         """As :meth:`b2tfpose.Client.estimate`."""
         request = _requests.estimate_request(
-            image, K, detections, bgr=bgr, rrc=rrc, refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify
+            image, K, detections, bgr=bgr, rrc=rrc, refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify,
+            verify_templates=verify_templates, spin_steps=spin_steps,
         )
         return Estimates.from_pb(await self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
 

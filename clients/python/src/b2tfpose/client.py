@@ -219,6 +219,8 @@ class Client:
         max_masks: Optional[int] = None,
         instances_per_object: Optional[int] = None,
         verify: Optional[bool] = None,
+        verify_templates: Optional[int] = None,
+        spin_steps: Optional[int] = None,
         timeout: Optional[float] = None,
         retry: RetryArg = None,
     ) -> Estimates:
@@ -228,11 +230,13 @@ class Client:
         or a path. ``K``: 3x3 or (fx, fy, cx, cy), pixels. ``detections``:
         :class:`~b2tfpose.Detection` objects or dicts with the same keys. ``rrc``,
         ``refiner`` ("contour", "silhouette-depth", "none"), ``k``, ``max_masks``,
-        ``instances_per_object``, ``verify``: the server's options (None: its default).
+        ``instances_per_object``, ``verify``, ``verify_templates``, ``spin_steps``: the
+        server's options (None: its default).
         Returns a list of :class:`~b2tfpose.Result` (``.total_ms``: the server's time).
         """
         request = _requests.estimate_request(
-            image, K, detections, bgr=bgr, rrc=rrc, refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify
+            image, K, detections, bgr=bgr, rrc=rrc, refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify,
+            verify_templates=verify_templates, spin_steps=spin_steps,
         )
         return Estimates.from_pb(self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
 

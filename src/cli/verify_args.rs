@@ -1,0 +1,25 @@
+//! The hypothesis-verification options shared by `estimate`, `bop run` and `bench estimate`.
+
+use crate::estimate::VerifyConfig;
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct VerifyArgs {
+    /// No hypothesis verification: refine the pipeline's pose alone, not also its axis
+    /// flips, spins and the best retrieved templates placed at the mask (faster, less accurate).
+    #[arg(long)]
+    pub no_verify: bool,
+    /// Retrieved templates placed at the mask as hypotheses (default 10).
+    #[arg(long)]
+    pub verify_templates: Option<usize>,
+    /// Spins of the pose about each object axis as hypotheses, in this many steps of a
+    /// whole turn; the quarter turns are the axis flips (default 8: 45°; 0: none).
+    #[arg(long)]
+    pub spin_steps: Option<usize>,
+}
+
+impl VerifyArgs {
+    pub fn config(&self) -> VerifyConfig {
+        let d = VerifyConfig::default();
+        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), ..d }
+    }
+}
