@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Every test: unit and integration tests (renderer on lavapipe, onboarding, loaders, CLI,
-# the service over loopback: HTTP, gRPC, TLS), the OpenAPI document's validity, cargo-deny
+# the service over loopback: HTTP, gRPC, TLS), clippy's lints, the OpenAPI document's validity, cargo-deny
 # (scripts/deny.sh), the Python client's suite, the short overload and crash tests, and the
 # container checks.
 set -euo pipefail
@@ -20,6 +20,12 @@ export B2TF_REQUIRE_GPU=1
 # setup.sh installed ONNX Runtime: the ONNX backbone's tests run, they do not skip.
 : "${B2TF_ORT_LIB:?scripts/env.sh found no ONNX Runtime library in .deps/python}"
 cargo test --all-targets
+# Lints as errors (where the toolchain has clippy; it needs no network once installed).
+if cargo clippy --version >/dev/null 2>&1; then
+  cargo clippy --all-targets --quiet -- -D warnings
+else
+  echo "clippy is not installed with this toolchain: lints SKIPPED"
+fi
 bash clients/python/scripts/test.sh
 # Overload and crash safety, short modes (docs/reliability.md; ~1.5 min together): the
 # server cargo test just built, Python from the client's venv that the step above made.

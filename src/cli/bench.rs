@@ -10,6 +10,8 @@ use anyhow::{bail, Result};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+// One command line parsed once per run: the size of its largest variant costs nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(clap::Subcommand, Debug)]
 pub enum BenchCommand {
     /// Patch re-identification of backbone variants, between neighbouring views and across

@@ -105,7 +105,7 @@ pub fn yuv_to_rgb(yuv: &impl YUVSource) -> Result<image::RgbImage> {
     let fits = |plane: &[u8], stride: usize, width: usize, rows: usize| rows == 0 || (stride >= width && plane.len() >= (rows - 1) * stride + width);
     // The decoder may hand the chroma planes one row short for an odd height: the last
     // luma row then takes the row above's chroma.
-    let chroma_rows = |plane: &[u8], stride: usize| if stride == 0 { 0 } else { ch.min((plane.len() + stride - cw) / stride) };
+    let chroma_rows = |plane: &[u8], stride: usize| (plane.len() + stride).saturating_sub(cw).checked_div(stride).map_or(0, |rows| ch.min(rows));
     let (ru, rv) = (chroma_rows(u, su), chroma_rows(v, sv));
     if w == 0 || h == 0 || !fits(y, sy, w, h) || ru == 0 || rv == 0 || !fits(u, su, cw, ru) || !fits(v, sv, cw, rv) {
         bail!("the decoder returned a {w}×{h} picture with planes of {}/{}/{} bytes (strides {sy}/{su}/{sv})", y.len(), u.len(), v.len());

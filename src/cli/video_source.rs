@@ -23,7 +23,8 @@ pub struct FrameSource {
 enum Inner {
     Folder(std::vec::IntoIter<PathBuf>),
     #[cfg(feature = "video")]
-    Video { file_name: String, frames: super::h264_video::H264Frames },
+    // Boxed: the decoder state is large and a folder source needs none of it.
+    Video { file_name: String, frames: Box<super::h264_video::H264Frames> },
 }
 
 /// The file names a video file may have.
@@ -65,7 +66,7 @@ impl FrameSource {
             bail!("--video {}: neither a folder of frames nor a video file ({VIDEO_EXTENSIONS})", path.display());
         };
         let file_name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        Ok(Inner::Video { file_name, frames: super::h264_video::H264Frames::open(path, container)? })
+        Ok(Inner::Video { file_name, frames: Box::new(super::h264_video::H264Frames::open(path, container)?) })
     }
 
     #[cfg(not(feature = "video"))]

@@ -344,7 +344,7 @@ mod tests {
 
     #[test]
     fn a_missing_library_is_an_error_naming_its_path() {
-        let e = environment(Path::new("/nonexistent/libonnxruntime.so")).err().expect("a missing file is an error");
+        let e = environment(Path::new("/nonexistent/libonnxruntime.so")).expect_err("a missing file is an error");
         assert!(e.to_string().contains("/nonexistent/libonnxruntime.so"), "{e}");
     }
 }

@@ -196,7 +196,7 @@ impl Core {
         // The onboarding outlives the request that started it: its own root span, linked to
         // the request's, with the same request id in its log lines.
         let span = tracing::info_span!(parent: None, "onboarding", request_id = request_id.map(|r| r.as_str()), operation = %op.id, object_id = %op.object_id);
-        span.follows_from(&tracing::Span::current());
+        span.follows_from(tracing::Span::current());
         std::thread::spawn(move || {
             let _entered = span.enter();
             let progress = |p: crate::onboard::Progress| op.done.store(p.templates_done as u64, Ordering::Relaxed);

@@ -15,7 +15,10 @@ fn rewrite(headers: &mut HeaderMap) {
     }
 }
 
-pub fn oversized_to_invalid_argument<B>(resp: http::Response<B>) -> http::Response<TrailersHook<B, fn(&mut HeaderMap)>> {
+/// A response whose trailers pass through a header rewrite.
+pub type RewrittenTrailers<B> = http::Response<TrailersHook<B, fn(&mut HeaderMap)>>;
+
+pub fn oversized_to_invalid_argument<B>(resp: http::Response<B>) -> RewrittenTrailers<B> {
     let (mut parts, body) = resp.into_parts();
     rewrite(&mut parts.headers);
     http::Response::from_parts(parts, TrailersHook::new(body, rewrite))
