@@ -249,9 +249,23 @@ impl SqliteStore {
         Ok(Reader { store: self, conn: Some(conn) })
     }
 
+    /// Writes an encoded object (`write_object`); when that fails in the database (a full
+    /// disk above all), the pages it wrote before failing sit in the WAL, as large as the
+    /// object, until some later checkpoint: this gives the space back at once. Best effort:
+    /// readers holding snapshots keep the WAL alive.
+    fn put_encoded(&self, id: &str, enc: &Encoded, replace: bool) -> Result<ObjectInfo, StoreError> {
+        let result = self.write_object(id, enc, replace);
+        if let Err(StoreError::Database { context, .. }) = &result {
+            if let Err(e) = lock(&self.writer).query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |_| Ok(())) {
+                tracing::warn!("{context}: checkpoint after the failed put: {e}");
+            }
+        }
+        result
+    }
+
     /// Writes an encoded object in one transaction: its row, then its chunks. Any failure
     /// rolls the whole transaction back, so the store keeps what it had before.
-    fn put_encoded(&self, id: &str, enc: &Encoded, replace: bool) -> Result<ObjectInfo, StoreError> {
+    fn write_object(&self, id: &str, enc: &Encoded, replace: bool) -> Result<ObjectInfo, StoreError> {
         let summary = codec::summary(&enc.manifest).map_err(|e| StoreError::from_codec(id, e))?;
         if summary.object_id != id {
             return Err(corrupt(id, format!("manifest names object {:?}", summary.object_id)));
