@@ -18,6 +18,13 @@ pub struct ServeArgs {
     pub settings: ServeSettings,
 }
 
+/// Threads for the requests' blocking work (store reads, decoding, estimates, track
+/// frames). Estimates and onboardings are bounded by their slots, but a burst of other
+/// requests took one thread each (254 in docs/reliability.md's burst, tokio's ceiling
+/// being 512); beyond this many they wait in tokio's queue instead. No blocking task waits
+/// on another, so a queue cannot deadlock.
+const MAX_BLOCKING_THREADS: usize = 128;
+
 pub fn run(a: ServeArgs) -> Result<()> {
     let file = match &a.config {
         Some(path) => ServeSettings::from_file(path)?,
@@ -31,7 +38,7 @@ pub fn run(a: ServeArgs) -> Result<()> {
     };
     let config = CoreConfig { store_url: s.store.clone(), render_pool: s.render_pool, cache_bytes: s.cache_bytes, max_estimates: s.max_estimates, max_onboardings: s.max_onboardings, backbone: s.backbone.clone(), device: s.device.clone(), backbone_batch: s.backbone_batch, backbone_max_wait: s.backbone_max_wait, read_only: s.read_only, max_track_sessions: s.max_track_sessions, track_idle_timeout: s.track_idle_timeout };
     let core = Arc::new(Core::new(config).context("starting the service core")?);
-    let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
+    let runtime = tokio::runtime::Builder::new_multi_thread().max_blocking_threads(MAX_BLOCKING_THREADS).enable_all().build()?;
     let api = Api { core: core.clone(), ready: Arc::new(AtomicBool::new(false)), metrics: Default::default(), keys: keys.clone(), rate: s.rate_limit.map(|r| Arc::new(crate::service::rate_limit::RateLimiter::new(r))), request_timeout: s.request_timeout };
     let scheme = if tls.is_some() { ("https", "grpcs") } else { ("http", "grpc") };
     let mtls = tls.as_ref().is_some_and(|t| t.client_ca_pem.is_some());
