@@ -83,6 +83,12 @@ fn sobel(at: &dyn Fn(u32, u32) -> f32, x: u32, y: u32) -> (f32, f32) {
     (gx, gy)
 }
 
+/// Whether window pixel (x, y), at least 2 px from the window's edge, lies 2 px or more
+/// inside the render's silhouette: its outline's pixels mix object and background.
+fn well_inside(render: &RenderOutput, x: u32, y: u32) -> bool {
+    (-2i64..=2).all(|d| render.mask.get_pixel((x as i64 + d) as u32, y)[0] > 0 && render.mask.get_pixel(x, (y as i64 + d) as u32)[0] > 0)
+}
+
 /// Grey-level Sobel magnitude (of 8·255 at most) below which a pixel has no edge.
 const EDGE: f32 = 40.0;
 
@@ -108,7 +114,7 @@ pub fn appearance_agreement_where(render: &RenderOutput, image: &RgbImage, windo
     }
     let r_at = |x: u32, y: u32| grey(render.rgb.get_pixel(x, y));
     let i_at = |x: u32, y: u32| grey(image.get_pixel(x0 + x, y0 + y));
-    let inside = |x: u32, y: u32| (-2i64..=2).all(|d| render.mask.get_pixel((x as i64 + d) as u32, y)[0] > 0 && render.mask.get_pixel(x, (y as i64 + d) as u32)[0] > 0) && in_mask(x, y);
+    let inside = |x: u32, y: u32| well_inside(render, x, y) && in_mask(x, y);
     let (mut sum, mut count) = (0.0f64, 0usize);
     for y in 3..h - 3 {
         for x in 3..w - 3 {
@@ -142,7 +148,7 @@ pub fn colour_agreement(render: &RenderOutput, image: &RgbImage, mask: &GrayImag
     if w < 7 || h < 7 {
         return 0.0;
     }
-    let inside = |x: u32, y: u32| (-2i64..=2).all(|d| render.mask.get_pixel((x as i64 + d) as u32, y)[0] > 0 && render.mask.get_pixel(x, (y as i64 + d) as u32)[0] > 0) && mask.get_pixel(x0 + x, y0 + y)[0] > 0;
+    let inside = |x: u32, y: u32| well_inside(render, x, y) && mask.get_pixel(x0 + x, y0 + y)[0] > 0;
     let mut px: Vec<([f64; 3], [f64; 3])> = Vec::new();
     for y in 3..h - 3 {
         for x in 3..w - 3 {
