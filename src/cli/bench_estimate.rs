@@ -265,7 +265,8 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                 // it: tells a candidate that never existed from one that lost the vote.
                 let oracle = r.hypotheses.iter().flat_map(|h| h.verified.iter().enumerate()).map(|(rank, v)| (mssd(&v.pose, &inst.pose, model.mesh.positions()) / model.diameter(), rank)).min_by(|a, b| a.0.total_cmp(&b.0));
                 let oracle = oracle.map_or(",".to_string(), |(m, rank)| format!("{m:.3},{rank}"));
-                if t.name == "with RRC" {
+                // Every candidate's MSSD costs a pass over the mesh: only when asked for.
+                if a.per_candidate.is_some() && t.name == "with RRC" {
                     for (mask, h) in r.hypotheses.iter().enumerate() {
                         for v in &h.verified {
                             candidate_rows.push_str(&format!(
