@@ -67,6 +67,44 @@ fn follows_a_moving_object_and_reports_a_jump_lost() {
     assert!(err.contains("64×48") && err.contains("320×240"), "{err}");
 }
 
+/// A track lost by a jump far beyond the box searched around its last pose: the session
+/// finds the object again by the colours the track learnt (track::search), anywhere in the
+/// frame, and re-initialises it there with a full estimate, without a detection.
+#[test]
+fn a_lost_track_is_found_again_by_its_colours() {
+    use b2tfpose::track::{SessionConfig, TrackMode, TrackSession};
+    let (model, pool, _) = setup();
+    let k = Intrinsics::new(800.0, 800.0, 319.5, 239.5, 640, 480).unwrap();
+    let estimator = b2tfpose::estimate::Estimator::new(Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap()), pool.clone());
+    let background = b2tfpose::track::sequence::cluttered_background(k.width, k.height, &mut b2tfpose::mesh::procedural::Rng::new(11));
+    // Slow motion left of the middle at 0.7 m, then a jump of 23 cm to the right: far beyond
+    // the box searched around the last pose (1.2 object radii, ~130 px; the jump is ~260 px).
+    let path = b2tfpose::track::sequence::trajectory(&model.mesh, &SequenceConfig { frames: 10, distance: 0.7, seed: 3, max_degrees_per_frame: 1.0, max_metres_per_frame: 0.005, ..Default::default() });
+    let moved = |p: &Pose, dx: f64| Pose::new(p.rotation, p.translation + Vector3::new(dx, 0.0, 0.0));
+    let poses: Vec<Pose> = path.iter().enumerate().map(|(i, p)| moved(p, if i < 6 { -0.07 } else { 0.16 })).collect();
+    let frame = |p: &Pose| {
+        let r = pool.render(&model.mesh, p, &k, &Default::default()).unwrap();
+        b2tfpose::eval::degrade::composite(&r.rgb, &r.mask, &background)
+    };
+    let first_mask = pool.render(&model.mesh, &poses[0], &k, &Default::default()).unwrap().mask;
+    let mut session = TrackSession::new(pool.clone(), SessionConfig::default());
+    let resolve = |_: &str| Ok(model.clone());
+    let mut modes = Vec::new();
+    for (i, truth) in poses.iter().enumerate() {
+        let detections = if i == 0 { vec![b2tfpose::track::FrameDetection { object_id: "box".into(), mask: first_mask.clone(), score: 1.0 }] } else { vec![] };
+        let (_, outcomes) = session.frame(Some(i as u64), &frame(truth), &k, detections, &resolve, &estimator).unwrap();
+        let o = &outcomes[0];
+        let err = o.pose.map(|p| (rotation_error_deg(&p, truth), translation_error_m(&p, truth) * 1e3));
+        eprintln!("frame {i}: {:?} {err:?} {:?} quality {:.2}", o.mode, o.reason, o.quality);
+        modes.push(o.mode);
+        if i < 6 || i >= 8 {
+            let (deg, mm) = err.unwrap_or_else(|| panic!("frame {i}: no pose ({:?})", o.reason));
+            assert!(deg < 10.0 && mm < 20.0, "frame {i}: {deg:.1}°, {mm:.1} mm");
+        }
+    }
+    assert!(modes[6..8].contains(&TrackMode::Reinitialised), "the jump was not re-initialised: {modes:?}");
+}
+
 /// A stored object, a generated sequence of `frames` frames, the first frame's mask and the
 /// camera, in a temporary folder, for `b2tf track`.
 struct TrackFixture {

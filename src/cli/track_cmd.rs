@@ -1,9 +1,9 @@
 //! `b2tf track`: poses through a video given as a folder of frames or a video file
-//! (cli/video_source.rs). The first frame gets a
-//! full estimate from its mask; later frames are tracked (track::TrackSession, as the
-//! service's streams), and a lost frame is re-initialised by a full estimate of the object
-//! segmented inside the box around its last pose. One JSON line per frame, written as it is
-//! known.
+//! (cli/video_source.rs). The first frame gets a full estimate from its mask; later frames
+//! are tracked (track::TrackSession, as the service's streams), and a lost frame is
+//! re-initialised by a full estimate of the object found by the colours its track learnt
+//! (near its last pose, else anywhere in the frame). One JSON line per frame, written as
+//! it is known.
 
 use super::estimate_cmd::{load_mask, write_overlay};
 use crate::estimate::Estimator;
@@ -37,6 +37,19 @@ pub struct TrackArgs {
     /// Also write each frame with its pose drawn over it into this folder.
     #[arg(long)]
     pub overlay_dir: Option<PathBuf>,
+    /// Below this outline agreement (0–1) a frame is lost and the object searched for
+    /// again (the API's `lost_below`).
+    #[arg(long, value_parser = unit_interval)]
+    pub lost_below: Option<f64>,
+}
+
+fn unit_interval(s: &str) -> std::result::Result<f64, String> {
+    let v: f64 = s.parse().map_err(|e| format!("{e}"))?;
+    if (0.0..=1.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("must be in [0, 1], not {v}"))
+    }
 }
 
 fn check_size(frame: &Frame, k: &Intrinsics) -> Result<()> {
@@ -72,7 +85,11 @@ pub fn run(a: TrackArgs) -> Result<()> {
     let estimator = Estimator::new(a.target.backbone.open()?, renderer.clone());
     let mut out = std::io::BufWriter::new(std::fs::File::create(&a.out).with_context(|| format!("writing {}", a.out.display()))?);
     // One object, searched for around its last pose for as long as the video lasts.
-    let mut session = TrackSession::new(renderer.clone(), SessionConfig { drop_after_lost: usize::MAX, ..Default::default() });
+    let mut config = SessionConfig { drop_after_lost: usize::MAX, ..Default::default() };
+    if let Some(q) = a.lost_below {
+        config.tracker.lost_below = q;
+    }
+    let mut session = TrackSession::new(renderer.clone(), config);
     let object_id = model.object_id.clone();
     let resolve = |_: &str| Ok(model.clone());
     let mut counts = std::collections::BTreeMap::<&str, usize>::new();

@@ -6,6 +6,7 @@
 //! The service, the CLI and the BOP runner all decode detections here, so this module
 //! sits below them and depends on nothing of the crate above `image`/`nalgebra`.
 
+pub mod components;
 pub mod decode;
 pub mod gmm;
 pub mod instances;

@@ -5,6 +5,7 @@
 //! outside the box is background. The box's surroundings are downsampled so the box's
 //! long side is at most `max_side` cells, which bounds the time whatever the box size.
 
+use super::components::components;
 use super::decode::{PixelBox, OBJECT};
 use super::gmm::{Colour, Gmm};
 use super::maxflow::Graph;
@@ -244,35 +245,6 @@ fn clean(grid: &Grid, labels: Vec<bool>) -> Vec<bool> {
         }
     }
     (0..labels.len()).map(|i| backgrounds[i].is_none_or(|c| !open[c])).collect()
-}
-
-/// 4-connected components of the cells where `member` holds: each cell's component (None
-/// outside) and each component's size.
-fn components(w: usize, h: usize, member: impl Fn(usize) -> bool) -> (Vec<Option<usize>>, Vec<usize>) {
-    let mut label = vec![None; w * h];
-    let mut sizes = Vec::new();
-    let mut stack = Vec::new();
-    for start in 0..w * h {
-        if label[start].is_some() || !member(start) {
-            continue;
-        }
-        let c = sizes.len();
-        sizes.push(0);
-        label[start] = Some(c);
-        stack.push(start);
-        while let Some(i) = stack.pop() {
-            sizes[c] += 1;
-            let (x, y) = (i % w, i / w);
-            let neighbours = [(x > 0).then(|| i - 1), (x + 1 < w).then(|| i + 1), (y > 0).then(|| i - w), (y + 1 < h).then(|| i + w)];
-            for n in neighbours.into_iter().flatten() {
-                if label[n].is_none() && member(n) {
-                    label[n] = Some(c);
-                    stack.push(n);
-                }
-            }
-        }
-    }
-    (label, sizes)
 }
 
 #[cfg(test)]

@@ -1,8 +1,9 @@
 //! Several tracked objects in one video stream: a detection that no track explains starts
 //! a track with a full estimate; every frame then tracks each object from its last pose
 //! (milliseconds, no retrieval); a lost track is re-initialised by a full estimate from the
-//! caller's detection for that frame when one overlaps it, else from the object segmented
-//! inside the box around its last pose, and is dropped after too many lost frames. Frames
+//! caller's detection for that frame when one overlaps it, else from the object found by
+//! the colours its track learnt (around its last pose, else anywhere in the frame:
+//! search.rs), and is dropped after too many lost frames. Frames
 //! are numbered and must come in order. The CLI, the gRPC stream and the HTTP sessions all
 //! run this, so they track alike.
 
@@ -24,8 +25,8 @@ pub struct SessionConfig {
     pub max_tracks: usize,
     /// Consecutive lost frames after which a track is dropped.
     pub drop_after_lost: usize,
-    /// Half-side of the box searched for a lost object, in object radii around its last
-    /// pose.
+    /// Half-side of the box searched first for a lost object, in object radii around its
+    /// last pose (the whole frame is searched when nothing is found there).
     pub search_radii: f64,
     /// A re-initialising estimate must explain the mask it came from: its rendered
     /// silhouette needs at least this IoU with it. A segmentation that caught clutter, or
@@ -270,7 +271,7 @@ impl TrackSession {
 }
 
 /// A track's frame after its tracking step: kept when tracked, else re-initialised from
-/// the detection it took (or a segmentation around its last pose), else lost or dropped.
+/// the detection it took (or the object found by its colours), else lost or dropped.
 #[allow(clippy::too_many_arguments)]
 fn finish_track(track: &mut Track, step: super::TrackStep, t: Instant, image: &RgbImage, k: &Intrinsics, detection: Option<(usize, &FrameDetection)>, estimator: &Estimator, config: &SessionConfig) -> Result<TrackOutcome, SessionError> {
     let outcome = |pose: Option<Pose>, quality: f64, mode: TrackMode, detection_index: Option<usize>, reason: Option<String>| TrackOutcome { track_id: Some(track.id), object_id: track.object_id.clone(), pose, quality, mode, detection_index, ms: ms(t), reason };
@@ -280,7 +281,7 @@ fn finish_track(track: &mut Track, step: super::TrackStep, t: Instant, image: &R
     }
     let (mask, score, used, searched) = match detection {
         Some((di, d)) => (Some(d.mask.clone()), d.score, Some(di), None),
-        None => match mask_near(&track.tracker, image, k, config.search_radii) {
+        None => match track.tracker.search(image, k, config.search_radii) {
             Some((mask, window)) => (Some(mask), 1.0, None, Some(window)),
             None => (None, 1.0, None, None),
         },
@@ -289,9 +290,9 @@ fn finish_track(track: &mut Track, step: super::TrackStep, t: Instant, image: &R
     if let Some(mask) = mask {
         match full_estimate(estimator, &track.model, image, k, mask, score)? {
             Ok((_, iou)) if iou < config.min_reinit_iou => why = format!("{why}; re-initialising: the estimate explains its mask poorly (silhouette IoU {iou:.2} under {:.2})", config.min_reinit_iou),
-            // What was segmented inside the searched box must be an object inside it: an
+            // What was found inside the searched box must be an object inside it: an
             // estimate that puts the object much nearer (its outline far beyond the box)
-            // explains a segmentation that caught clutter too.
+            // explains a region that took in clutter too.
             Ok((pose, _)) if searched.is_some_and(|w| !within(track.tracker.window(k, &pose, 1.0), w)) => why = format!("{why}; re-initialising: the estimate puts the object beyond the box searched around its last pose"),
             Ok((pose, _)) => match track.tracker.restart(image, k, pose) {
                 Ok(()) => {
@@ -328,14 +329,6 @@ fn full_estimate(estimator: &Estimator, model: &ObjectModel, image: &RgbImage, k
         Err(crate::estimate::EstimateError::BadInput(m)) => Ok(Err(m)),
         Err(e) => Err(SessionError::Internal(e.to_string())),
     }
-}
-
-/// The object segmented inside the box around the tracker's last pose, and that box (None
-/// when the box leaves the image or nothing is segmented there).
-fn mask_near(tracker: &Tracker, image: &RgbImage, k: &Intrinsics, radii: f64) -> Option<(GrayImage, Window)> {
-    let w = tracker.window(k, &tracker.pose(), radii)?;
-    let b = [w.x0 as f64, w.y0 as f64, (w.x1 - w.x0) as f64, (w.y1 - w.y0) as f64];
-    crate::masks::box_to_mask(image, b, crate::masks::BoxMask::Segment).ok().map(|s| (s.mask, w))
 }
 
 /// Whether `inner` (None: out of view) lies within `outer`, give or take a tenth of

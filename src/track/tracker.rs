@@ -7,12 +7,13 @@
 
 use super::check::silhouette_iou;
 use super::colour::{ColourModel, Window};
+use super::search::find_by_colour;
 use crate::estimate::contour::ContourRefiner;
 use crate::estimate::refine::{RefineContext, RefineReport, Refiner};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
 use crate::render::{RenderOptions, RenderOutput, RenderPool};
-use image::RgbImage;
+use image::{GrayImage, RgbImage};
 use nalgebra::{Point3, Vector3};
 use std::sync::Arc;
 
@@ -63,6 +64,9 @@ pub struct Tracker {
     /// Camera-frame motion of the last tracked frame (applied before the current pose).
     velocity: Option<Pose>,
     frames: usize,
+    /// Pixels of the object's silhouette at the last render: the size a search for the
+    /// lost object expects.
+    silhouette_area: f64,
 }
 
 impl Tracker {
@@ -70,7 +74,7 @@ impl Tracker {
     /// the colours from the silhouette rendered there.
     pub fn new(model: Arc<ObjectModel>, renderer: Arc<RenderPool>, image: &RgbImage, k: &Intrinsics, pose: Pose, config: TrackerConfig) -> Result<Self, String> {
         let refiner = ContourRefiner::new(renderer.clone());
-        let mut t = Self { model, renderer, refiner, colours: ColourModel::default(), config, pose, velocity: None, frames: 0 };
+        let mut t = Self { model, renderer, refiner, colours: ColourModel::default(), config, pose, velocity: None, frames: 0, silhouette_area: 0.0 };
         t.restart(image, k, pose)?;
         Ok(t)
     }
@@ -91,6 +95,7 @@ impl Tracker {
             return Err("the object is not visible at the restarting pose".into());
         }
         self.colours = colours;
+        self.silhouette_area = mask_area(&render.mask);
         self.velocity = None;
         self.frames = 0;
         self.pose = pose;
@@ -107,6 +112,15 @@ impl Tracker {
         let uv = k.project(&centre)?;
         let half = radii * k.fx.max(k.fy) * self.model.mesh.bounding_radius() / centre.z;
         Window::around(uv.x, uv.y, half, k.width, k.height)
+    }
+
+    /// The lost object's mask in `image`, found by its colours (search.rs) inside the box
+    /// of `radii` bounding radii around its last pose, else anywhere in the frame; with the
+    /// box it was found in.
+    pub fn search(&self, image: &RgbImage, k: &Intrinsics, radii: f64) -> Option<(GrayImage, Window)> {
+        let whole = Window { x0: 0, y0: 0, x1: image.width(), y1: image.height() };
+        let near = self.window(k, &self.pose, radii);
+        near.into_iter().chain(std::iter::once(whole)).find_map(|w| find_by_colour(&self.colours, image, w, self.silhouette_area).map(|m| (m, w)))
     }
 
     /// The object rendered at `pose` through its colour window alone: a fraction of the
@@ -149,6 +163,7 @@ impl Tracker {
                     return Ok(TrackStep { pose: self.pose, quality, lost: true, report: RefineReport { note: Some(note), ..refined.report }, silhouette_iou: checked });
                 }
                 self.colours.learn(image, &render.mask, window, self.config.colour_rate);
+                self.silhouette_area = mask_area(&render.mask);
             }
         }
         self.velocity = Some(refined.pose.compose(&self.pose.inverse()));
@@ -156,4 +171,8 @@ impl Tracker {
         self.frames += 1;
         Ok(TrackStep { pose: refined.pose, quality, lost: false, report: refined.report, silhouette_iou: checked })
     }
+}
+
+fn mask_area(mask: &GrayImage) -> f64 {
+    mask.pixels().filter(|p| p[0] > 0).count() as f64
 }
