@@ -67,6 +67,49 @@ fn follows_a_moving_object_and_reports_a_jump_lost() {
     assert!(err.contains("64×48") && err.contains("320×240"), "{err}");
 }
 
+/// A box turned half a turn about the axis it is seen along keeps its outline, so the
+/// outline agreement stays high; the appearance check at the next relearning (colours and
+/// edges of the render against the frame) reports the track lost.
+#[test]
+fn a_turn_the_outline_cannot_see_is_caught_by_the_appearance_check() {
+    let (model, pool, k) = setup();
+    let centre = Vector3::from(model.mesh.bbox_center());
+    let seen = b2tfpose::geometry::views::view_pose(&Vector3::new(0.0, 0.0, 1.0), 0.3, &centre, 0.45);
+    let half_turn = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI);
+    let turned = Pose::new(seen.rotation * half_turn, seen.translation + seen.rotation * (centre - half_turn * centre));
+    let background = b2tfpose::track::sequence::cluttered_background(k.width, k.height, &mut b2tfpose::mesh::procedural::Rng::new(5));
+    let frame = |p: &Pose| {
+        let r = pool.render(&model.mesh, p, &k, &Default::default()).unwrap();
+        b2tfpose::eval::degrade::composite(&r.rgb, &r.mask, &background)
+    };
+    let (seen_frame, turned_frame) = (frame(&seen), frame(&turned));
+    let config = TrackerConfig::default();
+    // The unturned box passes every check.
+    let mut tracker = Tracker::new(model.clone(), pool.clone(), &seen_frame, &k, seen, config.clone()).unwrap();
+    for _ in 0..config.relearn_every {
+        let step = tracker.track(&seen_frame, &k).unwrap();
+        assert!(!step.lost, "{:?}", step.report.note);
+        if let Some(a) = step.appearance {
+            assert!(a > 0.6, "appearance {a:.2} of the right pose");
+        }
+    }
+    // Turned: the outline still fits; the appearance check fails within `relearn_every` frames.
+    let mut tracker = Tracker::new(model.clone(), pool.clone(), &seen_frame, &k, seen, config.clone()).unwrap();
+    let mut caught = None;
+    for i in 0..config.relearn_every {
+        let step = tracker.track(&turned_frame, &k).unwrap();
+        eprintln!("turned, frame {i}: quality {:.2} lost {} appearance {:?} {:?}", step.quality, step.lost, step.appearance, step.report.note);
+        if step.lost {
+            caught = Some(step);
+            break;
+        }
+        assert!(step.quality > config.lost_below);
+    }
+    let step = caught.expect("the half turn was never reported lost");
+    assert!(step.appearance.is_some_and(|a| a < config.min_appearance), "{:?}", step.appearance);
+    assert!(step.report.note.unwrap_or_default().contains("does not look like the frame"));
+}
+
 /// A track lost by a jump far beyond the box searched around its last pose: the session
 /// finds the object again by the colours the track learnt (track::search), anywhere in the
 /// frame, and re-initialises it there with a full estimate, without a detection.

@@ -144,11 +144,17 @@ pub fn appearance_agreement_where(render: &RenderOutput, image: &RgbImage, windo
 /// blurred object are too few to tell its front from its back, the layout of its colours
 /// still can; correlation, not difference, because lighting scales and shifts them.
 pub fn colour_agreement(render: &RenderOutput, image: &RgbImage, mask: &GrayImage, window: (u32, u32, u32, u32)) -> f64 {
+    let (x0, y0) = (window.0, window.1);
+    colour_agreement_where(render, image, window, &|x, y| mask.get_pixel(x0 + x, y0 + y)[0] > 0)
+}
+
+/// [`colour_agreement`] over the window pixels (window coordinates) that `in_mask` admits.
+pub fn colour_agreement_where(render: &RenderOutput, image: &RgbImage, window: (u32, u32, u32, u32), in_mask: &dyn Fn(u32, u32) -> bool) -> f64 {
     let (x0, y0, w, h) = window;
     if w < 7 || h < 7 {
         return 0.0;
     }
-    let inside = |x: u32, y: u32| well_inside(render, x, y) && mask.get_pixel(x0 + x, y0 + y)[0] > 0;
+    let inside = |x: u32, y: u32| well_inside(render, x, y) && in_mask(x, y);
     let mut px: Vec<([f64; 3], [f64; 3])> = Vec::new();
     for y in 3..h - 3 {
         for x in 3..w - 3 {

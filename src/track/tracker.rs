@@ -5,7 +5,7 @@
 //! few frames. A frame whose outline agreement falls below a threshold is reported lost
 //! and leaves the track where it was, for the caller to re-initialise (a full estimate).
 
-use super::check::silhouette_iou;
+use super::check::{appearance, silhouette_iou};
 use super::colour::{ColourModel, Window};
 use super::search::find_by_colour;
 use crate::estimate::contour::ContourRefiner;
@@ -33,11 +33,15 @@ pub struct TrackerConfig {
     /// The silhouette check (`check.rs`) at each relearning: below this IoU of the
     /// render's silhouette with the pixels the colours call object, the frame is lost.
     pub min_silhouette_iou: f64,
+    /// The appearance check (`check.rs`) at each relearning: below this agreement of the
+    /// render's colours and interior edges with the frame's, the frame is lost (a pose
+    /// that slid to a wrong turn its outline cannot tell).
+    pub min_appearance: f64,
 }
 
 impl Default for TrackerConfig {
     fn default() -> Self {
-        Self { lost_below: 0.3, colour_rate: 0.2, relearn_every: 5, constant_velocity: true, window_radii: 1.6, min_silhouette_iou: 0.5 }
+        Self { lost_below: 0.3, colour_rate: 0.2, relearn_every: 5, constant_velocity: true, window_radii: 1.6, min_silhouette_iou: 0.5, min_appearance: 0.3 }
     }
 }
 
@@ -52,6 +56,8 @@ pub struct TrackStep {
     pub report: RefineReport,
     /// The silhouette check's IoU, on the frames that had one.
     pub silhouette_iou: Option<f64>,
+    /// The appearance check's agreement, on the frames that had one.
+    pub appearance: Option<f64>,
 }
 
 pub struct Tracker {
@@ -67,6 +73,8 @@ pub struct Tracker {
     /// Pixels of the object's silhouette at the last render: the size a search for the
     /// lost object expects.
     silhouette_area: f64,
+    /// The mesh has colours (a texture or vertex colours) for the appearance check.
+    coloured: bool,
 }
 
 impl Tracker {
@@ -74,7 +82,8 @@ impl Tracker {
     /// the colours from the silhouette rendered there.
     pub fn new(model: Arc<ObjectModel>, renderer: Arc<RenderPool>, image: &RgbImage, k: &Intrinsics, pose: Pose, config: TrackerConfig) -> Result<Self, String> {
         let refiner = ContourRefiner::new(renderer.clone());
-        let mut t = Self { model, renderer, refiner, colours: ColourModel::default(), config, pose, velocity: None, frames: 0, silhouette_area: 0.0 };
+        let coloured = model.mesh.has_texture() || model.mesh.colors().is_some();
+        let mut t = Self { model, renderer, refiner, colours: ColourModel::default(), config, pose, velocity: None, frames: 0, silhouette_area: 0.0, coloured };
         t.restart(image, k, pose)?;
         Ok(t)
     }
@@ -142,7 +151,7 @@ impl Tracker {
             _ => self.pose,
         };
         let Some(window) = self.window(k, &predicted, self.config.window_radii) else {
-            return Ok(TrackStep { pose: self.pose, quality: 0.0, lost: true, report: RefineReport { note: Some("the object left the image".into()), ..Default::default() }, silhouette_iou: None });
+            return Ok(TrackStep { pose: self.pose, quality: 0.0, lost: true, report: RefineReport { note: Some("the object left the image".into()), ..Default::default() }, silhouette_iou: None, appearance: None });
         };
         let probs = self.colours.probability_image(image, window);
         let ctx = RefineContext { model: &self.model, image, intrinsics: k, mask: &probs, unknown: None, mask_is_probability: true };
@@ -150,17 +159,25 @@ impl Tracker {
         let quality = refined.report.agreement;
         if quality < self.config.lost_below {
             self.velocity = None;
-            return Ok(TrackStep { pose: self.pose, quality, lost: true, report: refined.report, silhouette_iou: None });
+            return Ok(TrackStep { pose: self.pose, quality, lost: true, report: refined.report, silhouette_iou: None, appearance: None });
         }
-        let mut checked = None;
+        let (mut checked, mut looks) = (None, None);
         if (self.frames + 1).is_multiple_of(self.config.relearn_every.max(1)) {
             if let Some((render, window)) = self.render_window(k, &refined.pose)? {
                 let iou = silhouette_iou(&self.colours, image, &render.mask, window);
                 checked = Some(iou);
-                if iou < self.config.min_silhouette_iou {
+                let agreement = appearance(&render, image, window, self.coloured);
+                looks = Some(agreement);
+                let failed = if iou < self.config.min_silhouette_iou {
+                    Some(format!("the pose's silhouette covers too little of the object's colours (IoU {iou:.2} under {:.2})", self.config.min_silhouette_iou))
+                } else if agreement < self.config.min_appearance {
+                    Some(format!("the object rendered at the pose does not look like the frame (appearance {agreement:.2} under {:.2})", self.config.min_appearance))
+                } else {
+                    None
+                };
+                if let Some(note) = failed {
                     self.velocity = None;
-                    let note = format!("the pose's silhouette covers too little of the object's colours (IoU {iou:.2} under {:.2})", self.config.min_silhouette_iou);
-                    return Ok(TrackStep { pose: self.pose, quality, lost: true, report: RefineReport { note: Some(note), ..refined.report }, silhouette_iou: checked });
+                    return Ok(TrackStep { pose: self.pose, quality, lost: true, report: RefineReport { note: Some(note), ..refined.report }, silhouette_iou: checked, appearance: looks });
                 }
                 self.colours.learn(image, &render.mask, window, self.config.colour_rate);
                 self.silhouette_area = mask_area(&render.mask);
@@ -169,7 +186,7 @@ impl Tracker {
         self.velocity = Some(refined.pose.compose(&self.pose.inverse()));
         self.pose = refined.pose;
         self.frames += 1;
-        Ok(TrackStep { pose: refined.pose, quality, lost: false, report: refined.report, silhouette_iou: checked })
+        Ok(TrackStep { pose: refined.pose, quality, lost: false, report: refined.report, silhouette_iou: checked, appearance: looks })
     }
 }
 
