@@ -294,6 +294,9 @@ fn finish_track(track: &mut Track, step: super::TrackStep, t: Instant, image: &R
             // estimate that puts the object much nearer (its outline far beyond the box)
             // explains a region that took in clutter too.
             Ok((pose, _)) if searched.is_some_and(|w| !within(track.tracker.window(k, &pose, 1.0), w)) => why = format!("{why}; re-initialising: the estimate puts the object beyond the box searched around its last pose"),
+            // The estimate explains its mask, but a mask of clutter is explained by a pose
+            // whose render looks nothing like the frame.
+            Ok((pose, _)) if track.tracker.appearance_at(image, k, &pose).map_err(SessionError::Internal)?.is_some_and(|a| a < config.tracker.min_appearance) => why = format!("{why}; re-initialising: the estimated pose does not look like the frame"),
             Ok((pose, _)) => match track.tracker.restart(image, k, pose) {
                 Ok(()) => {
                     track.lost_frames = 0;

@@ -7,6 +7,7 @@
 
 use super::check::{appearance, silhouette_iou};
 use super::colour::{ColourModel, Window};
+use super::photometric::{PhotometricConfig, PhotometricModel};
 use super::search::find_by_colour;
 use crate::estimate::contour::ContourRefiner;
 use crate::estimate::refine::{RefineContext, RefineReport, Refiner};
@@ -37,11 +38,13 @@ pub struct TrackerConfig {
     /// render's colours and interior edges with the frame's, the frame is lost (a pose
     /// that slid to a wrong turn its outline cannot tell).
     pub min_appearance: f64,
+    /// The texture term after each contour step (photometric.rs).
+    pub photometric: PhotometricConfig,
 }
 
 impl Default for TrackerConfig {
     fn default() -> Self {
-        Self { lost_below: 0.3, colour_rate: 0.2, relearn_every: 5, constant_velocity: true, window_radii: 1.6, min_silhouette_iou: 0.5, min_appearance: 0.3 }
+        Self { lost_below: 0.3, colour_rate: 0.2, relearn_every: 5, constant_velocity: true, window_radii: 1.6, min_silhouette_iou: 0.5, min_appearance: 0.3, photometric: PhotometricConfig::default() }
     }
 }
 
@@ -75,6 +78,7 @@ pub struct Tracker {
     silhouette_area: f64,
     /// The mesh has colours (a texture or vertex colours) for the appearance check.
     coloured: bool,
+    texture: PhotometricModel,
 }
 
 impl Tracker {
@@ -83,7 +87,7 @@ impl Tracker {
     pub fn new(model: Arc<ObjectModel>, renderer: Arc<RenderPool>, image: &RgbImage, k: &Intrinsics, pose: Pose, config: TrackerConfig) -> Result<Self, String> {
         let refiner = ContourRefiner::new(renderer.clone());
         let coloured = model.mesh.has_texture() || model.mesh.colors().is_some();
-        let mut t = Self { model, renderer, refiner, colours: ColourModel::default(), config, pose, velocity: None, frames: 0, silhouette_area: 0.0, coloured };
+        let mut t = Self { model, renderer, refiner, colours: ColourModel::default(), config, pose, velocity: None, frames: 0, silhouette_area: 0.0, coloured, texture: PhotometricModel::default() };
         t.restart(image, k, pose)?;
         Ok(t)
     }
@@ -105,6 +109,7 @@ impl Tracker {
         }
         self.colours = colours;
         self.silhouette_area = mask_area(&render.mask);
+        self.learn_texture(image, &render, window, k, &pose);
         self.velocity = None;
         self.frames = 0;
         self.pose = pose;
@@ -132,6 +137,19 @@ impl Tracker {
         near.into_iter().chain(std::iter::once(whole)).find_map(|w| find_by_colour(&self.colours, image, w, self.silhouette_area).map(|m| (m, w)))
     }
 
+    /// How much the object rendered at `pose` looks like `image` (the appearance check),
+    /// for a pose from elsewhere (a re-initialising estimate); None when it is out of view.
+    pub fn appearance_at(&self, image: &RgbImage, k: &Intrinsics, pose: &Pose) -> Result<Option<f64>, String> {
+        Ok(self.render_window(k, pose)?.map(|(render, window)| appearance(&render, image, window, self.coloured)))
+    }
+
+    /// New texture points from a render at `pose` checked against `image`.
+    fn learn_texture(&mut self, image: &RgbImage, render: &RenderOutput, window: Window, k: &Intrinsics, pose: &Pose) {
+        if let (true, Some(wk)) = (self.config.photometric.enabled, window.intrinsics(k)) {
+            self.texture.learn(image, render, window, &wk, pose, &self.config.photometric);
+        }
+    }
+
     /// The object rendered at `pose` through its colour window alone: a fraction of the
     /// frame's pixels. None when the window leaves the image.
     fn render_window(&self, k: &Intrinsics, pose: &Pose) -> Result<Option<(RenderOutput, Window)>, String> {
@@ -155,11 +173,14 @@ impl Tracker {
         };
         let probs = self.colours.probability_image(image, window);
         let ctx = RefineContext { model: &self.model, image, intrinsics: k, mask: &probs, unknown: None, mask_is_probability: true };
-        let refined = self.refiner.refine(&ctx, predicted)?;
+        let mut refined = self.refiner.refine(&ctx, predicted)?;
         let quality = refined.report.agreement;
         if quality < self.config.lost_below {
             self.velocity = None;
             return Ok(TrackStep { pose: self.pose, quality, lost: true, report: refined.report, silhouette_iou: None, appearance: None });
+        }
+        if self.config.photometric.enabled {
+            refined.pose = self.texture.align(image, window, k, &refined.pose, &self.config.photometric);
         }
         let (mut checked, mut looks) = (None, None);
         if (self.frames + 1).is_multiple_of(self.config.relearn_every.max(1)) {
@@ -181,6 +202,7 @@ impl Tracker {
                 }
                 self.colours.learn(image, &render.mask, window, self.config.colour_rate);
                 self.silhouette_area = mask_area(&render.mask);
+                self.learn_texture(image, &render, window, k, &refined.pose);
             }
         }
         self.velocity = Some(refined.pose.compose(&self.pose.inverse()));

@@ -1,0 +1,294 @@
+//! The texture term of the tracker: points on the object's surface with the grey level the
+//! frame showed there at the last relearning, and a Gauss–Newton alignment of the pose that
+//! makes the current frame show the same grey levels at those points. The outline alone
+//! cannot see a turn that keeps it (a can about its axis, a box seen along one of its
+//! axes), which the contour step then misses at every frame; the texture sees it.
+//!
+//! A keyframe's own intensities rather than the mesh's texture: the frame and the keyframe
+//! come from the same camera under the same light, a render does not. The alignment runs
+//! after the contour step on a blurred frame (a wider basin), with a prior that holds the
+//! translation the outline measured, and is kept only when it lowers the residual.
+//! Measured on generated HOPE sequences: docs/tracking.md.
+
+use super::colour::Window;
+use crate::estimate::contour::lines::projection_jacobian;
+use crate::estimate::contour::solve::apply_update;
+use crate::geometry::{Intrinsics, Pose};
+use crate::render::RenderOutput;
+use image::RgbImage;
+use nalgebra::{Matrix6, Point3, Vector2, Vector3, Vector6};
+
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct PhotometricConfig {
+    pub enabled: bool,
+    /// Surface points kept at each relearning (those with the strongest texture).
+    pub points: usize,
+    /// Gaussian blur of the grey frame before alignment, pixels.
+    pub blur_sigma: f64,
+    pub iterations: usize,
+    /// Weight of the prior that holds the contour step's translation, relative to the
+    /// points' own information about a shift.
+    pub translation_prior: f64,
+}
+
+impl Default for PhotometricConfig {
+    fn default() -> Self {
+        Self { enabled: true, points: 400, blur_sigma: 1.5, iterations: 4, translation_prior: 4.0 }
+    }
+}
+
+struct Sample {
+    /// Object frame.
+    point: Point3<f64>,
+    normal: Vector3<f64>,
+    grey: f32,
+}
+
+/// A blurred grey copy of the window of a frame, with bilinear lookups of value and
+/// gradient in whole-frame pixel coordinates.
+struct GreyWindow {
+    window: Window,
+    w: usize,
+    h: usize,
+    values: Vec<f32>,
+}
+
+impl GreyWindow {
+    fn new(image: &RgbImage, window: Window, sigma: f64) -> Self {
+        let (w, h) = window.size();
+        let (w, h) = (w as usize, h as usize);
+        let mut values = Vec::with_capacity(w * h);
+        for y in 0..h {
+            for x in 0..w {
+                let p = image.get_pixel(window.x0 + x as u32, window.y0 + y as u32);
+                values.push(0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32);
+            }
+        }
+        if sigma > 0.0 {
+            values = blur_grey(&values, w, h, sigma);
+        }
+        Self { window, w, h, values }
+    }
+
+    /// Value and gradient at whole-frame (u, v), None within a pixel of the window's edge.
+    fn sample(&self, uv: &Vector2<f64>) -> Option<(f64, Vector2<f64>)> {
+        let (x, y) = (uv.x - self.window.x0 as f64, uv.y - self.window.y0 as f64);
+        if x < 1.0 || y < 1.0 || x >= self.w as f64 - 2.0 || y >= self.h as f64 - 2.0 {
+            return None;
+        }
+        let at = |x: f64, y: f64| {
+            let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+            let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+            let v = |xx: usize, yy: usize| self.values[yy * self.w + xx] as f64;
+            (1.0 - fy) * ((1.0 - fx) * v(x0, y0) + fx * v(x0 + 1, y0)) + fy * ((1.0 - fx) * v(x0, y0 + 1) + fx * v(x0 + 1, y0 + 1))
+        };
+        let g = Vector2::new(at(x + 0.5, y) - at(x - 0.5, y), at(x, y + 0.5) - at(x, y - 0.5));
+        Some((at(x, y), g))
+    }
+}
+
+#[derive(Default)]
+pub struct PhotometricModel {
+    samples: Vec<Sample>,
+}
+
+impl PhotometricModel {
+    pub fn len(&self) -> usize {
+        self.samples.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.samples.is_empty()
+    }
+
+    /// Takes new points from `render` (the object at `pose` through `window` alone, with
+    /// the window's intrinsics `wk`) and the frame `image` it was checked against: pixels
+    /// well inside the silhouette with the strongest grey gradients, back-projected with the
+    /// render's depth.
+    pub fn learn(&mut self, image: &RgbImage, render: &RenderOutput, window: Window, wk: &Intrinsics, pose: &Pose, config: &PhotometricConfig) {
+        let grey = GreyWindow::new(image, window, config.blur_sigma);
+        let (w, h) = (render.width() as usize, render.height() as usize);
+        let depth = |x: usize, y: usize| render.depth[y * w + x] as f64;
+        let back = |x: usize, y: usize| {
+            let z = depth(x, y);
+            Point3::new((x as f64 - wk.cx) / wk.fx * z, (y as f64 - wk.cy) / wk.fy * z, z)
+        };
+        let inverse = pose.inverse();
+        let mut candidates = Vec::new();
+        const MARGIN: usize = 3;
+        for y in (MARGIN..h.saturating_sub(MARGIN)).step_by(2) {
+            for x in (MARGIN..w.saturating_sub(MARGIN)).step_by(2) {
+                // Well inside: no depth edge in the neighbourhood (the outline and creases
+                // between parts at other depths move differently from the surface).
+                let z = depth(x, y);
+                if z <= 0.0 || [(x - MARGIN, y), (x + MARGIN, y), (x, y - MARGIN), (x, y + MARGIN)].iter().any(|&(a, b)| (depth(a, b) - z).abs() > 0.05 * z || depth(a, b) <= 0.0) {
+                    continue;
+                }
+                let Some((value, g)) = grey.sample(&Vector2::new((window.x0 as usize + x) as f64, (window.y0 as usize + y) as f64)) else { continue };
+                let (p, right, down) = (back(x, y), back(x + 1, y), back(x, y + 1));
+                let mut n = (right - p).cross(&(down - p));
+                if n.norm() == 0.0 {
+                    continue;
+                }
+                n.normalize_mut();
+                if n.dot(&p.coords) > 0.0 {
+                    n = -n;
+                }
+                candidates.push((g.norm(), Sample { point: inverse.transform_point(&p), normal: inverse.rotation * n, grey: value as f32 }));
+            }
+        }
+        candidates.sort_by(|a, b| b.0.total_cmp(&a.0));
+        candidates.truncate(config.points);
+        // Flat regions carry no information about the pose.
+        self.samples = candidates.into_iter().filter(|(g, _)| *g > 1.0).map(|(_, s)| s).collect();
+    }
+
+    /// The pose near `start` at which `image` shows the learnt grey levels at the points
+    /// facing the camera; `start` itself when the points do not constrain it or the
+    /// alignment does not lower their residual.
+    pub fn align(&self, image: &RgbImage, window: Window, k: &Intrinsics, start: &Pose, config: &PhotometricConfig) -> Pose {
+        if self.samples.len() < 20 {
+            return *start;
+        }
+        let grey = GreyWindow::new(image, window, config.blur_sigma);
+        let mut pose = *start;
+        let Some(mut cost) = self.cost(&grey, k, &pose) else { return *start };
+        for _ in 0..config.iterations {
+            let Some(step) = self.step(&grey, k, &pose, start, config) else { break };
+            let next = apply_update(&pose, &step.0, &step.1);
+            match self.cost(&grey, k, &next) {
+                Some(c) if c < cost => (pose, cost) = (next, c),
+                _ => break,
+            }
+        }
+        pose
+    }
+
+    /// (camera-frame point, projection, learnt grey) of the samples facing the camera at
+    /// `pose` and inside the window.
+    fn visible<'a>(&'a self, grey: &'a GreyWindow, k: &'a Intrinsics, pose: &'a Pose) -> impl Iterator<Item = (&'a Sample, Point3<f64>, f64, Vector2<f64>)> + 'a {
+        self.samples.iter().filter_map(move |s| {
+            let p = pose.transform_point(&s.point);
+            if p.z <= 0.0 || (pose.rotation * s.normal).dot(&p.coords) >= 0.0 {
+                return None;
+            }
+            let uv = k.project(&p)?;
+            let (value, g) = grey.sample(&uv)?;
+            Some((s, p, value - s.grey as f64, g))
+        })
+    }
+
+    /// Robust mean squared residual after removing the mean offset (a change of light).
+    fn cost(&self, grey: &GreyWindow, k: &Intrinsics, pose: &Pose) -> Option<f64> {
+        let r: Vec<f64> = self.visible(grey, k, pose).map(|v| v.2).collect();
+        if r.len() < 20 {
+            return None;
+        }
+        let mean = r.iter().sum::<f64>() / r.len() as f64;
+        Some(r.iter().map(|x| huber((x - mean).abs(), HUBER_GREY)).sum::<f64>() / r.len() as f64)
+    }
+
+    fn step(&self, grey: &GreyWindow, k: &Intrinsics, pose: &Pose, start: &Pose, config: &PhotometricConfig) -> Option<(Vector3<f64>, Vector3<f64>)> {
+        let rows: Vec<(Vector6<f64>, f64)> = self
+            .visible(grey, k, pose)
+            .map(|(s, p, r, g)| {
+                // How the grey level at the point changes with an object-frame turn ω and
+                // shift v (the pose becomes pose·(exp(ω), v)).
+                let b: Vector3<f64> = pose.rotation.inverse() * (projection_jacobian(k, &p).transpose() * g);
+                let c = -b.cross(&s.point.coords);
+                (Vector6::new(c.x, c.y, c.z, b.x, b.y, b.z), r)
+            })
+            .collect();
+        if rows.len() < 20 {
+            return None;
+        }
+        let mean = rows.iter().map(|r| r.1).sum::<f64>() / rows.len() as f64;
+        let (mut h, mut g) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros());
+        for (j, r) in &rows {
+            let r = r - mean;
+            let w = huber_weight(r.abs(), HUBER_GREY);
+            h += j * j.transpose() * w;
+            g -= j * (w * r);
+        }
+        // Hold the translation the outline measured: a prior towards it with this many
+        // times the points' own (mean) information about a shift.
+        let prior = config.translation_prior * (h[(3, 3)] + h[(4, 4)] + h[(5, 5)]) / 3.0;
+        let since = start.inverse().compose(pose);
+        for i in 0..3 {
+            h[(i + 3, i + 3)] += prior;
+            g[i + 3] -= prior * since.translation[i];
+        }
+        let floor = 1e-9 * h.trace();
+        for i in 0..6 {
+            h[(i, i)] += floor;
+        }
+        let step = h.cholesky()?.solve(&g);
+        let (omega, v) = (Vector3::new(step[0], step[1], step[2]), Vector3::new(step[3], step[4], step[5]));
+        // A step of more than 10° is no small correction: the texture has matched
+        // something else.
+        (omega.norm() < 10f64.to_radians()).then_some((omega, v))
+    }
+}
+
+/// A separable Gaussian blur of a `w × h` grey grid, edges clamped.
+fn blur_grey(values: &[f32], w: usize, h: usize, sigma: f64) -> Vec<f32> {
+    let r = (3.0 * sigma).ceil() as isize;
+    let kernel: Vec<f32> = (-r..=r).map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp() as f32).collect();
+    let total: f32 = kernel.iter().sum();
+    let kernel: Vec<f32> = kernel.iter().map(|k| k / total).collect();
+    // One pass along a line of `n` values `stride` apart, starting at `first`.
+    let pass = |src: &[f32], out: &mut [f32], first: usize, stride: usize, n: usize| {
+        for i in 0..n {
+            let mut acc = 0f32;
+            for (j, k) in kernel.iter().enumerate() {
+                let at = (i as isize + j as isize - r).clamp(0, n as isize - 1) as usize;
+                acc += k * src[first + at * stride];
+            }
+            out[first + i * stride] = acc;
+        }
+    };
+    let mut rows = vec![0f32; values.len()];
+    for y in 0..h {
+        pass(values, &mut rows, y * w, 1, w);
+    }
+    let mut out = vec![0f32; values.len()];
+    for x in 0..w {
+        pass(&rows, &mut out, x, w, h);
+    }
+    out
+}
+
+/// Grey levels beyond this residual count linearly (a highlight, an occluder).
+const HUBER_GREY: f64 = 20.0;
+
+fn huber(r: f64, c: f64) -> f64 {
+    if r <= c {
+        0.5 * r * r
+    } else {
+        c * (r - 0.5 * c)
+    }
+}
+
+fn huber_weight(r: f64, c: f64) -> f64 {
+    if r <= c {
+        1.0
+    } else {
+        c / r
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn blur_keeps_a_constant_and_spreads_a_spike() {
+        assert!(blur_grey(&[7.0; 30], 6, 5, 1.5).iter().all(|v| (v - 7.0).abs() < 1e-4));
+        let mut spike = vec![0f32; 81];
+        spike[40] = 1.0;
+        let b = blur_grey(&spike, 9, 9, 1.0);
+        assert!((b.iter().sum::<f32>() - 1.0).abs() < 1e-4, "mass kept away from the edges");
+        assert!(b[40] > b[41] && (b[41] - b[39]).abs() < 1e-6 && (b[41] - b[31]).abs() < 1e-6, "peaked and symmetric");
+    }
+}
