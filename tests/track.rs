@@ -227,6 +227,7 @@ impl TrackFixture {
         let (mut worst_deg, mut worst_m) = (0f64, 0f64);
         for (l, f) in lines.iter().zip(&self.seq) {
             assert!(l["mode"] != "lost", "{l}");
+            assert!(l.get("reason").is_some_and(|r| r.is_null()), "a frame with a pose gives no reason: {l}");
             let r: Vec<f64> = l["R"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
             let t: Vec<f64> = l["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
             let est = Pose::from_row_major(&r.try_into().unwrap(), [t[0], t[1], t[2]]);

@@ -7,8 +7,8 @@
 
 use super::estimate_cmd::{load_mask, write_overlay};
 use crate::estimate::Estimator;
-use crate::geometry::{Intrinsics, Pose};
-use crate::track::{FrameDetection, SessionConfig, TrackMode, TrackSession};
+use crate::geometry::Intrinsics;
+use crate::track::{FrameDetection, SessionConfig, TrackMode, TrackOutcome, TrackSession};
 use anyhow::{bail, Context, Result};
 use serde_json::json;
 use std::io::Write;
@@ -59,15 +59,17 @@ fn check_size(frame: &Frame, k: &Intrinsics) -> Result<()> {
     Ok(())
 }
 
-fn pose_line(frame: &Frame, pose: Option<&Pose>, quality: f64, mode: &str, ms: f64) -> serde_json::Value {
+fn pose_line(frame: &Frame, o: &TrackOutcome) -> serde_json::Value {
+    let pose = o.pose.as_ref();
     json!({
         "frame": frame.index,
         "file": frame.name,
         "R": pose.map(|p| p.rotation_row_major()),
         "t": pose.map(|p| [p.translation.x, p.translation.y, p.translation.z]),
-        "quality": quality,
-        "mode": mode,
-        "ms": ms,
+        "quality": o.quality,
+        "mode": o.mode.as_str(),
+        "ms": o.ms,
+        "reason": o.reason,
     })
 }
 
@@ -111,7 +113,7 @@ pub fn run(a: TrackArgs) -> Result<()> {
             tracked_ms.push(o.ms);
         }
         *counts.entry(o.mode.as_str()).or_default() += 1;
-        writeln!(out, "{}", pose_line(&frame, o.pose.as_ref(), o.quality, o.mode.as_str(), o.ms))?;
+        writeln!(out, "{}", pose_line(&frame, &o))?;
         out.flush().with_context(|| format!("writing {}", a.out.display()))?;
         if let (Some(d), Some(p)) = (&a.overlay_dir, &o.pose) {
             write_overlay(image, &renderer, &model, p, &k, &d.join(&frame.overlay_name))?;
