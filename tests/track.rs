@@ -203,6 +203,10 @@ impl TrackFixture {
     }
 
     fn run(&self, video: &std::path::Path) -> std::process::Output {
+        self.run_with(video, &[])
+    }
+
+    fn run_with(&self, video: &std::path::Path, extra: &[&str]) -> std::process::Output {
         std::process::Command::new(env!("CARGO_BIN_EXE_b2tf"))
             .args(["track", "--object", "box", "--store", &self.store_url])
             .arg("--video")
@@ -213,6 +217,7 @@ impl TrackFixture {
             .arg(&self.mask)
             .arg("--out")
             .arg(&self.out)
+            .args(extra)
             .env("XDG_RUNTIME_DIR", "/tmp")
             .output()
             .unwrap()
@@ -267,6 +272,10 @@ fn track_command_writes_a_pose_per_frame() {
     assert!(!e.status.success() && err.contains("0099.png") && err.contains("64×48"), "{err}");
     // The frames before it were written.
     assert_eq!(std::fs::read_to_string(&fx.out).unwrap().lines().count(), fx.seq.len());
+    // A loss threshold outside [0, 1] is refused by name.
+    let e = fx.run_with(&frames, &["--lost-below", "1.5"]);
+    let err = String::from_utf8_lossy(&e.stderr);
+    assert!(!e.status.success() && err.contains("--lost-below") && err.contains("must be in [0, 1], not 1.5"), "{err}");
 }
 
 /// `b2tf track --video clip.mp4`: the generated sequence encoded by OpenH264 into an MP4
