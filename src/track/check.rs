@@ -21,12 +21,14 @@ use image::{GrayImage, RgbImage};
 
 /// How much the object rendered at the pose through `window` alone looks like the frame
 /// there, 0–1: the verification's mix of colour and edge agreement over the pixels well
-/// inside the render's silhouette (edges alone for a mesh without colours).
-pub fn appearance(render: &RenderOutput, image: &RgbImage, window: Window, coloured: bool) -> f64 {
+/// inside the render's silhouette. Only for meshes with colours of their own (a texture
+/// or vertex colours): a grey render's edges against a photo's were not measured as a
+/// test of the pose, so such meshes get no appearance check.
+pub fn appearance(render: &RenderOutput, image: &RgbImage, window: Window) -> f64 {
     let (w, h) = window.size();
     let area = (window.x0, window.y0, w, h);
     let edges = appearance_agreement_where(render, image, area, &|_, _| true);
-    let colour = if coloured { colour_agreement_where(render, image, area, &|_, _| true) } else { f64::NAN };
+    let colour = colour_agreement_where(render, image, area, &|_, _| true);
     crate::estimate::verify::appearance(edges, colour, crate::estimate::verify::VerifyConfig::default().colour_share)
 }
 

@@ -36,7 +36,7 @@ pub struct TrackerConfig {
     pub min_silhouette_iou: f64,
     /// The appearance check (`check.rs`) at each relearning: below this agreement of the
     /// render's colours and interior edges with the frame's, the frame is lost (a pose
-    /// that slid to a wrong turn its outline cannot tell).
+    /// that slid to a wrong turn its outline cannot tell). Meshes with colours only.
     pub min_appearance: f64,
     /// The texture term after each contour step (photometric.rs).
     pub photometric: PhotometricConfig,
@@ -59,7 +59,7 @@ pub struct TrackStep {
     pub report: RefineReport,
     /// The silhouette check's IoU, on the frames that had one.
     pub silhouette_iou: Option<f64>,
-    /// The appearance check's agreement, on the frames that had one.
+    /// The appearance check's agreement, on the frames that had one (meshes with colours).
     pub appearance: Option<f64>,
 }
 
@@ -138,9 +138,13 @@ impl Tracker {
     }
 
     /// How much the object rendered at `pose` looks like `image` (the appearance check),
-    /// for a pose from elsewhere (a re-initialising estimate); None when it is out of view.
+    /// for a pose from elsewhere (a re-initialising estimate); None when it is out of view
+    /// or the mesh has no colours (no appearance check).
     pub fn appearance_at(&self, image: &RgbImage, k: &Intrinsics, pose: &Pose) -> Result<Option<f64>, String> {
-        Ok(self.render_window(k, pose)?.map(|(render, window)| appearance(&render, image, window, self.coloured)))
+        if !self.coloured {
+            return Ok(None);
+        }
+        Ok(self.render_window(k, pose)?.map(|(render, window)| appearance(&render, image, window)))
     }
 
     /// New texture points from a render at `pose` checked against `image`.
@@ -187,12 +191,11 @@ impl Tracker {
             if let Some((render, window)) = self.render_window(k, &refined.pose)? {
                 let iou = silhouette_iou(&self.colours, image, &render.mask, window);
                 checked = Some(iou);
-                let agreement = appearance(&render, image, window, self.coloured);
-                looks = Some(agreement);
+                looks = self.coloured.then(|| appearance(&render, image, window));
                 let failed = if iou < self.config.min_silhouette_iou {
                     Some(format!("the pose's silhouette covers too little of the object's colours (IoU {iou:.2} under {:.2})", self.config.min_silhouette_iou))
-                } else if agreement < self.config.min_appearance {
-                    Some(format!("the object rendered at the pose does not look like the frame (appearance {agreement:.2} under {:.2})", self.config.min_appearance))
+                } else if let Some(a) = looks.filter(|&a| a < self.config.min_appearance) {
+                    Some(format!("the object rendered at the pose does not look like the frame (appearance {a:.2} under {:.2})", self.config.min_appearance))
                 } else {
                     None
                 };
