@@ -290,10 +290,10 @@ fn finish_track(track: &mut Track, step: super::TrackStep, t: Instant, image: &R
     if let Some(mask) = mask {
         match full_estimate(estimator, &track.model, image, k, mask, score)? {
             Ok((_, iou)) if iou < config.min_reinit_iou => why = format!("{why}; re-initialising: the estimate explains its mask poorly (silhouette IoU {iou:.2} under {:.2})", config.min_reinit_iou),
-            // What was found inside the searched box must be an object inside it: an
-            // estimate that puts the object much nearer (its outline far beyond the box)
-            // explains a region that took in clutter too.
-            Ok((pose, _)) if searched.is_some_and(|w| !within(track.tracker.window(k, &pose, 1.0), w)) => why = format!("{why}; re-initialising: the estimate puts the object beyond the box searched around its last pose"),
+            // What was found inside the searched box must be an object there: an estimate
+            // centred elsewhere explains a region that took in clutter too. (Its outline
+            // may reach beyond the box: the box was only where to look.)
+            Ok((pose, _)) if searched.is_some_and(|w| !centred_in(k, &track.model, &pose, w)) => why = format!("{why}; re-initialising: the estimate puts the object beyond the box searched around its last pose"),
             // The estimate explains its mask, but a mask of clutter is explained by a pose
             // whose render looks nothing like the frame.
             Ok((pose, _)) if track.tracker.appearance_at(image, k, &pose).map_err(SessionError::Internal)?.is_some_and(|a| a < config.tracker.min_appearance) => why = format!("{why}; re-initialising: the estimated pose does not look like the frame"),
@@ -334,13 +334,14 @@ fn full_estimate(estimator: &Estimator, model: &ObjectModel, image: &RgbImage, k
     }
 }
 
-/// Whether `inner` (None: out of view) lies within `outer`, give or take a tenth of
-/// `outer`'s size on each side.
-fn within(inner: Option<Window>, outer: Window) -> bool {
-    let Some(i) = inner else { return false };
-    let (w, h) = outer.size();
-    let (mx, my) = (w as f64 / 10.0, h as f64 / 10.0);
-    i.x0 as f64 >= outer.x0 as f64 - mx && i.y0 as f64 >= outer.y0 as f64 - my && i.x1 as f64 <= outer.x1 as f64 + mx && i.y1 as f64 <= outer.y1 as f64 + my
+/// Whether the object's centre at `pose` projects inside `w`.
+fn centred_in(k: &Intrinsics, model: &ObjectModel, pose: &Pose, w: Window) -> bool {
+    projects_inside(k, &pose.transform_point(&nalgebra::Point3::from(nalgebra::Vector3::from(model.mesh.bbox_center()))), w)
+}
+
+/// Whether camera-frame point `p` is in front of the camera and projects inside `w`.
+fn projects_inside(k: &Intrinsics, p: &nalgebra::Point3<f64>, w: Window) -> bool {
+    p.z > 0.0 && k.project(p).is_some_and(|uv| uv.x >= w.x0 as f64 && uv.y >= w.y0 as f64 && uv.x < w.x1 as f64 && uv.y < w.y1 as f64)
 }
 
 /// [x0, y0, x1, y1) of a mask's non-zero pixels.
@@ -379,11 +380,13 @@ mod tests {
         assert_eq!(overlap([0, 0, 4, 4], [2, 0, 6, 4]), 0.5);
         assert_eq!(overlap([0, 0, 4, 4], [4, 4, 6, 6]), 0.0);
         assert_eq!(overlap([0, 0, 0, 4], [0, 0, 4, 4]), 0.0);
-        let outer = Window { x0: 100, y0: 100, x1: 200, y1: 200 };
-        assert!(within(Some(Window { x0: 95, y0: 120, x1: 205, y1: 180 }), outer));
-        assert!(!within(Some(Window { x0: 80, y0: 120, x1: 180, y1: 180 }), outer), "a tenth beyond on the left");
-        assert!(!within(Some(Window { x0: 50, y0: 50, x1: 250, y1: 250 }), outer), "an object twice as near");
-        assert!(!within(None, outer));
+        let k = Intrinsics::new(100.0, 100.0, 150.0, 150.0, 300, 300).unwrap();
+        let searched = Window { x0: 100, y0: 100, x1: 200, y1: 200 };
+        let at = |x: f64, y: f64, z: f64| nalgebra::Point3::new(x, y, z);
+        assert!(projects_inside(&k, &at(0.0, 0.0, 1.0), searched), "(150, 150)");
+        assert!(projects_inside(&k, &at(-0.5, 0.49, 1.0), searched), "(100, 199)");
+        assert!(!projects_inside(&k, &at(0.6, 0.0, 1.0), searched), "(210, 150)");
+        assert!(!projects_inside(&k, &at(0.0, 0.0, -1.0), searched), "behind the camera");
     }
 
     #[test]
