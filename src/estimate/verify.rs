@@ -206,7 +206,7 @@ pub fn appearance(edges: f64, colour: f64, colour_share: f64) -> f64 {
 /// Renders `pose` over the mask's window and measures silhouette IoU and appearance.
 pub fn render_evidence(renderer: &RenderPool, mesh: &crate::mesh::Mesh, pose: &Pose, k: &Intrinsics, image: &RgbImage, mask: &GrayImage, window: (u32, u32, u32, u32)) -> Result<Evidence, crate::render::RenderError> {
     let r = render_window(renderer, mesh, pose, k, window)?;
-    let coloured = mesh.has_texture() || mesh.colors().is_some();
+    let coloured = mesh.has_colours();
     Ok(Evidence {
         iou: window_iou(&r, mask, window) as f64,
         edges: appearance_agreement(&r, image, mask, window),

@@ -211,6 +211,12 @@ impl Mesh {
     pub fn has_texture(&self) -> bool {
         self.uvs().is_some() && self.data.materials.iter().any(|m| m.texture.is_some())
     }
+
+    /// Colours of its own (a texture or vertex colours), which a render can be compared
+    /// with a photo by.
+    pub fn has_colours(&self) -> bool {
+        self.has_texture() || self.colors().is_some()
+    }
     /// The same geometry with no texture, no vertex colours and one plain material: what
     /// an untextured CAD model gives (used to simulate the render-to-real gap).
     pub fn without_appearance(&self) -> Mesh {

@@ -86,7 +86,7 @@ impl Tracker {
     /// the colours from the silhouette rendered there.
     pub fn new(model: Arc<ObjectModel>, renderer: Arc<RenderPool>, image: &RgbImage, k: &Intrinsics, pose: Pose, config: TrackerConfig) -> Result<Self, String> {
         let refiner = ContourRefiner::new(renderer.clone());
-        let coloured = model.mesh.has_texture() || model.mesh.colors().is_some();
+        let coloured = model.mesh.has_colours();
         let mut t = Self { model, renderer, refiner, colours: ColourModel::default(), config, pose, velocity: None, frames: 0, silhouette_area: 0.0, coloured, texture: PhotometricModel::default() };
         t.restart(image, k, pose)?;
         Ok(t)
