@@ -15,6 +15,9 @@ pub const MAX_IMAGE_PIXELS: u64 = 40_000_000;
 /// Detections in one estimate request. Each becomes a full-image mask, so this and
 /// [`MAX_MASK_PIXELS_PER_REQUEST`] bound an estimate's mask memory.
 pub const MAX_DETECTIONS: usize = 256;
+/// Objects one detect (or estimate-by-detection) request may search for: each adds its
+/// templates to the search.
+pub const MAX_DETECT_OBJECTS: usize = 64;
 /// Mask pixels one estimate may decode: detections × image pixels (1 byte each).
 pub const MAX_MASK_PIXELS_PER_REQUEST: u64 = 1_000_000_000;
 /// Runs in one RLE mask (list or COCO string); a segmenter's masks have a few thousand.

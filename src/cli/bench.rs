@@ -31,6 +31,9 @@ pub enum BenchCommand {
     /// Pose accuracy (MSSD < 0.1 × diameter) and per-stage median times on generated scenes,
     /// with and without RRC.
     Estimate(super::bench_estimate::BenchEstimateArgs),
+    /// The detector on generated scenes: recall, AP, false detections on images without
+    /// the objects, time per image against the number of objects searched.
+    Detect(super::bench_detect::BenchDetectArgs),
     /// Backbone speed: ms per crop and crops/s at several batch sizes, embedded and ONNX.
     Backbone(super::bench_backbone::BenchBackboneArgs),
     /// The refiners alone, from the true pose and from known perturbations of it, by the
@@ -81,6 +84,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Reid { mesh, units, pairs, seed } => reid(mesh_or_box(mesh, units)?, pairs, seed),
         BenchCommand::Estimate(a) => super::bench_estimate::run(a),
         BenchCommand::Refine(a) => super::bench_refine::run(a),
+        BenchCommand::Detect(a) => super::bench_detect::run(a),
         BenchCommand::Backbone(a) => super::bench_backbone::run(a),
         BenchCommand::Store(a) => super::bench_store::run(a),
         BenchCommand::Matching(a) => super::bench_matching::run(a),

@@ -3,6 +3,7 @@
 pub mod backbone_args;
 pub mod bench;
 pub mod bench_backbone;
+pub mod bench_detect;
 pub mod bench_estimate;
 pub mod bench_matching;
 pub mod bench_refine;
@@ -17,6 +18,8 @@ pub mod camera_file;
 pub mod child_server;
 pub mod demo_client;
 pub mod demo_cmd;
+pub mod detect_cmd;
+pub mod detect_overlay;
 pub mod estimate_cmd;
 pub mod object_args;
 pub mod objects_cmd;
@@ -49,6 +52,8 @@ pub enum Command {
     Onboard(onboard_cmd::OnboardArgs),
     /// The whole method on a generated object and scene: onboard, estimate, compare with the truth.
     Demo(demo_cmd::DemoArgs),
+    /// Find onboarded objects in an image (no mask, no box): BOP default-detections JSON.
+    Detect(detect_cmd::DetectArgs),
     /// Estimate an object's pose in an image from one or more candidate masks.
     Estimate(estimate_cmd::EstimateArgs),
     /// Poses through a video (a folder of frames): a full estimate from the first frame's
@@ -93,6 +98,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Onboard(a) => onboard_cmd::run(a),
         Command::Demo(a) => demo_cmd::run(a),
+        Command::Detect(a) => detect_cmd::run(a),
         Command::Estimate(a) => estimate_cmd::run(a),
         Command::Track(a) => track_cmd::run(a),
         Command::Render(a) => render_cmd::run(a),

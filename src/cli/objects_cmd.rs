@@ -30,6 +30,10 @@ pub enum ObjectsCommand {
     },
     /// Removes an object.
     Delete { id: String },
+    /// Brings objects stored by an older version up to the current model format: computes
+    /// what they lack (the contour model, the detector's templates) from their stored mesh
+    /// and writes them back, without re-onboarding. Default: every object in the store.
+    Upgrade { ids: Vec<String> },
 }
 
 pub fn run(a: ObjectsArgs) -> Result<()> {
@@ -62,6 +66,26 @@ pub fn run(a: ObjectsArgs) -> Result<()> {
             store.delete(&id)?;
             println!("deleted {id:?} from {}", store.url());
         }
+        ObjectsCommand::Upgrade { ids } => upgrade(store.as_ref(), ids)?,
+    }
+    Ok(())
+}
+
+fn upgrade(store: &dyn crate::store::ObjectStore, ids: Vec<String>) -> Result<()> {
+    let ids = if ids.is_empty() { store.list()?.into_iter().map(|o| o.id).collect() } else { ids };
+    let renderer = super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?;
+    for id in ids {
+        let m = store.get(&id)?;
+        let lacked: Vec<&str> = [("contour model", m.contours.get().is_none()), ("detector templates", m.detector.get().is_none())].iter().filter(|(_, missing)| *missing).map(|(what, _)| *what).collect();
+        if lacked.is_empty() {
+            println!("{id}: up to date");
+            continue;
+        }
+        let t = Instant::now();
+        m.contour_model_or_build(&renderer)?;
+        m.shape_model_or_build(&renderer)?;
+        store.put(&m, true)?;
+        println!("{id}: added {} in {:.1} s", lacked.join(" and "), t.elapsed().as_secs_f64());
     }
     Ok(())
 }

@@ -6,13 +6,15 @@ use crate::features::BackboneIdentity;
 use crate::geometry::{CropBox, Intrinsics, PatchGrid, Pose, ViewSampling};
 use crate::mesh::Mesh;
 use super::contour::ContourModel;
+use crate::detect::ShapeModel;
 use half::f16;
 use std::sync::{Arc, OnceLock};
 
 /// Version of the model layout; bumped on any change of meaning or layout. 2: optional
 /// PCA-compressed patch descriptors (version 1 models load as uncompressed). 3: the contour
-/// model (older models load without it and get it computed on first use).
-pub const MODEL_FORMAT_VERSION: u32 = 3;
+/// model (older models load without it and get it computed on first use). 4: the detector's
+/// shape templates (older models likewise get them on first use, or `b2tf objects upgrade`).
+pub const MODEL_FORMAT_VERSION: u32 = 4;
 
 /// Side of the stored template silhouettes (crop mask downsampled, 1 bit per cell).
 pub const SILHOUETTE_SIZE: usize = 64;
@@ -86,6 +88,9 @@ pub struct ObjectModel {
     /// and loading; objects stored before format 3 get it on first use
     /// (`contour_model_or_build`), once per loaded copy.
     pub contours: OnceLock<Arc<ContourModel>>,
+    /// The detector's shape templates. Set by onboarding and loading; objects stored
+    /// before format 4 get them on first use (`shape_model_or_build`).
+    pub detector: OnceLock<Arc<ShapeModel>>,
 }
 
 impl ObjectModel {
@@ -132,12 +137,29 @@ impl ObjectModel {
         Ok(self.contours.get().expect("just set").clone())
     }
 
+    /// The detector's templates, computed now (renders of the mesh) if the object was stored
+    /// without them.
+    pub fn shape_model_or_build(&self, renderer: &crate::render::RenderPool) -> Result<Arc<ShapeModel>, crate::render::RenderError> {
+        if let Some(s) = self.detector.get() {
+            return Ok(s.clone());
+        }
+        let t = std::time::Instant::now();
+        let built = Arc::new(ShapeModel::build(&self.mesh, renderer, &Default::default())?);
+        tracing::warn!(
+            "object {:?} was stored without detector templates (format < 4): computed them in {:.1} s for this session; `b2tf objects upgrade` stores them",
+            self.object_id,
+            t.elapsed().as_secs_f64()
+        );
+        let _ = self.detector.set(built);
+        Ok(self.detector.get().expect("just set").clone())
+    }
+
     /// Approximate heap bytes held: the arrays, the mesh and its textures (for cache budgets).
     pub fn memory_bytes(&self) -> usize {
         let d = self.mesh.data();
         let mesh = d.positions.len() * 12 + d.normals.len() * 12 + d.colors.len() * 12 + d.uvs.len() * 8 + d.triangles.len() * 12;
         let textures: usize = self.mesh.materials().iter().filter_map(|m| m.texture.as_ref()).map(|t| t.as_raw().len()).sum();
-        self.global.len() * 4 + self.patch_descriptors.len() * 2 + self.patch_points.len() * 12 + self.patch_cells.len() * 2 + self.silhouettes.len() * 8 + self.templates.len() * std::mem::size_of::<Template>() + mesh + textures + self.contours.get().map_or(0, |c| c.memory_bytes())
+        self.global.len() * 4 + self.patch_descriptors.len() * 2 + self.patch_points.len() * 12 + self.patch_cells.len() * 2 + self.silhouettes.len() * 8 + self.templates.len() * std::mem::size_of::<Template>() + mesh + textures + self.contours.get().map_or(0, |c| c.memory_bytes()) + self.detector.get().map_or(0, |d| d.memory_bytes())
     }
 
     /// Query patch descriptors (`n × backbone local_dim`) in the space of the stored ones.
@@ -178,6 +200,9 @@ impl ObjectModel {
         }
         if let Some(c) = self.contours.get() {
             c.validate().map_err(|e| format!("object {:?}: {e}", self.object_id))?;
+        }
+        if let Some(d) = self.detector.get() {
+            d.validate().map_err(|e| format!("object {:?}: {e}", self.object_id))?;
         }
         Ok(())
     }

@@ -117,6 +117,8 @@ pub fn onboard_cancellable(
     }
     let contours = tracing::info_span!("contours").in_scope(|| super::contour::ContourModel::build(mesh, renderer, &Default::default()))?;
     model.contours = std::sync::OnceLock::from(std::sync::Arc::new(contours));
+    let shapes = tracing::info_span!("detector").in_scope(|| crate::detect::ShapeModel::build(mesh, renderer, &Default::default()))?;
+    model.detector = std::sync::OnceLock::from(std::sync::Arc::new(shapes));
     tracing::info_span!("pca").in_scope(|| apply_pca(&mut model, config.pca))?;
     Ok(model)
 }
@@ -263,6 +265,7 @@ fn assemble(
         silhouettes: vec![],
         pca: None,
         contours: Default::default(),
+        detector: Default::default(),
     };
     for p in parts {
         let offset = m.patch_points.len() as u32;

@@ -45,6 +45,10 @@ struct Manifest {
     /// when the object has none (older formats).
     #[serde(default)]
     contour: Option<crate::onboard::ContourConfig>,
+    /// Since format 4: how the detector templates in the `detector_*` tensors were made;
+    /// absent when the object has none (older formats).
+    #[serde(default)]
+    detector: Option<crate::detect::DetectorConfig>,
 }
 
 #[derive(serde::Serialize, serde::Deserialize)]
@@ -132,6 +136,7 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
         pca: model.pca.clone(),
         generation: Some(generation),
         contour: model.contours.get().map(|c| c.config),
+        detector: model.detector.get().map(|d| d.config),
     };
     let manifest = serde_json::to_vec_pretty(&manifest).map_err(|e| corrupt(e.to_string()))?;
 
@@ -159,6 +164,12 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
             ("contour_foreground_m", Dtype::F32, vec![rows], bytemuck::cast_slice(&c.foreground_m)),
             ("contour_background_m", Dtype::F32, vec![rows], bytemuck::cast_slice(&c.background_m)),
         ] as [(&str, Dtype, Vec<usize>, &[u8]); 5]);
+    }
+    if let Some(d) = model.detector.get() {
+        tensors.extend([
+            ("detector_features", Dtype::I8, vec![d.features.len(), 3], bytemuck::cast_slice(&d.features)),
+            ("detector_boxes", Dtype::I8, vec![d.boxes.len(), 4], bytemuck::cast_slice(&d.boxes)),
+        ] as [(&str, Dtype, Vec<usize>, &[u8]); 2]);
     }
     let views = tensors.into_iter().map(|(name, dt, shape, bytes)| TensorView::new(dt, shape, bytes).map(|v| (name, v))).collect::<Result<Vec<_>, _>>().map_err(|e| corrupt(e.to_string()))?;
     let metadata = std::collections::HashMap::from([(GENERATION_KEY.to_string(), generation.to_string())]);
@@ -247,6 +258,17 @@ pub fn decode(manifest: &[u8], tensors: &[u8], texture: &mut dyn FnMut(&str) -> 
         }
         None => std::sync::OnceLock::new(),
     };
+    let detector = match man.detector {
+        Some(config) => {
+            let d = crate::detect::ShapeModel {
+                config,
+                features: bytemuck::pod_collect_to_vec(get("detector_features", Dtype::I8, 3)?),
+                boxes: bytemuck::pod_collect_to_vec(get("detector_boxes", Dtype::I8, 4)?),
+            };
+            std::sync::OnceLock::from(Arc::new(d))
+        }
+        None => std::sync::OnceLock::new(),
+    };
     let model = ObjectModel {
         object_id: man.object_id,
         global_dim: man.backbone.global_dim as usize,
@@ -264,6 +286,7 @@ pub fn decode(manifest: &[u8], tensors: &[u8], texture: &mut dyn FnMut(&str) -> 
         patch_cells: bytemuck::pod_collect_to_vec(get("patch_cells", Dtype::U16, 0)?),
         silhouettes: bytemuck::pod_collect_to_vec(get("silhouettes", Dtype::U64, 0)?),
         contours,
+        detector,
     };
     model.validate().map_err(corrupt)?;
     Ok(model)

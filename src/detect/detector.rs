@@ -1,0 +1,334 @@
+//! Finds onboarded objects in an image: the scales each object's size and the distance
+//! range imply, response maps once per scale for all objects, every template of every
+//! object over them, suppression of overlaps across objects and instances, then for each
+//! detection the coarse pose of its template and a mask (the mesh rendered at that pose,
+//! replaced by the graph-cut segmentation of its box where the two agree).
+
+use super::nms::suppress;
+use super::responses::ResponseMaps;
+use super::scales::{distance_for_scale, rung_scale, rungs_between, scale_for_distance};
+use super::search::search;
+use super::verify::{evidence, Evidence};
+use super::templates::ShapeModel;
+use crate::geometry::{Intrinsics, Pose};
+use crate::masks::{mask_iou, segment_box, Method, PixelBox, SegmentConfig};
+use crate::mesh::Mesh;
+use crate::render::{RenderOptions, RenderPool};
+use image::{imageops, GrayImage, RgbImage};
+use nalgebra::{Rotation3, Vector3};
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+/// One object to look for.
+pub struct Target<'a> {
+    pub id: &'a str,
+    pub shape: &'a ShapeModel,
+    pub mesh: &'a Mesh,
+}
+
+/// Search settings of one request.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct DetectOptions {
+    /// At most this many detections, best first, over all objects.
+    pub max_detections: usize,
+    /// Template score (share of the best possible response) a detection needs.
+    pub min_score: f32,
+    /// Distances of the object's centre from the camera to search, metres; unset: from
+    /// the object appearing `DEFAULT_MAX_SHARE` of the image's shorter side across down to
+    /// `DEFAULT_MIN_DIAMETER_PX`.
+    pub min_distance_m: Option<f64>,
+    pub max_distance_m: Option<f64>,
+    /// Replace the rendered silhouette by the graph-cut segmentation of its box where the
+    /// two agree (the photo's own outline).
+    pub refine_masks: bool,
+}
+
+impl Default for DetectOptions {
+    fn default() -> Self {
+        Self { max_detections: 20, min_score: DEFAULT_MIN_SCORE, min_distance_m: None, max_distance_m: None, refine_masks: true }
+    }
+}
+
+/// Default score threshold (docs/detection.md: chosen on generated scenes and empty images).
+pub const DEFAULT_MIN_SCORE: f32 = 0.7;
+/// Smallest bounding-sphere diameter searched by default, pixels.
+pub const DEFAULT_MIN_DIAMETER_PX: f64 = 40.0;
+/// Largest, as a share of the image's shorter side.
+pub const DEFAULT_MAX_SHARE: f64 = 1.0;
+/// Grid positions whose template sum is below this share of the maximum are not refined.
+const MIN_RAW_SCORE: f32 = 0.6;
+/// Template matches scoring less above chance are not candidates.
+const MIN_SHAPE_SCORE: f32 = 0.4;
+/// Boxes overlapping more than this are one detection.
+const NMS_IOU: f64 = 0.5;
+/// Graph-cut masks must agree this well with the rendered silhouette to replace it.
+const MIN_SEGMENT_AGREEMENT: f64 = 0.6;
+
+#[derive(Debug, thiserror::Error)]
+pub enum DetectError {
+    #[error("{0}")]
+    BadInput(String),
+    #[error("object {object:?}: {message}")]
+    Render { object: String, message: String },
+}
+
+/// One found object instance.
+#[derive(Clone, Debug)]
+pub struct Detection {
+    pub object_id: String,
+    /// [x, y, w, h] in pixels, around `mask`.
+    pub bbox: [f64; 4],
+    /// The combined score (template match and the render's evidence), 0–1.
+    pub score: f32,
+    /// The template match alone: share of the best possible response.
+    pub shape_score: f32,
+    pub evidence: Evidence,
+    /// Image-sized, 255 = object.
+    pub mask: GrayImage,
+    /// How the mask was made: the rendered silhouette or the graph cut of its box.
+    pub mask_source: MaskSource,
+    /// The matched template's pose placed where it was found (a hypothesis, ~15–20° and a
+    /// few % of depth from the truth).
+    pub pose: Pose,
+    pub template: usize,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MaskSource {
+    Silhouette,
+    GraphCut,
+}
+
+/// What one object's search covered.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Searched {
+    pub object_id: String,
+    /// Nearest and farthest distance searched (sphere centre), metres.
+    pub distance_m: [f64; 2],
+    pub scales: usize,
+    pub candidates: usize,
+}
+
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct DetectTimings {
+    pub responses_ms: f64,
+    pub search_ms: f64,
+    pub verify_ms: f64,
+    pub masks_ms: f64,
+    pub total_ms: f64,
+}
+
+#[derive(Clone, Debug)]
+pub struct DetectReport {
+    pub detections: Vec<Detection>,
+    pub searched: Vec<Searched>,
+    pub timings: DetectTimings,
+    /// Why nothing was found, when nothing was.
+    pub reason: Option<String>,
+}
+
+/// A placement in original image coordinates.
+struct Candidate {
+    target: usize,
+    template: usize,
+    /// Projected centre (pixels) and the resampling factor it was found at.
+    u: f64,
+    v: f64,
+    rho: f64,
+    bbox: [f64; 4],
+    score: f32,
+}
+
+pub fn check_options(o: &DetectOptions) -> Result<(), DetectError> {
+    let bad = |m: String| Err(DetectError::BadInput(m));
+    if !(1..=crate::limits::MAX_DETECTIONS).contains(&o.max_detections) {
+        return bad(format!("max_detections must be 1–{}, got {}", crate::limits::MAX_DETECTIONS, o.max_detections));
+    }
+    if !(o.min_score.is_finite() && (0.0..=1.0).contains(&o.min_score)) {
+        return bad(format!("min_score must be within 0–1, got {}", o.min_score));
+    }
+    for (name, v) in [("min_distance_m", o.min_distance_m), ("max_distance_m", o.max_distance_m)] {
+        if let Some(v) = v {
+            if !(v.is_finite() && (0.001..=1000.0).contains(&v)) {
+                return bad(format!("{name} must be within 0.001–1000 m, got {v}"));
+            }
+        }
+    }
+    if let (Some(a), Some(b)) = (o.min_distance_m, o.max_distance_m) {
+        if a >= b {
+            return bad(format!("min_distance_m ({a}) must be below max_distance_m ({b})"));
+        }
+    }
+    Ok(())
+}
+
+/// Looks for every target in `image`.
+pub fn detect(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &DetectOptions, renderer: &RenderPool) -> Result<DetectReport, DetectError> {
+    let t0 = Instant::now();
+    check_options(opts)?;
+    Intrinsics::new(k.fx, k.fy, k.cx, k.cy, k.width, k.height).map_err(|e| DetectError::BadInput(e.to_string()))?;
+    if (k.width, k.height) != image.dimensions() {
+        return Err(DetectError::BadInput(format!("camera resolution {}×{} differs from the image's {}×{}", k.width, k.height, image.width(), image.height())));
+    }
+    let f = (k.fx * k.fy).sqrt();
+    let short_side = image.width().min(image.height()) as f64;
+    // Scales per object, and the union of them (each computed once).
+    let mut plans: Vec<(Vec<usize>, [f64; 2])> = Vec::new();
+    for t in targets {
+        let (c, r) = (t.shape.config.canonical_px as f64, t.mesh.bounding_radius().max(1e-6));
+        let rho_hi = match opts.min_distance_m {
+            Some(z) => scale_for_distance(c, f, r, z),
+            None => c / DEFAULT_MIN_DIAMETER_PX,
+        };
+        let rho_lo = match opts.max_distance_m {
+            Some(z) => scale_for_distance(c, f, r, z),
+            None => c / (DEFAULT_MAX_SHARE * short_side),
+        };
+        // A resampled image smaller than a template holds no whole object.
+        let rho_floor = t.shape.config.template_side() as f64 / short_side;
+        let rungs: Vec<usize> = rungs_between(rho_lo.max(rho_floor * 0.5), rho_hi).into_iter().filter(|&k| rung_scale(k) >= rho_floor * 0.5).collect();
+        let dist = |rho: f64| distance_for_scale(c, f, r, rho);
+        let range = match (rungs.first(), rungs.last()) {
+            (Some(&a), Some(&b)) => [dist(rung_scale(a)), dist(rung_scale(b))],
+            _ => [f64::NAN, f64::NAN],
+        };
+        plans.push((rungs, range));
+    }
+    let mut needed: BTreeMap<(usize, u32), ()> = BTreeMap::new();
+    for (t, (rungs, _)) in targets.iter().zip(&plans) {
+        for &k in rungs {
+            needed.insert((k, t.shape.config.min_magnitude.to_bits()), ());
+        }
+    }
+    let keys: Vec<(usize, u32)> = needed.into_keys().collect();
+    let maps: BTreeMap<(usize, u32), (f64, f64, ResponseMaps)> = keys
+        .par_iter()
+        .map(|&(k, mag)| {
+            let rho = rung_scale(k);
+            let (w, h) = (((image.width() as f64 * rho).round() as u32).max(1), ((image.height() as f64 * rho).round() as u32).max(1));
+            let small = if (w, h) == image.dimensions() { image.clone() } else { imageops::resize(image, w, h, imageops::FilterType::Triangle) };
+            let maps = ResponseMaps::compute(&small, f32::from_bits(mag), 4, 4);
+            ((k, mag), (w as f64 / image.width() as f64, h as f64 / image.height() as f64, maps))
+        })
+        .collect();
+    let responses_ms = t0.elapsed().as_secs_f64() * 1e3;
+
+    let t1 = Instant::now();
+    let mut candidates: Vec<Candidate> = Vec::new();
+    let mut searched = Vec::new();
+    for (ti, (t, (rungs, range))) in targets.iter().zip(&plans).enumerate() {
+        let before = candidates.len();
+        for &k in rungs {
+            let (rx, ry, m) = &maps[&(k, t.shape.config.min_magnitude.to_bits())];
+            for p in search(t.shape, m, MIN_RAW_SCORE, MIN_SHAPE_SCORE.min(opts.min_score)) {
+                let (u, v) = ((p.x as f64 + 0.5) / rx - 0.5, (p.y as f64 + 0.5) / ry - 0.5);
+                let b = t.shape.boxes[p.template];
+                let bbox = [u + b[0] as f64 / rx, v + b[1] as f64 / ry, (b[2] - b[0]) as f64 / rx, (b[3] - b[1]) as f64 / ry];
+                candidates.push(Candidate { target: ti, template: p.template, u, v, rho: rung_scale(k), bbox, score: p.score });
+            }
+        }
+        searched.push(Searched { object_id: t.id.to_string(), distance_m: *range, scales: rungs.len(), candidates: candidates.len() - before });
+    }
+    let boxes: Vec<[f64; 4]> = candidates.iter().map(|c| c.bbox).collect();
+    let scores: Vec<f32> = candidates.iter().map(|c| c.score).collect();
+    let mut kept = suppress(&boxes, &scores, NMS_IOU);
+    kept.truncate(opts.max_detections * 2 + 10);
+    let search_ms = t1.elapsed().as_secs_f64() * 1e3;
+
+    // The best candidates get a render at their pose; the render's evidence joins the score.
+    let t2 = Instant::now();
+    let verified: Vec<(usize, Pose, Evidence, f32)> = kept
+        .par_iter()
+        .map(|&i| {
+            let c = &candidates[i];
+            let t = &targets[c.target];
+            let pose = coarse_pose(t.shape, t.mesh, k, c);
+            let ev = evidence(renderer, t.mesh, &pose, k, image, c.bbox).map_err(|e| DetectError::Render { object: t.id.to_string(), message: e.to_string() })?;
+            Ok((i, pose, ev, combined_score(c.score, &ev)))
+        })
+        .collect::<Result<_, DetectError>>()?;
+    let verify_ms = t2.elapsed().as_secs_f64() * 1e3;
+    let passed: Vec<&(usize, Pose, Evidence, f32)> = verified.iter().filter(|v| v.3 >= opts.min_score).collect();
+    let order = suppress(&passed.iter().map(|v| candidates[v.0].bbox).collect::<Vec<_>>(), &passed.iter().map(|v| v.3).collect::<Vec<_>>(), NMS_IOU);
+    let t3 = Instant::now();
+    let detections: Vec<Detection> = order
+        .into_iter()
+        .take(opts.max_detections)
+        .collect::<Vec<_>>()
+        .par_iter()
+        .map(|&j| {
+            let (i, pose, ev, score) = passed[j];
+            let c = &candidates[*i];
+            finish(image, k, &targets[c.target], *pose, c, *ev, *score, opts.refine_masks, renderer)
+        })
+        .collect::<Result<_, _>>()?;
+    let masks_ms = t3.elapsed().as_secs_f64() * 1e3;
+    let reason = if !detections.is_empty() {
+        None
+    } else if plans.iter().all(|(r, _)| r.is_empty()) {
+        Some("no scale to search: the distance range puts the objects outside the sizes this image can show".to_string())
+    } else {
+        Some(format!("no candidate scored {} or more ({} candidates checked)", opts.min_score, verified.len()))
+    };
+    Ok(DetectReport { detections, searched, timings: DetectTimings { responses_ms, search_ms, verify_ms, masks_ms, total_ms: t0.elapsed().as_secs_f64() * 1e3 }, reason })
+}
+
+/// The template's rotation, turned so that the optical axis points at the found centre
+/// (an object off the axis looks like one on it seen from a turned camera), at the
+/// distance the scale implies.
+fn coarse_pose(shape: &ShapeModel, mesh: &Mesh, k: &Intrinsics, c: &Candidate) -> Pose {
+    let r = mesh.bounding_radius().max(1e-6);
+    let f = (k.fx * k.fy).sqrt();
+    let dist = distance_for_scale(shape.config.canonical_px as f64, f, r, c.rho);
+    let ray = Vector3::new((c.u - k.cx) / k.fx, (c.v - k.cy) / k.fy, 1.0).normalize();
+    let align = Rotation3::rotation_between(&Vector3::z(), &ray).unwrap_or_else(Rotation3::identity);
+    let rotation = align * shape.config.rotation(c.template);
+    let centre = Vector3::from(mesh.bbox_center());
+    Pose::new(rotation, ray * dist - rotation * centre)
+}
+
+/// The detection's score: the template match and the render's evidence, equally weighted
+/// (docs/detection.md: chosen on generated scenes and images without the objects).
+pub fn combined_score(shape: f32, ev: &Evidence) -> f32 {
+    match ev.colour {
+        Some(c) => (shape + ev.outline + c.max(0.0)) / 3.0,
+        None => (shape + ev.outline) / 2.0,
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn finish(image: &RgbImage, k: &Intrinsics, t: &Target, pose: Pose, c: &Candidate, evidence: Evidence, score: f32, refine: bool, renderer: &RenderPool) -> Result<Detection, DetectError> {
+    let render = renderer.render(t.mesh, &pose, k, &RenderOptions::grey()).map_err(|e| DetectError::Render { object: t.id.to_string(), message: e.to_string() })?;
+    let mut mask = render.mask;
+    let mut source = MaskSource::Silhouette;
+    if let Some(b) = bbox_of(&mask) {
+        if refine {
+            // The segmenter gets the silhouette's box widened a little (the pose is coarse).
+            let grow = 0.1 * b[2].max(b[3]);
+            let grown = [b[0] - grow, b[1] - grow, b[2] + 2.0 * grow, b[3] + 2.0 * grow];
+            if let Ok(pb) = PixelBox::from_xywh(grown, image.width(), image.height()) {
+                let seg = segment_box(image, &pb, &SegmentConfig::default());
+                if seg.method == Method::GraphCut && mask_iou(&seg.mask, &mask) >= MIN_SEGMENT_AGREEMENT {
+                    mask = seg.mask;
+                    source = MaskSource::GraphCut;
+                }
+            }
+        }
+    } else {
+        // The object is behind the camera or off the image at this pose: the template's
+        // box, clipped, is all there is.
+        if let Ok(pb) = PixelBox::from_xywh(c.bbox, image.width(), image.height()) {
+            mask = pb.filled(image.width(), image.height());
+        }
+    }
+    let bbox = bbox_of(&mask).unwrap_or(c.bbox);
+    Ok(Detection { object_id: t.id.to_string(), bbox, score, shape_score: c.score, evidence, mask, mask_source: source, pose, template: c.template })
+}
+
+/// [x, y, w, h] of a mask's nonzero pixels.
+pub fn bbox_of(mask: &GrayImage) -> Option<[f64; 4]> {
+    crate::features::mask_bbox(mask).map(|(u0, v0, u1, v1)| [u0 as f64, v0 as f64, (u1 - u0 + 1) as f64, (v1 - v0 + 1) as f64])
+}

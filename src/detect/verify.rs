@@ -1,0 +1,153 @@
+//! A second look at each candidate: the mesh rendered at the candidate's coarse pose into a
+//! small window around it, compared with the image there. Shape matching alone fires on
+//! clutter whose edges happen to trace an outline (a painted ellipse looks like a can from
+//! above); the render tells whether the whole outline is there at the candidate's exact
+//! perspective, and, for meshes with colours, whether the surface has the object's colours.
+//! Neither measure depends on brightness, so both survive lighting changes.
+
+use super::gradients::{bin_of, colour_gradients, quantised_bits, spread, BINS};
+use crate::geometry::{Intrinsics, Pose};
+use crate::mesh::Mesh;
+use crate::render::{RenderError, RenderOptions, RenderPool};
+use image::{imageops, GrayImage, RgbImage};
+
+/// Longer side of the comparison window, pixels.
+const WINDOW_PX: f64 = 64.0;
+
+/// What the render says about one candidate.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct Evidence {
+    /// Share of the rendered outline where the image has an edge of that orientation
+    /// (within a pixel and a bin), 0–1.
+    pub outline: f32,
+    /// Overlap of the render's and the image's chromaticity histograms inside the
+    /// silhouette, 0–1; `None` for a mesh without colours (its grey render says nothing
+    /// about the surface).
+    pub colour: Option<f32>,
+}
+
+/// Renders `mesh` at `pose` into the window `bbox` (x, y, w, h; grown by a fifth on each
+/// side) at about `WINDOW_PX` across, and compares it with `image` there.
+pub fn evidence(renderer: &RenderPool, mesh: &Mesh, pose: &Pose, k: &Intrinsics, image: &RgbImage, bbox: [f64; 4]) -> Result<Evidence, RenderError> {
+    let grow = 0.2 * bbox[2].max(bbox[3]);
+    let x0 = (bbox[0] - grow).floor().max(0.0);
+    let y0 = (bbox[1] - grow).floor().max(0.0);
+    let x1 = (bbox[0] + bbox[2] + grow).ceil().min(image.width() as f64);
+    let y1 = (bbox[1] + bbox[3] + grow).ceil().min(image.height() as f64);
+    if x1 - x0 < 4.0 || y1 - y0 < 4.0 {
+        return Ok(Evidence::default());
+    }
+    let s = (WINDOW_PX / (x1 - x0).max(y1 - y0)).min(1.0);
+    let (w, h) = (((x1 - x0) * s).round().max(4.0) as u32, ((y1 - y0) * s).round().max(4.0) as u32);
+    let (sx, sy) = (w as f64 / (x1 - x0), h as f64 / (y1 - y0));
+    // Pixel centres at integers on both sides: window pixel i sits at x0 + (i + ½)/s − ½.
+    let kw = Intrinsics { fx: k.fx * sx, fy: k.fy * sy, cx: (k.cx - x0 + 0.5) * sx - 0.5, cy: (k.cy - y0 + 0.5) * sy - 0.5, width: w, height: h };
+    let render = renderer.render(mesh, pose, &kw, &RenderOptions::default())?;
+    let crop = imageops::crop_imm(image, x0 as u32, y0 as u32, (x1 - x0) as u32, (y1 - y0) as u32).to_image();
+    let photo = imageops::resize(&crop, w, h, imageops::FilterType::Triangle);
+    let outline = outline_agreement(&render.mask, &photo);
+    let colour = mesh.has_colours().then(|| chroma_overlap(&render.rgb, &render.mask, &photo));
+    Ok(Evidence { outline, colour })
+}
+
+/// Share of the silhouette's contour pixels where the photo has an edge of the contour's
+/// orientation (±1 bin) within one pixel.
+fn outline_agreement(mask: &GrayImage, photo: &RgbImage) -> f32 {
+    let (w, h) = (mask.width() as usize, mask.height() as usize);
+    let mask_rgb = RgbImage::from_fn(mask.width(), mask.height(), |x, y| {
+        let v = mask.get_pixel(x, y)[0];
+        image::Rgb([v, v, v])
+    });
+    let outline = colour_gradients(&mask_rgb);
+    let peak = outline.magnitude.iter().copied().fold(0.0f32, f32::max);
+    if peak == 0.0 {
+        return 0.0;
+    }
+    let g = colour_gradients(photo);
+    // A lower threshold than the search's: at this size edges are softened by resampling.
+    let bits = spread(&quantised_bits(&g, 20.0), w, h, 3);
+    let (mut n, mut hit) = (0u32, 0u32);
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            if mask.as_raw()[i] == 0 || outline.magnitude[i] < 0.25 * peak {
+                continue;
+            }
+            n += 1;
+            let b = bin_of(outline.angle[i]) as usize;
+            let wanted = (1u8 << b) | (1u8 << ((b + 1) % BINS)) | (1u8 << ((b + BINS - 1) % BINS));
+            hit += (bits[i] & wanted != 0) as u32;
+        }
+    }
+    if n == 0 { 0.0 } else { hit as f32 / n as f32 }
+}
+
+/// Chromaticity bins per axis (r/(r+g+b), g/(r+g+b)), plus one bin for dark pixels.
+const CHROMA_BINS: usize = 6;
+/// r + g + b below this is too dark to have a reliable chromaticity.
+const DARK: u32 = 90;
+
+fn chroma_histogram(rgb: &RgbImage, mask: &GrayImage) -> Vec<f32> {
+    let mut h = vec![0f32; CHROMA_BINS * CHROMA_BINS + 1];
+    for (p, m) in rgb.pixels().zip(mask.as_raw()) {
+        if *m == 0 {
+            continue;
+        }
+        let sum = p[0] as u32 + p[1] as u32 + p[2] as u32;
+        let bin = if sum < DARK {
+            CHROMA_BINS * CHROMA_BINS
+        } else {
+            let q = |v: u8| ((v as f32 / sum as f32) * CHROMA_BINS as f32).min(CHROMA_BINS as f32 - 1.0) as usize;
+            q(p[0]) * CHROMA_BINS + q(p[1])
+        };
+        h[bin] += 1.0;
+    }
+    let n: f32 = h.iter().sum();
+    if n > 0.0 {
+        h.iter_mut().for_each(|v| *v /= n);
+    }
+    h
+}
+
+/// Histogram intersection of the render's and the photo's chromaticities over the
+/// silhouette: which colours the surface has, not where (so a pose some degrees off, or
+/// turned by a symmetry of its outline, still agrees), and free of brightness.
+fn chroma_overlap(render: &RgbImage, mask: &GrayImage, photo: &RgbImage) -> f32 {
+    if mask.as_raw().iter().filter(|&&m| m > 0).count() < 16 {
+        return 0.0;
+    }
+    let (a, b) = (chroma_histogram(render, mask), chroma_histogram(photo, mask));
+    a.iter().zip(&b).map(|(x, y)| x.min(*y)).sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn disc(w: u32, r: f64) -> GrayImage {
+        GrayImage::from_fn(w, w, |x, y| image::Luma([if (x as f64 - w as f64 / 2.0).hypot(y as f64 - w as f64 / 2.0) < r { 255 } else { 0 }]))
+    }
+
+    #[test]
+    fn an_outline_present_in_the_photo_agrees_and_an_absent_one_does_not() {
+        let m = disc(48, 14.0);
+        let photo = RgbImage::from_fn(48, 48, |x, y| if m.get_pixel(x, y)[0] > 0 { image::Rgb([200, 180, 40]) } else { image::Rgb([30, 60, 90]) });
+        assert!(outline_agreement(&m, &photo) > 0.9);
+        let flat = RgbImage::from_pixel(48, 48, image::Rgb([90, 90, 90]));
+        assert_eq!(outline_agreement(&m, &flat), 0.0);
+    }
+
+    #[test]
+    fn chromaticities_overlap_under_brightness_changes_only() {
+        let m = disc(48, 18.0);
+        let stripes = RgbImage::from_fn(48, 48, |x, _| if (x / 6) % 2 == 0 { image::Rgb([220, 40, 40]) } else { image::Rgb([40, 40, 220]) });
+        let darker = RgbImage::from_fn(48, 48, |x, y| image::Rgb(stripes.get_pixel(x, y).0.map(|v| (v as f32 * 0.7) as u8)));
+        assert!(chroma_overlap(&stripes, &m, &darker) > 0.9);
+        let flat = RgbImage::from_pixel(48, 48, image::Rgb([200, 40, 40]));
+        let o = chroma_overlap(&stripes, &m, &flat);
+        assert!((0.3..0.7).contains(&o), "{o}");
+        let green = RgbImage::from_pixel(48, 48, image::Rgb([40, 200, 40]));
+        assert!(chroma_overlap(&stripes, &m, &green) < 0.05);
+    }
+
+}

@@ -1,0 +1,116 @@
+//! The training-free detector on generated scenes (lavapipe): it finds an object on
+//! clutter with no mask and no box, every instance of it, nothing on an image without it,
+//! refuses bad search settings by name, and its templates survive the store.
+
+use b2tfpose::detect::detector::bbox_of;
+use b2tfpose::detect::nms::box_iou;
+use b2tfpose::detect::{detect, DetectOptions, ShapeModel, Target};
+use b2tfpose::eval::scenes::{generate_image, SceneConfig, SceneImage};
+use b2tfpose::features::{EmbeddedBackbone, EmbeddedConfig};
+use b2tfpose::geometry::{geodesic_distance, ViewSampling};
+use b2tfpose::mesh::procedural::textured_box;
+use b2tfpose::mesh::Mesh;
+use b2tfpose::onboard::{onboard, OnboardConfig};
+use b2tfpose::render::{RenderPool, RendererConfig};
+use std::sync::OnceLock;
+
+struct Fixture {
+    mesh: Mesh,
+    shape: ShapeModel,
+    pool: RenderPool,
+}
+
+fn fixture() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| {
+        let pool = RenderPool::new(1, RendererConfig::default()).unwrap();
+        let mesh = textured_box([0.10, 0.06, 0.16], 3);
+        let shape = ShapeModel::build(&mesh, &pool, &Default::default()).unwrap();
+        Fixture { mesh, shape, pool }
+    })
+}
+
+fn target(f: &Fixture) -> Vec<Target<'_>> {
+    vec![Target { id: "box", shape: &f.shape, mesh: &f.mesh }]
+}
+
+fn scene(objects: &[(u32, Mesh)], per_image: usize, seed: u64) -> SceneImage {
+    let cfg = SceneConfig { images: 1, objects_per_image: per_image, fill_range: (0.25, 0.4), max_occlusion: 0.2, seed, ..Default::default() };
+    generate_image(objects, &cfg, &fixture().pool, 0).unwrap()
+}
+
+#[test]
+fn finds_the_object_on_clutter_with_its_coarse_pose() {
+    let f = fixture();
+    let s = scene(&[(1, f.mesh.clone())], 1, 11);
+    let r = detect(&s.rgb, &s.cam, &target(f), &DetectOptions::default(), &f.pool).unwrap();
+    let truth = &s.instances[0];
+    let d = r.detections.first().unwrap_or_else(|| panic!("nothing found: {:?}", r.reason));
+    let iou = box_iou(&d.bbox, &bbox_of(&truth.mask_visib).unwrap());
+    assert!(iou >= 0.7, "box IoU {iou}");
+    let rot = geodesic_distance(&d.pose.rotation, &truth.pose.rotation).to_degrees();
+    let depth = (d.pose.translation.z / truth.pose.translation.z - 1.0).abs();
+    // A template is at most ~20° from any view; the box's half-turn symmetries count as right.
+    assert!(rot < 35.0 || rot > 145.0, "coarse rotation {rot}° off");
+    assert!(depth < 0.15, "coarse depth {:.0} % off", depth * 100.0);
+    // Only one instance: whatever else scored is far below it or suppressed.
+    assert_eq!(r.detections.len(), 1, "{:?}", r.detections.iter().map(|d| (d.bbox, d.score)).collect::<Vec<_>>());
+}
+
+#[test]
+fn finds_every_instance_of_one_object() {
+    let f = fixture();
+    let s = scene(&[(1, f.mesh.clone())], 3, 5);
+    let r = detect(&s.rgb, &s.cam, &target(f), &DetectOptions::default(), &f.pool).unwrap();
+    for (i, inst) in s.instances.iter().enumerate() {
+        let b = bbox_of(&inst.mask_visib).unwrap();
+        assert!(r.detections.iter().any(|d| box_iou(&d.bbox, &b) >= 0.5), "instance {i} at {b:?} not found among {:?}", r.detections.iter().map(|d| d.bbox).collect::<Vec<_>>());
+    }
+}
+
+#[test]
+fn an_image_without_the_object_gives_no_detection_and_a_reason() {
+    let f = fixture();
+    // A different shape (a flat disc-like box of other colours) on the same clutter.
+    let other = textured_box([0.20, 0.20, 0.02], 9);
+    let s = scene(&[(2, other)], 2, 21);
+    let r = detect(&s.rgb, &s.cam, &target(f), &DetectOptions::default(), &f.pool).unwrap();
+    assert!(r.detections.is_empty(), "{:?}", r.detections.iter().map(|d| (d.bbox, d.score)).collect::<Vec<_>>());
+    assert!(r.reason.as_deref().unwrap_or("").contains("no template scored"), "{:?}", r.reason);
+}
+
+#[test]
+fn bad_search_settings_are_refused_by_name() {
+    let f = fixture();
+    let s = scene(&[(1, f.mesh.clone())], 1, 11);
+    let run = |o: DetectOptions| detect(&s.rgb, &s.cam, &target(f), &o, &f.pool).err().map(|e| e.to_string()).unwrap_or_default();
+    assert!(run(DetectOptions { min_distance_m: Some(2.0), max_distance_m: Some(1.0), ..Default::default() }).contains("min_distance_m (2) must be below max_distance_m (1)"));
+    assert!(run(DetectOptions { max_distance_m: Some(f64::NAN), ..Default::default() }).contains("max_distance_m must be within"));
+    assert!(run(DetectOptions { max_detections: 0, ..Default::default() }).contains("max_detections must be 1–"));
+    assert!(run(DetectOptions { min_score: 1.5, ..Default::default() }).contains("min_score must be within 0–1"));
+    let mut wrong = s.cam;
+    wrong.width += 2;
+    let e = detect(&s.rgb, &wrong, &target(f), &DetectOptions::default(), &f.pool).unwrap_err().to_string();
+    assert!(e.contains("differs from the image's"), "{e}");
+    // A range where the object cannot show at a searchable size is an answer, not an error.
+    let far = detect(&s.rgb, &s.cam, &target(f), &DetectOptions { min_distance_m: Some(500.0), max_distance_m: Some(900.0), ..Default::default() }, &f.pool).unwrap();
+    assert!(far.detections.is_empty() && far.reason.as_deref().unwrap_or("").contains("no scale to search"), "{:?}", far.reason);
+}
+
+#[test]
+fn templates_are_stored_with_the_object_and_rebuilt_for_older_ones() {
+    let f = fixture();
+    let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap();
+    let cfg = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps: 2 }, render_size: 128, ..Default::default() };
+    let model = onboard("box", &f.mesh, &cfg, &backbone, &f.pool, &|_| {}).unwrap();
+    let built = model.detector.get().expect("onboarding builds the detector's templates");
+    assert_eq!(**built, f.shape, "onboarding's templates are the detector's own");
+    let dir = tempfile::tempdir().unwrap();
+    let store = b2tfpose::store::open(&format!("dir://{}", dir.path().display())).unwrap();
+    store.put(&model, false).unwrap();
+    let loaded = store.get("box").unwrap();
+    assert_eq!(loaded.detector.get().map(|d| d.as_ref()), Some(built.as_ref()));
+    // An object stored before the detector existed gets its templates on first use.
+    let old = b2tfpose::onboard::ObjectModel { detector: OnceLock::new(), ..loaded.clone() };
+    assert_eq!(*old.shape_model_or_build(&f.pool).unwrap(), f.shape);
+}
