@@ -180,7 +180,7 @@ fn accumulate(evals: &[ImageEval], max_det: usize) -> Option<Curves> {
     let rec_thr = recall_thresholds();
     let mut precision = Vec::with_capacity(N_IOU);
     let mut recall = [0.0; N_IOU];
-    for t in 0..N_IOU {
+    for (t, final_recall) in recall.iter_mut().enumerate() {
         let (mut tp, mut fp) = (0.0f64, 0.0f64);
         let mut rc = Vec::with_capacity(pooled.len());
         let mut pr = Vec::with_capacity(pooled.len());
@@ -196,7 +196,7 @@ fn accumulate(evals: &[ImageEval], max_det: usize) -> Option<Curves> {
             rc.push(tp / n_pos as f64);
             pr.push(tp / (fp + tp + f64::EPSILON));
         }
-        recall[t] = rc.last().copied().unwrap_or(0.0);
+        *final_recall = rc.last().copied().unwrap_or(0.0);
         for k in (1..pr.len()).rev() {
             if pr[k] > pr[k - 1] {
                 pr[k - 1] = pr[k];

@@ -101,7 +101,7 @@ mod tests {
     #[test]
     fn mask_iou_agrees_with_pixel_counting() {
         // Irregular masks with zero-length runs at the start (object at pixel 0).
-        let m = |seed: u32| GrayImage::from_fn(13, 7, |x, y| Luma([u8::from((x * 7 + y * 3 + seed) % 5 < 2 || (x + y + seed) % 7 == 0) * 255]));
+        let m = |seed: u32| GrayImage::from_fn(13, 7, |x, y| Luma([u8::from((x * 7 + y * 3 + seed) % 5 < 2 || (x + y + seed).is_multiple_of(7)) * 255]));
         for (s1, s2) in [(0, 1), (2, 2), (3, 4)] {
             let (ma, mb) = (m(s1), m(s2));
             let inter = ma.pixels().zip(mb.pixels()).filter(|(p, q)| p[0] > 0 && q[0] > 0).count() as f64;
