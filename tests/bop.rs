@@ -1,7 +1,9 @@
 //! BOP end to end on lavapipe: a synthetic dataset of the generated box, scored from its
-//! own ground truth (AR 1, and a known MSSD), then run through the estimator (resumable).
+//! own ground truth (AR 1, and a known MSSD), then run through the estimator (resumable);
+//! and the 2D detection AP of its detections through the CLI (AP 1, and a known shift).
 
-use b2tfpose::bop::detections::{read_detections, DetectionIndex};
+use b2tfpose::bop::detections::{read_detections, write_detections, DetectionIndex, DetectionRecord};
+use b2tfpose::bop::synth_masks::shift;
 use b2tfpose::bop::evaluate::evaluate;
 use b2tfpose::bop::results_csv::{read_results, write_results, ResultRow};
 use b2tfpose::bop::run::{run, RunOptions};
@@ -15,6 +17,7 @@ use b2tfpose::geometry::{Pose, ViewSampling};
 use b2tfpose::mesh::procedural::textured_box;
 use b2tfpose::mesh::write_ply::write_bop_ply;
 use b2tfpose::onboard::{onboard, OnboardConfig};
+use b2tfpose::masks::rle::Rle;
 use b2tfpose::render::{RenderPool, RendererConfig};
 use nalgebra::Vector3;
 use std::path::Path;
@@ -178,4 +181,94 @@ fn ground_truth_as_real_datasets_ship_it_is_scored_and_broken_files_are_refused(
     });
     let err = evaluate(&ds, TEST_SPLIT, &read_back, &pool, &Bop19Params::default(), &no_progress, &mut Vec::new()).unwrap_err().to_string();
     assert!(err.contains("scene_gt.json: image 0, instance 0: cam_R_m2c: not a rotation: determinant is -1.00"), "{err}");
+}
+
+/// The `b2tf` binary, as a user runs it: (success, stdout, stderr).
+fn b2tf(args: &[&str]) -> (bool, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_b2tf")).args(args).env("XDG_RUNTIME_DIR", "/tmp").output().expect("runs");
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+fn json_of(stdout: &str) -> serde_json::Value {
+    serde_json::from_str(stdout).unwrap_or_else(|e| panic!("{e}: {stdout}"))
+}
+
+#[test]
+fn detection_ap_of_true_and_shifted_detections_through_the_cli() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let models = d.join("models_src");
+    write_bop_ply(&textured_box([0.10, 0.06, 0.16], 3), &models, "obj_000001").unwrap();
+    write_bop_ply(&textured_box([0.05, 0.12, 0.08], 4), &models, "obj_000002").unwrap();
+    let ds = d.join("ds");
+    let (ok, out, err) = b2tf(&["bop", "synth", "--models", &s(&models), "--out", &s(&ds), "--images", "4", "--objects-per-image", "2", "--seed", "3"]);
+    assert!(ok, "{out}{err}");
+    let dets_path = ds.join("detections_synth.json");
+    let eval = |dets: &Path, extra: &[&str]| {
+        let mut args = vec!["bop".to_string(), "eval".into(), "--dataset".into(), s(&ds), "--detections".into(), s(dets), "--json".into()];
+        args.extend(extra.iter().map(|a| a.to_string()));
+        let (ok, out, err) = b2tf(&args.iter().map(String::as_str).collect::<Vec<_>>());
+        assert!(ok, "{out}{err}");
+        (json_of(&out), err)
+    };
+
+    // Each instance's true visible mask (score 1) ranks above every degraded copy and
+    // distractor, so those cost nothing: segm AP and the modal bbox AP are 1 (to within
+    // the ε pycocotools adds to precision's denominator: one true positive alone in a
+    // category gives 1 / (1 + ε)).
+    let one = |v: &serde_json::Value| (v.as_f64().unwrap() - 1.0).abs() < 1e-15;
+    let (r, _) = eval(&dets_path, &[]);
+    assert!(one(&r["segm"]["AP"]) && r["segm"]["AR100"] == 1.0 && one(&r["segm"]["per_category"]["1"]), "{r:#}");
+    let (modal, _) = eval(&dets_path, &["--bbox-type", "modal"]);
+    assert!(modal["bbox_type"] == "modal" && one(&modal["bbox"]["AP"]), "{modal:#}");
+    // Amodal boxes (the default, whole silhouettes) are larger than the visible ones
+    // wherever an occluder hides part of an object, so visible-mask boxes may score lower.
+    let amodal = r["bbox"]["AP"].as_f64().unwrap();
+    assert!(r["bbox_type"] == "amodal" && amodal > 0.5 && amodal <= 1.0, "{r:#}");
+
+    // Only the true detections, each box moved right by a tenth of its width: box IoU
+    // (0.9 w·h) / (1.1 w·h) = 0.818, a match at 0.50…0.80, 7 thresholds of 10: AP 0.7.
+    // The masks move by as many whole pixels: lower, and no longer exact.
+    let shifted: Vec<DetectionRecord> = read_detections(&dets_path)
+        .unwrap()
+        .into_iter()
+        .filter(|r| r.score == 1.0)
+        .map(|mut r| {
+            let dx = r.bbox[2] / 10.0;
+            r.bbox[0] += dx;
+            let mask = r.segmentation.as_ref().unwrap().decode().unwrap();
+            r.segmentation = Some(Rle::encode(&shift(&mask, dx.round() as i64, 0)));
+            r
+        })
+        .collect();
+    let shifted_path = d.join("shifted.json");
+    write_detections(&shifted_path, &shifted).unwrap();
+    let (r, _) = eval(&shifted_path, &["--bbox-type", "modal"]);
+    assert!((r["bbox"]["AP"].as_f64().unwrap() - 0.7).abs() < 1e-12 && one(&r["bbox"]["AP50"]) && one(&r["bbox"]["AP75"]), "{r:#}");
+    let segm = r["segm"]["AP"].as_f64().unwrap();
+    assert!(segm > 0.3 && segm < 0.95, "{r:#}");
+
+    // Entries for other images and objects are skipped with a warning, as the toolkit
+    // skips them; the table names both scores.
+    let mut extra = shifted.clone();
+    extra.push(DetectionRecord { image_id: 999, ..shifted[0].clone() });
+    extra.push(DetectionRecord { obj_id: 42, ..shifted[0].clone() });
+    write_detections(&shifted_path, &extra).unwrap();
+    let (ok, out, err) = b2tf(&["bop", "eval", "--dataset", &s(&ds), "--detections", &s(&shifted_path)]);
+    assert!(ok, "{out}{err}");
+    assert!(err.contains("shifted.json: 1 detections are for images that are not test targets") && err.contains("category_id 42"), "{err}");
+    assert!(out.contains("bbox AP (amodal boxes") && out.contains("segm AP") && out.contains("| obj 2 |"), "{out}");
+
+    // Both inputs: both reports. Neither: a clear error.
+    let gt = load_split_gt(&ds, TEST_SPLIT, &mut Vec::new()).unwrap();
+    let rows: Vec<ResultRow> = gt.iter().flat_map(|im| im.instances.iter().map(move |g| ResultRow { scene_id: im.scene_id, im_id: im.im_id, obj_id: g.obj_id, score: 1.0, pose: g.pose, time: 0.5 })).collect();
+    let csv = d.join("truth.csv");
+    write_results(&csv, &rows).unwrap();
+    let (ok, out, err) = b2tf(&["bop", "eval", "--dataset", &s(&ds), "--results", &s(&csv), "--detections", &s(&dets_path), "--json"]);
+    assert!(ok, "{out}{err}");
+    let both = json_of(&out);
+    assert!((both["pose"]["ar"].as_f64().unwrap() - 1.0).abs() < 1e-12 && one(&both["detection"]["segm"]["AP"]), "{both:#}");
+    let (ok, _, err) = b2tf(&["bop", "eval", "--dataset", &s(&ds)]);
+    assert!(!ok && err.contains("--results") && err.contains("--detections"), "{err}");
 }

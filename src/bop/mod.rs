@@ -1,9 +1,14 @@
 //! The BOP benchmark (bop.felk.cvut.cz): dataset layout and reading, default detections
 //! (RLE masks), the results CSV, the BOP'19 pose errors (VSD, MSSD, MSPD) with symmetries
-//! and their Average Recall, the runner that feeds a dataset through the estimator, and a
-//! generator of synthetic BOP datasets.
+//! and their Average Recall, the BOP'22 2D detection and segmentation AP (COCO), the
+//! runner that feeds a dataset through the estimator, and a generator of synthetic BOP
+//! datasets.
 
+pub mod coco_ap;
+pub mod coco_iou;
 pub mod dataset;
+pub mod detection_eval;
+pub mod detection_gt;
 pub mod detections;
 pub mod eval_models;
 pub mod evaluate;

@@ -19,7 +19,8 @@ use std::sync::Arc;
 pub enum BopCommand {
     /// Estimate every target of a BOP split from its detections; write the BOP results CSV.
     Run(RunArgs),
-    /// Score a results CSV with the BOP'19 metrics (VSD, MSSD, MSPD; AR).
+    /// Score a results CSV with the BOP'19 metrics (VSD, MSSD, MSPD; AR), and/or a
+    /// detections JSON with the BOP'22 2D detection / segmentation AP (COCO).
     Eval(super::bop_eval_cmd::EvalArgs),
     /// Generate a BOP test dataset and a detections file from a BOP models folder.
     Synth(SynthArgs),
