@@ -8,13 +8,7 @@ use crate::masks::rle::Rle;
 /// IoU of two `[x, y, w, h]` boxes. No `+ 1` on the sides: COCO boxes are continuous, so
 /// `[0, 0, 10, 10]` covers 100 units. Boxes that only touch overlap by nothing.
 pub fn box_iou(dt: [f64; 4], gt: [f64; 4]) -> f64 {
-    let w = (dt[0] + dt[2]).min(gt[0] + gt[2]) - dt[0].max(gt[0]);
-    let h = (dt[1] + dt[3]).min(gt[1] + gt[3]) - dt[1].max(gt[1]);
-    if w <= 0.0 || h <= 0.0 {
-        return 0.0;
-    }
-    let inter = w * h;
-    inter / (dt[2] * dt[3] + gt[2] * gt[3] - inter)
+    crate::detect::nms::box_iou(&dt, &gt)
 }
 
 /// IoU of two masks of the same size, `None` when the sizes differ (pycocotools then

@@ -3,6 +3,8 @@
 //! detections on images that hold none of the searched objects (only distractors), and
 //! the time per image with 1, 10 and 30 objects searched.
 
+use crate::bop::coco_ap::{summarize, Dt, Gt, ImageCategory};
+use crate::detect::nms::box_iou;
 use crate::detect::{detect, DetectOptions, ShapeModel, Target};
 use crate::eval::scenes::{generate_image, SceneConfig};
 use crate::mesh::{load_mesh, Mesh, Units};
@@ -102,7 +104,7 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
         for d in &report.detections {
             let obj = names.iter().position(|n| *n == d.object_id).expect("a searched object");
             if a.oracle {
-                let best = scene.instances.iter().filter(|i| i.obj_id as usize - 1 == obj).filter_map(|i| crate::detect::detector::bbox_of(&i.mask_visib)).map(|b| crate::detect::nms::box_iou(&b, &d.bbox)).fold(0.0, f64::max);
+                let best = scene.instances.iter().filter(|i| i.obj_id as usize - 1 == obj).filter_map(|i| crate::detect::detector::bbox_of(&i.mask_visib)).map(|b| box_iou(&b, &d.bbox)).fold(0.0, f64::max);
                 println!("image {im} {}: score {:.3}, box IoU {:.2}, shape {:.3}, outline {:.3}, colour {}", d.object_id, d.score, best, d.shape_score, d.evidence.outline, d.evidence.colour.map_or("-".into(), |c| format!("{c:.3}")));
             }
             found.entry(obj).or_default().push(Scored { image: im, bbox: d.bbox, score: d.score });
@@ -113,24 +115,24 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
     }
     println!("| object | instances | recall@0.5 | AP50 | AP@[.5:.95] |");
     println!("|---|---:|---:|---:|---:|");
-    let (mut aps, mut ap50s, mut hits, mut total) = (vec![], vec![], 0, 0);
-    for obj in 0..searched {
+    let (mut hits, mut total) = (0, 0);
+    let mut every: BTreeMap<u32, Vec<ImageCategory>> = BTreeMap::new();
+    for (obj, name) in names.iter().enumerate().take(searched) {
         let gt = truth.get(&obj).map_or(&[][..], |v| v.as_slice());
         let dets = found.get(&obj).map_or(&[][..], |v| v.as_slice());
         if gt.is_empty() {
             continue;
         }
-        let ap50 = average_precision(gt, dets, 0.5);
-        let ap = (0..10).map(|i| average_precision(gt, dets, 0.5 + 0.05 * i as f64)).sum::<f64>() / 10.0;
+        let one = BTreeMap::from([(obj as u32, coco_images(gt, dets, a.images))]);
+        let s = summarize(&one);
         let h = recalled(gt, dets, 0.5);
-        println!("| {} | {} | {:.2} | {:.2} | {:.2} |", names[obj], gt.len(), h as f64 / gt.len() as f64, ap50, ap);
-        aps.push(ap);
-        ap50s.push(ap50);
+        println!("| {} | {} | {:.2} | {:.2} | {:.2} |", name, gt.len(), h as f64 / gt.len() as f64, s.ap50, s.ap);
+        every.extend(one);
         hits += h;
         total += gt.len();
     }
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-    println!("all: recall@0.5 {:.3} ({hits}/{total}), mean AP50 {:.3}, mean AP {:.3}; median {:.0} ms per image", hits as f64 / total.max(1) as f64, mean(&ap50s), mean(&aps), super::bench_estimate::median(&mut ms));
+    let s = summarize(&every);
+    println!("all: recall@0.5 {:.3} ({hits}/{total}), AP50 {:.3}, AP@[.5:.95] {:.3} (COCO, as bop eval --detections); median {:.0} ms per image", hits as f64 / total.max(1) as f64, s.ap50, s.ap, super::bench_estimate::median(&mut ms));
 
     if a.distractors > 0 && a.empty_images > 0 {
         let distractors: Vec<(u32, Mesh)> = all[searched..].to_vec();
@@ -160,52 +162,42 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
 }
 
 /// Detections of one object matched greedily, best score first, to unmatched truths of
-/// the same image with box IoU ≥ `iou`: (score, true positive) in score order.
-fn matches(gt: &[Scored], dets: &[Scored], iou: f64) -> Vec<(f32, bool)> {
+/// the same image with box IoU ≥ `iou`: how many truths were found.
+fn recalled(gt: &[Scored], dets: &[Scored], iou: f64) -> usize {
     let mut order: Vec<&Scored> = dets.iter().collect();
     order.sort_by(|a, b| b.score.total_cmp(&a.score));
     let mut used = vec![false; gt.len()];
-    order
-        .into_iter()
-        .map(|d| {
-            let best = gt.iter().enumerate().filter(|(i, g)| !used[*i] && g.image == d.image).map(|(i, g)| (i, crate::detect::nms::box_iou(&g.bbox, &d.bbox))).filter(|(_, v)| *v >= iou).max_by(|a, b| a.1.total_cmp(&b.1));
-            if let Some((i, _)) = best {
-                used[i] = true;
-            }
-            (d.score, best.is_some())
+    for d in order {
+        let best = gt.iter().enumerate().filter(|(i, g)| !used[*i] && g.image == d.image).map(|(i, g)| (i, box_iou(&g.bbox, &d.bbox))).filter(|(_, v)| *v >= iou).max_by(|a, b| a.1.total_cmp(&b.1));
+        if let Some((i, _)) = best {
+            used[i] = true;
+        }
+    }
+    used.iter().filter(|&&u| u).count()
+}
+
+/// One object's truths and detections per image, for COCO's AP (box IoU; no instance
+/// ignored: the scenes keep every instance at least half visible).
+fn coco_images(gt: &[Scored], dets: &[Scored], images: usize) -> Vec<ImageCategory> {
+    (0..images)
+        .map(|im| {
+            let g: Vec<&Scored> = gt.iter().filter(|s| s.image == im).collect();
+            let d: Vec<&Scored> = dets.iter().filter(|s| s.image == im).collect();
+            let area = |b: &[f64; 4]| b[2] * b[3];
+            ImageCategory::new(
+                g.iter().map(|s| Gt { area: area(&s.bbox), ignore: false }).collect(),
+                d.iter().map(|s| Dt { score: s.score as f64, area: area(&s.bbox) }).collect(),
+                |di, gi| box_iou(&d[di].bbox, &g[gi].bbox),
+            )
         })
         .collect()
-}
-
-fn recalled(gt: &[Scored], dets: &[Scored], iou: f64) -> usize {
-    matches(gt, dets, iou).iter().filter(|m| m.1).count()
-}
-
-/// COCO's 101-point interpolated average precision.
-fn average_precision(gt: &[Scored], dets: &[Scored], iou: f64) -> f64 {
-    let m = matches(gt, dets, iou);
-    let (mut tp, mut precision, mut recall) = (0usize, vec![], vec![]);
-    for (i, (_, hit)) in m.iter().enumerate() {
-        tp += *hit as usize;
-        precision.push(tp as f64 / (i + 1) as f64);
-        recall.push(tp as f64 / gt.len() as f64);
-    }
-    for i in (0..precision.len().saturating_sub(1)).rev() {
-        precision[i] = precision[i].max(precision[i + 1]);
-    }
-    (0..=100)
-        .map(|k| {
-            let r = k as f64 / 100.0;
-            recall.iter().position(|&x| x >= r).map_or(0.0, |i| precision[i])
-        })
-        .sum::<f64>()
-        / 101.0
 }
 
 /// Each searched instance's best template score near its true centre (±3 px) at the rung
 /// nearest its true size: whether the search could have found it at all.
 fn oracle(scene: &crate::eval::scenes::SceneImage, targets: &[Target], searched: usize) {
     use crate::detect::scales::{rung_scale, scale_for_distance, RUNGS};
+    use crate::detect::search::{score_at, specific_score_at};
     let k = &scene.cam;
     let f = (k.fx * k.fy).sqrt();
     for inst in &scene.instances {
@@ -217,26 +209,24 @@ fn oracle(scene: &crate::eval::scenes::SceneImage, targets: &[Target], searched:
         let centre = inst.pose.transform_point(&nalgebra::Point3::from(nalgebra::Vector3::from(t.mesh.bbox_center())));
         let (u, v) = (k.fx * centre.x / centre.z + k.cx, k.fy * centre.y / centre.z + k.cy);
         let rho = scale_for_distance(t.shape.config.canonical_px as f64, f, t.mesh.bounding_radius(), centre.coords.norm());
-        let kk = (0..RUNGS).min_by(|&a, &b| (rung_scale(a).ln() - rho.ln()).abs().total_cmp(&(rung_scale(b).ln() - rho.ln()).abs())).unwrap();
-        let r = rung_scale(kk);
+        let nearest = (0..RUNGS).min_by(|&a, &b| (rung_scale(a).ln() - rho.ln()).abs().total_cmp(&(rung_scale(b).ln() - rho.ln()).abs())).unwrap_or(0);
+        let r = rung_scale(nearest);
         let (w, h) = ((scene.rgb.width() as f64 * r).round() as u32, (scene.rgb.height() as f64 * r).round() as u32);
         let small = image::imageops::resize(&scene.rgb, w, h, image::imageops::FilterType::Triangle);
         let maps = crate::detect::responses::ResponseMaps::compute(&small, t.shape.config.min_magnitude, 4, 4);
         let (x, y) = (((u + 0.5) * r - 0.5).round() as i32, ((v + 0.5) * r - 0.5).round() as i32);
-        let mut best = (0.0f32, 0usize);
-        let mut spec = 0.0f32;
+        let (mut best, mut spec) = ((0.0f32, 0usize), 0.0f32);
         for tt in 0..t.shape.template_count() {
             for dy in -3..=3 {
                 for dx in -3..=3 {
-                    let s = crate::detect::search::score_at(t.shape, &maps, tt, x + dx, y + dy);
+                    let s = score_at(t.shape, &maps, tt, x + dx, y + dy);
                     if s > best.0 {
                         best = (s, tt);
                     }
-                    spec = spec.max(crate::detect::search::specific_score_at(t.shape, &maps, tt, x + dx, y + dy));
+                    spec = spec.max(specific_score_at(t.shape, &maps, tt, x + dx, y + dy));
                 }
             }
         }
-
         println!("oracle {}: visible {:.2}, scale {:.3} (searched at {:.3}), best template {} scores {:.3} raw, {:.3} above chance", t.id, inst.visib_fract(), rho, r, best.1, best.0, spec);
     }
 }

@@ -108,10 +108,10 @@ mod tests {
 
     #[test]
     fn linear_accumulation_equals_direct_lookups() {
-        // A random-ish image with edges everywhere.
+        // Blocks of hashed colours: edges of both orientations all over.
         let img = RgbImage::from_fn(37, 29, |x, y| {
-            let v = ((x * 7 + y * 13) % 5 * 50) as u8;
-            image::Rgb([v, ((x / 3 + y / 4) % 2 * 200) as u8, 0])
+            let h = ((x / 5) * 7919 + (y / 5) * 104_729) % 251;
+            image::Rgb([h as u8, (h * 3 % 251) as u8, 0])
         });
         let r = ResponseMaps::compute(&img, 20.0, 4, 4);
         assert!(r.edge_density > 0.05);
