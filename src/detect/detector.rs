@@ -61,6 +61,8 @@ pub const DEFAULT_MAX_SHARE: f64 = 1.0;
 const MIN_RAW_SCORE: f32 = 0.6;
 /// Template matches scoring less above chance are not candidates.
 const MIN_SHAPE_SCORE: f32 = 0.4;
+/// Candidates per object rendered and compared with the image (about 3–5 ms each).
+const VERIFIED_PER_OBJECT: usize = 12;
 /// Boxes overlapping more than this are one detection.
 const NMS_IOU: f64 = 0.5;
 /// Graph-cut masks must agree this well with the rendered silhouette to replace it.
@@ -232,10 +234,15 @@ pub fn detect(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &Detec
         }
         searched.push(Searched { object_id: t.id.to_string(), distance_m: *range, scales: rungs.len(), candidates: candidates.len() - before });
     }
-    let boxes: Vec<[f64; 4]> = candidates.iter().map(|c| c.bbox).collect();
-    let scores: Vec<f32> = candidates.iter().map(|c| c.score).collect();
-    let mut kept = suppress(&boxes, &scores, NMS_IOU);
-    kept.truncate(opts.max_detections * 2 + 10);
+    // Each object's best candidates (its own suppression first), so one object's clutter
+    // matches cannot crowd another object out of verification.
+    let mut kept = Vec::new();
+    for ti in 0..targets.len() {
+        let own: Vec<usize> = (0..candidates.len()).filter(|&i| candidates[i].target == ti).collect();
+        let boxes: Vec<[f64; 4]> = own.iter().map(|&i| candidates[i].bbox).collect();
+        let scores: Vec<f32> = own.iter().map(|&i| candidates[i].score).collect();
+        kept.extend(suppress(&boxes, &scores, NMS_IOU).into_iter().take(VERIFIED_PER_OBJECT.max(opts.max_detections)).map(|j| own[j]));
+    }
     let search_ms = t1.elapsed().as_secs_f64() * 1e3;
 
     // The best candidates get a render at their pose; the render's evidence joins the score.

@@ -9,7 +9,7 @@
 //! (its outline is there whatever the background and lighting), the rest the strongest
 //! interior edges (texture, creases), each set spread out so no part of the view dominates.
 
-use super::gradients::{bin_of, colour_gradients, BINS};
+use super::gradients::{colour_gradients, quantised_bits, BINS};
 use crate::geometry::views::{fitted_distance, icosphere, in_plane_rotation, look_at_rotation, view_pose};
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Mesh;
@@ -151,9 +151,16 @@ impl ShapeModel {
             let per_view: Vec<Vec<(Vec<Feature>, [i8; 4])>> = renders
                 .par_iter()
                 .map(|r| {
-                    let (rgb, mask) = (downsample_rgb(&r.rgb, SUPERSAMPLE), downsample_mask(&r.mask, SUPERSAMPLE));
-                    let base = view_features(&rgb, &mask, config);
-                    (0..config.in_plane_steps as usize).map(|turn| turned(&base, &mask, config.angle(turn))).collect()
+                    (0..config.in_plane_steps as usize)
+                        .map(|turn| {
+                            // The render turned about the principal point (the camera's roll),
+                            // then averaged down: each in-plane template goes through the
+                            // same quantisation as an image, so the two sides agree.
+                            let (rgb, mask) = turn_image(&r.rgb, &r.mask, config.angle(turn));
+                            let (rgb, mask) = (downsample_rgb(&rgb, SUPERSAMPLE), downsample_mask(&mask, SUPERSAMPLE));
+                            (view_features(&rgb, &mask, config), silhouette_box(&mask))
+                        })
+                        .collect()
                 })
                 .collect();
             for view in per_view {
@@ -167,12 +174,12 @@ impl ShapeModel {
     }
 }
 
-/// A feature before the in-plane turn: position relative to the centre and angle.
+/// A candidate feature: position relative to the centre and orientation bin.
 #[derive(Clone, Copy, Debug)]
 struct BaseFeature {
     x: f32,
     y: f32,
-    angle: f32,
+    bin: u8,
 }
 
 fn downsample_rgb(img: &RgbImage, f: u32) -> RgbImage {
@@ -190,42 +197,50 @@ fn downsample_rgb(img: &RgbImage, f: u32) -> RgbImage {
     })
 }
 
-/// A cell is object when at least half of it is.
+/// Coverage of each cell, 0–255: an anti-aliased silhouette, whose outline has the
+/// orientation of the true edge (a thresholded one is a staircase whose local gradients
+/// swing by a bin either way, while a photo's edges are smooth).
 fn downsample_mask(mask: &GrayImage, f: u32) -> GrayImage {
     GrayImage::from_fn(mask.width() / f, mask.height() / f, |x, y| {
-        let mut n = 0;
+        let mut sum = 0u32;
         for yy in y * f..(y + 1) * f {
             for xx in x * f..(x + 1) * f {
-                n += (mask.get_pixel(xx, yy)[0] > 0) as u32;
+                sum += mask.get_pixel(xx, yy)[0] as u32;
             }
         }
-        image::Luma([if n * 2 >= f * f { 255 } else { 0 }])
+        image::Luma([(sum / (f * f)) as u8])
     })
 }
 
-/// The features of one canonical view: contour and interior candidates, each spread out.
-fn view_features(rgb: &RgbImage, mask: &GrayImage, config: &DetectorConfig) -> Vec<BaseFeature> {
+/// A cell is object when at least half of it is.
+const INSIDE: u8 = 128;
+
+/// The features of one canonical view: outline and interior candidates, each spread out,
+/// quantised as images are (`quantised_bits`, with its vote), exactly `config.features`
+/// (repeated when the view has fewer candidates, which keeps the per-template stride).
+fn view_features(rgb: &RgbImage, mask: &GrayImage, config: &DetectorConfig) -> Vec<Feature> {
     let (w, h) = (rgb.width() as usize, rgb.height() as usize);
     let centre = (w as f32 - 1.0) * 0.5;
     let mask_rgb = RgbImage::from_fn(mask.width(), mask.height(), |x, y| {
         let v = mask.get_pixel(x, y)[0];
         image::Rgb([v, v, v])
     });
+    // The outline from the mask itself: the rendered colours there meet black, which no
+    // photo shows; the mask's edge is where any background would make one.
     let outline = colour_gradients(&mask_rgb);
+    let outline_bits = quantised_bits(&outline, config.min_magnitude);
     let colour = colour_gradients(rgb);
-    let peak = outline.magnitude.iter().copied().fold(0.0f32, f32::max);
-    let fg = |x: usize, y: usize| mask.get_pixel(x as u32, y as u32)[0] > 0;
+    let colour_bits = quantised_bits(&colour, config.min_magnitude * 1.5);
+    let fg = |i: usize| mask.as_raw()[i] >= INSIDE;
     let (mut contour, mut interior) = (Vec::new(), Vec::new());
-    for y in 1..h.saturating_sub(1) {
-        for x in 1..w.saturating_sub(1) {
+    for y in 0..h {
+        for x in 0..w {
             let i = y * w + x;
-            let f = BaseFeature { x: x as f32 - centre, y: y as f32 - centre, angle: 0.0 };
-            // The outline: object pixels next to background, with the mask's own gradient
-            // (the rendered colours there meet black, which no photo shows).
-            if fg(x, y) && outline.magnitude[i] >= 0.25 * peak {
-                contour.push((outline.magnitude[i], BaseFeature { angle: outline.angle[i], ..f }));
-            } else if fg(x, y) && outline.magnitude[i] == 0.0 && colour.magnitude[i] >= config.min_magnitude * 1.5 {
-                interior.push((colour.magnitude[i], BaseFeature { angle: colour.angle[i], ..f }));
+            let at = |bits: u8| BaseFeature { x: x as f32 - centre, y: y as f32 - centre, bin: bits.trailing_zeros() as u8 };
+            if fg(i) && outline_bits[i] != 0 {
+                contour.push((outline.magnitude[i], at(outline_bits[i])));
+            } else if fg(i) && outline.magnitude[i] == 0.0 && colour_bits[i] != 0 {
+                interior.push((colour.magnitude[i], at(colour_bits[i])));
             }
         }
     }
@@ -235,8 +250,7 @@ fn view_features(rgb: &RgbImage, mask: &GrayImage, config: &DetectorConfig) -> V
     picked.extend(scattered(&interior, rest, config.canonical_px as f32 / 8.0));
     if picked.len() < n {
         // Too little texture: more of the outline instead.
-        let more = scattered(&contour, n, 1.0);
-        for f in more {
+        for f in scattered(&contour, n, 1.0) {
             if picked.len() == n {
                 break;
             }
@@ -245,7 +259,53 @@ fn view_features(rgb: &RgbImage, mask: &GrayImage, config: &DetectorConfig) -> V
             }
         }
     }
-    picked
+    let have = picked.len().max(1);
+    (0..n)
+        .filter_map(|i| picked.get(i % have))
+        .map(|f| Feature { dx: f.x.round().clamp(-127.0, 127.0) as i8, dy: f.y.round().clamp(-127.0, 127.0) as i8, orientation: f.bin as i8 })
+        .collect()
+}
+
+/// `rgb` and `mask` turned by `angle` about the image centre (the principal point), both
+/// sampled bilinearly.
+fn turn_image(rgb: &RgbImage, mask: &GrayImage, angle: f64) -> (RgbImage, GrayImage) {
+    if angle == 0.0 {
+        return (rgb.clone(), mask.clone());
+    }
+    let (w, h) = rgb.dimensions();
+    let (cx, cy) = ((w as f64 - 1.0) * 0.5, (h as f64 - 1.0) * 0.5);
+    let (s, c) = angle.sin_cos();
+    // Output pixel p shows input pixel R(−angle)·(p − centre) + centre.
+    let source = |x: u32, y: u32| {
+        let (dx, dy) = (x as f64 - cx, y as f64 - cy);
+        (cx + c * dx + s * dy, cy - s * dx + c * dy)
+    };
+    let sample = |img: &[u8], ch: usize, u: f64, v: f64, c_: usize| -> f64 {
+        let (x0, y0) = (u.floor(), v.floor());
+        let (fx, fy) = (u - x0, v - y0);
+        let at = |x: f64, y: f64| if x < 0.0 || y < 0.0 || x >= w as f64 || y >= h as f64 { 0.0 } else { img[(y as usize * w as usize + x as usize) * ch + c_] as f64 };
+        at(x0, y0) * (1.0 - fx) * (1.0 - fy) + at(x0 + 1.0, y0) * fx * (1.0 - fy) + at(x0, y0 + 1.0) * (1.0 - fx) * fy + at(x0 + 1.0, y0 + 1.0) * fx * fy
+    };
+    let turned_rgb = RgbImage::from_fn(w, h, |x, y| {
+        let (u, v) = source(x, y);
+        image::Rgb(std::array::from_fn(|k| sample(rgb.as_raw(), 3, u, v, k).round() as u8))
+    });
+    let turned_mask = GrayImage::from_fn(w, h, |x, y| {
+        let (u, v) = source(x, y);
+        image::Luma([sample(mask.as_raw(), 1, u, v, 0).round() as u8])
+    });
+    (turned_rgb, turned_mask)
+}
+
+/// Box of a canonical silhouette (cells at least half covered) relative to its centre:
+/// x0, y0, x1, y1 (exclusive ends).
+fn silhouette_box(mask: &GrayImage) -> [i8; 4] {
+    let centre = (mask.width() as f32 - 1.0) * 0.5;
+    let inside = GrayImage::from_fn(mask.width(), mask.height(), |x, y| image::Luma([(mask.get_pixel(x, y)[0] >= INSIDE) as u8]));
+    match crate::features::mask_bbox(&inside) {
+        Some((u0, v0, u1, v1)) => [u0 as f32 - centre - 0.5, v0 as f32 - centre - 0.5, u1 as f32 - centre + 0.5, v1 as f32 - centre + 0.5].map(|v| v.round().clamp(-127.0, 127.0) as i8),
+        None => [0, 0, 0, 0],
+    }
 }
 
 /// Up to `n` candidates, strongest first, no two closer than a distance that starts at
@@ -271,35 +331,6 @@ fn scattered(candidates: &[(f32, BaseFeature)], n: usize, spacing: f32) -> Vec<B
     }
 }
 
-/// The view's features and silhouette box after an in-plane turn by `angle` about the
-/// centre (the image turns with the camera's roll, exactly: the centre is on the axis).
-fn turned(base: &[BaseFeature], mask: &GrayImage, angle: f64) -> (Vec<Feature>, [i8; 4]) {
-    let (s, c) = (angle.sin() as f32, angle.cos() as f32);
-    let rot = |x: f32, y: f32| (c * x - s * y, s * x + c * y);
-    let n = base.len().max(1);
-    // A view with fewer candidates than asked repeats its features (same score share).
-    let features = (0..n)
-        .filter_map(|i| base.get(i % base.len().max(1)))
-        .map(|f| {
-            let (x, y) = rot(f.x, f.y);
-            Feature { dx: x.round().clamp(-127.0, 127.0) as i8, dy: y.round().clamp(-127.0, 127.0) as i8, orientation: bin_of(f.angle + angle as f32) as i8 }
-        })
-        .collect();
-    let centre = (mask.width() as f32 - 1.0) * 0.5;
-    let (mut lo, mut hi) = ((f32::MAX, f32::MAX), (f32::MIN, f32::MIN));
-    for (x, y, p) in mask.enumerate_pixels() {
-        if p[0] > 0 {
-            for (cx, cy) in [(-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)] {
-                let (u, v) = rot(x as f32 - centre + cx, y as f32 - centre + cy);
-                lo = (lo.0.min(u), lo.1.min(v));
-                hi = (hi.0.max(u), hi.1.max(v));
-            }
-        }
-    }
-    let b = if lo.0 > hi.0 { [0, 0, 0, 0] } else { [lo.0.floor(), lo.1.floor(), hi.0.ceil(), hi.1.ceil()].map(|v| v.clamp(-127.0, 127.0) as i8) };
-    (features, b)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -315,7 +346,7 @@ mod tests {
 
     #[test]
     fn scattered_features_keep_their_distance() {
-        let c: Vec<(f32, BaseFeature)> = (0..100).map(|i| (i as f32, BaseFeature { x: (i % 10) as f32, y: (i / 10) as f32, angle: 0.0 })).collect();
+        let c: Vec<(f32, BaseFeature)> = (0..100).map(|i| (i as f32, BaseFeature { x: (i % 10) as f32, y: (i / 10) as f32, bin: 0 })).collect();
         let f = scattered(&c, 9, 4.0);
         assert_eq!(f.len(), 9);
         for (i, a) in f.iter().enumerate() {
@@ -328,13 +359,15 @@ mod tests {
     }
 
     #[test]
-    fn a_quarter_turn_turns_offsets_and_orientations() {
+    fn a_quarter_turn_turns_images_about_the_centre() {
         let mask = GrayImage::from_fn(11, 11, |x, y| image::Luma([if (3..8).contains(&x) && (4..7).contains(&y) { 255 } else { 0 }]));
-        let base = [BaseFeature { x: 2.0, y: 0.0, angle: 0.0 }];
-        let (f, b) = turned(&base, &mask, std::f64::consts::FRAC_PI_2);
-        // (2, 0) turns to (0, 2); a horizontal gradient becomes a vertical one (bin 4).
-        assert_eq!(f[0], Feature { dx: 0, dy: 2, orientation: 4 });
-        // The 5 × 3 box turns into a 3 × 5 one.
-        assert_eq!(b, [-2, -3, 2, 3]);
+        let rgb = RgbImage::from_fn(11, 11, |x, _| image::Rgb([(x * 20) as u8, 0, 0]));
+        let (r, m) = turn_image(&rgb, &mask, std::f64::consts::FRAC_PI_2);
+        // The 5 × 3 box turns into a 3 × 5 one about the centre; a colour ramp along x
+        // becomes one along y.
+        assert_eq!(silhouette_box(&mask), [-3, -2, 3, 2]);
+        assert_eq!(silhouette_box(&m), [-2, -3, 2, 3]);
+        assert_eq!(r.get_pixel(5, 3)[0], 60);
+        assert_eq!(r.get_pixel(5, 7)[0], 140);
     }
 }
