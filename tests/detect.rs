@@ -135,3 +135,58 @@ fn finds_the_object_on_a_plain_background() {
     let found: Vec<_> = rep.detections.iter().take(5).map(|d| (d.bbox, d.score, box_iou(&d.bbox, &truth_box))).collect();
     assert!(found.first().is_some_and(|d| d.2 > 0.7), "truth {truth_box:?}, best five {found:?}");
 }
+
+fn b2tf(args: &[&str]) -> (bool, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_b2tf")).args(args).env("XDG_RUNTIME_DIR", "/tmp").output().expect("runs");
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+/// `b2tf objects upgrade` gives an object stored without detector templates its templates;
+/// `b2tf detect` writes BOP default detections and refuses bad input by name.
+#[test]
+fn upgrade_and_detect_from_the_command_line() {
+    let f = fixture();
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let store_url = format!("dir://{}", d.join("store").display());
+    let (ok, out, err) = b2tf(&["detect", "--store", &store_url, "--image", "x.png", "--camera", "c.json", "--out", "o.json"]);
+    assert!(!ok && err.contains("holds no object: onboard one first"), "{out}{err}");
+
+    let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap();
+    let cfg = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps: 2 }, render_size: 128, ..Default::default() };
+    let model = onboard("box_7", &f.mesh, &cfg, &backbone, &f.pool, &|_| {}).unwrap();
+    let old = b2tfpose::onboard::ObjectModel { detector: OnceLock::new(), ..model };
+    let store = b2tfpose::store::open(&store_url).unwrap();
+    store.put(&old, false).unwrap();
+    assert!(store.get("box_7").unwrap().detector.get().is_none());
+    let (ok, out, err) = b2tf(&["objects", "upgrade", "--store", &store_url]);
+    assert!(ok && out.contains("box_7: added detector templates"), "{out}{err}");
+    assert_eq!(store.get("box_7").unwrap().detector.get().map(|d| d.template_count()), Some(f.shape.template_count()));
+    let (ok, out, _) = b2tf(&["objects", "upgrade", "--store", &store_url, "box_7"]);
+    assert!(ok && out.contains("box_7: up to date"), "{out}");
+
+    let s = scene(&[(1, f.mesh.clone())], 1, 11);
+    s.rgb.save(d.join("scene.png")).unwrap();
+    let k = s.cam;
+    std::fs::write(d.join("cam.json"), format!(r#"{{"cam_K": [{}, 0, {}, 0, {}, {}, 0, 0, 1], "width": {}, "height": {}}}"#, k.fx, k.cx, k.fy, k.cy, k.width, k.height)).unwrap();
+    let (img, cam, out_json) = (d.join("scene.png"), d.join("cam.json"), d.join("dets.json"));
+    let common = ["detect", "--store", &store_url, "--image", img.to_str().unwrap(), "--camera", cam.to_str().unwrap(), "--out", out_json.to_str().unwrap()];
+    // Every candidate kept: the file's entries are BOP default detections.
+    let (ok, out, err) = b2tf(&[&common[..], &["--min-score", "0", "--max-detections", "3", "--scene-id", "4", "--image-id", "9", "--overlay", d.join("o.png").to_str().unwrap()]].concat());
+    assert!(ok, "{out}{err}");
+    let list: Vec<serde_json::Value> = serde_json::from_slice(&std::fs::read(&out_json).unwrap()).unwrap();
+    assert!(!list.is_empty() && list.len() <= 3, "{list:?}");
+    for e in &list {
+        assert_eq!((e["scene_id"].as_u64(), e["image_id"].as_u64(), e["category_id"].as_u64(), e["object"].as_str()), (Some(4), Some(9), Some(7), Some("box_7")));
+        assert_eq!(e["bbox"].as_array().map(|b| b.len()), Some(4));
+        assert!(e["score"].as_f64().is_some() && e["time"].as_f64().is_some());
+        assert_eq!(e["segmentation"]["size"], serde_json::json!([k.height, k.width]));
+    }
+    // The file reads back with the BOP detections reader.
+    assert_eq!(b2tfpose::bop::detections::read_detections(&out_json).unwrap().len(), list.len());
+    assert_eq!(image::open(d.join("o.png")).unwrap().to_rgb8().dimensions(), (k.width, k.height));
+    let (ok, _, err) = b2tf(&[&common[..], &["--min-distance", "2", "--max-distance", "1"]].concat());
+    assert!(!ok && err.contains("min_distance_m (2) must be below max_distance_m (1)"), "{err}");
+    let (ok, _, err) = b2tf(&[&common[..], &["--object", "nothing_here"]].concat());
+    assert!(!ok && err.contains("\"nothing_here\"") && err.contains("not found"), "{err}");
+}

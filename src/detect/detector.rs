@@ -4,6 +4,7 @@
 //! detection the coarse pose of its template and a mask (the mesh rendered at that pose,
 //! replaced by the graph-cut segmentation of its box where the two agree).
 
+use super::colour_prior::ColourPrior;
 use super::nms::suppress;
 use super::responses::ResponseMaps;
 use super::scales::{distance_for_scale, rung_scale, rungs_between, scale_for_distance};
@@ -142,6 +143,8 @@ struct Candidate {
     rho: f64,
     bbox: [f64; 4],
     score: f32,
+    /// What candidates are ranked by before verification.
+    rank: f32,
 }
 
 pub fn check_options(o: &DetectOptions) -> Result<(), DetectError> {
@@ -206,14 +209,14 @@ pub fn detect(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &Detec
         }
     }
     let keys: Vec<(usize, u32)> = needed.into_keys().collect();
-    let maps: BTreeMap<(usize, u32), (f64, f64, ResponseMaps)> = keys
+    let maps: BTreeMap<(usize, u32), (f64, f64, ResponseMaps, RgbImage)> = keys
         .par_iter()
         .map(|&(k, mag)| {
             let rho = rung_scale(k);
             let (w, h) = (((image.width() as f64 * rho).round() as u32).max(1), ((image.height() as f64 * rho).round() as u32).max(1));
             let small = if (w, h) == image.dimensions() { image.clone() } else { imageops::resize(image, w, h, imageops::FilterType::Triangle) };
             let maps = ResponseMaps::compute(&small, f32::from_bits(mag), 4, 4);
-            ((k, mag), (w as f64 / image.width() as f64, h as f64 / image.height() as f64, maps))
+            ((k, mag), (w as f64 / image.width() as f64, h as f64 / image.height() as f64, maps, small))
         })
         .collect();
     let responses_ms = t0.elapsed().as_secs_f64() * 1e3;
@@ -224,12 +227,17 @@ pub fn detect(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &Detec
     for (ti, (t, (rungs, range))) in targets.iter().zip(&plans).enumerate() {
         let before = candidates.len();
         for &k in rungs {
-            let (rx, ry, m) = &maps[&(k, t.shape.config.min_magnitude.to_bits())];
+            let (rx, ry, m, small) = &maps[&(k, t.shape.config.min_magnitude.to_bits())];
+            let prior = (!t.shape.colours.is_empty()).then(|| ColourPrior::new(&t.shape.colours, small));
             for p in search(t.shape, m, MIN_RAW_SCORE, MIN_SHAPE_SCORE.min(opts.min_score)) {
                 let (u, v) = ((p.x as f64 + 0.5) / rx - 0.5, (p.y as f64 + 0.5) / ry - 0.5);
                 let b = t.shape.boxes[p.template];
                 let bbox = [u + b[0] as f64 / rx, v + b[1] as f64 / ry, (b[2] - b[0]) as f64 / rx, (b[3] - b[1]) as f64 / ry];
-                candidates.push(Candidate { target: ti, template: p.template, u, v, rho: rung_scale(k), bbox, score: p.score });
+                let colour = prior.as_ref().map(|c| c.box_mean((p.x + b[0] as i32) as i64, (p.y + b[1] as i32) as i64, (p.x + b[2] as i32) as i64, (p.y + b[3] as i32) as i64));
+                // Ranked by the template and, for objects with colours, how much of the box
+                // has the object's colours.
+                let rank = p.score * colour.map_or(1.0, |c| 0.5 + c);
+                candidates.push(Candidate { target: ti, template: p.template, u, v, rho: rung_scale(k), bbox, score: p.score, rank });
             }
         }
         searched.push(Searched { object_id: t.id.to_string(), distance_m: *range, scales: rungs.len(), candidates: candidates.len() - before });
@@ -240,7 +248,7 @@ pub fn detect(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &Detec
     for ti in 0..targets.len() {
         let own: Vec<usize> = (0..candidates.len()).filter(|&i| candidates[i].target == ti).collect();
         let boxes: Vec<[f64; 4]> = own.iter().map(|&i| candidates[i].bbox).collect();
-        let scores: Vec<f32> = own.iter().map(|&i| candidates[i].score).collect();
+        let scores: Vec<f32> = own.iter().map(|&i| candidates[i].rank).collect();
         kept.extend(suppress(&boxes, &scores, NMS_IOU).into_iter().take(VERIFIED_PER_OBJECT.max(opts.max_detections)).map(|j| own[j]));
     }
     let search_ms = t1.elapsed().as_secs_f64() * 1e3;

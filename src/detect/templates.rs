@@ -104,6 +104,9 @@ pub struct ShapeModel {
     /// Silhouette box per template relative to the centre, canonical pixels: x0, y0, x1, y1
     /// (exclusive ends).
     pub boxes: Vec<[i8; 4]>,
+    /// Chromaticity histogram of the object over all views (`verify::chroma_histogram`);
+    /// empty for a mesh without colours.
+    pub colours: Vec<f32>,
 }
 
 impl ShapeModel {
@@ -117,7 +120,7 @@ impl ShapeModel {
     }
 
     pub fn memory_bytes(&self) -> usize {
-        self.features.len() * 3 + self.boxes.len() * 4
+        self.features.len() * 3 + self.boxes.len() * 4 + self.colours.len() * 4
     }
 
     /// Checks the arrays agree with the configuration (used after loading).
@@ -126,6 +129,9 @@ impl ShapeModel {
         let t = self.config.template_count();
         if self.boxes.len() != t || self.features.len() != t * self.config.features {
             return Err(format!("detector arrays do not match {t} templates × {} features", self.config.features));
+        }
+        if !(self.colours.is_empty() || self.colours.len() == super::verify::CHROMA_HISTOGRAM_LEN && self.colours.iter().all(|v| v.is_finite())) {
+            return Err(format!("detector colour histogram has {} bins, expected {}", self.colours.len(), super::verify::CHROMA_HISTOGRAM_LEN));
         }
         if self.features.iter().any(|f| f.orientation < 0 || f.orientation as usize >= BINS) {
             return Err("detector feature with an orientation outside 0–7".into());
@@ -145,9 +151,16 @@ impl ShapeModel {
         let distance = fitted_distance(radius, k.fx, size as f64 * 0.5, FILL);
         let dirs = icosphere(config.level);
         let views: Vec<(Pose, Intrinsics)> = dirs.iter().map(|d| (view_pose(d, 0.0, &centre, distance), k)).collect();
-        let mut model = ShapeModel { config: *config, features: vec![], boxes: vec![] };
+        let mut model = ShapeModel { config: *config, features: vec![], boxes: vec![], colours: vec![] };
+        let mut colours = [0f32; super::verify::CHROMA_HISTOGRAM_LEN];
         for chunk in views.chunks(32) {
             let renders = renderer.render_batch(mesh, chunk, &RenderOptions::default())?;
+            if mesh.has_colours() {
+                for r in &renders {
+                    let h = super::verify::chroma_histogram(&r.rgb, &r.mask);
+                    colours.iter_mut().zip(h).for_each(|(a, b)| *a += b);
+                }
+            }
             let per_view: Vec<Vec<(Vec<Feature>, [i8; 4])>> = renders
                 .par_iter()
                 .map(|r| {
@@ -169,6 +182,10 @@ impl ShapeModel {
                     model.boxes.push(bx);
                 }
             }
+        }
+        let total: f32 = colours.iter().sum();
+        if total > 0.0 {
+            model.colours = colours.iter().map(|v| v / total).collect();
         }
         Ok(model)
     }

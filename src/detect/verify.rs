@@ -84,23 +84,27 @@ fn outline_agreement(mask: &GrayImage, photo: &RgbImage) -> f32 {
 
 /// Chromaticity bins per axis (r/(r+g+b), g/(r+g+b)), plus one bin for dark pixels.
 const CHROMA_BINS: usize = 6;
+pub const CHROMA_HISTOGRAM_LEN: usize = CHROMA_BINS * CHROMA_BINS + 1;
 /// r + g + b below this is too dark to have a reliable chromaticity.
 const DARK: u32 = 90;
 
-fn chroma_histogram(rgb: &RgbImage, mask: &GrayImage) -> Vec<f32> {
-    let mut h = vec![0f32; CHROMA_BINS * CHROMA_BINS + 1];
+/// The chromaticity bin of a pixel (brightness-free; one bin for the dark ones).
+pub fn chroma_bin(p: &image::Rgb<u8>) -> usize {
+    let sum = p[0] as u32 + p[1] as u32 + p[2] as u32;
+    if sum < DARK {
+        return CHROMA_BINS * CHROMA_BINS;
+    }
+    let q = |v: u8| ((v as f32 / sum as f32) * CHROMA_BINS as f32).min(CHROMA_BINS as f32 - 1.0) as usize;
+    q(p[0]) * CHROMA_BINS + q(p[1])
+}
+
+/// Normalised histogram of the chromaticities of the pixels inside `mask`.
+pub fn chroma_histogram(rgb: &RgbImage, mask: &GrayImage) -> Vec<f32> {
+    let mut h = vec![0f32; CHROMA_HISTOGRAM_LEN];
     for (p, m) in rgb.pixels().zip(mask.as_raw()) {
-        if *m == 0 {
-            continue;
+        if *m > 0 {
+            h[chroma_bin(p)] += 1.0;
         }
-        let sum = p[0] as u32 + p[1] as u32 + p[2] as u32;
-        let bin = if sum < DARK {
-            CHROMA_BINS * CHROMA_BINS
-        } else {
-            let q = |v: u8| ((v as f32 / sum as f32) * CHROMA_BINS as f32).min(CHROMA_BINS as f32 - 1.0) as usize;
-            q(p[0]) * CHROMA_BINS + q(p[1])
-        };
-        h[bin] += 1.0;
     }
     let n: f32 = h.iter().sum();
     if n > 0.0 {

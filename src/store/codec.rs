@@ -169,7 +169,8 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
         tensors.extend([
             ("detector_features", Dtype::I8, vec![d.features.len(), 3], bytemuck::cast_slice(&d.features)),
             ("detector_boxes", Dtype::I8, vec![d.boxes.len(), 4], bytemuck::cast_slice(&d.boxes)),
-        ] as [(&str, Dtype, Vec<usize>, &[u8]); 2]);
+            ("detector_colours", Dtype::F32, vec![d.colours.len()], bytemuck::cast_slice(&d.colours)),
+        ] as [(&str, Dtype, Vec<usize>, &[u8]); 3]);
     }
     let views = tensors.into_iter().map(|(name, dt, shape, bytes)| TensorView::new(dt, shape, bytes).map(|v| (name, v))).collect::<Result<Vec<_>, _>>().map_err(|e| corrupt(e.to_string()))?;
     let metadata = std::collections::HashMap::from([(GENERATION_KEY.to_string(), generation.to_string())]);
@@ -264,6 +265,8 @@ pub fn decode(manifest: &[u8], tensors: &[u8], texture: &mut dyn FnMut(&str) -> 
                 config,
                 features: bytemuck::pod_collect_to_vec(get("detector_features", Dtype::I8, 3)?),
                 boxes: bytemuck::pod_collect_to_vec(get("detector_boxes", Dtype::I8, 4)?),
+                // Absent: stored without colours (or before they were kept).
+                colours: if st.names().contains(&"detector_colours") { bytemuck::pod_collect_to_vec(get("detector_colours", Dtype::F32, 0)?) } else { vec![] },
             };
             std::sync::OnceLock::from(Arc::new(d))
         }
