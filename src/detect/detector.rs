@@ -5,7 +5,7 @@
 //! replaced by the graph-cut segmentation of its box where the two agree).
 
 use super::colour_prior::ColourPrior;
-use super::nms::suppress;
+use super::nms::{area, inside_share, suppress};
 use super::responses::ResponseMaps;
 use super::scales::{distance_for_scale, rung_scale, rungs_between, scale_for_distance};
 use super::search::search;
@@ -53,7 +53,7 @@ impl Default for DetectOptions {
 }
 
 /// Default score threshold (docs/detection.md: chosen on generated scenes and empty images).
-pub const DEFAULT_MIN_SCORE: f32 = 0.7;
+pub const DEFAULT_MIN_SCORE: f32 = 0.75;
 /// Smallest bounding-sphere diameter searched by default, pixels.
 pub const DEFAULT_MIN_DIAMETER_PX: f64 = 40.0;
 /// Largest, as a share of the image's shorter side.
@@ -62,6 +62,8 @@ pub const DEFAULT_MAX_SHARE: f64 = 1.0;
 const MIN_RAW_SCORE: f32 = 0.6;
 /// Template matches scoring less above chance are not candidates.
 const MIN_SHAPE_SCORE: f32 = 0.4;
+/// Candidates per object considered for suppression (best rank first).
+const RANKED_PER_OBJECT: usize = 300;
 /// Candidates per object rendered and compared with the image (about 3–5 ms each).
 const VERIFIED_PER_OBJECT: usize = 12;
 /// Boxes overlapping more than this are one detection.
@@ -236,7 +238,7 @@ pub fn detect(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &Detec
                 let colour = prior.as_ref().map(|c| c.box_mean((p.x + b[0] as i32) as i64, (p.y + b[1] as i32) as i64, (p.x + b[2] as i32) as i64, (p.y + b[3] as i32) as i64));
                 // Ranked by the template and, for objects with colours, how much of the box
                 // has the object's colours.
-                let rank = p.score * colour.map_or(1.0, |c| 0.5 + c);
+                let rank = p.score * colour.map_or(1.0, |c| c.min(1.0));
                 candidates.push(Candidate { target: ti, template: p.template, u, v, rho: rung_scale(k), bbox, score: p.score, rank });
             }
         }
@@ -246,7 +248,13 @@ pub fn detect(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &Detec
     // matches cannot crowd another object out of verification.
     let mut kept = Vec::new();
     for ti in 0..targets.len() {
-        let own: Vec<usize> = (0..candidates.len()).filter(|&i| candidates[i].target == ti).collect();
+        let mut own: Vec<usize> = (0..candidates.len()).filter(|&i| candidates[i].target == ti).collect();
+        own.sort_by(|&a, &b| candidates[b].rank.total_cmp(&candidates[a].rank));
+        own.truncate(RANKED_PER_OBJECT);
+        // A match on part of the object (its print answers a smaller view) gives way to a
+        // larger match around it that ranks nearly as well.
+        let parts: Vec<bool> = own.iter().map(|&i| own.iter().any(|&j| j != i && candidates[j].rank >= 0.9 * candidates[i].rank && area(&candidates[j].bbox) > 1.5 * area(&candidates[i].bbox) && inside_share(&candidates[i].bbox, &candidates[j].bbox) >= 0.8)).collect();
+        let own: Vec<usize> = own.iter().zip(&parts).filter(|(_, &p)| !p).map(|(&i, _)| i).collect();
         let boxes: Vec<[f64; 4]> = own.iter().map(|&i| candidates[i].bbox).collect();
         let scores: Vec<f32> = own.iter().map(|&i| candidates[i].rank).collect();
         kept.extend(suppress(&boxes, &scores, NMS_IOU).into_iter().take(VERIFIED_PER_OBJECT.max(opts.max_detections)).map(|j| own[j]));

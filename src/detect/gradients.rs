@@ -111,33 +111,26 @@ pub fn quantised_bits(g: &Gradients, min_magnitude: f32) -> Vec<u8> {
 /// then matches wherever its orientation occurs within that window, which gives the
 /// search its tolerance to small shape and pose differences.
 pub fn spread(bits: &[u8], w: usize, h: usize, t: usize) -> Vec<u8> {
+    let rows = or_along(bits, w, h, t, 1, w);
+    or_along(&rows, w, h, t, w, h)
+}
+
+/// One pass of `spread`: each pixel ORs the `t` pixels at offsets −t/2 .. t/2 − 1 along
+/// one axis (`step` 1: along rows of `len` = w; `step` w: along columns of `len` = h).
+fn or_along(bits: &[u8], w: usize, h: usize, t: usize, step: usize, len: usize) -> Vec<u8> {
     let lo = (t / 2) as isize;
     let hi = t as isize - lo - 1;
-    let mut rows = vec![0u8; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let mut acc = 0u8;
-            for dx in -lo..=hi {
-                let xx = x as isize + dx;
-                if xx >= 0 && (xx as usize) < w {
-                    acc |= bits[y * w + xx as usize];
-                }
-            }
-            rows[y * w + x] = acc;
-        }
-    }
     let mut out = vec![0u8; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let mut acc = 0u8;
-            for dy in -lo..=hi {
-                let yy = y as isize + dy;
-                if yy >= 0 && (yy as usize) < h {
-                    acc |= rows[yy as usize * w + x];
-                }
+    for i in 0..w * h {
+        // Position of pixel i along the axis.
+        let c = if step == 1 { i % w } else { i / w } as isize;
+        let mut acc = 0u8;
+        for d in -lo..=hi {
+            if (0..len as isize).contains(&(c + d)) {
+                acc |= bits[(i as isize + d * step as isize) as usize];
             }
-            out[y * w + x] = acc;
         }
+        out[i] = acc;
     }
     out
 }

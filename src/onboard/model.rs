@@ -122,36 +122,27 @@ impl ObjectModel {
     /// The contour model, computed now (silhouette renders of the mesh) if the object was
     /// stored without one.
     pub fn contour_model_or_build(&self, renderer: &crate::render::RenderPool) -> Result<Arc<ContourModel>, crate::render::RenderError> {
-        if let Some(c) = self.contours.get() {
-            return Ok(c.clone());
-        }
-        let t = std::time::Instant::now();
-        let built = Arc::new(ContourModel::build(&self.mesh, renderer, &Default::default())?);
-        tracing::warn!(
-            "object {:?} was stored without a contour model (format < 3): computed it in {:.1} s for this session; onboard it again to store it",
-            self.object_id,
-            t.elapsed().as_secs_f64()
-        );
-        // Two threads may race here; both results are equal, the first one stays.
-        let _ = self.contours.set(built);
-        Ok(self.contours.get().expect("just set").clone())
+        self.built_on_first_use(&self.contours, "a contour model (format < 3)", || ContourModel::build(&self.mesh, renderer, &Default::default()))
     }
 
     /// The detector's templates, computed now (renders of the mesh) if the object was stored
     /// without them.
     pub fn shape_model_or_build(&self, renderer: &crate::render::RenderPool) -> Result<Arc<ShapeModel>, crate::render::RenderError> {
-        if let Some(s) = self.detector.get() {
-            return Ok(s.clone());
+        self.built_on_first_use(&self.detector, "detector templates (format < 4)", || ShapeModel::build(&self.mesh, renderer, &Default::default()))
+    }
+
+    /// What `cell` holds, or `build`'s result kept there, with a warning saying what an
+    /// older object lacked and how to store it.
+    fn built_on_first_use<T>(&self, cell: &OnceLock<Arc<T>>, what: &str, build: impl FnOnce() -> Result<T, crate::render::RenderError>) -> Result<Arc<T>, crate::render::RenderError> {
+        if let Some(c) = cell.get() {
+            return Ok(c.clone());
         }
         let t = std::time::Instant::now();
-        let built = Arc::new(ShapeModel::build(&self.mesh, renderer, &Default::default())?);
-        tracing::warn!(
-            "object {:?} was stored without detector templates (format < 4): computed them in {:.1} s for this session; `b2tf objects upgrade` stores them",
-            self.object_id,
-            t.elapsed().as_secs_f64()
-        );
-        let _ = self.detector.set(built);
-        Ok(self.detector.get().expect("just set").clone())
+        let built = Arc::new(build()?);
+        tracing::warn!("object {:?} was stored without {what}: computed it in {:.1} s for this session; `b2tf objects upgrade` stores it", self.object_id, t.elapsed().as_secs_f64());
+        // Two threads may race here; both results are equal, the first one stays.
+        let _ = cell.set(built);
+        Ok(cell.get().expect("just set").clone())
     }
 
     /// Approximate heap bytes held: the arrays, the mesh and its textures (for cache budgets).
