@@ -197,6 +197,7 @@ fn coco_images(gt: &[Scored], dets: &[Scored], images: usize) -> Vec<ImageCatego
 /// nearest its true size: whether the search could have found it at all.
 fn oracle(scene: &crate::eval::scenes::SceneImage, targets: &[Target], searched: usize) {
     use crate::detect::scales::{rung_scale, scale_for_distance, RUNGS};
+    use crate::detect::detector::{SPREAD_PX, STRIDE_PX};
     use crate::detect::search::{score_at, specific_score_at};
     let k = &scene.cam;
     let f = (k.fx * k.fy).sqrt();
@@ -211,10 +212,9 @@ fn oracle(scene: &crate::eval::scenes::SceneImage, targets: &[Target], searched:
         let rho = scale_for_distance(t.shape.config.canonical_px as f64, f, t.mesh.bounding_radius(), centre.coords.norm());
         let nearest = (0..RUNGS).min_by(|&a, &b| (rung_scale(a).ln() - rho.ln()).abs().total_cmp(&(rung_scale(b).ln() - rho.ln()).abs())).unwrap_or(0);
         let r = rung_scale(nearest);
-        let (w, h) = ((scene.rgb.width() as f64 * r).round() as u32, (scene.rgb.height() as f64 * r).round() as u32);
-        let small = image::imageops::resize(&scene.rgb, w, h, image::imageops::FilterType::Triangle);
-        let maps = crate::detect::responses::ResponseMaps::compute(&small, t.shape.config.min_magnitude, 4, 4);
-        let (x, y) = (((u + 0.5) * r - 0.5).round() as i32, ((v + 0.5) * r - 0.5).round() as i32);
+        let (small, rx, ry) = crate::detect::detector::resampled(&scene.rgb, r);
+        let maps = crate::detect::responses::ResponseMaps::compute(&small, t.shape.config.min_magnitude, SPREAD_PX, STRIDE_PX);
+        let (x, y) = (((u + 0.5) * rx - 0.5).round() as i32, ((v + 0.5) * ry - 0.5).round() as i32);
         let (mut best, mut spec) = ((0.0f32, 0usize), 0.0f32);
         for tt in 0..t.shape.template_count() {
             for dy in -3..=3 {

@@ -18,7 +18,7 @@ use crate::render::{RenderOptions, RenderPool};
 use image::{imageops, GrayImage, RgbImage};
 use nalgebra::{Rotation3, Vector3};
 use rayon::prelude::*;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::time::Instant;
 
 /// One object to look for.
@@ -58,6 +58,9 @@ pub const DEFAULT_MIN_SCORE: f32 = 0.75;
 pub const DEFAULT_MIN_DIAMETER_PX: f64 = 40.0;
 /// Largest, as a share of the image's shorter side.
 pub const DEFAULT_MAX_SHARE: f64 = 1.0;
+/// Orientations spread over this window, and the search grid's step (LINE-2D's T), pixels.
+pub const SPREAD_PX: usize = 4;
+pub const STRIDE_PX: usize = 4;
 /// Grid positions whose template sum is below this share of the maximum are not refined.
 const MIN_RAW_SCORE: f32 = 0.6;
 /// Template matches scoring less above chance are not candidates.
@@ -204,21 +207,19 @@ pub fn detect(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &Detec
         };
         plans.push((rungs, range));
     }
-    let mut needed: BTreeMap<(usize, u32), ()> = BTreeMap::new();
+    let mut needed: BTreeSet<(usize, u32)> = BTreeSet::new();
     for (t, (rungs, _)) in targets.iter().zip(&plans) {
         for &k in rungs {
-            needed.insert((k, t.shape.config.min_magnitude.to_bits()), ());
+            needed.insert((k, t.shape.config.min_magnitude.to_bits()));
         }
     }
-    let keys: Vec<(usize, u32)> = needed.into_keys().collect();
+    let keys: Vec<(usize, u32)> = needed.into_iter().collect();
     let maps: BTreeMap<(usize, u32), (f64, f64, ResponseMaps, RgbImage)> = keys
         .par_iter()
         .map(|&(k, mag)| {
-            let rho = rung_scale(k);
-            let (w, h) = (((image.width() as f64 * rho).round() as u32).max(1), ((image.height() as f64 * rho).round() as u32).max(1));
-            let small = if (w, h) == image.dimensions() { image.clone() } else { imageops::resize(image, w, h, imageops::FilterType::Triangle) };
-            let maps = ResponseMaps::compute(&small, f32::from_bits(mag), 4, 4);
-            ((k, mag), (w as f64 / image.width() as f64, h as f64 / image.height() as f64, maps, small))
+            let (small, rx, ry) = resampled(image, rung_scale(k));
+            let maps = ResponseMaps::compute(&small, f32::from_bits(mag), SPREAD_PX, STRIDE_PX);
+            ((k, mag), (rx, ry, maps, small))
         })
         .collect();
     let responses_ms = t0.elapsed().as_secs_f64() * 1e3;
@@ -297,6 +298,13 @@ pub fn detect(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &Detec
         Some(format!("no candidate scored {} or more ({} candidates checked)", opts.min_score, verified.len()))
     };
     Ok(DetectReport { detections, searched, timings: DetectTimings { responses_ms, search_ms, verify_ms, masks_ms, total_ms: t0.elapsed().as_secs_f64() * 1e3 }, reason })
+}
+
+/// `image` resampled by `rho` (whole pixels), with the factors it was resampled by in x and y.
+pub fn resampled(image: &RgbImage, rho: f64) -> (RgbImage, f64, f64) {
+    let (w, h) = (((image.width() as f64 * rho).round() as u32).max(1), ((image.height() as f64 * rho).round() as u32).max(1));
+    let small = if (w, h) == image.dimensions() { image.clone() } else { imageops::resize(image, w, h, imageops::FilterType::Triangle) };
+    (small, w as f64 / image.width() as f64, h as f64 / image.height() as f64)
 }
 
 /// The template's rotation, turned so that the optical axis points at the found centre

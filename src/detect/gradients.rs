@@ -77,6 +77,16 @@ pub fn colour_gradients(rgb: &RgbImage) -> Gradients {
     g
 }
 
+/// Gradients of a silhouette (0–255 coverage): the outline's own orientation, as if the
+/// object stood on any background.
+pub fn mask_gradients(mask: &image::GrayImage) -> Gradients {
+    let rgb = RgbImage::from_fn(mask.width(), mask.height(), |x, y| {
+        let v = mask.get_pixel(x, y)[0];
+        image::Rgb([v, v, v])
+    });
+    colour_gradients(&rgb)
+}
+
 /// One orientation bit per pixel (`1 << bin`), 0 where the gradient is weaker than
 /// `min_magnitude` or its 3×3 neighbourhood does not agree on a bin (at least 5 of the 9
 /// strong pixels in the same bin: LINE-2D's vote, which drops noise and texture speckle).

@@ -9,7 +9,7 @@
 //! (its outline is there whatever the background and lighting), the rest the strongest
 //! interior edges (texture, creases), each set spread out so no part of the view dominates.
 
-use super::gradients::{colour_gradients, quantised_bits, BINS};
+use super::gradients::{colour_gradients, mask_gradients, quantised_bits, BINS};
 use crate::geometry::views::{fitted_distance, icosphere, in_plane_rotation, look_at_rotation, view_pose};
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Mesh;
@@ -238,13 +238,9 @@ const INSIDE: u8 = 128;
 fn view_features(rgb: &RgbImage, mask: &GrayImage, config: &DetectorConfig) -> Vec<Feature> {
     let (w, h) = (rgb.width() as usize, rgb.height() as usize);
     let centre = (w as f32 - 1.0) * 0.5;
-    let mask_rgb = RgbImage::from_fn(mask.width(), mask.height(), |x, y| {
-        let v = mask.get_pixel(x, y)[0];
-        image::Rgb([v, v, v])
-    });
     // The outline from the mask itself: the rendered colours there meet black, which no
     // photo shows; the mask's edge is where any background would make one.
-    let outline = colour_gradients(&mask_rgb);
+    let outline = mask_gradients(mask);
     let outline_bits = quantised_bits(&outline, config.min_magnitude);
     let colour = colour_gradients(rgb);
     let colour_bits = quantised_bits(&colour, config.min_magnitude * 1.5);

@@ -5,7 +5,7 @@
 //! perspective, and, for meshes with colours, whether the surface has the object's colours.
 //! Neither measure depends on brightness, so both survive lighting changes.
 
-use super::gradients::{bin_of, colour_gradients, quantised_bits, spread, BINS};
+use super::gradients::{bin_of, colour_gradients, mask_gradients, quantised_bits, spread, BINS};
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Mesh;
 use crate::render::{RenderError, RenderOptions, RenderPool};
@@ -54,11 +54,7 @@ pub fn evidence(renderer: &RenderPool, mesh: &Mesh, pose: &Pose, k: &Intrinsics,
 /// orientation (±1 bin) within one pixel.
 fn outline_agreement(mask: &GrayImage, photo: &RgbImage) -> f32 {
     let (w, h) = (mask.width() as usize, mask.height() as usize);
-    let mask_rgb = RgbImage::from_fn(mask.width(), mask.height(), |x, y| {
-        let v = mask.get_pixel(x, y)[0];
-        image::Rgb([v, v, v])
-    });
-    let outline = colour_gradients(&mask_rgb);
+    let outline = mask_gradients(mask);
     let peak = outline.magnitude.iter().copied().fold(0.0f32, f32::max);
     if peak == 0.0 {
         return 0.0;
