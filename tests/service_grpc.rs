@@ -51,6 +51,7 @@ fn estimate_request(image: pb::image::Data, w: u32, h: u32, mask_png: Vec<u8>, o
         intrinsics: Some(pb::Intrinsics { fx: 500.0, fy: 500.0, cx: 159.5, cy: 119.5, width: 320, height: 240 }),
         detections: vec![pb::Detection { object_id: object_id.into(), mask: Some(pb::detection::Mask::MaskPng(mask_png)), bbox: None, score: Some(0.9) }],
         options: Some(pb::EstimateOptions { rrc: Some(false), ..Default::default() }),
+        ..Default::default()
     }
 }
 

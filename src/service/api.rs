@@ -9,6 +9,7 @@ use super::error::{ErrorKind, ServiceError};
 use super::metrics::{Gauges, Metrics};
 use super::operations::OperationStatus;
 use super::rate_limit::RateLimiter;
+use super::detect_requests::{DetectRequest, DetectResponse};
 use super::requests::{EstimateRequest, EstimateResponse, OnboardRequest};
 use super::track_requests::{TrackFrameRequest, TrackFrameResponse, TrackSessionInfo, TrackSessionOptions};
 use crate::store::ObjectInfo;
@@ -60,7 +61,7 @@ impl Api {
     /// the concurrency limit stays true.
     pub async fn estimate(&self, req: EstimateRequest, budget: Option<Duration>) -> Result<EstimateResponse, ServiceError> {
         // Over the limit the request is refused now, not queued.
-        let slot = self.core.estimate_slot().ok_or_else(|| ServiceError::new(ErrorKind::ResourceExhausted, format!("{} estimates already running; retry later", self.core.config.max_estimates)))?;
+        let slot = self.core.estimate_slot().ok_or_else(|| self.busy())?;
         let deadline = budget.map(|b| Instant::now() + b);
         let core = self.core.clone();
         let detections = req.detections.len();
@@ -73,9 +74,31 @@ impl Api {
             None => work.await?,
         };
         for r in &resp.results {
-            self.metrics.stages(&r.timings_ms, detections);
+            self.metrics.stages(&r.timings_ms, detections.max(resp.detections.len()));
         }
         Ok(resp)
+    }
+
+    /// Detects within `budget`, in an estimate's slot (the same limit: both are the
+    /// server's heavy work).
+    pub async fn detect(&self, req: DetectRequest, budget: Option<Duration>) -> Result<DetectResponse, ServiceError> {
+        let slot = self.core.estimate_slot().ok_or_else(|| self.busy())?;
+        let deadline = budget.map(|b| Instant::now() + b);
+        let core = self.core.clone();
+        let work = blocking(move || {
+            let _slot = slot;
+            core.detect(&req, deadline)
+        });
+        let resp = match budget {
+            Some(b) => tokio::time::timeout(b, work).await.map_err(|_| deadline_exceeded(b))??,
+            None => work.await?,
+        };
+        self.metrics.detected(&serde_json::to_value(&resp.timings_ms).unwrap_or_default(), resp.detections.len());
+        Ok(resp)
+    }
+
+    fn busy(&self) -> ServiceError {
+        ServiceError::new(ErrorKind::ResourceExhausted, format!("{} estimates or detections already running; retry later", self.core.config.max_estimates))
     }
 
     /// `request_id`: the starting request's, for the onboarding's own log lines.
@@ -117,5 +140,5 @@ impl Api {
 }
 
 pub fn deadline_exceeded(budget: Duration) -> ServiceError {
-    ServiceError::new(ErrorKind::DeadlineExceeded, format!("the estimate did not finish within its deadline of {} ms", budget.as_millis()))
+    ServiceError::new(ErrorKind::DeadlineExceeded, format!("the request did not finish within its deadline of {} ms", budget.as_millis()))
 }

@@ -29,6 +29,7 @@ pub fn one_mask_request(object_id: &str, image_png: Vec<u8>, mask_png: Vec<u8>, 
         intrinsics: Some(k.into()),
         detections: vec![pb::Detection { object_id: object_id.into(), mask: Some(pb::detection::Mask::MaskPng(mask_png)), bbox: None, score: Some(1.0) }],
         options: Some(pb::EstimateOptions { rrc: Some(rrc), ..Default::default() }),
+        ..Default::default()
     }
 }
 

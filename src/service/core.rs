@@ -6,6 +6,7 @@
 
 use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
+use super::detect_requests::DetectionOutput;
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput};
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
@@ -245,35 +246,29 @@ impl Core {
         asked
     }
 
-    /// Runs the pipeline for every object named by the detections. Blocking. Past
-    /// `deadline` it stops before the next instance.
+    /// Runs the pipeline for every object named by the detections, or for every instance
+    /// the detector finds of the named objects. Blocking. Past `deadline` it stops before
+    /// the next instance.
     pub fn estimate(&self, req: &EstimateRequest, deadline: Option<Instant>) -> Result<EstimateResponse, ServiceError> {
         let t0 = Instant::now();
         req.check_limits()?;
-        let k = req.intrinsics.decode()?;
-        let image = tracing::info_span!("decode").in_scope(|| req.image.decode())?;
-        if image.dimensions() != (k.width, k.height) {
-            return Err(ServiceError::invalid(format!("image is {}×{} but intrinsics say {}×{}", image.width(), image.height(), k.width, k.height)));
-        }
-        if req.detections.is_empty() {
-            return Err(ServiceError::invalid("detections: at least one is needed"));
-        }
-        tracing::debug!(width = k.width, height = k.height, detections = req.detections.len(), "estimate request");
+        let (image, k) = super::core_detect::decode_image(&req.image, &req.intrinsics)?;
+        tracing::debug!(width = k.width, height = k.height, detections = req.detections.len(), objects = req.objects.len(), "estimate request");
         let o = &req.options;
         if o.k == 0 || o.max_masks == 0 || o.instances_per_object == 0 {
             return Err(ServiceError::invalid("options: k, max_masks and instances_per_object must be positive"));
         }
+        let (masks, detected) = if req.objects.is_empty() {
+            (decode_masks(req, &image)?, None)
+        } else {
+            let report = self.run_detector(&image, &k, &req.objects, &req.detect, deadline)?;
+            let masks = report.detections.iter().map(|d| (d.object_id.clone(), d.mask.clone(), d.score)).collect();
+            (masks, Some(report))
+        };
         let mut by_object: BTreeMap<&str, Vec<(usize, image::GrayImage, f32)>> = BTreeMap::new();
-        // Decoding masks, or segmenting inside boxes given without one.
-        let masks_span = tracing::info_span!("masks", detections = req.detections.len()).entered();
-        for (i, d) in req.detections.iter().enumerate() {
-            if !d.score.is_finite() {
-                return Err(ServiceError::invalid(format!("detections[{i}].score is not a finite number")));
-            }
-            crate::store::validate_id(&d.object_id).map_err(|e| ServiceError::invalid(format!("detections[{i}].object_id: {e}")))?;
-            by_object.entry(d.object_id.as_str()).or_default().push((i, d.mask(i, &image, crate::masks::BoxMask::Segment)?, d.score));
+        for (i, (object_id, mask, score)) in masks.iter().enumerate() {
+            by_object.entry(object_id.as_str()).or_default().push((i, mask.clone(), *score));
         }
-        drop(masks_span);
         // Every object must exist before any work starts.
         let models: BTreeMap<&str, _> = by_object.keys().map(|&id| Ok((id, self.load(id)?))).collect::<Result<_, ServiceError>>()?;
         let mut cfg = EstimateConfig { rrc: o.rrc, max_masks: o.max_masks, refiner: o.refiner, ..Default::default() };
@@ -306,8 +301,29 @@ impl Core {
                 });
             }
         }
-        Ok(EstimateResponse { results, total_ms: t0.elapsed().as_secs_f64() * 1e3 })
+        let (detections, reason) = match detected {
+            Some(report) => (report.detections.iter().map(DetectionOutput::from).collect(), report.reason),
+            None => (Vec::new(), None),
+        };
+        Ok(EstimateResponse { results, detections, reason, total_ms: t0.elapsed().as_secs_f64() * 1e3 })
     }
+}
+
+/// The request's detections as (object id, mask, score), boxes given without a mask
+/// segmented inside the box.
+fn decode_masks(req: &EstimateRequest, image: &image::RgbImage) -> Result<Vec<(String, image::GrayImage, f32)>, ServiceError> {
+    let _span = tracing::info_span!("masks", detections = req.detections.len()).entered();
+    req.detections
+        .iter()
+        .enumerate()
+        .map(|(i, d)| {
+            if !d.score.is_finite() {
+                return Err(ServiceError::invalid(format!("detections[{i}].score is not a finite number")));
+            }
+            crate::store::validate_id(&d.object_id).map_err(|e| ServiceError::invalid(format!("detections[{i}].object_id: {e}")))?;
+            Ok((d.object_id.clone(), d.mask(i, image, crate::masks::BoxMask::Segment)?, d.score))
+        })
+        .collect()
 }
 
 /// Union of every detection's mask except those of `object_id`'s instance `group`: where

@@ -139,6 +139,12 @@ impl PoseService for GrpcService {
         Ok(Response::new(convert::estimate_response(resp)))
     }
 
+    async fn detect(&self, req: Request<pb::DetectRequest>) -> Result<Response<pb::DetectResponse>, Status> {
+        let budget = self.api.budget(client_deadline(&req));
+        let resp = self.observed("Detect", async { self.api.detect(convert::detect_request(req.into_inner())?, budget).await }).await?;
+        Ok(Response::new(convert::detect_response(resp)))
+    }
+
     async fn list_objects(&self, _req: Request<pb::ListObjectsRequest>) -> Result<Response<pb::ListObjectsResponse>, Status> {
         let objects = self.observed("ListObjects", self.api.list_objects()).await?;
         Ok(Response::new(pb::ListObjectsResponse { objects: objects.into_iter().map(convert::object_info).collect() }))

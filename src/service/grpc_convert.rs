@@ -5,7 +5,9 @@
 use super::error::ServiceError;
 use super::operations::{OperationState, OperationStatus};
 use super::proto as pb;
+use super::detect_requests::{DetectRequest, DetectResponse, DetectionOutput};
 use super::requests::{self as rq, EstimateOptions, OnboardOptions};
+use crate::detect::DetectOptions;
 use crate::onboard::PcaSetting;
 use crate::store::ObjectInfo;
 
@@ -68,7 +70,51 @@ pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, S
         spin_steps: o.spin_steps.map_or(defaults.spin_steps, |n| n as usize),
         refiner: if o.refiner.is_empty() { defaults.refiner } else { o.refiner.parse().map_err(|e: String| ServiceError::invalid(format!("options.refiner: {e}")))? },
     };
-    Ok(rq::EstimateRequest { image, intrinsics, detections, options })
+    Ok(rq::EstimateRequest { image, intrinsics, detections, objects: r.objects, detect: detect_options(r.detect), options })
+}
+
+/// Proto3 zero values and unset optionals are the detector's defaults.
+pub fn detect_options(o: Option<pb::DetectOptions>) -> DetectOptions {
+    let defaults = DetectOptions::default();
+    let o = o.unwrap_or_default();
+    DetectOptions {
+        max_detections: non_zero(o.max_detections as usize, defaults.max_detections),
+        min_score: o.min_score.unwrap_or(defaults.min_score),
+        min_distance_m: o.min_distance_m,
+        max_distance_m: o.max_distance_m,
+        refine_masks: o.refine_masks.unwrap_or(defaults.refine_masks),
+    }
+}
+
+pub fn detect_request(r: pb::DetectRequest) -> Result<DetectRequest, ServiceError> {
+    let image = image(required(r.image, "image")?);
+    let intrinsics = intrinsics(required(r.intrinsics, "intrinsics")?);
+    Ok(DetectRequest { image, intrinsics, objects: r.objects, options: detect_options(r.options) })
+}
+
+pub fn detected_object(d: DetectionOutput) -> pb::DetectedObject {
+    let [x, y, width, height] = d.bbox;
+    pb::DetectedObject {
+        object_id: d.object_id,
+        bbox: Some(pb::BBox { x, y, width, height }),
+        score: d.score,
+        mask_rle: Some(pb::Rle { counts: d.mask_rle.counts, height: d.mask_rle.size[0], width: d.mask_rle.size[1] }),
+        mask_source: serde_json::to_value(d.mask_source).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
+        coarse_pose: Some(pose(d.coarse_pose)),
+        shape_score: d.terms.shape,
+        outline_score: d.terms.outline,
+        colour_score: d.terms.colour,
+    }
+}
+
+pub fn detect_response(r: DetectResponse) -> pb::DetectResponse {
+    let searched = r.searched.into_iter().map(|s| pb::SearchedObject { object_id: s.object_id, min_distance_m: s.distance_m[0], max_distance_m: s.distance_m[1], scales: s.scales as u32, candidates: s.candidates as u32 }).collect();
+    pb::DetectResponse { detections: r.detections.into_iter().map(detected_object).collect(), reason: r.reason.unwrap_or_default(), searched, timings_ms: r.timings_ms.into_iter().collect(), total_ms: r.total_ms }
+}
+
+/// A JSON object of stage → milliseconds as a proto map.
+fn timings(v: &serde_json::Value) -> std::collections::HashMap<String, f64> {
+    v.as_object().map(|m| m.iter().filter_map(|(k, v)| Some((k.clone(), v.as_f64()?))).collect()).unwrap_or_default()
 }
 
 pub fn estimate_response(r: rq::EstimateResponse) -> pb::EstimateResponse {
@@ -83,10 +129,10 @@ pub fn estimate_response(r: rq::EstimateResponse) -> pb::EstimateResponse {
             detection_index: i.detection_index.map_or(-1, |d| d as i32),
             reason: i.reason.unwrap_or_default(),
             diagnostics_json: i.diagnostics.to_string(),
-            timings_ms: i.timings_ms.as_object().map(|m| m.iter().filter_map(|(k, v)| Some((k.clone(), v.as_f64()?))).collect()).unwrap_or_default(),
+            timings_ms: timings(&i.timings_ms),
         })
         .collect();
-    pb::EstimateResponse { results, total_ms: r.total_ms }
+    pb::EstimateResponse { results, total_ms: r.total_ms, detections: r.detections.into_iter().map(detected_object).collect(), reason: r.reason.unwrap_or_default() }
 }
 
 pub fn onboard_request(r: pb::OnboardRequest) -> Result<rq::OnboardRequest, ServiceError> {
@@ -160,7 +206,7 @@ mod tests {
     fn refiner_is_parsed_and_an_unknown_one_is_named() {
         let with = |refiner: &str| {
             let options = Some(pb::EstimateOptions { refiner: refiner.into(), ..Default::default() });
-            estimate_request(pb::EstimateRequest { image: Some(pb::Image::default()), intrinsics: Some(pb::Intrinsics::default()), detections: vec![], options })
+            estimate_request(pb::EstimateRequest { image: Some(pb::Image::default()), intrinsics: Some(pb::Intrinsics::default()), options, ..Default::default() })
         };
         assert_eq!(with("").unwrap().options.refiner, crate::estimate::RefinerKind::default());
         assert_eq!(with("silhouette-depth").unwrap().options.refiner, crate::estimate::RefinerKind::SilhouetteDepth);
@@ -172,7 +218,7 @@ mod tests {
     fn verification_hypotheses_default_when_unset_and_zero_means_none() {
         let with = |verify_templates, spin_steps| {
             let options = Some(pb::EstimateOptions { verify_templates, spin_steps, ..Default::default() });
-            estimate_request(pb::EstimateRequest { image: Some(pb::Image::default()), intrinsics: Some(pb::Intrinsics::default()), detections: vec![], options }).unwrap().options
+            estimate_request(pb::EstimateRequest { image: Some(pb::Image::default()), intrinsics: Some(pb::Intrinsics::default()), options, ..Default::default() }).unwrap().options
         };
         let d = crate::estimate::VerifyConfig::default();
         let unset = with(None, None);

@@ -5,6 +5,7 @@
 use super::access;
 use super::api::Api;
 use super::error::{ErrorKind, ServiceError};
+use super::detect_requests::DetectRequest;
 use super::requests::{EstimateRequest, OnboardRequest};
 use super::scopes;
 use axum::extract::rejection::JsonRejection;
@@ -160,6 +161,12 @@ async fn estimate(State(s): State<Api>, b: Result<Json<EstimateRequest>, JsonRej
     Ok(Json(s.estimate(req, budget).await?).into_response())
 }
 
+async fn detect(State(s): State<Api>, b: Result<Json<DetectRequest>, JsonRejection>) -> Result<Response, ServiceError> {
+    let req = body(b)?;
+    let budget = s.budget(None);
+    Ok(Json(s.detect(req, budget).await?).into_response())
+}
+
 pub fn router(state: Api, max_body_bytes: usize) -> Router {
     Router::new()
         .route("/healthz", get(healthz))
@@ -169,6 +176,7 @@ pub fn router(state: Api, max_body_bytes: usize) -> Router {
         .route("/v1/operations/{id}", get(get_operation))
         .route("/v1/operations/{id}/cancel", post(cancel_operation))
         .route("/v1/estimate", post(estimate))
+        .route("/v1/detect", post(detect))
         .merge(super::http_track::routes())
         .route("/metrics", get(metrics))
         .route("/openapi.json", get(openapi))

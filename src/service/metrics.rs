@@ -46,12 +46,22 @@ fn write_histogram(out: &mut String, name: &str, labels: &str, buckets: impl Ite
     let _ = writeln!(out, "{name}_count{own} {count}");
 }
 
+/// Each `stage: ms` of a JSON object into its histogram, in seconds.
+fn observe_stages(stages: &mut BTreeMap<String, Histogram>, prefix: &str, timings_ms: &serde_json::Value) {
+    for (stage, v) in timings_ms.as_object().into_iter().flatten() {
+        if let Some(ms) = v.as_f64() {
+            stages.entry(format!("{prefix}{stage}")).or_default().observe(ms / 1e3);
+        }
+    }
+}
+
 #[derive(Default)]
 struct Inner {
     requests: BTreeMap<(String, String, String), u64>,
     latency: BTreeMap<String, Histogram>,
     stages: BTreeMap<String, Histogram>,
     detections_per_estimate: Histogram,
+    detections_per_detect: Histogram,
     track_objects: BTreeMap<String, u64>,
     /// By API key identity; both bounded by the number of keys.
     key_requests: BTreeMap<String, u64>,
@@ -88,14 +98,16 @@ impl Metrics {
     /// Stage times of one estimated instance (milliseconds, as the pipeline reports them).
     pub fn stages(&self, timings_ms: &serde_json::Value, detections: usize) {
         let mut g = self.inner.lock().expect("metrics lock");
-        if let Some(map) = timings_ms.as_object() {
-            for (stage, v) in map {
-                if let Some(ms) = v.as_f64() {
-                    g.stages.entry(stage.clone()).or_default().observe(ms / 1e3);
-                }
-            }
-        }
+        observe_stages(&mut g.stages, "", timings_ms);
         g.detections_per_estimate.observe(detections as f64);
+    }
+
+    /// Stage times (milliseconds) of one Detect call, as stages named `detect_<stage>`,
+    /// and how many objects it found.
+    pub fn detected(&self, timings_ms: &serde_json::Value, found: usize) {
+        let mut g = self.inner.lock().expect("metrics lock");
+        observe_stages(&mut g.stages, "detect_", timings_ms);
+        g.detections_per_detect.observe(found as f64);
     }
 
     /// The objects of one tracked frame, by how each pose came about.
@@ -129,12 +141,14 @@ impl Metrics {
             let (m, r) = key.split_once(' ').unwrap_or((key, ""));
             h.write(&mut out, "b2tf_request_seconds", &format!("method=\"{m}\",route=\"{r}\","));
         }
-        out.push_str("# HELP b2tf_stage_seconds Estimation stage time per instance.\n# TYPE b2tf_stage_seconds histogram\n");
+        out.push_str("# HELP b2tf_stage_seconds Estimation stage time per instance; detect_* stages per detect request.\n# TYPE b2tf_stage_seconds histogram\n");
         for (stage, h) in &g.stages {
             h.write(&mut out, "b2tf_stage_seconds", &format!("stage=\"{stage}\","));
         }
         out.push_str("# HELP b2tf_detections_per_estimate Detections in one estimate request.\n# TYPE b2tf_detections_per_estimate histogram\n");
         g.detections_per_estimate.write(&mut out, "b2tf_detections_per_estimate", "");
+        out.push_str("# HELP b2tf_detections_per_detect Objects found by one detect request.\n# TYPE b2tf_detections_per_detect histogram\n");
+        g.detections_per_detect.write(&mut out, "b2tf_detections_per_detect", "");
         out.push_str("# HELP b2tf_track_objects_total Objects in tracked frames, by mode (tracked, reinitialised, lost, ...).\n# TYPE b2tf_track_objects_total counter\n");
         for (mode, n) in &g.track_objects {
             let _ = writeln!(out, "b2tf_track_objects_total{{mode=\"{mode}\"}} {n}");

@@ -12,6 +12,8 @@ pub mod base64_bytes;
 pub mod client;
 pub mod client_ca;
 pub mod core;
+pub mod core_detect;
+pub mod detect_requests;
 pub mod core_track;
 pub mod error;
 pub mod grpc;

@@ -148,8 +148,16 @@ impl Default for EstimateOptions {
 pub struct EstimateRequest {
     pub image: ImageInput,
     pub intrinsics: IntrinsicsInput,
-    #[serde(deserialize_with = "limits::bounded_vec::<_, _, { limits::MAX_DETECTIONS }>")]
+    /// The masks or boxes of the objects; or leave empty and name `objects` to have the
+    /// server's detector find them.
+    #[serde(default, deserialize_with = "limits::bounded_vec::<_, _, { limits::MAX_DETECTIONS }>")]
     pub detections: Vec<DetectionInput>,
+    /// Objects to detect, then estimate (instead of `detections`).
+    #[serde(default, deserialize_with = "limits::bounded_vec::<_, _, { limits::MAX_DETECT_OBJECTS }>")]
+    pub objects: Vec<String>,
+    /// The detector's settings when `objects` are named.
+    #[serde(default)]
+    pub detect: crate::detect::DetectOptions,
     #[serde(default)]
     pub options: EstimateOptions,
 }
@@ -160,6 +168,12 @@ impl EstimateRequest {
     pub fn check_limits(&self) -> Result<(), ServiceError> {
         let invalid = |m: String| ServiceError::invalid(m);
         limits::check_count("detections", self.detections.len(), limits::MAX_DETECTIONS).map_err(invalid)?;
+        super::detect_requests::check_objects(&self.objects)?;
+        match (self.detections.is_empty(), self.objects.is_empty()) {
+            (true, true) => return Err(invalid("detections: at least one is needed (or name objects to detect)".into())),
+            (false, false) => return Err(invalid("give detections or objects, not both".into())),
+            _ => {}
+        }
         for (i, d) in self.detections.iter().enumerate() {
             if let Some(rle) = &d.mask_rle {
                 limits::check_count(&format!("detections[{i}].mask_rle.counts"), rle.counts.len(), limits::MAX_RLE_RUNS).map_err(invalid)?;
@@ -206,7 +220,8 @@ pub struct InstanceResult {
     /// Absent when no pose was found (then `reason` says why).
     pub pose: Option<PoseOutput>,
     pub score: f32,
-    /// Index into the request's `detections` of the mask the pose came from.
+    /// Index into the request's `detections` (or the response's, when the server
+    /// detected) of the mask the pose came from.
     pub detection_index: Option<usize>,
     pub reason: Option<String>,
     /// Per candidate mask: retrieval, matches, inliers, RRC, IoU, selection scores.
@@ -218,6 +233,13 @@ pub struct InstanceResult {
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct EstimateResponse {
     pub results: Vec<InstanceResult>,
+    /// What the detector found when the request named `objects` (`detection_index` points
+    /// here then); empty when the request gave its detections.
+    #[serde(default)]
+    pub detections: Vec<super::detect_requests::DetectionOutput>,
+    /// Why there is no result, when the detector found nothing.
+    #[serde(default)]
+    pub reason: Option<String>,
     /// Whole request, milliseconds (decoding included).
     pub total_ms: f64,
 }

@@ -1,4 +1,4 @@
-//! What each API key may do, and what each endpoint needs. Three scopes: `read` (estimate,
+//! What each API key may do, and what each endpoint needs. Three scopes: `read` (estimate, detect,
 //! track, list and get objects, the OpenAPI document), `write` (onboard, delete, and the
 //! onboarding operations that writing starts), `admin` (the metrics). A key names its
 //! scopes in the key file; a bare key has all three, as every key had before scopes.
@@ -92,7 +92,7 @@ pub fn http(method: &str, route: &str) -> Needs {
     match (method, route) {
         ("GET", "/healthz" | "/readyz") => Needs::Nothing,
         ("GET", "/v1/objects" | "/v1/objects/{id}" | "/openapi.json") => S(Read),
-        ("POST", "/v1/estimate") => S(Read),
+        ("POST", "/v1/estimate" | "/v1/detect") => S(Read),
         ("GET" | "POST", "/v1/tracks") | ("GET" | "DELETE", "/v1/tracks/{id}") | ("POST", "/v1/tracks/{id}/frames") => S(Read),
         ("POST", "/v1/objects") | ("DELETE", "/v1/objects/{id}") => S(Write),
         ("GET", "/v1/operations/{id}") | ("POST", "/v1/operations/{id}/cancel") => S(Write),
@@ -107,7 +107,7 @@ pub fn grpc(method: &str) -> Needs {
     use Needs::Scope as S;
     use Scope::*;
     match method {
-        "Estimate" | "ListObjects" | "GetObject" | "Track" => S(Read),
+        "Estimate" | "Detect" | "ListObjects" | "GetObject" | "Track" => S(Read),
         "Onboard" | "DeleteObject" | "GetOperation" | "WatchOperation" | "CancelOperation" => S(Write),
         _ => Needs::AnyKey,
     }
@@ -145,7 +145,7 @@ mod tests {
                 n += 1;
             }
         }
-        assert_eq!(n, 16);
+        assert_eq!(n, 17);
         assert_eq!(http("PUT", "/v1/objects"), Needs::AnyKey);
         assert_eq!(http("HEAD", "/metrics"), Needs::Scope(Scope::Admin));
     }
@@ -154,7 +154,7 @@ mod tests {
     fn every_rpc_has_an_entry() {
         let proto = include_str!("../../proto/b2tfpose/v1/pose_service.proto");
         let rpcs: Vec<&str> = proto.lines().filter_map(|l| l.trim().strip_prefix("rpc ")).map(|l| l.split('(').next().unwrap().trim()).collect();
-        assert_eq!(rpcs.len(), 9, "{rpcs:?}");
+        assert_eq!(rpcs.len(), 10, "{rpcs:?}");
         for rpc in rpcs {
             assert_ne!(grpc(rpc), Needs::AnyKey, "{rpc} is not in the scope table");
         }

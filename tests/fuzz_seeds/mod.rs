@@ -80,7 +80,7 @@ fn grpc_estimate() -> Vec<u8> {
     let image = pb::Image { data: Some(pb::image::Data::RawRgb8(checker(4, 4).into_raw())), width: 4, height: 4 };
     let intrinsics = pb::Intrinsics { fx: 4.0, fy: 4.0, cx: 1.5, cy: 1.5, width: 4, height: 4 };
     let options = pb::EstimateOptions { k: 3, refiner: "none".into(), ..Default::default() };
-    pb::EstimateRequest { image: Some(image), intrinsics: Some(intrinsics), detections, options: Some(options) }.encode_to_vec()
+    pb::EstimateRequest { image: Some(image), intrinsics: Some(intrinsics), detections, options: Some(options), ..Default::default() }.encode_to_vec()
 }
 
 fn grpc_onboard() -> Vec<u8> {

@@ -1,0 +1,170 @@
+//! Detection through the service, as clients see it: a real `b2tf serve` on loopback finds
+//! the sample object with no mask and no box over HTTP and gRPC, hands its detections to
+//! Estimate as they are, estimates by object id alone, answers "nothing found" as a normal
+//! result, and refuses every kind of bad input by name.
+
+mod common;
+
+use b2tfpose::detect::nms::box_iou;
+use b2tfpose::features::{EmbeddedBackbone, EmbeddedConfig};
+use b2tfpose::geometry::ViewSampling;
+use b2tfpose::onboard::{onboard, ObjectModel, OnboardConfig};
+use b2tfpose::render::{RenderPool, RendererConfig};
+use b2tfpose::service::client::png_bytes;
+use b2tfpose::service::proto::{self as pb, pose_service_client::PoseServiceClient};
+use base64::Engine as _;
+use common::{sample_mesh, scene, start};
+use serde_json::{json, Value};
+use std::sync::OnceLock;
+use std::time::Duration;
+
+fn png<P: image::PixelWithColorType>(img: &image::ImageBuffer<P, Vec<P::Subpixel>>) -> Vec<u8>
+where
+    [P::Subpixel]: image::EncodableLayout,
+{
+    png_bytes(img).unwrap()
+}
+
+fn post(c: &reqwest::blocking::Client, url: &str, body: &Value) -> (u16, Value) {
+    let r = c.post(url).json(body).send().expect("request sent");
+    let status = r.status().as_u16();
+    let text = r.text().unwrap_or_default();
+    (status, serde_json::from_str(&text).unwrap_or(Value::String(text)))
+}
+
+/// The sample box onboarded cheaply, stored as an object from before the detector (no
+/// templates), so the server builds them on first use.
+fn store_sample(url: &str) {
+    let pool = RenderPool::new(1, RendererConfig::default()).unwrap();
+    let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap();
+    let cfg = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps: 2 }, render_size: 128, ..Default::default() };
+    let model = onboard("box", &sample_mesh(), &cfg, &backbone, &pool, &|_| {}).unwrap();
+    let old = ObjectModel { detector: OnceLock::new(), ..model };
+    b2tfpose::store::open(url).unwrap().put(&old, false).unwrap();
+}
+
+fn truth_box(mask: &image::GrayImage) -> [f64; 4] {
+    b2tfpose::detect::detector::bbox_of(mask).unwrap()
+}
+
+fn bbox(v: &Value) -> [f64; 4] {
+    let b: Vec<f64> = v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    [b[0], b[1], b[2], b[3]]
+}
+
+#[test]
+fn detect_and_estimate_by_object_id_over_http_and_grpc() {
+    let dir = tempfile::tempdir().unwrap();
+    let url = format!("dir://{}", dir.path().join("store").display());
+    let server = start(&url, None, &[]);
+    let base = server.http.clone();
+    let c = reqwest::blocking::Client::builder().timeout(Duration::from_secs(300)).build().unwrap();
+    let sc = scene();
+    let k = sc.k;
+    let b64 = |b: &[u8]| base64::engine::general_purpose::STANDARD.encode(b);
+    let intrinsics = json!({"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "width": k.width, "height": k.height});
+    let photo = json!({"encoded": b64(&png(&sc.render.rgb))});
+    let detect = |objects: Value, options: Value| json!({"image": photo, "intrinsics": intrinsics, "objects": objects, "options": options});
+    let every = json!({"min_score": 0.0, "max_detections": 3});
+
+    // An empty store: nothing to search, said so.
+    let (s, e) = post(&c, &format!("{base}/v1/detect"), &detect(json!([]), every.clone()));
+    assert_eq!(s, 400, "{e}");
+    assert!(e["error"]["message"].as_str().unwrap().contains("holds no object; onboard one first"), "{e}");
+
+    store_sample(&url);
+    // Every object of the store (none named), every candidate kept.
+    let (s, r) = post(&c, &format!("{base}/v1/detect"), &detect(json!([]), every.clone()));
+    assert_eq!(s, 200, "{r}");
+    let dets = r["detections"].as_array().unwrap();
+    assert!(!dets.is_empty() && dets.len() <= 3, "{r}");
+    for d in dets {
+        assert_eq!(d["object_id"], "box");
+        assert_eq!(d["mask_rle"]["size"], json!([k.height, k.width]));
+        assert_eq!(d["coarse_pose"]["R"].as_array().map(|r| r.len()), Some(9));
+        assert!(d["terms"]["shape"].as_f64().is_some() && d["score"].as_f64().is_some(), "{d}");
+    }
+    let truth = truth_box(&sc.render.mask);
+    let best = dets.iter().map(|d| box_iou(&bbox(&d["bbox"]), &truth)).fold(0.0, f64::max);
+    assert!(best >= 0.5, "no detection on the box {truth:?}: {:?}", dets.iter().map(|d| &d["bbox"]).collect::<Vec<_>>());
+    assert_eq!(r["searched"][0]["object_id"], "box");
+    assert!(r["timings_ms"]["total"].as_f64().unwrap() > 0.0 && r["reason"].is_null(), "{r}");
+
+    // A detection goes back to Estimate as it is.
+    let (s, est) = post(&c, &format!("{base}/v1/estimate"), &json!({"image": photo, "intrinsics": intrinsics, "detections": [dets[0]], "options": {"rrc": false}}));
+    assert_eq!(s, 200, "{est}");
+    assert_eq!(est["results"][0]["detection_index"], 0);
+
+    // Estimate by object id alone: detect, then estimate; the response lists the detections.
+    let by_id = json!({"image": photo, "intrinsics": intrinsics, "objects": ["box"], "detect": every, "options": {"rrc": false}});
+    let (s, est) = post(&c, &format!("{base}/v1/estimate"), &by_id);
+    assert_eq!(s, 200, "{est}");
+    let found = est["detections"].as_array().unwrap();
+    let result = &est["results"][0];
+    assert!(!found.is_empty() && result["pose"]["t"].as_array().is_some(), "{est}");
+    assert!((result["detection_index"].as_u64().unwrap() as usize) < found.len(), "{est}");
+
+    // An image without the object: no detection is an answer with a reason, for both calls.
+    let blank = json!({"encoded": b64(&png(&image::RgbImage::from_pixel(k.width, k.height, image::Rgb([90, 90, 90]))))});
+    let mut nothing = detect(json!(["box"]), json!({}));
+    nothing["image"] = blank.clone();
+    let (s, r) = post(&c, &format!("{base}/v1/detect"), &nothing);
+    assert_eq!(s, 200, "{r}");
+    assert!(r["detections"].as_array().unwrap().is_empty() && r["reason"].as_str().is_some_and(|m| !m.is_empty()), "{r}");
+    let mut nothing_est = by_id.clone();
+    nothing_est["image"] = blank;
+    nothing_est["detect"] = json!({});
+    let (s, r) = post(&c, &format!("{base}/v1/estimate"), &nothing_est);
+    assert_eq!(s, 200, "{r}");
+    assert!(r["results"].as_array().unwrap().is_empty() && r["reason"].as_str().is_some(), "{r}");
+
+    // Bad input, refused by name.
+    let many: Vec<String> = (0..=b2tfpose::limits::MAX_DETECT_OBJECTS).map(|i| format!("o{i}")).collect();
+    let mut small = detect(json!(["box"]), json!({}));
+    small["image"] = json!({"encoded": b64(&png(&image::RgbImage::new(32, 24)))});
+    let mut both = by_id.clone();
+    both["detections"] = json!([{"object_id": "box", "bbox": [10, 10, 50, 50]}]);
+    let mut neither = by_id.clone();
+    neither["objects"] = json!([]);
+    let cases = [
+        ("/v1/detect", detect(json!(["nope"]), json!({})), 404, "\"nope\""),
+        ("/v1/detect", detect(json!(many), json!({})), 400, "over the limit"),
+        ("/v1/detect", detect(json!(["../x"]), json!({})), 400, "objects[0]"),
+        ("/v1/detect", detect(json!(["box"]), json!({"min_distance_m": 2.0, "max_distance_m": 1.0})), 400, "min_distance_m (2) must be below max_distance_m (1)"),
+        ("/v1/detect", detect(json!(["box"]), json!({"min_score": 2.0})), 400, "min_score must be within 0–1"),
+        ("/v1/detect", detect(json!(["box"]), json!({"max_detections": 0})), 400, "max_detections must be 1–"),
+        ("/v1/detect", small, 400, "image is 32×24 but intrinsics say 320×240"),
+        ("/v1/estimate", both, 400, "give detections or objects, not both"),
+        ("/v1/estimate", neither, 400, "at least one is needed (or name objects to detect)"),
+        ("/v1/estimate", json!({"image": photo, "intrinsics": intrinsics, "objects": ["box"], "detect": {"max_distance_m": -1.0}}), 400, "max_distance_m must be within"),
+    ];
+    for (route, body, status, needle) in cases {
+        let (s, e) = post(&c, &format!("{base}{route}"), &body);
+        assert_eq!(s, status, "{route} {needle}: {e}");
+        assert!(e["error"]["message"].as_str().unwrap_or("").contains(needle), "{route}: {e} lacks {needle:?}");
+    }
+    let metrics = c.get(format!("{base}/metrics")).send().unwrap().text().unwrap();
+    assert!(metrics.contains("b2tf_requests_total{method=\"POST\",route=\"/v1/detect\",status=\"200\"}"), "{metrics}");
+    assert!(metrics.contains("b2tf_stage_seconds_count{stage=\"detect_total\"}"), "{metrics}");
+
+    // gRPC: the same calls.
+    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
+    rt.block_on(async {
+        let mut g = PoseServiceClient::connect(server.grpc.clone()).await.unwrap();
+        let image = Some(pb::Image { data: Some(pb::image::Data::Encoded(png(&sc.render.rgb))), width: 0, height: 0 });
+        let intrinsics = Some(pb::Intrinsics { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy, width: k.width, height: k.height });
+        let options = Some(pb::DetectOptions { min_score: Some(0.0), max_detections: 3, ..Default::default() });
+        let req = pb::DetectRequest { image: image.clone(), intrinsics, objects: vec!["box".into()], options };
+        let r = g.detect(req.clone()).await.expect("Detect").into_inner();
+        let d = &r.detections[0];
+        assert_eq!((d.object_id.as_str(), d.mask_rle.as_ref().map(|m| (m.height, m.width))), ("box", Some((k.height, k.width))));
+        assert!(d.coarse_pose.as_ref().is_some_and(|p| p.r.len() == 9) && r.timings_ms.contains_key("total") && r.searched.len() == 1, "{r:?}");
+        let e = g.detect(pb::DetectRequest { objects: vec!["nope".into()], ..req.clone() }).await.unwrap_err();
+        assert_eq!(e.code(), tonic::Code::NotFound, "{e:?}");
+        let e = g.detect(pb::DetectRequest { options: Some(pb::DetectOptions { min_distance_m: Some(0.0), ..Default::default() }), ..req.clone() }).await.unwrap_err();
+        assert!(e.code() == tonic::Code::InvalidArgument && e.message().contains("min_distance_m must be within"), "{e:?}");
+        let est = pb::EstimateRequest { image, intrinsics, objects: vec!["box".into()], detect: req.options, options: Some(pb::EstimateOptions { rrc: Some(false), ..Default::default() }), ..Default::default() };
+        let r = g.estimate(est).await.expect("Estimate by object id").into_inner();
+        assert!(!r.detections.is_empty() && r.results[0].pose.is_some() && r.results[0].detection_index >= 0, "{r:?}");
+    });
+}
