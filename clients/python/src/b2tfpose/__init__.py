@@ -3,6 +3,7 @@
 >>> import b2tfpose
 >>> with b2tfpose.Client("localhost:50051") as c:
 ...     c.onboard("box", "box.obj", units="m", level=1)
+...     [r] = c.estimate(rgb, K, objects=["box"])  # detected by the server
 ...     [r] = c.estimate(rgb, K, [b2tfpose.Detection("box", mask=mask)])
 ...     r.pose.R, r.pose.t, r.pose.rvec
 ...     for f in c.track(video, K=K):  # the first frame a TrackFrame with a detection
@@ -13,7 +14,7 @@ from ._convert import Detection, TrackFrame
 from ._pose import Pose
 from ._request_id import request_id
 from ._retry import NO_RETRY, RetryPolicy
-from ._types import Estimates, ObjectInfo, OperationStatus, Result, TrackedObject, TrackMode, TrackResult
+from ._types import DetectedObject, Detections, Estimates, ObjectInfo, OperationStatus, Result, TrackedObject, TrackMode, TrackResult
 from .aio import AsyncClient, AsyncOperation
 from .client import Client, Operation
 from .errors import (
@@ -40,6 +41,8 @@ __all__ = [
     "Operation",
     "AsyncOperation",
     "Detection",
+    "DetectedObject",
+    "Detections",
     "Pose",
     "Result",
     "Estimates",

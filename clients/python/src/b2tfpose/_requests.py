@@ -49,11 +49,52 @@ def onboard_request(
     return pb.OnboardRequest(object_id=object_id, mesh=mesh_message(mesh, units, format, resources), options=options, replace=replace)
 
 
+def _objects(objects: Optional[Sequence[str]]) -> list[str]:
+    if objects is None:
+        return []
+    if isinstance(objects, (str, bytes)) or not isinstance(objects, Sequence) or not all(isinstance(o, str) for o in objects):
+        raise TypeError("objects: a list of object ids (str)")
+    return list(objects)
+
+
+def detect_options(
+    max_detections: Optional[int] = None,
+    min_score: Optional[float] = None,
+    min_distance: Optional[float] = None,
+    max_distance: Optional[float] = None,
+    refine_masks: Optional[bool] = None,
+) -> pb.DetectOptions:
+    """The detector's settings; None leaves the server's default (20 detections, score
+    0.75, the distances the object's size and the image imply, masks refined)."""
+    if max_detections is not None and (isinstance(max_detections, bool) or not isinstance(max_detections, int) or max_detections < 1):
+        raise ValueError(f"max_detections must be an integer >= 1 (None: the server's default), not {max_detections!r}")
+    if min_score is not None and (isinstance(min_score, bool) or not isinstance(min_score, (int, float)) or not 0.0 <= min_score <= 1.0):
+        raise ValueError(f"min_score must be in [0, 1] (None: the server's default), not {min_score!r}")
+    options = pb.DetectOptions(max_detections=max_detections or 0)
+    if min_score is not None:
+        options.min_score = float(min_score)
+    for name, v in (("min_distance_m", min_distance), ("max_distance_m", max_distance)):
+        if v is not None:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
+                raise ValueError(f"{name.removesuffix('_m')} must be a distance in metres > 0 (None: the server's default), not {v!r}")
+            setattr(options, name, float(v))
+    if refine_masks is not None:
+        options.refine_masks = refine_masks
+    return options
+
+
+def detect_request(image: ImageInput, K: IntrinsicsInput, objects: Optional[Sequence[str]], *, bgr: bool, options: pb.DetectOptions) -> pb.DetectRequest:
+    img, w, h = image_message(image, bgr=bgr)
+    return pb.DetectRequest(image=img, intrinsics=intrinsics_message(K, w, h), objects=_objects(objects), options=options)
+
+
 def estimate_request(
     image: ImageInput,
     K: IntrinsicsInput,
-    detections: Sequence[DetectionInput],
+    detections: Optional[Sequence[DetectionInput]],
     *,
+    objects: Optional[Sequence[str]] = None,
+    detect: Optional[pb.DetectOptions] = None,
     bgr: bool,
     rrc: Optional[bool],
     refiner: Optional[str],
@@ -64,10 +105,15 @@ def estimate_request(
     verify_templates: Optional[int] = None,
     spin_steps: Optional[int] = None,
 ) -> pb.EstimateRequest:
+    ids = _objects(objects)
+    if detections is None:
+        detections = []
     if isinstance(detections, Mapping) or not isinstance(detections, Sequence) or isinstance(detections, (str, bytes)):
         raise TypeError("detections: a list of b2tfpose.Detection (or dicts)")
-    if not detections:
-        raise ValueError("detections: at least one is needed")
+    if detections and ids:
+        raise ValueError("give detections or objects, not both")
+    if not detections and not ids:
+        raise ValueError("detections: at least one is needed (or name objects to detect)")
     if refiner is not None and refiner not in REFINERS:
         raise ValueError(f"refiner {refiner!r}: expected one of {', '.join(REFINERS)}")
     img, w, h = image_message(image, bgr=bgr)
@@ -85,6 +131,8 @@ def estimate_request(
         intrinsics=intrinsics_message(K, w, h),
         detections=[detection_message(d, w, h) for d in detections],
         options=options,
+        objects=ids,
+        detect=detect if detect is not None else pb.DetectOptions(),
     )
 
 

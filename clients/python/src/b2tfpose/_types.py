@@ -10,7 +10,12 @@ from typing import TYPE_CHECKING, Any, Dict, List, Optional
 
 import grpc
 
+import numpy as np
+import numpy.typing as npt
+
+from ._convert import Detection
 from ._pose import Pose
+from .masks import rle_to_mask
 from .errors import RpcError, error_class
 from .v1 import pose_service_pb2 as pb
 
@@ -105,7 +110,8 @@ class Result:
     score: float
     """Confidence in [0, 1]."""
     detection_index: Optional[int]
-    """Index into the request's detections of the mask the pose came from."""
+    """Index into the request's detections (or, when the server detected, into the
+    response's ``detections``) of the mask the pose came from."""
     reason: Optional[str]
     timings_ms: Dict[str, float] = field(default_factory=dict)
     """Time per pipeline stage on the server, milliseconds."""
@@ -136,19 +142,88 @@ class Result:
         )
 
 
+@dataclass(frozen=True, eq=False)
+class DetectedObject(Detection):
+    """An object instance the server's detector found: a :class:`~b2tfpose.Detection`
+    (``object_id``, ``rle``, ``box``, ``score``), so it can be passed to
+    :meth:`~b2tfpose.Client.estimate` as it is, plus what the detector knows of it."""
+
+    coarse_pose: Optional[Pose] = None
+    """The matched template's pose where it was found: a coarse hypothesis (tens of
+    degrees, a few per cent of depth)."""
+    mask_source: str = ""
+    """"silhouette" (the mesh rendered at the coarse pose) or "graph_cut" (the photo
+    segmented inside the box, where it agreed with the render)."""
+    shape_score: float = 0.0
+    """The score's terms in [0, 1]: template match, outline agreement, colour agreement
+    (None for meshes without colours)."""
+    outline_score: float = 0.0
+    colour_score: Optional[float] = None
+
+    def mask_array(self) -> "npt.NDArray[np.bool_]":
+        """The mask as a HxW bool array."""
+        assert self.rle is not None
+        return rle_to_mask(self.rle)
+
+    @classmethod
+    def from_pb(cls, m: pb.DetectedObject) -> "DetectedObject":
+        return cls(
+            object_id=m.object_id,
+            rle={"counts": list(m.mask_rle.counts), "size": [m.mask_rle.height, m.mask_rle.width]},
+            box=(m.bbox.x, m.bbox.y, m.bbox.width, m.bbox.height),
+            score=m.score,
+            coarse_pose=pose_from_pb(m.coarse_pose) if m.HasField("coarse_pose") else None,
+            mask_source=m.mask_source,
+            shape_score=m.shape_score,
+            outline_score=m.outline_score,
+            colour_score=m.colour_score if m.HasField("colour_score") else None,
+        )
+
+
+class Detections(List[DetectedObject]):
+    """What one detect call found: a list of :class:`DetectedObject`, best first, plus
+    ``reason`` (why nothing was found, when nothing was), ``timings_ms`` (the detector's
+    stages), ``total_ms`` (the request on the server) and ``searched`` (per object: the
+    distances and scales searched)."""
+
+    reason: Optional[str]
+    timings_ms: Dict[str, float]
+    total_ms: float
+    searched: List[Dict[str, Any]]
+
+    def __init__(self, found: List[DetectedObject], reason: Optional[str] = None, timings_ms: Optional[Dict[str, float]] = None, total_ms: float = 0.0, searched: Optional[List[Dict[str, Any]]] = None) -> None:
+        super().__init__(found)
+        self.reason = reason
+        self.timings_ms = timings_ms or {}
+        self.total_ms = total_ms
+        self.searched = searched or []
+
+    @classmethod
+    def from_pb(cls, m: pb.DetectResponse) -> "Detections":
+        searched = [{"object_id": s.object_id, "distance_m": (s.min_distance_m, s.max_distance_m), "scales": s.scales, "candidates": s.candidates} for s in m.searched]
+        return cls([DetectedObject.from_pb(d) for d in m.detections], m.reason or None, dict(m.timings_ms), m.total_ms, searched)
+
+
 class Estimates(List[Result]):
     """The results of one estimate call: a list of :class:`Result` (one per instance,
-    grouped by object), plus the server's ``total_ms`` for the whole request."""
+    grouped by object), plus the server's ``total_ms`` for the whole request. When the
+    call named ``objects`` instead of giving detections, ``detections`` holds what the
+    server's detector found (each result's ``detection_index`` points there) and
+    ``reason`` says why there is no result when it found nothing."""
 
     total_ms: float
+    detections: List[DetectedObject]
+    reason: Optional[str]
 
-    def __init__(self, results: List[Result], total_ms: float) -> None:
+    def __init__(self, results: List[Result], total_ms: float, detections: Optional[List[DetectedObject]] = None, reason: Optional[str] = None) -> None:
         super().__init__(results)
         self.total_ms = total_ms
+        self.detections = detections or []
+        self.reason = reason
 
     @classmethod
     def from_pb(cls, m: pb.EstimateResponse) -> "Estimates":
-        return cls([Result.from_pb(r) for r in m.results], m.total_ms)
+        return cls([Result.from_pb(r) for r in m.results], m.total_ms, [DetectedObject.from_pb(d) for d in m.detections], m.reason or None)
 
     def best(self, object_id: Optional[str] = None) -> Optional[Result]:
         """The highest-scoring result with a pose (of ``object_id`` if given)."""

@@ -16,7 +16,7 @@ from ._mesh import MeshInput
 from ._requests import PcaSetting, ProgressCallback, ProgressFilter, finish, track_options
 from ._retry import Attempts, RetryArg, RetryPolicy, resolve
 from ._track import METHOD as TRACK, TrackState
-from ._types import Estimates, ObjectInfo, OperationStatus, TrackResult
+from ._types import Detections, Estimates, ObjectInfo, OperationStatus, TrackResult
 from .errors import DeadlineExceeded, from_grpc
 from .v1 import pose_service_pb2 as pb
 from .v1 import pose_service_pb2_grpc as pb_grpc
@@ -214,8 +214,9 @@ class AsyncClient:
         self,
         image: ImageInput,
         K: IntrinsicsInput,
-        detections: Sequence[DetectionInput],
+        detections: Optional[Sequence[DetectionInput]] = None,
         *,
+        objects: Optional[Sequence[str]] = None,
         bgr: bool = False,
         rrc: Optional[bool] = None,
         refiner: Optional[str] = None,
@@ -225,15 +226,39 @@ class AsyncClient:
         verify: Optional[bool] = None,
         verify_templates: Optional[int] = None,
         spin_steps: Optional[int] = None,
+        max_detections: Optional[int] = None,
+        min_score: Optional[float] = None,
+        min_distance: Optional[float] = None,
+        max_distance: Optional[float] = None,
         timeout: Optional[float] = None,
         retry: RetryArg = None,
     ) -> Estimates:
         """As :meth:`b2tfpose.Client.estimate`."""
         request = _requests.estimate_request(
-            image, K, detections, bgr=bgr, rrc=rrc, refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify,
-            verify_templates=verify_templates, spin_steps=spin_steps,
+            image, K, detections, objects=objects, detect=_requests.detect_options(max_detections, min_score, min_distance, max_distance), bgr=bgr, rrc=rrc,
+            refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify, verify_templates=verify_templates, spin_steps=spin_steps,
         )
         return Estimates.from_pb(await self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
+
+    async def detect(
+        self,
+        image: ImageInput,
+        K: IntrinsicsInput,
+        objects: Optional[Sequence[str]] = None,
+        *,
+        bgr: bool = False,
+        max_detections: Optional[int] = None,
+        min_score: Optional[float] = None,
+        min_distance: Optional[float] = None,
+        max_distance: Optional[float] = None,
+        refine_masks: Optional[bool] = None,
+        timeout: Optional[float] = None,
+        retry: RetryArg = None,
+    ) -> Detections:
+        """As :meth:`b2tfpose.Client.detect`."""
+        options = _requests.detect_options(max_detections, min_score, min_distance, max_distance, refine_masks)
+        request = _requests.detect_request(image, K, objects, bgr=bgr, options=options)
+        return Detections.from_pb(await self._call("Detect", self._stub.Detect, request, timeout, retry, idempotent=True))
 
     def track(
         self,

@@ -15,7 +15,7 @@ from ._mesh import MeshInput
 from ._requests import PcaSetting, ProgressCallback, ProgressFilter, finish, track_options
 from ._retry import Attempts, RetryArg, RetryPolicy, resolve
 from ._track import METHOD as TRACK, TrackState
-from ._types import Estimates, ObjectInfo, OperationStatus, TrackResult
+from ._types import Detections, Estimates, ObjectInfo, OperationStatus, TrackResult
 from .errors import DeadlineExceeded, from_grpc
 from .v1 import pose_service_pb2 as pb
 from .v1 import pose_service_pb2_grpc as pb_grpc
@@ -91,6 +91,7 @@ class Client:
     """A blocking client of a b2tfpose server.
 
     >>> with b2tfpose.Client("localhost:50051") as c:
+    ...     results = c.estimate(rgb, K, objects=["bbq"])  # the server finds it
     ...     results = c.estimate(rgb, K, [b2tfpose.Detection("bbq", mask=mask)])
 
     ``address``: ``host:port``, ``grpc://host:port`` or ``grpcs://host:port`` (TLS).
@@ -210,8 +211,9 @@ class Client:
         self,
         image: ImageInput,
         K: IntrinsicsInput,
-        detections: Sequence[DetectionInput],
+        detections: Optional[Sequence[DetectionInput]] = None,
         *,
+        objects: Optional[Sequence[str]] = None,
         bgr: bool = False,
         rrc: Optional[bool] = None,
         refiner: Optional[str] = None,
@@ -221,6 +223,10 @@ class Client:
         verify: Optional[bool] = None,
         verify_templates: Optional[int] = None,
         spin_steps: Optional[int] = None,
+        max_detections: Optional[int] = None,
+        min_score: Optional[float] = None,
+        min_distance: Optional[float] = None,
+        max_distance: Optional[float] = None,
         timeout: Optional[float] = None,
         retry: RetryArg = None,
     ) -> Estimates:
@@ -228,17 +234,50 @@ class Client:
 
         ``image``: numpy HxWx3 uint8 RGB (``bgr=True`` for OpenCV frames), PNG/JPEG bytes,
         or a path. ``K``: 3x3 or (fx, fy, cx, cy), pixels. ``detections``:
-        :class:`~b2tfpose.Detection` objects or dicts with the same keys. ``rrc``,
+        :class:`~b2tfpose.Detection` objects or dicts with the same keys; or, instead,
+        ``objects``: ids the server detects first (as :meth:`detect`, with its
+        ``max_detections``, ``min_score``, ``min_distance``, ``max_distance``), then
+        estimates (``.detections`` of the result lists what it found). ``rrc``,
         ``refiner`` ("contour", "silhouette-depth", "none"), ``k``, ``max_masks``,
         ``instances_per_object``, ``verify``, ``verify_templates``, ``spin_steps``: the
         server's options (None: its default).
         Returns a list of :class:`~b2tfpose.Result` (``.total_ms``: the server's time).
         """
         request = _requests.estimate_request(
-            image, K, detections, bgr=bgr, rrc=rrc, refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify,
-            verify_templates=verify_templates, spin_steps=spin_steps,
+            image, K, detections, objects=objects, detect=_requests.detect_options(max_detections, min_score, min_distance, max_distance), bgr=bgr, rrc=rrc,
+            refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify, verify_templates=verify_templates, spin_steps=spin_steps,
         )
         return Estimates.from_pb(self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
+
+    def detect(
+        self,
+        image: ImageInput,
+        K: IntrinsicsInput,
+        objects: Optional[Sequence[str]] = None,
+        *,
+        bgr: bool = False,
+        max_detections: Optional[int] = None,
+        min_score: Optional[float] = None,
+        min_distance: Optional[float] = None,
+        max_distance: Optional[float] = None,
+        refine_masks: Optional[bool] = None,
+        timeout: Optional[float] = None,
+        retry: RetryArg = None,
+    ) -> Detections:
+        """Finds objects in ``image`` with no mask and no box: the server's training-free
+        detector (shape-based matching of templates rendered from each mesh).
+
+        ``objects``: the ids to look for (None or empty: every object in the store, at most
+        64). ``max_detections`` (1-256), ``min_score`` (0-1), ``min_distance`` /
+        ``max_distance`` (metres from the camera to search), ``refine_masks``: the
+        detector's settings (None: the server's defaults, 20, 0.75, from the object's size
+        and the image, on). Returns :class:`~b2tfpose.Detections`, best first; each is a
+        :class:`~b2tfpose.Detection` that :meth:`estimate` takes as it is. Finding nothing
+        is an empty list with ``.reason``, not an error.
+        """
+        options = _requests.detect_options(max_detections, min_score, min_distance, max_distance, refine_masks)
+        request = _requests.detect_request(image, K, objects, bgr=bgr, options=options)
+        return Detections.from_pb(self._call("Detect", self._stub.Detect, request, timeout, retry, idempotent=True))
 
     # ------------------------------------------------------------------ tracking
 
