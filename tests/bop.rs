@@ -6,7 +6,7 @@ use b2tfpose::bop::detections::{read_detections, write_detections, DetectionInde
 use b2tfpose::bop::synth_masks::shift;
 use b2tfpose::bop::evaluate::evaluate;
 use b2tfpose::bop::results_csv::{read_results, write_results, ResultRow};
-use b2tfpose::bop::run::{run, RunOptions};
+use b2tfpose::bop::run::{run, DetectionSource, RunOptions};
 use b2tfpose::bop::scoring::{ArReport, Bop19Params};
 use b2tfpose::bop::synth::{synth, SynthOptions, SynthSummary};
 use b2tfpose::bop::{load_models_info, load_split_gt, load_targets, TEST_SPLIT};
@@ -113,7 +113,7 @@ fn run_estimates_every_target_resumes_and_is_scored() {
         calls += 1;
         Ok(model.clone())
     };
-    let summary = run(&ds, &index, &csv, &estimator, &mut get, &RunOptions::default(), &no_progress).unwrap();
+    let summary = run(&ds, DetectionSource::File(&index), &csv, &estimator, &mut get, &RunOptions::default(), &no_progress).unwrap();
     assert_eq!((summary.images, summary.targets, summary.images_done_before), (2, 2, 0), "{summary:?}");
     assert_eq!(summary.estimates_written + summary.instances_without_pose, 2, "{summary:?}");
     let rows = read(&csv);
@@ -122,13 +122,29 @@ fn run_estimates_every_target_resumes_and_is_scored() {
 
     // Resuming skips the images already in the CSV and leaves it as it was.
     let before = std::fs::read_to_string(&csv).unwrap();
-    let again = run(&ds, &index, &csv, &estimator, &mut get, &RunOptions::default(), &no_progress).unwrap();
+    let again = run(&ds, DetectionSource::File(&index), &csv, &estimator, &mut get, &RunOptions::default(), &no_progress).unwrap();
     assert_eq!((again.images, again.images_done_before), (0, 2));
     assert_eq!(std::fs::read_to_string(&csv).unwrap(), before);
 
     let r = score(&ds, &rows, &pool);
     eprintln!("AR {:.3} (VSD {:.3}, MSSD {:.3}, MSPD {:.3})", r.ar, r.ar_vsd, r.ar_mssd, r.ar_mspd);
     assert!(r.ar_mspd > 0.5, "{r:?}");
+
+    // No detections file: the detector finds each image's targets (every candidate kept
+    // here, so every target has one), and what it found reads as a default-detections file.
+    let mut found = Vec::new();
+    let options = b2tfpose::detect::DetectOptions { min_score: 0.0, ..Default::default() };
+    let csv = dir.path().join("out/detected.csv");
+    let detected = run(&ds, DetectionSource::Detector { pool: &pool, options, found: &mut found }, &csv, &estimator, &mut get, &RunOptions::default(), &no_progress).unwrap();
+    assert_eq!((detected.images, detected.targets, detected.targets_without_detection), (2, 2, 0), "{detected:?}");
+    assert_eq!(detected.estimates_written + detected.instances_without_pose, 2, "{detected:?}");
+    assert!(!found.is_empty() && found.iter().all(|d| d.obj_id == 1 && d.time > 0.0 && d.segmentation.is_some()), "{found:?}");
+    let images: std::collections::BTreeSet<(u32, u32)> = found.iter().map(|d| (d.scene_id, d.image_id)).collect();
+    assert_eq!(images.len(), 2);
+    let file = dir.path().join("out/found.json");
+    write_detections(&file, &found).unwrap();
+    assert_eq!(read_detections(&file).unwrap().len(), found.len());
+    assert_eq!(read(&csv).len(), detected.estimates_written);
 }
 
 /// The only scene folder of a generated dataset.

@@ -1,5 +1,6 @@
 //! `b2tf bop run`: every target of a BOP split through the estimator, with that image's
-//! detections of that object, into the BOP results CSV.
+//! detections of that object (from a detections file, or found by the training-free
+//! detector), into the BOP results CSV.
 //!
 //! Per target (image, object, `inst_count`): the object's detections in the image are
 //! grouped into instances by mask overlap (`masks::instances`); box-only detections are
@@ -10,12 +11,14 @@
 //! interrupted run resumes where it stopped.
 
 use super::dataset::{load_rgb, load_scene_cameras, load_targets, ImageCamera};
-use super::detections::DetectionIndex;
+use super::detections::{DetectionIndex, DetectionRecord};
 use super::format::{scene_dir, TargetRecord};
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
+use crate::detect::{detect, DetectOptions, Target};
 use crate::estimate::{Detection, EstimateConfig, EstimateError, Estimator};
 use crate::masks::{group_instances, BoxMask};
 use crate::onboard::ObjectModel;
+use crate::render::RenderPool;
 use anyhow::{Context, Result};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -59,11 +62,20 @@ pub struct RunSummary {
     pub failures: BTreeMap<String, usize>,
 }
 
+/// Where each image's detections come from.
+pub enum DetectionSource<'a> {
+    /// A default-detections file (CNOS's, or `b2tf detect`'s), indexed.
+    File(&'a DetectionIndex),
+    /// The training-free detector, run on each image for its targets' objects; what it
+    /// found is appended to `found` (as a default-detections file would hold it).
+    Detector { pool: &'a RenderPool, options: DetectOptions, found: &'a mut Vec<DetectionRecord> },
+}
+
 /// Runs the split's targets; `model` returns the onboarded object for a BOP object id
 /// (loading or onboarding it on first use); `progress(done, total)` is called per image.
 pub fn run(
     dataset: &Path,
-    detections: &DetectionIndex,
+    detections: DetectionSource,
     out_csv: &Path,
     estimator: &Estimator,
     model: &mut dyn FnMut(u32) -> Result<Arc<ObjectModel>>,
@@ -80,6 +92,7 @@ pub fn run(
     let mut cameras: BTreeMap<u32, BTreeMap<u32, ImageCamera>> = BTreeMap::new();
     let mut summary = RunSummary::default();
     let total = by_image.len();
+    let mut source = detections;
     for (n, ((scene_id, im_id), targets)) in by_image.into_iter().enumerate() {
         progress(n, total);
         if done.contains(&(scene_id, im_id)) {
@@ -93,6 +106,16 @@ pub fn run(
         let camera = scene_cameras.get(&im_id).with_context(|| format!("scene {scene_id}: no camera for image {im_id}, which {} lists", super::format::TEST_TARGETS))?;
         let started = Instant::now();
         let rgb = load_rgb(&camera.rgb_path)?;
+        let detected;
+        let detections = match &mut source {
+            DetectionSource::File(index) => *index,
+            DetectionSource::Detector { pool, options, found } => {
+                let records = detect_targets(&rgb, &camera.cam, (scene_id, im_id), &targets, model, pool, options, started)?;
+                found.extend(records.iter().cloned());
+                detected = DetectionIndex::new(records);
+                &detected
+            }
+        };
         let mut rows = Vec::new();
         // Every target's masks first: each instance's refiner learns where the other
         // detections of the image are (it may be hidden there).
@@ -144,4 +167,32 @@ pub fn run(
     }
     progress(total, total);
     Ok(summary)
+}
+
+/// The detector's findings of the targets' objects in one image, as detection records.
+#[allow(clippy::too_many_arguments)]
+fn detect_targets(
+    rgb: &image::RgbImage,
+    cam: &crate::geometry::Intrinsics,
+    (scene_id, image_id): (u32, u32),
+    targets: &[TargetRecord],
+    model: &mut dyn FnMut(u32) -> Result<Arc<ObjectModel>>,
+    pool: &RenderPool,
+    options: &DetectOptions,
+    started: Instant,
+) -> Result<Vec<DetectionRecord>> {
+    let models: Vec<(u32, Arc<ObjectModel>)> = targets.iter().map(|t| Ok((t.obj_id, model(t.obj_id)?))).collect::<Result<_>>()?;
+    let shapes = models.iter().map(|(_, m)| m.shape_model_or_build(pool)).collect::<Result<Vec<_>, _>>()?;
+    let detect_targets: Vec<Target> = models.iter().zip(&shapes).map(|((_, m), s)| Target { id: &m.object_id, shape: s, mesh: &m.mesh }).collect();
+    // Instances wanted in all, so that a busy image keeps enough detections.
+    let wanted: usize = targets.iter().map(|t| t.inst_count as usize).sum();
+    let options = DetectOptions { max_detections: options.max_detections.max(2 * wanted).min(crate::limits::MAX_DETECTIONS), ..options.clone() };
+    let report = detect(rgb, cam, &detect_targets, &options, pool).with_context(|| format!("detecting in scene {scene_id}, image {image_id}"))?;
+    let obj_of: BTreeMap<&str, u32> = models.iter().map(|(id, m)| (m.object_id.as_str(), *id)).collect();
+    let time = started.elapsed().as_secs_f64();
+    Ok(report
+        .detections
+        .iter()
+        .map(|d| DetectionRecord { scene_id, image_id, obj_id: obj_of[d.object_id.as_str()], bbox: d.bbox, score: d.score as f64, time, segmentation: Some(crate::masks::Rle::encode(&d.mask)) })
+        .collect())
 }

@@ -1,7 +1,7 @@
 //! `b2tf bop run|eval|synth`: BOP datasets in, BOP results CSV and scores out.
 
 use crate::bop::detections::{read_detections, DetectionIndex};
-use crate::bop::run::{run as run_targets, RunOptions};
+use crate::bop::run::{run as run_targets, DetectionSource, RunOptions};
 use crate::bop::synth::{synth, SynthOptions};
 use crate::bop::model_path;
 use crate::estimate::EstimateConfig;
@@ -9,7 +9,7 @@ use crate::eval::scenes::SceneConfig;
 use crate::mesh::{load_mesh, Units};
 use crate::onboard::ObjectModel;
 use crate::render::RenderPool;
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use std::collections::HashSet;
 use std::path::PathBuf;
@@ -17,7 +17,8 @@ use std::sync::Arc;
 
 #[derive(Subcommand, Debug)]
 pub enum BopCommand {
-    /// Estimate every target of a BOP split from its detections; write the BOP results CSV.
+    /// Estimate every target of a BOP split from its detections (a file, or found by the
+    /// detector); write the BOP results CSV.
     Run(RunArgs),
     /// Score a results CSV with the BOP'19 metrics (VSD, MSSD, MSPD; AR), and/or a
     /// detections JSON with the BOP'22 2D detection / segmentation AP (COCO).
@@ -33,9 +34,16 @@ pub struct RunArgs {
     /// Dataset root (holding models/, test/ and test_targets_bop19.json).
     #[arg(long)]
     pub dataset: PathBuf,
-    /// Detections in the BOP / CNOS default-detections JSON.
+    /// Detections in the BOP / CNOS default-detections JSON. Without it, the training-free
+    /// detector finds each image's targets itself (`b2tf detect`; settings below).
     #[arg(long)]
-    pub detections: PathBuf,
+    pub detections: Option<PathBuf>,
+    #[command(flatten)]
+    pub search: super::detect_cmd::SearchArgs,
+    /// With the detector: also write what it found as a default-detections JSON (for
+    /// `b2tf bop eval --detections`).
+    #[arg(long)]
+    pub detections_out: Option<PathBuf>,
     /// Results CSV; images already in it are skipped (resume).
     #[arg(long)]
     pub out: PathBuf,
@@ -97,7 +105,12 @@ pub fn run(cmd: BopCommand) -> Result<()> {
 }
 
 fn run_cmd(a: RunArgs) -> Result<()> {
-    let detections = DetectionIndex::new(read_detections(&a.detections)?);
+    if a.detections.is_some() && a.detections_out.is_some() {
+        anyhow::bail!("--detections-out writes what the detector finds; with --detections given there is nothing to write");
+    }
+    let given = a.detections.as_ref().map(|p| read_detections(p).map(DetectionIndex::new)).transpose()?;
+    let search = a.search.options();
+    crate::detect::check_options(&search)?;
     let backbone = a.backbone.open()?;
     let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
     let estimator = crate::estimate::Estimator::new(backbone.clone(), pool.clone());
@@ -123,8 +136,20 @@ fn run_cmd(a: RunArgs) -> Result<()> {
         pb.set_length(total as u64);
         pb.set_position(done as u64);
     };
-    let s = run_targets(&a.dataset, &detections, &a.out, &estimator, &mut model, &opts, &progress)?;
+    let mut found = Vec::new();
+    let source = match &given {
+        Some(index) => DetectionSource::File(index),
+        None => DetectionSource::Detector { pool: &pool, options: search, found: &mut found },
+    };
+    let s = run_targets(&a.dataset, source, &a.out, &estimator, &mut model, &opts, &progress)?;
     pb.finish_and_clear();
+    if given.is_none() {
+        println!("the detector found {} objects in {} images", found.len(), s.images);
+    }
+    if let Some(path) = &a.detections_out {
+        crate::bop::detections::write_detections(path, &found).with_context(|| format!("writing {}", path.display()))?;
+        println!("detections: {}", path.display());
+    }
     println!(
         "{} images estimated ({} already in {}), {} targets ({} instances requested): {} estimates written; {} targets without a detection, {} unusable detections, {} instances without a pose",
         s.images,
