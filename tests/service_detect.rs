@@ -1,7 +1,8 @@
 //! Detection through the service, as clients see it: a real `b2tf serve` on loopback finds
 //! the sample object with no mask and no box over HTTP and gRPC, hands its detections to
-//! Estimate as they are, estimates by object id alone, answers "nothing found" as a normal
-//! result, and refuses every kind of bad input by name.
+//! Estimate as they are, estimates by object id alone, starts a tracking session from a
+//! detection, answers "nothing found" as a normal result, and refuses every kind of bad
+//! input by name.
 
 mod common;
 
@@ -146,6 +147,28 @@ fn detect_and_estimate_by_object_id_over_http_and_grpc() {
     let metrics = c.get(format!("{base}/metrics")).send().unwrap().text().unwrap();
     assert!(metrics.contains("b2tf_requests_total{method=\"POST\",route=\"/v1/detect\",status=\"200\"}"), "{metrics}");
     assert!(metrics.contains("b2tf_stage_seconds_count{stage=\"detect_total\"}"), "{metrics}");
+
+    // A tracking session starts from a detection: the first frame names the object, the
+    // detector finds it and a full estimate starts the track; on the next frame the object
+    // is followed (no search while its track holds).
+    let (s, session) = post(&c, &format!("{base}/v1/tracks"), &json!({}));
+    assert_eq!(s, 201, "{session}");
+    let frames = format!("{base}/v1/tracks/{}/frames", session["id"].as_str().unwrap());
+    let frame = json!({"image": photo, "intrinsics": intrinsics, "objects": ["box"], "detect": {"min_score": 0.0, "max_detections": 1}});
+    let (s, f0) = post(&c, &frames, &frame);
+    assert_eq!(s, 200, "{f0}");
+    assert!(f0["objects"].as_array().unwrap().len() == 1 && f0["objects"][0]["mode"] == "estimated" && f0["objects"][0]["pose"].is_object(), "{f0}");
+    let (s, f1) = post(&c, &frames, &frame);
+    assert_eq!(s, 200, "{f1}");
+    assert!(f1["objects"].as_array().unwrap().len() == 1 && f1["objects"][0]["mode"] == "tracked", "{f1}");
+    let mut both = frame.clone();
+    both["detections"] = json!([{"object_id": "box", "bbox": [10, 10, 50, 50]}]);
+    let (s, e) = post(&c, &frames, &both);
+    assert!(s == 400 && e["error"]["message"].as_str().unwrap().contains("not both"), "{e}");
+    let mut unknown = frame.clone();
+    unknown["objects"] = json!(["box", "nope"]);
+    let (s, e) = post(&c, &frames, &unknown);
+    assert!(s == 404 && e["error"]["message"].as_str().unwrap().contains("\"nope\""), "{e}");
 
     // gRPC: the same calls.
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();

@@ -52,6 +52,7 @@ fn pb_frame(rgb: &image::RgbImage, mask: Option<&image::GrayImage>, object: &str
         detections: mask.map(|m| pb::Detection { object_id: object.into(), mask: Some(pb::detection::Mask::MaskPng(png_bytes(m).unwrap())), bbox: None, score: None }).into_iter().collect(),
         frame_index: None,
         options: None,
+        ..Default::default()
     }
 }
 

@@ -208,14 +208,18 @@ impl TrackFixture {
     }
 
     fn run_with(&self, video: &std::path::Path, extra: &[&str]) -> std::process::Output {
+        self.run_masked(video, Some(&self.mask), extra)
+    }
+
+    /// Without a mask, the detector finds the object in the first frame.
+    fn run_masked(&self, video: &std::path::Path, mask: Option<&std::path::Path>, extra: &[&str]) -> std::process::Output {
         std::process::Command::new(env!("CARGO_BIN_EXE_b2tf"))
             .args(["track", "--object", "box", "--store", &self.store_url])
             .arg("--video")
             .arg(video)
             .arg("--camera")
             .arg(&self.camera)
-            .arg("--mask")
-            .arg(&self.mask)
+            .args(mask.map(|m| vec![std::ffi::OsStr::new("--mask"), m.as_os_str()]).unwrap_or_default())
             .arg("--out")
             .arg(&self.out)
             .args(extra)
@@ -277,6 +281,21 @@ fn track_command_writes_a_pose_per_frame() {
     let e = fx.run_with(&frames, &["--lost-below", "1.5"]);
     let err = String::from_utf8_lossy(&e.stderr);
     assert!(!e.status.success() && err.contains("--lost-below") && err.contains("must be in [0, 1], not 1.5"), "{err}");
+
+    // No mask: the detector's best detection in the first frame starts the track (every
+    // candidate kept here); where it finds nothing, the error says to give a mask.
+    std::fs::remove_file(frames.join("0099.png")).unwrap();
+    let done = fx.run_masked(&frames, None, &["--min-score", "0"]);
+    let (out, err) = (String::from_utf8_lossy(&done.stdout), String::from_utf8_lossy(&done.stderr));
+    assert!(done.status.success() && out.contains("box detected at ["), "{out}{err}");
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(&fx.out).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert!(lines.len() == fx.seq.len() && lines[0]["mode"] == "estimated", "{lines:?}");
+    let blank = fx.dir.path().join("blank");
+    std::fs::create_dir(&blank).unwrap();
+    image::RgbImage::from_pixel(320, 240, image::Rgb([90, 90, 90])).save(blank.join("0000.png")).unwrap();
+    let e = fx.run_masked(&blank, None, &[]);
+    let err = String::from_utf8_lossy(&e.stderr);
+    assert!(!e.status.success() && err.contains("did not find box in the first frame 0000.png") && err.contains("give its --mask"), "{err}");
 }
 
 /// `b2tf track --video clip.mp4`: the generated sequence encoded by OpenH264 into an MP4

@@ -40,6 +40,7 @@ fn frame(f: &Frame, k: &Intrinsics, detection: Option<pb::Detection>) -> pb::Tra
         detections: detection.into_iter().collect(),
         frame_index: None,
         options: None,
+        ..Default::default()
     }
 }
 

@@ -1,5 +1,6 @@
 //! `b2tf track`: poses through a video given as a folder of frames or a video file
-//! (cli/video_source.rs). The first frame gets a full estimate from its mask; later frames
+//! (cli/video_source.rs). The first frame gets a full estimate from its mask (or from the
+//! detector's best detection when no mask is given); later frames
 //! are tracked (track::TrackSession, as the service's streams), and a lost frame is
 //! re-initialised by a full estimate of the object found by the colours its track learnt
 //! (near its last pose, else anywhere in the frame). One JSON line per frame, written as
@@ -8,6 +9,7 @@
 use super::estimate_cmd::{load_mask, write_overlay};
 use crate::estimate::Estimator;
 use crate::geometry::Intrinsics;
+use crate::onboard::ObjectModel;
 use crate::track::{FrameDetection, SessionConfig, TrackMode, TrackOutcome, TrackSession};
 use anyhow::{bail, Context, Result};
 use serde_json::json;
@@ -28,9 +30,12 @@ pub struct TrackArgs {
     /// scene_camera.json gives its first image's camera).
     #[arg(long)]
     pub camera: PathBuf,
-    /// The object's mask in the first frame (PNG, nonzero = object).
+    /// The object's mask in the first frame (PNG, nonzero = object). Without it the
+    /// detector finds the object in the first frame (settings as `b2tf detect`'s).
     #[arg(long)]
-    pub mask: PathBuf,
+    pub mask: Option<PathBuf>,
+    #[command(flatten)]
+    pub search: super::detect_cmd::SearchArgs,
     /// Output: one JSON line per frame.
     #[arg(long)]
     pub out: PathBuf,
@@ -79,11 +84,14 @@ pub fn run(a: TrackArgs) -> Result<()> {
     let first = frames.next().with_context(|| format!("no frame decoded from {}", a.video.display()))??;
     let k = super::camera_file::load_camera_for(&a.camera, Some(first.image.dimensions()))?;
     check_size(&first, &k)?;
-    let mask = crate::masks::decode::check_size(load_mask(&a.mask)?, k.width, k.height).and_then(crate::masks::require_nonempty).with_context(|| format!("--mask {}", a.mask.display()))?;
+    let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
+    let mask = match &a.mask {
+        Some(path) => crate::masks::decode::check_size(load_mask(path)?, k.width, k.height).and_then(crate::masks::require_nonempty).with_context(|| format!("--mask {}", path.display()))?,
+        None => detect_first(&model, &first, &k, &a.search, &renderer)?,
+    };
     if let Some(d) = &a.overlay_dir {
         std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
     }
-    let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
     let estimator = Estimator::new(a.target.backbone.open()?, renderer.clone());
     let mut out = std::io::BufWriter::new(std::fs::File::create(&a.out).with_context(|| format!("writing {}", a.out.display()))?);
     // One object, searched for around its last pose for as long as the video lasts.
@@ -107,7 +115,7 @@ pub fn run(a: TrackArgs) -> Result<()> {
         let (_, outcomes) = session.frame(Some(i as u64), image, &k, detections, &resolve, &estimator).map_err(anyhow::Error::msg)?;
         let Some(o) = outcomes.into_iter().next() else { bail!("frame {}: the track ended", frame.name) };
         if i == 0 && o.pose.is_none() {
-            bail!("no pose in the first frame {} from its mask: {}", frame.name, o.reason.unwrap_or_default());
+            bail!("no pose in the first frame {} from its {}: {}", frame.name, if a.mask.is_some() { "mask" } else { "detection" }, o.reason.unwrap_or_default());
         }
         if o.mode == TrackMode::Tracked {
             tracked_ms.push(o.ms);
@@ -132,4 +140,18 @@ pub fn run(a: TrackArgs) -> Result<()> {
         a.out.display()
     );
     Ok(())
+}
+
+/// The object's mask in the first frame from the detector: its best detection there.
+fn detect_first(model: &ObjectModel, first: &Frame, k: &Intrinsics, search: &super::detect_cmd::SearchArgs, renderer: &crate::render::RenderPool) -> Result<image::GrayImage> {
+    let shape = model.shape_model_or_build(renderer)?;
+    let targets = [crate::detect::Target { id: &model.object_id, shape: &shape, mesh: &model.mesh }];
+    let report = crate::detect::detect(&first.image, k, &targets, &search.options(), renderer)?;
+    match report.detections.into_iter().next() {
+        Some(d) => {
+            println!("first frame {}: {} detected at [{:.0}, {:.0}, {:.0}, {:.0}], score {:.3}", first.name, model.object_id, d.bbox[0], d.bbox[1], d.bbox[2], d.bbox[3], d.score);
+            Ok(d.mask)
+        }
+        None => bail!("the detector did not find {} in the first frame {} ({}); give its --mask, or lower --min-score", model.object_id, first.name, report.reason.unwrap_or_default()),
+    }
 }

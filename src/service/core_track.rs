@@ -61,7 +61,18 @@ impl Core {
         let mut session = turn.entry().session.lock().expect("session lock");
         let index = session.check_order(req.frame_index).map_err(|e| ServiceError::invalid(e.to_string()))?;
         span.record("index", index);
+        if !req.detections.is_empty() && !req.objects.is_empty() {
+            return Err(ServiceError::invalid("give detections or objects, not both"));
+        }
+        super::detect_requests::check_objects(&req.objects)?;
         let mut detections = Vec::with_capacity(req.detections.len());
+        // Objects to find: those named that no track followed into the last frame.
+        let followed: std::collections::BTreeSet<String> = session.tracks().into_iter().filter(|t| t.lost_frames == 0).map(|t| t.object_id).collect();
+        let wanted: Vec<String> = req.objects.iter().filter(|id| !followed.contains(*id)).cloned().collect();
+        if !wanted.is_empty() {
+            let report = self.run_detector(&image, &k, &wanted, &req.detect, None)?;
+            detections.extend(report.detections.into_iter().map(|d| FrameDetection { object_id: d.object_id, mask: d.mask, score: d.score }));
+        }
         for (i, d) in req.detections.iter().enumerate() {
             if !d.score.is_finite() {
                 return Err(ServiceError::invalid(format!("detections[{i}].score is not a finite number")));

@@ -60,6 +60,15 @@ pub struct TrackFrameRequest {
     /// lost track re-initialises it. None needed while tracking goes well.
     #[serde(default)]
     pub detections: Vec<DetectionInput>,
+    /// Instead of detections: objects the server's detector looks for in this frame, each
+    /// only while the session has no track of it that was followed in the last frame (so
+    /// a tracked object costs no search; a new or lost one is found and started or
+    /// re-initialised).
+    #[serde(default, deserialize_with = "crate::limits::bounded_vec::<_, _, { crate::limits::MAX_DETECT_OBJECTS }>")]
+    pub objects: Vec<String>,
+    /// The detector's settings for `objects`.
+    #[serde(default)]
+    pub detect: crate::detect::DetectOptions,
     /// The frame's number; when given it must be above the last one (else the next).
     #[serde(default)]
     pub frame_index: Option<u64>,

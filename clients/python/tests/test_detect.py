@@ -85,3 +85,12 @@ def test_async_detect(server: Server, onboarded: Onboarded, scene: Scene) -> Non
 
     found = asyncio.run(main())
     assert found and all(d.object_id == SAMPLE_ID for d in found)
+
+
+def test_tracking_starts_from_a_detection(client: b2tfpose.Client, onboarded: Onboarded, scene: Scene) -> None:
+    results = list(client.track([scene.rgb, scene.rgb], K=scene.K, objects=[SAMPLE_ID], min_score=0.0, max_detections=1))
+    assert [len(r.objects) for r in results] == [1, 1]
+    assert results[0].objects[0].mode == "estimated" and results[0].objects[0].pose is not None
+    assert results[1].objects[0].mode == "tracked"
+    with pytest.raises(ValueError, match="not both"):
+        list(client.track([b2tfpose.TrackFrame(scene.rgb, scene.K, [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)], objects=[SAMPLE_ID])]))

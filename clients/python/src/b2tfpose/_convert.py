@@ -79,17 +79,21 @@ class TrackFrame:
     or (fx, fy, cx, cy); None takes the ``K`` given to ``track()``. ``detections`` may be
     empty: once an object is tracked it is followed without them; a detection that no track
     of its object overlaps starts a track, one over a lost track re-initialises it.
-    ``frame_index``: the frame's number, above the last frame's (None: the next)."""
+    ``frame_index``: the frame's number, above the last frame's (None: the next).
+    ``objects``: instead of detections, ids the server's detector looks for in this frame,
+    each only while no track of it was followed into the last frame (a new or lost object
+    is found, a tracked one costs no search)."""
 
     image: ImageInput
     K: Optional[IntrinsicsInput] = None
     detections: Sequence[DetectionInput] = ()
     frame_index: Optional[int] = None
+    objects: Sequence[str] = ()
 
 
 FrameInput = Union[TrackFrame, Mapping[str, Any], Tuple[Any, ...], ImageInput]
 
-_FRAME_KEYS = {"image": "image", "K": "K", "intrinsics": "K", "detections": "detections", "frame_index": "frame_index"}
+_FRAME_KEYS = {"image": "image", "K": "K", "intrinsics": "K", "detections": "detections", "frame_index": "frame_index", "objects": "objects"}
 
 
 def as_track_frame(f: FrameInput, K: Optional[IntrinsicsInput]) -> TrackFrame:
@@ -102,7 +106,7 @@ def as_track_frame(f: FrameInput, K: Optional[IntrinsicsInput]) -> TrackFrame:
         kw: Dict[str, Any] = {}
         for k, v in f.items():
             if k not in _FRAME_KEYS:
-                raise ValueError(f"frame key {k!r}: expected image, K (intrinsics), detections or frame_index")
+                raise ValueError(f"frame key {k!r}: expected image, K (intrinsics), detections, frame_index or objects")
             kw[_FRAME_KEYS[k]] = v
         if "image" not in kw:
             raise ValueError("a frame dict needs 'image'")
@@ -120,6 +124,10 @@ def as_track_frame(f: FrameInput, K: Optional[IntrinsicsInput]) -> TrackFrame:
         frame = replace(frame, detections=())
     elif isinstance(dets, (Mapping, str, bytes)) or not isinstance(dets, Sequence):
         raise TypeError("a frame's detections: a list of b2tfpose.Detection (or dicts)")
+    if isinstance(frame.objects, (str, bytes)) or not isinstance(frame.objects, Sequence) or not all(isinstance(o, str) for o in frame.objects):
+        raise TypeError("a frame's objects: a list of object ids (str)")
+    if frame.objects and frame.detections:
+        raise ValueError("a frame gives detections or objects, not both")
     if frame.frame_index is not None and (isinstance(frame.frame_index, bool) or not isinstance(frame.frame_index, (int, np.integer)) or frame.frame_index < 0):
         raise ValueError(f"frame_index must be an integer >= 0, not {frame.frame_index!r}")
     if frame.K is None:

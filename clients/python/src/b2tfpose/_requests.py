@@ -4,7 +4,7 @@ the same."""
 
 from __future__ import annotations
 
-from typing import Any, Callable, Dict, Literal, Mapping, Optional, Sequence, Union
+from typing import Any, Callable, Dict, List, Literal, Mapping, Optional, Sequence, Union
 
 from ._convert import DetectionInput, ImageInput, IntrinsicsInput, TrackFrame, detection_message, image_message, intrinsics_message
 from ._mesh import MeshInput, mesh_message
@@ -49,7 +49,7 @@ def onboard_request(
     return pb.OnboardRequest(object_id=object_id, mesh=mesh_message(mesh, units, format, resources), options=options, replace=replace)
 
 
-def _objects(objects: Optional[Sequence[str]]) -> list[str]:
+def objects_list(objects: Optional[Sequence[str]]) -> List[str]:
     if objects is None:
         return []
     if isinstance(objects, (str, bytes)) or not isinstance(objects, Sequence) or not all(isinstance(o, str) for o in objects):
@@ -85,7 +85,7 @@ def detect_options(
 
 def detect_request(image: ImageInput, K: IntrinsicsInput, objects: Optional[Sequence[str]], *, bgr: bool, options: pb.DetectOptions) -> pb.DetectRequest:
     img, w, h = image_message(image, bgr=bgr)
-    return pb.DetectRequest(image=img, intrinsics=intrinsics_message(K, w, h), objects=_objects(objects), options=options)
+    return pb.DetectRequest(image=img, intrinsics=intrinsics_message(K, w, h), objects=objects_list(objects), options=options)
 
 
 def estimate_request(
@@ -105,7 +105,7 @@ def estimate_request(
     verify_templates: Optional[int] = None,
     spin_steps: Optional[int] = None,
 ) -> pb.EstimateRequest:
-    ids = _objects(objects)
+    ids = objects_list(objects)
     if detections is None:
         detections = []
     if isinstance(detections, Mapping) or not isinstance(detections, Sequence) or isinstance(detections, (str, bytes)):
@@ -155,7 +155,7 @@ def track_frame_message(frame: TrackFrame, *, bgr: bool, options: Optional[pb.Tr
     ``options`` go with the stream's first frame only."""
     assert frame.K is not None
     img, w, h = image_message(frame.image, bgr=bgr)
-    m = pb.TrackFrame(image=img, intrinsics=intrinsics_message(frame.K, w, h), detections=[detection_message(d, w, h) for d in frame.detections])
+    m = pb.TrackFrame(image=img, intrinsics=intrinsics_message(frame.K, w, h), detections=[detection_message(d, w, h) for d in frame.detections], objects=list(frame.objects))
     if frame.frame_index is not None:
         m.frame_index = int(frame.frame_index)
     if options is not None:

@@ -13,7 +13,8 @@ failure then is raised.
 from __future__ import annotations
 
 import collections
-from typing import Deque, List, Optional, Tuple
+from dataclasses import replace
+from typing import Deque, List, Optional, Sequence, Tuple
 
 import grpc
 
@@ -43,10 +44,14 @@ class TrackState:
         raise_errors: bool,
         prefetch: int,
         attempts: Attempts,
+        objects: Sequence[str] = (),
+        detect: Optional[pb.DetectOptions] = None,
     ) -> None:
         if isinstance(prefetch, bool) or not isinstance(prefetch, int) or not 0 <= prefetch <= MAX_PREFETCH:
             raise ValueError(f"prefetch must be an integer from 0 to {MAX_PREFETCH}, not {prefetch!r}")
         self.options = options
+        self.objects = list(objects)
+        self.detect = detect
         self.K = K
         self.bgr = bgr
         self.raise_errors = raise_errors
@@ -67,7 +72,11 @@ class TrackState:
         """The message of the next frame (the stream's options go with the first); it waits
         for its answer in ``pending``. Bad inputs raise ValueError / TypeError here."""
         frame = as_track_frame(f, self.K)
+        if self.objects and not frame.detections and not frame.objects:
+            frame = replace(frame, objects=self.objects)
         m = track_frame_message(frame, bgr=self.bgr, options=self.options if self.sent == 0 else None)
+        if frame.objects and self.detect is not None:
+            m.detect.CopyFrom(self.detect)
         self.pending.append((frame, m))
         self.sent += 1
         return m

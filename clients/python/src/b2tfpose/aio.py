@@ -269,6 +269,9 @@ class AsyncClient:
         max_tracks: Optional[int] = None,
         drop_after_lost: Optional[int] = None,
         lost_below: Optional[float] = None,
+        objects: Optional[Sequence[str]] = None,
+        min_score: Optional[float] = None,
+        max_detections: Optional[int] = None,
         raise_errors: bool = True,
         prefetch: int = 1,
         timeout: Optional[float] = None,
@@ -285,6 +288,8 @@ class AsyncClient:
             raise_errors,
             prefetch,
             Attempts(TRACK, resolve(retry, self._settings.retry, idempotent=True), timeout),
+            _requests.objects_list(objects),
+            _requests.detect_options(max_detections, min_score),
         )
         return self._track(_Frames(frames), state)
 

@@ -290,6 +290,9 @@ class Client:
         max_tracks: Optional[int] = None,
         drop_after_lost: Optional[int] = None,
         lost_below: Optional[float] = None,
+        objects: Optional[Sequence[str]] = None,
+        min_score: Optional[float] = None,
+        max_detections: Optional[int] = None,
         raise_errors: bool = True,
         prefetch: int = 1,
         timeout: Optional[float] = None,
@@ -306,7 +309,11 @@ class Client:
         (TRACKED); a lost track is re-initialised from a detection over it or by searching
         near its last pose. ``max_tracks`` (1-32), ``drop_after_lost`` (lost frames before a
         track ends), ``lost_below`` (outline agreement, 0-1, under which a frame is lost): the
-        session's options (None: the server's defaults, 8, 30, 0.3).
+        session's options (None: the server's defaults, 8, 30, 0.3). ``objects``: ids the
+        server's detector looks for in each frame that gives no detections or objects of its
+        own, each only while no track of it was followed into the last frame: the first
+        frame needs no mask, and a lost object is found again (``min_score``,
+        ``max_detections``: the detector's settings, as :meth:`detect`'s).
 
         A frame the server refuses (malformed, out of order, unknown object) raises its
         error (InvalidArgument, NotFound, ...), which ends the stream; with
@@ -331,6 +338,8 @@ class Client:
             raise_errors,
             prefetch,
             Attempts(TRACK, resolve(retry, self._settings.retry, idempotent=True), timeout),
+            _requests.objects_list(objects),
+            _requests.detect_options(max_detections, min_score),
         )
         return self._track(iter(frames), state)
 
