@@ -189,4 +189,13 @@ fn upgrade_and_detect_from_the_command_line() {
     assert!(!ok && err.contains("min_distance_m (2) must be below max_distance_m (1)"), "{err}");
     let (ok, _, err) = b2tf(&[&common[..], &["--object", "nothing_here"]].concat());
     assert!(!ok && err.contains("\"nothing_here\"") && err.contains("not found"), "{err}");
+
+    // `b2tf estimate` with no mask and no box: the object id alone, the detector finds it.
+    let est = d.join("est.json");
+    let estimate = ["estimate", "--store", &store_url, "--object", "box_7", "--image", img.to_str().unwrap(), "--camera", cam.to_str().unwrap(), "--out", est.to_str().unwrap(), "--no-rrc"];
+    let (ok, out, err) = b2tf(&[&estimate[..], &["--min-score", "0"]].concat());
+    assert!(ok && out.contains("box_7 detected at [") && est.exists(), "{out}{err}");
+    image::RgbImage::from_pixel(k.width, k.height, image::Rgb([90, 90, 90])).save(&img).unwrap();
+    let (ok, out, err) = b2tf(&estimate);
+    assert!(!ok && err.contains("the detector did not find box_7") && err.contains("give a --mask"), "{out}{err}");
 }

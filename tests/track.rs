@@ -295,7 +295,7 @@ fn track_command_writes_a_pose_per_frame() {
     image::RgbImage::from_pixel(320, 240, image::Rgb([90, 90, 90])).save(blank.join("0000.png")).unwrap();
     let e = fx.run_masked(&blank, None, &[]);
     let err = String::from_utf8_lossy(&e.stderr);
-    assert!(!e.status.success() && err.contains("did not find box in the first frame 0000.png") && err.contains("give its --mask"), "{err}");
+    assert!(!e.status.success() && err.contains("first frame 0000.png") && err.contains("the detector did not find box") && err.contains("give a --mask"), "{err}");
 }
 
 /// `b2tf track --video clip.mp4`: the generated sequence encoded by OpenH264 into an MP4

@@ -81,6 +81,21 @@ pub fn load_objects(store: &dyn crate::store::ObjectStore, ids: &[String]) -> Re
     ids.iter().map(|id| store.get(id).map(Arc::new).with_context(|| format!("loading object {id:?} from {}", store.url()))).collect()
 }
 
+/// One object's detections in an image (for the commands that detect when no mask is
+/// given); an error naming the object and the detector's reason when there is none.
+pub fn detect_object(model: &ObjectModel, image: &image::RgbImage, k: &crate::geometry::Intrinsics, search: &SearchArgs, renderer: &crate::render::RenderPool) -> Result<Vec<crate::detect::Detection>> {
+    let shape = model.shape_model_or_build(renderer)?;
+    let targets = [Target { id: &model.object_id, shape: &shape, mesh: &model.mesh }];
+    let report = detect(image, k, &targets, &search.options(), renderer)?;
+    if report.detections.is_empty() {
+        bail!("the detector did not find {} ({}); give a --mask (or a --box), or lower --min-score", model.object_id, report.reason.unwrap_or_default());
+    }
+    for d in &report.detections {
+        println!("{} detected at [{:.0}, {:.0}, {:.0}, {:.0}], score {:.3}", d.object_id, d.bbox[0], d.bbox[1], d.bbox[2], d.bbox[3], d.score);
+    }
+    Ok(report.detections)
+}
+
 pub fn run(a: DetectArgs) -> Result<()> {
     let store = crate::store::open(&a.store.clone().unwrap_or_else(crate::store::default_url))?;
     let models = load_objects(store.as_ref(), &a.objects)?;

@@ -17,8 +17,9 @@ pub struct EstimateArgs {
     /// scene_camera.json gives its first image's camera).
     #[arg(long)]
     pub camera: PathBuf,
-    /// Object mask PNG, image-sized, nonzero = object. Repeat for candidate masks.
-    #[arg(long = "mask", required_unless_present = "boxes")]
+    /// Object mask PNG, image-sized, nonzero = object. Repeat for candidate masks. With
+    /// no --mask and no --box the detector finds the object (settings below).
+    #[arg(long = "mask")]
     pub masks: Vec<PathBuf>,
     /// Box X,Y,W,H in pixels around the object, when there is no mask: the object is
     /// segmented inside it. Repeatable, and can be mixed with --mask.
@@ -46,6 +47,8 @@ pub struct EstimateArgs {
     /// Also draw the estimate over the image into this PNG.
     #[arg(long)]
     pub overlay: Option<PathBuf>,
+    #[command(flatten)]
+    pub search: super::detect_cmd::SearchArgs,
 }
 
 pub fn load_mask(path: &Path) -> Result<image::GrayImage> {
@@ -77,20 +80,26 @@ fn detections(a: &EstimateArgs, image: &image::RgbImage) -> Result<Vec<Detection
     Ok(out)
 }
 
+/// The candidates from the detector: the masks of its best instance (its detections
+/// overlapping the best one), as the service groups them.
+fn detected(model: &ObjectModel, image: &image::RgbImage, k: &Intrinsics, search: &super::detect_cmd::SearchArgs, renderer: &crate::render::RenderPool) -> Result<Vec<Detection>> {
+    let found = super::detect_cmd::detect_object(model, image, k, search, renderer)?;
+    let refs: Vec<(&image::GrayImage, f64)> = found.iter().map(|d| (&d.mask, d.score as f64)).collect();
+    let best = crate::masks::group_instances(&refs, 0.5).into_iter().next().unwrap_or_default();
+    Ok(best.into_iter().map(|i| Detection { mask: found[i].mask.clone(), score: found[i].score }).collect())
+}
+
 pub fn run(a: EstimateArgs) -> Result<()> {
     let given = a.masks.len() + a.boxes.len();
-    if given == 0 {
-        bail!("give at least one --mask or --box");
-    }
     if a.scores.len() > given {
         bail!("{} --score values for {} --mask files and {} --box values", a.scores.len(), a.masks.len(), a.boxes.len());
     }
     let model = a.target.load()?;
     let image = image::open(&a.image).with_context(|| format!("cannot read image {}", a.image.display()))?.to_rgb8();
     let k = super::camera_file::load_camera_for(&a.camera, Some(image.dimensions()))?;
-    let detections = detections(&a, &image)?;
-    let backbone = a.target.backbone.open()?;
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
+    let detections = if given == 0 { detected(&model, &image, &k, &a.search, &renderer)? } else { detections(&a, &image)? };
+    let backbone = a.target.backbone.open()?;
     let estimator = crate::estimate::Estimator::new(backbone, renderer.clone());
     let mut cfg = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), ..Default::default() };
     cfg.retrieval.k = a.k;

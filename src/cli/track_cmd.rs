@@ -144,14 +144,6 @@ pub fn run(a: TrackArgs) -> Result<()> {
 
 /// The object's mask in the first frame from the detector: its best detection there.
 fn detect_first(model: &ObjectModel, first: &Frame, k: &Intrinsics, search: &super::detect_cmd::SearchArgs, renderer: &crate::render::RenderPool) -> Result<image::GrayImage> {
-    let shape = model.shape_model_or_build(renderer)?;
-    let targets = [crate::detect::Target { id: &model.object_id, shape: &shape, mesh: &model.mesh }];
-    let report = crate::detect::detect(&first.image, k, &targets, &search.options(), renderer)?;
-    match report.detections.into_iter().next() {
-        Some(d) => {
-            println!("first frame {}: {} detected at [{:.0}, {:.0}, {:.0}, {:.0}], score {:.3}", first.name, model.object_id, d.bbox[0], d.bbox[1], d.bbox[2], d.bbox[3], d.score);
-            Ok(d.mask)
-        }
-        None => bail!("the detector did not find {} in the first frame {} ({}); give its --mask, or lower --min-score", model.object_id, first.name, report.reason.unwrap_or_default()),
-    }
+    let found = super::detect_cmd::detect_object(model, &first.image, k, search, renderer).with_context(|| format!("first frame {}", first.name))?;
+    Ok(found.into_iter().next().map(|d| d.mask).expect("detect_object returns at least one"))
 }
