@@ -1,7 +1,8 @@
 //! `b2tf demo --server grpc://HOST:PORT`: the demo as a client of a running service, the
 //! way a factory cell uses it. Onboards the generated sample through the gRPC API (once;
 //! later runs find it), renders a photo-like scene of it locally, estimates its pose
-//! through the API, prints the pose and its error against the truth and writes the overlay.
+//! through the API, prints the pose and its error against the truth and writes the overlay;
+//! then asks the server's detector to find the object with no mask.
 
 use super::demo_cmd::{make_scene, report, sample_mesh, DemoArgs};
 use crate::service::client::{one_mask_request, png_bytes, BearerKey, Client};
@@ -88,6 +89,22 @@ async fn run_async(a: &DemoArgs) -> Result<()> {
     let overlay = crate::render::overlay::draw_overlay(&scene.photo, &renderer, &mesh, &pose, k, [0, 255, 0])?;
     overlay.save(a.out.join("overlay.png"))?;
     println!("wrote {}/{{scene,mask,overlay}}.png and result.json", a.out.display());
+    detect_by_id(&mut client, &scene.photo, &scene.mask, k).await
+}
+
+/// The same photo with the object id alone: what the server's detector finds.
+async fn detect_by_id(client: &mut Client, photo: &image::RgbImage, mask: &image::GrayImage, k: &crate::geometry::Intrinsics) -> Result<()> {
+    let request = pb::DetectRequest { image: Some(pb::Image { data: Some(pb::image::Data::Encoded(png_bytes(photo)?)), width: 0, height: 0 }), intrinsics: Some(k.into()), objects: vec![OBJECT_ID.into()], options: None };
+    let found = client.detect(request).await.map_err(|s| anyhow::anyhow!("Detect: {s}"))?.into_inner();
+    let truth = crate::detect::detector::bbox_of(mask);
+    match (found.detections.first(), truth) {
+        (Some(d), Some(t)) => {
+            let b = d.bbox.clone().unwrap_or_default();
+            let iou = crate::detect::nms::box_iou(&[b.x, b.y, b.width, b.height], &t);
+            println!("detected with no mask (Detect): box [{:.0}, {:.0}, {:.0}, {:.0}], score {:.2}, IoU {iou:.2} with the true box, {:.0} ms", b.x, b.y, b.width, b.height, d.score, found.total_ms);
+        }
+        _ => println!("the server's detector did not find {OBJECT_ID} with no mask: {}", found.reason),
+    }
     Ok(())
 }
 
