@@ -3,6 +3,7 @@
 //! conversion), each followed by what the core decodes before any model is needed.
 
 use crate::masks::BoxMask;
+use crate::service::detect_requests::DetectRequest;
 use crate::service::requests::{EstimateRequest, OnboardRequest};
 use crate::service::{grpc_convert, proto as pb};
 use axum::extract::FromRequest;
@@ -24,6 +25,15 @@ fn decode_estimate(req: &EstimateRequest) {
     }
 }
 
+/// What `Core::detect` decodes before it looks up objects: limits, options, intrinsics,
+/// image (and their agreement).
+fn decode_detect(req: &DetectRequest) {
+    if req.check_limits().is_err() || crate::detect::check_options(&req.options).is_err() {
+        return;
+    }
+    let _ = crate::service::core_detect::decode_image(&req.image, &req.intrinsics);
+}
+
 /// What `Core::start_onboard` checks before it stages the upload (the mesh itself has its
 /// own targets).
 fn check_onboard(req: &OnboardRequest) {
@@ -33,9 +43,15 @@ fn check_onboard(req: &OnboardRequest) {
     let _ = crate::limits::check_count("mesh.resources", req.mesh.resources.len(), crate::limits::MAX_MESH_RESOURCES);
 }
 
-/// First byte even: an estimate body; odd: an onboarding body.
+/// First byte 2 mod 4: a detect body; else even: an estimate body; odd: an onboarding body.
 pub fn http_json(data: &[u8]) {
     let Some(([mode], body)) = super::header::<1>(data) else { return };
+    if mode % 4 == 2 {
+        if let Ok(req) = serde_json::from_slice::<DetectRequest>(body) {
+            decode_detect(&req);
+        }
+        return;
+    }
     match mode % 2 {
         0 => {
             if let Ok(req) = serde_json::from_slice::<EstimateRequest>(body) {
@@ -50,9 +66,16 @@ pub fn http_json(data: &[u8]) {
     }
 }
 
-/// First byte even: an `EstimateRequest` message; odd: an `OnboardRequest`.
+/// First byte 2 mod 4: a `DetectRequest` message; else even: an `EstimateRequest`; odd:
+/// an `OnboardRequest`.
 pub fn grpc_request(data: &[u8]) {
     let Some(([mode], message)) = super::header::<1>(data) else { return };
+    if mode % 4 == 2 {
+        if let Ok(Ok(req)) = pb::DetectRequest::decode(message).map(grpc_convert::detect_request) {
+            decode_detect(&req);
+        }
+        return;
+    }
     match mode % 2 {
         0 => {
             if let Ok(Ok(req)) = pb::EstimateRequest::decode(message).map(grpc_convert::estimate_request) {

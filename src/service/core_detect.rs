@@ -58,7 +58,7 @@ impl Core {
 }
 
 /// The image and its intrinsics, which must agree on the size.
-pub(super) fn decode_image(image: &ImageInput, intrinsics: &IntrinsicsInput) -> Result<(RgbImage, Intrinsics), ServiceError> {
+pub fn decode_image(image: &ImageInput, intrinsics: &IntrinsicsInput) -> Result<(RgbImage, Intrinsics), ServiceError> {
     let k = intrinsics.decode()?;
     let image = tracing::info_span!("decode").in_scope(|| image.decode())?;
     if image.dimensions() != (k.width, k.height) {

@@ -54,6 +54,10 @@ const ESTIMATE_JSON: &str = r#"{"image":{"raw_rgb8":"AAAAAAAAAAAAAAAAAAAAAAAAAAA
 "detections":[{"object_id":"a","mask_rle":{"counts":[5,2,2,2,5],"size":[4,4]}},{"object_id":"b","bbox":[1,1,2,2],"score":0.5}],
 "options":{"k":5,"max_masks":1,"refiner":"none"}}"#;
 
+const DETECT_JSON: &str = r#"{"image":{"raw_rgb8":"AAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAA","width":4,"height":4},
+"intrinsics":{"fx":4,"fy":4,"cx":1.5,"cy":1.5,"width":4,"height":4},
+"objects":["a","b"],"options":{"max_detections":3,"min_score":0.5,"min_distance_m":0.2,"max_distance_m":2.0,"refine_masks":false}}"#;
+
 const ONBOARD_JSON: &str = r#"{"object_id":"box","mesh":{"data":"diAwIDAgMAp2IDEgMCAwCnYgMCAxIDAKZiAxIDIgMwo=","format":"obj","units":"mm",
 "resources":[{"name":"a.mtl","data":"bmV3bXRsIGEK"}]},"options":{"level":0,"in_plane":2,"pca":"off"},"replace":true}"#;
 
@@ -81,6 +85,13 @@ fn grpc_estimate() -> Vec<u8> {
     let intrinsics = pb::Intrinsics { fx: 4.0, fy: 4.0, cx: 1.5, cy: 1.5, width: 4, height: 4 };
     let options = pb::EstimateOptions { k: 3, refiner: "none".into(), ..Default::default() };
     pb::EstimateRequest { image: Some(image), intrinsics: Some(intrinsics), detections, options: Some(options), ..Default::default() }.encode_to_vec()
+}
+
+fn grpc_detect() -> Vec<u8> {
+    let image = pb::Image { data: Some(pb::image::Data::Encoded(png(image::DynamicImage::ImageRgb8(checker(4, 4))))), width: 0, height: 0 };
+    let intrinsics = pb::Intrinsics { fx: 4.0, fy: 4.0, cx: 1.5, cy: 1.5, width: 4, height: 4 };
+    let options = pb::DetectOptions { max_detections: 2, min_score: Some(0.3), min_distance_m: Some(0.1), max_distance_m: Some(1.0), refine_masks: Some(true) };
+    pb::DetectRequest { image: Some(image), intrinsics: Some(intrinsics), objects: vec!["a".into()], options: Some(options) }.encode_to_vec()
 }
 
 fn grpc_onboard() -> Vec<u8> {
@@ -184,9 +195,11 @@ fn seeds() -> Vec<(&'static str, &'static str, Vec<u8>)> {
         ("mask_rle", "bop", [&[2u8][..], br#"{"counts":"2S11oN","size":[40,1]}"#].concat()),
         ("http_json", "estimate", [&[0u8][..], ESTIMATE_JSON.as_bytes()].concat()),
         ("http_json", "onboard", [&[1u8][..], ONBOARD_JSON.as_bytes()].concat()),
+        ("http_json", "detect", [&[2u8][..], DETECT_JSON.as_bytes()].concat()),
         ("multipart", "onboard", MULTIPART.as_bytes().to_vec()),
         ("grpc_request", "estimate", [&[0u8][..], &grpc_estimate()].concat()),
         ("grpc_request", "onboard", [&[1u8][..], &grpc_onboard()].concat()),
+        ("grpc_request", "detect", [&[2u8][..], &grpc_detect()].concat()),
         ("camera_file", "megapose.json", br#"{"K": [[600.0, 0.0, 320.0], [0.0, 610.0, 240.0], [0.0, 0.0, 1.0]], "resolution": [480, 640]}"#.to_vec()),
         ("camera_file", "bop.json", br#"{"cam_K": [600, 0, 320, 0, 610, 240, 0, 0, 1], "width": 640, "height": 480, "depth_scale": 0.1}"#.to_vec()),
         ("bop_detections", "detections.json", DETECTIONS.as_bytes().to_vec()),
