@@ -99,7 +99,7 @@ async fn detect_by_id(client: &mut Client, photo: &image::RgbImage, mask: &image
     let truth = crate::detect::detector::bbox_of(mask);
     match (found.detections.first(), truth) {
         (Some(d), Some(t)) => {
-            let b = d.bbox.clone().unwrap_or_default();
+            let b = d.bbox.unwrap_or_default();
             let iou = crate::detect::nms::box_iou(&[b.x, b.y, b.width, b.height], &t);
             println!("detected with no mask (Detect): box [{:.0}, {:.0}, {:.0}, {:.0}], score {:.2}, IoU {iou:.2} with the true box, {:.0} ms", b.x, b.y, b.width, b.height, d.score, found.total_ms);
         }
