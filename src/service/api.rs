@@ -56,45 +56,39 @@ impl Api {
         }
     }
 
-    /// Estimates within `budget`. Past it the caller gets DEADLINE_EXCEEDED at once; the
-    /// worker stops at its next check (between instances) and only then frees its slot, so
-    /// the concurrency limit stays true.
+    /// Estimates within `budget` (see `heavy`).
     pub async fn estimate(&self, req: EstimateRequest, budget: Option<Duration>) -> Result<EstimateResponse, ServiceError> {
-        // Over the limit the request is refused now, not queued.
-        let slot = self.core.estimate_slot().ok_or_else(|| self.busy())?;
-        let deadline = budget.map(|b| Instant::now() + b);
-        let core = self.core.clone();
         let detections = req.detections.len();
-        let work = blocking(move || {
-            let _slot = slot;
-            core.estimate(&req, deadline)
-        });
-        let resp = match budget {
-            Some(b) => tokio::time::timeout(b, work).await.map_err(|_| deadline_exceeded(b))??,
-            None => work.await?,
-        };
+        let resp = self.heavy(budget, move |core, deadline| core.estimate(&req, deadline)).await?;
         for r in &resp.results {
             self.metrics.stages(&r.timings_ms, detections.max(resp.detections.len()));
         }
         Ok(resp)
     }
 
-    /// Detects within `budget`, in an estimate's slot (the same limit: both are the
-    /// server's heavy work).
+    /// Detects within `budget`, in an estimate's slot (see `heavy`).
     pub async fn detect(&self, req: DetectRequest, budget: Option<Duration>) -> Result<DetectResponse, ServiceError> {
+        let resp = self.heavy(budget, move |core, deadline| core.detect(&req, deadline)).await?;
+        self.metrics.detected(&serde_json::to_value(&resp.timings_ms).unwrap_or_default(), resp.detections.len());
+        Ok(resp)
+    }
+
+    /// Runs the server's heavy work (an estimate or a detection: one limit for both) in a
+    /// slot, refused at once over the limit, within `budget`. Past it the caller gets
+    /// DEADLINE_EXCEEDED at once; the worker stops at its next check and only then frees
+    /// its slot, so the concurrency limit stays true.
+    async fn heavy<T: Send + 'static>(&self, budget: Option<Duration>, work: impl FnOnce(&Core, Option<Instant>) -> Result<T, ServiceError> + Send + 'static) -> Result<T, ServiceError> {
         let slot = self.core.estimate_slot().ok_or_else(|| self.busy())?;
         let deadline = budget.map(|b| Instant::now() + b);
         let core = self.core.clone();
         let work = blocking(move || {
             let _slot = slot;
-            core.detect(&req, deadline)
+            work(&core, deadline)
         });
-        let resp = match budget {
-            Some(b) => tokio::time::timeout(b, work).await.map_err(|_| deadline_exceeded(b))??,
-            None => work.await?,
-        };
-        self.metrics.detected(&serde_json::to_value(&resp.timings_ms).unwrap_or_default(), resp.detections.len());
-        Ok(resp)
+        match budget {
+            Some(b) => tokio::time::timeout(b, work).await.map_err(|_| deadline_exceeded(b))?,
+            None => work.await,
+        }
     }
 
     fn busy(&self) -> ServiceError {
