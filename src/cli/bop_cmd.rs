@@ -109,6 +109,11 @@ fn run_cmd(a: RunArgs) -> Result<()> {
         anyhow::bail!("--detections-out writes what the detector finds; with --detections given there is nothing to write");
     }
     let given = a.detections.as_ref().map(|p| read_detections(p).map(DetectionIndex::new)).transpose()?;
+    for path in std::iter::once(&a.out).chain(&a.detections_out) {
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        }
+    }
     let search = a.search.options();
     crate::detect::check_options(&search)?;
     let backbone = a.backbone.open()?;
