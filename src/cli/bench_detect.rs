@@ -39,6 +39,9 @@ pub struct BenchDetectArgs {
     /// Score threshold (default: the detector's).
     #[arg(long)]
     pub min_score: Option<f32>,
+    /// Detections kept per image, best first (default: the detector's).
+    #[arg(long)]
+    pub max_detections: Option<usize>,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Also time the search with this many objects (templates repeated when fewer meshes).
@@ -75,7 +78,8 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
     let shapes: Vec<ShapeModel> = meshes[..searched].iter().map(|m| ShapeModel::build(m, &pool, &Default::default())).collect::<Result<_, _>>()?;
     println!("templates: {} objects × {} in {:.1} s ({:.2} s per object)", searched, shapes[0].template_count(), t.elapsed().as_secs_f64(), t.elapsed().as_secs_f64() / searched as f64);
     let targets: Vec<Target> = (0..searched).map(|i| Target { id: &names[i], shape: &shapes[i], mesh: &meshes[i] }).collect();
-    let opts = DetectOptions { min_score: a.min_score.unwrap_or(DetectOptions::default().min_score), ..Default::default() };
+    let d = DetectOptions::default();
+    let opts = DetectOptions { min_score: a.min_score.unwrap_or(d.min_score), max_detections: a.max_detections.unwrap_or(d.max_detections), ..d };
     let all: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, m)| (i as u32 + 1, m.clone())).collect();
     if let Some(dir) = &a.overlays {
         std::fs::create_dir_all(dir)?;
