@@ -258,16 +258,19 @@ impl Core {
         if o.k == 0 || o.max_masks == 0 || o.instances_per_object == 0 {
             return Err(ServiceError::invalid("options: k, max_masks and instances_per_object must be positive"));
         }
+        // The detector's findings are answered as they are (RLE), and their masks moved on.
         let (masks, detected) = if req.objects.is_empty() {
             (decode_masks(req, &image)?, None)
         } else {
             let report = self.run_detector(&image, &k, &req.objects, &req.detect, deadline)?;
-            let masks = report.detections.iter().map(|d| (d.object_id.clone(), d.mask.clone(), d.score)).collect();
-            (masks, Some(report))
+            let outputs: Vec<DetectionOutput> = report.detections.iter().map(DetectionOutput::from).collect();
+            let masks = report.detections.into_iter().map(|d| (d.object_id, d.mask, d.score)).collect();
+            (masks, Some((outputs, report.reason)))
         };
+        let ids: Vec<String> = masks.iter().map(|(id, _, _)| id.clone()).collect();
         let mut by_object: BTreeMap<&str, Vec<(usize, image::GrayImage, f32)>> = BTreeMap::new();
-        for (i, (object_id, mask, score)) in masks.iter().enumerate() {
-            by_object.entry(object_id.as_str()).or_default().push((i, mask.clone(), *score));
+        for (i, ((_, mask, score), id)) in masks.into_iter().zip(&ids).enumerate() {
+            by_object.entry(id.as_str()).or_default().push((i, mask, score));
         }
         // Every object must exist before any work starts.
         let models: BTreeMap<&str, _> = by_object.keys().map(|&id| Ok((id, self.load(id)?))).collect::<Result<_, ServiceError>>()?;
@@ -301,10 +304,7 @@ impl Core {
                 });
             }
         }
-        let (detections, reason) = match detected {
-            Some(report) => (report.detections.iter().map(DetectionOutput::from).collect(), report.reason),
-            None => (Vec::new(), None),
-        };
+        let (detections, reason) = detected.unwrap_or_default();
         Ok(EstimateResponse { results, detections, reason, total_ms: t0.elapsed().as_secs_f64() * 1e3 })
     }
 }
