@@ -122,7 +122,6 @@ fn templates_are_stored_with_the_object_and_rebuilt_for_older_ones() {
 }
 
 #[test]
-#[ignore = "the detector does not reach this yet (docs/detection.md, issue 26): run with --ignored while improving it"]
 fn finds_the_object_on_a_plain_background() {
     let f = fixture();
     let k = b2tfpose::geometry::Intrinsics::new(600.0, 600.0, 319.5, 239.5, 640, 480).unwrap();
@@ -130,6 +129,8 @@ fn finds_the_object_on_a_plain_background() {
     let truth = b2tfpose::geometry::Pose::new(truth.rotation, truth.translation + nalgebra::Vector3::new(0.05, -0.03, 0.0));
     let r = f.pool.render(&f.mesh, &truth, &k, &Default::default()).unwrap();
     let img = image::RgbImage::from_fn(640, 480, |x, y| if r.mask.get_pixel(x, y)[0] > 0 { *r.rgb.get_pixel(x, y) } else { image::Rgb([90, 100, 110]) });
+    // The whole box ranks first, not a part of its print (at the coarse pose it scores
+    // about 0.4, under the default threshold: docs/detection.md).
     let rep = detect(&img, &k, &target(f), &DetectOptions { min_score: 0.0, ..Default::default() }, &f.pool).unwrap();
     let truth_box = bbox_of(&r.mask).unwrap();
     let found: Vec<_> = rep.detections.iter().take(5).map(|d| (d.bbox, d.score, box_iou(&d.bbox, &truth_box))).collect();

@@ -109,7 +109,7 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
             let obj = names.iter().position(|n| *n == d.object_id).expect("a searched object");
             if a.oracle {
                 let best = scene.instances.iter().filter(|i| i.obj_id as usize - 1 == obj).filter_map(|i| crate::detect::detector::bbox_of(&i.mask_visib)).map(|b| box_iou(&b, &d.bbox)).fold(0.0, f64::max);
-                println!("image {im} {}: score {:.3}, box IoU {:.2}, shape {:.3}, outline {:.3}, colour {}", d.object_id, d.score, best, d.shape_score, d.evidence.outline, d.evidence.colour.map_or("-".into(), |c| format!("{c:.3}")));
+                println!("image {im} {}: score {:.3}, box IoU {:.2}, shape {:.3}, outline {:.3}, colour {}, texture {}", d.object_id, d.score, best, d.shape_score, d.evidence.outline, d.evidence.colour.map_or("-".into(), |c| format!("{c:.3}")), d.evidence.texture.map_or("-".into(), |c| format!("{c:.3}")));
             }
             found.entry(obj).or_default().push(Scored { image: im, bbox: d.bbox, score: d.score });
         }

@@ -5,7 +5,7 @@
 //! replaced by the graph-cut segmentation of its box where the two agree).
 
 use super::colour_prior::ColourPrior;
-use super::nms::{area, inside_share, suppress};
+use super::nms::{parts_of_larger, suppress};
 use super::responses::ResponseMaps;
 use super::scales::{distance_for_scale, rung_scale, rungs_between, scale_for_distance};
 use super::search::search;
@@ -34,7 +34,7 @@ pub struct Target<'a> {
 pub struct DetectOptions {
     /// At most this many detections, best first, over all objects.
     pub max_detections: usize,
-    /// Template score (share of the best possible response) a detection needs.
+    /// Score (`combined_score`) a detection needs.
     pub min_score: f32,
     /// Distances of the object's centre from the camera to search, metres; unset: from
     /// the object appearing `DEFAULT_MAX_SHARE` of the image's shorter side across down to
@@ -53,7 +53,7 @@ impl Default for DetectOptions {
 }
 
 /// Default score threshold (docs/detection.md: chosen on generated scenes and empty images).
-pub const DEFAULT_MIN_SCORE: f32 = 0.75;
+pub const DEFAULT_MIN_SCORE: f32 = 0.45;
 /// Smallest bounding-sphere diameter searched by default, pixels.
 pub const DEFAULT_MIN_DIAMETER_PX: f64 = 40.0;
 /// Largest, as a share of the image's shorter side.
@@ -69,6 +69,10 @@ const MIN_SHAPE_SCORE: f32 = 0.4;
 const RANKED_PER_OBJECT: usize = 300;
 /// Candidates per object rendered and compared with the image (about 3–5 ms each).
 const VERIFIED_PER_OBJECT: usize = 12;
+/// A match inside a larger one of the same object whose rank (before verification) or
+/// score (after) reaches this share of its own gives way to it (`nms::parts_of_larger`).
+const PART_RANK_RATIO: f32 = 0.9;
+const PART_SCORE_RATIO: f32 = 0.9;
 /// Boxes overlapping more than this are one detection.
 const NMS_IOU: f64 = 0.5;
 /// Graph-cut masks must agree this well with the rendered silhouette to replace it.
@@ -88,7 +92,7 @@ pub struct Detection {
     pub object_id: String,
     /// [x, y, w, h] in pixels, around `mask`.
     pub bbox: [f64; 4],
-    /// The combined score (template match and the render's evidence), 0–1.
+    /// The render's evidence combined (`combined_score`), 0–1.
     pub score: f32,
     /// The template match alone: share of the best possible response.
     pub shape_score: f32,
@@ -254,7 +258,9 @@ pub fn detect(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &Detec
         own.truncate(RANKED_PER_OBJECT);
         // A match on part of the object (its print answers a smaller view) gives way to a
         // larger match around it that ranks nearly as well.
-        let parts: Vec<bool> = own.iter().map(|&i| own.iter().any(|&j| j != i && candidates[j].rank >= 0.9 * candidates[i].rank && area(&candidates[j].bbox) > 1.5 * area(&candidates[i].bbox) && inside_share(&candidates[i].bbox, &candidates[j].bbox) >= 0.8)).collect();
+        let boxes: Vec<[f64; 4]> = own.iter().map(|&i| candidates[i].bbox).collect();
+        let ranks: Vec<f32> = own.iter().map(|&i| candidates[i].rank).collect();
+        let parts = parts_of_larger(&boxes, &ranks, &vec![0; own.len()], PART_RANK_RATIO);
         let own: Vec<usize> = own.iter().zip(&parts).filter(|(_, &p)| !p).map(|(&i, _)| i).collect();
         let boxes: Vec<[f64; 4]> = own.iter().map(|&i| candidates[i].bbox).collect();
         let scores: Vec<f32> = own.iter().map(|&i| candidates[i].rank).collect();
@@ -271,11 +277,14 @@ pub fn detect(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &Detec
             let t = &targets[c.target];
             let pose = coarse_pose(t.shape, t.mesh, k, c);
             let ev = evidence(renderer, t.mesh, &pose, k, image, c.bbox).map_err(|e| DetectError::Render { object: t.id.to_string(), message: e.to_string() })?;
-            Ok((i, pose, ev, combined_score(c.score, &ev)))
+            Ok((i, pose, ev, combined_score(&ev)))
         })
         .collect::<Result<_, DetectError>>()?;
     let verify_ms = t2.elapsed().as_secs_f64() * 1e3;
-    let passed: Vec<&(usize, Pose, Evidence, f32)> = verified.iter().filter(|v| v.3 >= opts.min_score).collect();
+    // Parts again, now by the verified score: the render of a smaller view can agree with
+    // the print a little better than the whole object's render does.
+    let parts = parts_of_larger(&verified.iter().map(|v| candidates[v.0].bbox).collect::<Vec<_>>(), &verified.iter().map(|v| v.3).collect::<Vec<_>>(), &verified.iter().map(|v| candidates[v.0].target).collect::<Vec<_>>(), PART_SCORE_RATIO);
+    let passed: Vec<&(usize, Pose, Evidence, f32)> = verified.iter().zip(&parts).filter(|(v, &part)| !part && v.3 >= opts.min_score).map(|(v, _)| v).collect();
     let order = suppress(&passed.iter().map(|v| candidates[v.0].bbox).collect::<Vec<_>>(), &passed.iter().map(|v| v.3).collect::<Vec<_>>(), NMS_IOU);
     let t3 = Instant::now();
     let detections: Vec<Detection> = order
@@ -321,13 +330,16 @@ fn coarse_pose(shape: &ShapeModel, mesh: &Mesh, k: &Intrinsics, c: &Candidate) -
     Pose::new(rotation, ray * dist - rotation * centre)
 }
 
-/// The detection's score: the template match and the render's evidence, equally weighted
-/// (docs/detection.md: chosen on generated scenes and images without the objects).
-pub fn combined_score(shape: f32, ev: &Evidence) -> f32 {
-    match ev.colour {
-        Some(c) => (shape + ev.outline + c.max(0.0)) / 3.0,
-        None => (shape + ev.outline) / 2.0,
-    }
+/// The detection's score, from what the render at the candidate's pose says (the template
+/// score chose the candidates and says nothing more about them: docs/detection.md): the
+/// outline's agreement, times the colour overlap for meshes with colours, times the
+/// interior edges' agreement, softened by half since occluders and the render-to-real gap
+/// take some print away from true objects too. A product, so one absent part of the
+/// evidence (the outline there, but not the colours) is enough to rank a candidate low.
+pub fn combined_score(ev: &Evidence) -> f32 {
+    // No interior edges in the render: neither for nor against (half way).
+    let texture = 0.5 + 0.5 * ev.texture.unwrap_or(0.5);
+    ev.outline * ev.colour.map_or(1.0, |c| c.max(0.0)) * texture
 }
 
 #[allow(clippy::too_many_arguments)]

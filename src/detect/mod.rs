@@ -6,6 +6,7 @@
 //! suppressed across objects and instances (`nms`); each detection gets the coarse pose of
 //! its template and a mask (`detector`). The estimator takes the masks like any caller's.
 
+pub mod align;
 pub mod colour_prior;
 pub mod detector;
 pub mod gradients;

@@ -26,6 +26,17 @@ pub fn inside_share(a: &[f64; 4], b: &[f64; 4]) -> f64 {
     ix * iy / area(a)
 }
 
+/// For each box, whether it is a part of a larger one in the same group: mostly (≥ 80 %)
+/// inside a box of at least 1.5× its area whose score reaches `ratio` × its own. A textured
+/// object's print answers smaller views of it, and one instance cannot sit inside the box
+/// of another instance of the same object (it would be hidden behind it), so such a match
+/// gives way to the whole object around it.
+pub fn parts_of_larger(boxes: &[[f64; 4]], scores: &[f32], groups: &[usize], ratio: f32) -> Vec<bool> {
+    (0..boxes.len())
+        .map(|i| (0..boxes.len()).any(|j| j != i && groups[j] == groups[i] && scores[j] >= ratio * scores[i] && area(&boxes[j]) > 1.5 * area(&boxes[i]) && inside_share(&boxes[i], &boxes[j]) >= 0.8))
+        .collect()
+}
+
 /// Indices of the kept boxes, best score first.
 pub fn suppress(boxes: &[[f64; 4]], scores: &[f32], max_iou: f64) -> Vec<usize> {
     let mut order: Vec<usize> = (0..boxes.len()).collect();
@@ -63,5 +74,18 @@ mod tests {
         let boxes = [[0.0, 0.0, 10.0, 10.0], [1.0, 1.0, 10.0, 10.0], [50.0, 50.0, 10.0, 10.0], [2.0, 0.0, 10.0, 10.0]];
         let scores = [0.7, 0.9, 0.5, 0.8];
         assert_eq!(suppress(&boxes, &scores, 0.5), vec![1, 2]);
+    }
+
+    #[test]
+    fn a_part_gives_way_to_the_whole_of_the_same_object_only() {
+        let whole = [0.0, 0.0, 40.0, 40.0];
+        let part = [5.0, 5.0, 15.0, 15.0];
+        let boxes = [whole, part];
+        // The part scores a little better than the whole: still a part.
+        assert_eq!(parts_of_larger(&boxes, &[0.5, 0.55], &[0, 0], 0.8), vec![false, true]);
+        // Much better than the whole: kept (the whole may be the mistake).
+        assert_eq!(parts_of_larger(&boxes, &[0.3, 0.55], &[0, 0], 0.8), vec![false, false]);
+        // Another object in front of a larger one is not a part of it.
+        assert_eq!(parts_of_larger(&boxes, &[0.5, 0.55], &[0, 1], 0.8), vec![false, false]);
     }
 }

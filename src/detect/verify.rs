@@ -3,9 +3,11 @@
 //! clutter whose edges happen to trace an outline (a painted ellipse looks like a can from
 //! above); the render tells whether the whole outline is there at the candidate's exact
 //! perspective, and, for meshes with colours, whether the surface has the object's colours.
-//! Neither measure depends on brightness, so both survive lighting changes.
+//! The render's edges are first lined up with the photo's (`align`: the coarse pose is some
+//! degrees off), then the outline's and the interior edges' agreement are measured there.
+//! No measure depends on brightness, so all survive lighting changes.
 
-use super::gradients::{bin_of, colour_gradients, mask_gradients, quantised_bits, spread, BINS};
+use super::align::{best_placement, interior_edgels, outline_edgels, PhotoEdges};
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Mesh;
 use crate::render::{RenderError, RenderOptions, RenderPool};
@@ -24,7 +26,17 @@ pub struct Evidence {
     /// silhouette, 0–1; `None` for a mesh without colours (its grey render says nothing
     /// about the surface).
     pub colour: Option<f32>,
+    /// Share of the render's interior edges (print, creases) that the photo answers at the
+    /// outline's best placement, above chance; `None` when the render has too few.
+    pub texture: Option<f32>,
 }
+
+/// Edge thresholds (gradient magnitude): the photo's, low since edges at this size are
+/// softened by resampling; the render's interior, higher, so that only clear print counts.
+const PHOTO_EDGE: f32 = 20.0;
+const RENDER_EDGE: f32 = 40.0;
+/// Fewer interior edgels than this say nothing about the surface.
+const MIN_INTERIOR_EDGELS: usize = 12;
 
 /// Renders `mesh` at `pose` into the window `bbox` (x, y, w, h; grown by a fifth on each
 /// side) at about `WINDOW_PX` across, and compares it with `image` there.
@@ -45,37 +57,12 @@ pub fn evidence(renderer: &RenderPool, mesh: &Mesh, pose: &Pose, k: &Intrinsics,
     let render = renderer.render(mesh, pose, &kw, &RenderOptions::default())?;
     let crop = imageops::crop_imm(image, x0 as u32, y0 as u32, (x1 - x0) as u32, (y1 - y0) as u32).to_image();
     let photo = imageops::resize(&crop, w, h, imageops::FilterType::Triangle);
-    let outline = outline_agreement(&render.mask, &photo);
+    let edges = PhotoEdges::new(&photo, PHOTO_EDGE);
+    let (placement, outline) = best_placement(&edges, &outline_edgels(&render.mask));
+    let inner = interior_edgels(&render.rgb, &render.mask, RENDER_EDGE);
+    let texture = (inner.len() >= MIN_INTERIOR_EDGELS).then(|| edges.agreement(&inner, &placement));
     let colour = mesh.has_colours().then(|| chroma_overlap(&render.rgb, &render.mask, &photo));
-    Ok(Evidence { outline, colour })
-}
-
-/// Share of the silhouette's contour pixels where the photo has an edge of the contour's
-/// orientation (±1 bin) within one pixel.
-fn outline_agreement(mask: &GrayImage, photo: &RgbImage) -> f32 {
-    let (w, h) = (mask.width() as usize, mask.height() as usize);
-    let outline = mask_gradients(mask);
-    let peak = outline.magnitude.iter().copied().fold(0.0f32, f32::max);
-    if peak == 0.0 {
-        return 0.0;
-    }
-    let g = colour_gradients(photo);
-    // A lower threshold than the search's: at this size edges are softened by resampling.
-    let bits = spread(&quantised_bits(&g, 20.0), w, h, 3);
-    let (mut n, mut hit) = (0u32, 0u32);
-    for y in 0..h {
-        for x in 0..w {
-            let i = y * w + x;
-            if mask.as_raw()[i] == 0 || outline.magnitude[i] < 0.25 * peak {
-                continue;
-            }
-            n += 1;
-            let b = bin_of(outline.angle[i]) as usize;
-            let wanted = (1u8 << b) | (1u8 << ((b + 1) % BINS)) | (1u8 << ((b + BINS - 1) % BINS));
-            hit += (bits[i] & wanted != 0) as u32;
-        }
-    }
-    if n == 0 { 0.0 } else { hit as f32 / n as f32 }
+    Ok(Evidence { outline, colour, texture })
 }
 
 /// Chromaticity bins per axis (r/(r+g+b), g/(r+g+b)), plus one bin for dark pixels.
@@ -132,9 +119,10 @@ mod tests {
     fn an_outline_present_in_the_photo_agrees_and_an_absent_one_does_not() {
         let m = disc(48, 14.0);
         let photo = RgbImage::from_fn(48, 48, |x, y| if m.get_pixel(x, y)[0] > 0 { image::Rgb([200, 180, 40]) } else { image::Rgb([30, 60, 90]) });
-        assert!(outline_agreement(&m, &photo) > 0.9);
+        let agreement = |photo: &RgbImage| best_placement(&PhotoEdges::new(photo, PHOTO_EDGE), &outline_edgels(&m)).1;
+        assert!(agreement(&photo) > 0.9);
         let flat = RgbImage::from_pixel(48, 48, image::Rgb([90, 90, 90]));
-        assert_eq!(outline_agreement(&m, &flat), 0.0);
+        assert_eq!(agreement(&flat), 0.0);
     }
 
     #[test]

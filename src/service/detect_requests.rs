@@ -47,10 +47,13 @@ pub fn check_image_size(k: &IntrinsicsInput) -> Result<(), ServiceError> {
 pub struct ScoreTerms {
     /// Template match, share of the best possible response, 0–1.
     pub shape: f32,
-    /// Share of the rendered outline with an image edge of its orientation, 0–1.
+    /// Share of the rendered outline with an image edge of its orientation, above chance, 0–1.
     pub outline: f32,
     /// Chromaticity overlap of render and image, 0–1; absent for meshes without colours.
     pub colour: Option<f32>,
+    /// Share of the render's interior edges (print, creases) the image answers, above
+    /// chance, 0–1; absent where the render shows too few.
+    pub texture: Option<f32>,
 }
 
 /// One found object instance.
@@ -82,7 +85,7 @@ impl From<&Detection> for DetectionOutput {
             mask_rle: RleInput { counts: rle.counts, size: rle.size },
             mask_source: d.mask_source,
             coarse_pose: PoseOutput::from(&d.pose),
-            terms: ScoreTerms { shape: d.shape_score, outline: d.evidence.outline, colour: d.evidence.colour },
+            terms: ScoreTerms { shape: d.shape_score, outline: d.evidence.outline, colour: d.evidence.colour, texture: d.evidence.texture },
         }
     }
 }

@@ -104,6 +104,7 @@ pub fn detected_object(d: DetectionOutput) -> pb::DetectedObject {
         shape_score: d.terms.shape,
         outline_score: d.terms.outline,
         colour_score: d.terms.colour,
+        texture_score: d.terms.texture,
     }
 }
 

@@ -156,9 +156,11 @@ class DetectedObject(Detection):
     segmented inside the box, where it agreed with the render)."""
     shape_score: float = 0.0
     """The score's terms in [0, 1]: template match, outline agreement, colour agreement
-    (None for meshes without colours)."""
+    (None for meshes without colours), interior-edge agreement (None where the render
+    shows too few interior edges)."""
     outline_score: float = 0.0
     colour_score: Optional[float] = None
+    texture_score: Optional[float] = None
 
     def mask_array(self) -> "npt.NDArray[np.bool_]":
         """The mask as a HxW bool array."""
@@ -177,6 +179,7 @@ class DetectedObject(Detection):
             shape_score=m.shape_score,
             outline_score=m.outline_score,
             colour_score=m.colour_score if m.HasField("colour_score") else None,
+            texture_score=m.texture_score if m.HasField("texture_score") else None,
         )
 
 
