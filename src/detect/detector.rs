@@ -69,6 +69,10 @@ const MIN_SHAPE_SCORE: f32 = 0.4;
 const RANKED_PER_OBJECT: usize = 300;
 /// Candidates per object rendered and compared with the image (about 3–5 ms each).
 const VERIFIED_PER_OBJECT: usize = 12;
+/// Verified candidates per object that get a second look from turned viewpoints, and the
+/// turn (about half the templates' view spacing).
+const VIEW_REFINED_PER_OBJECT: usize = 4;
+const VIEW_STEP_DEG: f64 = 12.0;
 /// A match inside a larger one of the same object whose rank (before verification) or
 /// score (after) reaches this share of its own gives way to it (`nms::parts_of_larger`).
 const PART_RANK_RATIO: f32 = 0.9;
@@ -280,6 +284,33 @@ pub fn detect(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &Detec
             Ok((i, pose, ev, combined_score(&ev)))
         })
         .collect::<Result<_, DetectError>>()?;
+    // The best few of each object get a second look from viewpoints turned a little: the
+    // templates' views are ~30° apart, and a render from the right view lines up with
+    // the print as well as with the outline.
+    let mut verified = verified;
+    let mut best_of_object: Vec<usize> = (0..verified.len()).collect();
+    best_of_object.sort_by(|&a, &b| verified[b].3.total_cmp(&verified[a].3));
+    let mut per_object = vec![0usize; targets.len()];
+    let second: Vec<usize> = best_of_object.into_iter().filter(|&j| {
+        let t = candidates[verified[j].0].target;
+        per_object[t] += 1;
+        per_object[t] <= VIEW_REFINED_PER_OBJECT
+    }).collect();
+    let better: Vec<(usize, Pose, Evidence, f32)> = second
+        .par_iter()
+        .map(|&j| {
+            let (i, pose, ev, score) = verified[j];
+            let c = &candidates[i];
+            let t = &targets[c.target];
+            let best = view_refined(renderer, t.mesh, k, image, c.bbox, (pose, ev, score)).map_err(|e| DetectError::Render { object: t.id.to_string(), message: e.to_string() })?;
+            Ok((j, best.0, best.1, best.2))
+        })
+        .collect::<Result<_, DetectError>>()?;
+    for (j, pose, ev, score) in better {
+        verified[j].1 = pose;
+        verified[j].2 = ev;
+        verified[j].3 = score;
+    }
     let verify_ms = t2.elapsed().as_secs_f64() * 1e3;
     // Parts again, now by the verified score: the render of a smaller view can agree with
     // the print a little better than the whole object's render does.
@@ -328,6 +359,31 @@ fn coarse_pose(shape: &ShapeModel, mesh: &Mesh, k: &Intrinsics, c: &Candidate) -
     let rotation = align * shape.config.rotation(c.template);
     let centre = Vector3::from(mesh.bbox_center());
     Pose::new(rotation, ray * dist - rotation * centre)
+}
+
+/// A candidate's pose, evidence and score after one sweep of turns of its viewpoint (about
+/// the camera's x and y axes through the object's centre), each turn kept when it scores
+/// better.
+fn view_refined(renderer: &RenderPool, mesh: &Mesh, k: &Intrinsics, image: &RgbImage, bbox: [f64; 4], start: (Pose, Evidence, f32)) -> Result<(Pose, Evidence, f32), crate::render::RenderError> {
+    let mut best = start;
+    for (ax, ay) in [(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)] {
+        let turned = turned_about_centre(&best.0, mesh, &Vector3::new(ax, ay, 0.0), VIEW_STEP_DEG.to_radians());
+        let ev = evidence(renderer, mesh, &turned, k, image, bbox)?;
+        let s = combined_score(&ev);
+        if s > best.2 {
+            best = (turned, ev, s);
+        }
+    }
+    Ok(best)
+}
+
+/// `pose` turned by `angle` about `axis` (camera frame) through the object's centre.
+fn turned_about_centre(pose: &Pose, mesh: &Mesh, axis: &Vector3<f64>, angle: f64) -> Pose {
+    let centre = Vector3::from(mesh.bbox_center());
+    let in_camera = pose.rotation * centre + pose.translation;
+    let turn = Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(*axis), angle);
+    let rotation = turn * pose.rotation;
+    Pose::new(rotation, in_camera - rotation * centre)
 }
 
 /// The detection's score, from what the render at the candidate's pose says (the template
