@@ -86,7 +86,7 @@ fn detect_and_estimate_by_object_id_over_http_and_grpc() {
         assert!(d["terms"]["shape"].as_f64().is_some() && d["score"].as_f64().is_some(), "{d}");
         // The score is its terms combined (docs/detection.md): they all came through.
         let term = |name: &str, absent: f64| d["terms"][name].as_f64().unwrap_or(absent);
-        let combined = term("outline", f64::NAN) * term("colour", 1.0) * (0.5 + 0.5 * term("texture", 0.5));
+        let combined = term("outline", f64::NAN) * term("colour", 0.5) * (0.5 + 0.5 * term("texture", 0.5));
         assert!((d["score"].as_f64().unwrap() - combined).abs() < 1e-4, "{d}");
     }
     let truth = truth_box(&sc.render.mask);

@@ -38,7 +38,7 @@ def test_detect_finds_the_object_with_its_mask_and_coarse_pose(client: b2tfpose.
         assert d.mask_array().shape == (240, 320) and d.mask_array().any()
         assert d.coarse_pose is not None and d.mask_source in ("silhouette", "graph_cut")
         # The score is its terms combined (docs/detection.md): they all came through.
-        c = 1.0 if d.colour_score is None else d.colour_score
+        c = 0.5 if d.colour_score is None else d.colour_score
         t = 0.5 if d.texture_score is None else d.texture_score
         assert abs(d.score - d.outline_score * c * (0.5 + 0.5 * t)) < 1e-4
     assert max(box_iou(d.box, truth_box(scene)) for d in found if d.box is not None) >= 0.5
