@@ -153,7 +153,8 @@ pub fn best_placement(photo: &PhotoEdges, outline: &[Edgel]) -> (Placement, f32)
     let n = outline.len() as f32;
     let (cx, cy) = (outline.iter().map(|e| e.x).sum::<f32>() / n, outline.iter().map(|e| e.y).sum::<f32>() / n);
     let extent = outline.iter().map(|e| (e.x - cx).abs().max((e.y - cy).abs())).fold(0.0f32, f32::max);
-    let r = (SHIFT_SHARE * 2.0 * extent / 2.0).round().max(1.0) as i32 * 2;
+    // `extent` is half the outline's size; the coarse grid steps by 2 px.
+    let r = 2 * (SHIFT_SHARE * extent).round().max(1.0) as i32;
     let sparse: Vec<Edgel> = outline.iter().step_by(2).copied().collect();
     let start = Placement::identity(cx, cy);
     let mut coarse = (start, photo.agreement(&sparse, &start));

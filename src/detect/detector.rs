@@ -9,7 +9,7 @@ use super::nms::{parts_of_larger, suppress};
 use super::responses::ResponseMaps;
 use super::scales::{distance_for_scale, rung_scale, rungs_between, scale_for_distance};
 use super::search::search;
-use super::verify::{evidence, Evidence};
+use super::verify::{Evidence, Window};
 use super::templates::ShapeModel;
 use crate::geometry::{Intrinsics, Pose};
 use crate::masks::{mask_iou, segment_box, Method, PixelBox, SegmentConfig};
@@ -274,43 +274,37 @@ pub fn detect(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &Detec
 
     // The best candidates get a render at their pose; the render's evidence joins the score.
     let t2 = Instant::now();
-    let verified: Vec<(usize, Pose, Evidence, f32)> = kept
+    let mut verified: Vec<(usize, Pose, Evidence, f32)> = kept
         .par_iter()
         .map(|&i| {
             let c = &candidates[i];
             let t = &targets[c.target];
             let pose = coarse_pose(t.shape, t.mesh, k, c);
-            let ev = evidence(renderer, t.mesh, &pose, k, image, c.bbox).map_err(|e| DetectError::Render { object: t.id.to_string(), message: e.to_string() })?;
+            let ev = match Window::new(image, k, c.bbox) {
+                Some(w) => w.evidence(renderer, t.mesh, &pose).map_err(|e| render_error(t, e))?,
+                None => Evidence::default(),
+            };
             Ok((i, pose, ev, combined_score(&ev)))
         })
         .collect::<Result<_, DetectError>>()?;
     // The best few of each object get a second look from viewpoints turned a little: the
     // templates' views are ~30° apart, and a render from the right view lines up with
     // the print as well as with the outline.
-    let mut verified = verified;
-    let mut best_of_object: Vec<usize> = (0..verified.len()).collect();
-    best_of_object.sort_by(|&a, &b| verified[b].3.total_cmp(&verified[a].3));
-    let mut per_object = vec![0usize; targets.len()];
-    let second: Vec<usize> = best_of_object.into_iter().filter(|&j| {
-        let t = candidates[verified[j].0].target;
-        per_object[t] += 1;
-        per_object[t] <= VIEW_REFINED_PER_OBJECT
+    verified.sort_by(|a, b| b.3.total_cmp(&a.3));
+    let mut looked_at = vec![0usize; targets.len()];
+    let second: Vec<bool> = verified.iter().map(|v| {
+        let seen = &mut looked_at[candidates[v.0].target];
+        *seen += 1;
+        *seen <= VIEW_REFINED_PER_OBJECT
     }).collect();
-    let better: Vec<(usize, Pose, Evidence, f32)> = second
-        .par_iter()
-        .map(|&j| {
-            let (i, pose, ev, score) = verified[j];
-            let c = &candidates[i];
-            let t = &targets[c.target];
-            let best = view_refined(renderer, t.mesh, k, image, c.bbox, (pose, ev, score)).map_err(|e| DetectError::Render { object: t.id.to_string(), message: e.to_string() })?;
-            Ok((j, best.0, best.1, best.2))
-        })
-        .collect::<Result<_, DetectError>>()?;
-    for (j, pose, ev, score) in better {
-        verified[j].1 = pose;
-        verified[j].2 = ev;
-        verified[j].3 = score;
-    }
+    verified.par_iter_mut().zip(second).filter(|(_, second)| *second).try_for_each(|(v, _)| {
+        let c = &candidates[v.0];
+        let t = &targets[c.target];
+        if let Some(w) = Window::new(image, k, c.bbox) {
+            (v.1, v.2, v.3) = view_refined(&w, renderer, t.mesh, (v.1, v.2, v.3)).map_err(|e| render_error(t, e))?;
+        }
+        Ok::<(), DetectError>(())
+    })?;
     let verify_ms = t2.elapsed().as_secs_f64() * 1e3;
     // Parts again, now by the verified score: the render of a smaller view can agree with
     // the print a little better than the whole object's render does.
@@ -364,17 +358,21 @@ fn coarse_pose(shape: &ShapeModel, mesh: &Mesh, k: &Intrinsics, c: &Candidate) -
 /// A candidate's pose, evidence and score after one sweep of turns of its viewpoint (about
 /// the camera's x and y axes through the object's centre), each turn kept when it scores
 /// better.
-fn view_refined(renderer: &RenderPool, mesh: &Mesh, k: &Intrinsics, image: &RgbImage, bbox: [f64; 4], start: (Pose, Evidence, f32)) -> Result<(Pose, Evidence, f32), crate::render::RenderError> {
+fn view_refined(window: &Window, renderer: &RenderPool, mesh: &Mesh, start: (Pose, Evidence, f32)) -> Result<(Pose, Evidence, f32), crate::render::RenderError> {
     let mut best = start;
     for (ax, ay) in [(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)] {
         let turned = turned_about_centre(&best.0, mesh, &Vector3::new(ax, ay, 0.0), VIEW_STEP_DEG.to_radians());
-        let ev = evidence(renderer, mesh, &turned, k, image, bbox)?;
+        let ev = window.evidence(renderer, mesh, &turned)?;
         let s = combined_score(&ev);
         if s > best.2 {
             best = (turned, ev, s);
         }
     }
     Ok(best)
+}
+
+fn render_error(t: &Target, e: crate::render::RenderError) -> DetectError {
+    DetectError::Render { object: t.id.to_string(), message: e.to_string() }
 }
 
 /// `pose` turned by `angle` about `axis` (camera frame) through the object's centre.
@@ -402,7 +400,7 @@ pub fn combined_score(ev: &Evidence) -> f32 {
 
 #[allow(clippy::too_many_arguments)]
 fn finish(image: &RgbImage, k: &Intrinsics, t: &Target, pose: Pose, c: &Candidate, evidence: Evidence, score: f32, refine: bool, renderer: &RenderPool) -> Result<Detection, DetectError> {
-    let render = renderer.render(t.mesh, &pose, k, &RenderOptions::grey()).map_err(|e| DetectError::Render { object: t.id.to_string(), message: e.to_string() })?;
+    let render = renderer.render(t.mesh, &pose, k, &RenderOptions::grey()).map_err(|e| render_error(t, e))?;
     let mut mask = render.mask;
     let mut source = MaskSource::Silhouette;
     if let Some(b) = bbox_of(&mask) {

@@ -38,31 +38,46 @@ const RENDER_EDGE: f32 = 40.0;
 /// Fewer interior edgels than this say nothing about the surface.
 const MIN_INTERIOR_EDGELS: usize = 12;
 
-/// Renders `mesh` at `pose` into the window `bbox` (x, y, w, h; grown by a fifth on each
-/// side) at about `WINDOW_PX` across, and compares it with `image` there.
-pub fn evidence(renderer: &RenderPool, mesh: &Mesh, pose: &Pose, k: &Intrinsics, image: &RgbImage, bbox: [f64; 4]) -> Result<Evidence, RenderError> {
-    let grow = 0.2 * bbox[2].max(bbox[3]);
-    let x0 = (bbox[0] - grow).floor().max(0.0);
-    let y0 = (bbox[1] - grow).floor().max(0.0);
-    let x1 = (bbox[0] + bbox[2] + grow).ceil().min(image.width() as f64);
-    let y1 = (bbox[1] + bbox[3] + grow).ceil().min(image.height() as f64);
-    if x1 - x0 < 4.0 || y1 - y0 < 4.0 {
-        return Ok(Evidence::default());
+/// The photo around one candidate, prepared once for every render compared with it: the
+/// window `bbox` (x, y, w, h) grown by a fifth on each side, resampled to about
+/// `WINDOW_PX` across, its edges, and the intrinsics that render into it.
+pub struct Window {
+    intrinsics: Intrinsics,
+    photo: RgbImage,
+    edges: PhotoEdges,
+}
+
+impl Window {
+    /// `None` when the window is under 4 pixels across (nothing to compare).
+    pub fn new(image: &RgbImage, k: &Intrinsics, bbox: [f64; 4]) -> Option<Self> {
+        let grow = 0.2 * bbox[2].max(bbox[3]);
+        let x0 = (bbox[0] - grow).floor().max(0.0);
+        let y0 = (bbox[1] - grow).floor().max(0.0);
+        let x1 = (bbox[0] + bbox[2] + grow).ceil().min(image.width() as f64);
+        let y1 = (bbox[1] + bbox[3] + grow).ceil().min(image.height() as f64);
+        if x1 - x0 < 4.0 || y1 - y0 < 4.0 {
+            return None;
+        }
+        let s = (WINDOW_PX / (x1 - x0).max(y1 - y0)).min(1.0);
+        let (w, h) = (((x1 - x0) * s).round().max(4.0) as u32, ((y1 - y0) * s).round().max(4.0) as u32);
+        let (sx, sy) = (w as f64 / (x1 - x0), h as f64 / (y1 - y0));
+        // Pixel centres at integers on both sides: window pixel i sits at x0 + (i + ½)/s − ½.
+        let intrinsics = Intrinsics { fx: k.fx * sx, fy: k.fy * sy, cx: (k.cx - x0 + 0.5) * sx - 0.5, cy: (k.cy - y0 + 0.5) * sy - 0.5, width: w, height: h };
+        let crop = imageops::crop_imm(image, x0 as u32, y0 as u32, (x1 - x0) as u32, (y1 - y0) as u32).to_image();
+        let photo = imageops::resize(&crop, w, h, imageops::FilterType::Triangle);
+        let edges = PhotoEdges::new(&photo, PHOTO_EDGE);
+        Some(Self { intrinsics, photo, edges })
     }
-    let s = (WINDOW_PX / (x1 - x0).max(y1 - y0)).min(1.0);
-    let (w, h) = (((x1 - x0) * s).round().max(4.0) as u32, ((y1 - y0) * s).round().max(4.0) as u32);
-    let (sx, sy) = (w as f64 / (x1 - x0), h as f64 / (y1 - y0));
-    // Pixel centres at integers on both sides: window pixel i sits at x0 + (i + ½)/s − ½.
-    let kw = Intrinsics { fx: k.fx * sx, fy: k.fy * sy, cx: (k.cx - x0 + 0.5) * sx - 0.5, cy: (k.cy - y0 + 0.5) * sy - 0.5, width: w, height: h };
-    let render = renderer.render(mesh, pose, &kw, &RenderOptions::default())?;
-    let crop = imageops::crop_imm(image, x0 as u32, y0 as u32, (x1 - x0) as u32, (y1 - y0) as u32).to_image();
-    let photo = imageops::resize(&crop, w, h, imageops::FilterType::Triangle);
-    let edges = PhotoEdges::new(&photo, PHOTO_EDGE);
-    let (placement, outline) = best_placement(&edges, &outline_edgels(&render.mask));
-    let inner = interior_edgels(&render.rgb, &render.mask, RENDER_EDGE);
-    let texture = (inner.len() >= MIN_INTERIOR_EDGELS).then(|| edges.agreement(&inner, &placement));
-    let colour = mesh.has_colours().then(|| chroma_overlap(&render.rgb, &render.mask, &photo));
-    Ok(Evidence { outline, colour, texture })
+
+    /// Renders `mesh` at `pose` into the window and compares it with the photo there.
+    pub fn evidence(&self, renderer: &RenderPool, mesh: &Mesh, pose: &Pose) -> Result<Evidence, RenderError> {
+        let render = renderer.render(mesh, pose, &self.intrinsics, &RenderOptions::default())?;
+        let (placement, outline) = best_placement(&self.edges, &outline_edgels(&render.mask));
+        let inner = interior_edgels(&render.rgb, &render.mask, RENDER_EDGE);
+        let texture = (inner.len() >= MIN_INTERIOR_EDGELS).then(|| self.edges.agreement(&inner, &placement));
+        let colour = mesh.has_colours().then(|| chroma_overlap(&render.rgb, &render.mask, &self.photo));
+        Ok(Evidence { outline, colour, texture })
+    }
 }
 
 /// Chromaticity bins per axis (r/(r+g+b), g/(r+g+b)), plus one bin for dark pixels.
