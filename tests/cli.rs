@@ -131,7 +131,18 @@ fn estimate_writes_the_result_json_and_overlay() {
         let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--box", bad, "--out", s(&result)]);
         assert!(!ok && err.contains(needle), "{bad}: {err}");
     }
-    let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--out", s(&result)]);
+    // Neither mask nor box: the detector's candidates are estimated and the one confirmed
+    // at its estimated pose is answered; on an image without the object, a refusal that
+    // names what to give instead.
+    let (ok, out, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--no-rrc", "--out", s(&result)]);
+    assert!(ok && out.contains("confirmed at its pose"), "{out}{err}");
+    let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&result).unwrap()).unwrap();
+    let confirmed = doc["poses"][0]["confirmation_score"].as_f64().unwrap();
+    let t: Vec<f64> = doc["poses"][0]["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert!(confirmed >= b2tfpose::detect::DetectOptions::default().min_score as f64 && (t[2] - 0.6).abs() < 0.06, "{doc}");
+    let blank = d.join("blank.png");
+    image::RgbImage::from_pixel(320, 240, image::Rgb([90, 90, 90])).save(&blank).unwrap();
+    let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&blank), "--camera", s(&cam), "--out", s(&result)]);
     assert!(!ok && err.contains("--mask"), "{err}");
     let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--mask", s(&mask), "--score", "1", "--score", "2", "--out", s(&result)]);
     assert!(!ok && err.contains("--score values"), "{err}");

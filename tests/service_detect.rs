@@ -99,6 +99,7 @@ fn detect_and_estimate_by_object_id_over_http_and_grpc() {
     let (s, est) = post(&c, &format!("{base}/v1/estimate"), &json!({"image": photo, "intrinsics": intrinsics, "detections": [dets[0]], "options": {"rrc": false}}));
     assert_eq!(s, 200, "{est}");
     assert_eq!(est["results"][0]["detection_index"], 0);
+    assert!(est["results"][0]["confirmation_score"].is_null(), "{est}");
 
     // Estimate by object id alone: detect, then estimate; the response lists the detections.
     let by_id = json!({"image": photo, "intrinsics": intrinsics, "objects": ["box"], "detect": every, "options": {"rrc": false}});
@@ -108,6 +109,15 @@ fn detect_and_estimate_by_object_id_over_http_and_grpc() {
     let result = &est["results"][0];
     assert!(!found.is_empty() && result["pose"]["t"].as_array().is_some(), "{est}");
     assert!((result["detection_index"].as_u64().unwrap() as usize) < found.len(), "{est}");
+    // Confirmed at its estimated pose (detect::confirm), one instance as asked by default.
+    assert!(result["confirmation_score"].as_f64().is_some_and(|c| (0.0..=1.0).contains(&c)), "{est}");
+    assert_eq!(est["results"].as_array().unwrap().len(), 1, "{est}");
+    // A threshold nothing reaches: no result, and a reason.
+    let mut strict = by_id.clone();
+    strict["detect"] = json!({"min_score": 0.99, "max_detections": 3});
+    let (s, r) = post(&c, &format!("{base}/v1/estimate"), &strict);
+    assert_eq!(s, 200, "{r}");
+    assert!(r["results"].as_array().unwrap().is_empty() && r["reason"].as_str().is_some_and(|m| !m.is_empty()), "{r}");
 
     // An image without the object: no detection is an answer with a reason, for both calls.
     let blank = json!({"encoded": b64(&png(&image::RgbImage::from_pixel(k.width, k.height, image::Rgb([90, 90, 90]))))});
@@ -193,5 +203,6 @@ fn detect_and_estimate_by_object_id_over_http_and_grpc() {
         let est = pb::EstimateRequest { image, intrinsics, objects: vec!["box".into()], detect: req.options, options: Some(pb::EstimateOptions { rrc: Some(false), ..Default::default() }), ..Default::default() };
         let r = g.estimate(est).await.expect("Estimate by object id").into_inner();
         assert!(!r.detections.is_empty() && r.results[0].pose.is_some() && r.results[0].detection_index >= 0, "{r:?}");
+        assert!(r.results[0].confirmation_score.is_some_and(|c| (0.0..=1.0).contains(&c)), "{r:?}");
     });
 }

@@ -6,6 +6,9 @@
 //! grouped into instances by mask overlap (`masks::instances`); box-only detections are
 //! segmented inside their box (`masks::segment`); the `inst_count` best groups are
 //! estimated, each group's masks being the candidates of the paper's multi-mask selection.
+//! Without a detections file the detector finds the candidates, and a few more than
+//! `inst_count` are estimated; those confirmed at their estimated pose
+//! (`detect::confirm`) are kept, best first, their confirmation being the row's score.
 //! `time` is the wall time of the whole image (decoding included), on every row of it.
 //! Results are appended image by image, and images already in the CSV are skipped, so an
 //! interrupted run resumes where it stopped.
@@ -14,7 +17,10 @@ use super::dataset::{load_rgb, load_scene_cameras, load_targets, ImageCamera};
 use super::detections::{DetectionIndex, DetectionRecord};
 use super::format::{scene_dir, TargetRecord};
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
+use crate::detect::confirm::{candidate_min_score, chosen, confirm, EXTRA_CANDIDATES};
+use crate::detect::detector::bbox_of;
 use crate::detect::{detect, DetectOptions, Target};
+use crate::geometry::Pose;
 use crate::estimate::{Detection, EstimateConfig, EstimateError, Estimator};
 use crate::masks::{group_instances, BoxMask};
 use crate::onboard::ObjectModel;
@@ -56,7 +62,8 @@ pub struct RunSummary {
     pub targets_without_detection: usize,
     /// Detections that could not be used (bad size, empty mask), each counted.
     pub unusable_detections: usize,
-    /// Instances for which the estimator returned no pose.
+    /// Instances asked for (`inst_count`) without a pose written: fewer candidates than
+    /// instances, no pose from the estimator, or (own detections) none confirmed.
     pub instances_without_pose: usize,
     /// Estimator complaints about the input, by message, e.g. a detection the estimator refused.
     pub failures: BTreeMap<String, usize>,
@@ -139,23 +146,45 @@ pub fn run(
             }
             let m = model(t.obj_id)?;
             let refs: Vec<_> = masks.iter().map(|(m, s)| (m, *s)).collect();
-            for group in group_instances(&refs, opts.same_instance_iou).into_iter().take(t.inst_count as usize) {
+            // The detector's own candidates are confirmed at their estimated poses, a few
+            // more than wanted estimated so that confirmation can choose.
+            let confirming = match &source {
+                DetectionSource::Detector { pool, options, .. } => Some((*pool, options.min_score)),
+                DetectionSource::File(_) => None,
+            };
+            let wanted = t.inst_count as usize;
+            let tried = wanted + if confirming.is_some() { EXTRA_CANDIDATES } else { 0 };
+            let mut estimated: Vec<(Pose, f32)> = Vec::new();
+            for group in group_instances(&refs, opts.same_instance_iou).into_iter().take(tried) {
                 let candidates: Vec<Detection> = group.iter().map(|&i| Detection { mask: masks[i].0.clone(), score: masks[i].1 as f32 }).collect();
                 let group = &group;
                 let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, (m, _))| m));
                 let others = crate::masks::union(others, camera.cam.width, camera.cam.height);
                 match estimator.estimate_among(&m, &rgb, &camera.cam, &candidates, others.as_ref(), &opts.estimate) {
-                    Ok(r) => match r.pose {
-                        Some(pose) => rows.push(ResultRow { scene_id, im_id, obj_id: t.obj_id, score: r.score as f64, pose, time: 0.0 }),
-                        None => summary.instances_without_pose += 1,
-                    },
-                    Err(EstimateError::BadInput(msg)) => {
-                        summary.instances_without_pose += 1;
-                        *summary.failures.entry(msg).or_default() += 1;
+                    Ok(r) => {
+                        if let Some(pose) = r.pose {
+                            let score = match confirming {
+                                Some((pool, _)) => {
+                                    let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
+                                    let bbox = bbox_of(mask).unwrap_or([0.0, 0.0, rgb.width() as f64, rgb.height() as f64]);
+                                    confirm(&rgb, &camera.cam, &m.mesh, bbox, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?.score
+                                }
+                                None => r.score,
+                            };
+                            estimated.push((pose, score));
+                        }
                     }
+                    Err(EstimateError::BadInput(msg)) => *summary.failures.entry(msg).or_default() += 1,
                     Err(e) => return Err(e).with_context(|| format!("scene {scene_id}, image {im_id}, object {}", t.obj_id)),
                 }
             }
+            let scores: Vec<Option<f32>> = estimated.iter().map(|e| Some(e.1)).collect();
+            let kept = match confirming {
+                Some((_, min_score)) => chosen(&scores, wanted, min_score),
+                None => (0..estimated.len()).collect(),
+            };
+            summary.instances_without_pose += wanted.saturating_sub(kept.len());
+            rows.extend(kept.into_iter().map(|i| ResultRow { scene_id, im_id, obj_id: t.obj_id, score: estimated[i].1 as f64, pose: estimated[i].0, time: 0.0 }));
         }
         let seconds = started.elapsed().as_secs_f64();
         for r in &mut rows {
@@ -186,7 +215,8 @@ fn detect_targets(
     let detect_targets: Vec<Target> = models.iter().zip(&shapes).map(|((_, m), s)| Target { id: &m.object_id, shape: s, mesh: &m.mesh }).collect();
     // Instances wanted in all, so that a busy image keeps enough detections.
     let wanted: usize = targets.iter().map(|t| t.inst_count as usize).sum();
-    let options = DetectOptions { max_detections: options.max_detections.max(2 * wanted).min(crate::limits::MAX_DETECTIONS), ..options.clone() };
+    // Candidates below the final threshold too: confirmation at the estimated pose decides.
+    let options = DetectOptions { max_detections: options.max_detections.max(2 * wanted).min(crate::limits::MAX_DETECTIONS), min_score: candidate_min_score(options.min_score), ..options.clone() };
     let report = detect(rgb, cam, &detect_targets, &options, pool).with_context(|| format!("detecting in scene {scene_id}, image {image_id}"))?;
     let obj_of: BTreeMap<&str, u32> = models.iter().map(|(id, m)| (m.object_id.as_str(), *id)).collect();
     let time = started.elapsed().as_secs_f64();

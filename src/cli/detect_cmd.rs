@@ -83,10 +83,10 @@ pub fn load_objects(store: &dyn crate::store::ObjectStore, ids: &[String]) -> Re
 
 /// One object's detections in an image (for the commands that detect when no mask is
 /// given); an error naming the object and the detector's reason when there is none.
-pub fn detect_object(model: &ObjectModel, image: &image::RgbImage, k: &crate::geometry::Intrinsics, search: &SearchArgs, renderer: &crate::render::RenderPool) -> Result<Vec<crate::detect::Detection>> {
+pub fn detect_object(model: &ObjectModel, image: &image::RgbImage, k: &crate::geometry::Intrinsics, options: &DetectOptions, renderer: &crate::render::RenderPool) -> Result<Vec<crate::detect::Detection>> {
     let shape = model.shape_model_or_build(renderer)?;
     let targets = [Target { id: &model.object_id, shape: &shape, mesh: &model.mesh }];
-    let report = detect(image, k, &targets, &search.options(), renderer)?;
+    let report = detect(image, k, &targets, options, renderer)?;
     if report.detections.is_empty() {
         bail!("the detector did not find {} ({}); give a --mask (or a --box), or lower --min-score", model.object_id, report.reason.unwrap_or_default());
     }

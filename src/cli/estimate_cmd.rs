@@ -1,3 +1,5 @@
+use crate::detect::confirm::{candidate_min_score, chosen, confirm, EXTRA_CANDIDATES};
+use crate::detect::detector::bbox_of;
 use crate::estimate::{Detection, EstimateConfig, EstimateResult};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -80,13 +82,40 @@ fn detections(a: &EstimateArgs, image: &image::RgbImage) -> Result<Vec<Detection
     Ok(out)
 }
 
-/// The candidates from the detector: the masks of its best instance (its detections
-/// overlapping the best one), as the service groups them.
-fn detected(model: &ObjectModel, image: &image::RgbImage, k: &Intrinsics, search: &super::detect_cmd::SearchArgs, renderer: &crate::render::RenderPool) -> Result<Vec<Detection>> {
-    let found = super::detect_cmd::detect_object(model, image, k, search, renderer)?;
+/// The estimate from the detector's candidates: the best few instances (each a group of
+/// overlapping detections, as the service groups them) estimated, and the one confirmed
+/// best at its estimated pose answered (`detect::confirm`), with its confirmation score.
+fn estimate_detected(a: &EstimateArgs, model: &ObjectModel, image: &image::RgbImage, k: &Intrinsics, estimator: &crate::estimate::Estimator, renderer: &crate::render::RenderPool, cfg: &EstimateConfig) -> Result<(EstimateResult, f32)> {
+    let min_score = a.search.min_score;
+    let options = crate::detect::DetectOptions { min_score: candidate_min_score(min_score), ..a.search.options() };
+    let found = super::detect_cmd::detect_object(model, image, k, &options, renderer)?;
     let refs: Vec<(&image::GrayImage, f64)> = found.iter().map(|d| (&d.mask, d.score as f64)).collect();
-    let best = crate::masks::group_instances(&refs, 0.5).into_iter().next().unwrap_or_default();
-    Ok(best.into_iter().map(|i| Detection { mask: found[i].mask.clone(), score: found[i].score }).collect())
+    let mut tried: Vec<(EstimateResult, Option<f32>)> = Vec::new();
+    for group in crate::masks::group_instances(&refs, 0.5).into_iter().take(1 + EXTRA_CANDIDATES) {
+        let candidates: Vec<Detection> = group.iter().map(|&i| Detection { mask: found[i].mask.clone(), score: found[i].score }).collect();
+        let r = estimator.estimate(model, image, k, &candidates, cfg)?;
+        let confirmation = match &r.pose {
+            Some(pose) => {
+                let bbox = bbox_of(&candidates[r.mask_index.unwrap_or(0)].mask).unwrap_or([0.0, 0.0, k.width as f64, k.height as f64]);
+                let c = confirm(image, k, &model.mesh, bbox, pose, renderer)?.score;
+                println!("candidate {} estimated, confirmed at its pose with {c:.3}", tried.len() + 1);
+                Some(c)
+            }
+            None => None,
+        };
+        tried.push((r, confirmation));
+    }
+    let scores: Vec<Option<f32>> = tried.iter().map(|t| t.1).collect();
+    match chosen(&scores, 1, min_score).first() {
+        Some(&i) => {
+            let (r, c) = tried.swap_remove(i);
+            Ok((r, c.unwrap_or(0.0)))
+        }
+        None => {
+            let best = scores.iter().flatten().copied().fold(0.0f32, f32::max);
+            bail!("none of the detector's {} candidate(s) of {} was confirmed at its estimated pose (best {best:.3}, --min-score {min_score}); give a --mask (or a --box), or lower --min-score", tried.len(), model.object_id)
+        }
+    }
 }
 
 pub fn run(a: EstimateArgs) -> Result<()> {
@@ -98,13 +127,20 @@ pub fn run(a: EstimateArgs) -> Result<()> {
     let image = image::open(&a.image).with_context(|| format!("cannot read image {}", a.image.display()))?.to_rgb8();
     let k = super::camera_file::load_camera_for(&a.camera, Some(image.dimensions()))?;
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
-    let detections = if given == 0 { detected(&model, &image, &k, &a.search, &renderer)? } else { detections(&a, &image)? };
     let backbone = a.target.backbone.open()?;
     let estimator = crate::estimate::Estimator::new(backbone, renderer.clone());
     let mut cfg = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), ..Default::default() };
     cfg.retrieval.k = a.k;
-    let result = estimator.estimate(&model, &image, &k, &detections, &cfg)?;
-    let doc = result_json(&model, &result);
+    let (result, confirmation) = if given == 0 {
+        let (r, c) = estimate_detected(&a, &model, &image, &k, &estimator, &renderer, &cfg)?;
+        (r, Some(c))
+    } else {
+        (estimator.estimate(&model, &image, &k, &detections(&a, &image)?, &cfg)?, None)
+    };
+    let mut doc = result_json(&model, &result);
+    if let (Some(c), Some(pose)) = (confirmation, doc["poses"].get_mut(0)) {
+        pose["confirmation_score"] = json!(c);
+    }
     std::fs::write(&a.out, serde_json::to_vec_pretty(&doc)?).with_context(|| format!("writing {}", a.out.display()))?;
     match &result.pose {
         Some(p) => println!("{}: {}", model.object_id, describe_pose(p, result.score)),

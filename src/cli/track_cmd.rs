@@ -144,6 +144,6 @@ pub fn run(a: TrackArgs) -> Result<()> {
 
 /// The object's mask in the first frame from the detector: its best detection there.
 fn detect_first(model: &ObjectModel, first: &Frame, k: &Intrinsics, search: &super::detect_cmd::SearchArgs, renderer: &crate::render::RenderPool) -> Result<image::GrayImage> {
-    let found = super::detect_cmd::detect_object(model, &first.image, k, search, renderer).with_context(|| format!("first frame {}", first.name))?;
+    let found = super::detect_cmd::detect_object(model, &first.image, k, &search.options(), renderer).with_context(|| format!("first frame {}", first.name))?;
     Ok(found.into_iter().next().map(|d| d.mask).expect("detect_object returns at least one"))
 }

@@ -8,6 +8,7 @@
 
 pub mod align;
 pub mod colour_prior;
+pub mod confirm;
 pub mod detector;
 pub mod gradients;
 pub mod nms;

@@ -8,6 +8,8 @@ use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
 use super::detect_requests::DetectionOutput;
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput};
+use crate::detect::confirm::{candidate_min_score, chosen, confirm, EXTRA_CANDIDATES};
+use crate::detect::detector::bbox_of;
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
 use crate::geometry::ViewSampling;
@@ -262,7 +264,9 @@ impl Core {
         let (masks, detected) = if req.objects.is_empty() {
             (decode_masks(req, &image)?, None)
         } else {
-            let report = self.run_detector(&image, &k, &req.objects, &req.detect, deadline)?;
+            // Candidates below the caller's threshold too: confirmation decides.
+            let options = crate::detect::DetectOptions { min_score: candidate_min_score(req.detect.min_score), ..req.detect.clone() };
+            let report = self.run_detector(&image, &k, &req.objects, &options, deadline)?;
             let outputs: Vec<DetectionOutput> = report.detections.iter().map(DetectionOutput::from).collect();
             let masks = report.detections.into_iter().map(|d| (d.object_id, d.mask, d.score)).collect();
             (masks, Some((outputs, report.reason)))
@@ -279,32 +283,59 @@ impl Core {
         cfg.verify.enabled = o.verify;
         cfg.verify.templates = o.verify_templates;
         cfg.verify.spin_steps = o.spin_steps;
+        // The detector's candidates are confirmed at their estimated poses: a few more than
+        // wanted are estimated, and the confirmed ones kept (`detect::confirm`).
+        let confirming = detected.is_some();
+        let tried = o.instances_per_object + if confirming { EXTRA_CANDIDATES } else { 0 };
         let mut results = Vec::new();
+        let mut unconfirmed = 0usize;
         for (object_id, dets) in &by_object {
             let model = &models[object_id];
             let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, m, s)| (m, *s as f64)).collect();
-            for (instance, group) in crate::masks::group_instances(&refs, 0.5).into_iter().take(o.instances_per_object).enumerate() {
+            let mut found = Vec::new();
+            for (instance, group) in crate::masks::group_instances(&refs, 0.5).into_iter().take(tried).enumerate() {
                 if deadline.is_some_and(|d| Instant::now() >= d) {
-                    return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", results.len())));
+                    return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", results.len() + found.len())));
                 }
                 let candidates: Vec<Detection> = group.iter().map(|&g| Detection { mask: dets[g].1.clone(), score: dets[g].2 }).collect();
                 let others = others_mask(&by_object, object_id, &group, k.width, k.height);
                 let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
                 let r = span.in_scope(|| self.estimator.estimate_among(model, &image, &k, &candidates, others.as_ref(), &cfg))?;
-                span.in_scope(|| tracing::debug!(found = r.pose.is_some(), score = r.score, ms = r.timings.total, "instance estimated"));
-                results.push(InstanceResult {
+                let confirmation = match (&r.pose, confirming) {
+                    (Some(pose), true) => {
+                        let bbox = bbox_of(&candidates[r.mask_index.unwrap_or(0)].mask).unwrap_or([0.0, 0.0, k.width as f64, k.height as f64]);
+                        let c = span.in_scope(|| confirm(&image, &k, &model.mesh, bbox, pose, &self.pool)).map_err(|e| ServiceError::internal(format!("object {object_id:?}: confirming: {e}")))?;
+                        Some(c.score)
+                    }
+                    _ => None,
+                };
+                span.in_scope(|| tracing::debug!(found = r.pose.is_some(), score = r.score, confirmation, ms = r.timings.total, "instance estimated"));
+                found.push(InstanceResult {
                     object_id: object_id.to_string(),
                     instance,
                     pose: r.pose.as_ref().map(PoseOutput::from),
                     score: r.score,
+                    confirmation_score: confirmation,
                     detection_index: r.mask_index.map(|m| dets[group[m]].0),
                     reason: r.reason.clone(),
                     diagnostics: serde_json::to_value(&r.hypotheses).unwrap_or_default(),
                     timings_ms: serde_json::to_value(r.timings).unwrap_or_default(),
                 });
             }
+            if confirming {
+                let scores: Vec<Option<f32>> = found.iter().map(|f| f.confirmation_score).collect();
+                let keep = chosen(&scores, o.instances_per_object, req.detect.min_score);
+                unconfirmed += found.len() - keep.len();
+                let mut slots: Vec<Option<InstanceResult>> = found.into_iter().map(Some).collect();
+                results.extend(keep.into_iter().enumerate().filter_map(|(n, i)| slots[i].take().map(|r| InstanceResult { instance: n, ..r })));
+            } else {
+                results.extend(found);
+            }
         }
-        let (detections, reason) = detected.unwrap_or_default();
+        let (detections, mut reason) = detected.unwrap_or_default();
+        if confirming && results.is_empty() && reason.is_none() {
+            reason = Some(format!("none of the {unconfirmed} candidate(s) estimated was confirmed at its pose with a score of {} or more", req.detect.min_score));
+        }
         Ok(EstimateResponse { results, detections, reason, total_ms: t0.elapsed().as_secs_f64() * 1e3 })
     }
 }

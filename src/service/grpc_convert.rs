@@ -127,6 +127,7 @@ pub fn estimate_response(r: rq::EstimateResponse) -> pb::EstimateResponse {
             instance: i.instance as u32,
             pose: i.pose.map(pose),
             score: i.score,
+            confirmation_score: i.confirmation_score,
             detection_index: i.detection_index.map_or(-1, |d| d as i32),
             reason: i.reason.unwrap_or_default(),
             diagnostics_json: i.diagnostics.to_string(),

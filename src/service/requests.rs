@@ -220,6 +220,10 @@ pub struct InstanceResult {
     /// Absent when no pose was found (then `reason` says why).
     pub pose: Option<PoseOutput>,
     pub score: f32,
+    /// When the server detected the object: the detector's evidence at this pose
+    /// (`detect::confirm`), which decided that the instance is there; 0–1.
+    #[serde(default)]
+    pub confirmation_score: Option<f32>,
     /// Index into the request's `detections` (or the response's, when the server
     /// detected) of the mask the pose came from.
     pub detection_index: Option<usize>,

@@ -47,11 +47,13 @@ def test_detect_finds_the_object_with_its_mask_and_coarse_pose(client: b2tfpose.
 def test_detections_go_back_into_estimate_and_estimate_by_id(client: b2tfpose.Client, onboarded: Onboarded, scene: Scene) -> None:
     found = client.detect(scene.rgb, scene.K, None, **EVERY)  # None: every stored object
     [r] = client.estimate(scene.rgb, scene.K, found[:1], rrc=False)
-    assert r.ok and r.detection_index == 0
+    assert r.ok and r.detection_index == 0 and r.confirmation_score is None
     results = client.estimate(scene.rgb, scene.K, objects=[SAMPLE_ID], rrc=False, **EVERY)
     assert results.detections and results.reason is None
     best = results.best(SAMPLE_ID)
     assert best is not None and best.detection_index is not None and best.detection_index < len(results.detections)
+    # Confirmed at its estimated pose by the server's detector.
+    assert best.confirmation_score is not None and 0.0 <= best.confirmation_score <= 1.0
 
 
 def test_nothing_found_is_an_answer_with_a_reason(client: b2tfpose.Client, onboarded: Onboarded, scene: Scene) -> None:

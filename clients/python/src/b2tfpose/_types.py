@@ -115,6 +115,10 @@ class Result:
     reason: Optional[str]
     timings_ms: Dict[str, float] = field(default_factory=dict)
     """Time per pipeline stage on the server, milliseconds."""
+    confirmation_score: Optional[float] = None
+    """When the server detected the object (``estimate(objects=...)``): the detector's
+    evidence at this pose in [0, 1], which decided that the instance is there (it reaches
+    the request's ``min_score``). None when the request gave its detections."""
     diagnostics: Any = None
     """The server's diagnostics document, parsed JSON: per candidate mask, retrieval,
     matches, inliers, RRC, refinement, verified hypotheses, IoU and selection scores."""
@@ -138,6 +142,7 @@ class Result:
             detection_index=m.detection_index if m.detection_index >= 0 else None,
             reason=m.reason or None,
             timings_ms=dict(m.timings_ms),
+            confirmation_score=m.confirmation_score if m.HasField("confirmation_score") else None,
             diagnostics=diagnostics,
         )
 

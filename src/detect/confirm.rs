@@ -1,0 +1,66 @@
+//! A detection confirmed at its estimated pose. The detector's own score is measured at
+//! the coarse pose of a template (10–20° and some pixels off), where a true object's
+//! outline and print only half line up and a false one's can fit as well. Once the
+//! estimator has placed the object, the same evidence (`verify::Window::evidence`) taken
+//! at the estimated pose separates them far better (docs/detection.md, "Confirmation"):
+//! the right object lines up whole, the wrong one does not, however the estimator turns
+//! it. So when a caller asks for poses by object (no detections given), a few more
+//! candidates than wanted are estimated and the confirmed ones are kept, best first.
+
+use super::detector::combined_score;
+use super::verify::{Evidence, Window};
+use crate::geometry::{Intrinsics, Pose};
+use crate::mesh::Mesh;
+use crate::render::{RenderError, RenderPool};
+use image::RgbImage;
+
+/// Candidate instances estimated beyond those wanted, so that confirmation can choose.
+pub const EXTRA_CANDIDATES: usize = 3;
+
+/// The detector's threshold for candidates of a detect-then-estimate request: below the
+/// final one, since confirmation decides; the caller's `min_score` applies to the
+/// confirmation score.
+pub fn candidate_min_score(min_score: f32) -> f32 {
+    CANDIDATE_SHARE * min_score
+}
+const CANDIDATE_SHARE: f32 = 0.5;
+
+/// The detector's evidence for `mesh` at an estimated `pose`, in the window around the
+/// detection's box `bbox` (x, y, w, h), and its score as `combined_score` makes it.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct Confirmation {
+    pub score: f32,
+    pub evidence: Evidence,
+}
+
+pub fn confirm(image: &RgbImage, k: &Intrinsics, mesh: &Mesh, bbox: [f64; 4], pose: &Pose, renderer: &RenderPool) -> Result<Confirmation, RenderError> {
+    let Some(window) = Window::new(image, k, bbox) else {
+        return Ok(Confirmation::default());
+    };
+    let evidence = window.evidence(renderer, mesh, pose)?;
+    Ok(Confirmation { score: combined_score(&evidence), evidence })
+}
+
+/// Which estimated candidates to answer: those confirmed at `min_score` or more, best
+/// first, at most `wanted`. `scores[i]` is candidate i's confirmation score (`None`: the
+/// estimator found no pose). Returns candidate indices.
+pub fn chosen(scores: &[Option<f32>], wanted: usize, min_score: f32) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..scores.len()).filter(|&i| scores[i].is_some_and(|s| s >= min_score)).collect();
+    order.sort_by(|&a, &b| scores[b].unwrap_or(0.0).total_cmp(&scores[a].unwrap_or(0.0)).then(a.cmp(&b)));
+    order.truncate(wanted);
+    order
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_best_confirmed_candidates_are_chosen_in_order() {
+        let s = [Some(0.3), None, Some(0.8), Some(0.5), Some(0.5), Some(0.1)];
+        assert_eq!(chosen(&s, 2, 0.2), vec![2, 3]);
+        assert_eq!(chosen(&s, 10, 0.2), vec![2, 3, 4, 0]);
+        assert_eq!(chosen(&s, 10, 0.9), Vec::<usize>::new());
+        assert_eq!(chosen(&[], 3, 0.0), Vec::<usize>::new());
+    }
+}
