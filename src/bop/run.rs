@@ -18,7 +18,6 @@ use super::detections::{DetectionIndex, DetectionRecord};
 use super::format::{scene_dir, TargetRecord};
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
 use crate::detect::confirm::{candidate_min_score, chosen, confirm, EXTRA_CANDIDATES};
-use crate::detect::detector::bbox_of;
 use crate::detect::{detect, DetectOptions, Target};
 use crate::geometry::Pose;
 use crate::estimate::{Detection, EstimateConfig, EstimateError, Estimator};
@@ -166,8 +165,7 @@ pub fn run(
                             let score = match confirming {
                                 Some((pool, _)) => {
                                     let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
-                                    let bbox = bbox_of(mask).unwrap_or([0.0, 0.0, rgb.width() as f64, rgb.height() as f64]);
-                                    confirm(&rgb, &camera.cam, &m.mesh, bbox, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?.score
+                                    confirm(&rgb, &camera.cam, &m.mesh, mask, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?.score
                                 }
                                 None => r.score,
                             };

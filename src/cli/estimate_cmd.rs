@@ -1,5 +1,4 @@
 use crate::detect::confirm::{candidate_min_score, chosen, confirm, EXTRA_CANDIDATES};
-use crate::detect::detector::bbox_of;
 use crate::estimate::{Detection, EstimateConfig, EstimateResult};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -96,8 +95,7 @@ fn estimate_detected(a: &EstimateArgs, model: &ObjectModel, image: &image::RgbIm
         let r = estimator.estimate(model, image, k, &candidates, cfg)?;
         let confirmation = match &r.pose {
             Some(pose) => {
-                let bbox = bbox_of(&candidates[r.mask_index.unwrap_or(0)].mask).unwrap_or([0.0, 0.0, k.width as f64, k.height as f64]);
-                let c = confirm(image, k, &model.mesh, bbox, pose, renderer)?.score;
+                let c = confirm(image, k, &model.mesh, &candidates[r.mask_index.unwrap_or(0)].mask, pose, renderer)?.score;
                 println!("candidate {} estimated, confirmed at its pose with {c:.3}", tried.len() + 1);
                 Some(c)
             }

@@ -7,12 +7,12 @@
 //! it. So when a caller asks for poses by object (no detections given), a few more
 //! candidates than wanted are estimated and the confirmed ones are kept, best first.
 
-use super::detector::combined_score;
+use super::detector::{bbox_of, combined_score};
 use super::verify::{Evidence, Window};
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Mesh;
 use crate::render::{RenderError, RenderPool};
-use image::RgbImage;
+use image::{GrayImage, RgbImage};
 
 /// Candidate instances estimated beyond those wanted, so that confirmation can choose.
 pub const EXTRA_CANDIDATES: usize = 3;
@@ -26,15 +26,16 @@ pub fn candidate_min_score(min_score: f32) -> f32 {
 const CANDIDATE_SHARE: f32 = 0.5;
 
 /// The detector's evidence for `mesh` at an estimated `pose`, in the window around the
-/// detection's box `bbox` (x, y, w, h), and its score as `combined_score` makes it.
+/// detection, and its score as `combined_score` makes it.
 #[derive(Clone, Copy, Debug, Default, serde::Serialize)]
 pub struct Confirmation {
     pub score: f32,
     pub evidence: Evidence,
 }
 
-pub fn confirm(image: &RgbImage, k: &Intrinsics, mesh: &Mesh, bbox: [f64; 4], pose: &Pose, renderer: &RenderPool) -> Result<Confirmation, RenderError> {
-    let Some(window) = Window::new(image, k, bbox) else {
+/// `mask` is the detection the estimate came from (image-sized; its box is the window).
+pub fn confirm(image: &RgbImage, k: &Intrinsics, mesh: &Mesh, mask: &GrayImage, pose: &Pose, renderer: &RenderPool) -> Result<Confirmation, RenderError> {
+    let Some(window) = bbox_of(mask).and_then(|bbox| Window::new(image, k, bbox)) else {
         return Ok(Confirmation::default());
     };
     let evidence = window.evidence(renderer, mesh, pose)?;

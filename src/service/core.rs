@@ -9,7 +9,6 @@ use super::operations::{OperationState, OperationStatus, Operations};
 use super::detect_requests::DetectionOutput;
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput};
 use crate::detect::confirm::{candidate_min_score, chosen, confirm, EXTRA_CANDIDATES};
-use crate::detect::detector::bbox_of;
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
 use crate::geometry::ViewSampling;
@@ -303,8 +302,8 @@ impl Core {
                 let r = span.in_scope(|| self.estimator.estimate_among(model, &image, &k, &candidates, others.as_ref(), &cfg))?;
                 let confirmation = match (&r.pose, confirming) {
                     (Some(pose), true) => {
-                        let bbox = bbox_of(&candidates[r.mask_index.unwrap_or(0)].mask).unwrap_or([0.0, 0.0, k.width as f64, k.height as f64]);
-                        let c = span.in_scope(|| confirm(&image, &k, &model.mesh, bbox, pose, &self.pool)).map_err(|e| ServiceError::internal(format!("object {object_id:?}: confirming: {e}")))?;
+                        let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
+                        let c = span.in_scope(|| confirm(&image, &k, &model.mesh, mask, pose, &self.pool)).map_err(|e| ServiceError::internal(format!("object {object_id:?}: confirming: {e}")))?;
                         Some(c.score)
                     }
                     _ => None,
