@@ -17,7 +17,7 @@ use super::dataset::{load_rgb, load_scene_cameras, load_targets, ImageCamera};
 use super::detections::{DetectionIndex, DetectionRecord};
 use super::format::{scene_dir, TargetRecord};
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
-use crate::detect::confirm::{candidate_min_score, chosen, confirm, EXTRA_CANDIDATES};
+use crate::detect::confirm::{candidate_min_score, chosen, confirm, settled, EXTRA_CANDIDATES};
 use crate::detect::{detect, DetectOptions, Target};
 use crate::geometry::Pose;
 use crate::estimate::{Detection, EstimateConfig, EstimateError, Estimator};
@@ -170,6 +170,9 @@ pub fn run(
                                 None => r.score,
                             };
                             estimated.push((pose, score));
+                            if confirming.is_some_and(|(_, min_score)| settled(&estimated.iter().map(|e| Some(e.1)).collect::<Vec<_>>(), wanted, min_score)) {
+                                break;
+                            }
                         }
                     }
                     Err(EstimateError::BadInput(msg)) => *summary.failures.entry(msg).or_default() += 1,

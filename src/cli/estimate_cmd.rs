@@ -1,4 +1,4 @@
-use crate::detect::confirm::{candidate_min_score, chosen, confirm, EXTRA_CANDIDATES};
+use crate::detect::confirm::{candidate_min_score, chosen, confirm, settled, EXTRA_CANDIDATES};
 use crate::estimate::{Detection, EstimateConfig, EstimateResult};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -102,6 +102,9 @@ fn estimate_detected(a: &EstimateArgs, model: &ObjectModel, image: &image::RgbIm
             None => None,
         };
         tried.push((r, confirmation));
+        if settled(&tried.iter().map(|t| t.1).collect::<Vec<_>>(), 1, min_score) {
+            break;
+        }
     }
     let scores: Vec<Option<f32>> = tried.iter().map(|t| t.1).collect();
     match chosen(&scores, 1, min_score).first() {

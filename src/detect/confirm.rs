@@ -5,7 +5,8 @@
 //! at the estimated pose separates them far better (docs/detection.md, "Confirmation"):
 //! the right object lines up whole, the wrong one does not, however the estimator turns
 //! it. So when a caller asks for poses by object (no detections given), a few more
-//! candidates than wanted are estimated and the confirmed ones are kept, best first.
+//! candidates than wanted are estimated, in the detector's order until enough are surely
+//! confirmed, and the confirmed ones are kept, best first.
 
 use super::detector::{bbox_of, combined_score};
 use super::verify::{Evidence, Window};
@@ -52,6 +53,17 @@ pub fn chosen(scores: &[Option<f32>], wanted: usize, min_score: f32) -> Vec<usiz
     order
 }
 
+/// A confirmation this high is taken as sure: once the instances wanted have one, the
+/// remaining candidates are not estimated. Measured on generated scenes (docs/detection.md,
+/// "Confirmation"): the same AR with 42 % fewer estimates, at thresholds 0 and 0.45.
+const SURE: f32 = 0.45;
+
+/// Whether the candidates confirmed so far (`scores`, in the order estimated) settle the
+/// answer: `wanted` of them at `min_score` and at least `SURE`.
+pub fn settled(scores: &[Option<f32>], wanted: usize, min_score: f32) -> bool {
+    scores.iter().flatten().filter(|&&s| s >= min_score.max(SURE)).count() >= wanted
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -63,5 +75,14 @@ mod tests {
         assert_eq!(chosen(&s, 10, 0.2), vec![2, 3, 4, 0]);
         assert_eq!(chosen(&s, 10, 0.9), Vec::<usize>::new());
         assert_eq!(chosen(&[], 3, 0.0), Vec::<usize>::new());
+    }
+
+    #[test]
+    fn candidates_stop_once_enough_are_surely_confirmed() {
+        assert!(!settled(&[Some(0.3), None], 1, 0.0));
+        assert!(settled(&[Some(0.3), Some(0.5)], 1, 0.0));
+        assert!(!settled(&[Some(0.5)], 2, 0.0));
+        assert!(!settled(&[Some(0.5)], 1, 0.6));
+        assert!(settled(&[Some(0.7), Some(0.65)], 2, 0.6));
     }
 }

@@ -8,7 +8,7 @@ use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
 use super::detect_requests::DetectionOutput;
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput};
-use crate::detect::confirm::{candidate_min_score, chosen, confirm, EXTRA_CANDIDATES};
+use crate::detect::confirm::{candidate_min_score, chosen, confirm, settled, EXTRA_CANDIDATES};
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
 use crate::geometry::ViewSampling;
@@ -320,6 +320,9 @@ impl Core {
                     diagnostics: serde_json::to_value(&r.hypotheses).unwrap_or_default(),
                     timings_ms: serde_json::to_value(r.timings).unwrap_or_default(),
                 });
+                if confirming && settled(&found.iter().map(|f| f.confirmation_score).collect::<Vec<_>>(), o.instances_per_object, req.detect.min_score) {
+                    break;
+                }
             }
             if confirming {
                 let scores: Vec<Option<f32>> = found.iter().map(|f| f.confirmation_score).collect();
