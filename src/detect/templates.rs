@@ -119,6 +119,23 @@ impl ShapeModel {
         &self.features[t * n..(t + 1) * n]
     }
 
+    /// How many orientations template `t`'s features spread over: the entropy of their
+    /// orientation histogram, as a share of its maximum (1: all bins equally; 0: one bin).
+    /// A template of one or two orientations (a thin or box-like view) matches poles,
+    /// rails and the edges of other boxes as well as the object.
+    pub fn orientation_spread(&self, t: usize) -> f32 {
+        let mut counts = [0f32; super::gradients::BINS];
+        for f in self.template(t) {
+            counts[f.orientation as usize % super::gradients::BINS] += 1.0;
+        }
+        let n: f32 = counts.iter().sum();
+        if n == 0.0 {
+            return 0.0;
+        }
+        let h: f32 = counts.iter().filter(|&&c| c > 0.0).map(|&c| -(c / n) * (c / n).ln()).sum();
+        h / (super::gradients::BINS as f32).ln()
+    }
+
     pub fn memory_bytes(&self) -> usize {
         self.features.len() * 3 + self.boxes.len() * 4 + self.colours.len() * 4
     }
@@ -369,6 +386,20 @@ mod tests {
         }
         // The strongest candidate always comes first.
         assert_eq!((f[0].x, f[0].y), (9.0, 9.0));
+    }
+
+    #[test]
+    fn orientation_spread_is_zero_for_one_bin_and_one_for_all_alike() {
+        let config = DetectorConfig { features: 16, ..Default::default() };
+        let template = |bin: &dyn Fn(usize) -> i8| (0..16).map(|i| Feature { dx: i as i8, dy: 0, orientation: bin(i) }).collect::<Vec<_>>();
+        let mut features = template(&|_| 3);
+        features.extend(template(&|i| (i % 8) as i8));
+        features.extend(template(&|i| (i % 2) as i8 * 4));
+        let model = ShapeModel { config, features, boxes: vec![[0; 4]; 3], colours: vec![] };
+        assert_eq!(model.orientation_spread(0), 0.0);
+        assert!((model.orientation_spread(1) - 1.0).abs() < 1e-5);
+        // Two bins equally: a third of the maximum (ln 2 / ln 8).
+        assert!((model.orientation_spread(2) - 1.0 / 3.0).abs() < 1e-5);
     }
 
     #[test]
