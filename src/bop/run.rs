@@ -165,7 +165,7 @@ pub fn run(
                             let score = match confirming {
                                 Some((pool, _)) => {
                                     let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
-                                    confirm(&rgb, &camera.cam, &m.mesh, mask, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?.score
+                                    confirm(&rgb, &camera.cam, &m.mesh, mask, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?
                                 }
                                 None => r.score,
                             };

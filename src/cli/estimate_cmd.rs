@@ -95,7 +95,7 @@ fn estimate_detected(a: &EstimateArgs, model: &ObjectModel, image: &image::RgbIm
         let r = estimator.estimate(model, image, k, &candidates, cfg)?;
         let confirmation = match &r.pose {
             Some(pose) => {
-                let c = confirm(image, k, &model.mesh, &candidates[r.mask_index.unwrap_or(0)].mask, pose, renderer)?.score;
+                let c = confirm(image, k, &model.mesh, &candidates[r.mask_index.unwrap_or(0)].mask, pose, renderer)?;
                 println!("candidate {} estimated, confirmed at its pose with {c:.3}", tried.len() + 1);
                 Some(c)
             }

@@ -9,7 +9,7 @@
 //! confirmed, and the confirmed ones are kept, best first.
 
 use super::detector::{bbox_of, combined_score};
-use super::verify::{Evidence, Window};
+use super::verify::Window;
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Mesh;
 use crate::render::{RenderError, RenderPool};
@@ -27,20 +27,13 @@ pub fn candidate_min_score(min_score: f32) -> f32 {
 const CANDIDATE_SHARE: f32 = 0.5;
 
 /// The detector's evidence for `mesh` at an estimated `pose`, in the window around the
-/// detection, and its score as `combined_score` makes it.
-#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
-pub struct Confirmation {
-    pub score: f32,
-    pub evidence: Evidence,
-}
-
-/// `mask` is the detection the estimate came from (image-sized; its box is the window).
-pub fn confirm(image: &RgbImage, k: &Intrinsics, mesh: &Mesh, mask: &GrayImage, pose: &Pose, renderer: &RenderPool) -> Result<Confirmation, RenderError> {
+/// detection `mask` the estimate came from (image-sized), combined as `combined_score`
+/// combines a detection's: the confirmation score, 0–1 (0 for an empty mask).
+pub fn confirm(image: &RgbImage, k: &Intrinsics, mesh: &Mesh, mask: &GrayImage, pose: &Pose, renderer: &RenderPool) -> Result<f32, RenderError> {
     let Some(window) = bbox_of(mask).and_then(|bbox| Window::new(image, k, bbox)) else {
-        return Ok(Confirmation::default());
+        return Ok(0.0);
     };
-    let evidence = window.evidence(renderer, mesh, pose)?;
-    Ok(Confirmation { score: combined_score(&evidence), evidence })
+    Ok(combined_score(&window.evidence(renderer, mesh, pose)?))
 }
 
 /// Which estimated candidates to answer: those confirmed at `min_score` or more, best

@@ -303,8 +303,7 @@ impl Core {
                 let confirmation = match (&r.pose, confirming) {
                     (Some(pose), true) => {
                         let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
-                        let c = span.in_scope(|| confirm(&image, &k, &model.mesh, mask, pose, &self.pool)).map_err(|e| ServiceError::internal(format!("object {object_id:?}: confirming: {e}")))?;
-                        Some(c.score)
+                        Some(span.in_scope(|| confirm(&image, &k, &model.mesh, mask, pose, &self.pool)).map_err(|e| ServiceError::internal(format!("object {object_id:?}: confirming: {e}")))?)
                     }
                     _ => None,
                 };
@@ -328,8 +327,7 @@ impl Core {
                 let scores: Vec<Option<f32>> = found.iter().map(|f| f.confirmation_score).collect();
                 let keep = chosen(&scores, o.instances_per_object, req.detect.min_score);
                 unconfirmed += found.len() - keep.len();
-                let mut slots: Vec<Option<InstanceResult>> = found.into_iter().map(Some).collect();
-                results.extend(keep.into_iter().enumerate().filter_map(|(n, i)| slots[i].take().map(|r| InstanceResult { instance: n, ..r })));
+                results.extend(keep.into_iter().enumerate().map(|(n, i)| InstanceResult { instance: n, ..found[i].clone() }));
             } else {
                 results.extend(found);
             }
