@@ -175,6 +175,15 @@ fn detect_and_estimate_by_object_id_over_http_and_grpc() {
     let (s, f1) = post(&c, &frames, &frame);
     assert_eq!(s, 200, "{f1}");
     assert!(f1["objects"].as_array().unwrap().len() == 1 && f1["objects"][0]["mode"] == "tracked", "{f1}");
+    // A candidate that its estimate does not confirm starts no track: it is answered
+    // refused, with the reason.
+    let (s, session) = post(&c, &format!("{base}/v1/tracks"), &json!({}));
+    assert_eq!(s, 201, "{session}");
+    let strict_frames = format!("{base}/v1/tracks/{}/frames", session["id"].as_str().unwrap());
+    let (s, f) = post(&c, &strict_frames, &json!({"image": photo, "intrinsics": intrinsics, "objects": ["box"], "detect": {"min_score": 0.99, "max_detections": 2}}));
+    assert_eq!(s, 200, "{f}");
+    let objects = f["objects"].as_array().unwrap();
+    assert!(!objects.is_empty() && objects.iter().all(|o| o["mode"] == "refused" && o["reason"].as_str().unwrap().contains("not confirmed at its estimated pose")), "{f}");
     let mut both = frame.clone();
     both["detections"] = json!([{"object_id": "box", "bbox": [10, 10, 50, 50]}]);
     let (s, e) = post(&c, &frames, &both);

@@ -163,7 +163,7 @@ fn a_lost_track_is_found_again_by_its_colours() {
     let resolve = |_: &str| Ok(model.clone());
     let mut modes = Vec::new();
     for (i, truth) in poses.iter().enumerate() {
-        let detections = if i == 0 { vec![b2tfpose::track::FrameDetection { object_id: "box".into(), mask: first_mask.clone(), score: 1.0 }] } else { vec![] };
+        let detections = if i == 0 { vec![b2tfpose::track::FrameDetection::given("box".into(), first_mask.clone(), 1.0)] } else { vec![] };
         let (_, outcomes) = session.frame(Some(i as u64), &frame(truth), &k, detections, &resolve, &estimator).unwrap();
         let o = &outcomes[0];
         let err = o.pose.map(|p| (rotation_error_deg(&p, truth), translation_error_m(&p, truth) * 1e3));
@@ -282,14 +282,17 @@ fn track_command_writes_a_pose_per_frame() {
     let err = String::from_utf8_lossy(&e.stderr);
     assert!(!e.status.success() && err.contains("--lost-below") && err.contains("must be in [0, 1], not 1.5"), "{err}");
 
-    // No mask: the detector's best detection in the first frame starts the track (every
-    // candidate kept here); where it finds nothing, the error says to give a mask.
+    // No mask: the first of the detector's candidates confirmed at its estimated pose
+    // starts the track, at the default threshold; a threshold no estimate reaches is an
+    // error naming why; where the detector finds nothing, the error says to give a mask.
     std::fs::remove_file(frames.join("0099.png")).unwrap();
-    let done = fx.run_masked(&frames, None, &["--min-score", "0"]);
+    let done = fx.run_masked(&frames, None, &[]);
     let (out, err) = (String::from_utf8_lossy(&done.stdout), String::from_utf8_lossy(&done.stderr));
     assert!(done.status.success() && out.contains("box detected at ["), "{out}{err}");
-    let lines: Vec<serde_json::Value> = std::fs::read_to_string(&fx.out).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
-    assert!(lines.len() == fx.seq.len() && lines[0]["mode"] == "estimated", "{lines:?}");
+    fx.check_lines(10.0, 0.02);
+    let e = fx.run_masked(&frames, None, &["--min-score", "0.99"]);
+    let err = String::from_utf8_lossy(&e.stderr);
+    assert!(!e.status.success() && err.contains("detector's candidates") && err.contains("not confirmed at its estimated pose"), "{err}");
     let blank = fx.dir.path().join("blank");
     std::fs::create_dir(&blank).unwrap();
     image::RgbImage::from_pixel(320, 240, image::Rgb([90, 90, 90])).save(blank.join("0000.png")).unwrap();

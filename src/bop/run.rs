@@ -17,10 +17,10 @@ use super::dataset::{load_rgb, load_scene_cameras, load_targets, ImageCamera};
 use super::detections::{DetectionIndex, DetectionRecord};
 use super::format::{scene_dir, TargetRecord};
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
-use crate::detect::confirm::{candidate_min_score, chosen, confirm, settled, EXTRA_CANDIDATES};
+use crate::detect::confirm::{candidate_min_score, confirm, estimate_instances, Choice};
 use crate::detect::{detect, DetectOptions, Target};
-use crate::geometry::Pose;
 use crate::estimate::{Detection, EstimateConfig, EstimateError, Estimator};
+use crate::geometry::Pose;
 use crate::masks::{group_instances, BoxMask};
 use crate::onboard::ObjectModel;
 use crate::render::RenderPool;
@@ -147,45 +147,40 @@ pub fn run(
             let refs: Vec<_> = masks.iter().map(|(m, s)| (m, *s)).collect();
             // The detector's own candidates are confirmed at their estimated poses, a few
             // more than wanted estimated so that confirmation can choose.
-            let confirming = match &source {
-                DetectionSource::Detector { pool, options, .. } => Some((*pool, options.min_score)),
-                DetectionSource::File(_) => None,
+            let (choice, pool) = match &source {
+                DetectionSource::Detector { pool, options, .. } => (Choice::Confirmed { min_score: options.min_score }, Some(*pool)),
+                DetectionSource::File(_) => (Choice::Given, None),
             };
             let wanted = t.inst_count as usize;
-            let tried = wanted + if confirming.is_some() { EXTRA_CANDIDATES } else { 0 };
-            let mut estimated: Vec<(Pose, f32)> = Vec::new();
-            for group in group_instances(&refs, opts.same_instance_iou).into_iter().take(tried) {
+            let answered = estimate_instances(group_instances(&refs, opts.same_instance_iou), wanted, choice, |group| {
                 let candidates: Vec<Detection> = group.iter().map(|&i| Detection { mask: masks[i].0.clone(), score: masks[i].1 as f32 }).collect();
                 let group = &group;
                 let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, (m, _))| m));
                 let others = crate::masks::union(others, camera.cam.width, camera.cam.height);
-                match estimator.estimate_among(&m, &rgb, &camera.cam, &candidates, others.as_ref(), &opts.estimate) {
-                    Ok(r) => {
-                        if let Some(pose) = r.pose {
-                            let score = match confirming {
-                                Some((pool, _)) => {
-                                    let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
-                                    confirm(&rgb, &camera.cam, &m.mesh, mask, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?
-                                }
-                                None => r.score,
-                            };
-                            estimated.push((pose, score));
-                            if confirming.is_some_and(|(_, min_score)| settled(&estimated.iter().map(|e| Some(e.1)).collect::<Vec<_>>(), wanted, min_score)) {
-                                break;
-                            }
-                        }
+                let r = match estimator.estimate_among(&m, &rgb, &camera.cam, &candidates, others.as_ref(), &opts.estimate) {
+                    Ok(r) => r,
+                    Err(EstimateError::BadInput(msg)) => {
+                        *summary.failures.entry(msg).or_default() += 1;
+                        return Ok((None, None));
                     }
-                    Err(EstimateError::BadInput(msg)) => *summary.failures.entry(msg).or_default() += 1,
-                    Err(e) => return Err(e).with_context(|| format!("scene {scene_id}, image {im_id}, object {}", t.obj_id)),
+                    Err(e) => return Err(anyhow::Error::new(e).context(format!("scene {scene_id}, image {im_id}, object {}", t.obj_id))),
+                };
+                let Some(pose) = r.pose else {
+                    return Ok((None, None));
+                };
+                match pool {
+                    Some(pool) => {
+                        let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
+                        let c = confirm(&rgb, &camera.cam, &m.mesh, mask, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?;
+                        Ok((Some((pose, c)), Some(c)))
+                    }
+                    None => Ok((Some((pose, r.score)), None)),
                 }
-            }
-            let scores: Vec<Option<f32>> = estimated.iter().map(|e| Some(e.1)).collect();
-            let kept = match confirming {
-                Some((_, min_score)) => chosen(&scores, wanted, min_score),
-                None => (0..estimated.len()).collect(),
-            };
-            summary.instances_without_pose += wanted.saturating_sub(kept.len());
-            rows.extend(kept.into_iter().map(|i| ResultRow { scene_id, im_id, obj_id: t.obj_id, score: estimated[i].1 as f64, pose: estimated[i].0, time: 0.0 }));
+            })?;
+            // A row's score: the confirmation with the detector's candidates, else the estimator's.
+            let poses: Vec<(Pose, f32)> = answered.kept.into_iter().filter_map(|(p, _)| p).collect();
+            summary.instances_without_pose += wanted.saturating_sub(poses.len());
+            rows.extend(poses.into_iter().map(|(pose, score)| ResultRow { scene_id, im_id, obj_id: t.obj_id, score: score as f64, pose, time: 0.0 }));
         }
         let seconds = started.elapsed().as_secs_f64();
         for r in &mut rows {

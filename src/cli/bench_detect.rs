@@ -54,6 +54,11 @@ pub struct BenchDetectArgs {
     /// every detection's score terms with its box IoU (to study the search and the scores).
     #[arg(long)]
     pub oracle: bool,
+    /// Also run the one-call path (`Estimate` naming the object: detection, estimation and
+    /// confirmation) on every image for every searched object, with the objects of this
+    /// store (onboarded under the meshes' file names), and score the answered poses' boxes.
+    #[arg(long)]
+    pub estimate_store: Option<String>,
 }
 
 /// One detection or ground-truth instance of one object in one image.
@@ -85,8 +90,13 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
         std::fs::create_dir_all(dir)?;
     }
 
+    if a.estimate_store.is_some() && a.untextured {
+        bail!("--estimate-store runs the onboarded (textured) objects; leave out --untextured");
+    }
+    let mut one_call = a.estimate_store.as_deref().map(|url| super::bench_one_call::OneCall::open(url, &names[..searched], opts.clone())).transpose()?;
     let mut truth: BTreeMap<usize, Vec<Scored>> = BTreeMap::new();
     let mut found: BTreeMap<usize, Vec<Scored>> = BTreeMap::new();
+    let mut answered: BTreeMap<usize, Vec<Scored>> = BTreeMap::new();
     let mut ms = Vec::new();
     for im in 0..a.images {
         let n = 2 + im % (a.max_objects_per_image.max(2) - 1);
@@ -116,31 +126,24 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
         if let Some(dir) = &a.overlays {
             super::detect_overlay::draw(&scene.rgb, &report).save(dir.join(format!("{im:04}.png")))?;
         }
-    }
-    println!("| object | instances | recall@0.5 | AP50 | AP@[.5:.95] |");
-    println!("|---|---:|---:|---:|---:|");
-    let (mut hits, mut total) = (0, 0);
-    let mut every: BTreeMap<u32, Vec<ImageCategory>> = BTreeMap::new();
-    for (obj, name) in names.iter().enumerate().take(searched) {
-        let gt = truth.get(&obj).map_or(&[][..], |v| v.as_slice());
-        let dets = found.get(&obj).map_or(&[][..], |v| v.as_slice());
-        if gt.is_empty() {
-            continue;
+        if let Some(one) = one_call.as_mut() {
+            for obj in 0..searched {
+                let held = scene.instances.iter().filter(|i| i.obj_id as usize - 1 == obj).count();
+                for (bbox, score) in one.answer(&scene.rgb, &scene.cam, &names[obj], &meshes[obj], held.max(1), &pool)? {
+                    answered.entry(obj).or_default().push(Scored { image: im, bbox, score });
+                }
+            }
         }
-        let one = BTreeMap::from([(obj as u32, coco_images(gt, dets, a.images))]);
-        let s = summarize(&one);
-        let h = recalled(gt, dets, 0.5);
-        println!("| {} | {} | {:.2} | {:.2} | {:.2} |", name, gt.len(), h as f64 / gt.len() as f64, s.ap50, s.ap);
-        every.extend(one);
-        hits += h;
-        total += gt.len();
     }
-    let s = summarize(&every);
-    println!("all: recall@0.5 {:.3} ({hits}/{total}), AP50 {:.3}, AP@[.5:.95] {:.3} (COCO, as bop eval --detections); median {:.0} ms per image", hits as f64 / total.max(1) as f64, s.ap50, s.ap, super::bench_estimate::median(&mut ms));
+    table(&names[..searched], &truth, &found, a.images, "detections", &mut ms);
+    if one_call.is_some() {
+        let mut ms = one_call.as_ref().map(|o| o.ms.clone()).unwrap_or_default();
+        table(&names[..searched], &truth, &answered, a.images, "one-call estimates (box of the answered pose, confirmation score)", &mut ms);
+    }
 
     if a.distractors > 0 && a.empty_images > 0 {
         let distractors: Vec<(u32, Mesh)> = all[searched..].to_vec();
-        let mut false_dets = 0;
+        let (mut false_dets, mut false_answers) = (0, 0);
         for im in 0..a.empty_images {
             let cfg = SceneConfig { images: 1, objects_per_image: 2 + im % 3, max_occlusion: 0.5, seed: a.seed + 1000, ..Default::default() };
             let scene = generate_image(&distractors, &cfg, &pool, im as u32)?;
@@ -149,8 +152,24 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
             if let Some(dir) = &a.overlays {
                 super::detect_overlay::draw(&scene.rgb, &report).save(dir.join(format!("empty-{im:04}.png")))?;
             }
+            if let Some(one) = one_call.as_mut() {
+                for obj in 0..searched {
+                    false_answers += one.answer(&scene.rgb, &scene.cam, &names[obj], &meshes[obj], 1, &pool)?.len();
+                }
+            }
         }
         println!("images without searched objects: {false_dets} false detections in {} images ({:.3} per image)", a.empty_images, false_dets as f64 / a.empty_images as f64);
+        if one_call.is_some() {
+            println!(
+                "images without searched objects, one call per object: {false_answers} poses answered in {} images × {searched} objects ({:.3} per image, {:.3} per call)",
+                a.empty_images,
+                false_answers as f64 / a.empty_images as f64,
+                false_answers as f64 / (a.empty_images * searched) as f64
+            );
+        }
+    }
+    if let Some(one) = &one_call {
+        println!("one call: {} instances estimated and answered in {} calls", one.estimates, one.ms.len());
     }
 
     // Time against the number of objects searched, on one scene.
@@ -163,6 +182,32 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
         println!("{n} objects: {:.0} ms (responses {:.0}, search {:.0}, verification {:.0}, masks {:.0}) on {}×{}", t.total_ms, t.responses_ms, t.search_ms, t.verify_ms, t.masks_ms, scene.rgb.width(), scene.rgb.height());
     }
     Ok(())
+}
+
+/// The per-object table and the summary line of `found` (detections, or answered poses'
+/// boxes) against the truth.
+fn table(names: &[String], truth: &BTreeMap<usize, Vec<Scored>>, found: &BTreeMap<usize, Vec<Scored>>, images: usize, what: &str, ms: &mut [f64]) {
+    println!("{what}:");
+    println!("| object | instances | recall@0.5 | AP50 | AP@[.5:.95] |");
+    println!("|---|---:|---:|---:|---:|");
+    let (mut hits, mut total) = (0, 0);
+    let mut every: BTreeMap<u32, Vec<ImageCategory>> = BTreeMap::new();
+    for (obj, name) in names.iter().enumerate() {
+        let gt = truth.get(&obj).map_or(&[][..], |v| v.as_slice());
+        let dets = found.get(&obj).map_or(&[][..], |v| v.as_slice());
+        if gt.is_empty() {
+            continue;
+        }
+        let one = BTreeMap::from([(obj as u32, coco_images(gt, dets, images))]);
+        let s = summarize(&one);
+        let h = recalled(gt, dets, 0.5);
+        println!("| {} | {} | {:.2} | {:.2} | {:.2} |", name, gt.len(), h as f64 / gt.len() as f64, s.ap50, s.ap);
+        every.extend(one);
+        hits += h;
+        total += gt.len();
+    }
+    let s = summarize(&every);
+    println!("all: recall@0.5 {:.3} ({hits}/{total}), AP50 {:.3}, AP@[.5:.95] {:.3} (COCO, as bop eval --detections); median {:.0} ms per call", hits as f64 / total.max(1) as f64, s.ap50, s.ap, super::bench_estimate::median(ms));
 }
 
 /// Detections of one object matched greedily, best score first, to unmatched truths of

@@ -1,4 +1,4 @@
-use crate::detect::confirm::{candidate_min_score, chosen, confirm, settled, EXTRA_CANDIDATES};
+use crate::detect::confirm::{candidate_min_score, confirm, estimate_instances, Choice};
 use crate::estimate::{Detection, EstimateConfig, EstimateResult};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -89,33 +89,29 @@ fn estimate_detected(a: &EstimateArgs, model: &ObjectModel, image: &image::RgbIm
     let options = crate::detect::DetectOptions { min_score: candidate_min_score(min_score), ..a.search.options() };
     let found = super::detect_cmd::detect_object(model, image, k, &options, renderer)?;
     let refs: Vec<(&image::GrayImage, f64)> = found.iter().map(|d| (&d.mask, d.score as f64)).collect();
-    let mut tried: Vec<(EstimateResult, Option<f32>)> = Vec::new();
-    for group in crate::masks::group_instances(&refs, 0.5).into_iter().take(1 + EXTRA_CANDIDATES) {
+    let mut count = 0;
+    let answered = estimate_instances(crate::masks::group_instances(&refs, 0.5), 1, Choice::Confirmed { min_score }, |group| {
         let candidates: Vec<Detection> = group.iter().map(|&i| Detection { mask: found[i].mask.clone(), score: found[i].score }).collect();
         let r = estimator.estimate(model, image, k, &candidates, cfg)?;
+        count += 1;
         let confirmation = match &r.pose {
             Some(pose) => {
                 let c = confirm(image, k, &model.mesh, &candidates[r.mask_index.unwrap_or(0)].mask, pose, renderer)?;
-                println!("candidate {} estimated, confirmed at its pose with {c:.3}", tried.len() + 1);
+                println!("candidate {count} estimated, confirmed at its pose with {c:.3}");
                 Some(c)
             }
             None => None,
         };
-        tried.push((r, confirmation));
-        if settled(&tried.iter().map(|t| t.1).collect::<Vec<_>>(), 1, min_score) {
-            break;
-        }
-    }
-    let scores: Vec<Option<f32>> = tried.iter().map(|t| t.1).collect();
-    match chosen(&scores, 1, min_score).first() {
-        Some(&i) => {
-            let (r, c) = tried.swap_remove(i);
-            Ok((r, c.unwrap_or(0.0)))
-        }
-        None => {
-            let best = scores.iter().flatten().copied().fold(0.0f32, f32::max);
-            bail!("none of the detector's {} candidate(s) of {} was confirmed at its estimated pose (best {best:.3}, --min-score {min_score}); give a --mask (or a --box), or lower --min-score", tried.len(), model.object_id)
-        }
+        anyhow::Ok((r, confirmation))
+    })?;
+    match answered.kept.into_iter().next() {
+        Some((r, c)) => Ok((r, c.unwrap_or(0.0))),
+        None => bail!(
+            "none of the detector's {} candidate(s) of {} was confirmed at its estimated pose (best {:.3}, --min-score {min_score}); give a --mask (or a --box), or lower --min-score",
+            answered.tried,
+            model.object_id,
+            answered.best.unwrap_or(0.0)
+        ),
     }
 }
 

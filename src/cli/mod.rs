@@ -6,6 +6,7 @@ pub mod bench_backbone;
 pub mod bench_detect;
 pub mod bench_estimate;
 pub mod bench_matching;
+pub mod bench_one_call;
 pub mod bench_refine;
 pub mod bench_scenes;
 pub mod bench_serve;

@@ -1,12 +1,15 @@
 //! `b2tf track`: poses through a video given as a folder of frames or a video file
-//! (cli/video_source.rs). The first frame gets a full estimate from its mask (or from the
-//! detector's best detection when no mask is given); later frames
+//! (cli/video_source.rs). The first frame gets a full estimate from its mask (or, when no
+//! mask is given, from the first of the detector's candidates confirmed at its estimated
+//! pose); later frames
 //! are tracked (track::TrackSession, as the service's streams), and a lost frame is
 //! re-initialised by a full estimate of the object found by the colours its track learnt
 //! (near its last pose, else anywhere in the frame). One JSON line per frame, written as
 //! it is known.
 
 use super::estimate_cmd::{load_mask, write_overlay};
+use super::video_source::{Frame, FrameSource};
+use crate::detect::confirm::{candidate_min_score, EXTRA_CANDIDATES};
 use crate::estimate::Estimator;
 use crate::geometry::Intrinsics;
 use crate::onboard::ObjectModel;
@@ -14,7 +17,6 @@ use crate::track::{FrameDetection, SessionConfig, TrackMode, TrackOutcome, Track
 use anyhow::{bail, Context, Result};
 use serde_json::json;
 use std::io::Write;
-use super::video_source::{Frame, FrameSource};
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -85,8 +87,11 @@ pub fn run(a: TrackArgs) -> Result<()> {
     let k = super::camera_file::load_camera_for(&a.camera, Some(first.image.dimensions()))?;
     check_size(&first, &k)?;
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
-    let mask = match &a.mask {
-        Some(path) => crate::masks::decode::check_size(load_mask(path)?, k.width, k.height).and_then(crate::masks::require_nonempty).with_context(|| format!("--mask {}", path.display()))?,
+    let first_detections = match &a.mask {
+        Some(path) => {
+            let mask = crate::masks::decode::check_size(load_mask(path)?, k.width, k.height).and_then(crate::masks::require_nonempty).with_context(|| format!("--mask {}", path.display()))?;
+            vec![FrameDetection::given(model.object_id.clone(), mask, 1.0)]
+        }
         None => detect_first(&model, &first, &k, &a.search, &renderer)?,
     };
     if let Some(d) = &a.overlay_dir {
@@ -100,23 +105,26 @@ pub fn run(a: TrackArgs) -> Result<()> {
         config.tracker.lost_below = q;
     }
     let mut session = TrackSession::new(renderer.clone(), config);
-    let object_id = model.object_id.clone();
     let resolve = |_: &str| Ok(model.clone());
     let mut counts = std::collections::BTreeMap::<&str, usize>::new();
     let mut tracked_ms = Vec::new();
-    let mut first_detection = Some(FrameDetection { object_id, mask, score: 1.0 });
+    let mut first_detections = Some(first_detections);
     let mut n = 0;
     for frame in std::iter::once(Ok(first)).chain(frames) {
         let frame = frame?;
         check_size(&frame, &k)?;
         let (i, image) = (frame.index, &frame.image);
         n += 1;
-        let detections = first_detection.take().into_iter().collect();
+        let detections = first_detections.take().unwrap_or_default();
         let (_, outcomes) = session.frame(Some(i as u64), image, &k, detections, &resolve, &estimator).map_err(anyhow::Error::msg)?;
-        let Some(o) = outcomes.into_iter().next() else { bail!("frame {}: the track ended", frame.name) };
-        if i == 0 && o.pose.is_none() {
-            bail!("no pose in the first frame {} from its {}: {}", frame.name, if a.mask.is_some() { "mask" } else { "detection" }, o.reason.unwrap_or_default());
-        }
+        // The first frame answers each candidate; the track is the one that started.
+        let reasons: Vec<String> = outcomes.iter().filter_map(|o| o.reason.clone()).collect();
+        let Some(o) = outcomes.into_iter().find(|o| o.track_id.is_some()) else {
+            if i == 0 {
+                bail!("no pose in the first frame {} from its {}: {}", frame.name, if a.mask.is_some() { "mask" } else { "detector's candidates" }, reasons.join("; "));
+            }
+            bail!("frame {}: the track ended", frame.name)
+        };
         if o.mode == TrackMode::Tracked {
             tracked_ms.push(o.ms);
         }
@@ -142,8 +150,11 @@ pub fn run(a: TrackArgs) -> Result<()> {
     Ok(())
 }
 
-/// The object's mask in the first frame from the detector: its best detection there.
-fn detect_first(model: &ObjectModel, first: &Frame, k: &Intrinsics, search: &super::detect_cmd::SearchArgs, renderer: &crate::render::RenderPool) -> Result<image::GrayImage> {
-    let found = super::detect_cmd::detect_object(model, &first.image, k, &search.options(), renderer).with_context(|| format!("first frame {}", first.name))?;
-    Ok(found.into_iter().next().map(|d| d.mask).expect("detect_object returns at least one"))
+/// The object's candidates in the first frame from the detector, below `--min-score`:
+/// the track starts from the first one confirmed at its estimated pose (`detect::confirm`).
+fn detect_first(model: &ObjectModel, first: &Frame, k: &Intrinsics, search: &super::detect_cmd::SearchArgs, renderer: &crate::render::RenderPool) -> Result<Vec<FrameDetection>> {
+    let min_score = search.min_score;
+    let options = crate::detect::DetectOptions { min_score: candidate_min_score(min_score), ..search.options() };
+    let found = super::detect_cmd::detect_object(model, &first.image, k, &options, renderer).with_context(|| format!("first frame {}", first.name))?;
+    Ok(found.into_iter().take(1 + EXTRA_CANDIDATES).map(|d| FrameDetection { object_id: d.object_id, mask: d.mask, score: d.score, min_confirmation: Some(min_score) }).collect())
 }

@@ -36,10 +36,61 @@ pub fn confirm(image: &RgbImage, k: &Intrinsics, mesh: &Mesh, mask: &GrayImage, 
     Ok(combined_score(&window.evidence(renderer, mesh, pose)?))
 }
 
+/// Which estimated instances are answered.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Choice {
+    /// The caller's detections: the instances wanted are estimated and all answered.
+    Given,
+    /// The detector's candidates: a few more than wanted are estimated, in order until
+    /// enough are surely confirmed, and those confirmed at `min_score` answered, best first.
+    Confirmed { min_score: f32 },
+}
+
+/// What `estimate_instances` did: the instances answered, with their confirmation scores
+/// (`None` unconfirmed: given detections, or no pose), and what was tried.
+pub struct Instances<T> {
+    pub kept: Vec<(T, Option<f32>)>,
+    /// Instances estimated, answered or not.
+    pub tried: usize,
+    /// The best confirmation score among those tried.
+    pub best: Option<f32>,
+}
+
+/// Estimates instance groups in order (`estimate` gives its result and, when confirming,
+/// the confirmation score at its pose) and chooses which to answer (`Choice`). The one
+/// loop every detect-then-estimate path runs: the service, the CLI and `bop run`.
+pub fn estimate_instances<G, T, E>(groups: impl IntoIterator<Item = G>, wanted: usize, choice: Choice, mut estimate: impl FnMut(G) -> Result<(T, Option<f32>), E>) -> Result<Instances<T>, E> {
+    let limit = match choice {
+        Choice::Given => wanted,
+        Choice::Confirmed { .. } => wanted + EXTRA_CANDIDATES,
+    };
+    let mut tried: Vec<(T, Option<f32>)> = Vec::new();
+    for group in groups.into_iter().take(limit) {
+        tried.push(estimate(group)?);
+        if let Choice::Confirmed { min_score } = choice {
+            if settled(&tried.iter().map(|t| t.1).collect::<Vec<_>>(), wanted, min_score) {
+                break;
+            }
+        }
+    }
+    let scores: Vec<Option<f32>> = tried.iter().map(|t| t.1).collect();
+    let best = scores.iter().flatten().copied().reduce(f32::max);
+    let count = tried.len();
+    let kept = match choice {
+        Choice::Given => tried,
+        Choice::Confirmed { min_score } => {
+            let order = chosen(&scores, wanted, min_score);
+            let mut slots: Vec<Option<(T, Option<f32>)>> = tried.into_iter().map(Some).collect();
+            order.into_iter().filter_map(|i| slots[i].take()).collect()
+        }
+    };
+    Ok(Instances { kept, tried: count, best })
+}
+
 /// Which estimated candidates to answer: those confirmed at `min_score` or more, best
 /// first, at most `wanted`. `scores[i]` is candidate i's confirmation score (`None`: the
 /// estimator found no pose). Returns candidate indices.
-pub fn chosen(scores: &[Option<f32>], wanted: usize, min_score: f32) -> Vec<usize> {
+fn chosen(scores: &[Option<f32>], wanted: usize, min_score: f32) -> Vec<usize> {
     let mut order: Vec<usize> = (0..scores.len()).filter(|&i| scores[i].is_some_and(|s| s >= min_score)).collect();
     order.sort_by(|&a, &b| scores[b].unwrap_or(0.0).total_cmp(&scores[a].unwrap_or(0.0)).then(a.cmp(&b)));
     order.truncate(wanted);
@@ -53,7 +104,7 @@ const SURE: f32 = 0.45;
 
 /// Whether the candidates confirmed so far (`scores`, in the order estimated) settle the
 /// answer: `wanted` of them at `min_score` and at least `SURE`.
-pub fn settled(scores: &[Option<f32>], wanted: usize, min_score: f32) -> bool {
+fn settled(scores: &[Option<f32>], wanted: usize, min_score: f32) -> bool {
     scores.iter().flatten().filter(|&&s| s >= min_score.max(SURE)).count() >= wanted
 }
 
@@ -68,6 +119,34 @@ mod tests {
         assert_eq!(chosen(&s, 10, 0.2), vec![2, 3, 4, 0]);
         assert_eq!(chosen(&s, 10, 0.9), Vec::<usize>::new());
         assert_eq!(chosen(&[], 3, 0.0), Vec::<usize>::new());
+    }
+
+    #[test]
+    fn confirmed_instances_are_estimated_until_settled_and_answered_best_first() {
+        let scores = [Some(0.3), None, Some(0.8), Some(0.5), Some(0.9), Some(0.95)];
+        let mut calls = 0;
+        let out = estimate_instances(0..scores.len(), 1, Choice::Confirmed { min_score: 0.2 }, |i| {
+            calls += 1;
+            Ok::<_, ()>((i, scores[i]))
+        })
+        .unwrap();
+        // The third candidate settles one instance (0.8 ≥ 0.45): the rest are not estimated.
+        assert_eq!(calls, 3);
+        assert_eq!(out.tried, 3);
+        assert_eq!(out.kept, vec![(2, Some(0.8))]);
+        assert_eq!(out.best, Some(0.8));
+        // At most `wanted + EXTRA_CANDIDATES` are tried; none confirmed keeps none.
+        let out = estimate_instances(0..10, 2, Choice::Confirmed { min_score: 0.6 }, |i| Ok::<_, ()>((i, Some(0.1 * i as f32 / 10.0)))).unwrap();
+        assert_eq!((out.tried, out.kept.len()), (2 + EXTRA_CANDIDATES, 0));
+    }
+
+    #[test]
+    fn given_instances_are_all_answered_in_order_and_errors_stop_the_loop() {
+        let out = estimate_instances(0..10, 3, Choice::Given, |i| Ok::<_, ()>((i, None))).unwrap();
+        assert_eq!(out.kept, vec![(0, None), (1, None), (2, None)]);
+        assert_eq!(out.best, None);
+        let err = estimate_instances(0..10, 3, Choice::Given, |i| if i == 1 { Err("broken") } else { Ok((i, None)) });
+        assert_eq!(err.err(), Some("broken"));
     }
 
     #[test]

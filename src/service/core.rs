@@ -4,11 +4,11 @@
 //! Methods here block (rendering, features, PnP); async adapters call them on blocking
 //! threads after taking a slot, so load beyond the limits is refused at once.
 
+use super::detect_requests::DetectionOutput;
 use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
-use super::detect_requests::DetectionOutput;
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput};
-use crate::detect::confirm::{candidate_min_score, chosen, confirm, settled, EXTRA_CANDIDATES};
+use crate::detect::confirm::{candidate_min_score, confirm, estimate_instances, Choice};
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
 use crate::geometry::ViewSampling;
@@ -204,14 +204,16 @@ impl Core {
             let progress = |p: crate::onboard::Progress| op.done.store(p.templates_done as u64, Ordering::Relaxed);
             let result = onboard_cancellable(&op.object_id, &mesh, &config, backbone.as_ref(), &pool, &progress, &op.cancel);
             let (state, error, info) = match result {
-                Ok(model) => match tracing::info_span!("store.put").in_scope(|| store.put(&model, replace)) {
-                    Ok(info) => {
-                        // A replaced object must not be served from the cache's old copy.
-                        cache.invalidate(&op.object_id);
-                        (OperationState::Succeeded, None, Some(info))
+                Ok(model) => {
+                    match tracing::info_span!("store.put").in_scope(|| store.put(&model, replace)) {
+                        Ok(info) => {
+                            // A replaced object must not be served from the cache's old copy.
+                            cache.invalidate(&op.object_id);
+                            (OperationState::Succeeded, None, Some(info))
+                        }
+                        Err(e) => (OperationState::Failed, Some(e.to_string()), None),
                     }
-                    Err(e) => (OperationState::Failed, Some(e.to_string()), None),
-                },
+                }
                 Err(OnboardError::Cancelled) => (OperationState::Cancelled, None, None),
                 Err(e) => (OperationState::Failed, Some(e.to_string()), None),
             };
@@ -284,31 +286,30 @@ impl Core {
         cfg.verify.spin_steps = o.spin_steps;
         // The detector's candidates are confirmed at their estimated poses: a few more than
         // wanted are estimated, and the confirmed ones kept (`detect::confirm`).
-        let confirming = detected.is_some();
-        let tried = o.instances_per_object + if confirming { EXTRA_CANDIDATES } else { 0 };
+        let choice = if detected.is_some() { Choice::Confirmed { min_score: req.detect.min_score } } else { Choice::Given };
         let mut results = Vec::new();
         let mut unconfirmed = 0usize;
         for (object_id, dets) in &by_object {
             let model = &models[object_id];
             let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, m, s)| (m, *s as f64)).collect();
-            let mut found = Vec::new();
-            for (instance, group) in crate::masks::group_instances(&refs, 0.5).into_iter().take(tried).enumerate() {
+            let groups = crate::masks::group_instances(&refs, 0.5).into_iter().enumerate();
+            let answered = estimate_instances(groups, o.instances_per_object, choice, |(instance, group)| {
                 if deadline.is_some_and(|d| Instant::now() >= d) {
-                    return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", results.len() + found.len())));
+                    return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", results.len() + instance)));
                 }
                 let candidates: Vec<Detection> = group.iter().map(|&g| Detection { mask: dets[g].1.clone(), score: dets[g].2 }).collect();
                 let others = others_mask(&by_object, object_id, &group, k.width, k.height);
                 let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
                 let r = span.in_scope(|| self.estimator.estimate_among(model, &image, &k, &candidates, others.as_ref(), &cfg))?;
-                let confirmation = match (&r.pose, confirming) {
-                    (Some(pose), true) => {
+                let confirmation = match (&r.pose, choice) {
+                    (Some(pose), Choice::Confirmed { .. }) => {
                         let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
                         Some(span.in_scope(|| confirm(&image, &k, &model.mesh, mask, pose, &self.pool)).map_err(|e| ServiceError::internal(format!("object {object_id:?}: confirming: {e}")))?)
                     }
                     _ => None,
                 };
                 span.in_scope(|| tracing::debug!(found = r.pose.is_some(), score = r.score, confirmation, ms = r.timings.total, "instance estimated"));
-                found.push(InstanceResult {
+                let result = InstanceResult {
                     object_id: object_id.to_string(),
                     instance,
                     pose: r.pose.as_ref().map(PoseOutput::from),
@@ -318,22 +319,15 @@ impl Core {
                     reason: r.reason.clone(),
                     diagnostics: serde_json::to_value(&r.hypotheses).unwrap_or_default(),
                     timings_ms: serde_json::to_value(r.timings).unwrap_or_default(),
-                });
-                if confirming && settled(&found.iter().map(|f| f.confirmation_score).collect::<Vec<_>>(), o.instances_per_object, req.detect.min_score) {
-                    break;
-                }
-            }
-            if confirming {
-                let scores: Vec<Option<f32>> = found.iter().map(|f| f.confirmation_score).collect();
-                let keep = chosen(&scores, o.instances_per_object, req.detect.min_score);
-                unconfirmed += found.len() - keep.len();
-                results.extend(keep.into_iter().enumerate().map(|(n, i)| InstanceResult { instance: n, ..found[i].clone() }));
-            } else {
-                results.extend(found);
-            }
+                };
+                Ok((result, confirmation))
+            })?;
+            unconfirmed += answered.tried - answered.kept.len();
+            // Instances are numbered in the answer's order, best confirmed first.
+            results.extend(answered.kept.into_iter().enumerate().map(|(n, (r, _))| InstanceResult { instance: n, ..r }));
         }
         let (detections, mut reason) = detected.unwrap_or_default();
-        if confirming && results.is_empty() && reason.is_none() {
+        if choice != Choice::Given && results.is_empty() && reason.is_none() {
             reason = Some(format!("none of the {unconfirmed} candidate(s) estimated was confirmed at its pose with a score of {} or more", req.detect.min_score));
         }
         Ok(EstimateResponse { results, detections, reason, total_ms: t0.elapsed().as_secs_f64() * 1e3 })

@@ -6,6 +6,7 @@ use super::core::Core;
 use super::error::{ErrorKind, ServiceError};
 use super::track_requests::{TrackFrameRequest, TrackFrameResponse, TrackSessionInfo, TrackSessionOptions, TrackedObject};
 use super::track_sessions::SessionEntry;
+use crate::detect::confirm::{candidate_min_score, EXTRA_CANDIDATES};
 use crate::masks::BoxMask;
 use crate::track::{FrameDetection, SessionError, TrackSession};
 use std::time::Instant;
@@ -70,15 +71,25 @@ impl Core {
         let followed: std::collections::BTreeSet<String> = session.tracks().into_iter().filter(|t| t.lost_frames == 0).map(|t| t.object_id).collect();
         let wanted: Vec<String> = req.objects.iter().filter(|id| !followed.contains(*id)).cloned().collect();
         if !wanted.is_empty() {
-            let report = self.run_detector(&image, &k, &wanted, &req.detect, None)?;
-            detections.extend(report.detections.into_iter().map(|d| FrameDetection { object_id: d.object_id, mask: d.mask, score: d.score }));
+            // Candidates below the caller's threshold, a few per object: a track starts
+            // from the first one confirmed at its estimated pose (`detect::confirm`).
+            let options = crate::detect::DetectOptions { min_score: candidate_min_score(req.detect.min_score), ..req.detect.clone() };
+            let report = self.run_detector(&image, &k, &wanted, &options, None)?;
+            let mut per_object = std::collections::BTreeMap::<String, usize>::new();
+            for d in report.detections {
+                let n = per_object.entry(d.object_id.clone()).or_default();
+                *n += 1;
+                if *n <= 1 + EXTRA_CANDIDATES {
+                    detections.push(FrameDetection { object_id: d.object_id, mask: d.mask, score: d.score, min_confirmation: Some(req.detect.min_score) });
+                }
+            }
         }
         for (i, d) in req.detections.iter().enumerate() {
             if !d.score.is_finite() {
                 return Err(ServiceError::invalid(format!("detections[{i}].score is not a finite number")));
             }
             crate::store::validate_id(&d.object_id).map_err(|e| ServiceError::invalid(format!("detections[{i}].object_id: {e}")))?;
-            detections.push(FrameDetection { object_id: d.object_id.clone(), mask: d.mask(i, &image, BoxMask::Segment)?, score: d.score });
+            detections.push(FrameDetection::given(d.object_id.clone(), d.mask(i, &image, BoxMask::Segment)?, d.score));
         }
         // Every named object must exist before any work starts (NOT_FOUND names it).
         let mut models = std::collections::BTreeMap::new();

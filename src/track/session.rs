@@ -9,6 +9,7 @@
 
 use super::colour::Window;
 use super::{Tracker, TrackerConfig};
+use crate::detect::confirm::confirm;
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -94,6 +95,17 @@ pub struct FrameDetection {
     pub object_id: String,
     pub mask: GrayImage,
     pub score: f32,
+    /// A candidate of the detector rather than the caller's detection: a track starts from
+    /// it only when its estimate is confirmed at this score or more (`detect::confirm`),
+    /// and only the first of an object's candidates so confirmed starts one.
+    pub min_confirmation: Option<f32>,
+}
+
+impl FrameDetection {
+    /// The caller's detection, taken as it is.
+    pub fn given(object_id: String, mask: GrayImage, score: f32) -> Self {
+        Self { object_id, mask, score, min_confirmation: None }
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -200,8 +212,18 @@ impl TrackSession {
         }
         let dropped: Vec<u32> = out.iter().filter(|o| o.mode == TrackMode::Dropped).filter_map(|o| o.track_id).collect();
         self.tracks.retain(|t| !dropped.contains(&t.id));
+        // Objects a confirmed candidate started a track of: their later candidates are not tried.
+        let mut started = std::collections::BTreeSet::new();
         for (di, d) in detections.iter().enumerate().filter(|(di, _)| claimed[*di].is_none()) {
-            out.push(self.start_track(di, d, new_models[d.object_id.as_str()].clone(), image, k, estimator)?);
+            let candidate = d.min_confirmation.is_some();
+            if candidate && started.contains(d.object_id.as_str()) {
+                continue;
+            }
+            let outcome = self.start_track(di, d, new_models[d.object_id.as_str()].clone(), image, k, estimator)?;
+            if candidate && outcome.track_id.is_some() {
+                started.insert(d.object_id.as_str());
+            }
+            out.push(outcome);
         }
         self.last_frame = Some(index);
         self.frames += 1;
@@ -259,6 +281,12 @@ impl TrackSession {
             Ok((p, _)) => p,
             Err(reason) => return Ok(refused(reason, t)),
         };
+        if let Some(min) = d.min_confirmation {
+            let c = confirm(image, k, &model.mesh, &d.mask, &pose, &self.renderer).map_err(|e| SessionError::Internal(format!("{}: confirming: {e}", d.object_id)))?;
+            if c < min {
+                return Ok(refused(format!("the detector's candidate was not confirmed at its estimated pose (score {c:.2}, under {min})"), t));
+            }
+        }
         let tracker = match Tracker::new(model.clone(), self.renderer.clone(), image, k, pose, self.config.tracker.clone()) {
             Ok(t) => t,
             Err(reason) => return Ok(refused(format!("the estimated pose cannot start a track: {reason}"), t)),
@@ -293,10 +321,14 @@ fn finish_track(track: &mut Track, step: super::TrackStep, t: Instant, image: &R
             // What was found inside the searched box must be an object there: an estimate
             // centred elsewhere explains a region that took in clutter too. (Its outline
             // may reach beyond the box: the box was only where to look.)
-            Ok((pose, _)) if searched.is_some_and(|w| !centred_in(k, &track.model, &pose, w)) => why = format!("{why}; re-initialising: the estimate puts the object beyond the box searched around its last pose"),
+            Ok((pose, _)) if searched.is_some_and(|w| !centred_in(k, &track.model, &pose, w)) => {
+                why = format!("{why}; re-initialising: the estimate puts the object beyond the box searched around its last pose")
+            }
             // The estimate explains its mask, but a mask of clutter is explained by a pose
             // whose render looks nothing like the frame.
-            Ok((pose, _)) if track.tracker.appearance_at(image, k, &pose).map_err(SessionError::Internal)?.is_some_and(|a| a < config.tracker.min_appearance) => why = format!("{why}; re-initialising: the estimated pose does not look like the frame"),
+            Ok((pose, _)) if track.tracker.appearance_at(image, k, &pose).map_err(SessionError::Internal)?.is_some_and(|a| a < config.tracker.min_appearance) => {
+                why = format!("{why}; re-initialising: the estimated pose does not look like the frame")
+            }
             Ok((pose, _)) => match track.tracker.restart(image, k, pose) {
                 Ok(()) => {
                     track.lost_frames = 0;
