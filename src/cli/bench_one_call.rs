@@ -22,7 +22,8 @@ pub struct OneCall {
     core: Core,
     /// The detector's settings of every call (its threshold applies to the confirmation).
     detect: DetectOptions,
-    pub estimates: usize,
+    /// Instances answered (with or without a pose), over all calls.
+    pub answered: usize,
     pub ms: Vec<f64>,
 }
 
@@ -33,7 +34,7 @@ impl OneCall {
         if let Some(missing) = ids.iter().find(|id| !listed.iter().any(|o| o.id == **id)) {
             anyhow::bail!("--estimate-store {store_url} has no object {missing:?}: onboard each searched mesh under its file's name (b2tf onboard --mesh … --id {missing})");
         }
-        Ok(Self { core, detect, estimates: 0, ms: Vec::new() })
+        Ok(Self { core, detect, answered: 0, ms: Vec::new() })
     }
 
     /// The boxes (rendered silhouettes of the answered poses) and confirmation scores of
@@ -51,7 +52,7 @@ impl OneCall {
         self.ms.push(answer.total_ms);
         let mut out = Vec::new();
         for r in &answer.results {
-            self.estimates += 1;
+            self.answered += 1;
             let Some(p) = &r.pose else { continue };
             let pose = Pose::from_row_major(&p.r, p.t);
             let silhouette = pool.render(mesh, &pose, k, &Default::default())?.mask;
