@@ -1,4 +1,4 @@
-use crate::detect::confirm::{candidate_min_score, confirm, estimate_instances, Choice};
+use crate::detect::confirm::{answer_threshold, candidate_min_score, confirm, estimate_instances, Choice};
 use crate::estimate::{Detection, EstimateConfig, EstimateResult};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -107,10 +107,11 @@ fn estimate_detected(a: &EstimateArgs, model: &ObjectModel, image: &image::RgbIm
     match answered.kept.into_iter().next() {
         Some((r, c)) => Ok((r, c.unwrap_or(0.0))),
         None => bail!(
-            "none of the detector's {} candidate(s) of {} was confirmed at its estimated pose (best {:.3}, --min-score {min_score}); give a --mask (or a --box), or lower --min-score",
+            "none of the detector's {} candidate(s) of {} was confirmed at its estimated pose (best {:.3}, needed {:.3} for --min-score {min_score}); give a --mask (or a --box), or lower --min-score",
             answered.tried,
             model.object_id,
-            answered.best.unwrap_or(0.0)
+            answered.best.unwrap_or(0.0),
+            answer_threshold(min_score)
         ),
     }
 }

@@ -9,7 +9,7 @@
 
 use super::estimate_cmd::{load_mask, write_overlay};
 use super::video_source::{Frame, FrameSource};
-use crate::detect::confirm::{candidate_min_score, EXTRA_CANDIDATES};
+use crate::detect::confirm::{answer_threshold, candidate_min_score, EXTRA_CANDIDATES};
 use crate::estimate::Estimator;
 use crate::geometry::Intrinsics;
 use crate::onboard::ObjectModel;
@@ -156,5 +156,5 @@ fn detect_first(model: &ObjectModel, first: &Frame, k: &Intrinsics, search: &sup
     let min_score = search.min_score;
     let options = crate::detect::DetectOptions { min_score: candidate_min_score(min_score), ..search.options() };
     let found = super::detect_cmd::detect_object(model, &first.image, k, &options, renderer).with_context(|| format!("first frame {}", first.name))?;
-    Ok(found.into_iter().take(1 + EXTRA_CANDIDATES).map(|d| FrameDetection { object_id: d.object_id, mask: d.mask, score: d.score, min_confirmation: Some(min_score) }).collect())
+    Ok(found.into_iter().take(1 + EXTRA_CANDIDATES).map(|d| FrameDetection { object_id: d.object_id, mask: d.mask, score: d.score, min_confirmation: Some(answer_threshold(min_score)) }).collect())
 }

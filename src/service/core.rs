@@ -8,7 +8,7 @@ use super::detect_requests::DetectionOutput;
 use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput};
-use crate::detect::confirm::{candidate_min_score, confirm, estimate_instances, Choice};
+use crate::detect::confirm::{answer_threshold, candidate_min_score, confirm, estimate_instances, Choice};
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
 use crate::geometry::ViewSampling;
@@ -328,7 +328,7 @@ impl Core {
         }
         let (detections, mut reason) = detected.unwrap_or_default();
         if choice != Choice::Given && results.is_empty() && reason.is_none() {
-            reason = Some(format!("none of the {unconfirmed} candidate(s) estimated was confirmed at its pose with a score of {} or more", req.detect.min_score));
+            reason = Some(format!("none of the {unconfirmed} candidate(s) estimated was confirmed at its pose with a score of {:.3} or more (for min_score {})", answer_threshold(req.detect.min_score), req.detect.min_score));
         }
         Ok(EstimateResponse { results, detections, reason, total_ms: t0.elapsed().as_secs_f64() * 1e3 })
     }

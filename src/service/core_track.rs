@@ -6,7 +6,7 @@ use super::core::Core;
 use super::error::{ErrorKind, ServiceError};
 use super::track_requests::{TrackFrameRequest, TrackFrameResponse, TrackSessionInfo, TrackSessionOptions, TrackedObject};
 use super::track_sessions::SessionEntry;
-use crate::detect::confirm::{candidate_min_score, EXTRA_CANDIDATES};
+use crate::detect::confirm::{answer_threshold, candidate_min_score, EXTRA_CANDIDATES};
 use crate::masks::BoxMask;
 use crate::track::{FrameDetection, SessionError, TrackSession};
 use std::time::Instant;
@@ -80,7 +80,7 @@ impl Core {
                 let n = per_object.entry(d.object_id.clone()).or_default();
                 *n += 1;
                 if *n <= 1 + EXTRA_CANDIDATES {
-                    detections.push(FrameDetection { object_id: d.object_id, mask: d.mask, score: d.score, min_confirmation: Some(req.detect.min_score) });
+                    detections.push(FrameDetection { object_id: d.object_id, mask: d.mask, score: d.score, min_confirmation: Some(answer_threshold(req.detect.min_score)) });
                 }
             }
         }

@@ -284,7 +284,7 @@ impl TrackSession {
         if let Some(min) = d.min_confirmation {
             let c = confirm(image, k, &model.mesh, &d.mask, &pose, &self.renderer).map_err(|e| SessionError::Internal(format!("{}: confirming: {e}", d.object_id)))?;
             if c < min {
-                return Ok(refused(format!("the detector's candidate was not confirmed at its estimated pose (score {c:.2}, under {min})"), t));
+                return Ok(refused(format!("the detector's candidate was not confirmed at its estimated pose (score {c:.3}, under {min:.3})"), t));
             }
         }
         let tracker = match Tracker::new(model.clone(), self.renderer.clone(), image, k, pose, self.config.tracker.clone()) {
