@@ -42,8 +42,8 @@ pub fn confirm(image: &RgbImage, k: &Intrinsics, mesh: &Mesh, mask: &GrayImage, 
 /// lines up better than a template's coarse pose does). Measured with `b2tf bench detect
 /// --estimate-store` (docs/detection.md, "The one-call path"): needing 0.55 instead of 0.45
 /// at the default `min_score` took the poses answered on images without the objects from
-/// 0.83 to 0.17 per image (7 objects asked for in each) and the wrong poses answered in
-/// the scenes from 12 to 2, for 9 right answers of 29 instead of 11.
+/// 0.92 to 0.33 per image (7 objects asked for in each) and the wrong poses answered in
+/// the scenes from 16 to 3, for 7 right answers of 29 instead of 9.
 pub fn answer_threshold(min_score: f32) -> f32 {
     (FITTED_POSE_GAIN * min_score).min(1.0)
 }
