@@ -44,7 +44,10 @@ pub struct SearchArgs {
     /// At most this many detections over all objects.
     #[arg(long, default_value_t = DetectOptions::default().max_detections)]
     pub max_detections: usize,
-    /// Score (0–1) a detection needs.
+    /// Score (0–1) a detection needs. Where a pose is estimated from the detector's
+    /// candidates (estimate and track without a mask, bop run without detections), the
+    /// candidates are taken from half of it and a pose is answered when its confirmation
+    /// reaches 1.22 × it (docs/detection.md, "Confirmation").
     #[arg(long, default_value_t = DetectOptions::default().min_score)]
     pub min_score: f32,
     /// Nearest distance of the object from the camera to search, metres (default: the
