@@ -192,6 +192,15 @@ fn upgrade_and_detect_from_the_command_line() {
     let (ok, _, err) = b2tf(&[&common[..], &["--object", "nothing_here"]].concat());
     assert!(!ok && err.contains("\"nothing_here\"") && err.contains("not found"), "{err}");
 
+    // `b2tf bench detect --estimate-store` needs every searched mesh onboarded under its
+    // file's name, and the textured objects: both refused by name before any work.
+    let ply = b2tfpose::mesh::write_ply::write_bop_ply(&f.mesh, d, "obj_000001").unwrap();
+    let bench = ["bench", "detect", "--mesh", ply.to_str().unwrap(), "--units", "mm", "--images", "1", "--empty-images", "0", "--estimate-store", &store_url];
+    let (ok, _, err) = b2tf(&bench);
+    assert!(!ok && err.contains("has no object \"obj_000001\"") && err.contains("--id obj_000001"), "{err}");
+    let (ok, _, err) = b2tf(&[&bench[..], &["--untextured"]].concat());
+    assert!(!ok && err.contains("leave out --untextured"), "{err}");
+
     // `b2tf estimate` with no mask and no box: the object id alone, the detector finds it.
     let est = d.join("est.json");
     let estimate = ["estimate", "--store", &store_url, "--object", "box_7", "--image", img.to_str().unwrap(), "--camera", cam.to_str().unwrap(), "--out", est.to_str().unwrap(), "--no-rrc"];

@@ -17,7 +17,7 @@ use super::dataset::{load_rgb, load_scene_cameras, load_targets, ImageCamera};
 use super::detections::{DetectionIndex, DetectionRecord};
 use super::format::{scene_dir, TargetRecord};
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
-use crate::detect::confirm::{candidate_min_score, confirm, estimate_instances, Choice};
+use crate::detect::confirm::{candidate_options, confirm, estimate_instances, Choice};
 use crate::detect::{detect, DetectOptions, Target};
 use crate::estimate::{Detection, EstimateConfig, EstimateError, Estimator};
 use crate::geometry::Pose;
@@ -212,7 +212,7 @@ fn detect_targets(
     // Instances wanted in all, so that a busy image keeps enough detections.
     let wanted: usize = targets.iter().map(|t| t.inst_count as usize).sum();
     // Candidates below the final threshold too: confirmation at the estimated pose decides.
-    let options = DetectOptions { max_detections: options.max_detections.max(2 * wanted).min(crate::limits::MAX_DETECTIONS), min_score: candidate_min_score(options.min_score), ..options.clone() };
+    let options = DetectOptions { max_detections: options.max_detections.max(2 * wanted).min(crate::limits::MAX_DETECTIONS), ..candidate_options(options) };
     let report = detect(rgb, cam, &detect_targets, &options, pool).with_context(|| format!("detecting in scene {scene_id}, image {image_id}"))?;
     let obj_of: BTreeMap<&str, u32> = models.iter().map(|(id, m)| (m.object_id.as_str(), *id)).collect();
     let time = started.elapsed().as_secs_f64();

@@ -78,22 +78,23 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
     }
     let names: Vec<String> = a.meshes.iter().map(|p| p.file_stem().map_or("mesh".into(), |s| s.to_string_lossy().into_owned())).collect();
     let searched = meshes.len() - a.distractors;
+    let d = DetectOptions::default();
+    let opts = DetectOptions { min_score: a.min_score.unwrap_or(d.min_score), max_detections: a.max_detections.unwrap_or(d.max_detections), ..d };
+    // The store is checked before the templates are built: a wrong one fails at once.
+    if a.estimate_store.is_some() && a.untextured {
+        bail!("--estimate-store runs the onboarded (textured) objects; leave out --untextured");
+    }
+    let mut one_call = a.estimate_store.as_deref().map(|url| super::bench_one_call::OneCall::open(url, &names[..searched], opts.clone())).transpose()?;
     let pool = super::open_renderer(RenderPool::DEFAULT_SIZE)?;
     let t = Instant::now();
     let shapes: Vec<ShapeModel> = meshes[..searched].iter().map(|m| ShapeModel::build(m, &pool, &Default::default())).collect::<Result<_, _>>()?;
     println!("templates: {} objects × {} in {:.1} s ({:.2} s per object)", searched, shapes[0].template_count(), t.elapsed().as_secs_f64(), t.elapsed().as_secs_f64() / searched as f64);
     let targets: Vec<Target> = (0..searched).map(|i| Target { id: &names[i], shape: &shapes[i], mesh: &meshes[i] }).collect();
-    let d = DetectOptions::default();
-    let opts = DetectOptions { min_score: a.min_score.unwrap_or(d.min_score), max_detections: a.max_detections.unwrap_or(d.max_detections), ..d };
     let all: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, m)| (i as u32 + 1, m.clone())).collect();
     if let Some(dir) = &a.overlays {
         std::fs::create_dir_all(dir)?;
     }
 
-    if a.estimate_store.is_some() && a.untextured {
-        bail!("--estimate-store runs the onboarded (textured) objects; leave out --untextured");
-    }
-    let mut one_call = a.estimate_store.as_deref().map(|url| super::bench_one_call::OneCall::open(url, &names[..searched], opts.clone())).transpose()?;
     let mut truth: BTreeMap<usize, Vec<Scored>> = BTreeMap::new();
     // Whole silhouettes' boxes, as an answered pose's render gives them (occluded parts too).
     let mut truth_whole: BTreeMap<usize, Vec<Scored>> = BTreeMap::new();
@@ -145,8 +146,8 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
         }
     }
     table(&names[..searched], &truth, &found, a.images, "detections", &mut ms);
-    if one_call.is_some() {
-        let mut ms = one_call.as_ref().map(|o| o.ms.clone()).unwrap_or_default();
+    if let Some(one) = &one_call {
+        let mut ms = one.ms.clone();
         table(&names[..searched], &truth_whole, &answered, a.images, "one-call estimates (box of the answered pose's whole silhouette against the truth's, confirmation score)", &mut ms);
     }
 

@@ -1,4 +1,4 @@
-use crate::detect::confirm::{answer_threshold, candidate_min_score, confirm, estimate_instances, Choice};
+use crate::detect::confirm::{answer_threshold, candidate_options, confirm, estimate_instances, Choice};
 use crate::estimate::{Detection, EstimateConfig, EstimateResult};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -86,7 +86,7 @@ fn detections(a: &EstimateArgs, image: &image::RgbImage) -> Result<Vec<Detection
 /// best at its estimated pose answered (`detect::confirm`), with its confirmation score.
 fn estimate_detected(a: &EstimateArgs, model: &ObjectModel, image: &image::RgbImage, k: &Intrinsics, estimator: &crate::estimate::Estimator, renderer: &crate::render::RenderPool, cfg: &EstimateConfig) -> Result<(EstimateResult, f32)> {
     let min_score = a.search.min_score;
-    let options = crate::detect::DetectOptions { min_score: candidate_min_score(min_score), ..a.search.options() };
+    let options = candidate_options(&a.search.options());
     let found = super::detect_cmd::detect_object(model, image, k, &options, renderer)?;
     let refs: Vec<(&image::GrayImage, f64)> = found.iter().map(|d| (&d.mask, d.score as f64)).collect();
     let mut count = 0;

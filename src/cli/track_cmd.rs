@@ -9,7 +9,7 @@
 
 use super::estimate_cmd::{load_mask, write_overlay};
 use super::video_source::{Frame, FrameSource};
-use crate::detect::confirm::{answer_threshold, candidate_min_score, EXTRA_CANDIDATES};
+use crate::detect::confirm::{candidate_options, candidates_tried};
 use crate::estimate::Estimator;
 use crate::geometry::Intrinsics;
 use crate::onboard::ObjectModel;
@@ -153,8 +153,6 @@ pub fn run(a: TrackArgs) -> Result<()> {
 /// The object's candidates in the first frame from the detector, below `--min-score`:
 /// the track starts from the first one confirmed at its estimated pose (`detect::confirm`).
 fn detect_first(model: &ObjectModel, first: &Frame, k: &Intrinsics, search: &super::detect_cmd::SearchArgs, renderer: &crate::render::RenderPool) -> Result<Vec<FrameDetection>> {
-    let min_score = search.min_score;
-    let options = crate::detect::DetectOptions { min_score: candidate_min_score(min_score), ..search.options() };
-    let found = super::detect_cmd::detect_object(model, &first.image, k, &options, renderer).with_context(|| format!("first frame {}", first.name))?;
-    Ok(found.into_iter().take(1 + EXTRA_CANDIDATES).map(|d| FrameDetection { object_id: d.object_id, mask: d.mask, score: d.score, min_confirmation: Some(answer_threshold(min_score)) }).collect())
+    let found = super::detect_cmd::detect_object(model, &first.image, k, &candidate_options(&search.options()), renderer).with_context(|| format!("first frame {}", first.name))?;
+    Ok(found.into_iter().take(candidates_tried(1)).map(|d| FrameDetection::candidate(d.object_id, d.mask, d.score, search.min_score)).collect())
 }

@@ -10,19 +10,25 @@
 
 use super::detector::{bbox_of, combined_score};
 use super::verify::Window;
+use super::DetectOptions;
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Mesh;
 use crate::render::{RenderError, RenderPool};
 use image::{GrayImage, RgbImage};
 
 /// Candidate instances estimated beyond those wanted, so that confirmation can choose.
-pub const EXTRA_CANDIDATES: usize = 3;
+const EXTRA_CANDIDATES: usize = 3;
 
-/// The detector's threshold for candidates of a detect-then-estimate request: below the
-/// final one, since confirmation decides; the caller's `min_score` applies to the
-/// confirmation score.
-pub fn candidate_min_score(min_score: f32) -> f32 {
-    CANDIDATE_SHARE * min_score
+/// How many candidate instances are estimated at most for `wanted` instances.
+pub fn candidates_tried(wanted: usize) -> usize {
+    wanted + EXTRA_CANDIDATES
+}
+
+/// The detector's settings for the candidates of a detect-then-estimate request: the
+/// caller's, with the threshold below the final one, since confirmation decides (the
+/// caller's `min_score` applies to the confirmation, `answer_threshold`).
+pub fn candidate_options(caller: &DetectOptions) -> DetectOptions {
+    DetectOptions { min_score: CANDIDATE_SHARE * caller.min_score, ..caller.clone() }
 }
 const CANDIDATE_SHARE: f32 = 0.5;
 
@@ -76,7 +82,7 @@ pub struct Instances<T> {
 pub fn estimate_instances<G, T, E>(groups: impl IntoIterator<Item = G>, wanted: usize, choice: Choice, mut estimate: impl FnMut(G) -> Result<(T, Option<f32>), E>) -> Result<Instances<T>, E> {
     let limit = match choice {
         Choice::Given => wanted,
-        Choice::Confirmed { .. } => wanted + EXTRA_CANDIDATES,
+        Choice::Confirmed { .. } => candidates_tried(wanted),
     };
     let mut tried: Vec<(T, Option<f32>)> = Vec::new();
     for group in groups.into_iter().take(limit) {

@@ -8,7 +8,7 @@ use super::detect_requests::DetectionOutput;
 use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput};
-use crate::detect::confirm::{answer_threshold, candidate_min_score, confirm, estimate_instances, Choice};
+use crate::detect::confirm::{answer_threshold, candidate_options, confirm, estimate_instances, Choice};
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
 use crate::geometry::ViewSampling;
@@ -204,16 +204,14 @@ impl Core {
             let progress = |p: crate::onboard::Progress| op.done.store(p.templates_done as u64, Ordering::Relaxed);
             let result = onboard_cancellable(&op.object_id, &mesh, &config, backbone.as_ref(), &pool, &progress, &op.cancel);
             let (state, error, info) = match result {
-                Ok(model) => {
-                    match tracing::info_span!("store.put").in_scope(|| store.put(&model, replace)) {
-                        Ok(info) => {
-                            // A replaced object must not be served from the cache's old copy.
-                            cache.invalidate(&op.object_id);
-                            (OperationState::Succeeded, None, Some(info))
-                        }
-                        Err(e) => (OperationState::Failed, Some(e.to_string()), None),
+                Ok(model) => match tracing::info_span!("store.put").in_scope(|| store.put(&model, replace)) {
+                    Ok(info) => {
+                        // A replaced object must not be served from the cache's old copy.
+                        cache.invalidate(&op.object_id);
+                        (OperationState::Succeeded, None, Some(info))
                     }
-                }
+                    Err(e) => (OperationState::Failed, Some(e.to_string()), None),
+                },
                 Err(OnboardError::Cancelled) => (OperationState::Cancelled, None, None),
                 Err(e) => (OperationState::Failed, Some(e.to_string()), None),
             };
@@ -266,8 +264,7 @@ impl Core {
             (decode_masks(req, &image)?, None)
         } else {
             // Candidates below the caller's threshold too: confirmation decides.
-            let options = crate::detect::DetectOptions { min_score: candidate_min_score(req.detect.min_score), ..req.detect.clone() };
-            let report = self.run_detector(&image, &k, &req.objects, &options, deadline)?;
+            let report = self.run_detector(&image, &k, &req.objects, &candidate_options(&req.detect), deadline)?;
             let outputs: Vec<DetectionOutput> = report.detections.iter().map(DetectionOutput::from).collect();
             let masks = report.detections.into_iter().map(|d| (d.object_id, d.mask, d.score)).collect();
             (masks, Some((outputs, report.reason)))

@@ -6,7 +6,7 @@ use super::core::Core;
 use super::error::{ErrorKind, ServiceError};
 use super::track_requests::{TrackFrameRequest, TrackFrameResponse, TrackSessionInfo, TrackSessionOptions, TrackedObject};
 use super::track_sessions::SessionEntry;
-use crate::detect::confirm::{answer_threshold, candidate_min_score, EXTRA_CANDIDATES};
+use crate::detect::confirm::{candidate_options, candidates_tried};
 use crate::masks::BoxMask;
 use crate::track::{FrameDetection, SessionError, TrackSession};
 use std::time::Instant;
@@ -73,14 +73,13 @@ impl Core {
         if !wanted.is_empty() {
             // Candidates below the caller's threshold, a few per object: a track starts
             // from the first one confirmed at its estimated pose (`detect::confirm`).
-            let options = crate::detect::DetectOptions { min_score: candidate_min_score(req.detect.min_score), ..req.detect.clone() };
-            let report = self.run_detector(&image, &k, &wanted, &options, None)?;
+            let report = self.run_detector(&image, &k, &wanted, &candidate_options(&req.detect), None)?;
             let mut per_object = std::collections::BTreeMap::<String, usize>::new();
             for d in report.detections {
                 let n = per_object.entry(d.object_id.clone()).or_default();
                 *n += 1;
-                if *n <= 1 + EXTRA_CANDIDATES {
-                    detections.push(FrameDetection { object_id: d.object_id, mask: d.mask, score: d.score, min_confirmation: Some(answer_threshold(req.detect.min_score)) });
+                if *n <= candidates_tried(1) {
+                    detections.push(FrameDetection::candidate(d.object_id, d.mask, d.score, req.detect.min_score));
                 }
             }
         }

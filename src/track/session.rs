@@ -9,7 +9,7 @@
 
 use super::colour::Window;
 use super::{Tracker, TrackerConfig};
-use crate::detect::confirm::confirm;
+use crate::detect::confirm::{answer_threshold, confirm};
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -105,6 +105,12 @@ impl FrameDetection {
     /// The caller's detection, taken as it is.
     pub fn given(object_id: String, mask: GrayImage, score: f32) -> Self {
         Self { object_id, mask, score, min_confirmation: None }
+    }
+
+    /// A candidate of the detector, for a caller whose threshold is `min_score`: its
+    /// estimate must be confirmed at `answer_threshold(min_score)`, as answers are.
+    pub fn candidate(object_id: String, mask: GrayImage, score: f32, min_score: f32) -> Self {
+        Self { object_id, mask, score, min_confirmation: Some(answer_threshold(min_score)) }
     }
 }
 
@@ -321,14 +327,10 @@ fn finish_track(track: &mut Track, step: super::TrackStep, t: Instant, image: &R
             // What was found inside the searched box must be an object there: an estimate
             // centred elsewhere explains a region that took in clutter too. (Its outline
             // may reach beyond the box: the box was only where to look.)
-            Ok((pose, _)) if searched.is_some_and(|w| !centred_in(k, &track.model, &pose, w)) => {
-                why = format!("{why}; re-initialising: the estimate puts the object beyond the box searched around its last pose")
-            }
+            Ok((pose, _)) if searched.is_some_and(|w| !centred_in(k, &track.model, &pose, w)) => why = format!("{why}; re-initialising: the estimate puts the object beyond the box searched around its last pose"),
             // The estimate explains its mask, but a mask of clutter is explained by a pose
             // whose render looks nothing like the frame.
-            Ok((pose, _)) if track.tracker.appearance_at(image, k, &pose).map_err(SessionError::Internal)?.is_some_and(|a| a < config.tracker.min_appearance) => {
-                why = format!("{why}; re-initialising: the estimated pose does not look like the frame")
-            }
+            Ok((pose, _)) if track.tracker.appearance_at(image, k, &pose).map_err(SessionError::Internal)?.is_some_and(|a| a < config.tracker.min_appearance) => why = format!("{why}; re-initialising: the estimated pose does not look like the frame"),
             Ok((pose, _)) => match track.tracker.restart(image, k, pose) {
                 Ok(()) => {
                     track.lost_frames = 0;
