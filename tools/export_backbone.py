@@ -33,17 +33,21 @@ GRID = 32  # patches per side of a crop, as the embedded backbone's (512 px at p
 
 def random_model(kind):
     """A small randomly initialised ViT of the real architecture (no weights needed)."""
-    if kind == "dinov3-tiny":
+    # DINOv3's published shapes (width, depth, heads); random weights run as fast as real ones,
+    # so these time a GPU without the licence-gated checkpoints.
+    dinov3_shapes = {"dinov3-tiny": (64, 4, 2), "dinov3-vits16": (384, 12, 6), "dinov3-vitb16": (768, 12, 12), "dinov3-vitl16": (1024, 24, 16)}
+    if kind in dinov3_shapes:
         from transformers import DINOv3ViTConfig, DINOv3ViTModel
 
-        cfg = DINOv3ViTConfig(hidden_size=64, intermediate_size=128, num_hidden_layers=4, num_attention_heads=2, patch_size=16, image_size=512, num_register_tokens=4)
+        width, depth, heads = dinov3_shapes[kind]
+        cfg = DINOv3ViTConfig(hidden_size=width, intermediate_size=(2 if kind == "dinov3-tiny" else 4) * width, num_hidden_layers=depth, num_attention_heads=heads, patch_size=16, image_size=512, num_register_tokens=4)
         return DINOv3ViTModel(cfg).eval(), f"random-init {kind}"
     if kind == "dinov2reg-tiny":
         from transformers import Dinov2WithRegistersConfig, Dinov2WithRegistersModel
 
         cfg = Dinov2WithRegistersConfig(hidden_size=64, intermediate_size=128, num_hidden_layers=4, num_attention_heads=2, patch_size=14, image_size=448, num_register_tokens=4)
         return Dinov2WithRegistersModel(cfg).eval(), f"random-init {kind}"
-    sys.exit(f"unknown --random-init {kind!r}: dinov3-tiny or dinov2reg-tiny")
+    sys.exit(f"unknown --random-init {kind!r}: {', '.join([*dinov3_shapes, 'dinov2reg-tiny'])}")
 
 
 def load_model(name):
@@ -132,6 +136,13 @@ def export(args):
     freeze_position_embeddings(model, size, patch, dim)
     wrapped = PatchTokens(model, local_layer, args.fp16).module
     example = torch.randn(2, 3, size, size, generator=torch.Generator().manual_seed(0))
+    # Tracing and the reference pass run on a GPU where there is one (a ViT-L in fp16 crawls on
+    # most CPUs); the graph does not depend on where it was traced. TF32 off: the reference
+    # must be full float32 to be compared within 1e-3.
+    device = "cuda" if torch.cuda.is_available() else "cpu"
+    torch.backends.cuda.matmul.allow_tf32 = False
+    torch.backends.cudnn.allow_tf32 = False
+    wrapped = wrapped.to(device)
     out_dir = os.path.dirname(os.path.abspath(args.out))
     os.makedirs(out_dir, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=out_dir) as tmp:
@@ -139,7 +150,7 @@ def export(args):
         with torch.no_grad():
             torch.onnx.export(
                 wrapped,
-                (example,),
+                (example.to(device),),
                 path,
                 input_names=["pixel_values"],
                 output_names=["local_tokens", "global_tokens"],
@@ -147,7 +158,7 @@ def export(args):
                 opset_version=args.opset,
                 dynamo=False,
             )
-            ref_local, ref_global = (t.numpy() for t in wrapped(example))
+            ref_local, ref_global = (t.cpu().numpy() for t in wrapped(example.to(device)))
         # Weights of large models may land in a side file: fold everything into one file.
         m = onnx.load(path, load_external_data=True)
         data = m.SerializeToString() if m.ByteSize() < 2**31 - 1 else None
@@ -193,7 +204,7 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--model", help="checkpoint folder (or a model id in the local Hugging Face cache)")
-    src.add_argument("--random-init", help="dinov3-tiny or dinov2reg-tiny: a small random model, for tests")
+    src.add_argument("--random-init", help="dinov3-tiny or dinov2reg-tiny (small random models, for tests), or dinov3-vits16/-vitb16/-vitl16 (random weights in DINOv3's shapes, for timing)")
     p.add_argument("--out", required=True, help="the .onnx file to write (its .json beside it)")
     p.add_argument("--local-layer", type=int, help="block giving the local descriptors (default: 18 of 24, else 3/4 of the depth)")
     p.add_argument("--size", type=int, help="input side in pixels (default: 32 patches)")

@@ -11,6 +11,7 @@ use super::backbone::{check_sizes, l2_normalize, mean_descriptor, patch_coverage
 use super::crop::CropInput;
 use crate::geometry::PatchGrid;
 use ort::session::Session;
+use rayon::prelude::*;
 use ort::value::Tensor;
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
@@ -217,19 +218,26 @@ impl OnnxBackbone {
         let s = self.spec.input_size as usize;
         let plane = s * s;
         let mut out = vec![0f32; crops.len() * 3 * plane];
-        for (b, crop) in crops.iter().enumerate() {
+        out.par_chunks_mut(3 * plane).zip(crops).for_each(|(planes, crop)| {
             for (i, px) in crop.rgb.pixels().enumerate() {
                 for c in 0..3 {
-                    out[(b * 3 + c) * plane + i] = (px[c] as f32 / 255.0 - self.spec.mean[c]) / self.spec.std[c];
+                    planes[c * plane + i] = (px[c] as f32 / 255.0 - self.spec.mean[c]) / self.spec.std[c];
                 }
             }
-        }
+        });
         out
     }
 
     /// Runs `batch` normalised inputs (NCHW, `batch × 3 × S × S`); returns the local and
-    /// global patch tokens, `batch × P × dim` each.
+    /// global patch tokens, `batch × P × dim` each (copies: for tests and tools).
     pub fn run(&self, pixels: Vec<f32>, batch: usize) -> Result<(Vec<f32>, Vec<f32>), OnnxError> {
+        self.run_with(pixels, batch, |local, global| (local.to_vec(), global.to_vec()))
+    }
+
+    /// Runs `batch` normalised inputs and hands `use_tokens` the local and global patch
+    /// tokens in ONNX Runtime's own output buffers. Why not copies: at ViT-L's width a batch
+    /// of 16 gives 128 MB of tokens, and copying them cost about as much as the GPU pass.
+    fn run_with<R>(&self, pixels: Vec<f32>, batch: usize, use_tokens: impl FnOnce(&[f32], &[f32]) -> R) -> Result<R, OnnxError> {
         let s = self.spec.input_size as usize;
         if pixels.len() != batch * 3 * s * s {
             return Err(OnnxError::Run(format!("{} input values for {batch} crops of 3×{s}×{s}", pixels.len())));
@@ -238,15 +246,15 @@ impl OnnxBackbone {
         let input = Tensor::from_array(([batch, 3, s, s], pixels)).map_err(run_err)?;
         let mut session = self.session.lock().unwrap_or_else(|p| p.into_inner());
         let outputs = session.run(ort::inputs![self.spec.input.as_str() => input]).map_err(run_err)?;
-        let take = |name: &str, dim: u32| -> Result<Vec<f32>, OnnxError> {
+        let tokens = |name: &str, dim: u32| -> Result<&[f32], OnnxError> {
             let (shape, data) = outputs[name].try_extract_tensor::<f32>().map_err(run_err)?;
             let want = [batch as i64, self.grid.len() as i64, dim as i64];
             if shape[..] != want[..] {
                 return Err(OnnxError::Run(format!("output {name} has shape {:?}, expected {want:?}", &shape[..])));
             }
-            Ok(data.to_vec())
+            Ok(data)
         };
-        Ok((take(&self.spec.local_output, self.spec.local_dim)?, take(&self.spec.global_output, self.spec.global_dim)?))
+        Ok(use_tokens(tokens(&self.spec.local_output, self.spec.local_dim)?, tokens(&self.spec.global_output, self.spec.global_dim)?))
     }
 
     fn feature_map(&self, crop: &CropInput, local: &[f32], global: &[f32]) -> FeatureMap {
@@ -316,10 +324,14 @@ impl Backbone for OnnxBackbone {
         let (ld, gd, p) = (self.spec.local_dim as usize, self.spec.global_dim as usize, self.grid.len());
         let mut maps = Vec::with_capacity(crops.len());
         for chunk in crops.chunks(self.max_batch) {
-            let (local, global) = self.run(self.preprocess(chunk), chunk.len()).map_err(|e| FeatureError::Backend(e.to_string()))?;
-            for (i, crop) in chunk.iter().enumerate() {
-                maps.push(self.feature_map(crop, &local[i * p * ld..(i + 1) * p * ld], &global[i * p * gd..(i + 1) * p * gd]));
-            }
+            let chunk_maps = self
+                .run_with(self.preprocess(chunk), chunk.len(), |local, global| {
+                    // Per crop on all cores: normalising a ViT-L batch's tokens on one core
+                    // took longer than the GPU pass.
+                    chunk.par_iter().enumerate().map(|(i, crop)| self.feature_map(crop, &local[i * p * ld..(i + 1) * p * ld], &global[i * p * gd..(i + 1) * p * gd])).collect::<Vec<_>>()
+                })
+                .map_err(|e| FeatureError::Backend(e.to_string()))?;
+            maps.extend(chunk_maps);
         }
         Ok(maps)
     }

@@ -1,0 +1,110 @@
+#!/usr/bin/env bash
+# The GPU steps of docs/onnx_backbone.md, for a lent GPU machine that has PyTorch,
+# transformers, onnx and CUDA but no internet and no onnxruntime-gpu, and that takes at
+# most 64 MiB per call. Random weights in DINOv3's shapes (speed does not depend on them).
+#
+#   here:  tools/gpu_backbone_check.sh pack           # .gpu/: onnxruntime-gpu's libraries in
+#                                                     # parts, a stripped b2tf, zstd, a manifest
+#   there: tools/gpu_backbone_check.sh torch          # PyTorch timings of DINOv3's shapes
+#          tools/gpu_backbone_check.sh export         # ViT-L/16 exports, fp32 and fp16
+#          tools/gpu_backbone_check.sh stash          # keep the parts carried by this call
+#          tools/gpu_backbone_check.sh bench          # b2tf on CUDA: backbone, estimate, serve
+#          tools/gpu_backbone_check.sh other-devices  # ViT-L on TensorRT (refused without
+#                                                     # libnvinfer) and on the CPU
+#
+# Each stage keeps what it made in $STATE (default /tmp/b2tf-gpu), which lives as long as
+# the machine stays warm; `bench` names any part that did not arrive.
+set -euo pipefail
+command -v zstd >/dev/null || { [ -x .gpu/zstd/zstd ] && export PATH="$PWD/.gpu/zstd:$PATH" LD_LIBRARY_PATH="$PWD/.gpu/zstd:${LD_LIBRARY_PATH:-}"; }
+cd "$(dirname "$0")/.."
+STATE="${STATE:-/tmp/b2tf-gpu}"
+PART_MIB="${PART_MIB:-54}"
+ORT_GPU_VERSION=1.31.1
+mkdir -p "$STATE/parts" "$STATE/models"
+
+pack() {
+  local wheel_dir=.gpu/wheel
+  mkdir -p "$wheel_dir"
+  python3 -m pip download --quiet --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+    --platform manylinux_2_28_x86_64 -d "$wheel_dir" "onnxruntime-gpu==$ORT_GPU_VERSION"
+  local tmp; tmp=$(mktemp -d)
+  unzip -q -o -j "$wheel_dir"/onnxruntime_gpu-*.whl 'onnxruntime/capi/libonnxruntime*' -d "$tmp"
+  tar -C "$tmp" -cf - . | zstd -19 -T0 --long=27 -q -o .gpu/ort.tar.zst -f
+  rm -rf "$tmp" .gpu/ort-part-*
+  split -b "${PART_MIB}M" -d -a 2 .gpu/ort.tar.zst .gpu/ort-part-
+  rm .gpu/ort.tar.zst
+  cargo build --release --quiet --bin b2tf
+  strip -o .gpu/b2tf target/release/b2tf
+  zstd -19 -T0 -q -f --rm .gpu/b2tf -o .gpu/b2tf.zst
+  (cd .gpu && sha256sum ort-part-* b2tf.zst > manifest)
+  # The GPU image has no zstd: carry this machine's, with the libraries it links.
+  mkdir -p .gpu/zstd && cp "$(command -v zstd)" .gpu/zstd/
+  ldd "$(command -v zstd)" | awk '/=>/ {print $3}' | grep -v '/libc\.so' | xargs -r -I{} cp -L {} .gpu/zstd/
+  ls -la .gpu
+}
+
+stash() {
+  for f in .gpu/ort-part-* .gpu/b2tf.zst .gpu/manifest; do
+    [ -f "$f" ] && cp "$f" "$STATE/parts/"
+  done
+  ls -la "$STATE/parts"
+}
+
+torch_stage() {
+  nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
+  PYTHONUNBUFFERED=1 python3 tools/time_vit_torch.py
+}
+
+export_stage() {
+  for flags in "" "--fp16"; do
+    python3 tools/export_backbone.py --random-init dinov3-vitl16 $flags --out "$STATE/models/vitl16${flags:+-fp16}.onnx"
+  done
+}
+
+cuda_library_path() {
+  # The CUDA provider needs cuDNN, cuBLAS, cuFFT, cuRAND and the CUDA runtime: the image has
+  # them as PyTorch's nvidia-* packages and under /usr/local/cuda.
+  find /usr/local/cuda*/ /opt /usr/lib/x86_64-linux-gnu -xdev \( -name 'libcudnn.so.9' -o -name 'libcublasLt.so.13' \
+    -o -name 'libcudart.so.13' -o -name 'libcufft.so.12' -o -name 'libcurand.so.10' -o -name 'libnvinfer.so.*' \) 2>/dev/null |
+    xargs -r -n1 dirname | sort -u | paste -sd:
+}
+
+setup_b2tf() {
+  (cd "$STATE/parts" && sha256sum -c --quiet manifest) || { echo "parts missing or damaged: carry them again (the machine went cold?)" >&2; exit 1; }
+  mkdir -p "$STATE/ort"
+  cat "$STATE"/parts/ort-part-* | zstd -d -q --long=27 | tar -C "$STATE/ort" -xf -
+  zstd -d -q -f "$STATE/parts/b2tf.zst" -o "$STATE/b2tf" && chmod +x "$STATE/b2tf"
+  export LD_LIBRARY_PATH="$STATE/ort:$(cuda_library_path):${LD_LIBRARY_PATH:-}"
+  export B2TF_ORT_LIB="$STATE/ort/libonnxruntime.so.$ORT_GPU_VERSION"
+  # Rendering there goes through NVIDIA's Vulkan driver; the image lacks the loader, carried
+  # as Debian packages in .gl (the device tool's README says how to fetch them).
+  if compgen -G ".gl/*.deb" >/dev/null; then for f in .gl/*.deb; do dpkg -x "$f" /; done; ldconfig; fi
+  local icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+  [ -f "$icd" ] && export VK_DRIVER_FILES="$icd" __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
+  echo "missing libraries of the CUDA provider:"; ldd "$STATE/ort/libonnxruntime_providers_cuda.so" | grep "not found" || echo "  none"
+}
+
+bench() {
+  setup_b2tf
+  local b2tf="$STATE/b2tf" m="$STATE/models"
+  "$b2tf" bench backbone --onnx "$m/vitl16.onnx" --onnx "$m/vitl16-fp16.onnx" --device cuda:0 --batches 1,8,32 --passes 5
+  "$b2tf" bench estimate --backbone "onnx:$m/vitl16-fp16.onnx" --device cuda:0 --images 5 --store "dir://$STATE/store"
+  "$b2tf" bench serve --backbone "onnx:$m/vitl16-fp16.onnx" --device cuda:0 --store "dir://$STATE/store" --clients 1,4,16 --requests 4 --protocols grpc
+}
+
+other_devices() {
+  setup_b2tf
+  local b2tf="$STATE/b2tf" m="$STATE/models"
+  "$b2tf" bench backbone --onnx "$m/vitl16-fp16.onnx" --device tensorrt:0 --batches 1,8 --passes 3 || echo "(TensorRT: refused, above)"
+  "$b2tf" bench backbone --onnx "$m/vitl16.onnx" --device cpu --batches 1 --passes 1
+}
+
+case "${1:-}" in
+  pack) pack ;;
+  torch) torch_stage ;;
+  export) export_stage ;;
+  stash) stash ;;
+  bench) bench ;;
+  other-devices) other_devices ;;
+  *) echo "usage: $0 pack|torch|export|stash|bench|other-devices" >&2; exit 2 ;;
+esac
