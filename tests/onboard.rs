@@ -46,6 +46,11 @@ fn templates_have_consistent_points_and_round_trip() {
     }
     assert!(worst_px < 1.0, "3D points reproject {worst_px:.2} crop px from their patch centres");
 
+    // The box's faces differ, so it has no symmetry, and onboarding says it looked.
+    let found = m.symmetries.as_ref().expect("onboarding finds the symmetries");
+    assert_eq!(found.source, b2tfpose::geometry::symmetry::SymmetrySource::Mesh);
+    assert!(found.symmetries.is_empty(), "{found:?}");
+
     let dir = tempfile::tempdir().unwrap();
     let store = DirStore::open(dir.path()).unwrap();
     store.put(&m, false).unwrap();
@@ -59,6 +64,7 @@ fn templates_have_consistent_points_and_round_trip() {
     assert_eq!(back.mesh.positions(), m.mesh.positions());
     assert!(back.mesh.has_texture());
     assert!((back.diameter() - m.diameter()).abs() < 1e-12);
+    assert_eq!(back.symmetries, m.symmetries);
     // Saving again without `replace` refuses; with it, succeeds.
     assert!(store.put(&m, false).is_err());
     store.put(&m, true).unwrap();
@@ -66,6 +72,13 @@ fn templates_have_consistent_points_and_round_trip() {
     // Broken manifests and tensors give errors naming the file.
     let manifest = path.join("manifest.json");
     let good = std::fs::read_to_string(&manifest).unwrap();
+    // An object stored before format 5 loads with its symmetries unknown.
+    let mut old: serde_json::Value = serde_json::from_str(&good).unwrap();
+    old.as_object_mut().unwrap().remove("symmetries").expect("format 5 stores the symmetries");
+    old["format_version"] = serde_json::json!(4);
+    std::fs::write(&manifest, serde_json::to_string(&old).unwrap()).unwrap();
+    assert_eq!(store.get(&m.object_id).unwrap().symmetries, None);
+    assert_eq!(store.info(&m.object_id).unwrap().symmetries, None);
     std::fs::write(&manifest, good.replace(&format!("\"format_version\": {}", b2tfpose::onboard::MODEL_FORMAT_VERSION), "\"format_version\": 99")).unwrap();
     let e = store.get(&m.object_id).unwrap_err().to_string();
     assert!(e.contains("box-1") && e.contains("newer"), "{e}");

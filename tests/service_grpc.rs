@@ -98,6 +98,9 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
     assert_eq!(listed.objects.iter().map(|o| o.id.as_str()).collect::<Vec<_>>(), ["box"]);
     let info = c.get_object(pb::GetObjectRequest { object_id: "box".into() }).await.unwrap().into_inner();
     assert!(info.diameter_m > 0.19 && info.diameter_m < 0.2 && info.mesh_units == "m", "{info:?}");
+    // Symmetries found from the mesh: the box's textured faces all differ, so it has none.
+    let none = Some(pb::Symmetries { source: "mesh".into(), discrete: vec![], continuous: vec![] });
+    assert!(info.symmetries == none && listed.objects[0].symmetries == none, "{info:?}");
 
     // Estimate through gRPC (PNG and raw RGB) and through HTTP: the same pose.
     let sc = scene();
@@ -109,6 +112,7 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
     assert!(rot < 10.0 && trans < 0.03, "rotation error {rot:.1}°, translation error {:.1} mm", trans * 1e3);
     assert_eq!((pose.quaternion_wxyz.len(), res.detection_index), (4, 0));
     assert!(res.timings_ms.contains_key("pnp") && res.diagnostics_json.starts_with('['), "{res:?}");
+    assert!(res.symmetries == none && !res.arbitrary_rotation_about_axis, "{res:?}");
     let by_raw = c.estimate(estimate_request(pb::image::Data::RawRgb8(sc.render.rgb.as_raw().clone()), 320, 240, mask.clone(), "box")).await.unwrap().into_inner();
     assert_eq!(by_raw.results[0].pose, res.pose);
     let b64 = |b: &[u8]| base64::engine::general_purpose::STANDARD.encode(b);

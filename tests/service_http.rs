@@ -91,6 +91,10 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     assert!(crops >= 252.0 && passes * 4.0 <= crops, "{passes} queue passes for {crops} crops");
     let (s, list) = call(&c, "GET", &format!("{base}/v1/objects"), None);
     assert!(s == 200 && list["objects"][0]["id"] == "box", "{list}");
+    // Symmetries found from the mesh: the box's textured faces all differ, so it has none.
+    let no_symmetries = json!({"source": "mesh", "discrete": [], "continuous": []});
+    let (s, info) = call(&c, "GET", &format!("{base}/v1/objects/box"), None);
+    assert!(s == 200 && info["symmetries"] == no_symmetries && list["objects"][0]["symmetries"] == no_symmetries, "{info} {list}");
     // The same id again without replace: 409.
     assert_eq!(call(&c, "POST", &format!("{base}/v1/objects"), Some(&onboard)).0, 409);
     // PCA settings the backbone cannot give, or that are no setting at all: 400 at once.
@@ -167,6 +171,7 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     let (rot, trans) = pose_errors(&rv, &tv, truth);
     assert!(rot < 10.0 && trans < 0.03, "rotation error {rot:.1}°, translation error {:.1} mm", trans * 1e3);
     assert_eq!(res["pose"]["quaternion_wxyz"].as_array().unwrap().len(), 4);
+    assert_eq!((&res["symmetries"], &res["arbitrary_rotation_about_axis"]), (&no_symmetries, &json!(false)), "{res}");
 
     // Raw RGB8 gives the same answer as the PNG.
     let raw = json!({"raw_rgb8": b64(r.rgb.as_raw()), "width": 320, "height": 240});

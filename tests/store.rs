@@ -21,6 +21,7 @@ use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::process::ExitStatusExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
+use b2tfpose::geometry::symmetry::{ContinuousSymmetry, DiscreteSymmetry, KnownSymmetries, ObjectSymmetries, SymmetrySource};
 use std::sync::{mpsc, Arc, OnceLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -47,8 +48,13 @@ fn model() -> Option<&'static ObjectModel> {
             let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).expect("embedded backbone");
             let mesh = textured_box([0.1, 0.06, 0.16], 3);
             let config = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps: 2 }, render_size: 128, ..Default::default() };
-            let m = onboard("obj-a", &mesh, &config, &backbone, &pool, &|_| {}).expect("onboarding the test object");
+            let mut m = onboard("obj-a", &mesh, &config, &backbone, &pool, &|_| {}).expect("onboarding the test object");
             assert!(m.mesh.has_texture(), "the test object should carry a texture, so that textures are stored too");
+            // Symmetries of every kind, so that storing and listing them is checked (the
+            // textured box itself has none).
+            let flip = DiscreteSymmetry::from_row_major_4x4(&[1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.01, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0]);
+            let axis = ContinuousSymmetry { axis: [0.0, 0.0, 1.0], offset: [0.0, 0.005, 0.0] };
+            m.symmetries = Some(KnownSymmetries { source: SymmetrySource::ModelsInfo, symmetries: ObjectSymmetries { discrete: vec![flip], continuous: vec![axis] } });
             Some(m)
         })
         .as_ref()
@@ -122,6 +128,7 @@ fn assert_same(expected: &ObjectModel, got: &ObjectModel) {
     assert!(got.patch_points == expected.patch_points, "{id}: patch points differ");
     assert!(got.patch_cells == expected.patch_cells, "{id}: patch cells differ");
     assert!(got.silhouettes == expected.silhouettes, "{id}: silhouettes differ");
+    assert_eq!(got.symmetries, expected.symmetries, "{id}: symmetries");
     let (a, b) = (&expected.mesh, &got.mesh);
     assert_eq!(b.name(), a.name(), "{id}: mesh name");
     assert_eq!(b.source_units(), a.source_units(), "{id}: mesh units");
@@ -511,6 +518,7 @@ fn check_round_trip(url: &str) {
     assert!(info.bytes > tensor_bytes(m) as u64, "{} bytes stored for {} bytes of tensors", info.bytes, tensor_bytes(m));
     assert!((started..=now_unix_s()).contains(&info.created_at), "created_at {} not between {started} and now", info.created_at);
     assert_eq!(store.info("obj-a").expect("info"), info);
+    assert_eq!(info.symmetries, m.symmetries, "listing shows the symmetries");
 
     let back = store.get("obj-a").expect("get");
     back.validate().expect("loaded model is consistent");

@@ -5,7 +5,7 @@
 
 use super::dataset::{load_models_info, model_path};
 use super::format::MODELS_INFO;
-use super::symmetry::{parse_models_info, ObjectSymmetries};
+use crate::geometry::symmetry::{parse_models_info, ObjectSymmetries};
 use crate::geometry::Pose;
 use crate::mesh::{load_mesh, load_ply_points, Mesh, Units};
 use anyhow::{anyhow, Context, Result};

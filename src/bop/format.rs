@@ -112,7 +112,7 @@ pub struct TargetRecord {
 
 /// One object of `models/models_info.json`, mm: the diameter (largest vertex distance),
 /// and the model's axis-aligned box. Symmetries, when listed, are read by
-/// `symmetry::parse_models_info`.
+/// `geometry::symmetry::parse_models_info`.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ModelInfo {
     pub diameter: f64,

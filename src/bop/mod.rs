@@ -18,7 +18,6 @@ pub mod results_csv;
 pub mod rotation;
 pub mod run;
 pub mod scoring;
-pub mod symmetry;
 pub mod synth;
 pub mod synth_masks;
 pub mod vsd_render;

@@ -50,7 +50,7 @@ pub enum MetricError {
 /// Maximum Symmetry-Aware Surface Distance:
 /// `min over syms S of max over points x of ‖T_est·x − (T_gt∘S)·x‖`.
 ///
-/// `syms` comes from [`crate::bop::symmetry::symmetry_transformations`] (it
+/// `syms` comes from [`crate::geometry::symmetry::symmetry_transformations`] (it
 /// includes the identity) with translations in the unit of `pts`.
 pub fn mssd(est: &Pose, gt: &Pose, pts: &[[f64; 3]], syms: &[Pose]) -> Result<f64, MetricError> {
     check_pts_syms(pts, syms)?;
@@ -386,7 +386,7 @@ pub(crate) fn pairwise_sum(a: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bop::symmetry::{symmetry_transformations, ContinuousSymmetry, DiscreteSymmetry};
+    use crate::geometry::symmetry::{symmetry_transformations, ContinuousSymmetry, DiscreteSymmetry};
     use nalgebra::{Rotation3, Vector3};
 
     const K: Intrinsics = [500.0, 500.0, 320.0, 240.0];

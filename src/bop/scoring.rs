@@ -62,7 +62,7 @@ pub struct Bop19Params {
     pub visib_gt_min: f64,
     /// BOP19: -1 (top `inst_count` estimates); 0 = all; k > 0 = top k.
     pub n_top: i64,
-    /// For [`crate::bop::symmetry::symmetry_transformations`]: 0.01.
+    /// For [`crate::geometry::symmetry::symmetry_transformations`]: 0.01.
     pub max_sym_disc_step: f64,
 }
 

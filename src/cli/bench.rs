@@ -48,6 +48,9 @@ pub enum BenchCommand {
     Matching(super::bench_matching::BenchMatchingArgs),
     /// The tracker on generated sequences: ms per frame, MSSD recall, losses.
     Track(super::bench_track::BenchTrackArgs),
+    /// The symmetry finder on meshes: what it finds, how long it takes, and whether it
+    /// agrees with a BOP models_info.json.
+    Symmetries(super::bench_symmetries::BenchSymmetriesArgs),
     /// Renders per second.
     Render {
         #[arg(long)]
@@ -89,6 +92,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Store(a) => super::bench_store::run(a),
         BenchCommand::Matching(a) => super::bench_matching::run(a),
         BenchCommand::Track(a) => super::bench_track::run(a),
+        BenchCommand::Symmetries(a) => super::bench_symmetries::run(a),
         BenchCommand::Serve(a) => super::bench_serve::run(a),
         BenchCommand::Render { mesh, units, size, count } => render(mesh_or_box(mesh, units)?, size, count),
         BenchCommand::Onboard { data, default_units, store, filter } => onboard_table(&data, default_units, store, filter),

@@ -7,6 +7,7 @@ use crate::bop::model_path;
 use crate::estimate::EstimateConfig;
 use crate::eval::scenes::SceneConfig;
 use crate::mesh::{load_mesh, Units};
+use crate::geometry::symmetry::{KnownSymmetries, SymmetrySource, MM_TO_M};
 use crate::onboard::ObjectModel;
 use crate::render::RenderPool;
 use anyhow::{Context, Result};
@@ -125,11 +126,20 @@ fn run_cmd(a: RunArgs) -> Result<()> {
     // shared LRU cache, so a dataset with many objects stays within the memory budget.
     let models = crate::store::ModelCache::new(store.clone(), a.cache_mb * 1_000_000);
     let mut checked: HashSet<u32> = HashSet::new();
+    let given_symmetries = dataset_symmetries(&a.dataset)?;
     let mut model = |obj_id: u32| -> Result<Arc<ObjectModel>> {
         let id = format!("obj_{obj_id:06}");
         if checked.insert(obj_id) {
             let mesh = load_mesh(&model_path(&a.dataset, obj_id), Some(Units::Mm))?;
-            super::cached_model(&id, &mesh, store.as_ref(), backbone.as_ref(), &pool, Default::default())?;
+            let mut m = super::cached_model(&id, &mesh, store.as_ref(), backbone.as_ref(), &pool, Default::default())?;
+            // The dataset's own symmetries, where it declares them, over those found.
+            if let Some(given) = given_symmetries.get(&obj_id) {
+                let known = KnownSymmetries { source: SymmetrySource::ModelsInfo, symmetries: given.scaled(MM_TO_M) };
+                if m.symmetries.as_ref() != Some(&known) {
+                    m.symmetries = Some(known);
+                    store.put(&m, true)?;
+                }
+            }
             models.invalidate(&id);
         }
         Ok(models.get(&id)?)
@@ -187,4 +197,15 @@ fn synth_cmd(a: SynthArgs) -> Result<()> {
         s.detections_path.display()
     );
     Ok(())
+}
+
+/// The symmetries the dataset's `models_info.json` declares (mm), by object id; none when
+/// the file is absent.
+fn dataset_symmetries(dataset: &std::path::Path) -> Result<std::collections::BTreeMap<u32, crate::geometry::symmetry::ObjectSymmetries>> {
+    let path = dataset.join(crate::bop::format::MODELS_INFO);
+    if !path.exists() {
+        return Ok(Default::default());
+    }
+    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    crate::geometry::symmetry::parse_models_info(&text).with_context(|| path.display().to_string())
 }

@@ -177,6 +177,10 @@ pub fn result_json(model: &ObjectModel, r: &EstimateResult) -> serde_json::Value
                 "t": [p.translation.x, p.translation.y, p.translation.z],
                 "score": r.score,
                 "mask_index": r.mask_index,
+                // As the service answers: the poses equal to this one (pose ∘ S), and
+                // whether the turn about a continuous axis is arbitrary.
+                "symmetries": model.symmetries,
+                "arbitrary_rotation_about_axis": model.symmetries.as_ref().is_some_and(crate::geometry::symmetry::KnownSymmetries::arbitrary_rotation_about_axis),
                 "diagnostics": { "hypotheses": r.hypotheses },
             })
         })

@@ -11,6 +11,7 @@ pub mod bench_refine;
 pub mod bench_scenes;
 pub mod bench_serve;
 pub mod bench_store;
+pub mod bench_symmetries;
 pub mod bench_track;
 pub mod bench_track_grpc;
 pub mod bop_cmd;
@@ -128,8 +129,13 @@ pub fn open_renderer(size: usize) -> anyhow::Result<crate::render::RenderPool> {
 pub fn cached_model(id: &str, mesh: &crate::mesh::Mesh, store: &dyn crate::store::ObjectStore, backbone: &dyn crate::features::Backbone, pool: &crate::render::RenderPool, pca: crate::onboard::PcaSetting) -> anyhow::Result<crate::onboard::ObjectModel> {
     use crate::onboard::{onboard, OnboardConfig};
     let config = OnboardConfig { pca, ..Default::default() };
-    if let Ok(m) = store.get(id) {
+    if let Ok(mut m) = store.get(id) {
         if m.backbone == backbone.identity() && m.config == config && m.mesh.positions() == mesh.positions() && m.mesh.has_texture() == mesh.has_texture() {
+            if m.symmetries.is_none() {
+                // Cached before format 5: the symmetries are all it lacks.
+                m.symmetries = Some(crate::onboard::mesh_symmetries(&m.mesh));
+                store.put(&m, true)?;
+            }
             return Ok(m);
         }
     }

@@ -15,11 +15,15 @@ pub struct VerifyArgs {
     /// whole turn; the quarter turns are the axis flips (default 8: 45°; 0: none).
     #[arg(long)]
     pub spin_steps: Option<usize>,
+    /// Refine one hypothesis of each set equal up to the object's symmetries, not each:
+    /// faster on symmetric objects, a little less accurate (docs/estimation.md, "Symmetries").
+    #[arg(long)]
+    pub skip_symmetric_hypotheses: bool,
 }
 
 impl VerifyArgs {
     pub fn config(&self) -> VerifyConfig {
         let d = VerifyConfig::default();
-        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), ..d }
+        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, ..d }
     }
 }

@@ -273,7 +273,13 @@ impl Estimator {
     /// best by contour and those the outline cannot tell from it (`verify::to_render`).
     /// Best first.
     fn verify(&self, ctx: &RefineContext<'_>, pose: Pose, retrieved: &[usize], crop: &crate::geometry::CropBox, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
-        let candidates = super::hypotheses::candidates(ctx.model, &pose, retrieved, cfg.verify.templates, cfg.verify.spin_steps, crop, ctx.intrinsics);
+        let mut candidates = super::hypotheses::candidates(ctx.model, &pose, retrieved, cfg.verify.templates, cfg.verify.spin_steps, crop, ctx.intrinsics);
+        // Hypotheses that are the same pose up to the object's symmetry show the same image:
+        // when asked, one of each is refined (the pipeline's pose comes first, so it stays).
+        let symmetric = ctx.model.symmetries.as_ref().filter(|_| cfg.verify.skip_symmetric).and_then(|s| crate::geometry::symmetric_poses::SymmetricPoses::new(&s.symmetries, ctx.model.diameter()));
+        if let Some(s) = &symmetric {
+            candidates = s.distinct(candidates, |(_, p)| p);
+        }
         let refiner = self.refiner(cfg.refiner);
         let mut verified: Vec<Verified> = candidates
             .par_iter()

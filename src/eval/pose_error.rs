@@ -1,4 +1,5 @@
-//! Pose errors against ground truth (no symmetries here; the BOP evaluation adds them).
+//! Pose errors against ground truth. The errors themselves are symmetry-free; for a
+//! symmetric object, measure against [`closest_symmetric`] truth, as BOP's MSSD does.
 
 use crate::geometry::{geodesic_distance, Pose};
 use nalgebra::Point3;
@@ -21,6 +22,13 @@ pub fn mssd(est: &Pose, gt: &Pose, vertices: &[[f32; 3]]) -> f64 {
             (est.transform_point(&p) - gt.transform_point(&p)).norm()
         })
         .fold(0.0, f64::max)
+}
+
+/// The truth turned by the symmetry (`symmetries`: model-frame transformations, identity
+/// included) that brings it closest to `est`, by MSSD over `vertices` (a sample will do):
+/// errors measured against it are BOP's symmetry-aware errors.
+pub fn closest_symmetric(est: &Pose, gt: &Pose, symmetries: &[Pose], vertices: &[[f32; 3]]) -> Pose {
+    symmetries.iter().map(|s| gt.compose(s)).min_by(|a, b| mssd(est, a, vertices).total_cmp(&mssd(est, b, vertices))).unwrap_or(*gt)
 }
 
 /// ADD: the mean displacement of the model's points between the two poses, metres.

@@ -3,6 +3,8 @@
 pub mod camera;
 pub mod crop;
 pub mod pose;
+pub mod symmetric_poses;
+pub mod symmetry;
 pub mod views;
 
 pub use camera::{Intrinsics, IntrinsicsError};

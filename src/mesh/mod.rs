@@ -24,5 +24,6 @@ pub use ply::{load_ply, load_ply_points};
 pub use types::*;
 
 pub mod procedural;
+pub mod symmetry_finder;
 pub mod write_obj;
 pub mod write_ply;

@@ -1,6 +1,6 @@
 //! Meshes the project makes itself (tests, demos, benchmarks need no downloads): a
 //! textured box whose faces carry distinct procedural patterns, so that its pose is
-//! unambiguous from any side.
+//! unambiguous from any side, and a plain cylinder.
 
 use super::types::{Material, Mesh, MeshData, Units};
 use std::sync::Arc;
@@ -95,6 +95,30 @@ pub fn textured_box(size: [f32; 3], seed: u64) -> Mesh {
     }
     d.materials.push(Material { name: "box".into(), base_color: [1.0; 4], texture: Some(Arc::new(atlas)) });
     Mesh::new(format!("textured_box(seed {seed})"), Units::M, d).expect("procedural box is valid")
+}
+
+/// An untextured closed cylinder about z, centred on the origin, with `segments` sides.
+pub fn cylinder(radius: f32, height: f32, segments: u32) -> Mesh {
+    let mut d = MeshData::default();
+    let h = height * 0.5;
+    for &z in &[-h, h] {
+        for i in 0..segments {
+            let a = std::f32::consts::TAU * i as f32 / segments as f32;
+            d.positions.push([radius * a.cos(), radius * a.sin(), z]);
+        }
+    }
+    let (bottom, top) = (d.positions.len() as u32, d.positions.len() as u32 + 1);
+    d.positions.push([0.0, 0.0, -h]);
+    d.positions.push([0.0, 0.0, h]);
+    for i in 0..segments {
+        let j = (i + 1) % segments;
+        let (a, b, c, e) = (i, j, segments + j, segments + i);
+        d.triangles.push([a, b, c]);
+        d.triangles.push([a, c, e]);
+        d.triangles.push([bottom, b, a]);
+        d.triangles.push([top, e, c]);
+    }
+    Mesh::new(format!("cylinder(r {radius}, h {height}, {segments} sides)"), Units::M, d).expect("procedural cylinder is valid")
 }
 
 #[cfg(test)]

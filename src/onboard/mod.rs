@@ -9,4 +9,4 @@ pub mod pipeline;
 pub use contour::{ContourConfig, ContourModel};
 pub use model::{ObjectModel, OnboardConfig, Template, MODEL_FORMAT_VERSION};
 pub use pca_setting::PcaSetting;
-pub use pipeline::{apply_pca, compress, onboard, onboard_cancellable, validate_object_id, OnboardError, Progress};
+pub use pipeline::{apply_pca, compress, mesh_symmetries, onboard, onboard_cancellable, validate_object_id, OnboardError, Progress};

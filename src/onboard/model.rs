@@ -3,6 +3,7 @@
 
 use super::pca_setting::PcaSetting;
 use crate::features::BackboneIdentity;
+use crate::geometry::symmetry::KnownSymmetries;
 use crate::geometry::{CropBox, Intrinsics, PatchGrid, Pose, ViewSampling};
 use crate::mesh::Mesh;
 use super::contour::ContourModel;
@@ -14,7 +15,8 @@ use std::sync::{Arc, OnceLock};
 /// PCA-compressed patch descriptors (version 1 models load as uncompressed). 3: the contour
 /// model (older models load without it and get it computed on first use). 4: the detector's
 /// shape templates (older models likewise get them on first use, or `b2tf objects upgrade`).
-pub const MODEL_FORMAT_VERSION: u32 = 4;
+/// 5: the object's symmetries (older models load with them unknown).
+pub const MODEL_FORMAT_VERSION: u32 = 5;
 
 /// Side of the stored template silhouettes (crop mask downsampled, 1 bit per cell).
 pub const SILHOUETTE_SIZE: usize = 64;
@@ -91,6 +93,9 @@ pub struct ObjectModel {
     /// The detector's shape templates. Set by onboarding and loading; objects stored
     /// before format 4 get them on first use (`shape_model_or_build`).
     pub detector: OnceLock<Arc<ShapeModel>>,
+    /// The object's symmetries (metres), found by onboarding from the mesh or given by the
+    /// user; `None` for objects stored before format 5 (unknown, not "none").
+    pub symmetries: Option<KnownSymmetries>,
 }
 
 impl ObjectModel {
@@ -191,6 +196,9 @@ impl ObjectModel {
         }
         if let Some(c) = self.contours.get() {
             c.validate().map_err(|e| format!("object {:?}: {e}", self.object_id))?;
+        }
+        if let Some(s) = &self.symmetries {
+            s.symmetries.validate().map_err(|e| format!("object {:?}: {e}", self.object_id))?;
         }
         if let Some(d) = self.detector.get() {
             d.validate().map_err(|e| format!("object {:?}: {e}", self.object_id))?;

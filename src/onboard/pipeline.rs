@@ -1,5 +1,6 @@
 //! Mesh → base-view renders → in-plane rotated crops → features + 3D points → ObjectModel.
 
+use crate::geometry::symmetry::{KnownSymmetries, SymmetrySource};
 use super::model::{pack_silhouette, ObjectModel, OnboardConfig, Template};
 use crate::features::{sample_crop, Backbone, CropInput};
 use crate::geometry::views::{fitted_distance, icosphere, view_pose};
@@ -119,8 +120,15 @@ pub fn onboard_cancellable(
     model.contours = std::sync::OnceLock::from(std::sync::Arc::new(contours));
     let shapes = tracing::info_span!("detector").in_scope(|| crate::detect::ShapeModel::build(mesh, renderer, &Default::default()))?;
     model.detector = std::sync::OnceLock::from(std::sync::Arc::new(shapes));
+    model.symmetries = Some(tracing::info_span!("symmetries").in_scope(|| mesh_symmetries(mesh)));
     tracing::info_span!("pca").in_scope(|| apply_pca(&mut model, config.pca))?;
     Ok(model)
+}
+
+/// The mesh's symmetries as onboarding finds them (`objects upgrade` adds them to objects
+/// stored before format 5 the same way).
+pub fn mesh_symmetries(mesh: &Mesh) -> KnownSymmetries {
+    KnownSymmetries { source: SymmetrySource::Mesh, symmetries: crate::mesh::symmetry_finder::find_symmetries(mesh, &Default::default()) }
 }
 
 /// Compresses an uncompressed model as `setting` asks (for its descriptor size and patch
@@ -266,6 +274,7 @@ fn assemble(
         pca: None,
         contours: Default::default(),
         detector: Default::default(),
+        symmetries: None,
     };
     for p in parts {
         let offset = m.patch_points.len() as u32;

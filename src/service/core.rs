@@ -316,6 +316,8 @@ impl Core {
                     reason: r.reason.clone(),
                     diagnostics: serde_json::to_value(&r.hypotheses).unwrap_or_default(),
                     timings_ms: serde_json::to_value(r.timings).unwrap_or_default(),
+                    symmetries: model.symmetries.clone(),
+                    arbitrary_rotation_about_axis: InstanceResult::arbitrary_rotation(model.symmetries.as_ref()),
                 };
                 Ok((result, confirmation))
             })?;

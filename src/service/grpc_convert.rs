@@ -8,6 +8,7 @@ use super::proto as pb;
 use super::detect_requests::{DetectRequest, DetectResponse, DetectionOutput};
 use super::requests::{self as rq, EstimateOptions, OnboardOptions};
 use crate::detect::DetectOptions;
+use crate::geometry::symmetry::KnownSymmetries;
 use crate::onboard::PcaSetting;
 use crate::store::ObjectInfo;
 
@@ -132,6 +133,8 @@ pub fn estimate_response(r: rq::EstimateResponse) -> pb::EstimateResponse {
             reason: i.reason.unwrap_or_default(),
             diagnostics_json: i.diagnostics.to_string(),
             timings_ms: timings(&i.timings_ms),
+            symmetries: i.symmetries.map(symmetries),
+            arbitrary_rotation_about_axis: i.arbitrary_rotation_about_axis,
         })
         .collect();
     pb::EstimateResponse { results, total_ms: r.total_ms, detections: r.detections.into_iter().map(detected_object).collect(), reason: r.reason.unwrap_or_default() }
@@ -158,7 +161,16 @@ pub fn onboard_request(r: pb::OnboardRequest) -> Result<rq::OnboardRequest, Serv
 }
 
 pub fn object_info(o: ObjectInfo) -> pb::ObjectInfo {
-    pb::ObjectInfo { id: o.id, templates: o.templates as u64, diameter_m: o.diameter_m, backbone: o.backbone.name, bytes: o.bytes, created_unix_s: o.created_at, mesh_units: o.units.as_str().to_string() }
+    pb::ObjectInfo { id: o.id, templates: o.templates as u64, diameter_m: o.diameter_m, backbone: o.backbone.name, bytes: o.bytes, created_unix_s: o.created_at, mesh_units: o.units.as_str().to_string(), symmetries: o.symmetries.map(symmetries) }
+}
+
+/// An object's symmetries as the proto has them: the source by its JSON name ("mesh",
+/// "models_info"), each discrete symmetry as its row-major 4×4 matrix.
+pub fn symmetries(s: KnownSymmetries) -> pb::Symmetries {
+    let source = serde_json::to_value(s.source).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default();
+    let discrete = s.symmetries.discrete.iter().map(|d| pb::DiscreteSymmetry { matrix: d.to_row_major_4x4().to_vec() }).collect();
+    let continuous = s.symmetries.continuous.iter().map(|c| pb::ContinuousSymmetry { axis: c.axis.to_vec(), offset_m: c.offset.to_vec() }).collect();
+    pb::Symmetries { source, discrete, continuous }
 }
 
 pub fn operation(s: OperationStatus) -> pb::Operation {
@@ -229,5 +241,22 @@ mod tests {
         assert_eq!((none.verify_templates, none.spin_steps), (0, 0));
         let more = with(Some(20), Some(12));
         assert_eq!((more.verify_templates, more.spin_steps), (20, 12));
+    }
+
+    #[test]
+    fn symmetries_keep_their_source_matrices_and_axes() {
+        use crate::geometry::symmetry::{ContinuousSymmetry, DiscreteSymmetry, ObjectSymmetries, SymmetrySource};
+        // A cylinder along z, centred 5 cm up, and its flip about x through its centre.
+        let flip = [1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.1, 0.0, 0.0, 0.0, 1.0];
+        let cylinder = ContinuousSymmetry { axis: [0.0, 0.0, 1.0], offset: [0.0, 0.0, 0.05] };
+        let known = KnownSymmetries { source: SymmetrySource::ModelsInfo, symmetries: ObjectSymmetries { discrete: vec![DiscreteSymmetry::from_row_major_4x4(&flip)], continuous: vec![cylinder] } };
+        assert!(rq::InstanceResult::arbitrary_rotation(Some(&known)));
+        let m = symmetries(known.clone());
+        assert_eq!((m.source.as_str(), m.discrete.len(), m.discrete[0].matrix.as_slice()), ("models_info", 1, flip.as_slice()));
+        assert_eq!((m.continuous[0].axis.as_slice(), m.continuous[0].offset_m.as_slice()), ([0.0, 0.0, 1.0].as_slice(), [0.0, 0.0, 0.05].as_slice()));
+        // An object with discrete symmetries only, or unknown ones: the rotation is determined.
+        let boxy = KnownSymmetries { source: SymmetrySource::Mesh, symmetries: ObjectSymmetries { discrete: known.symmetries.discrete.clone(), continuous: vec![] } };
+        assert!(!rq::InstanceResult::arbitrary_rotation(Some(&boxy)) && !rq::InstanceResult::arbitrary_rotation(None));
+        assert_eq!(symmetries(boxy).source, "mesh");
     }
 }

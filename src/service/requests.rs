@@ -5,6 +5,7 @@
 
 use super::base64_bytes::Base64Bytes;
 use super::error::ServiceError;
+use crate::geometry::symmetry::KnownSymmetries;
 use crate::geometry::Intrinsics;
 use crate::limits;
 use crate::masks::{box_to_mask, mask_from_png, mask_from_rle, require_nonempty, BoxMask, MaskError, Rle};
@@ -232,6 +233,22 @@ pub struct InstanceResult {
     pub diagnostics: serde_json::Value,
     /// Stage times of this instance, milliseconds.
     pub timings_ms: serde_json::Value,
+    /// The object's symmetries (metres), as its `ObjectInfo` has them; `None`: unknown (an
+    /// object stored before model format 5). The pose is as right as `pose ∘ S` for each
+    /// discrete `S`, and as any turn about a continuous axis.
+    #[serde(default)]
+    pub symmetries: Option<KnownSymmetries>,
+    /// The object has a continuous symmetry: the pose's rotation about that axis is
+    /// arbitrary (any turn about it is equally right).
+    #[serde(default)]
+    pub arbitrary_rotation_about_axis: bool,
+}
+
+impl InstanceResult {
+    /// `arbitrary_rotation_about_axis` of an object with these symmetries.
+    pub fn arbitrary_rotation(symmetries: Option<&KnownSymmetries>) -> bool {
+        symmetries.is_some_and(KnownSymmetries::arbitrary_rotation_about_axis)
+    }
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]

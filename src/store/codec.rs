@@ -6,6 +6,7 @@
 use crate::features::BackboneIdentity;
 use crate::geometry::{Intrinsics, PatchGrid};
 use crate::mesh::{Material, Mesh, MeshData, Part, Units};
+use crate::geometry::symmetry::KnownSymmetries;
 use crate::onboard::{ObjectModel, OnboardConfig, Template, MODEL_FORMAT_VERSION};
 use safetensors::{tensor::TensorView, Dtype, SafeTensors};
 use std::sync::Arc;
@@ -49,6 +50,10 @@ struct Manifest {
     /// absent when the object has none (older formats).
     #[serde(default)]
     detector: Option<crate::detect::DetectorConfig>,
+    /// Since format 5: the object's symmetries and where they came from; absent when
+    /// unknown (older formats).
+    #[serde(default)]
+    symmetries: Option<KnownSymmetries>,
 }
 
 #[derive(serde::Serialize, serde::Deserialize)]
@@ -87,6 +92,7 @@ pub struct ManifestSummary {
     pub backbone: BackboneIdentity,
     pub templates: usize,
     pub created_unix_s: u64,
+    pub symmetries: Option<KnownSymmetries>,
 }
 
 fn new_generation() -> u64 {
@@ -137,6 +143,7 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
         generation: Some(generation),
         contour: model.contours.get().map(|c| c.config),
         detector: model.detector.get().map(|d| d.config),
+        symmetries: model.symmetries.clone(),
     };
     let manifest = serde_json::to_vec_pretty(&manifest).map_err(|e| corrupt(e.to_string()))?;
 
@@ -198,6 +205,7 @@ pub fn summary(manifest: &[u8]) -> Result<ManifestSummary, CodecError> {
         backbone: m.backbone,
         templates: m.templates.len(),
         created_unix_s: m.created_unix_s,
+        symmetries: m.symmetries,
     })
 }
 
@@ -290,6 +298,7 @@ pub fn decode(manifest: &[u8], tensors: &[u8], texture: &mut dyn FnMut(&str) -> 
         silhouettes: bytemuck::pod_collect_to_vec(get("silhouettes", Dtype::U64, 0)?),
         contours,
         detector,
+        symmetries: man.symmetries,
     };
     model.validate().map_err(corrupt)?;
     Ok(model)
@@ -343,6 +352,32 @@ mod hostile_tests {
         // An empty table may have any column count (older writers).
         let empty = with_tensor(&tensors, "mesh_colors", Dtype::F32, vec![0, 7], &[]);
         assert!(load(&manifest, &empty, &texture).is_ok());
+    }
+
+    /// Symmetries load when they are rotations and axes, and are refused naming what is wrong.
+    #[test]
+    fn stored_symmetries_load_and_bad_ones_are_refused() {
+        let (manifest, tensors, texture) = seed();
+        assert!(load(&manifest, &tensors, &texture).unwrap().symmetries.is_none(), "the seed predates symmetries");
+        let with = |json: &str| {
+            let mut m: serde_json::Value = serde_json::from_str(&manifest).unwrap();
+            m["symmetries"] = serde_json::from_str(json).unwrap();
+            m.to_string()
+        };
+        let good = r#"{"source": "models_info", "discrete": [[-1,0,0,0, 0,-1,0,0, 0,0,1,0, 0,0,0,1]], "continuous": [{"axis": [0,0,1], "offset": [0,0,0.01]}]}"#;
+        let m = load(&with(good), &tensors, &texture).unwrap();
+        let s = m.symmetries.expect("loaded");
+        assert_eq!((s.source, s.symmetries.discrete.len(), s.symmetries.continuous[0].offset[2]), (crate::geometry::symmetry::SymmetrySource::ModelsInfo, 1, 0.01));
+        for (json, needle) in [
+            (r#"{"source": "mesh", "discrete": [[1,0,0]], "continuous": []}"#, "16 values"),
+            (r#"{"source": "guess", "discrete": [], "continuous": []}"#, "unknown variant"),
+            (r#"{"source": "mesh", "discrete": [[2,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]], "continuous": []}"#, "discrete symmetry 0 is not a rotation"),
+            (r#"{"source": "mesh", "discrete": [[-1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]], "continuous": []}"#, "discrete symmetry 0 is not a rotation"),
+            (r#"{"source": "mesh", "discrete": [], "continuous": [{"axis": [0,0,0], "offset": [0,0,0]}]}"#, "continuous symmetry 0 has a zero"),
+        ] {
+            let err = load(&with(json), &tensors, &texture).unwrap_err();
+            assert!(err.contains(needle), "{json}: {err}");
+        }
     }
 
     /// A grid side of 65 536 or more overflowed `n · n` (u32) in the patch-cell check; any

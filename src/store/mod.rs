@@ -34,6 +34,9 @@ pub struct ObjectInfo {
     pub bytes: u64,
     /// Unix seconds.
     pub created_at: u64,
+    /// The object's symmetries (metres) and their source; `None`: unknown (stored before
+    /// format 5).
+    pub symmetries: Option<crate::geometry::symmetry::KnownSymmetries>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -154,5 +157,6 @@ pub(crate) fn info_of(summary: &codec::ManifestSummary, bytes: u64) -> ObjectInf
         templates: summary.templates,
         bytes,
         created_at: summary.created_unix_s,
+        symmetries: summary.symmetries.clone(),
     }
 }

@@ -22,7 +22,10 @@ use std::time::Duration;
 /// The schema, one file per version; version N is the state after `MIGRATIONS[N - 1]` ran.
 /// `PRAGMA user_version` holds the version: it lives in the database header and changes
 /// inside the migration's own transaction, so the schema and its number never disagree.
-const MIGRATIONS: &[(&str, &str)] = &[("0001_objects.sql", include_str!("../../migrations/0001_objects.sql"))];
+const MIGRATIONS: &[(&str, &str)] = &[
+    ("0001_objects.sql", include_str!("../../migrations/0001_objects.sql")),
+    ("0002_symmetries.sql", include_str!("../../migrations/0002_symmetries.sql")),
+];
 
 /// Largest chunk row: big enough that a typical object is a handful of rows, small enough
 /// that no single value is near SQLite's limits or needs a huge contiguous allocation.
@@ -182,7 +185,7 @@ impl Drop for Reader<'_> {
 }
 
 /// Reads an object row's list columns (`id, units, diameter_m, backbone, templates, bytes,
-/// created_at`); a value that does not parse is damage to that object.
+/// created_at, symmetries`); a value that does not parse is damage to that object.
 fn info_from_row(row: &rusqlite::Row<'_>) -> rusqlite::Result<Result<ObjectInfo, StoreError>> {
     let id: String = row.get(0)?;
     let units: String = row.get(1)?;
@@ -191,18 +194,20 @@ fn info_from_row(row: &rusqlite::Row<'_>) -> rusqlite::Result<Result<ObjectInfo,
     let templates: i64 = row.get(4)?;
     let bytes: i64 = row.get(5)?;
     let created_at: i64 = row.get(6)?;
+    let symmetries: Option<String> = row.get(7)?;
     let parsed = (|| {
         let units: Units = units.parse().map_err(|e: String| format!("units: {e}"))?;
         let backbone: BackboneIdentity = serde_json::from_str(&backbone).map_err(|e| format!("backbone: {e}"))?;
         let templates = usize::try_from(templates).map_err(|_| format!("invalid template count {templates}"))?;
         let bytes = u64::try_from(bytes).map_err(|_| format!("invalid size {bytes}"))?;
         let created_at = u64::try_from(created_at).map_err(|_| format!("invalid creation time {created_at}"))?;
-        Ok(ObjectInfo { id: id.clone(), units, diameter_m, backbone, templates, bytes, created_at })
+        let symmetries = symmetries.map(|s| serde_json::from_str(&s)).transpose().map_err(|e| format!("symmetries: {e}"))?;
+        Ok(ObjectInfo { id: id.clone(), units, diameter_m, backbone, templates, bytes, created_at, symmetries })
     })();
     Ok(parsed.map_err(|m: String| corrupt(&id, m)))
 }
 
-const INFO_COLUMNS: &str = "id, units, diameter_m, backbone, templates, bytes, created_at";
+const INFO_COLUMNS: &str = "id, units, diameter_m, backbone, templates, bytes, created_at, symmetries";
 
 impl SqliteStore {
     /// Opens (creating the file and its folders when missing) and migrates the schema;
@@ -293,6 +298,7 @@ impl SqliteStore {
         let total = enc.manifest.len() + enc.tensors.len() + enc.textures.iter().map(|(_, png)| png.len()).sum::<usize>();
         let info = info_of(&summary, total as u64);
         let backbone = serde_json::to_string(&info.backbone).map_err(|e| corrupt(id, format!("backbone: {e}")))?;
+        let symmetries = info.symmetries.as_ref().map(serde_json::to_string).transpose().map_err(|e| corrupt(id, format!("symmetries: {e}")))?;
         let out_of_range = |what: &str| corrupt(id, format!("{what} out of range"));
         let bytes = i64::try_from(info.bytes).map_err(|_| out_of_range("size"))?;
         let created_at = i64::try_from(info.created_at).map_err(|_| out_of_range("creation time"))?;
@@ -310,8 +316,8 @@ impl SqliteStore {
             tx.execute("DELETE FROM objects WHERE id = ?1", [id]).map_err(db(&ctx))?;
         }
         tx.execute(
-            &format!("INSERT INTO objects ({INFO_COLUMNS}, manifest) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)"),
-            params![id, info.units.as_str(), info.diameter_m, backbone, templates, bytes, created_at, manifest],
+            &format!("INSERT INTO objects ({INFO_COLUMNS}, manifest) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)"),
+            params![id, info.units.as_str(), info.diameter_m, backbone, templates, bytes, created_at, symmetries, manifest],
         )
         .map_err(db(&ctx))?;
         {
@@ -721,6 +727,27 @@ mod tests {
             assert!(name.starts_with(&format!("{:04}_", i + 1)) && name.ends_with(".sql"), "{name}");
             assert!(!sql.trim().is_empty());
         }
+    }
+
+    /// A database made by a program that knew only the first schema: its objects stay, and
+    /// list with their symmetries unknown.
+    #[test]
+    fn a_version_1_database_migrates_and_keeps_its_rows() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("old.db");
+        {
+            let c = Connection::open(&path).expect("create");
+            c.execute_batch(MIGRATIONS[0].1).expect("schema 1");
+            c.execute_batch("PRAGMA user_version = 1").expect("version 1");
+            let backbone = serde_json::to_string(&crate::features::Backbone::identity(&crate::features::EmbeddedBackbone::new(crate::features::EmbeddedConfig::default()).expect("embedded"))).expect("json");
+            c.execute("INSERT INTO objects (id, units, diameter_m, backbone, templates, bytes, created_at, manifest) VALUES ('old', 'mm', 0.2, ?1, 10, 100, 5, '{}')", [backbone]).expect("row");
+        }
+        let store = SqliteStore::open(path.to_str().expect("UTF-8")).expect("open migrates");
+        let list = store.list().expect("list");
+        assert_eq!(list.len(), 1);
+        assert_eq!((list[0].id.as_str(), list[0].symmetries.as_ref()), ("old", None));
+        let version: i64 = raw(&store).pragma_query_value(None, "user_version", |r| r.get(0)).expect("version");
+        assert_eq!(version, MIGRATIONS.len() as i64);
     }
 
     #[test]

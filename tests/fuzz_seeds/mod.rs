@@ -164,6 +164,7 @@ pub fn tiny_stored_object() -> Vec<u8> {
         silhouettes: (0..b2tfpose::onboard::model::SILHOUETTE_WORDS as u64).map(|w| w * 0x0101).collect(),
         contours: std::sync::OnceLock::from(Arc::new(contour)),
         detector: std::sync::OnceLock::new(),
+        symmetries: None,
     };
     model.validate().unwrap();
     let encoded = b2tfpose::store::codec::encode(&model).unwrap();

@@ -29,6 +29,8 @@ def test_numpy_rgb_with_mask_matches_the_cli(rgb_result: b2tfpose.Result, cli_ma
     assert r.pose.rotation_error_deg(scene.truth) < 3.0 and r.pose.translation_error_m(scene.truth) < 0.01
     assert {"retrieval", "matching", "pnp", "total"} <= set(r.timings_ms) and all(v >= 0 for v in r.timings_ms.values())
     assert isinstance(r.diagnostics, list) and r.diagnostics[0]["inliers"] > 0
+    # The sample box's textured faces all differ: symmetries found from the mesh, none.
+    assert r.symmetries == b2tfpose.Symmetries("mesh") and not r.arbitrary_rotation_about_axis
 
 
 def test_bgr_frame_gives_the_same_pose(client: b2tfpose.Client, rgb_result: b2tfpose.Result, scene: Scene) -> None:

@@ -103,6 +103,7 @@ def test_operation_handle_wait_and_cancel(client: b2tfpose.Client, sample_obj: P
 
 def test_list_get_delete(client: b2tfpose.Client, onboarded: Onboarded, sample_obj: Path) -> None:
     assert client.get_object(SAMPLE_ID) == onboarded.info
+    assert onboarded.info.symmetries == b2tfpose.Symmetries("mesh", discrete=(), continuous=())
     assert SAMPLE_ID in [o.id for o in client.list_objects()]
     client.onboard("to-delete", sample_obj, units="m", level=0, in_plane=1, replace=True, retry=True)
     assert "to-delete" in [o.id for o in client.list_objects()]

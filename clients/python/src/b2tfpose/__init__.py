@@ -14,7 +14,7 @@ from ._convert import Detection, TrackFrame
 from ._pose import Pose
 from ._request_id import request_id
 from ._retry import NO_RETRY, RetryPolicy
-from ._types import DetectedObject, Detections, Estimates, ObjectInfo, OperationStatus, Result, TrackedObject, TrackMode, TrackResult
+from ._types import ContinuousSymmetry, DetectedObject, Detections, Estimates, ObjectInfo, OperationStatus, Result, Symmetries, TrackedObject, TrackMode, TrackResult
 from .aio import AsyncClient, AsyncOperation
 from .client import Client, Operation
 from .errors import (
@@ -51,6 +51,8 @@ __all__ = [
     "TrackedObject",
     "TrackMode",
     "ObjectInfo",
+    "Symmetries",
+    "ContinuousSymmetry",
     "OperationStatus",
     "RetryPolicy",
     "NO_RETRY",

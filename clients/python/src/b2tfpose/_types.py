@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import TYPE_CHECKING, Any, Dict, List, Optional
+from typing import TYPE_CHECKING, Any, Dict, List, Optional, Tuple
 
 import grpc
 
@@ -24,6 +24,50 @@ if TYPE_CHECKING:
 
 
 @dataclass(frozen=True)
+class ContinuousSymmetry:
+    """Free rotation of the object about an axis (a cylinder's), in object coordinates."""
+
+    axis: Tuple[float, float, float]
+    """The axis' direction (not necessarily unit length)."""
+    offset_m: Tuple[float, float, float]
+    """A point on the axis, metres."""
+
+
+@dataclass(frozen=True)
+class Symmetries:
+    """An object's symmetries in its own frame, as BOP's models_info.json writes them. A pose
+    is as right as ``pose @ s`` for each ``s`` in ``discrete`` (see :meth:`equivalent_poses`),
+    and as any turn about a ``continuous`` axis. Both empty: the object has no symmetry."""
+
+    source: str
+    """"mesh" (found by onboarding from the mesh) or "models_info" (given by the user)."""
+    discrete: Tuple[Pose, ...] = ()
+    """The transformations x -> R x + t of the object frame (metres) that leave it looking
+    the same, the identity not included, each as a :class:`~b2tfpose.Pose`."""
+    continuous: Tuple[ContinuousSymmetry, ...] = ()
+
+    def equivalent_poses(self, pose: Pose) -> List[Pose]:
+        """``pose`` and the poses its discrete symmetries make equally right."""
+        return [pose] + [pose @ s for s in self.discrete]
+
+    @classmethod
+    def from_pb(cls, m: pb.Symmetries) -> "Symmetries":
+        def vec3(v: Any, what: str) -> Tuple[float, float, float]:
+            if len(v) != 3:
+                raise ValueError(f"the server sent a continuous symmetry whose {what} has {len(v)} values")
+            return (float(v[0]), float(v[1]), float(v[2]))
+
+        for d in m.discrete:
+            if len(d.matrix) != 16:
+                raise ValueError(f"the server sent a discrete symmetry of {len(d.matrix)} values, not 16")
+        return cls(
+            source=m.source,
+            discrete=tuple(Pose.from_matrix(list(d.matrix)) for d in m.discrete),
+            continuous=tuple(ContinuousSymmetry(vec3(c.axis, "axis"), vec3(c.offset_m, "offset")) for c in m.continuous),
+        )
+
+
+@dataclass(frozen=True)
 class ObjectInfo:
     """An onboarded object."""
 
@@ -37,6 +81,9 @@ class ObjectInfo:
     created_unix_s: int
     mesh_units: str
     """Unit of the uploaded mesh file; the stored model is metres."""
+    symmetries: Optional[Symmetries] = None
+    """Found from the mesh at onboarding; None: unknown (an object stored before symmetries
+    were found: re-onboard it, or ``b2tf objects upgrade``)."""
 
     @classmethod
     def from_pb(cls, m: pb.ObjectInfo) -> "ObjectInfo":
@@ -48,6 +95,7 @@ class ObjectInfo:
             bytes=m.bytes,
             created_unix_s=m.created_unix_s,
             mesh_units=m.mesh_units,
+            symmetries=Symmetries.from_pb(m.symmetries) if m.HasField("symmetries") else None,
         )
 
 
@@ -123,6 +171,12 @@ class Result:
     diagnostics: Any = None
     """The server's diagnostics document, parsed JSON: per candidate mask, retrieval,
     matches, inliers, RRC, refinement, verified hypotheses, IoU and selection scores."""
+    symmetries: Optional[Symmetries] = None
+    """The object's symmetries (None: unknown): ``symmetries.equivalent_poses(pose)`` are
+    all equally right, as is any turn about a continuous axis."""
+    arbitrary_rotation_about_axis: bool = False
+    """The object has a continuous symmetry: the pose's rotation about that axis is
+    arbitrary, any turn about it being equally right (pick the grasp you prefer)."""
 
     @property
     def ok(self) -> bool:
@@ -145,6 +199,8 @@ class Result:
             timings_ms=dict(m.timings_ms),
             confirmation_score=m.confirmation_score if m.HasField("confirmation_score") else None,
             diagnostics=diagnostics,
+            symmetries=Symmetries.from_pb(m.symmetries) if m.HasField("symmetries") else None,
+            arbitrary_rotation_about_axis=m.arbitrary_rotation_about_axis,
         )
 
 

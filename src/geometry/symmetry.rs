@@ -53,8 +53,10 @@ pub enum SymmetryError {
     NotAnObject(String),
 }
 
-/// One discrete symmetry: `x ↦ rotation·x + translation` in model coordinates.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// One discrete symmetry: `x ↦ rotation·x + translation` in model coordinates. Stored and
+/// sent as the flattened row-major 4×4 matrix, as BOP's `models_info.json` writes it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(into = "Vec<f64>", try_from = "Vec<f64>")]
 pub struct DiscreteSymmetry {
     /// Upper-left 3×3 block of the 4×4 matrix, exactly as in the file.
     pub rotation: Matrix3<f64>,
@@ -71,6 +73,33 @@ impl DiscreteSymmetry {
             translation: Vector3::new(m[3], m[7], m[11]),
         }
     }
+
+    /// The flattened row-major 4×4 matrix (bottom row 0, 0, 0, 1).
+    pub fn to_row_major_4x4(&self) -> [f64; 16] {
+        let (r, t) = (&self.rotation, &self.translation);
+        [r[(0, 0)], r[(0, 1)], r[(0, 2)], t.x, r[(1, 0)], r[(1, 1)], r[(1, 2)], t.y, r[(2, 0)], r[(2, 1)], r[(2, 2)], t.z, 0.0, 0.0, 0.0, 1.0]
+    }
+
+    pub fn from_pose(pose: &Pose) -> Self {
+        Self { rotation: *pose.rotation.matrix(), translation: pose.translation }
+    }
+}
+
+impl From<DiscreteSymmetry> for Vec<f64> {
+    fn from(d: DiscreteSymmetry) -> Self {
+        d.to_row_major_4x4().to_vec()
+    }
+}
+
+impl TryFrom<Vec<f64>> for DiscreteSymmetry {
+    type Error = String;
+    fn try_from(v: Vec<f64>) -> Result<Self, String> {
+        let m: [f64; 16] = v.as_slice().try_into().map_err(|_| format!("a discrete symmetry has 16 values (row-major 4×4), not {}", v.len()))?;
+        if m.iter().any(|x| !x.is_finite()) {
+            return Err("a discrete symmetry has a value that is not a finite number".into());
+        }
+        Ok(Self::from_row_major_4x4(&m))
+    }
 }
 
 /// One continuous rotational symmetry (`models_info.json` format).
@@ -82,14 +111,88 @@ pub struct ContinuousSymmetry {
     pub offset: [f64; 3],
 }
 
-/// The symmetries declared for one object.
-#[derive(Debug, Clone, Default, PartialEq)]
+/// The symmetries of one object, as BOP writes them: each continuous symmetry is an axis
+/// the object may turn about freely; the discrete ones are the other transformations (with
+/// a continuous axis, only those not already a turn about it, e.g. a cylinder's flip).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct ObjectSymmetries {
     pub discrete: Vec<DiscreteSymmetry>,
     pub continuous: Vec<ContinuousSymmetry>,
 }
 
+/// Where an object's symmetries came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SymmetrySource {
+    /// Found by onboarding from the mesh's geometry and appearance.
+    Mesh,
+    /// Given by the user (BOP `models_info.json`).
+    ModelsInfo,
+}
+
+/// An onboarded object's symmetries (translations and offsets in metres) and their source.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct KnownSymmetries {
+    pub source: SymmetrySource,
+    #[serde(flatten)]
+    pub symmetries: ObjectSymmetries,
+}
+
+impl KnownSymmetries {
+    /// A continuous symmetry: a pose's rotation about its axis is arbitrary.
+    pub fn arbitrary_rotation_about_axis(&self) -> bool {
+        !self.symmetries.continuous.is_empty()
+    }
+
+    /// One line for people: "none (found from the mesh)", "3 discrete (…)", "continuous
+    /// about (0.00, 0.00, 1.00) and 1 discrete (given in models_info)".
+    pub fn describe(&self) -> String {
+        let s = &self.symmetries;
+        let mut parts: Vec<String> = s.continuous.iter().map(|c| format!("continuous about ({:.2}, {:.2}, {:.2})", c.axis[0], c.axis[1], c.axis[2])).collect();
+        if !s.discrete.is_empty() {
+            parts.push(format!("{} discrete", s.discrete.len()));
+        }
+        let what = if parts.is_empty() { "none".to_string() } else { parts.join(" and ") };
+        let source = match self.source {
+            SymmetrySource::Mesh => "found from the mesh",
+            SymmetrySource::ModelsInfo => "given in models_info",
+        };
+        format!("{what} ({source})")
+    }
+}
+
 impl ObjectSymmetries {
+    /// Every discrete symmetry a finite rotation (RᵀR = I within 1e-3, det +1) and
+    /// translation; every continuous axis finite and not zero, its offset finite.
+    pub fn validate(&self) -> Result<(), String> {
+        for (i, d) in self.discrete.iter().enumerate() {
+            let r = &d.rotation;
+            let finite = r.iter().chain(d.translation.iter()).all(|x| x.is_finite());
+            if !finite || (r.transpose() * r - Matrix3::identity()).norm() > 1e-3 || r.determinant() < 0.0 {
+                return Err(format!("discrete symmetry {i} is not a rotation and a translation"));
+            }
+        }
+        for (i, c) in self.continuous.iter().enumerate() {
+            if axis_norm(&c.axis).is_none() || c.offset.iter().any(|x| !x.is_finite()) {
+                return Err(format!("continuous symmetry {i} has a zero or non-finite axis or offset"));
+            }
+        }
+        Ok(())
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.discrete.is_empty() && self.continuous.is_empty()
+    }
+
+    /// The same symmetries with translations and offsets multiplied by `factor`
+    /// (e.g. [`MM_TO_M`] for a BOP file's millimetres).
+    pub fn scaled(&self, factor: f64) -> Self {
+        Self {
+            discrete: self.discrete.iter().map(|d| DiscreteSymmetry { rotation: d.rotation, translation: d.translation * factor }).collect(),
+            continuous: self.continuous.iter().map(|c| ContinuousSymmetry { axis: c.axis, offset: c.offset.map(|o| o * factor) }).collect(),
+        }
+    }
+
     /// See [`symmetry_transformations`].
     pub fn transformations(&self, max_sym_disc_step: f64) -> Result<Vec<Pose>, SymmetryError> {
         symmetry_transformations(&self.discrete, &self.continuous, max_sym_disc_step)
