@@ -46,10 +46,11 @@ pub fn run(a: ObjectsArgs) -> Result<()> {
                 return Ok(());
             }
             println!("{}: {} objects", store.url(), list.len());
-            println!("| id | units | diameter (mm) | backbone | templates | MB | created (unix s) |");
-            println!("|---|---|---:|---|---:|---:|---:|");
+            println!("| id | units | diameter (mm) | backbone | templates | MB | created (unix s) | symmetries |");
+            println!("|---|---|---:|---|---:|---:|---:|---|");
             for o in list {
-                println!("| {} | {} | {:.1} | {} | {} | {:.1} | {} |", o.id, o.units.as_str(), o.diameter_m * 1e3, o.backbone.name, o.templates, o.bytes as f64 / 1e6, o.created_at);
+                let symmetries = o.symmetries.as_ref().map_or_else(|| "unknown (objects upgrade finds them)".to_string(), |s| s.describe());
+                println!("| {} | {} | {:.1} | {} | {} | {:.1} | {} | {symmetries} |", o.id, o.units.as_str(), o.diameter_m * 1e3, o.backbone.name, o.templates, o.bytes as f64 / 1e6, o.created_at);
             }
         }
         ObjectsCommand::Show { id, load } => {

@@ -55,7 +55,7 @@ pub struct RefineContext<'a> {
 }
 
 /// What a refiner did to one hypothesis.
-#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct RefineReport {
     /// Whether the pose changed.
     pub moved: bool,
@@ -71,6 +71,17 @@ pub struct RefineReport {
     /// Why the pose was kept, when it was.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
+    /// Standard deviation of the refined pose's depth (camera z, metres) that the contour
+    /// refiner's last step implies (its line offsets' variances through the normal
+    /// equations, prior included); NaN (null) where it did not move the pose, and for the
+    /// other refiners.
+    pub depth_sigma_m: f64,
+}
+
+impl Default for RefineReport {
+    fn default() -> Self {
+        Self { moved: false, residual_px: 0.0, lines: 0, lines_with_edge: 0, agreement: 0.0, note: None, depth_sigma_m: f64::NAN }
+    }
 }
 
 pub struct Refined {

@@ -65,7 +65,7 @@ pub fn find_symmetries(mesh: &Mesh, config: &FinderConfig) -> ObjectSymmetries {
         }
     }
     let offset = [centre.x, centre.y, centre.z];
-    let about_centre = |r: &Matrix3<f64>| DiscreteSymmetry { rotation: *r, translation: centre - r * centre };
+    let about_centre = |r: &Matrix3<f64>| DiscreteSymmetry { rotation: r.map(tidy), translation: (centre - r * centre).map(tidy) };
     if !continuous.is_empty() {
         // BOP's form: the free axis, plus one half-turn across it if there is one (a
         // cylinder's flip; a cup has none). Other discrete symmetries are turns about the axis.
@@ -90,6 +90,7 @@ struct Surface {
     colours: Vec<[f32; 3]>,
     /// Unit face normal and area of every triangle.
     faces: Vec<(Vector3<f64>, f64)>,
+    face_centres: Vec<Vector3<f64>>,
 }
 
 impl Surface {
@@ -122,11 +123,18 @@ impl Surface {
             points.push(pos(t[0]) * w[0] + pos(t[1]) * w[1] + pos(t[2]) * w[2]);
             colours.push(albedo(mesh, t, w, material_of[f]));
         }
-        Self { points, colours, faces }
+        let face_centres = mesh.triangles().iter().map(|t| (pos(t[0]) + pos(t[1]) + pos(t[2])) / 3.0).collect();
+        Self { points, colours, faces, face_centres }
     }
 
+    /// The exact area-weighted centroid of the surface (the samples' mean is off by a few
+    /// thousandths of the diameter).
     fn centroid(&self) -> Vector3<f64> {
-        self.points.iter().sum::<Vector3<f64>>() / self.points.len() as f64
+        let total: f64 = self.faces.iter().map(|(_, a)| a).sum();
+        if total <= 0.0 {
+            return self.points.iter().sum::<Vector3<f64>>() / self.points.len() as f64;
+        }
+        self.face_centres.iter().zip(&self.faces).map(|(c, (_, a))| c * *a).sum::<Vector3<f64>>() / total
     }
 }
 
@@ -220,6 +228,15 @@ fn dominant_normals(s: &Surface, k: usize) -> Vec<Vector3<f64>> {
     let mut order: Vec<usize> = (0..dirs.len()).filter(|&i| area[i] > 0.0).collect();
     order.sort_by(|&a, &b| area[b].total_cmp(&area[a]));
     order.into_iter().take(k).map(|i| sum[i] / area[i]).collect()
+}
+
+/// Rounding noise (cos 90° = 6e-17) written as the zero it is.
+fn tidy(x: f64) -> f64 {
+    if x.abs() < 1e-12 {
+        0.0
+    } else {
+        x
+    }
 }
 
 fn rotation(axis: &Vector3<f64>, angle: f64) -> Matrix3<f64> {

@@ -59,7 +59,7 @@ pub struct Agreement {
 
 impl Agreement {
     fn report(&self, moved: bool, note: Option<String>) -> RefineReport {
-        RefineReport { moved, residual_px: self.residual_px, lines: self.lines, lines_with_edge: self.lines_with_edge, agreement: self.score, note }
+        RefineReport { moved, residual_px: self.residual_px, lines: self.lines, lines_with_edge: self.lines_with_edge, agreement: self.score, note, depth_sigma_m: f64::NAN }
     }
 }
 
@@ -148,12 +148,15 @@ impl Refiner for ContourRefiner {
         }
         let radius = ctx.model.mesh.bounding_radius();
         let mut pose = start;
+        // The depth's standard deviation from the last step, on the finest lines.
+        let mut depth_sigma = f64::NAN;
         for scale in &scales {
             for _ in 0..self.config.passes_per_scale {
                 let lines = build_lines(&cm, &centre, &pose, k, &post, *scale);
                 for _ in 0..self.config.updates_per_pass {
-                    let Some((w, v)) = gauss_newton_update(&lines, &pose, &start, k, &self.config.regularisation, radius) else { break };
-                    pose = apply_update(&pose, &w, &v);
+                    let Some(step) = gauss_newton_update(&lines, &pose, &start, k, &self.config.regularisation, radius) else { break };
+                    pose = apply_update(&pose, &step.omega, &step.v);
+                    depth_sigma = step.depth_sigma(&pose);
                 }
                 if pose.translation.z <= 0.0 || !pose.translation.iter().all(|x| x.is_finite()) {
                     return keep("no improvement: the update left the camera's field of view".into());
@@ -164,6 +167,6 @@ impl Refiner for ContourRefiner {
         if after.score < before.score {
             return keep(format!("no improvement: contour agreement {:.3} after, {:.3} before", after.score, before.score));
         }
-        Ok(Refined { pose, report: after.report(true, None) })
+        Ok(Refined { pose, report: RefineReport { depth_sigma_m: depth_sigma, ..after.report(true, None) } })
     }
 }

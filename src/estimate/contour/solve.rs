@@ -35,10 +35,30 @@ fn median(mut v: Vec<f64>) -> f64 {
     *v.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1
 }
 
-/// The update (ω, v) that best explains the lines' offsets at `pose`, given the prior
-/// towards `start`, or `None` when the lines do not constrain the pose (no line with an
-/// edge).
-pub fn gauss_newton_update(lines: &[Line], pose: &Pose, start: &Pose, k: &Intrinsics, reg: &Regularisation, radius: f64) -> Option<(Vector3<f64>, Vector3<f64>)> {
+/// One Gauss–Newton step: the turn ω and shift v (object frame) and the step's
+/// covariance, the inverse of the weighted normal matrix (prior included; rows ω then v).
+pub struct Step {
+    pub omega: Vector3<f64>,
+    pub v: Vector3<f64>,
+    pub covariance: Matrix6<f64>,
+}
+
+impl Step {
+    /// Standard deviation of the pose's depth (camera z, metres) after the step at `pose`:
+    /// the shift's covariance turned into the camera frame.
+    pub fn depth_sigma(&self, pose: &Pose) -> f64 {
+        let r = pose.rotation.matrix();
+        let cov_v = self.covariance.fixed_view::<3, 3>(3, 3);
+        let row = r.row(2);
+        (row * cov_v * row.transpose())[(0, 0)].max(0.0).sqrt()
+    }
+}
+
+/// The update that best explains the lines' offsets at `pose`, given the prior towards
+/// `start`, or `None` when the lines do not constrain the pose (no line with an edge).
+/// Each line's weight is its biweight over its offset variance (px²), so the covariance is
+/// in the units of the pose as far as those variances are right.
+pub fn gauss_newton_update(lines: &[Line], pose: &Pose, start: &Pose, k: &Intrinsics, reg: &Regularisation, radius: f64) -> Option<Step> {
     struct Row {
         j: Vector6<f64>,
         residual: f64,
@@ -103,8 +123,9 @@ pub fn gauss_newton_update(lines: &[Line], pose: &Pose, start: &Pose, k: &Intrin
         h[(i, i)] += prior[i] + floor;
         g[i] -= prior[i] * moved[i];
     }
-    let step = h.cholesky()?.solve(&g);
-    Some((Vector3::new(step[0], step[1], step[2]), Vector3::new(step[3], step[4], step[5])))
+    let chol = h.cholesky()?;
+    let step = chol.solve(&g);
+    Some(Step { omega: Vector3::new(step[0], step[1], step[2]), v: Vector3::new(step[3], step[4], step[5]), covariance: chol.inverse() })
 }
 
 /// `pose · (exp(ω), v)`: the object turns by ω and shifts by v in its own frame.
@@ -140,7 +161,7 @@ mod tests {
         let reg = Regularisation { rotation: 0.0, translation: 0.0 };
         let mut pose = start;
         for _ in 0..3 {
-            let (w, v) = gauss_newton_update(&lines, &pose, &start, &k, &reg, 0.05).unwrap();
+            let Step { omega: w, v, .. } = gauss_newton_update(&lines, &pose, &start, &k, &reg, 0.05).unwrap();
             pose = apply_update(&pose, &w, &v);
         }
         let err = (pose.translation - truth.translation).norm();
