@@ -28,12 +28,18 @@ pub fn mm(p: &Pose) -> Pose {
     Pose::new(p.rotation, p.translation * 1000.0)
 }
 
+/// The symmetries the dataset's `models_info.json` declares (mm), by object id.
+pub fn declared_symmetries(dataset: &Path) -> Result<BTreeMap<u32, ObjectSymmetries>> {
+    let path = dataset.join(MODELS_INFO);
+    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    parse_models_info(&text).with_context(|| path.display().to_string())
+}
+
 /// The objects `ids` of a dataset; `step` is the toolkit's `max_sym_disc_step`.
 pub fn load_models(dataset: &Path, ids: impl IntoIterator<Item = u32>, step: f64) -> Result<BTreeMap<u32, EvalModel>> {
     let info = load_models_info(dataset)?;
     let info_path = dataset.join(MODELS_INFO);
-    let text = std::fs::read_to_string(&info_path).with_context(|| format!("reading {}", info_path.display()))?;
-    let symmetries = parse_models_info(&text).with_context(|| info_path.display().to_string())?;
+    let symmetries = declared_symmetries(dataset)?;
     let mut out = BTreeMap::new();
     for id in ids {
         let diameter_mm = info.get(&id).ok_or_else(|| anyhow!("{}: no entry for object {id}, which the targets list", info_path.display()))?.diameter;

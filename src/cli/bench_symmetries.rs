@@ -1,7 +1,7 @@
 //! `b2tf bench symmetries`: what the symmetry finder makes of meshes, how long it takes, and,
 //! given a BOP `models_info.json`, whether it agrees with the symmetries declared there.
 
-use crate::geometry::symmetry::{parse_models_info, KnownSymmetries, ObjectSymmetries, SymmetrySource};
+use crate::geometry::symmetry::{parse_models_info, ObjectSymmetries};
 use crate::mesh::{load_mesh, Units};
 use anyhow::{Context, Result};
 use std::path::PathBuf;
@@ -41,16 +41,15 @@ pub fn run(a: BenchSymmetriesArgs) -> Result<()> {
         if let Some(ok) = agree {
             agreed = (agreed.0 + ok as usize, agreed.1 + 1);
         }
-        let text = |s: &ObjectSymmetries, source| KnownSymmetries { source, symmetries: s.clone() }.describe().rsplit_once(" (").map(|(what, _)| what.to_string()).unwrap_or_default();
         let shape = crate::mesh::symmetry_finder::find_symmetries(&mesh, &geometry_only);
         println!(
             "| {} | {} | {} | {} | {} | {ms:.0} | {} |",
             path.file_name().map(|n| n.to_string_lossy()).unwrap_or_default(),
             mesh.triangles().len(),
-            text(&found, SymmetrySource::Mesh),
-            given.map(|g| text(g, SymmetrySource::ModelsInfo)).unwrap_or_else(|| "–".into()),
+            found.describe(),
+            given.map(ObjectSymmetries::describe).unwrap_or_else(|| "–".into()),
             agree.map(|ok| if ok { "yes" } else { "no" }).unwrap_or("–"),
-            text(&shape, SymmetrySource::Mesh),
+            shape.describe(),
         );
     }
     if agreed.1 > 0 {

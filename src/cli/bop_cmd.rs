@@ -126,7 +126,8 @@ fn run_cmd(a: RunArgs) -> Result<()> {
     // shared LRU cache, so a dataset with many objects stays within the memory budget.
     let models = crate::store::ModelCache::new(store.clone(), a.cache_mb * 1_000_000);
     let mut checked: HashSet<u32> = HashSet::new();
-    let given_symmetries = dataset_symmetries(&a.dataset)?;
+    // The dataset's own symmetries, where it has a models_info.json.
+    let given_symmetries = if a.dataset.join(crate::bop::format::MODELS_INFO).exists() { crate::bop::eval_models::declared_symmetries(&a.dataset)? } else { Default::default() };
     let mut model = |obj_id: u32| -> Result<Arc<ObjectModel>> {
         let id = format!("obj_{obj_id:06}");
         if checked.insert(obj_id) {
@@ -197,15 +198,4 @@ fn synth_cmd(a: SynthArgs) -> Result<()> {
         s.detections_path.display()
     );
     Ok(())
-}
-
-/// The symmetries the dataset's `models_info.json` declares (mm), by object id; none when
-/// the file is absent.
-fn dataset_symmetries(dataset: &std::path::Path) -> Result<std::collections::BTreeMap<u32, crate::geometry::symmetry::ObjectSymmetries>> {
-    let path = dataset.join(crate::bop::format::MODELS_INFO);
-    if !path.exists() {
-        return Ok(Default::default());
-    }
-    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-    crate::geometry::symmetry::parse_models_info(&text).with_context(|| path.display().to_string())
 }

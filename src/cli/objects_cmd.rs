@@ -76,14 +76,13 @@ fn upgrade(store: &dyn crate::store::ObjectStore, ids: Vec<String>) -> Result<()
     let ids = if ids.is_empty() { store.list()?.into_iter().map(|o| o.id).collect() } else { ids };
     let renderer = super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?;
     for id in ids {
-        let m = store.get(&id)?;
+        let mut m = store.get(&id)?;
         let lacked: Vec<&str> = [("contour model", m.contours.get().is_none()), ("detector templates", m.detector.get().is_none()), ("symmetries", m.symmetries.is_none())].iter().filter(|(_, missing)| *missing).map(|(what, _)| *what).collect();
         if lacked.is_empty() {
             println!("{id}: up to date");
             continue;
         }
         let t = Instant::now();
-        let mut m = m;
         if m.symmetries.is_none() {
             m.symmetries = Some(crate::onboard::mesh_symmetries(&m.mesh));
         }

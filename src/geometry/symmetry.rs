@@ -147,12 +147,7 @@ impl KnownSymmetries {
     /// One line for people: "none (found from the mesh)", "3 discrete (…)", "continuous
     /// about (0.00, 0.00, 1.00) and 1 discrete (given in models_info)".
     pub fn describe(&self) -> String {
-        let s = &self.symmetries;
-        let mut parts: Vec<String> = s.continuous.iter().map(|c| format!("continuous about ({:.2}, {:.2}, {:.2})", c.axis[0], c.axis[1], c.axis[2])).collect();
-        if !s.discrete.is_empty() {
-            parts.push(format!("{} discrete", s.discrete.len()));
-        }
-        let what = if parts.is_empty() { "none".to_string() } else { parts.join(" and ") };
+        let what = self.symmetries.describe();
         let source = match self.source {
             SymmetrySource::Mesh => "found from the mesh",
             SymmetrySource::ModelsInfo => "given in models_info",
@@ -162,6 +157,19 @@ impl KnownSymmetries {
 }
 
 impl ObjectSymmetries {
+    /// "none", "3 discrete", "continuous about (0.00, 0.00, 1.00) and 1 discrete".
+    pub fn describe(&self) -> String {
+        let mut parts: Vec<String> = self.continuous.iter().map(|c| format!("continuous about ({:.2}, {:.2}, {:.2})", c.axis[0], c.axis[1], c.axis[2])).collect();
+        if !self.discrete.is_empty() {
+            parts.push(format!("{} discrete", self.discrete.len()));
+        }
+        if parts.is_empty() {
+            "none".to_string()
+        } else {
+            parts.join(" and ")
+        }
+    }
+
     /// Every discrete symmetry a finite rotation (RᵀR = I within 1e-3, det +1) and
     /// translation; every continuous axis finite and not zero, its offset finite.
     pub fn validate(&self) -> Result<(), String> {
