@@ -37,6 +37,9 @@ pub struct BenchEstimateArgs {
     /// the best silhouette IoU) or contour (aligns the outline with the mask).
     #[arg(long, value_enum, default_value_t = crate::estimate::RefinerKind::default())]
     pub refiner: crate::estimate::RefinerKind,
+    /// Run the contour refiner without its occlusion model (for comparison).
+    #[arg(long)]
+    pub no_occlusion_model: bool,
     #[command(flatten)]
     pub verify: super::verify_args::VerifyArgs,
     /// Hypotheses rendered in verification (best by contour agreement).
@@ -210,7 +213,12 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     }
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
     let scene_cfg = a.scenes.scene_config(a.gap || a.harsh_scenes);
-    let estimator = crate::estimate::Estimator::new(backbone, pool.clone());
+    let mut estimator = crate::estimate::Estimator::new(backbone, pool.clone());
+    if a.no_occlusion_model {
+        let mut contour = crate::estimate::contour::ContourRefiner::new(pool.clone());
+        contour.config.occlusion_model = false;
+        estimator = estimator.with_refiner(crate::estimate::RefinerKind::Contour, Arc::new(contour));
+    }
     let mut base = EstimateConfig { refiner: a.refiner, ..Default::default() };
     if let Some(w) = a.silhouette_weight {
         base.retrieval.silhouette_weight = w;
@@ -352,12 +360,13 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         if base.verify.enabled { format!("{} templates, {} rendered, weights {:?}", base.verify.templates, base.verify.rendered, base.verify.weights) } else { "off".into() }
     );
     println!(
-        "{} instances in {} generated images ({} objects/image, diameter {:.2}–{:.2} of the image height, ≤{:.0} % occluded, seed {}){}; objects: {}",
+        "{} instances in {} generated images ({} objects/image, diameter {:.2}–{:.2} of the image height, {:.0}–{:.0} % occluded, seed {}){}; objects: {}",
         instances,
         a.scenes.images,
         a.scenes.objects_per_image,
         a.scenes.fill.0,
         a.scenes.fill.1,
+        a.scenes.min_occlusion * 100.0,
         a.scenes.max_occlusion * 100.0,
         a.scenes.seed,
         if a.gap {

@@ -29,7 +29,8 @@ pub struct BenchRefineArgs {
     /// Depth change of each perturbation, as a share of the distance (alternating sign).
     #[arg(long, default_value_t = 0.10)]
     pub depth: f64,
-    /// Refiners to compare (default: contour and silhouette-depth).
+    /// Refiners to compare (default: contour and silhouette-depth). The contour refiner is
+    /// also run without its occlusion model, for comparison.
     #[arg(long = "refiner", value_enum)]
     pub refiners: Vec<RefinerKind>,
 }
@@ -58,6 +59,8 @@ struct Outcomes {
     rot_deg: Vec<f64>,
     depth_rel: Vec<f64>,
     ms: Vec<f64>,
+    /// |visible fraction the refiner assumed − the true one| where it reported one.
+    visible_err: Vec<f64>,
 }
 
 impl Outcomes {
@@ -87,10 +90,20 @@ pub fn run(a: BenchRefineArgs) -> Result<()> {
     let scene_cfg = a.scenes.scene_config(a.harsh_scenes);
     let kinds = if a.refiners.is_empty() { vec![RefinerKind::Contour, RefinerKind::SilhouetteDepth] } else { a.refiners.clone() };
     let estimator = crate::estimate::Estimator::new(backbone, pool.clone());
+    let mut without_occlusion = crate::estimate::contour::ContourRefiner::new(pool.clone());
+    without_occlusion.config.occlusion_model = false;
+    let mut refiners: Vec<(String, &dyn crate::estimate::Refiner)> = Vec::new();
+    for kind in &kinds {
+        refiners.push((kind.name().to_string(), estimator.refiner(*kind)));
+        if *kind == RefinerKind::Contour {
+            refiners.push(("contour, no occlusion model".into(), &without_occlusion));
+        }
+    }
     let axes = [Vector3::new(1.0, 0.3, 0.0), Vector3::new(-0.2, 1.0, 0.5), Vector3::new(0.3, -0.4, 1.0)];
     let buckets = SIZE_EDGES.len() + 1;
     // [refiner][start: 0 truth, 1 perturbed][size]
-    let mut out = vec![[vec![Outcomes::default(); buckets], vec![Outcomes::default(); buckets]]; kinds.len()];
+    let mut out = vec![[vec![Outcomes::default(); buckets], vec![Outcomes::default(); buckets]]; refiners.len()];
+    let mut visible_true = Vec::new();
     let pb = super::progress::bar(a.scenes.images as u64, "refining");
     let mut instances = 0;
     for im in 0..a.scenes.images as u32 {
@@ -108,8 +121,8 @@ pub fn run(a: BenchRefineArgs) -> Result<()> {
                 let factor = if i % 2 == 0 { 1.0 + a.depth } else { 1.0 - a.depth };
                 starts.push((1, perturbed(&inst.pose, &centre, *axis, a.degrees, factor)));
             }
-            for (r, kind) in kinds.iter().enumerate() {
-                let refiner = estimator.refiner(*kind);
+            visible_true.push(inst.visib_fract());
+            for (r, (_, refiner)) in refiners.iter().enumerate() {
                 for (kind, start) in &starts {
                     let t = Instant::now();
                     let refined = refiner.refine(&ctx, *start).map_err(anyhow::Error::msg)?;
@@ -121,6 +134,9 @@ pub fn run(a: BenchRefineArgs) -> Result<()> {
                     o.rot_deg.push(rotation_error_deg(&p, &inst.pose));
                     let z = (inst.pose.rotation * centre + inst.pose.translation).z;
                     o.depth_rel.push(((p.rotation * centre + p.translation).z - z).abs() / z);
+                    if refined.report.visible_fraction.is_finite() {
+                        o.visible_err.push((refined.report.visible_fraction - inst.visib_fract()).abs());
+                    }
                 }
             }
         }
@@ -131,19 +147,21 @@ pub fn run(a: BenchRefineArgs) -> Result<()> {
         bail!("no instances generated");
     }
     println!(
-        "{instances} instances in {} generated images (diameter {:.2}–{:.2} of the image height, ≤{:.0} % occluded, seed {}); perturbed starts: {}° about 3 axes, depth ×(1 ± {}); cells: MSSD < 0.1·d · median rotation error · median |Δz|/z of the object centre",
+        "{instances} instances in {} generated images (diameter {:.2}–{:.2} of the image height, {:.0}–{:.0} % occluded, median {:.0} % visible, seed {}); perturbed starts: {}° about 3 axes, depth ×(1 ± {}); cells: MSSD < 0.1·d · median rotation error · median |Δz|/z of the object centre",
         a.scenes.images,
         a.scenes.fill.0,
         a.scenes.fill.1,
+        a.scenes.min_occlusion * 100.0,
         a.scenes.max_occlusion * 100.0,
+        100.0 * median(&mut visible_true),
         a.scenes.seed,
         a.degrees,
         a.depth
     );
     let sizes: Vec<String> = (0..buckets).map(size_label).collect();
-    println!("| refiner | start | {} | all | median ms |", sizes.join(" | "));
-    println!("|---|---|{}---:|---:|", "---:|".repeat(buckets));
-    for (r, kind) in kinds.iter().enumerate() {
+    println!("| refiner | start | {} | all | median ms | median \\|assumed − true visible fraction\\| |", sizes.join(" | "));
+    println!("|---|---|{}---:|---:|---:|", "---:|".repeat(buckets));
+    for (r, (name, _)) in refiners.iter().enumerate() {
         for (s, start) in ["truth", "perturbed"].iter().enumerate() {
             let cells = &mut out[r][s];
             let mut all = Outcomes::default();
@@ -153,9 +171,11 @@ pub fn run(a: BenchRefineArgs) -> Result<()> {
                 all.rot_deg.extend(&c.rot_deg);
                 all.depth_rel.extend(&c.depth_rel);
                 all.ms.extend(&c.ms);
+                all.visible_err.extend(&c.visible_err);
             }
+            let visible = if all.visible_err.is_empty() { "–".to_string() } else { format!("{:.2}", median(&mut all.visible_err)) };
             let by_size: Vec<String> = cells.iter_mut().map(|c| if c.n == 0 { "–".into() } else { format!("{} ({})", c.cell(), c.n) }).collect();
-            println!("| {} | {start} | {} | {} | {:.1} |", kind.name(), by_size.join(" | "), all.cell(), median(&mut all.ms));
+            println!("| {name} | {start} | {} | {} | {:.1} | {visible} |", by_size.join(" | "), all.cell(), median(&mut all.ms));
         }
     }
     Ok(())

@@ -23,6 +23,10 @@ pub struct BenchSceneArgs {
     /// Largest hidden share of an instance's silhouette.
     #[arg(long, default_value_t = 0.3)]
     pub max_occlusion: f64,
+    /// Smallest hidden share of every instance (occluders are added until it is reached):
+    /// for measuring heavily occluded objects, e.g. 0.5 with --max-occlusion 0.8.
+    #[arg(long, default_value_t = 0.0)]
+    pub min_occlusion: f64,
     /// Object diameter as a share of the image height, drawn per instance: MIN,MAX.
     #[arg(long, value_parser = parse_range, default_value = "0.10,0.40")]
     pub fill: (f64, f64),
@@ -36,6 +40,6 @@ pub struct BenchSceneArgs {
 impl BenchSceneArgs {
     /// The scene generator's settings; `harsh`: the scene side of the render-to-real gap.
     pub fn scene_config(&self, harsh: bool) -> crate::eval::scenes::SceneConfig {
-        crate::eval::scenes::SceneConfig { images: self.images, objects_per_image: self.objects_per_image, max_occlusion: self.max_occlusion, fill_range: self.fill, render_to_real_gap: harsh, seed: self.seed, ..Default::default() }
+        crate::eval::scenes::SceneConfig { images: self.images, objects_per_image: self.objects_per_image, max_occlusion: self.max_occlusion, min_occlusion: self.min_occlusion, fill_range: self.fill, render_to_real_gap: harsh, seed: self.seed, ..Default::default() }
     }
 }

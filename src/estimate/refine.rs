@@ -76,11 +76,16 @@ pub struct RefineReport {
     /// equations, prior included); NaN (null) where it did not move the pose, and for the
     /// other refiners.
     pub depth_sigma_m: f64,
+    /// Share of the outline's correspondence lines that the contour refiner's last step
+    /// took to see the object's own edge (the rest: hidden by something in front, past the
+    /// image border, or showing no edge); NaN (null) where it did not move the pose, and
+    /// for the other refiners.
+    pub visible_fraction: f64,
 }
 
 impl Default for RefineReport {
     fn default() -> Self {
-        Self { moved: false, residual_px: 0.0, lines: 0, lines_with_edge: 0, agreement: 0.0, note: None, depth_sigma_m: f64::NAN }
+        Self { moved: false, residual_px: 0.0, lines: 0, lines_with_edge: 0, agreement: 0.0, note: None, depth_sigma_m: f64::NAN, visible_fraction: f64::NAN }
     }
 }
 

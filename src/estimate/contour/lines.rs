@@ -27,6 +27,8 @@ pub struct Line {
     pub variance: f64,
     /// The line crosses from object to background (some segment clearly each).
     pub edge: bool,
+    /// How far the line reaches inside the model's outline, px.
+    pub inside_px: f64,
 }
 
 /// Line settings for one scale.
@@ -79,7 +81,7 @@ fn line(cm: &ContourModel, i: usize, pose: &Pose, k: &Intrinsics, post: &Posteri
     let probs = segment_probabilities(post, &centre_px, &normal, scale.segment_px, inner, outer);
     let (mean, variance) = outline_distribution(&probs, inner, scale.segment_px);
     let edge = probs.iter().any(|&p| p > 0.7) && probs.iter().any(|&p| p < 0.3);
-    Some(Line { object_point: x, centre: centre_px, normal, mean, variance, edge })
+    Some(Line { object_point: x, centre: centre_px, normal, mean, variance, edge, inside_px: inner as f64 * scale.segment_px })
 }
 
 /// Mean foreground probability of each segment, innermost first: `inner` segments inside

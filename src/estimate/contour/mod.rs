@@ -5,6 +5,7 @@
 //! "Refinement without training".
 
 pub mod lines;
+pub mod occlusion;
 pub mod posterior;
 pub mod refiner;
 pub mod solve;

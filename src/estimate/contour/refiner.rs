@@ -29,6 +29,29 @@ pub struct ContourRefinerConfig {
     pub regularisation: Regularisation,
     /// At least this share of the lines must find an edge for a pose to be refined at all.
     pub min_edge_share: f64,
+    /// Weigh each line by the probability that its mask edge is the object's own rather
+    /// than an occluder's (`occlusion.rs`); off, only the robust biweight guards.
+    #[serde(default = "default_occlusion_model")]
+    pub occlusion_model: bool,
+    /// A local method's reach: a result turned more than this from the hypothesis, or moved
+    /// in depth by more than this share of its distance, ran off along a direction the
+    /// visible outline leaves open (a sliver of a hidden object) and is not taken.
+    #[serde(default = "default_max_turn_deg")]
+    pub max_turn_deg: f64,
+    #[serde(default = "default_max_depth_change")]
+    pub max_depth_change: f64,
+}
+
+fn default_max_turn_deg() -> f64 {
+    30.0
+}
+
+fn default_max_depth_change() -> f64 {
+    0.25
+}
+
+fn default_occlusion_model() -> bool {
+    true
 }
 
 impl Default for ContourRefinerConfig {
@@ -42,6 +65,9 @@ impl Default for ContourRefinerConfig {
             updates_per_pass: 2,
             regularisation: Regularisation::default(),
             min_edge_share: 0.3,
+            occlusion_model: true,
+            max_turn_deg: default_max_turn_deg(),
+            max_depth_change: default_max_depth_change(),
         }
     }
 }
@@ -59,7 +85,7 @@ pub struct Agreement {
 
 impl Agreement {
     fn report(&self, moved: bool, note: Option<String>) -> RefineReport {
-        RefineReport { moved, residual_px: self.residual_px, lines: self.lines, lines_with_edge: self.lines_with_edge, agreement: self.score, note, depth_sigma_m: f64::NAN }
+        RefineReport { moved, residual_px: self.residual_px, lines: self.lines, lines_with_edge: self.lines_with_edge, agreement: self.score, note, ..RefineReport::default() }
     }
 }
 
@@ -148,25 +174,34 @@ impl Refiner for ContourRefiner {
         }
         let radius = ctx.model.mesh.bounding_radius();
         let mut pose = start;
-        // The depth's standard deviation from the last step, on the finest lines.
-        let mut depth_sigma = f64::NAN;
+        // The depth's standard deviation and the visible share of the outline from the last
+        // step, on the finest lines.
+        let (mut depth_sigma, mut visible) = (f64::NAN, f64::NAN);
         for scale in &scales {
             for _ in 0..self.config.passes_per_scale {
                 let lines = build_lines(&cm, &centre, &pose, k, &post, *scale);
                 for _ in 0..self.config.updates_per_pass {
-                    let Some(step) = gauss_newton_update(&lines, &pose, &start, k, &self.config.regularisation, radius) else { break };
+                    let Some(step) = gauss_newton_update(&lines, &pose, &start, k, &self.config.regularisation, radius, self.config.occlusion_model) else { break };
                     pose = apply_update(&pose, &step.omega, &step.v);
                     depth_sigma = step.depth_sigma(&pose);
+                    // Lines without an edge (hidden entirely, or past the image border)
+                    // count as not visible.
+                    visible = step.own_edge_share * step.edge_lines as f64 / lines.len().max(1) as f64;
                 }
                 if pose.translation.z <= 0.0 || !pose.translation.iter().all(|x| x.is_finite()) {
                     return keep("no improvement: the update left the camera's field of view".into());
                 }
             }
         }
+        let turn = start.rotation.rotation_to(&pose.rotation).angle().to_degrees();
+        let (z0, z1) = ((start.rotation * centre + start.translation).z, (pose.rotation * centre + pose.translation).z);
+        if turn > self.config.max_turn_deg || (z1 - z0).abs() > self.config.max_depth_change * z0 {
+            return keep(format!("no improvement: the result turned {turn:.0}° and moved {:.0} % in depth, beyond a local refinement's reach", 100.0 * (z1 - z0).abs() / z0));
+        }
         let after = self.agreement_at(ctx, &cm, &centre, &post, &pose);
         if after.score < before.score {
             return keep(format!("no improvement: contour agreement {:.3} after, {:.3} before", after.score, before.score));
         }
-        Ok(Refined { pose, report: RefineReport { depth_sigma_m: depth_sigma, ..after.report(true, None) } })
+        Ok(Refined { pose, report: RefineReport { depth_sigma_m: depth_sigma, visible_fraction: visible, ..after.report(true, None) } })
     }
 }

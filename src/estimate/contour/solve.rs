@@ -3,9 +3,9 @@
 //! contour point to move along the line's normal by the measured outline offset.
 
 use super::lines::{projection_jacobian, Line};
+use super::occlusion::{median, visibility, LineResidual};
 use crate::geometry::{Intrinsics, Pose};
 use nalgebra::{Matrix6, Point3, Rotation3, Vector3, Vector6};
-
 
 /// Regularisation, separate for rotation and translation (Tikhonov): a prior that the
 /// hypothesis is roughly right, pulling the total change since the start back towards
@@ -24,16 +24,9 @@ impl Default for Regularisation {
 }
 
 /// Offsets farther than this many robust standard deviations from zero get no weight
-/// (Tukey): a partial mask's occluder edges are a minority that disagrees with the rest.
+/// (Tukey): a mask's stray pixels, and without the occlusion model an occluder's edges
+/// where they are a minority that disagrees with the rest.
 const TUKEY_SIGMAS: f64 = 3.0;
-
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    let mid = v.len() / 2;
-    *v.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1
-}
 
 /// One Gauss–Newton step: the turn ω and shift v (object frame) and the step's
 /// covariance, the inverse of the weighted normal matrix (prior included; rows ω then v).
@@ -41,6 +34,11 @@ pub struct Step {
     pub omega: Vector3<f64>,
     pub v: Vector3<f64>,
     pub covariance: Matrix6<f64>,
+    /// The occlusion model's share of lines with an edge that see the object's own outline
+    /// (1 without the model).
+    pub own_edge_share: f64,
+    /// Lines with an edge that the step used.
+    pub edge_lines: usize,
 }
 
 impl Step {
@@ -57,12 +55,14 @@ impl Step {
 /// The update that best explains the lines' offsets at `pose`, given the prior towards
 /// `start`, or `None` when the lines do not constrain the pose (no line with an edge).
 /// Each line's weight is its biweight over its offset variance (px²), so the covariance is
-/// in the units of the pose as far as those variances are right.
-pub fn gauss_newton_update(lines: &[Line], pose: &Pose, start: &Pose, k: &Intrinsics, reg: &Regularisation, radius: f64) -> Option<Step> {
+/// in the units of the pose as far as those variances are right; with `occlusion`, times
+/// the probability that its edge is the object's own (`occlusion::visibility`).
+pub fn gauss_newton_update(lines: &[Line], pose: &Pose, start: &Pose, k: &Intrinsics, reg: &Regularisation, radius: f64, occlusion: bool) -> Option<Step> {
     struct Row {
         j: Vector6<f64>,
         residual: f64,
         variance: f64,
+        inside_px: f64,
     }
     let mut rows = Vec::with_capacity(lines.len());
     let mut depth = 0.0;
@@ -74,25 +74,32 @@ pub fn gauss_newton_update(lines: &[Line], pose: &Pose, start: &Pose, k: &Intrin
         // b = (nᵀ·J_π·R)ᵀ: how the offset changes with an object-frame translation.
         let b: Vector3<f64> = pose.rotation.inverse() * (projection_jacobian(k, &p).transpose() * l.normal);
         let c = -b.cross(&l.object_point);
-        rows.push(Row { j: Vector6::new(c.x, c.y, c.z, b.x, b.y, b.z), residual, variance: l.variance });
+        rows.push(Row { j: Vector6::new(c.x, c.y, c.z, b.x, b.y, b.z), residual, variance: l.variance, inside_px: l.inside_px });
     }
     if rows.is_empty() {
         return None;
     }
     let n = rows.len() as f64;
     depth /= n;
-    // Robust scale of the offsets, never below the lines' own uncertainty.
-    let spread = (1.4826 * median(rows.iter().map(|r| r.residual.abs()).collect())).max(median(rows.iter().map(|r| r.variance.sqrt()).collect()));
+    let line_sigma = median(rows.iter().map(|r| r.variance.sqrt()).collect());
+    // Robust scale of the offsets, never below the lines' own uncertainty: with the
+    // occlusion model, the spread of the edges it takes for the object's own.
+    let (own, spread) = if occlusion {
+        let v = visibility(&rows.iter().map(|r| LineResidual { residual: r.residual, variance: r.variance, inside_px: r.inside_px }).collect::<Vec<_>>(), line_sigma);
+        (v.own_edge, v.spread_px)
+    } else {
+        (vec![1.0; rows.len()], (1.4826 * median(rows.iter().map(|r| r.residual.abs()).collect())).max(line_sigma))
+    };
     let cutoff = TUKEY_SIGMAS * spread;
     let mut h = Matrix6::<f64>::zeros();
     let mut g = Vector6::<f64>::zeros();
     let mut weight_sum = 0.0;
-    for r in &rows {
+    for (r, p_own) in rows.iter().zip(&own) {
         let u = r.residual / cutoff;
         if u.abs() >= 1.0 {
             continue;
         }
-        let w = (1.0 - u * u).powi(2) / r.variance;
+        let w = p_own * (1.0 - u * u).powi(2) / r.variance;
         h += r.j * r.j.transpose() * w;
         g += r.j * (w * r.residual);
         weight_sum += w;
@@ -125,7 +132,13 @@ pub fn gauss_newton_update(lines: &[Line], pose: &Pose, start: &Pose, k: &Intrin
     }
     let chol = h.cholesky()?;
     let step = chol.solve(&g);
-    Some(Step { omega: Vector3::new(step[0], step[1], step[2]), v: Vector3::new(step[3], step[4], step[5]), covariance: chol.inverse() })
+    Some(Step {
+        omega: Vector3::new(step[0], step[1], step[2]),
+        v: Vector3::new(step[3], step[4], step[5]),
+        covariance: chol.inverse(),
+        own_edge_share: own.iter().sum::<f64>() / n,
+        edge_lines: rows.len(),
+    })
 }
 
 /// `pose · (exp(ω), v)`: the object turns by ω and shifts by v in its own frame.
@@ -156,16 +169,16 @@ mod tests {
             };
             let (c, t) = (proj(&start), proj(&truth));
             let n = (c - Vector2::new(320.0, 240.0)).normalize();
-            lines.push(Line { object_point: x, centre: c, normal: n, mean: n.dot(&(t - c)), variance: 1.0, edge: true });
+            lines.push(Line { object_point: x, centre: c, normal: n, mean: n.dot(&(t - c)), variance: 1.0, edge: true, inside_px: 20.0 });
         }
         let reg = Regularisation { rotation: 0.0, translation: 0.0 };
         let mut pose = start;
         for _ in 0..3 {
-            let Step { omega: w, v, .. } = gauss_newton_update(&lines, &pose, &start, &k, &reg, 0.05).unwrap();
+            let Step { omega: w, v, .. } = gauss_newton_update(&lines, &pose, &start, &k, &reg, 0.05, true).unwrap();
             pose = apply_update(&pose, &w, &v);
         }
         let err = (pose.translation - truth.translation).norm();
         assert!(err < 1e-3, "translation error {err} m after the update");
-        assert!(gauss_newton_update(&[], &start, &start, &k, &reg, 0.05).is_none());
+        assert!(gauss_newton_update(&[], &start, &start, &k, &reg, 0.05, true).is_none());
     }
 }

@@ -22,6 +22,11 @@ pub struct SceneConfig {
     /// placements that hide more are drawn again. At most 0.9, so that every instance is a
     /// BOP'19 target (visible fraction ≥ 0.1).
     pub max_occlusion: f64,
+    /// Smallest hidden fraction of every instance: with it above 0, each instance gets
+    /// occluders until it hides at least this much (and the image is drawn again when that
+    /// fails), for measuring heavily occluded objects. At most `max_occlusion`.
+    #[serde(default)]
+    pub min_occlusion: f64,
     /// Draw flat coloured discs and polygons in front of parts of the objects.
     pub occluders: bool,
     pub appearance: Appearance,
@@ -44,6 +49,7 @@ impl Default for SceneConfig {
             focal_range: (0.85, 1.05),
             fill_range: (0.10, 0.40),
             max_occlusion: 0.3,
+            min_occlusion: 0.0,
             occluders: true,
             appearance: Appearance::default(),
             render_to_real_gap: false,
@@ -131,6 +137,10 @@ impl SceneConfig {
         // Past 0.9 of the height a rotated object no longer fits inside the frame.
         range("fill_range", self.fill_range, 0.01, 0.9)?;
         range("max_occlusion", (self.max_occlusion, self.max_occlusion), 0.0, 0.9)?;
+        range("(min_occlusion, max_occlusion)", (self.min_occlusion, self.max_occlusion), 0.0, 0.9)?;
+        if self.min_occlusion > 0.0 && !self.occluders {
+            return Err("min_occlusion needs occluders".into());
+        }
         let a = &self.appearance;
         range("light_angle_deg", (a.light_angle_deg, a.light_angle_deg), 0.0, 89.0)?;
         range("light_intensity", (a.light_intensity.0 as f64, a.light_intensity.1 as f64), 0.0, 10.0)?;

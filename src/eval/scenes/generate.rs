@@ -52,6 +52,11 @@ const RENDERS_PER_INSTANCE: usize = 30;
 /// instance visible enough.
 const OCCLUDER_CHANCE: f64 = 0.7;
 const OCCLUDER_TRIES: usize = 8;
+/// With a least occlusion: occluders tried per instance until it hides enough, occluders
+/// in one image at most (the layer owner index is a byte), and draws of the whole image.
+const HEAVY_OCCLUDER_TRIES: usize = 60;
+const MAX_OCCLUDERS: usize = 200;
+const OCCLUSION_ATTEMPTS: usize = 8;
 /// Occluders float this fraction of the nearest object's depth in front of the camera:
 /// in front of everything, so they hide whatever they overlap.
 const OCCLUDER_DEPTH: f32 = 0.9;
@@ -63,17 +68,36 @@ pub fn generate_image(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderP
         bail!("no objects to place in the scene");
     }
     cfg.validate().map_err(|e| anyhow::anyhow!("scene config: {e}"))?;
-    let mut rng = Rng::new(cfg.seed.wrapping_mul(0x0001_0000_0001).wrapping_add(im_id as u64));
-    let cam = sample_intrinsics(cfg, &mut rng);
+    let base = cfg.seed.wrapping_mul(0x0001_0000_0001).wrapping_add(im_id as u64);
+    for attempt in 0..OCCLUSION_ATTEMPTS {
+        // Attempt 0 draws from the image's own seed, so images without a least occlusion
+        // are what they always were.
+        let mut rng = Rng::new(base.wrapping_add((attempt as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)));
+        if let Some(image) = try_generate(objects, cfg, pool, im_id, &mut rng)? {
+            return Ok(image);
+        }
+    }
+    bail!(
+        "image {im_id}: could not hide at least {:.0} % of every instance (and at most {:.0} %) in {OCCLUSION_ATTEMPTS} attempts; \
+         lower min_occlusion or objects_per_image",
+        cfg.min_occlusion * 100.0,
+        cfg.max_occlusion * 100.0
+    )
+}
+
+/// One draw of the image; `None` when occluders could not hide `min_occlusion` of some
+/// instance.
+fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, im_id: u32, rng: &mut Rng) -> Result<Option<SceneImage>> {
+    let cam = sample_intrinsics(cfg, rng);
     let appearance = cfg.effective_appearance();
-    let lighting = sample_lighting(&appearance, &mut rng);
+    let lighting = sample_lighting(&appearance, rng);
     let min_visible = 1.0 - cfg.max_occlusion;
     let extents: Vec<Extent> = objects.iter().map(|(_, m)| Extent::of(m)).collect();
 
     let mut layers = Layers::new(cam.width, cam.height);
     let mut placed: Vec<(usize, Placement, RenderOutput)> = Vec::new();
     let mut full: Vec<usize> = Vec::new();
-    for &obj in &slot_objects(objects.len(), cfg.objects_per_image, &mut rng) {
+    for &obj in &slot_objects(objects.len(), cfg.objects_per_image, rng) {
         let (mut draws, mut renders) = (0, 0);
         loop {
             if draws == PLACEMENT_DRAWS || renders == RENDERS_PER_INSTANCE {
@@ -87,7 +111,7 @@ pub fn generate_image(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderP
             }
             draws += 1;
             let fill = rng.range(cfg.fill_range.0, cfg.fill_range.1);
-            let Some(p) = sample_placement(&extents[obj], &cam, fill, &mut rng) else {
+            let Some(p) = sample_placement(&extents[obj], &cam, fill, rng) else {
                 continue;
             };
             if placed.iter().any(|(_, q, _)| p.crowds(q, min_visible)) {
@@ -114,29 +138,43 @@ pub fn generate_image(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderP
     let mut occluders: Vec<Occluder> = Vec::new();
     if cfg.occluders {
         let z = layers.nearest() * OCCLUDER_DEPTH;
-        for (_, _, out) in &placed {
-            if rng.uniform() >= OCCLUDER_CHANCE {
+        let heavy = cfg.min_occlusion > 0.0;
+        for (i, (_, _, out)) in placed.iter().enumerate() {
+            if !heavy && rng.uniform() >= OCCLUDER_CHANCE {
                 continue;
             }
             let [x0, y0, x1, y1] = out.mask_bbox().expect("placed objects cover pixels");
             let size = (x1 - x0).max(y1 - y0) as f64 + 1.0;
-            for _ in 0..OCCLUDER_TRIES {
-                let occ = sample_occluder(random_pixel(&out.mask, &mut rng), size, &mut rng);
+            let hidden = |l: &Layers| 1.0 - l.visible_counts(full.len())[i] as f64 / full[i].max(1) as f64;
+            for _ in 0..if heavy { HEAVY_OCCLUDER_TRIES } else { OCCLUDER_TRIES } {
+                // Heavy occlusion anchors each occluder on what is still visible, so that it
+                // hides something new.
+                let visible = if heavy { layers.visible_mask(i) } else { out.mask.clone() };
+                if visible.pixels().all(|p| p[0] == 0) || occluders.len() >= MAX_OCCLUDERS {
+                    break;
+                }
+                let occ = sample_occluder(random_pixel(&visible, rng), size, rng);
                 let mut trial = layers.clone();
                 trial.add_occluder(occluders.len(), &occ, z);
                 if trial.min_visible_fraction(&full) >= min_visible {
                     layers = trial;
                     occluders.push(occ);
-                    break;
+                    if !heavy || hidden(&layers) >= cfg.min_occlusion {
+                        break;
+                    }
                 }
             }
         }
+        let visible = layers.visible_counts(placed.len());
+        if visible.iter().zip(&full).any(|(&v, &a)| 1.0 - (v as f64 / a.max(1) as f64) < cfg.min_occlusion) {
+            return Ok(None);
+        }
     }
 
-    let background = clutter_background(cam.width, cam.height, &mut rng);
+    let background = clutter_background(cam.width, cam.height, rng);
     let renders: Vec<&RenderOutput> = placed.iter().map(|(_, _, out)| out).collect();
     let clean = layers.paint(&renders, &occluders, &background);
-    let rgb = degrade(&clean, &appearance, &mut rng);
+    let rgb = degrade(&clean, &appearance, rng);
     let visible = layers.visible_counts(placed.len());
     let instances = placed
         .into_iter()
@@ -150,7 +188,7 @@ pub fn generate_image(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderP
             px_count_visib: visible[i],
         })
         .collect();
-    Ok(SceneImage { cam, rgb, depth: layers.depth().to_vec(), instances })
+    Ok(Some(SceneImage { cam, rgb, depth: layers.depth().to_vec(), instances }))
 }
 
 /// Which object fills each slot: a random order of all objects, repeated when there are

@@ -193,12 +193,31 @@ fn crowded_config_fails_with_advice() {
     assert!(err.contains("image 0: could not place instance") && err.contains("max_occlusion"), "{err}");
 }
 
+/// With a least occlusion every instance hides at least that much, and no more than the
+/// most.
+#[test]
+fn least_occlusion_is_reached() {
+    let Some(pool) = pool() else { return };
+    let cfg = SceneConfig { objects_per_image: 2, min_occlusion: 0.5, max_occlusion: 0.8, ..small_config(4) };
+    for im_id in 0..2 {
+        let image = generate_image(&objects(), &cfg, &pool, im_id).unwrap();
+        for inst in &image.instances {
+            let hidden = 1.0 - inst.visib_fract();
+            assert!((0.5..=0.8).contains(&hidden), "image {im_id}: object {} hides {hidden:.2}", inst.obj_id);
+            assert_eq!(ones(&inst.mask_visib), inst.px_count_visib);
+        }
+    }
+}
+
 #[test]
 fn config_is_validated_and_the_gap_is_harsher() {
     assert!(SceneConfig::default().validate().is_ok());
     let bad = [
         SceneConfig { objects_per_image: 0, ..Default::default() },
         SceneConfig { max_occlusion: 0.95, ..Default::default() },
+        SceneConfig { min_occlusion: 0.5, max_occlusion: 0.3, ..Default::default() },
+        SceneConfig { min_occlusion: -0.1, ..Default::default() },
+        SceneConfig { min_occlusion: 0.2, occluders: false, ..Default::default() },
         SceneConfig { fill_range: (0.4, 0.1), ..Default::default() },
         SceneConfig { image_size: (8, 480), ..Default::default() },
     ];
