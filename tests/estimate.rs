@@ -190,3 +190,37 @@ fn pca_compressed_model_stores_smaller_and_still_finds_the_pose() {
     }
     assert!(correct >= 3, "{correct} of 4 scenes within MSSD 0.1·d with 24 PCA components");
 }
+
+/// With the feature-metric term on, every rendered hypothesis gets a feature agreement in
+/// [0, 1] (the render and the photo encoded on the query's crop), unrendered ones none, and
+/// the right pose scores higher on it than every wrong rendered one where both were tried.
+#[test]
+fn feature_metric_verification_scores_rendered_hypotheses() {
+    let f = fixture();
+    let cfg = EstimateConfig { verify: b2tfpose::estimate::VerifyConfig { feature_share: 0.5, ..Default::default() }, ..Default::default() };
+    let (mut right_first, mut compared) = (0, 0);
+    for seed in [1u64, 2, 3] {
+        let s = scene(seed);
+        let inst = &s.instances[0];
+        let det = [Detection { mask: inst.mask_visib.clone(), score: 0.9 }];
+        let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &det, &cfg).unwrap();
+        let verified = &r.hypotheses[0].verified;
+        assert!(!verified.is_empty());
+        for v in verified {
+            if v.iou.is_nan() {
+                assert!(v.features.is_nan(), "an unrendered hypothesis has a feature agreement: {v:?}");
+            } else {
+                assert!((0.0..=1.0).contains(&v.features), "feature agreement {} outside [0, 1]", v.features);
+            }
+        }
+        let right = |v: &&b2tfpose::estimate::verify::Verified| mssd(&v.pose, &inst.pose, f.model.mesh.positions()) < 0.1 * f.model.diameter();
+        let best_right = verified.iter().filter(|v| !v.iou.is_nan()).filter(right).map(|v| v.features).fold(f64::NAN, f64::max);
+        let best_wrong = verified.iter().filter(|v| !v.iou.is_nan() && !right(v)).map(|v| v.features).fold(f64::NAN, f64::max);
+        eprintln!("seed {seed}: best right {best_right:.3}, best wrong {best_wrong:.3}");
+        if best_right.is_finite() && best_wrong.is_finite() {
+            compared += 1;
+            right_first += (best_right > best_wrong) as usize;
+        }
+    }
+    assert!(compared > 0 && right_first == compared, "the right pose led on features in {right_first} of {compared} scenes");
+}

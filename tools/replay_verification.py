@@ -9,6 +9,10 @@ Only hypotheses rendered in the run have IoU and appearance: run the bench with
 `--verify-max-rendered 100` to study every one.
 
     tools/replay_verification.py CANDIDATES.csv [--colour-share 0 0.5 1] [--max-rendered 8 12]
+        [--feature-share 0 0.5]
+
+The feature-metric term (`features`) is in the CSV only where the run computed it
+(`--feature-share` above 0 in the bench).
 """
 import argparse
 import csv
@@ -25,7 +29,7 @@ def load(path):
     return instances
 
 
-def pick(cands, weights, colour_share, rendered, tie, max_rendered):
+def pick(cands, weights, colour_share, rendered, tie, max_rendered, feature_share=0.0):
     s = sorted(cands, key=lambda d: -d["contour"])
     best = s[0]["contour"]
     chosen = [i for i in range(len(s)) if i < rendered or s[i]["contour"] >= best - tie][: max(max_rendered, rendered)]
@@ -36,6 +40,9 @@ def pick(cands, weights, colour_share, rendered, tie, max_rendered):
         if i not in chosen or math.isnan(d["iou"]):
             return d["contour"] * sum(weights) - 1.0
         appearance = d["edges"] if math.isnan(d["colour"]) else (1 - colour_share) * d["edges"] + colour_share * d["colour"]
+        features = d.get("features", math.nan)
+        if feature_share > 0 and not math.isnan(features):
+            appearance = (1 - feature_share) * appearance + feature_share * features
         return weights[0] * d["iou"] + weights[1] * d["contour"] + weights[2] * appearance
 
     return s[max(range(len(s)), key=score)]
@@ -46,6 +53,7 @@ def main():
     ap.add_argument("csv")
     ap.add_argument("--colour-share", type=float, nargs="+", default=[0.0, 0.25, 0.5, 0.75, 1.0])
     ap.add_argument("--max-rendered", type=int, nargs="+", default=[8, 12])
+    ap.add_argument("--feature-share", type=float, nargs="+", default=[0.0])
     ap.add_argument("--weights", type=float, nargs=3, default=[0.4, 0.3, 0.3])
     ap.add_argument("--rendered", type=int, default=3)
     ap.add_argument("--tie", type=float, default=0.05)
@@ -53,9 +61,10 @@ def main():
     inst = load(a.csv)
     right = lambda d: d["mssd_over_diameter"] < 0.1
     print(f"{len(inst)} instances; oracle {sum(any(right(d) for d in c) for c in inst.values()) / len(inst):.1%}")
-    for m in a.max_rendered:
-        cells = [f"colour {c}: {sum(right(pick(v, a.weights, c, a.rendered, a.tie, m)) for v in inst.values()) / len(inst):.1%}" for c in a.colour_share]
-        print(f"max rendered {m}: " + ", ".join(cells))
+    for f in a.feature_share:
+        for m in a.max_rendered:
+            cells = [f"colour {c}: {sum(right(pick(v, a.weights, c, a.rendered, a.tie, m, f)) for v in inst.values()) / len(inst):.1%}" for c in a.colour_share]
+            print(f"features {f}, max rendered {m}: " + ", ".join(cells))
 
 
 if __name__ == "__main__":

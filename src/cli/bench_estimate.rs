@@ -158,11 +158,16 @@ pub(super) fn share((n, ok): (usize, usize)) -> String {
 }
 
 pub(super) fn median(v: &mut [f64]) -> f64 {
+    quantile(v, 0.5)
+}
+
+/// The value below which share `q` of `v` lies (nearest rank; NaN when empty).
+pub(super) fn quantile(v: &mut [f64], q: f64) -> f64 {
     if v.is_empty() {
         return f64::NAN;
     }
     v.sort_by(|a, b| a.total_cmp(b));
-    v[v.len() / 2]
+    v[((v.len() as f64 * q) as usize).min(v.len() - 1)]
 }
 
 /// The benchmark's meshes, named by file stem (the procedural sample box without any).
@@ -206,7 +211,7 @@ pub(super) fn bench_models(meshes: &[(String, Mesh)], gap: bool, store: &str, ba
 pub fn run(a: BenchEstimateArgs) -> Result<()> {
     let backbone = a.scenes.backbone.open()?;
     let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
-    let meshes = bench_meshes(&a.scenes.meshes, a.scenes.units)?;
+    let meshes = a.scenes.load_meshes()?;
     let mut models = bench_models(&meshes, a.gap, &a.scenes.store, backbone.as_ref(), &pool)?;
     for model in &mut models {
         crate::onboard::apply_pca(model, a.pca)?;
@@ -252,7 +257,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     if let Some(dir) = &a.overlays {
         std::fs::create_dir_all(dir)?;
     }
-    let mut candidate_rows = String::from("image,obj_id,size_px,mask,source,mssd_over_diameter,rot_err_deg,contour,iou,edges,colour,score,lines,lines_with_edge\n");
+    let mut candidate_rows = String::from("image,obj_id,size_px,mask,source,mssd_over_diameter,rot_err_deg,contour,iou,edges,colour,features,score,lines,lines_with_edge\n");
     let mut rows = String::from("image,obj_id,setting,size_px,visible,found,rot_err_deg,trans_err_mm,depth_err_mm,mssd_over_diameter,inliers,best_candidate_mssd_over_diameter,best_candidate_rank\n");
     let pb = super::progress::bar(a.scenes.images as u64, "estimating");
     for im in 0..a.scenes.images as u32 {
@@ -285,7 +290,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                         for v in &h.verified {
                             let gt = truth(&v.pose);
                             candidate_rows.push_str(&format!(
-                                "{im},{},{size_px},{mask},{},{:.4},{:.2},{:.4},{:.4},{:.4},{:.4},{:.4},{},{}\n",
+                                "{im},{},{size_px},{mask},{},{:.4},{:.2},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{}\n",
                                 inst.obj_id,
                                 v.source,
                                 mssd(&v.pose, &gt, model.mesh.positions()) / model.diameter(),
@@ -294,6 +299,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                                 v.iou,
                                 v.edges,
                                 v.colour,
+                                v.features,
                                 v.score,
                                 v.refinement.lines,
                                 v.refinement.lines_with_edge,
@@ -378,12 +384,12 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         },
         meshes.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(", ")
     );
-    println!("| setting | MSSD < 0.1·d | < 100 px | 100–200 px | ≥ 200 px | pose found | median rot. err (°) | median trans. err (mm) | median Δz/z (rot. < 10°) | median ms: crop | features | retrieval | matching | pnp | rrc | refine | selection | total |");
+    println!("| setting | MSSD < 0.1·d | < 100 px | 100–200 px | ≥ 200 px | pose found | median rot. err (°) | median trans. err (mm) | median / p90 Δz/z (rot. < 10°) | median ms: crop | features | retrieval | matching | pnp | rrc | refine | selection | total |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for t in &mut tallies {
         let med: Vec<f64> = (0..9).map(|s| median(&mut t.stages.iter().map(|x| x[s]).collect::<Vec<_>>())).collect();
         println!(
-            "| {} | {:.1} % | {} | {} | {} | {:.1} % | {:.1} | {:.1} | {:.2} % | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} |",
+            "| {} | {:.1} % | {} | {} | {} | {:.1} % | {:.1} | {:.1} | {:.2} % / {:.2} % | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} |",
             t.name,
             100.0 * t.correct as f64 / instances as f64,
             share(t.by_size[0]),
@@ -393,6 +399,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
             median(&mut t.rot),
             median(&mut t.trans_mm),
             100.0 * median(&mut t.depth_rel),
+            100.0 * quantile(&mut t.depth_rel, 0.9),
             med[0], med[1], med[2], med[3], med[4], med[5], med[6], med[7], med[8]
         );
     }

@@ -3,7 +3,7 @@
 //! it pulls a pose back, how much it drifts a right one, how its depth precision falls
 //! with the object's apparent size) from the rest of the pipeline.
 
-use super::bench_estimate::{bench_meshes, bench_models, median};
+use super::bench_estimate::{bench_models, median};
 use crate::estimate::{RefineContext, RefinerKind};
 use crate::eval::pose_error::{mssd, rotation_error_deg};
 use crate::eval::scenes::generate_image;
@@ -84,7 +84,7 @@ fn perturbed(pose: &Pose, centre: &Vector3<f64>, axis: Vector3<f64>, degrees: f6
 pub fn run(a: BenchRefineArgs) -> Result<()> {
     let backbone = a.scenes.backbone.open()?;
     let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
-    let meshes = bench_meshes(&a.scenes.meshes, a.scenes.units)?;
+    let meshes = a.scenes.load_meshes()?;
     let models = bench_models(&meshes, false, &a.scenes.store, backbone.as_ref(), &pool)?;
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
     let scene_cfg = a.scenes.scene_config(a.harsh_scenes);

@@ -32,12 +32,23 @@ pub struct BenchSceneArgs {
     pub fill: (f64, f64),
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Strip the meshes' textures and colours, in the scenes and the templates alike: the
+    /// case of an untextured part (a grey casting, a plain bottle).
+    #[arg(long)]
+    pub untextured: bool,
     /// Object store that caches onboarded objects between runs.
     #[arg(long, default_value = "dir://out/bench-models")]
     pub store: String,
 }
 
 impl BenchSceneArgs {
+    /// The meshes to place, named by file stem; bare and named `…-untextured` with
+    /// `--untextured` (the name the gap's untextured templates are cached under).
+    pub fn load_meshes(&self) -> anyhow::Result<Vec<(String, crate::mesh::Mesh)>> {
+        let meshes = super::bench_estimate::bench_meshes(&self.meshes, self.units)?;
+        Ok(if self.untextured { meshes.into_iter().map(|(n, m)| (format!("{n}-untextured"), m.without_appearance())).collect() } else { meshes })
+    }
+
     /// The scene generator's settings; `harsh`: the scene side of the render-to-real gap.
     pub fn scene_config(&self, harsh: bool) -> crate::eval::scenes::SceneConfig {
         crate::eval::scenes::SceneConfig { images: self.images, objects_per_image: self.objects_per_image, max_occlusion: self.max_occlusion, min_occlusion: self.min_occlusion, fill_range: self.fill, render_to_real_gap: harsh, seed: self.seed, ..Default::default() }

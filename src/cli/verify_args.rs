@@ -19,11 +19,21 @@ pub struct VerifyArgs {
     /// faster on symmetric objects, a little less accurate (docs/estimation.md, "Symmetries").
     #[arg(long)]
     pub skip_symmetric_hypotheses: bool,
+    /// Share of the feature-metric agreement (the render and the photo encoded by the
+    /// backbone on the same crop, compared patch by patch) in verification's appearance
+    /// term, 0–1 (default 0.5; 0 skips the backbone pass over the renders).
+    #[arg(long, value_parser = share)]
+    pub feature_share: Option<f64>,
+}
+
+fn share(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|e| format!("{s:?} is not a number: {e}"))?;
+    if (0.0..=1.0).contains(&v) { Ok(v) } else { Err(format!("{v} is outside 0–1")) }
 }
 
 impl VerifyArgs {
     pub fn config(&self) -> VerifyConfig {
         let d = VerifyConfig::default();
-        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, ..d }
+        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, feature_share: self.feature_share.unwrap_or(d.feature_share), ..d }
     }
 }

@@ -241,7 +241,7 @@ impl Estimator {
                 let t = Instant::now();
                 let _span = tracing::info_span!("refine", refiner = cfg.refiner.name(), verify = cfg.verify.enabled).entered();
                 if cfg.verify.enabled {
-                    h.verified = self.verify(&ctx, p, &retrieved, &q.crop_box, cfg)?;
+                    h.verified = self.verify(&ctx, p, &retrieved, q, cfg)?;
                     if let Some(best) = h.verified.first_mut() {
                         h.pose = Some(best.pose);
                         h.refinement = Some(best.refinement.clone());
@@ -272,8 +272,8 @@ impl Estimator {
     /// verifies them: contour agreement for all, then a render (IoU, appearance) for the
     /// best by contour and those the outline cannot tell from it (`verify::to_render`).
     /// Best first.
-    fn verify(&self, ctx: &RefineContext<'_>, pose: Pose, retrieved: &[usize], crop: &crate::geometry::CropBox, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
-        let mut candidates = super::hypotheses::candidates(ctx.model, &pose, retrieved, cfg.verify.templates, cfg.verify.spin_steps, crop, ctx.intrinsics);
+    fn verify(&self, ctx: &RefineContext<'_>, pose: Pose, retrieved: &[usize], query: &QueryView, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
+        let mut candidates = super::hypotheses::candidates(ctx.model, &pose, retrieved, cfg.verify.templates, cfg.verify.spin_steps, &query.crop_box, ctx.intrinsics);
         // Hypotheses that are the same pose up to the object's symmetry show the same image:
         // when asked, one of each is refined (the pipeline's pose comes first, so it stays).
         let symmetric = ctx.model.symmetries.as_ref().filter(|_| cfg.verify.skip_symmetric).and_then(|s| crate::geometry::symmetric_poses::SymmetricPoses::new(&s.symmetries, ctx.model.diameter()));
@@ -286,7 +286,7 @@ impl Estimator {
             .filter_map(|&(source, p)| {
                 let r = refiner.refine(ctx, p).ok()?;
                 let contour = if cfg.refiner == RefinerKind::Contour { r.report.agreement } else { self.contour.agreement(ctx, &r.pose).ok()?.score };
-                Some(Verified { source, pose: r.pose, refinement: r.report, contour, iou: f64::NAN, appearance: f64::NAN, edges: f64::NAN, colour: f64::NAN, score: f64::NAN, render: None })
+                Some(Verified { source, pose: r.pose, refinement: r.report, contour, iou: f64::NAN, appearance: f64::NAN, edges: f64::NAN, colour: f64::NAN, features: f64::NAN, score: f64::NAN, render: None })
             })
             .collect();
         verified.sort_by(|a, b| b.contour.total_cmp(&a.contour));
@@ -294,13 +294,30 @@ impl Estimator {
         // The pipeline's own pose is always rendered: it must be beaten on the evidence.
         let pipeline = verified.iter().position(|v| v.source == super::hypotheses::Source::Pipeline);
         let rendered = super::verify::to_render(&verified, pipeline, &cfg.verify);
-        for i in rendered {
+        for &i in &rendered {
             let e = render_evidence(&self.renderer, &ctx.model.mesh, &verified[i].pose, ctx.intrinsics, ctx.image, ctx.mask, window)?;
             verified[i].iou = e.iou;
             verified[i].appearance = super::verify::appearance(e.edges, e.colour, cfg.verify.colour_share);
             verified[i].edges = e.edges;
             verified[i].colour = e.colour;
             verified[i].render = Some(e.render);
+        }
+        if cfg.verify.feature_share > 0.0 {
+            // The renders cropped exactly as the photo was, encoded in one batch.
+            let (x0, y0) = (window.0 as f64, window.1 as f64);
+            let crops: Vec<crate::features::CropInput> = rendered
+                .iter()
+                .map(|&i| {
+                    let r = verified[i].render.as_ref().expect("rendered above");
+                    crate::features::sample_crop(&r.rgb, &r.mask, &query.crop_box, &|u, v| (u - x0, v - y0))
+                })
+                .collect();
+            let maps = self.backbone.extract(&crops)?;
+            for (&i, map) in rendered.iter().zip(&maps) {
+                let v = &mut verified[i];
+                v.features = super::verify::feature_agreement(&query.features, map, ctx.model.config.min_coverage);
+                v.appearance = super::verify::with_features(v.appearance, v.features, cfg.verify.feature_share);
+            }
         }
         for v in &mut verified {
             v.score = verification_score(v, &cfg.verify.weights);
