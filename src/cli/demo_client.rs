@@ -150,6 +150,15 @@ async fn onboard(client: &mut Client, mesh: &crate::mesh::Mesh, out: &std::path:
 
 /// The response as JSON: poses (R row-major, t in metres, quaternion), score, timings and
 /// the diagnostics document.
+/// An answer's symmetries as the HTTP API writes them (`KnownSymmetries`' JSON form).
+fn symmetries_json(s: &pb::Symmetries) -> serde_json::Value {
+    serde_json::json!({
+        "source": s.source,
+        "discrete": s.discrete.iter().map(|d| &d.matrix).collect::<Vec<_>>(),
+        "continuous": s.continuous.iter().map(|c| serde_json::json!({"axis": c.axis, "offset": c.offset_m})).collect::<Vec<_>>(),
+    })
+}
+
 fn result_json(r: &pb::EstimateResponse) -> serde_json::Value {
     let results: Vec<serde_json::Value> = r
         .results
@@ -162,9 +171,28 @@ fn result_json(r: &pb::EstimateResponse) -> serde_json::Value {
                 "score": i.score,
                 "reason": (!i.reason.is_empty()).then_some(&i.reason),
                 "timings_ms": i.timings_ms,
+                "symmetries": i.symmetries.as_ref().map(symmetries_json),
+                "arbitrary_rotation_about_axis": i.arbitrary_rotation_about_axis,
                 "diagnostics": serde_json::from_str::<serde_json::Value>(&i.diagnostics_json).unwrap_or_default(),
             })
         })
         .collect();
     serde_json::json!({ "results": results, "total_ms": r.total_ms })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::symmetry::{ContinuousSymmetry, DiscreteSymmetry, KnownSymmetries, ObjectSymmetries, SymmetrySource};
+
+    /// The demo's result.json writes symmetries as the HTTP API does: they read back as
+    /// the object's own.
+    #[test]
+    fn symmetries_in_the_result_read_back_as_the_objects() {
+        let half_turn = DiscreteSymmetry::from_row_major_4x4(&[-1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.01, 0.0, 0.0, 0.0, 1.0]);
+        let known = KnownSymmetries { source: SymmetrySource::Mesh, symmetries: ObjectSymmetries { discrete: vec![half_turn], continuous: vec![ContinuousSymmetry { axis: [0.0, 0.0, 1.0], offset: [0.0, 0.0, 0.02] }] } };
+        let json = symmetries_json(&crate::service::grpc_convert::symmetries(known.clone()));
+        let back: KnownSymmetries = serde_json::from_value(json).unwrap();
+        assert_eq!(back, known);
+    }
 }
