@@ -217,6 +217,16 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         crate::onboard::apply_pca(model, a.pca)?;
     }
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
+    // Symmetric objects are scored against the truth turned by their symmetry nearest to
+    // each pose (BOP's MSSD), the identity alone for the others; per model, the symmetry
+    // poses and the surface sample that picks among them.
+    let scoring: Vec<(Vec<Pose>, Vec<[f32; 3]>)> = models
+        .iter()
+        .map(|m| {
+            let symmetries = m.symmetries.as_ref().map_or_else(|| vec![Pose::identity()], |s| crate::mesh::symmetry_finder::symmetry_poses(&s.symmetries, 36));
+            (symmetries, crate::eval::pose_error::sample_points(m.mesh.positions(), 500))
+        })
+        .collect();
     let scene_cfg = a.scenes.scene_config(a.gap || a.harsh_scenes);
     let mut estimator = crate::estimate::Estimator::new(backbone, pool.clone());
     if a.no_occlusion_model {
@@ -267,11 +277,8 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
             instances += 1;
             let model = &models[inst.obj_id as usize - 1];
             let det = [if a.from_boxes { boxes.detection(&scene.rgb, &inst.mask_visib, if a.fill_boxes { crate::masks::BoxMask::Fill } else { crate::masks::BoxMask::Segment })? } else { Detection { mask: inst.mask_visib.clone(), score: 1.0 } }];
-            // Symmetric objects are scored against the truth turned by their symmetry
-            // nearest to each pose (BOP's MSSD); the identity alone for the others.
-            let symmetries = model.symmetries.as_ref().map_or_else(|| vec![Pose::identity()], |s| crate::mesh::symmetry_finder::symmetry_poses(&s.symmetries, 36));
-            let sample = crate::eval::pose_error::sample_points(model.mesh.positions(), 500);
-            let truth = |p: &Pose| crate::eval::pose_error::closest_symmetric(p, &inst.pose, &symmetries, &sample);
+            let (symmetries, sample) = &scoring[inst.obj_id as usize - 1];
+            let truth = |p: &Pose| crate::eval::pose_error::closest_symmetric(p, &inst.pose, symmetries, sample);
             for (t, (_, cfg)) in tallies.iter_mut().zip(&configs) {
                 let r: EstimateResult = estimator.estimate(model, &scene.rgb, &scene.cam, &det, cfg)?;
                 let tm = &r.timings;

@@ -148,8 +148,6 @@ async fn onboard(client: &mut Client, mesh: &crate::mesh::Mesh, out: &std::path:
     }
 }
 
-/// The response as JSON: poses (R row-major, t in metres, quaternion), score, timings and
-/// the diagnostics document.
 /// An answer's symmetries as the HTTP API writes them (`KnownSymmetries`' JSON form).
 fn symmetries_json(s: &pb::Symmetries) -> serde_json::Value {
     serde_json::json!({
@@ -159,6 +157,8 @@ fn symmetries_json(s: &pb::Symmetries) -> serde_json::Value {
     })
 }
 
+/// The response as JSON: poses (R row-major, t in metres, quaternion), score, timings,
+/// symmetries and the diagnostics document.
 fn result_json(r: &pb::EstimateResponse) -> serde_json::Value {
     let results: Vec<serde_json::Value> = r
         .results

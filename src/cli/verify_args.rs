@@ -37,3 +37,14 @@ impl VerifyArgs {
         VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, feature_share: self.feature_share.unwrap_or(d.feature_share), ..d }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    /// A share outside 0–1, or no number, is refused with what is wrong.
+    #[test]
+    fn feature_share_must_be_a_share() {
+        assert_eq!(super::share("0.5"), Ok(0.5));
+        assert!(super::share("1.5").unwrap_err().contains("outside 0–1"));
+        assert!(super::share("half").unwrap_err().contains("not a number"));
+    }
+}

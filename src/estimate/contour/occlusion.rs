@@ -32,8 +32,6 @@ pub struct LineResidual {
 pub struct Visibility {
     /// Per line, the probability that its edge is the object's own.
     pub own_edge: Vec<f64>,
-    /// The mixture's share of own edges among the lines.
-    pub visible_share: f64,
     /// Standard deviation of the own edges' residuals beyond their own variance (the pose
     /// error's spread), px.
     pub spread_px: f64,
@@ -49,7 +47,7 @@ const MIN_VISIBLE_SHARE: f64 = 0.2;
 pub fn visibility(lines: &[LineResidual], floor_px: f64) -> Visibility {
     let n = lines.len();
     if n == 0 {
-        return Visibility { own_edge: Vec::new(), visible_share: 1.0, spread_px: floor_px };
+        return Visibility { own_edge: Vec::new(), spread_px: floor_px };
     }
     // Start from the lines outside the model's outline (never occluded): their residuals
     // are the pose error alone. With none, from all lines.
@@ -67,7 +65,19 @@ pub fn visibility(lines: &[LineResidual], floor_px: f64) -> Visibility {
         let weighted: f64 = own.iter().zip(lines).map(|(p, l)| p * l.residual * l.residual).sum();
         spread2 = (weighted / total.max(1e-9)).max(floor_px * floor_px);
     }
-    Visibility { visible_share: own.iter().sum::<f64>() / n as f64, own_edge: own, spread_px: spread2.sqrt() }
+    Visibility { own_edge: own, spread_px: spread2.sqrt() }
+}
+
+impl Visibility {
+    /// The expected number of lines that see the object's own edge.
+    pub fn own_edges(&self) -> f64 {
+        self.own_edge.iter().sum()
+    }
+
+    /// The share of own edges among the lines (1 without lines).
+    pub fn visible_share(&self) -> f64 {
+        if self.own_edge.is_empty() { 1.0 } else { self.own_edges() / self.own_edge.len() as f64 }
+    }
 }
 
 /// Posterior that line `l`'s edge is the object's, given the spread² and visible share.
@@ -106,7 +116,7 @@ mod tests {
         let v = visibility(&lines, 1.0);
         assert!(v.own_edge[..40].iter().all(|&p| p > 0.9), "{:?}", &v.own_edge[..40]);
         assert!(v.own_edge[40..].iter().all(|&p| p < 0.05), "{:?}", &v.own_edge[40..]);
-        assert!((v.visible_share - 0.5).abs() < 0.05, "visible share {}", v.visible_share);
+        assert!((v.visible_share() - 0.5).abs() < 0.05, "visible share {}", v.visible_share());
         assert!(v.spread_px < 3.0, "spread {}", v.spread_px);
     }
 
@@ -116,7 +126,7 @@ mod tests {
         let lines: Vec<LineResidual> = (0..60).map(|i| line(-4.0 + ((i as f64) * 0.9).sin())).collect();
         let v = visibility(&lines, 1.0);
         assert!(v.own_edge.iter().all(|&p| p > 0.8), "{:?}", v.own_edge);
-        assert!(v.visible_share > 0.9);
+        assert!(v.visible_share() > 0.9);
     }
 
     /// A shifted pose: residuals of both signs in proportion, all the object's own.
@@ -124,7 +134,7 @@ mod tests {
     fn a_shift_is_not_occlusion() {
         let lines: Vec<LineResidual> = (0..72).map(|i| line(6.0 * (i as f64 * 5f64.to_radians()).cos())).collect();
         let v = visibility(&lines, 1.0);
-        assert!(v.visible_share > 0.9, "visible share {}", v.visible_share);
+        assert!(v.visible_share() > 0.9, "visible share {}", v.visible_share());
     }
 
     /// Edges outside the model's outline, or beyond what the line reaches inside, are
@@ -135,6 +145,6 @@ mod tests {
         assert_eq!(own_edge_probability(&l, 1.0, 0.3), 1.0);
         let deep = LineResidual { residual: -30.0, ..l };
         assert_eq!(own_edge_probability(&deep, 1.0, 0.3), 1.0);
-        assert!(visibility(&[], 1.0).visible_share == 1.0);
+        assert!(visibility(&[], 1.0).visible_share() == 1.0);
     }
 }

@@ -186,7 +186,7 @@ impl Refiner for ContourRefiner {
                     depth_sigma = step.depth_sigma(&pose);
                     // Lines without an edge (hidden entirely, or past the image border)
                     // count as not visible.
-                    visible = step.own_edge_share * step.edge_lines as f64 / lines.len().max(1) as f64;
+                    visible = step.own_edges / lines.len().max(1) as f64;
                 }
                 if pose.translation.z <= 0.0 || !pose.translation.iter().all(|x| x.is_finite()) {
                     return keep("no improvement: the update left the camera's field of view".into());

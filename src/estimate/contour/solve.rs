@@ -34,11 +34,9 @@ pub struct Step {
     pub omega: Vector3<f64>,
     pub v: Vector3<f64>,
     pub covariance: Matrix6<f64>,
-    /// The occlusion model's share of lines with an edge that see the object's own outline
-    /// (1 without the model).
-    pub own_edge_share: f64,
-    /// Lines with an edge that the step used.
-    pub edge_lines: usize,
+    /// The expected number of lines that see the object's own outline: those with an edge,
+    /// each counted by the occlusion model's probability (1 without the model).
+    pub own_edges: f64,
 }
 
 impl Step {
@@ -84,11 +82,12 @@ pub fn gauss_newton_update(lines: &[Line], pose: &Pose, start: &Pose, k: &Intrin
     let line_sigma = median(rows.iter().map(|r| r.variance.sqrt()).collect());
     // Robust scale of the offsets, never below the lines' own uncertainty: with the
     // occlusion model, the spread of the edges it takes for the object's own.
-    let (own, spread) = if occlusion {
+    let (own, spread, own_edges) = if occlusion {
         let v = visibility(&rows.iter().map(|r| LineResidual { residual: r.residual, variance: r.variance, inside_px: r.inside_px }).collect::<Vec<_>>(), line_sigma);
-        (v.own_edge, v.spread_px)
+        let own_edges = v.own_edges();
+        (v.own_edge, v.spread_px, own_edges)
     } else {
-        (vec![1.0; rows.len()], (1.4826 * median(rows.iter().map(|r| r.residual.abs()).collect())).max(line_sigma))
+        (vec![1.0; rows.len()], (1.4826 * median(rows.iter().map(|r| r.residual.abs()).collect())).max(line_sigma), n)
     };
     let cutoff = TUKEY_SIGMAS * spread;
     let mut h = Matrix6::<f64>::zeros();
@@ -136,8 +135,7 @@ pub fn gauss_newton_update(lines: &[Line], pose: &Pose, start: &Pose, k: &Intrin
         omega: Vector3::new(step[0], step[1], step[2]),
         v: Vector3::new(step[3], step[4], step[5]),
         covariance: chol.inverse(),
-        own_edge_share: own.iter().sum::<f64>() / n,
-        edge_lines: rows.len(),
+        own_edges,
     })
 }
 
@@ -180,5 +178,35 @@ mod tests {
         let err = (pose.translation - truth.translation).norm();
         assert!(err < 1e-3, "translation error {err} m after the update");
         assert!(gauss_newton_update(&[], &start, &start, &k, &reg, 0.05, true).is_none());
+    }
+
+    /// At the true pose, with half the ring's lines seeing an occluder's edge 12 px inside
+    /// the outline: the occlusion model leaves the pose where it is and counts about half
+    /// the lines as the object's own; without it the step moves the pose towards the
+    /// occluder.
+    #[test]
+    fn occluded_lines_do_not_pull_the_pose() {
+        let k = Intrinsics { fx: 600.0, fy: 600.0, cx: 320.0, cy: 240.0, width: 640, height: 480 };
+        let truth = Pose::new(Rotation3::from_euler_angles(0.2, -0.1, 0.3), Vector3::new(0.0, 0.0, 0.6));
+        let lines: Vec<Line> = (0..72)
+            .map(|i| {
+                let a = i as f64 * 5f64.to_radians();
+                let x = Vector3::new(0.05 * a.cos(), 0.05 * a.sin(), 0.0);
+                let p = truth.rotation * x + truth.translation;
+                let c = Vector2::new(k.fx * p.x / p.z + k.cx, k.fy * p.y / p.z + k.cy);
+                let n = (c - Vector2::new(320.0, 240.0)).normalize();
+                let mean = if i < 36 { 0.0 } else { -12.0 };
+                Line { object_point: x, centre: c, normal: n, mean, variance: 1.0, edge: true, inside_px: 40.0 }
+            })
+            .collect();
+        let reg = Regularisation::default();
+        let moved = |occlusion: bool| {
+            let s = gauss_newton_update(&lines, &truth, &truth, &k, &reg, 0.05, occlusion).unwrap();
+            (apply_update(&truth, &s.omega, &s.v).translation - truth.translation).norm()
+        };
+        let with = gauss_newton_update(&lines, &truth, &truth, &k, &reg, 0.05, true).unwrap();
+        assert!((with.own_edges - 36.0).abs() < 3.0, "own edges {}", with.own_edges);
+        assert!(moved(true) < 2e-4, "moved {} m with the occlusion model", moved(true));
+        assert!(moved(false) > 5.0 * moved(true).max(1e-4), "moved {} m without, {} m with", moved(false), moved(true));
     }
 }

@@ -13,6 +13,7 @@ use crate::mesh::Mesh;
 use crate::render::{RenderOutput, RenderPool};
 use anyhow::{bail, Result};
 use image::{GrayImage, RgbImage};
+use std::borrow::Cow;
 
 /// One object instance of a generated image, with what BOP's ground truth records.
 #[derive(Clone, Debug)]
@@ -145,28 +146,26 @@ fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, i
             }
             let [x0, y0, x1, y1] = out.mask_bbox().expect("placed objects cover pixels");
             let size = (x1 - x0).max(y1 - y0) as f64 + 1.0;
-            let hidden = |l: &Layers| 1.0 - l.visible_counts(full.len())[i] as f64 / full[i].max(1) as f64;
             for _ in 0..if heavy { HEAVY_OCCLUDER_TRIES } else { OCCLUDER_TRIES } {
                 // Heavy occlusion anchors each occluder on what is still visible, so that it
                 // hides something new.
-                let visible = if heavy { layers.visible_mask(i) } else { out.mask.clone() };
-                if visible.pixels().all(|p| p[0] == 0) || occluders.len() >= MAX_OCCLUDERS {
+                let anchor: Cow<GrayImage> = if heavy { Cow::Owned(layers.visible_mask(i)) } else { Cow::Borrowed(&out.mask) };
+                if occluders.len() >= MAX_OCCLUDERS || (heavy && anchor.pixels().all(|p| p[0] == 0)) {
                     break;
                 }
-                let occ = sample_occluder(random_pixel(&visible, rng), size, rng);
+                let occ = sample_occluder(random_pixel(&anchor, rng), size, rng);
                 let mut trial = layers.clone();
                 trial.add_occluder(occluders.len(), &occ, z);
                 if trial.min_visible_fraction(&full) >= min_visible {
                     layers = trial;
                     occluders.push(occ);
-                    if !heavy || hidden(&layers) >= cfg.min_occlusion {
+                    if !heavy || 1.0 - layers.visible_fractions(&full)[i] >= cfg.min_occlusion {
                         break;
                     }
                 }
             }
         }
-        let visible = layers.visible_counts(placed.len());
-        if visible.iter().zip(&full).any(|(&v, &a)| 1.0 - (v as f64 / a.max(1) as f64) < cfg.min_occlusion) {
+        if layers.visible_fractions(&full).iter().any(|v| 1.0 - v < cfg.min_occlusion) {
             return Ok(None);
         }
     }

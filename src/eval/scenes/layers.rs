@@ -77,10 +77,14 @@ impl Layers {
         counts
     }
 
+    /// Visible fraction of each object whose full silhouette has `full[i]` pixels.
+    pub fn visible_fractions(&self, full: &[usize]) -> Vec<f64> {
+        self.visible_counts(full.len()).iter().zip(full).map(|(&v, &a)| v as f64 / a.max(1) as f64).collect()
+    }
+
     /// Smallest visible fraction over objects whose full silhouettes have `full` pixels.
     pub fn min_visible_fraction(&self, full: &[usize]) -> f64 {
-        let visible = self.visible_counts(full.len());
-        visible.iter().zip(full).map(|(&v, &a)| v as f64 / a.max(1) as f64).fold(1.0, f64::min)
+        self.visible_fractions(full).into_iter().fold(1.0, f64::min)
     }
 
     pub fn visible_mask(&self, index: usize) -> GrayImage {
