@@ -53,7 +53,8 @@ fn call(c: &reqwest::blocking::Client, method: &str, url: &str, body: Option<&Va
 fn onboard_estimate_and_bad_inputs_over_http() {
     let dir = tempfile::tempdir().unwrap();
     let store = format!("sqlite://{}", dir.path().join("objects.db").display());
-    let mut server = start(&store, None, &[]);
+    // One estimate may wait for a slot (2 run): the concurrency check below fills the line.
+    let mut server = start(&store, None, &["--queue-depth", "1"]);
     let (c, base) = (client(), server.http.clone());
     let healthy = |c: &reqwest::blocking::Client| assert_eq!(call(c, "GET", &format!("{base}/healthz"), None).0, 200);
     healthy(&c);
@@ -223,13 +224,31 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     assert_eq!(call(&c, "GET", &format!("{base}/v1/objects/..%2Fetc"), None).0, 400);
     healthy(&c);
 
-    // Over the concurrency limit (2 running estimates) requests are refused at once.
+    // Two estimates run and one waits; beyond that requests are refused at once, each
+    // with when to come back (Retry-After in seconds, retry-after-ms, and in the body).
     let with_rrc = json!({"image": good_image, "intrinsics": intrinsics, "detections": good_dets});
-    let statuses: Vec<u16> = std::thread::scope(|sc| {
-        let hs: Vec<_> = (0..5).map(|_| sc.spawn(|| call(&client(), "POST", &format!("{base}/v1/estimate"), Some(&with_rrc)).0)).collect();
+    let answers: Vec<(u16, Option<u64>, Option<u64>, Value)> = std::thread::scope(|sc| {
+        let hs: Vec<_> = (0..6)
+            .map(|_| {
+                sc.spawn(|| {
+                    let r = client().post(format!("{base}/v1/estimate")).json(&with_rrc).send().unwrap();
+                    let header = |name: &str| r.headers().get(name).and_then(|v| v.to_str().ok()).and_then(|v| v.parse().ok());
+                    let (retry_s, retry_ms) = (header("retry-after"), header("retry-after-ms"));
+                    (r.status().as_u16(), retry_s, retry_ms, r.json::<Value>().unwrap())
+                })
+            })
+            .collect();
         hs.into_iter().map(|h| h.join().unwrap()).collect()
     });
-    assert!(statuses.iter().all(|s| *s == 200 || *s == 429) && statuses.contains(&200) && statuses.contains(&429), "{statuses:?}");
+    let ok = answers.iter().filter(|a| a.0 == 200).count();
+    let refused: Vec<_> = answers.iter().filter(|a| a.0 == 429).collect();
+    assert!(ok >= 3 && !refused.is_empty() && ok + refused.len() == answers.len(), "{answers:?}");
+    for (_, secs, ms, body) in &refused {
+        let (secs, ms) = (secs.expect("Retry-After"), ms.expect("retry-after-ms"));
+        assert!(ms >= 1 && secs == ms.div_ceil(1000).max(1), "{secs} s, {ms} ms");
+        assert_eq!(body["error"]["retry_after_ms"].as_u64(), Some(ms), "{body}");
+        assert!(body["error"]["message"].as_str().unwrap().contains("--queue-depth"), "{body}");
+    }
 
     // Estimates keep working while another object onboards; the onboarding can be cancelled
     // and leaves nothing behind.
@@ -255,7 +274,7 @@ fn onboard_estimate_and_bad_inputs_over_http() {
 
     // Metrics count what happened; the OpenAPI document lists every route.
     let metrics = c.get(format!("{base}/metrics")).send().unwrap().text().unwrap();
-    for needle in ["b2tf_requests_total{method=\"POST\",route=\"/v1/estimate\",status=\"200\"}", "status=\"429\"", "b2tf_request_seconds_bucket", "b2tf_stage_seconds_bucket{stage=\"pnp\"", "b2tf_objects_loaded 1", "b2tf_ready 1"] {
+    for needle in ["b2tf_requests_total{method=\"POST\",route=\"/v1/estimate\",status=\"200\"}", "b2tf_estimate_queue_wait_seconds_count", "b2tf_estimate_queue_length 0", "b2tf_estimate_queue_refused_total{reason=\"full\"}", "b2tf_estimate_service_seconds", "status=\"429\"", "b2tf_request_seconds_bucket", "b2tf_stage_seconds_bucket{stage=\"pnp\"", "b2tf_objects_loaded 1", "b2tf_ready 1"] {
         assert!(metrics.contains(needle), "{needle} not in metrics:\n{metrics}");
     }
     let (s, doc) = call(&c, "GET", &format!("{base}/openapi.json"), None);

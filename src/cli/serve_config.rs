@@ -12,6 +12,8 @@
 //! backbone_max_wait_ms = 0       # how long a pass may wait for more requests (GPU: a few ms)
 //! render_pool = 2
 //! max_estimates = 2
+//! queue_depth = 16               # estimates waiting for a slot [default: 8 x max_estimates]
+//! queue_timeout_ms = 30000       # longest one waits before 429
 //! max_onboardings = 1
 //! max_body_mb = 64
 //! cache_mb = 4000
@@ -61,9 +63,17 @@ pub struct ServeSettings {
     /// Render contexts [default: 2]
     #[arg(long, env = "B2TF_RENDER_POOL")]
     pub render_pool: Option<usize>,
-    /// Estimates running at once; more are refused at once (429 / RESOURCE_EXHAUSTED) [default: 2]
+    /// Estimates (and detections) running at once; more wait in line [default: 2]
     #[arg(long, env = "B2TF_MAX_ESTIMATES")]
     pub max_estimates: Option<usize>,
+    /// Estimates waiting for a slot, in arrival order; beyond, or when the expected wait
+    /// would pass a request's deadline, 429 / RESOURCE_EXHAUSTED with Retry-After; 0:
+    /// refuse at once [default: 8 x max_estimates]
+    #[arg(long, env = "B2TF_QUEUE_DEPTH")]
+    pub queue_depth: Option<usize>,
+    /// Longest an estimate waits in line before it is refused (429), ms [default: 30000]
+    #[arg(long, env = "B2TF_QUEUE_TIMEOUT_MS")]
+    pub queue_timeout_ms: Option<u64>,
     /// Onboardings running at once; more are refused [default: 1]
     #[arg(long, env = "B2TF_MAX_ONBOARDINGS")]
     pub max_onboardings: Option<usize>,
@@ -129,6 +139,8 @@ pub struct Resolved {
     pub backbone_batch: usize,
     pub backbone_max_wait: std::time::Duration,
     pub max_estimates: usize,
+    pub queue_depth: usize,
+    pub queue_timeout: std::time::Duration,
     pub max_onboardings: usize,
     pub max_body_bytes: usize,
     pub cache_bytes: u64,
@@ -192,6 +204,15 @@ impl ServeSettings {
         if !timeout.is_finite() || timeout < 0.0 {
             bail!("request_timeout_s must be a number of seconds ≥ 0 (0: no limit), not {timeout}");
         }
+        let max_estimates = positive("max_estimates", pick!(max_estimates).unwrap_or(2))?;
+        let queue_depth = pick!(queue_depth).unwrap_or(8 * max_estimates);
+        if queue_depth > 100_000 {
+            bail!("queue_depth must be at most 100000, not {queue_depth}");
+        }
+        let queue_timeout_ms = pick!(queue_timeout_ms).unwrap_or(30_000);
+        if !(1..=3_600_000).contains(&queue_timeout_ms) {
+            bail!("queue_timeout_ms must be from 1 to 3600000 ms, not {queue_timeout_ms}");
+        }
         let idle = pick!(track_idle_timeout_s).unwrap_or(60.0);
         if !idle.is_finite() || !(0.1..=86_400.0).contains(&idle) {
             bail!("track_idle_timeout_s must be a number of seconds from 0.1 to 86400, not {idle}");
@@ -220,7 +241,9 @@ impl ServeSettings {
             device,
             backbone_batch: pick!(backbone_batch).unwrap_or(32),
             backbone_max_wait: std::time::Duration::from_secs_f64(max_wait_ms / 1e3),
-            max_estimates: positive("max_estimates", pick!(max_estimates).unwrap_or(2))?,
+            max_estimates,
+            queue_depth,
+            queue_timeout: std::time::Duration::from_millis(queue_timeout_ms),
             max_onboardings: positive("max_onboardings", pick!(max_onboardings).unwrap_or(1))?,
             max_body_bytes: positive("max_body_mb", pick!(max_body_mb).unwrap_or(64))? * 1_000_000,
             cache_bytes: pick!(cache_mb).unwrap_or(4000) * 1_000_000,
@@ -252,11 +275,13 @@ mod tests {
         assert_eq!(r.http.as_deref(), Some("0.0.0.0:9000"));
         assert_eq!(r.grpc, None);
         assert_eq!(r.max_estimates, 8);
+        assert_eq!(r.queue_depth, 64, "the queue follows the running count");
         assert_eq!(r.request_timeout, None);
         assert_eq!(r.api_keys_file, Some(dir.path().join("keys.txt")));
         let d = ServeSettings::default().resolve(ServeSettings::default()).unwrap();
         assert_eq!((d.http.as_deref(), d.grpc.as_deref(), d.max_onboardings), (Some("127.0.0.1:8080"), Some("127.0.0.1:50051"), 1));
         assert_eq!(d.request_timeout, Some(std::time::Duration::from_secs(120)));
+        assert_eq!((d.queue_depth, d.queue_timeout), (16, std::time::Duration::from_secs(30)));
         assert!(!d.read_only);
         std::fs::write(&f, "read_only = true\n").unwrap();
         assert!(ServeSettings::default().resolve(ServeSettings::from_file(&f).unwrap()).unwrap().read_only);
@@ -292,6 +317,8 @@ mod tests {
         assert!(err(ServeSettings { tls_cert: Some("c.pem".into()), ..none() }).contains("tls_key"));
         assert!(err(ServeSettings { http: Some("none".into()), grpc: Some("off".into()), ..none() }).contains("both listeners"));
         assert!(err(ServeSettings { request_timeout_s: Some(-1.0), ..none() }).contains("request_timeout_s"));
+        assert!(err(ServeSettings { queue_timeout_ms: Some(0), ..none() }).contains("queue_timeout_ms"));
+        assert!(err(ServeSettings { queue_depth: Some(1_000_000), ..none() }).contains("queue_depth"));
         assert!(err(ServeSettings { tls_client_ca: Some("ca.pem".into()), ..none() }).contains("tls_client_ca (mTLS) needs TLS"));
         assert!(err(ServeSettings { rate_limit: Some("fast".into()), ..none() }).contains("\"fast\""));
         assert!(err(ServeSettings { rate_limit: Some("5/s".into()), rate_burst: Some(0), ..none() }).contains("rate_burst"));

@@ -7,22 +7,9 @@
 use super::api::Api;
 use super::auth::Caller;
 use super::error::{ErrorKind, ServiceError};
-use super::rate_limit::{peer_client, retry_after_secs};
+use super::rate_limit::peer_client;
 use super::scopes::Needs;
 use std::net::IpAddr;
-
-/// Why a request is turned away, and for a rate limit when to come back (seconds).
-#[derive(Debug)]
-pub struct Refused {
-    pub error: ServiceError,
-    pub retry_after: Option<u64>,
-}
-
-impl From<ServiceError> for Refused {
-    fn from(error: ServiceError) -> Self {
-        Self { error, retry_after: None }
-    }
-}
 
 pub struct Request<'a> {
     pub needs: Needs,
@@ -35,8 +22,9 @@ pub struct Request<'a> {
     pub key_hint: &'a str,
 }
 
-/// The caller (when keys are configured) if the request may go on.
-pub fn admit(api: &Api, r: &Request) -> Result<Option<Caller>, Refused> {
+/// The caller (when keys are configured) if the request may go on; a rate limit's
+/// refusal says when to come back (`ServiceError::retry_after_ms`).
+pub fn admit(api: &Api, r: &Request) -> Result<Option<Caller>, ServiceError> {
     if r.needs == Needs::Nothing {
         return Ok(None);
     }
@@ -45,7 +33,7 @@ pub fn admit(api: &Api, r: &Request) -> Result<Option<Caller>, Refused> {
         if let Needs::Scope(s) = r.needs {
             if !c.scopes.has(s) {
                 tracing::debug!(endpoint = r.endpoint, key = %c.identity, scope = s.name(), "refused: the key lacks the scope");
-                return Err(ServiceError::new(ErrorKind::PermissionDenied, format!("this API key lacks the `{}` scope, which {} needs", s.name(), r.endpoint)).into());
+                return Err(ServiceError::new(ErrorKind::PermissionDenied, format!("this API key lacks the `{}` scope, which {} needs", s.name(), r.endpoint)));
             }
         }
         Some(c)
@@ -60,10 +48,11 @@ pub fn admit(api: &Api, r: &Request) -> Result<Option<Caller>, Refused> {
         };
         if let Err(wait) = limiter.check(&client) {
             api.metrics.rate_limited(label);
-            let secs = retry_after_secs(wait);
             let spec = limiter.spec();
+            let refused = ServiceError::exhausted(String::new(), wait);
+            let secs = refused.retry_after_secs().unwrap_or(1);
             let msg = format!("rate limit of {} requests/s (burst {}) reached for {whose}; retry in {secs} s", spec.rate, spec.burst);
-            return Err(Refused { error: ServiceError::new(ErrorKind::ResourceExhausted, msg), retry_after: Some(secs) });
+            return Err(ServiceError { message: msg, ..refused });
         }
     }
     if let Some(c) = &caller {

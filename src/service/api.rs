@@ -1,6 +1,6 @@
-//! The calls both adapters make, in async form: each takes its slot (refusing at once over
-//! the limit), runs the blocking core work off the async threads under the request's
-//! deadline, and records metrics. HTTP and gRPC differ only in how they parse requests and
+//! The calls both adapters make, in async form: each takes its slot (estimates wait for
+//! one in line, estimate_queue.rs), runs the blocking core work off the async threads
+//! under the request's deadline, and records metrics. HTTP and gRPC differ only in how they parse requests and
 //! write answers, so they answer the same request the same way.
 
 use super::auth::ApiKeys;
@@ -44,7 +44,8 @@ impl Api {
 
     pub fn gauges(&self) -> Gauges {
         let c = self.core.cache_stats();
-        Gauges { estimates_running: self.core.estimates_running(), onboardings_running: self.core.onboardings_running(), objects_loaded: c.objects, cache_bytes: c.bytes, ready: self.is_ready(), queue: self.core.queue_stats(), track_sessions: self.core.track_sessions_open() }
+        let q = &self.core.estimates;
+        Gauges { estimates_running: q.running(), estimates_waiting: q.waiting(), estimate_service_seconds: q.service_time().map(|d| d.as_secs_f64()), onboardings_running: self.core.onboardings_running(), objects_loaded: c.objects, cache_bytes: c.bytes, ready: self.is_ready(), queue: self.core.queue_stats(), track_sessions: self.core.track_sessions_open() }
     }
 
     /// The time this request may take: the server's limit or the client's deadline,
@@ -74,25 +75,25 @@ impl Api {
     }
 
     /// Runs the server's heavy work (an estimate or a detection: one limit for both) in a
-    /// slot, refused at once over the limit, within `budget`. Past it the caller gets
+    /// slot, after waiting in line for one, all within `budget`. Past it the caller gets
     /// DEADLINE_EXCEEDED at once; the worker stops at its next check and only then frees
     /// its slot, so the concurrency limit stays true.
     async fn heavy<T: Send + 'static>(&self, budget: Option<Duration>, work: impl FnOnce(&Core, Option<Instant>) -> Result<T, ServiceError> + Send + 'static) -> Result<T, ServiceError> {
-        let slot = self.core.estimate_slot().ok_or_else(|| self.busy())?;
         let deadline = budget.map(|b| Instant::now() + b);
+        let turn = self.core.estimates.enter(budget).await.map_err(|(why, e)| {
+            self.metrics.queue_refused(why.name());
+            e
+        })?;
+        self.metrics.queue_wait(turn.waited.as_secs_f64());
         let core = self.core.clone();
         let work = blocking(move || {
-            let _slot = slot;
+            let _turn = turn;
             work(&core, deadline)
         });
-        match budget {
-            Some(b) => tokio::time::timeout(b, work).await.map_err(|_| deadline_exceeded(b))?,
+        match deadline {
+            Some(d) => tokio::time::timeout_at(d.into(), work).await.map_err(|_| deadline_exceeded(budget.unwrap_or_default()))?,
             None => work.await,
         }
-    }
-
-    fn busy(&self) -> ServiceError {
-        ServiceError::new(ErrorKind::ResourceExhausted, format!("{} estimates or detections already running; retry later", self.core.config.max_estimates))
     }
 
     /// `request_id`: the starting request's, for the onboarding's own log lines.

@@ -2,7 +2,8 @@
 //! cache, the backbone, the render pool, the estimator and the onboarding operations. The
 //! adapters only parse, call these methods and map `ServiceError` to their status codes.
 //! Methods here block (rendering, features, PnP); async adapters call them on blocking
-//! threads after taking a slot, so load beyond the limits is refused at once.
+//! threads after taking a slot (estimates wait for one in `estimate_queue`; onboardings
+//! beyond their limit are refused at once).
 
 use super::detect_requests::DetectionOutput;
 use super::error::{ErrorKind, ServiceError};
@@ -26,8 +27,12 @@ pub struct CoreConfig {
     pub render_pool: usize,
     /// Memory for loaded objects (LRU beyond it).
     pub cache_bytes: u64,
-    /// Estimates running at once; more are refused (429 / RESOURCE_EXHAUSTED).
+    /// Estimates (and detections) running at once; more wait in line.
     pub max_estimates: usize,
+    /// Estimates waiting at most; more are refused (429 / RESOURCE_EXHAUSTED).
+    pub queue_depth: usize,
+    /// Longest an estimate waits in line before it is refused.
+    pub queue_timeout: std::time::Duration,
     /// Onboardings running at once; more are refused the same way.
     pub max_onboardings: usize,
     /// Most crops in one backbone pass of the shared batching queue (0: no queue, every
@@ -48,7 +53,7 @@ pub struct CoreConfig {
 
 impl Default for CoreConfig {
     fn default() -> Self {
-        Self { store_url: crate::store::default_url(), render_pool: RenderPool::DEFAULT_SIZE, cache_bytes: 4_000_000_000, max_estimates: 2, max_onboardings: 1, backbone_batch: 32, backbone_max_wait: std::time::Duration::ZERO, backbone: Default::default(), device: Default::default(), read_only: false, max_track_sessions: 8, track_idle_timeout: std::time::Duration::from_secs(60) }
+        Self { store_url: crate::store::default_url(), render_pool: RenderPool::DEFAULT_SIZE, cache_bytes: 4_000_000_000, max_estimates: 2, queue_depth: 16, queue_timeout: std::time::Duration::from_secs(30), max_onboardings: 1, backbone_batch: 32, backbone_max_wait: std::time::Duration::ZERO, backbone: Default::default(), device: Default::default(), read_only: false, max_track_sessions: 8, track_idle_timeout: std::time::Duration::from_secs(60) }
     }
 }
 
@@ -76,7 +81,7 @@ pub struct Core {
     pub(super) estimator: Estimator,
     operations: Operations,
     pub(super) tracks: super::track_sessions::TrackSessions,
-    estimates_running: Arc<AtomicUsize>,
+    pub(super) estimates: Arc<super::estimate_queue::EstimateQueue>,
     onboardings_running: Arc<AtomicUsize>,
 }
 
@@ -94,7 +99,8 @@ impl Core {
         let estimator = Estimator::new(backbone.clone(), pool.clone());
         let cache = Arc::new(ModelCache::new(store.clone(), config.cache_bytes));
         let tracks = super::track_sessions::TrackSessions::new(config.max_track_sessions, config.track_idle_timeout);
-        Ok(Self { config, store, cache, backbone, queue, pool, estimator, operations: Operations::default(), tracks, estimates_running: Arc::new(AtomicUsize::new(0)), onboardings_running: Arc::new(AtomicUsize::new(0)) })
+        let estimates = super::estimate_queue::EstimateQueue::new(super::estimate_queue::QueueConfig { running: config.max_estimates.max(1), depth: config.queue_depth, timeout: config.queue_timeout });
+        Ok(Self { config, store, cache, backbone, queue, pool, estimator, operations: Operations::default(), tracks, estimates, onboardings_running: Arc::new(AtomicUsize::new(0)) })
     }
 
     /// One render and one backbone pass, so the first request does not pay for shader
@@ -128,10 +134,6 @@ impl Core {
         self.queue.as_ref().map(|q| q.stats())
     }
 
-    pub fn estimates_running(&self) -> usize {
-        self.estimates_running.load(Ordering::Acquire)
-    }
-
     pub fn onboardings_running(&self) -> usize {
         self.onboardings_running.load(Ordering::Acquire)
     }
@@ -161,11 +163,6 @@ impl Core {
             return Err(ServiceError::new(ErrorKind::PermissionDenied, format!("this server is read-only (--read-only / B2TF_READ_ONLY): it cannot {what} objects; do that with a writer on the same store ({}), e.g. `b2tf onboard --store URL` or a server without --read-only", self.store.url())));
         }
         Ok(())
-    }
-
-    /// A slot for one estimate, or `None` when `max_estimates` are running.
-    pub fn estimate_slot(&self) -> Option<Slot> {
-        take_slot(&self.estimates_running, self.config.max_estimates)
     }
 
     /// Validates the upload and starts onboarding on its own thread; returns at once.

@@ -31,11 +31,25 @@ pub enum ErrorKind {
 pub struct ServiceError {
     pub kind: ErrorKind,
     pub message: String,
+    /// For a refusal that will pass (a rate limit, a full estimate queue): when to come
+    /// back, in ms. HTTP sends it as `Retry-After` (whole seconds) and `retry-after-ms`,
+    /// gRPC as `retry-after` / `retry-after-ms` metadata, and the JSON error body has it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub retry_after_ms: Option<u64>,
 }
 
 impl ServiceError {
     pub fn new(kind: ErrorKind, message: impl Into<String>) -> Self {
-        Self { kind, message: message.into() }
+        Self { kind, message: message.into(), retry_after_ms: None }
+    }
+    /// A 429 / RESOURCE_EXHAUSTED that says when to retry.
+    pub fn exhausted(message: impl Into<String>, retry_after: std::time::Duration) -> Self {
+        let ms = u64::try_from(retry_after.as_millis()).unwrap_or(u64::MAX).max(1);
+        Self { kind: ErrorKind::ResourceExhausted, message: message.into(), retry_after_ms: Some(ms) }
+    }
+    /// The `Retry-After` header's whole seconds (rounded up, at least 1).
+    pub fn retry_after_secs(&self) -> Option<u64> {
+        self.retry_after_ms.map(|ms| ms.div_ceil(1000).max(1))
     }
     pub fn invalid(message: impl Into<String>) -> Self {
         Self::new(ErrorKind::InvalidArgument, message)

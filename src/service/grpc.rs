@@ -31,7 +31,12 @@ pub fn code_of(kind: &ErrorKind) -> Code {
 
 impl From<ServiceError> for Status {
     fn from(e: ServiceError) -> Self {
-        Status::new(code_of(&e.kind), e.message)
+        let mut meta = tonic::metadata::MetadataMap::new();
+        if let (Some(ms), Some(secs)) = (e.retry_after_ms, e.retry_after_secs()) {
+            meta.insert("retry-after", secs.into());
+            meta.insert("retry-after-ms", ms.into());
+        }
+        Status::with_metadata(code_of(&e.kind), e.message, meta)
     }
 }
 
@@ -227,13 +232,8 @@ pub fn pose_service(api: Api, max_message_bytes: usize) -> WithRpcPath<tonic::se
                 Ok(req)
             }
             Err(refused) => {
-                let code = code_of(&refused.error.kind);
-                admission.metrics.request("grpc", &rpc, &code_name(code), 0.0);
-                let mut meta = tonic::metadata::MetadataMap::new();
-                if let Some(secs) = refused.retry_after {
-                    meta.insert("retry-after", secs.into());
-                }
-                Err(Status::with_metadata(code, refused.error.message, meta))
+                admission.metrics.request("grpc", &rpc, &code_name(code_of(&refused.kind)), 0.0);
+                Err(refused.into())
             }
         }
     };
@@ -259,5 +259,14 @@ mod tests {
         assert_eq!(code_name(Code::ResourceExhausted), "RESOURCE_EXHAUSTED");
         let e: Status = ServiceError::new(ErrorKind::TooLarge, "big").into();
         assert_eq!(e.code(), Code::InvalidArgument);
+        assert!(e.metadata().get("retry-after-ms").is_none());
+    }
+
+    #[test]
+    fn a_refusal_says_when_to_retry_in_its_metadata() {
+        let e: Status = ServiceError::exhausted("queue full", Duration::from_millis(2300)).into();
+        assert_eq!((e.code(), e.message()), (Code::ResourceExhausted, "queue full"));
+        assert_eq!(e.metadata().get("retry-after-ms").unwrap(), "2300");
+        assert_eq!(e.metadata().get("retry-after").unwrap(), "3");
     }
 }

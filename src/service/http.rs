@@ -36,9 +36,18 @@ pub fn status_of(kind: &ErrorKind) -> StatusCode {
 
 impl IntoResponse for ServiceError {
     fn into_response(self) -> Response {
-        (status_of(&self.kind), Json(serde_json::json!({ "error": self }))).into_response()
+        let retry = self.retry_after_ms.zip(self.retry_after_secs());
+        let mut resp = (status_of(&self.kind), Json(serde_json::json!({ "error": self }))).into_response();
+        if let Some((ms, secs)) = retry {
+            resp.headers_mut().insert(header::RETRY_AFTER, secs.into());
+            resp.headers_mut().insert(RETRY_AFTER_MS, ms.into());
+        }
+        resp
     }
 }
+
+/// The wait a refusal asks for in milliseconds: `Retry-After` has only whole seconds.
+const RETRY_AFTER_MS: header::HeaderName = header::HeaderName::from_static("retry-after-ms");
 
 /// A JSON body, or the reason it is not one (too large → 413, anything else → 400).
 pub(super) fn body<T>(b: Result<Json<T>, JsonRejection>) -> Result<T, ServiceError> {
@@ -76,17 +85,9 @@ async fn guard(State(s): State<Api>, mut req: Request, next: Next) -> Response {
             }
             next.run(req).await
         }
-        Err(refused) => refusal(refused),
+        Err(refused) => refused.into_response(),
     };
     s.metrics.request(&method, &route, resp.status().as_str(), t.elapsed().as_secs_f64());
-    resp
-}
-
-fn refusal(r: access::Refused) -> Response {
-    let mut resp = r.error.into_response();
-    if let Some(secs) = r.retry_after {
-        resp.headers_mut().insert(header::RETRY_AFTER, secs.into());
-    }
     resp
 }
 

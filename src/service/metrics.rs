@@ -66,6 +66,10 @@ struct Inner {
     /// By API key identity; both bounded by the number of keys.
     key_requests: BTreeMap<String, u64>,
     rate_limited: BTreeMap<String, u64>,
+    /// How long estimates waited for a slot, those admitted at once included.
+    queue_wait: Histogram,
+    /// Estimates refused by the queue, by reason (full, deadline, timeout).
+    queue_refused: BTreeMap<&'static str, u64>,
 }
 
 #[derive(Default)]
@@ -76,6 +80,9 @@ pub struct Metrics {
 /// Values read from the core when scraped.
 pub struct Gauges {
     pub estimates_running: usize,
+    pub estimates_waiting: usize,
+    /// The service time the queue's Retry-After hints come from, once measured.
+    pub estimate_service_seconds: Option<f64>,
     pub onboardings_running: usize,
     pub objects_loaded: usize,
     pub cache_bytes: u64,
@@ -129,6 +136,16 @@ impl Metrics {
         *self.inner.lock().expect("metrics lock").rate_limited.entry(client.to_string()).or_default() += 1;
     }
 
+    /// An estimate or detection that got its slot after waiting this long.
+    pub fn queue_wait(&self, seconds: f64) {
+        self.inner.lock().expect("metrics lock").queue_wait.observe(seconds);
+    }
+
+    /// An estimate or detection the queue turned away (estimate_queue::Refusal's name).
+    pub fn queue_refused(&self, reason: &'static str) {
+        *self.inner.lock().expect("metrics lock").queue_refused.entry(reason).or_default() += 1;
+    }
+
     pub fn render(&self, gauges: &Gauges) -> String {
         let g = self.inner.lock().expect("metrics lock");
         let mut out = String::new();
@@ -161,10 +178,20 @@ impl Metrics {
         for (client, n) in &g.rate_limited {
             let _ = writeln!(out, "b2tf_rate_limited_total{{client=\"{client}\"}} {n}");
         }
+        out.push_str("# HELP b2tf_estimate_queue_wait_seconds Time estimates and detections waited for a slot (0 when one was free).\n# TYPE b2tf_estimate_queue_wait_seconds histogram\n");
+        g.queue_wait.write(&mut out, "b2tf_estimate_queue_wait_seconds", "");
+        out.push_str("# HELP b2tf_estimate_queue_refused_total Estimates and detections refused by the queue: full, deadline (the wait would pass it), timeout (--queue-timeout-ms).\n# TYPE b2tf_estimate_queue_refused_total counter\n");
+        for (reason, n) in &g.queue_refused {
+            let _ = writeln!(out, "b2tf_estimate_queue_refused_total{{reason=\"{reason}\"}} {n}");
+        }
         let gauge = |out: &mut String, name: &str, help: &str, v: f64| {
             let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} gauge\n{name} {v}");
         };
-        gauge(&mut out, "b2tf_estimates_running", "Estimates in progress (the queue is refused beyond the limit).", gauges.estimates_running as f64);
+        gauge(&mut out, "b2tf_estimates_running", "Estimates and detections in progress (at most --max-estimates).", gauges.estimates_running as f64);
+        gauge(&mut out, "b2tf_estimate_queue_length", "Estimates and detections waiting for a slot (at most --queue-depth).", gauges.estimates_waiting as f64);
+        if let Some(s) = gauges.estimate_service_seconds {
+            gauge(&mut out, "b2tf_estimate_service_seconds", "Running mean of the time one estimate holds its slot (the base of Retry-After hints).", s);
+        }
         gauge(&mut out, "b2tf_onboardings_running", "Onboardings in progress.", gauges.onboardings_running as f64);
         gauge(&mut out, "b2tf_objects_loaded", "Objects held in the model cache.", gauges.objects_loaded as f64);
         gauge(&mut out, "b2tf_cache_bytes", "Bytes held by the model cache.", gauges.cache_bytes as f64);
@@ -200,7 +227,10 @@ mod tests {
         m.key_request("cell-7");
         m.rate_limited("cell-7");
         m.rate_limited("cell-7");
-        let text = m.render(&Gauges { estimates_running: 1, onboardings_running: 0, objects_loaded: 3, cache_bytes: 42, ready: true, queue: Some(crate::features::batch_queue::QueueStats { queued_crops: 3, passes: 2, crops: 11, batch_buckets: vec![0, 0, 0, 1, 2, 2, 2, 2], jobs: 5, wait_seconds: 0.25, pass_seconds: 0.5 }), track_sessions: 2 });
+        m.queue_wait(0.0);
+        m.queue_wait(0.7);
+        m.queue_refused("full");
+        let text = m.render(&Gauges { estimates_running: 1, estimates_waiting: 4, estimate_service_seconds: Some(0.6), onboardings_running: 0, objects_loaded: 3, cache_bytes: 42, ready: true, queue: Some(crate::features::batch_queue::QueueStats { queued_crops: 3, passes: 2, crops: 11, batch_buckets: vec![0, 0, 0, 1, 2, 2, 2, 2], jobs: 5, wait_seconds: 0.25, pass_seconds: 0.5 }), track_sessions: 2 });
         assert!(text.contains("b2tf_requests_total{method=\"POST\",route=\"/v1/estimate\",status=\"200\"} 2"), "{text}");
         assert!(text.contains("b2tf_request_seconds_bucket{method=\"POST\",route=\"/v1/estimate\",le=\"0.05\"} 2"), "{text}");
         assert!(text.contains("b2tf_request_seconds_count{method=\"POST\",route=\"/v1/estimate\"} 3"), "{text}");
@@ -209,6 +239,8 @@ mod tests {
         assert!(text.contains("b2tf_backbone_queue_depth 3") && text.contains("b2tf_backbone_batch_crops_bucket{le=\"8\"} 1") && text.contains("b2tf_backbone_batch_crops_count 2"), "{text}");
         assert!(text.contains("b2tf_backbone_queue_wait_seconds_sum 0.25\nb2tf_backbone_queue_wait_seconds_count 5") && text.contains("b2tf_backbone_pass_seconds_count 2"), "{text}");
         assert!(text.contains("b2tf_key_requests_total{key=\"cell-7\"} 1") && text.contains("b2tf_rate_limited_total{client=\"cell-7\"} 2"), "{text}");
+        assert!(text.contains("b2tf_estimate_queue_wait_seconds_bucket{le=\"0.5\"} 1") && text.contains("b2tf_estimate_queue_wait_seconds_count 2"), "{text}");
+        assert!(text.contains("b2tf_estimate_queue_refused_total{reason=\"full\"} 1") && text.contains("b2tf_estimate_queue_length 4") && text.contains("b2tf_estimate_service_seconds 0.6"), "{text}");
         assert!(text.contains("b2tf_objects_loaded 3") && text.contains("b2tf_cache_bytes 42") && text.contains("b2tf_ready 1"), "{text}");
     }
 }

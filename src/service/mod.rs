@@ -16,6 +16,7 @@ pub mod core_detect;
 pub mod detect_requests;
 pub mod core_track;
 pub mod error;
+pub mod estimate_queue;
 pub mod grpc;
 pub mod grpc_convert;
 pub mod grpc_observe;

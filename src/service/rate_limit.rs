@@ -133,11 +133,6 @@ impl RateLimiter {
     }
 }
 
-/// Seconds for a `Retry-After` header: the wait rounded up, at least 1.
-pub fn retry_after_secs(wait: Duration) -> u64 {
-    (wait.as_secs_f64().ceil() as u64).max(1)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -177,8 +172,6 @@ mod tests {
         assert!(l.check_at("a", at(60_000)).is_err());
         // A clock that goes backwards (another thread's earlier `now`) adds nothing.
         assert!(l.check_at("a", at(59_000)).is_err());
-        assert_eq!(retry_after_secs(Duration::from_millis(1)), 1);
-        assert_eq!(retry_after_secs(Duration::from_millis(2500)), 3);
     }
 
     #[test]

@@ -1,5 +1,6 @@
 """Many concurrent estimates with the asyncio client. The server runs a bounded number at
-once and refuses the rest (RESOURCE_EXHAUSTED); the client retries those with backoff.
+once, queues more, and refuses the rest (RESOURCE_EXHAUSTED) saying when to come back; the
+client retries those after that wait, within its retry budget.
 
     python async_many.py --server localhost:50051 --object bbq --image photo.png \
         --mask mask.png --camera camera.json [--count 32]
@@ -44,7 +45,8 @@ async def run(a: argparse.Namespace) -> None:
         raise SystemExit(f"cannot read {a.image} or {a.mask}")
     rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
     detections = [b2tfpose.Detection(a.object, mask=np.asarray(mask) > 0)]
-    retry = b2tfpose.RetryPolicy(max_attempts=50, initial_backoff=0.05, max_backoff=1.0)
+    # Retries may go on for as long as the whole batch may take.
+    retry = b2tfpose.RetryPolicy(budget=300)
     t0 = time.perf_counter()
     async with b2tfpose.AsyncClient(a.server, api_key=a.api_key, ca_cert=a.ca_cert, retry=retry, timeout=300) as client:
         all_results = await asyncio.gather(*(client.estimate(rgb, K, detections) for _ in range(a.count)))

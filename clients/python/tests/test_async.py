@@ -1,12 +1,15 @@
-"""The asyncio client: eight concurrent estimates against a server that runs one at a
-time, so that RESOURCE_EXHAUSTED really happens and is retried; and the other calls."""
+"""The asyncio client: a burst of estimates that waits in the server's queue; concurrent
+estimates against a server that runs one at a time and queues none, so that
+RESOURCE_EXHAUSTED really happens and is retried after the server's wait; and the other
+calls."""
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import re
 from pathlib import Path
-from typing import List
+from typing import Iterator, List
 
 import pytest
 
@@ -18,39 +21,70 @@ EXHAUSTED = 'route="/b2tfpose.v1.PoseService/Estimate",status="RESOURCE_EXHAUSTE
 OK = 'route="/b2tfpose.v1.PoseService/Estimate",status="OK"'
 
 
-def test_eight_concurrent_estimates_retry_through_429(server: Server, onboarded: Onboarded, scene: Scene, cli_mask_pose: b2tfpose.Pose, caplog: pytest.LogCaptureFixture) -> None:
-    refused_before = server.metric(EXHAUSTED)
-    ok_before = server.metric(OK)
-    policy = b2tfpose.RetryPolicy(max_attempts=100, initial_backoff=0.05, max_backoff=0.5)
+def test_sixteen_concurrent_estimates_all_succeed_with_the_defaults(work: Path, store: str, onboarded: Onboarded, scene: Scene, cli_mask_pose: b2tfpose.Pose) -> None:
+    """A burst larger than the server runs at once waits in its queue (--max-estimates 2,
+    default --queue-depth) with the client's default retry policy: nothing fails."""
+    s = Server(store, work / "burst.log", ["--max-estimates", "2"])
+    try:
+
+        async def main() -> List[b2tfpose.Estimates]:
+            async with b2tfpose.AsyncClient(s.grpc_url) as c:
+                det = [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)]
+                return await asyncio.gather(*(c.estimate(scene.rgb, scene.K, det) for _ in range(16)))
+
+        all_results = asyncio.run(main())
+        for results in all_results:
+            assert_same_pose(results[0].pose, cli_mask_pose)
+        assert s.metric(OK) == 16
+        # They really queued: most of them waited for a slot.
+        assert s.metric("b2tf_estimate_queue_wait_seconds_count") == 16
+        assert s.metric('b2tf_estimate_queue_wait_seconds_bucket{le="0.005"}') <= 4
+    finally:
+        s.stop()
+
+
+@pytest.fixture(scope="module")
+def no_queue(work: Path, store: str, onboarded: Onboarded) -> Iterator[Server]:
+    """A server that runs one estimate and queues none: any two concurrent ones collide."""
+    s = Server(store, work / "no-queue.log", ["--max-estimates", "1", "--queue-depth", "0"])
+    yield s
+    s.stop()
+
+
+def test_concurrent_estimates_retry_through_429_after_the_servers_wait(no_queue: Server, scene: Scene, cli_mask_pose: b2tfpose.Pose, caplog: pytest.LogCaptureFixture) -> None:
+    refused_before = no_queue.metric(EXHAUSTED)
 
     async def main() -> List[b2tfpose.Estimates]:
-        async with b2tfpose.AsyncClient(server.grpc_url, retry=policy, timeout=120) as c:
+        async with b2tfpose.AsyncClient(no_queue.grpc_url, timeout=120) as c:
             det = [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)]
-            return await asyncio.gather(*(c.estimate(scene.rgb, scene.K, det) for _ in range(8)))
+            return await asyncio.gather(*(c.estimate(scene.rgb, scene.K, det) for _ in range(4)))
 
     with caplog.at_level(logging.INFO, logger="b2tfpose"):
         all_results = asyncio.run(main())
-    assert len(all_results) == 8
     for results in all_results:
-        assert results[0].pose is not None
         assert_same_pose(results[0].pose, cli_mask_pose)
-    retries = [r for r in caplog.records if "RESOURCE_EXHAUSTED" in r.getMessage()]
-    refused = server.metric(EXHAUSTED) - refused_before
-    # The server really refused (its own count), and each refusal was retried.
+    retries = [r.getMessage() for r in caplog.records if "RESOURCE_EXHAUSTED" in r.getMessage()]
+    refused = no_queue.metric(EXHAUSTED) - refused_before
+    # The server really refused (its own count), and each refusal was retried after at
+    # least the wait it asked for.
     assert refused >= 1 and len(retries) == refused
-    assert server.metric(OK) - ok_before == 8
+    for m in retries:
+        waited, asked = (float(x) for x in re.findall(r"([0-9.]+) s", m))
+        assert asked > 0 and asked <= waited <= asked * 1.25 + 1e-3, m
 
 
-def test_without_retries_concurrent_estimates_meet_resource_exhausted(server: Server, onboarded: Onboarded, scene: Scene) -> None:
+def test_without_retries_a_refusal_says_when_to_come_back(no_queue: Server, scene: Scene) -> None:
     async def main() -> List[object]:
-        async with b2tfpose.AsyncClient(server.address, retry=b2tfpose.NO_RETRY) as c:
+        async with b2tfpose.AsyncClient(no_queue.address, retry=b2tfpose.NO_RETRY) as c:
             det = [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)]
             return await asyncio.gather(*(c.estimate(scene.rgb, scene.K, det) for _ in range(4)), return_exceptions=True)
 
     outcomes = asyncio.run(main())
     errors = [o for o in outcomes if isinstance(o, Exception)]
     assert errors and all(isinstance(e, b2tfpose.ResourceExhausted) for e in errors)
-    assert all(isinstance(e, b2tfpose.RpcError) and e.message and e.code.name == "RESOURCE_EXHAUSTED" for e in errors)
+    for e in errors:
+        assert isinstance(e, b2tfpose.RpcError) and "--queue-depth" in e.message and e.code.name == "RESOURCE_EXHAUSTED"
+        assert e.retry_after is not None and e.retry_after > 0
     assert any(isinstance(o, b2tfpose.Estimates) for o in outcomes)
 
 

@@ -103,6 +103,21 @@ def test_unavailable_and_its_retries() -> None:
     assert len(delays) == 4 and all(0 <= d <= 0.02 for d in delays)
 
 
+def test_retries_stop_at_the_time_budget() -> None:
+    import time
+
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    policy = b2tfpose.RetryPolicy(budget=0.3, initial_backoff=0.02, max_backoff=0.05)
+    with b2tfpose.Client(f"127.0.0.1:{port}", timeout=30, retry=policy) as c:
+        t0 = time.monotonic()
+        with pytest.raises(b2tfpose.Unavailable):
+            c.list_objects()
+        # Retried until the budget ran out, far before the call's own deadline.
+        assert time.monotonic() - t0 < 5
+
+
 def test_unauthenticated(work: Path, store: str, onboarded: Onboarded) -> None:
     keys = work / "keys.txt"
     keys.write_text("# test keys\nk-123\nk-reader scopes=read name=reader\n")
@@ -185,3 +200,12 @@ def test_retry_schedule() -> None:
         assert all(0 <= s <= cap for s in samples) and max(samples) > cap * 0.8  # full jitter up to the cap
     assert p.should_retry(grpc.StatusCode.RESOURCE_EXHAUSTED, 3) and not p.should_retry(grpc.StatusCode.RESOURCE_EXHAUSTED, 4)
     assert not p.should_retry(grpc.StatusCode.INVALID_ARGUMENT, 1)
+    # The server's wait wins over the backoff: that long, plus up to a quarter more.
+    hinted = [p.backoff(1, rng, hint=2.0) for _ in range(200)]
+    assert all(2.0 <= h <= 2.5 for h in hinted) and max(hinted) > 2.4
+    # The default is a time budget, not a count of attempts.
+    d = b2tfpose.RetryPolicy()
+    assert d.max_attempts is None and d.budget == 30.0 and d.should_retry(grpc.StatusCode.RESOURCE_EXHAUSTED, 1000)
+    for bad in (dict(max_attempts=0), dict(budget=-1.0), dict(hint_jitter=-0.1), dict(multiplier=0.5)):
+        with pytest.raises(ValueError):
+            b2tfpose.RetryPolicy(**bad)  # type: ignore[arg-type]

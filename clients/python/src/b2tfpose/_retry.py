@@ -1,5 +1,7 @@
-"""Retry policy: exponential backoff with full jitter for RESOURCE_EXHAUSTED (the server
-refuses at once when its estimate / onboarding slots are full) and UNAVAILABLE.
+"""Retry policy for RESOURCE_EXHAUSTED (the server's estimate queue is full, or the wait
+would pass the call's deadline; onboarding slots taken; a rate limit) and UNAVAILABLE:
+retries within a time budget, after the wait the server asks for (its ``retry-after-ms``,
+from its measured service time) or, without one, exponential backoff with full jitter.
 
 Only the schedule lives here; the sync and async clients each sleep their own way."""
 
@@ -21,32 +23,46 @@ DEFAULT_CODES = frozenset({grpc.StatusCode.RESOURCE_EXHAUSTED, grpc.StatusCode.U
 class RetryPolicy:
     """How failed calls are retried.
 
-    ``max_attempts`` counts the first call. The n-th retry waits a uniformly random time in
-    [0, min(max_backoff, initial_backoff * multiplier**(n-1))] ("full jitter"), so many
-    clients refused together do not come back together. A call's own deadline is never
-    extended: no retry starts once it would pass.
+    ``budget``: seconds from the first attempt within which retries may start (None: no
+    limit but the call's deadline); the default covers many estimates' service times, so a
+    burst that fills the server's queue gets through. ``max_attempts`` counts the first
+    call (None: as many as the budget allows). When the server says how long to wait
+    (``retry-after-ms``), the retry waits that long plus up to ``hint_jitter`` of it more,
+    so clients refused together come back spread out. Otherwise the n-th retry waits a
+    uniformly random time in [0, min(max_backoff, initial_backoff * multiplier**(n-1))]
+    ("full jitter"). A call's own deadline is never extended: no retry starts once it
+    would pass, and none when the server's wait would pass it.
     """
 
-    max_attempts: int = 6
+    max_attempts: Optional[int] = None
+    budget: Optional[float] = 30.0
     initial_backoff: float = 0.1
     max_backoff: float = 5.0
     multiplier: float = 2.0
+    hint_jitter: float = 0.25
     codes: FrozenSet[grpc.StatusCode] = field(default_factory=lambda: DEFAULT_CODES)
 
     def __post_init__(self) -> None:
-        if self.max_attempts < 1:
-            raise ValueError("RetryPolicy.max_attempts must be >= 1")
-        if self.initial_backoff < 0 or self.max_backoff < 0 or self.multiplier < 1:
-            raise ValueError("RetryPolicy: backoffs must be >= 0 and multiplier >= 1")
+        if self.max_attempts is not None and self.max_attempts < 1:
+            raise ValueError("RetryPolicy.max_attempts must be >= 1 (or None)")
+        if self.budget is not None and self.budget < 0:
+            raise ValueError("RetryPolicy.budget must be >= 0 seconds (or None)")
+        if self.initial_backoff < 0 or self.max_backoff < 0 or self.multiplier < 1 or self.hint_jitter < 0:
+            raise ValueError("RetryPolicy: backoffs and hint_jitter must be >= 0 and multiplier >= 1")
 
-    def backoff(self, retry: int, rng: Optional[random.Random] = None) -> float:
-        """Seconds to wait before retry number ``retry`` (1-based)."""
+    def backoff(self, retry: int, rng: Optional[random.Random] = None, hint: Optional[float] = None) -> float:
+        """Seconds to wait before retry number ``retry`` (1-based); ``hint``: the server's
+        ``retry-after-ms`` in seconds, when it sent one."""
+        r = rng or random
+        if hint is not None:
+            return hint * (1.0 + r.uniform(0.0, self.hint_jitter))
         cap = min(self.max_backoff, self.initial_backoff * self.multiplier ** (retry - 1))
-        return (rng or random).uniform(0.0, cap)
+        return r.uniform(0.0, cap)
 
     def should_retry(self, code: grpc.StatusCode, attempt: int) -> bool:
-        """Whether attempt number ``attempt`` (1-based) that failed with ``code`` is retried."""
-        return code in self.codes and attempt < self.max_attempts
+        """Whether attempt number ``attempt`` (1-based) that failed with ``code`` is retried
+        (the time budget aside)."""
+        return code in self.codes and (self.max_attempts is None or attempt < self.max_attempts)
 
 
 NO_RETRY = RetryPolicy(max_attempts=1)
@@ -67,8 +83,10 @@ def resolve(per_call: RetryArg, client_policy: RetryPolicy, idempotent: bool) ->
     return client_policy if idempotent else NO_RETRY
 
 
-def log_retry(method: str, code: grpc.StatusCode, attempt: int, delay: float) -> None:
-    log.info("b2tfpose: %s failed with %s (attempt %d); retrying in %.3f s", method, code.name, attempt, delay)
+def log_retry(method: str, code: grpc.StatusCode, attempt: int, delay: float, hint: Optional[float] = None) -> None:
+    asked = "" if hint is None else f" (the server asked for {hint:.3f} s)"
+    log.info("b2tfpose: %s failed with %s (attempt %d); retrying in %.3f s%s", method, code.name, attempt, delay, asked)
+
 
 
 class Attempts:
@@ -82,7 +100,9 @@ class Attempts:
         self._clock = time.monotonic
         self.method = method
         self.policy = policy
-        self.deadline = None if timeout is None else self._clock() + timeout
+        start = self._clock()
+        self.deadline = None if timeout is None else start + timeout
+        self.retry_until = None if policy.budget is None else start + policy.budget
         self.attempt = 0
 
     def timeout(self) -> Optional[float]:
@@ -98,8 +118,9 @@ class Attempts:
 
         mapped = from_grpc(err, self.method)
         if self.policy.should_retry(mapped.code, self.attempt):
-            delay = self.policy.backoff(self.attempt)
-            if self.deadline is None or self._clock() + delay < self.deadline:
-                log_retry(self.method, mapped.code, self.attempt, delay)
+            delay = self.policy.backoff(self.attempt, hint=mapped.retry_after)
+            at = self._clock() + delay
+            if all(limit is None or at < limit for limit in (self.deadline, self.retry_until)):
+                log_retry(self.method, mapped.code, self.attempt, delay, mapped.retry_after)
                 return delay
         raise mapped from None

@@ -25,13 +25,16 @@ class B2TFPoseError(Exception):
 
 class RpcError(B2TFPoseError):
     """A gRPC call failed. ``code`` is the status, ``message`` the server's explanation,
-    ``request_id`` the server's id of the call (None when no server answered)."""
+    ``request_id`` the server's id of the call (None when no server answered),
+    ``retry_after`` the seconds the server asked to wait before retrying (a refusal of
+    RESOURCE_EXHAUSTED; None otherwise)."""
 
-    def __init__(self, code: grpc.StatusCode, message: str, method: str = "", request_id: Optional[str] = None) -> None:
+    def __init__(self, code: grpc.StatusCode, message: str, method: str = "", request_id: Optional[str] = None, retry_after: Optional[float] = None) -> None:
         self.code = code
         self.message = message
         self.method = method
         self.request_id = request_id
+        self.retry_after = retry_after
         where = f"{method}: " if method else ""
         rid = f" (request id {request_id})" if request_id else ""
         super().__init__(f"{where}{code.name}: {message}{rid}")
@@ -61,9 +64,11 @@ class Unauthenticated(RpcError):
 
 
 class ResourceExhausted(RpcError):
-    """Too many estimates or onboardings running on the server, or the API key over its
-    rate limit (``b2tf serve --rate-limit``): retry later (the client retries these with
-    backoff unless told not to)."""
+    """The server's estimate queue is full (``--max-estimates`` running, ``--queue-depth``
+    waiting) or its wait would pass the call's deadline, onboardings are running, or the
+    API key is over its rate limit (``b2tf serve --rate-limit``): retry after
+    ``retry_after`` seconds (the client does so, within its retry budget, unless told
+    not to)."""
 
 
 class DeadlineExceeded(RpcError):
@@ -108,7 +113,7 @@ def from_grpc(err: grpc.RpcError, method: str = "") -> RpcError:
     message = details_fn() if callable(details_fn) else str(err)
     if not isinstance(code, grpc.StatusCode):
         code = grpc.StatusCode.UNKNOWN
-    return error_class(code)(code, message or "", method, request_id(err))
+    return error_class(code)(code, message or "", method, request_id(err), retry_after(err))
 
 
 def request_id(call: object) -> Optional[str]:
@@ -122,6 +127,18 @@ def request_id(call: object) -> Optional[str]:
                     return value if isinstance(value, str) else value.decode("ascii", "replace")
         except (TypeError, ValueError, AttributeError):  # no metadata: no server answered
             continue
+    return None
+
+
+def retry_after(err: object) -> Optional[float]:
+    """The wait a refusal asked for (the ``retry-after-ms`` trailer), in seconds."""
+    fn = getattr(err, "trailing_metadata", None)
+    try:
+        for key, value in (fn() if callable(fn) else None) or ():
+            if key == "retry-after-ms":
+                return max(0.0, int(value) / 1000.0)
+    except (TypeError, ValueError, AttributeError):  # no trailers, or not a number: no hint
+        return None
     return None
 
 
