@@ -373,3 +373,62 @@ fn read_only_replica_serves_a_store_it_never_writes() {
     }
     assert!(root.join("box").is_dir() && !root.join("box2").exists());
 }
+
+/// `b2tf` run as another process on the same store: onboarding (with `--replace`) or
+/// deleting the sample box.
+fn writer(args: &[&str], url: &str, dir: &std::path::Path) {
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_b2tf"));
+    cmd.args(args);
+    if args[0] == "onboard" {
+        let files = sample_files(dir);
+        cmd.args(["--id", "box", "--units", "m", "--level", "0", "--in-plane", "2", "--render-pool", "1"]).arg("--mesh").arg(dir.join(&files[0].0));
+    }
+    let out = cmd.args(["--store", url]).env("XDG_RUNTIME_DIR", "/tmp").output().unwrap();
+    assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+}
+
+/// Waits until the server's /metrics has `needle`.
+fn await_metric(c: &reqwest::blocking::Client, base: &str, needle: &str) {
+    let t = Instant::now();
+    loop {
+        let text = c.get(format!("{base}/metrics")).send().unwrap().text().unwrap();
+        if text.contains(needle) {
+            return;
+        }
+        assert!(t.elapsed() < Duration::from_secs(30), "{needle} never appeared in:\n{text}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// A read-only replica notices, without a restart, that another process replaced or
+/// deleted an object it holds in memory (a generation check every --revalidate-s), on a
+/// store of each kind.
+#[test]
+fn replica_picks_up_replaced_and_deleted_objects() {
+    let dir = tempfile::tempdir().unwrap();
+    for url in [format!("dir://{}", dir.path().join("objects").display()), format!("sqlite://{}", dir.path().join("objects.db").display())] {
+        writer(&["onboard"], &url, dir.path());
+        let server = start(&url, None, &["--read-only", "--revalidate-s", "0.2"]);
+        let (c, base) = (client(), server.http.clone());
+        let sc = scene();
+        let estimate = json!({"image": {"encoded": png(&sc.render.rgb)}, "intrinsics": intrinsics_again(), "detections": good_dets_again(&sc.render.mask), "options": {"rrc": false}});
+        let (s, est) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&estimate));
+        assert!(s == 200 && est["results"][0]["object_id"] == "box", "{url}: {est}");
+        await_metric(&c, &base, "b2tf_objects_loaded 1\n");
+        // Unchanged, it stays loaded.
+        std::thread::sleep(Duration::from_millis(600));
+        await_metric(&c, &base, "b2tf_cache_stale_total 0\n");
+
+        writer(&["onboard", "--replace"], &url, dir.path());
+        await_metric(&c, &base, "b2tf_cache_stale_total 1\n");
+        await_metric(&c, &base, "b2tf_objects_loaded 0\n");
+        let (s, est) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&estimate));
+        assert!(s == 200 && est["results"][0]["pose"].is_object(), "{url}: the replaced object: {est}");
+        await_metric(&c, &base, "b2tf_objects_loaded 1\n");
+
+        writer(&["objects", "delete", "box"], &url, dir.path());
+        await_metric(&c, &base, "b2tf_cache_stale_total 2\n");
+        let (s, est) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&estimate));
+        assert_eq!(s, 404, "{url}: the deleted object is not served from memory: {est}");
+    }
+}

@@ -535,15 +535,23 @@ fn check_replace(url: &str) {
     let store = store::open(url).expect("open");
     let first = generation(m, "obj-a", 1);
     let second = generation(m, "obj-a", 2);
+    assert_eq!(store.generation("obj-a").expect("generation"), None, "no object, no generation");
     store.put(&first, false).expect("put");
+    let written = store.generation("obj-a").expect("generation").expect("stored");
     match store.put(&second, false) {
         Err(StoreError::AlreadyExists(id)) => assert_eq!(id, "obj-a"),
         other => panic!("put over an existing object without replace: expected AlreadyExists, got {:?}", other.map(|i| i.id)),
     }
     assert_same(&first, &store.get("obj-a").expect("get after the refused put"));
+    assert_eq!(store.generation("obj-a").expect("generation"), Some(written), "reads and refused puts leave it");
 
     let info = store.put(&second, true).expect("replace");
     assert_eq!(info.id, "obj-a");
+    let replaced = store.generation("obj-a").expect("generation").expect("stored");
+    assert_ne!(replaced, written, "a replace is a new generation");
+    store.put(&second, true).expect("the same object again");
+    assert_ne!(store.generation("obj-a").expect("generation"), Some(replaced), "every put is");
+    assert!(matches!(store.generation("../x"), Err(StoreError::BadId(_))));
     assert_same(&second, &store.get("obj-a").expect("get after replace"));
     assert_eq!(store.list().expect("list").len(), 1, "a replace does not add an object");
     // Replacing an object that does not exist is a plain put.
@@ -847,7 +855,8 @@ fn check_readers_beside_a_writer(url: &str) {
 }
 
 /// The LRU cache over a store: hits and misses, eviction of the least recently used under
-/// the byte budget, `invalidate` after a replace, and `Arc`s that outlive their entry.
+/// the byte budget, `revalidate` after another writer's replace or delete, `invalidate`
+/// after this process' own, and `Arc`s that outlive their entry.
 fn check_cache(url: &str) {
     let Some(m) = model() else { return };
     let store = store::open(url).expect("open");
@@ -881,24 +890,39 @@ fn check_cache(url: &str) {
     assert_eq!(stats(&cache), (2, 3, 4));
     assert!(!Arc::ptr_eq(&c_held, &c_new));
 
-    // A replace in the store is not seen until the entry is invalidated.
+    // A replace by another writer (its own handle, as another process has) is served stale
+    // until `revalidate` compares generations and drops the entry; a second pass finds
+    // nothing more to drop.
+    let writer = store::open(url).expect("second handle");
+    assert_eq!(cache.revalidate(), 0, "nothing changed yet");
     let replaced = generation(m, "obj-a", 7);
-    store.put(&replaced, true).expect("replace a");
+    writer.put(&replaced, true).expect("replace a");
     assert_same(&with_id(m, "obj-a"), &cache.get("obj-a").expect("stale hit"));
-    cache.invalidate("obj-a");
-    assert_same(&replaced, &cache.get("obj-a").expect("get after invalidate"));
+    assert_eq!(cache.revalidate(), 1);
+    assert_same(&replaced, &cache.get("obj-a").expect("get after revalidate"));
     assert_eq!(stats(&cache), (2, 4, 5));
+    assert_eq!((cache.revalidate(), cache.stats().stale), (0, 1));
     assert_same(&with_id(m, "obj-a"), &a); // the old version, still held
+    // This process' own replace: `invalidate` at once.
+    store.put(&with_id(m, "obj-a"), true).expect("put a back");
+    cache.invalidate("obj-a");
+    assert_same(&with_id(m, "obj-a"), &cache.get("obj-a").expect("get after invalidate"));
+    assert_eq!(stats(&cache), (2, 4, 6));
+    // A delete by the other writer drops the entry too; the object is gone for good.
+    writer.delete("obj-c").expect("delete c");
+    assert_eq!(cache.revalidate(), 1);
+    assert!(matches!(cache.get("obj-c"), Err(StoreError::NotFound(_))));
+    assert_eq!(cache.stats().objects, 1);
 
     // Errors are passed on and cache nothing.
     assert!(matches!(cache.get("obj-missing"), Err(StoreError::NotFound(id)) if id == "obj-missing"));
     assert!(matches!(cache.get("../evil"), Err(StoreError::BadId(_))));
-    assert_eq!(cache.stats().objects, 2);
+    assert_eq!(cache.stats().objects, 1);
 
     // An object larger than the whole budget is still handed out (and kept, alone).
     let tiny = ModelCache::new(store.clone(), 1);
+    tiny.get("obj-a").expect("get a");
     tiny.get("obj-b").expect("get b");
-    tiny.get("obj-c").expect("get c");
     let s = tiny.stats();
     assert_eq!((s.objects, s.misses), (1, 2), "{s:?}");
 }

@@ -73,6 +73,9 @@ pub fn run(a: ServeArgs) -> Result<()> {
                 Err(e) => tracing::error!("warm-up failed, staying not ready: {e}"),
             });
         }
+        if let Some(every) = s.revalidate {
+            tokio::spawn(revalidate_every(core.clone(), every));
+        }
         crate::service::server::run(api, options, on_bound, shutdown_signal()).await?;
         tracing::info!("stopped accepting; in-flight requests finished");
         let stopping = core.clone();
@@ -84,6 +87,21 @@ pub fn run(a: ServeArgs) -> Result<()> {
         let _ = writeln!(std::io::stdout(), "stopped");
         Ok(())
     })
+}
+
+/// Checks the objects held in memory against the store every `every`, so that a replica
+/// serves what another process replaced or deleted without a restart (docs/store.md).
+async fn revalidate_every(core: Arc<Core>, every: std::time::Duration) {
+    let mut tick = tokio::time::interval(every);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    tick.tick().await; // the first tick is immediate: nothing is held yet
+    loop {
+        tick.tick().await;
+        let core = core.clone();
+        if let Err(e) = tokio::task::spawn_blocking(move || core.revalidate_cache()).await {
+            tracing::warn!("revalidating the cached objects failed: {e}");
+        }
+    }
 }
 
 /// SIGTERM or Ctrl-C: stop accepting, let in-flight requests finish.

@@ -25,6 +25,7 @@
 //! rate_limit = "20/s"            # per API key (per client address without keys); off if unset
 //! rate_burst = 40                # requests at once after idling [default: the rate per second]
 //! read_only = false              # true: a replica serving a store another process writes
+//! revalidate_s = 5               # how often cached objects are checked against the store
 //! max_track_sessions = 8         # tracking sessions / Track streams open at once
 //! track_idle_timeout_s = 60      # a session with no frame for this long is closed
 //! ```
@@ -118,6 +119,11 @@ pub struct ServeSettings {
     /// PERMISSION_DENIED) [default: false]
     #[arg(long, env = "B2TF_READ_ONLY", num_args = 0..=1, default_missing_value = "true", value_parser = clap::builder::BoolishValueParser::new())]
     pub read_only: Option<bool>,
+    /// How often the objects held in memory are checked against the store, seconds: one
+    /// replaced or deleted by another process (an onboarding job, another replica's
+    /// writer) is dropped and loaded afresh on its next use; 0: never [default: 5]
+    #[arg(long, env = "B2TF_REVALIDATE_S")]
+    pub revalidate_s: Option<f64>,
     /// Tracking sessions (HTTP sessions and gRPC Track streams) open at once; more are
     /// refused (429 / RESOURCE_EXHAUSTED) [default: 8]
     #[arg(long, env = "B2TF_MAX_TRACK_SESSIONS")]
@@ -151,6 +157,8 @@ pub struct Resolved {
     pub tls_client_ca: Option<PathBuf>,
     pub rate_limit: Option<crate::service::rate_limit::RateSpec>,
     pub read_only: bool,
+    /// How often cached objects are checked against the store; None: never.
+    pub revalidate: Option<std::time::Duration>,
     pub max_track_sessions: usize,
     pub track_idle_timeout: std::time::Duration,
 }
@@ -213,6 +221,10 @@ impl ServeSettings {
         if !(1..=3_600_000).contains(&queue_timeout_ms) {
             bail!("queue_timeout_ms must be from 1 to 3600000 ms, not {queue_timeout_ms}");
         }
+        let revalidate_s = pick!(revalidate_s).unwrap_or(5.0);
+        if !revalidate_s.is_finite() || !(0.0..=86_400.0).contains(&revalidate_s) {
+            bail!("revalidate_s must be a number of seconds from 0 (never) to 86400, not {revalidate_s}");
+        }
         let idle = pick!(track_idle_timeout_s).unwrap_or(60.0);
         if !idle.is_finite() || !(0.1..=86_400.0).contains(&idle) {
             bail!("track_idle_timeout_s must be a number of seconds from 0.1 to 86400, not {idle}");
@@ -254,6 +266,7 @@ impl ServeSettings {
             tls_client_ca,
             rate_limit,
             read_only: pick!(read_only).unwrap_or(false),
+            revalidate: (revalidate_s > 0.0).then(|| std::time::Duration::from_secs_f64(revalidate_s)),
             max_track_sessions: positive("max_track_sessions", pick!(max_track_sessions).unwrap_or(8))?,
             track_idle_timeout: std::time::Duration::from_secs_f64(idle),
         })
@@ -282,6 +295,8 @@ mod tests {
         assert_eq!((d.http.as_deref(), d.grpc.as_deref(), d.max_onboardings), (Some("127.0.0.1:8080"), Some("127.0.0.1:50051"), 1));
         assert_eq!(d.request_timeout, Some(std::time::Duration::from_secs(120)));
         assert_eq!((d.queue_depth, d.queue_timeout), (16, std::time::Duration::from_secs(30)));
+        assert_eq!(d.revalidate, Some(std::time::Duration::from_secs(5)));
+        assert_eq!(ServeSettings { revalidate_s: Some(0.0), ..Default::default() }.resolve(ServeSettings::default()).unwrap().revalidate, None);
         assert!(!d.read_only);
         std::fs::write(&f, "read_only = true\n").unwrap();
         assert!(ServeSettings::default().resolve(ServeSettings::from_file(&f).unwrap()).unwrap().read_only);
@@ -318,6 +333,7 @@ mod tests {
         assert!(err(ServeSettings { http: Some("none".into()), grpc: Some("off".into()), ..none() }).contains("both listeners"));
         assert!(err(ServeSettings { request_timeout_s: Some(-1.0), ..none() }).contains("request_timeout_s"));
         assert!(err(ServeSettings { queue_timeout_ms: Some(0), ..none() }).contains("queue_timeout_ms"));
+        assert!(err(ServeSettings { revalidate_s: Some(-1.0), ..none() }).contains("revalidate_s"));
         assert!(err(ServeSettings { queue_depth: Some(1_000_000), ..none() }).contains("queue_depth"));
         assert!(err(ServeSettings { tls_client_ca: Some("ca.pem".into()), ..none() }).contains("tls_client_ca (mTLS) needs TLS"));
         assert!(err(ServeSettings { rate_limit: Some("fast".into()), ..none() }).contains("\"fast\""));

@@ -126,6 +126,12 @@ impl Core {
         self.store.url()
     }
 
+    /// Drops cached objects that another process replaced or deleted in the store since
+    /// they were loaded (`ModelCache::revalidate`); how many.
+    pub fn revalidate_cache(&self) -> usize {
+        self.cache.revalidate()
+    }
+
     pub fn cache_stats(&self) -> crate::store::cache::CacheStats {
         self.cache.stats()
     }

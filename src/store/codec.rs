@@ -95,7 +95,8 @@ pub struct ManifestSummary {
     pub symmetries: Option<KnownSymmetries>,
 }
 
-fn new_generation() -> u64 {
+/// A number for one write, different from every other write's (time, pid and a counter).
+pub(crate) fn new_generation() -> u64 {
     let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(0);
     // Mixed with the pid and a counter: two writes in one nanosecond still differ.
     static COUNTER: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);

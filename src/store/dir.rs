@@ -210,6 +210,23 @@ impl ObjectStore for DirStore {
         Ok(self.object_dir(id)?.join(MANIFEST).is_file())
     }
 
+    /// From the manifest file's identity and times: a put writes a new folder (swapped in
+    /// by rename), so the manifest of a replaced object is another file.
+    fn generation(&self, id: &str) -> Result<Option<u64>, StoreError> {
+        use std::hash::{Hash, Hasher};
+        use std::os::unix::fs::MetadataExt;
+        let path = self.object_dir(id)?.join(MANIFEST);
+        match std::fs::metadata(&path) {
+            Ok(m) => {
+                let mut h = std::collections::hash_map::DefaultHasher::new();
+                (m.dev(), m.ino(), m.size(), m.mtime(), m.mtime_nsec(), m.ctime(), m.ctime_nsec()).hash(&mut h);
+                Ok(Some(h.finish()))
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(e) => Err(StoreError::io(format!("reading {}", path.display()))(e)),
+        }
+    }
+
     fn url(&self) -> String {
         format!("dir://{}", self.root.display())
     }

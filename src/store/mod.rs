@@ -94,6 +94,10 @@ pub trait ObjectStore: Send + Sync {
     fn info(&self, id: &str) -> Result<ObjectInfo, StoreError>;
     fn delete(&self, id: &str) -> Result<(), StoreError>;
     fn exists(&self, id: &str) -> Result<bool, StoreError>;
+    /// A number that changes whenever the object is written (put or replaced), read
+    /// without reading the object: what a replica's cache compares to notice a replaced
+    /// object (`ModelCache::revalidate`). `None` when there is no such object.
+    fn generation(&self, id: &str) -> Result<Option<u64>, StoreError>;
     /// The URL this store was opened from.
     fn url(&self) -> String;
 }

@@ -40,6 +40,10 @@ impl ObjectStore for ReadOnlyStore {
         self.inner.exists(id)
     }
 
+    fn generation(&self, id: &str) -> Result<Option<u64>, StoreError> {
+        self.inner.generation(id)
+    }
+
     fn url(&self) -> String {
         self.inner.url()
     }

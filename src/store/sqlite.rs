@@ -25,6 +25,7 @@ use std::time::Duration;
 const MIGRATIONS: &[(&str, &str)] = &[
     ("0001_objects.sql", include_str!("../../migrations/0001_objects.sql")),
     ("0002_symmetries.sql", include_str!("../../migrations/0002_symmetries.sql")),
+    ("0003_generation.sql", include_str!("../../migrations/0003_generation.sql")),
 ];
 
 /// Largest chunk row: big enough that a typical object is a handful of rows, small enough
@@ -315,9 +316,11 @@ impl SqliteStore {
             // Cascades to the old chunks; nobody sees this until the commit.
             tx.execute("DELETE FROM objects WHERE id = ?1", [id]).map_err(db(&ctx))?;
         }
+        // Wrapping into SQLite's signed integers: only inequality matters.
+        let generation = codec::new_generation() as i64;
         tx.execute(
-            &format!("INSERT INTO objects ({INFO_COLUMNS}, manifest) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)"),
-            params![id, info.units.as_str(), info.diameter_m, backbone, templates, bytes, created_at, symmetries, manifest],
+            &format!("INSERT INTO objects ({INFO_COLUMNS}, manifest, generation) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)"),
+            params![id, info.units.as_str(), info.diameter_m, backbone, templates, bytes, created_at, symmetries, manifest, generation],
         )
         .map_err(db(&ctx))?;
         {
@@ -435,6 +438,14 @@ impl ObjectStore for SqliteStore {
         let ctx = self.ctx("looking up", Some(id));
         let conn = self.reader(&ctx)?;
         conn.query_row("SELECT EXISTS (SELECT 1 FROM objects WHERE id = ?1)", [id], |r| r.get(0)).map_err(db(&ctx))
+    }
+
+    fn generation(&self, id: &str) -> Result<Option<u64>, StoreError> {
+        validate_id(id)?;
+        let ctx = self.ctx("reading the generation of", Some(id));
+        let conn = self.reader(&ctx)?;
+        let g: Option<i64> = conn.query_row("SELECT generation FROM objects WHERE id = ?1", [id], |r| r.get(0)).optional().map_err(db(&ctx))?;
+        Ok(g.map(|g| g as u64))
     }
 
     fn url(&self) -> String {
