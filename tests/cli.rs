@@ -46,6 +46,13 @@ fn sample_render_and_onboard() {
     // Same id again without --replace is refused, with it accepted.
     let (ok, _, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--store", &dir_store, "--level", "0", "--in-plane", "1"]);
     assert!(!ok && err.contains("--replace"), "{err}");
+    // Compact descriptors on request: int8 rows, in less room than f16's.
+    let f16_bytes = std::fs::metadata(d.join("models/box/tensors.safetensors")).unwrap().len();
+    let (ok, out, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--store", &dir_store, "--level", "0", "--in-plane", "2", "--replace", "--descriptors", "i8"]);
+    assert!(ok && out.contains("int8 with a scale each"), "{out}{err}");
+    assert!(std::fs::metadata(d.join("models/box/tensors.safetensors")).unwrap().len() < f16_bytes);
+    let (ok, _, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box2", "--store", &dir_store, "--descriptors", "zip"]);
+    assert!(!ok && err.contains("'zip'") && err.contains("f16"), "{err}");
     let (ok, out, err) = b2tf(&["objects", "delete", "box", "--store", &dir_store]);
     assert!(ok && out.contains("deleted"), "{out}{err}");
     let (ok, _, err) = b2tf(&["objects", "show", "box", "--store", &dir_store]);

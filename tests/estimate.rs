@@ -169,7 +169,7 @@ fn pca_compressed_model_stores_smaller_and_still_finds_the_pose() {
     let cfg = OnboardConfig { views: ViewSampling { level: 1, in_plane_steps: 12 }, render_size: 256, pca: b2tfpose::onboard::PcaSetting::Components(24), ..Default::default() };
     let small = onboard("box", &textured_box([0.10, 0.06, 0.16], 3), &cfg, &backbone, &f.pool, &|_| {}).unwrap();
     assert_eq!((small.local_dim, small.pca.as_ref().unwrap().input_dim), (24, f.model.local_dim));
-    assert_eq!(small.patch_descriptors.len() * f.model.local_dim, f.model.patch_descriptors.len() * 24);
+    assert_eq!(small.patch_descriptors.rows(24), f.model.patch_descriptors.rows(f.model.local_dim));
     // The projection is recorded with the model and survives a store round trip.
     let dir = tempfile::tempdir().unwrap();
     let store = b2tfpose::store::open(&format!("sqlite://{}", dir.path().join("o.db").display())).unwrap();

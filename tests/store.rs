@@ -13,7 +13,7 @@
 use b2tfpose::features::{EmbeddedBackbone, EmbeddedConfig};
 use b2tfpose::geometry::ViewSampling;
 use b2tfpose::mesh::procedural::textured_box;
-use b2tfpose::onboard::{onboard, ObjectModel, OnboardConfig, Template};
+use b2tfpose::onboard::{onboard, ObjectModel, OnboardConfig, PatchDescriptors, Template};
 use b2tfpose::render::{RenderError, RenderPool, RendererConfig};
 use b2tfpose::store::{self, codec, ModelCache, ObjectStore, StoreError};
 use std::collections::BTreeSet;
@@ -82,7 +82,7 @@ fn generation_of(m: &ObjectModel) -> u32 {
 
 /// Bytes of the model's tensor arrays (what dominates its encoded size).
 fn tensor_bytes(m: &ObjectModel) -> usize {
-    m.global.len() * 4 + m.patch_descriptors.len() * 2 + m.patch_points.len() * 12 + m.patch_cells.len() * 2 + m.silhouettes.len() * 8
+    m.global.len() * 4 + m.patch_descriptors.memory_bytes() + m.patch_points.len() * 12 + m.patch_cells.len() * 2 + m.silhouettes.len() * 8
 }
 
 /// Size of the big object of the kill test: large enough that its put takes a good fraction
@@ -104,7 +104,11 @@ fn enlarged(m: &ObjectModel, id: &str, copies: usize) -> ObjectModel {
         .flat_map(|k| m.templates.iter().map(move |t| Template { patch_start: t.patch_start + k * patches, ..t.clone() }))
         .collect();
     big.global = m.global.repeat(copies);
-    big.patch_descriptors = m.patch_descriptors.repeat(copies);
+    big.patch_descriptors = match &m.patch_descriptors {
+        PatchDescriptors::Half(v) => PatchDescriptors::Half(v.repeat(copies)),
+        PatchDescriptors::Quantized { quantizer, codes } => PatchDescriptors::Quantized { quantizer: quantizer.clone(), codes: codes.repeat(copies) },
+        PatchDescriptors::Int8 { codes, scales } => PatchDescriptors::Int8 { codes: codes.repeat(copies), scales: scales.repeat(copies) },
+    };
     big.patch_points = m.patch_points.repeat(copies);
     big.patch_cells = m.patch_cells.repeat(copies);
     big.silhouettes = m.silhouettes.repeat(copies);
@@ -527,6 +531,21 @@ fn check_round_trip(url: &str) {
     let other = store::open(url).expect("second handle");
     assert_same(m, &other.get("obj-a").expect("get through a second handle"));
     assert_eq!(other.list().expect("list").len(), 1);
+
+    // The onboarded object's descriptors are f16 rows (the default); quantised ones
+    // (`--descriptors pq4`) round-trip too, in less room.
+    let mut coded = with_id(m, "obj-pq");
+    b2tfpose::onboard::apply_coding(&mut coded, b2tfpose::onboard::DescriptorCoding::Pq4).expect("quantise");
+    let PatchDescriptors::Quantized { codes, .. } = &coded.patch_descriptors else { panic!("pq4 quantises") };
+    assert_eq!(codes.len(), m.patch_count() * m.local_dim / 4);
+    store.put(&coded, false).expect("put pq4");
+    assert_same(&coded, &store.get("obj-pq").expect("get pq4"));
+    assert!(store.info("obj-pq").unwrap().bytes < info.bytes, "codes take less room than f16 rows");
+    let mut int8 = with_id(m, "obj-i8");
+    b2tfpose::onboard::apply_coding(&mut int8, b2tfpose::onboard::DescriptorCoding::I8).expect("int8");
+    store.put(&int8, false).expect("put i8");
+    assert_same(&int8, &store.get("obj-i8").expect("get i8"));
+    assert!(store.info("obj-i8").unwrap().bytes < info.bytes, "int8 takes less room than f16 rows");
 }
 
 /// A put without `replace` never overwrites; with `replace` it does, as a whole.

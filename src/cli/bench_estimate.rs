@@ -60,6 +60,10 @@ pub struct BenchEstimateArgs {
     /// PCA of the patch descriptors, as `b2tf onboard --pca`: auto, off or a component count.
     #[arg(long, default_value = "auto")]
     pub pca: crate::onboard::PcaSetting,
+    /// How the patch descriptors are held, as `b2tf onboard --descriptors`: f16 (the
+    /// default), pq4 or pq2 (product-quantised in memory, as onboarding would).
+    #[arg(long, value_enum, default_value = "f16")]
+    pub descriptors: crate::onboard::DescriptorCoding,
     /// Write one CSV row per instance and setting (errors, apparent size) into this file.
     #[arg(long)]
     pub per_instance: Option<PathBuf>,
@@ -201,9 +205,9 @@ pub(super) fn bench_models(meshes: &[(String, Mesh)], gap: bool, store: &str, ba
         .map(|(name, mesh)| {
             let (id, template_mesh) = if gap { (format!("{name}-untextured"), mesh.without_appearance()) } else { (name.clone(), mesh.clone()) };
             let id = cached_id_for(&id, &backbone.identity());
-            // Cached uncompressed: any PCA setting applies to it in memory (as onboarding
-            // with that setting would) without onboarding again.
-            super::cached_model(&id, &template_mesh, store.as_ref(), backbone, pool, crate::onboard::PcaSetting::Off)
+            // Cached uncompressed: any PCA and descriptor coding apply to it in memory (as
+            // onboarding with those settings would) without onboarding again.
+            super::cached_model(&id, &template_mesh, store.as_ref(), backbone, pool, crate::onboard::PcaSetting::Off, crate::onboard::DescriptorCoding::F16)
         })
         .collect()
 }
@@ -215,6 +219,11 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     let mut models = bench_models(&meshes, a.gap, &a.scenes.store, backbone.as_ref(), &pool)?;
     for model in &mut models {
         crate::onboard::apply_pca(model, a.pca)?;
+        let (t, before) = (std::time::Instant::now(), model.patch_descriptors.memory_bytes());
+        crate::onboard::apply_coding(model, a.descriptors)?;
+        if a.descriptors != crate::onboard::DescriptorCoding::F16 {
+            eprintln!("{}: {:?} descriptors of {} patches in {:.1} s: {:.1} → {:.1} MB", model.object_id, a.descriptors, model.patch_count(), t.elapsed().as_secs_f64(), before as f64 / 1e6, model.patch_descriptors.memory_bytes() as f64 / 1e6);
+        }
     }
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
     // Symmetric objects are scored against the truth turned by their symmetry nearest to

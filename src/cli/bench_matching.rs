@@ -69,7 +69,7 @@ pub fn run(a: BenchMatchingArgs) -> Result<()> {
             let mut pool = Vec::new();
             let widen = median_seconds(a.repeats, || {
                 pool.clear();
-                crate::estimate::correspond::widen_into(&stored[..p * dim], &mut pool);
+                crate::onboard::patch_descriptors::widen_half(&stored[..p * dim], &mut pool);
             });
             let secs = median_seconds(a.repeats, || {
                 std::hint::black_box(mutual_matches(&query, &pool, dim, 3));

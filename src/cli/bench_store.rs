@@ -1,4 +1,5 @@
-//! `b2tf bench store`: what the object stores cost: bytes per object (f16, PCA), put time,
+//! `b2tf bench store`: what the object stores cost: bytes per object (f16, PCA, product
+//! quantisation), put time,
 //! and load time from each backend, cold (page cache dropped, when allowed) and warm.
 
 use crate::mesh::{load_mesh, Units};
@@ -20,6 +21,9 @@ pub struct BenchStoreArgs {
     /// PCA sizes to compare with the uncompressed f16 model.
     #[arg(long, value_delimiter = ',', default_value = "32,16")]
     pub pca: Vec<usize>,
+    /// Descriptor codings to compare with f16 (`b2tf onboard --descriptors`).
+    #[arg(long, value_delimiter = ',', value_enum, default_value = "pq4,pq2")]
+    pub descriptors: Vec<crate::onboard::DescriptorCoding>,
     /// Store that caches the onboarded model between runs.
     #[arg(long, default_value = "dir://out/bench-models")]
     pub cache_store: String,
@@ -51,7 +55,7 @@ pub fn run(a: BenchStoreArgs) -> Result<()> {
     };
     let cache = crate::store::open(&a.cache_store)?;
     let id = super::bench_estimate::cached_id_for(&name, &backbone.identity());
-    let full = super::cached_model(&id, &mesh, cache.as_ref(), backbone.as_ref(), &pool, crate::onboard::PcaSetting::Off)?;
+    let full = super::cached_model(&id, &mesh, cache.as_ref(), backbone.as_ref(), &pool, crate::onboard::PcaSetting::Off, crate::onboard::DescriptorCoding::F16)?;
     let mut variants: Vec<(String, ObjectModel)> = vec![(format!("{} dims (f16)", full.local_dim), full.clone())];
     let mut compress_s = vec![];
     for &d in &a.pca {
@@ -61,11 +65,18 @@ pub fn run(a: BenchStoreArgs) -> Result<()> {
         compress_s.push((d, t.elapsed().as_secs_f64()));
         variants.push((format!("PCA {d} (f16)"), m));
     }
+    for &coding in &a.descriptors {
+        let mut m = full.clone();
+        let t = Instant::now();
+        crate::onboard::apply_coding(&mut m, coding)?;
+        println!("{coding:?}: learnt and encoded in {:.2} s", t.elapsed().as_secs_f64());
+        variants.push((format!("{} dims ({coding:?})", full.local_dim), m));
+    }
     let tmp = std::env::temp_dir().join(format!("b2tf-bench-store-{}", std::process::id()));
     let result = (|| -> Result<()> {
         println!("object {name}: {} templates, {} patches", full.template_count(), full.patch_count());
-        println!("| backend | descriptors | stored MB | put (s) | cold load (s) | load, page cache warm (s) | cache hit (ms) |");
-        println!("|---|---|---:|---:|---:|---:|---:|");
+        println!("| backend | descriptors | stored MB | put (s) | cold load (s) | load, page cache warm (s) | cache hit (ms) | held in memory (MB) |");
+        println!("|---|---|---:|---:|---:|---:|---:|---:|");
         let mut dropped_all = true;
         for backend in ["dir", "sqlite"] {
             for (label, model) in &variants {
@@ -97,7 +108,7 @@ pub fn run(a: BenchStoreArgs) -> Result<()> {
                     v.sort_by(f64::total_cmp);
                     v[v.len() / 2]
                 };
-                println!("| {backend} | {label} | {:.1} | {put_s:.2} | {:.3} | {:.3} | {hit_ms:.3} |", info.bytes as f64 / 1e6, med(&mut cold), med(&mut warm));
+                println!("| {backend} | {label} | {:.1} | {put_s:.2} | {:.3} | {:.3} | {hit_ms:.3} | {:.1} |", info.bytes as f64 / 1e6, med(&mut cold), med(&mut warm), model.memory_bytes() as f64 / 1e6);
             }
         }
         for (d, s) in compress_s {

@@ -103,7 +103,7 @@ pub fn run(a: BenchTrackArgs) -> Result<()> {
     let k = Intrinsics::new(1.25 * a.width as f64, 1.25 * a.width as f64, (a.width as f64 - 1.0) / 2.0, (a.height as f64 - 1.0) / 2.0, a.width, a.height)?;
     let mut models = Vec::new();
     for (name, mesh) in &meshes {
-        models.push((name.clone(), Arc::new(super::cached_model(name, mesh, store.as_ref(), &backbone, &pool, crate::onboard::PcaSetting::Off)?)));
+        models.push((name.clone(), Arc::new(super::cached_model(name, mesh, store.as_ref(), &backbone, &pool, crate::onboard::PcaSetting::Off, crate::onboard::DescriptorCoding::F16)?)));
     }
     drop(store); // the server below opens it
     let config = |s: usize| SequenceConfig { frames: a.frames, max_degrees_per_frame: a.degrees, max_metres_per_frame: a.metres, seed: 1 + s as u64, occluder: a.occluder, blur_sigma: a.blur, noise_sigma: a.noise, ..Default::default() };

@@ -126,9 +126,9 @@ pub fn open_renderer(size: usize) -> anyhow::Result<crate::render::RenderPool> {
 /// The object `id` from `store` when it was made from this mesh (geometry and appearance)
 /// by this backbone with the default settings; otherwise onboards it (with a progress bar)
 /// and puts it there. Benchmarks and the demo reuse models across runs this way.
-pub fn cached_model(id: &str, mesh: &crate::mesh::Mesh, store: &dyn crate::store::ObjectStore, backbone: &dyn crate::features::Backbone, pool: &crate::render::RenderPool, pca: crate::onboard::PcaSetting) -> anyhow::Result<crate::onboard::ObjectModel> {
+pub fn cached_model(id: &str, mesh: &crate::mesh::Mesh, store: &dyn crate::store::ObjectStore, backbone: &dyn crate::features::Backbone, pool: &crate::render::RenderPool, pca: crate::onboard::PcaSetting, descriptors: crate::onboard::DescriptorCoding) -> anyhow::Result<crate::onboard::ObjectModel> {
     use crate::onboard::{onboard, OnboardConfig};
-    let config = OnboardConfig { pca, ..Default::default() };
+    let config = OnboardConfig { pca, descriptors, ..Default::default() };
     if let Ok(mut m) = store.get(id) {
         if m.backbone == backbone.identity() && m.config == config && m.mesh.positions() == mesh.positions() && m.mesh.has_texture() == mesh.has_texture() {
             if m.symmetries.is_none() {

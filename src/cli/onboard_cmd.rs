@@ -32,6 +32,11 @@ pub struct OnboardArgs {
     /// components within a 360 MB budget; `off` keeps all (f16); or a component count.
     #[arg(long, default_value = "auto")]
     pub pca: crate::onboard::PcaSetting,
+    /// How the patch descriptors are stored: `f16`, or product-quantised on the object's
+    /// own patches, `pq4` (one byte per four values: an eighth of f16's bytes) or `pq2`
+    /// (a quarter); the quantised ones cost accuracy (docs/store.md).
+    #[arg(long, value_enum, default_value = "f16")]
+    pub descriptors: crate::onboard::DescriptorCoding,
     /// Replace an existing object with the same id.
     #[arg(long)]
     pub replace: bool,
@@ -51,7 +56,7 @@ pub fn run(a: OnboardArgs) -> Result<()> {
     let mesh = load_mesh(&a.mesh, a.units)?;
     let load_s = t0.elapsed().as_secs_f64();
     let given = a.symmetries.as_deref().map(|s| symmetries_from_models_info(s, mesh.source_units())).transpose()?;
-    let config = OnboardConfig { views: ViewSampling { level: a.level, in_plane_steps: a.in_plane }, pca: a.pca, ..Default::default() };
+    let config = OnboardConfig { views: ViewSampling { level: a.level, in_plane_steps: a.in_plane }, pca: a.pca, descriptors: a.descriptors, ..Default::default() };
     config.views.validate().map_err(anyhow::Error::msg)?;
     crate::onboard::validate_object_id(&a.id)?;
     let store = crate::store::open(&a.store.clone().unwrap_or_else(crate::store::default_url))?;
@@ -85,9 +90,14 @@ pub fn run(a: OnboardArgs) -> Result<()> {
     if let Some(s) = &model.symmetries {
         println!("symmetries: {}", s.describe());
     }
+    let stored = match &model.patch_descriptors {
+        crate::onboard::PatchDescriptors::Half(_) => "f16".to_string(),
+        crate::onboard::PatchDescriptors::Quantized { quantizer, .. } => format!("{} code bytes each", quantizer.subspaces),
+        crate::onboard::PatchDescriptors::Int8 { .. } => "int8 with a scale each".to_string(),
+    };
     match &model.pca {
-        Some(p) => println!("patch descriptors: {} PCA components of {} (--pca {})", p.output_dim, p.input_dim, a.pca),
-        None => println!("patch descriptors: all {} dimensions (--pca {})", model.local_dim, a.pca),
+        Some(p) => println!("patch descriptors: {} PCA components of {} (--pca {}), {stored}", p.output_dim, p.input_dim, a.pca),
+        None => println!("patch descriptors: all {} dimensions (--pca {}), {stored}", model.local_dim, a.pca),
     }
     println!("mesh load {load_s:.2} s, onboarding {onboard_s:.1} s, storing {store_s:.2} s; {:.1} MB in {}", info.bytes as f64 / 1e6, store.url());
     Ok(())

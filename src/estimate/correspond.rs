@@ -22,26 +22,17 @@ impl PatchPool {
         self.points.is_empty()
     }
 
-    /// All patches of the given templates of `model` (f16 descriptors widened to f32).
+    /// All patches of the given templates of `model` (descriptors widened or decoded to f32).
     pub fn from_templates(model: &ObjectModel, templates: impl IntoIterator<Item = usize>) -> Self {
         let mut pool = PatchPool { dim: model.local_dim, ..Default::default() };
         for t in templates {
             let tp = &model.templates[t];
             let range = tp.patch_start as usize..(tp.patch_start + tp.patch_count) as usize;
             pool.points.extend_from_slice(&model.patch_points[range.clone()]);
-            widen_into(&model.patch_descriptors[range.start * model.local_dim..range.end * model.local_dim], &mut pool.descriptors);
+            model.patch_descriptors.widen_into(model.local_dim, range, &mut pool.descriptors);
         }
         pool
     }
-}
-
-/// Appends `stored` widened to f32 by half's slice conversion, which uses the CPU's f16
-/// instructions where it has them (`bench matching`: 5–10× the per-value conversion).
-pub fn widen_into(stored: &[half::f16], out: &mut Vec<f32>) {
-    use half::slice::HalfFloatSliceExt;
-    let start = out.len();
-    out.resize(start + stored.len(), 0.0);
-    stored.convert_to_f32_slice(&mut out[start..]);
 }
 
 /// Matched pairs ready for PnP.

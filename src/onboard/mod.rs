@@ -4,9 +4,13 @@ pub mod contour;
 pub mod model;
 pub mod pca;
 pub mod pca_setting;
+pub mod patch_descriptors;
 pub mod pipeline;
+pub mod pq;
 
 pub use contour::{ContourConfig, ContourModel};
 pub use model::{ObjectModel, OnboardConfig, Template, MODEL_FORMAT_VERSION};
+pub use patch_descriptors::PatchDescriptors;
 pub use pca_setting::PcaSetting;
-pub use pipeline::{apply_pca, compress, mesh_symmetries, onboard, onboard_cancellable, validate_object_id, OnboardError, Progress};
+pub use model::DescriptorCoding;
+pub use pipeline::{apply_coding, apply_pca, compress, mesh_symmetries, onboard, onboard_cancellable, validate_object_id, OnboardError, Progress};

@@ -8,15 +8,16 @@ use crate::geometry::{CropBox, Intrinsics, PatchGrid, Pose, ViewSampling};
 use crate::mesh::Mesh;
 use super::contour::ContourModel;
 use crate::detect::ShapeModel;
-use half::f16;
 use std::sync::{Arc, OnceLock};
 
 /// Version of the model layout; bumped on any change of meaning or layout. 2: optional
 /// PCA-compressed patch descriptors (version 1 models load as uncompressed). 3: the contour
 /// model (older models load without it and get it computed on first use). 4: the detector's
 /// shape templates (older models likewise get them on first use, or `b2tf objects upgrade`).
-/// 5: the object's symmetries (older models load with them unknown).
-pub const MODEL_FORMAT_VERSION: u32 = 5;
+/// 5: the object's symmetries (older models load with them unknown). 6: product-quantised
+/// patch descriptors (`patch_codes` and `pq_centroids` in place of `patch_descriptors`;
+/// older models keep their f16 ones).
+pub const MODEL_FORMAT_VERSION: u32 = 6;
 
 /// Side of the stored template silhouettes (crop mask downsampled, 1 bit per cell).
 pub const SILHOUETTE_SIZE: usize = 64;
@@ -38,11 +39,46 @@ pub struct OnboardConfig {
     /// model's `pca`). Records before the setting had `pca_dim`: null (keep all) or a count.
     #[serde(default = "PcaSetting::off", alias = "pca_dim")]
     pub pca: PcaSetting,
+    /// How the patch descriptors are stored; records before format 6 kept f16.
+    #[serde(default = "DescriptorCoding::f16")]
+    pub descriptors: DescriptorCoding,
+}
+
+/// How an object's patch descriptors are stored (`b2tf onboard --descriptors`).
+/// Measured in docs/store.md ("Compact descriptors"): the product-quantised codings cost
+/// accuracy with the embedded backbone, so f16 stays the default.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum DescriptorCoding {
+    /// f16 values: exact, 2 bytes per value.
+    #[default]
+    F16,
+    /// Product-quantised, one byte per 4 values (an eighth of f16's bytes).
+    Pq4,
+    /// Product-quantised, one byte per 2 values (a quarter of f16's bytes).
+    Pq2,
+    /// int8 values with a scale per row (about half of f16's bytes).
+    I8,
+}
+
+impl DescriptorCoding {
+    pub fn f16() -> Self {
+        DescriptorCoding::F16
+    }
+
+    /// Descriptor values per code byte; None for f16.
+    pub fn values_per_code(self) -> Option<usize> {
+        match self {
+            DescriptorCoding::F16 | DescriptorCoding::I8 => None,
+            DescriptorCoding::Pq4 => Some(4),
+            DescriptorCoding::Pq2 => Some(2),
+        }
+    }
 }
 
 impl Default for OnboardConfig {
     fn default() -> Self {
-        Self { views: ViewSampling::default(), render_size: 512, render_fill: 0.9, crop_padding: 0.1, min_coverage: 0.5, pca: PcaSetting::Auto }
+        Self { views: ViewSampling::default(), render_size: 512, render_fill: 0.9, crop_padding: 0.1, min_coverage: 0.5, pca: PcaSetting::Auto, descriptors: DescriptorCoding::F16 }
     }
 }
 
@@ -75,8 +111,9 @@ pub struct ObjectModel {
     /// `templates × global_dim`, L2-normalised rows.
     pub global: Vec<f32>,
     pub global_dim: usize,
-    /// `patches × local_dim`, f16, L2-normalised rows (after `pca` when there is one).
-    pub patch_descriptors: Vec<f16>,
+    /// `patches × local_dim`, L2-normalised rows (after `pca` when there is one), f16 or
+    /// product-quantised.
+    pub patch_descriptors: super::PatchDescriptors,
     pub local_dim: usize,
     /// The projection applied to the backbone's patch descriptors, if compressed.
     pub pca: Option<super::pca::Pca>,
@@ -115,10 +152,6 @@ impl ObjectModel {
         &self.global[t * self.global_dim..(t + 1) * self.global_dim]
     }
 
-    pub fn patch_descriptor(&self, p: usize) -> &[f16] {
-        &self.patch_descriptors[p * self.local_dim..(p + 1) * self.local_dim]
-    }
-
     /// Template silhouette, bit-packed (`SILHOUETTE_WORDS` words).
     pub fn silhouette_words(&self, t: usize) -> &[u64] {
         &self.silhouettes[t * SILHOUETTE_WORDS..(t + 1) * SILHOUETTE_WORDS]
@@ -155,7 +188,7 @@ impl ObjectModel {
         let d = self.mesh.data();
         let mesh = d.positions.len() * 12 + d.normals.len() * 12 + d.colors.len() * 12 + d.uvs.len() * 8 + d.triangles.len() * 12;
         let textures: usize = self.mesh.materials().iter().filter_map(|m| m.texture.as_ref()).map(|t| t.as_raw().len()).sum();
-        self.global.len() * 4 + self.patch_descriptors.len() * 2 + self.patch_points.len() * 12 + self.patch_cells.len() * 2 + self.silhouettes.len() * 8 + self.templates.len() * std::mem::size_of::<Template>() + mesh + textures + self.contours.get().map_or(0, |c| c.memory_bytes()) + self.detector.get().map_or(0, |d| d.memory_bytes())
+        self.global.len() * 4 + self.patch_descriptors.memory_bytes() + self.patch_points.len() * 12 + self.patch_cells.len() * 2 + self.silhouettes.len() * 8 + self.templates.len() * std::mem::size_of::<Template>() + mesh + textures + self.contours.get().map_or(0, |c| c.memory_bytes()) + self.detector.get().map_or(0, |d| d.memory_bytes())
     }
 
     /// Query patch descriptors (`n × backbone local_dim`) in the space of the stored ones.
@@ -172,7 +205,7 @@ impl ObjectModel {
         let p = self.patch_points.len();
         let checks = [
             (self.global.len() == t * self.global_dim, "global descriptors"),
-            (self.patch_descriptors.len() == p * self.local_dim, "patch descriptors"),
+            (self.patch_descriptors.shape_ok(self.local_dim) && self.patch_descriptors.rows(self.local_dim) == p, "patch descriptors"),
             (self.patch_cells.len() == p, "patch cells"),
             (self.silhouettes.len() == t * SILHOUETTE_WORDS, "silhouettes"),
             (self.local_dim == self.pca.as_ref().map_or(self.backbone.local_dim as usize, |p| p.output_dim), "local descriptor size vs backbone and PCA"),

@@ -122,6 +122,7 @@ pub fn onboard_cancellable(
     model.detector = std::sync::OnceLock::from(std::sync::Arc::new(shapes));
     model.symmetries = Some(tracing::info_span!("symmetries").in_scope(|| mesh_symmetries(mesh)));
     tracing::info_span!("pca").in_scope(|| apply_pca(&mut model, config.pca))?;
+    tracing::info_span!("quantize").in_scope(|| apply_coding(&mut model, config.descriptors))?;
     Ok(model)
 }
 
@@ -147,11 +148,25 @@ pub fn compress(m: &mut ObjectModel, dim: usize) -> Result<(), OnboardError> {
     if m.pca.is_some() {
         return Err(OnboardError::Config("the model is already PCA-compressed".into()));
     }
-    let pca = super::pca::Pca::fit(&m.patch_descriptors, m.local_dim, dim).map_err(OnboardError::Config)?;
-    m.patch_descriptors = pca.project_f16(&m.patch_descriptors);
+    let rows = m.patch_descriptors.as_half().ok_or_else(|| OnboardError::Config("PCA needs the f16 descriptors; these are quantised".into()))?;
+    let pca = super::pca::Pca::fit(rows, m.local_dim, dim).map_err(OnboardError::Config)?;
+    m.patch_descriptors = super::PatchDescriptors::Half(pca.project_f16(rows));
     m.local_dim = dim;
     m.pca = Some(pca);
     Ok(())
+}
+
+/// Stores the model's f16 patch descriptors as `coding` asks (after any PCA: the codes
+/// are learnt in the space they are matched in). A no-op for f16.
+pub fn apply_coding(m: &mut ObjectModel, coding: super::model::DescriptorCoding) -> Result<(), OnboardError> {
+    if coding == super::model::DescriptorCoding::I8 {
+        return m.patch_descriptors.to_int8(m.local_dim).map_err(OnboardError::Config);
+    }
+    let Some(per_code) = coding.values_per_code() else { return Ok(()) };
+    if m.local_dim < per_code || !m.local_dim.is_multiple_of(per_code) {
+        return Err(OnboardError::Config(format!("--descriptors {coding:?} needs descriptors of a multiple of {per_code} values, not {}: use --descriptors f16", m.local_dim)));
+    }
+    m.patch_descriptors.quantize(m.local_dim, m.local_dim / per_code).map_err(OnboardError::Config)
 }
 
 /// The templates of one base view (all its in-plane rotations).
@@ -267,7 +282,7 @@ fn assemble(
         mesh: mesh.clone(),
         templates: vec![],
         global: vec![],
-        patch_descriptors: vec![],
+        patch_descriptors: Default::default(),
         patch_points: vec![],
         patch_cells: vec![],
         silhouettes: vec![],
@@ -276,6 +291,7 @@ fn assemble(
         detector: Default::default(),
         symmetries: None,
     };
+    let mut descriptors = Vec::new();
     for p in parts {
         let offset = m.patch_points.len() as u32;
         m.templates.extend(p.templates.into_iter().map(|mut t| {
@@ -283,10 +299,11 @@ fn assemble(
             t
         }));
         m.global.extend(p.globals);
-        m.patch_descriptors.extend(p.descriptors);
+        descriptors.extend(p.descriptors);
         m.patch_points.extend(p.points);
         m.patch_cells.extend(p.cells);
         m.silhouettes.extend(p.silhouettes);
     }
+    m.patch_descriptors = super::PatchDescriptors::Half(descriptors);
     m
 }

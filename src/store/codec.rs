@@ -7,7 +7,7 @@ use crate::features::BackboneIdentity;
 use crate::geometry::{Intrinsics, PatchGrid};
 use crate::mesh::{Material, Mesh, MeshData, Part, Units};
 use crate::geometry::symmetry::KnownSymmetries;
-use crate::onboard::{ObjectModel, OnboardConfig, Template, MODEL_FORMAT_VERSION};
+use crate::onboard::{ObjectModel, OnboardConfig, PatchDescriptors, Template, MODEL_FORMAT_VERSION};
 use safetensors::{tensor::TensorView, Dtype, SafeTensors};
 use std::sync::Arc;
 
@@ -153,7 +153,6 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
     let p = model.patch_points.len();
     let mut tensors: Vec<(&str, Dtype, Vec<usize>, &[u8])> = vec![
         ("global", Dtype::F32, vec![t, model.global_dim], bytemuck::cast_slice(&model.global)),
-        ("patch_descriptors", Dtype::F16, vec![p, model.local_dim], bytemuck::cast_slice(&model.patch_descriptors)),
         ("patch_points", Dtype::F32, vec![p, 3], bytemuck::cast_slice(&model.patch_points)),
         ("patch_cells", Dtype::U16, vec![p], bytemuck::cast_slice(&model.patch_cells)),
         ("silhouettes", Dtype::U64, vec![model.silhouettes.len()], bytemuck::cast_slice(&model.silhouettes)),
@@ -163,6 +162,17 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
         ("mesh_uvs", Dtype::F32, vec![d.uvs.len(), 2], bytemuck::cast_slice(&d.uvs)),
         ("mesh_triangles", Dtype::U32, vec![d.triangles.len(), 3], bytemuck::cast_slice(&d.triangles)),
     ];
+    match &model.patch_descriptors {
+        PatchDescriptors::Half(v) => tensors.push(("patch_descriptors", Dtype::F16, vec![p, model.local_dim], bytemuck::cast_slice(v))),
+        PatchDescriptors::Quantized { quantizer, codes } => tensors.extend([
+            ("patch_codes", Dtype::U8, vec![p, quantizer.subspaces], codes.as_slice()),
+            ("pq_centroids", Dtype::F32, vec![quantizer.subspaces * crate::onboard::pq::CENTROIDS, quantizer.sub_dim()], bytemuck::cast_slice(&quantizer.centroids)),
+        ] as [(&str, Dtype, Vec<usize>, &[u8]); 2]),
+        PatchDescriptors::Int8 { codes, scales } => tensors.extend([
+            ("patch_codes_i8", Dtype::I8, vec![p, model.local_dim], bytemuck::cast_slice(codes.as_slice())),
+            ("patch_scales", Dtype::F32, vec![p], bytemuck::cast_slice(scales.as_slice())),
+        ] as [(&str, Dtype, Vec<usize>, &[u8]); 2]),
+    }
     if let Some(c) = model.contours.get() {
         let rows = c.points.len();
         tensors.extend([
@@ -281,10 +291,29 @@ pub fn decode(manifest: &[u8], tensors: &[u8], texture: &mut dyn FnMut(&str) -> 
         }
         None => std::sync::OnceLock::new(),
     };
+    // Format 6 may store codes and their centroids in place of the f16 rows.
+    let local_dim = man.pca.as_ref().map_or(man.backbone.local_dim as usize, |p| p.output_dim);
+    let patch_descriptors = if st.names().contains(&"patch_codes") {
+        let codes = st.tensor("patch_codes").map_err(|e| corrupt(format!("tensor patch_codes: {e}")))?;
+        let subspaces = match codes.shape() {
+            [_, m] if *m > 0 && codes.dtype() == Dtype::U8 => *m,
+            shape => return Err(corrupt(format!("tensor patch_codes has dtype {:?} shape {shape:?}, expected U8 with a column per subspace", codes.dtype()))),
+        };
+        if !local_dim.is_multiple_of(subspaces) {
+            return Err(corrupt(format!("{subspaces} code subspaces do not split descriptors of {local_dim} values")));
+        }
+        let quantizer = crate::onboard::pq::ProductQuantizer { dim: local_dim, subspaces, centroids: bytemuck::pod_collect_to_vec(get("pq_centroids", Dtype::F32, local_dim / subspaces)?) };
+        quantizer.validate().map_err(|e| corrupt(format!("pq_centroids: {e}")))?;
+        PatchDescriptors::Quantized { quantizer, codes: codes.data().to_vec() }
+    } else if st.names().contains(&"patch_codes_i8") {
+        PatchDescriptors::Int8 { codes: bytemuck::pod_collect_to_vec(get("patch_codes_i8", Dtype::I8, local_dim)?), scales: bytemuck::pod_collect_to_vec(get("patch_scales", Dtype::F32, 0)?) }
+    } else {
+        PatchDescriptors::Half(bytemuck::pod_collect_to_vec(get("patch_descriptors", Dtype::F16, 0)?))
+    };
     let model = ObjectModel {
         object_id: man.object_id,
         global_dim: man.backbone.global_dim as usize,
-        local_dim: man.pca.as_ref().map_or(man.backbone.local_dim as usize, |p| p.output_dim),
+        local_dim,
         pca: man.pca,
         backbone: man.backbone,
         config: man.config,
@@ -293,7 +322,7 @@ pub fn decode(manifest: &[u8], tensors: &[u8], texture: &mut dyn FnMut(&str) -> 
         mesh,
         templates: man.templates,
         global: bytemuck::pod_collect_to_vec(get("global", Dtype::F32, 0)?),
-        patch_descriptors: bytemuck::pod_collect_to_vec(get("patch_descriptors", Dtype::F16, 0)?),
+        patch_descriptors,
         patch_points: bytemuck::pod_collect_to_vec(get("patch_points", Dtype::F32, 3)?),
         patch_cells: bytemuck::pod_collect_to_vec(get("patch_cells", Dtype::U16, 0)?),
         silhouettes: bytemuck::pod_collect_to_vec(get("silhouettes", Dtype::U64, 0)?),
@@ -356,6 +385,48 @@ mod hostile_tests {
     }
 
     /// Symmetries load when they are rotations and axes, and are refused naming what is wrong.
+    /// Format 6's quantised descriptors: codes and the centroids they index load and
+    /// decode; codes that do not split the descriptors, of another type or count, and
+    /// missing, short or non-finite centroids are refused.
+    #[test]
+    fn quantised_descriptors_load_and_bad_ones_are_refused() {
+        use crate::onboard::pq::CENTROIDS;
+        let (manifest, tensors, texture) = seed();
+        let centroids: Vec<f32> = (0..2 * CENTROIDS * 2).map(|i| i as f32 / 1000.0).collect();
+        let coded = with_tensor(&tensors, "patch_codes", Dtype::U8, vec![2, 2], &[0, 1, 2, 3]);
+        let both = with_tensor(&coded, "pq_centroids", Dtype::F32, vec![2 * CENTROIDS, 2], bytemuck::cast_slice(&centroids));
+        let m = load(&manifest, &both, &texture).unwrap();
+        let mut row = Vec::new();
+        m.patch_descriptors.widen_into(4, 0..1, &mut row);
+        // Code 0 of subspace 0 and code 1 of subspace 1 (centroid 257), to unit length.
+        let norm = (0.001f32.powi(2) + 0.514f32.powi(2) + 0.515f32.powi(2)).sqrt();
+        let want = [0.0, 0.001 / norm, 0.514 / norm, 0.515 / norm];
+        assert!(row.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-6), "{row:?}");
+        let refused = |t: &[u8], needle: &str| {
+            let e = load(&manifest, t, &texture).unwrap_err();
+            assert!(e.contains(needle), "{needle:?} not in {e:?}");
+        };
+        refused(&with_tensor(&both, "patch_codes", Dtype::U8, vec![2, 3], &[0; 6]), "do not split");
+        refused(&with_tensor(&both, "patch_codes", Dtype::F32, vec![2, 2], &[0; 16]), "expected U8");
+        refused(&with_tensor(&both, "patch_codes", Dtype::U8, vec![3, 2], &[0; 6]), "patch descriptors do not match");
+        refused(&coded, "pq_centroids");
+        refused(&with_tensor(&coded, "pq_centroids", Dtype::F32, vec![10, 2], &[0; 80]), "centroid values");
+        let mut nan = centroids.clone();
+        nan[7] = f32::NAN;
+        refused(&with_tensor(&coded, "pq_centroids", Dtype::F32, vec![2 * CENTROIDS, 2], bytemuck::cast_slice(&nan)), "not finite");
+
+        // int8 values with a scale per row.
+        let codes: [i8; 8] = [127, 0, 0, 0, 0, -127, 0, 0];
+        let int8 = with_tensor(&with_tensor(&tensors, "patch_codes_i8", Dtype::I8, vec![2, 4], bytemuck::cast_slice(&codes)), "patch_scales", Dtype::F32, vec![2], bytemuck::cast_slice(&[0.5f32, 2.0]));
+        let m = load(&manifest, &int8, &texture).unwrap();
+        let mut rows = Vec::new();
+        m.patch_descriptors.widen_into(4, 0..2, &mut rows);
+        assert_eq!(rows, [1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0]);
+        refused(&with_tensor(&int8, "patch_codes_i8", Dtype::I8, vec![2, 3], &[0; 6]), "expected I8 with 4 columns");
+        refused(&with_tensor(&int8, "patch_scales", Dtype::F32, vec![3], bytemuck::cast_slice(&[1f32; 3])), "patch descriptors do not match");
+        refused(&with_tensor(&int8, "patch_scales", Dtype::F32, vec![2], bytemuck::cast_slice(&[1f32, f32::NAN])), "patch descriptors do not match");
+    }
+
     #[test]
     fn stored_symmetries_load_and_bad_ones_are_refused() {
         let (manifest, tensors, texture) = seed();
