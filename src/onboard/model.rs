@@ -66,14 +66,6 @@ impl DescriptorCoding {
         DescriptorCoding::F16
     }
 
-    /// Descriptor values per code byte; None for f16.
-    pub fn values_per_code(self) -> Option<usize> {
-        match self {
-            DescriptorCoding::F16 | DescriptorCoding::I8 => None,
-            DescriptorCoding::Pq4 => Some(4),
-            DescriptorCoding::Pq2 => Some(2),
-        }
-    }
 }
 
 impl Default for OnboardConfig {

@@ -159,10 +159,13 @@ pub fn compress(m: &mut ObjectModel, dim: usize) -> Result<(), OnboardError> {
 /// Stores the model's f16 patch descriptors as `coding` asks (after any PCA: the codes
 /// are learnt in the space they are matched in). A no-op for f16.
 pub fn apply_coding(m: &mut ObjectModel, coding: super::model::DescriptorCoding) -> Result<(), OnboardError> {
-    if coding == super::model::DescriptorCoding::I8 {
-        return m.patch_descriptors.to_int8(m.local_dim).map_err(OnboardError::Config);
-    }
-    let Some(per_code) = coding.values_per_code() else { return Ok(()) };
+    use super::model::DescriptorCoding;
+    let per_code = match coding {
+        DescriptorCoding::F16 => return Ok(()),
+        DescriptorCoding::I8 => return m.patch_descriptors.to_int8(m.local_dim).map_err(OnboardError::Config),
+        DescriptorCoding::Pq4 => 4,
+        DescriptorCoding::Pq2 => 2,
+    };
     if m.local_dim < per_code || !m.local_dim.is_multiple_of(per_code) {
         return Err(OnboardError::Config(format!("--descriptors {coding:?} needs descriptors of a multiple of {per_code} values, not {}: use --descriptors f16", m.local_dim)));
     }

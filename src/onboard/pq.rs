@@ -67,10 +67,9 @@ impl ProductQuantizer {
         let sub = self.sub_dim();
         rows.par_chunks_exact(self.dim)
             .flat_map_iter(|row| {
-                (0..self.subspaces).map(move |s| {
-                    let x: Vec<f32> = row[s * sub..(s + 1) * sub].iter().map(|v| v.to_f32()).collect();
-                    nearest(&self.centroids[s * CENTROIDS * sub..(s + 1) * CENTROIDS * sub], sub, &x).0 as u8
-                })
+                // Widened once per row, not once per subspace.
+                let x: Vec<f32> = row.iter().map(|v| v.to_f32()).collect();
+                (0..self.subspaces).map(move |s| nearest(&self.centroids[s * CENTROIDS * sub..(s + 1) * CENTROIDS * sub], sub, &x[s * sub..(s + 1) * sub]).0 as u8)
             })
             .collect()
     }

@@ -49,10 +49,10 @@ pub fn admit(api: &Api, r: &Request) -> Result<Option<Caller>, ServiceError> {
         if let Err(wait) = limiter.check(&client) {
             api.metrics.rate_limited(label);
             let spec = limiter.spec();
-            let refused = ServiceError::exhausted(String::new(), wait);
+            let mut refused = ServiceError::exhausted("", wait);
             let secs = refused.retry_after_secs().unwrap_or(1);
-            let msg = format!("rate limit of {} requests/s (burst {}) reached for {whose}; retry in {secs} s", spec.rate, spec.burst);
-            return Err(ServiceError { message: msg, ..refused });
+            refused.message = format!("rate limit of {} requests/s (burst {}) reached for {whose}; retry in {secs} s", spec.rate, spec.burst);
+            return Err(refused);
         }
     }
     if let Some(c) = &caller {

@@ -86,10 +86,6 @@ impl EstimateQueue {
         Arc::new(Self { config, slots: Arc::new(Semaphore::new(config.running)), waiting: AtomicUsize::new(0), service_s: Mutex::new(None) })
     }
 
-    pub fn config(&self) -> QueueConfig {
-        self.config
-    }
-
     /// Estimates running now.
     pub fn running(&self) -> usize {
         self.config.running - self.slots.available_permits().min(self.config.running)
