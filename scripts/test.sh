@@ -15,6 +15,9 @@ python3 -c "import openapi_spec_validator" 2>/dev/null \
 python3 tools/validate_openapi.py src/service/openapi.json
 # Licences, bans, sources (and advisories when GitHub answers): installs cargo-deny once.
 bash scripts/deny.sh
+# The S3 store's tests run against a real S3 server on loopback; installed, it must run.
+bash scripts/install-s3s-fs.sh
+export B2TF_S3S_FS="$PWD/.deps/s3s-fs/bin/s3s-fs" B2TF_REQUIRE_S3=1
 # setup.sh installed lavapipe, so a missing adapter is a failure here, not a skip.
 export B2TF_REQUIRE_GPU=1
 # setup.sh installed ONNX Runtime: the ONNX backbone's tests run, they do not skip.

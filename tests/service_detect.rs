@@ -59,7 +59,7 @@ fn detect_and_estimate_by_object_id_over_http_and_grpc() {
     let url = format!("dir://{}", dir.path().join("store").display());
     let server = start(&url, None, &[]);
     let base = server.http.clone();
-    let c = reqwest::blocking::Client::builder().timeout(Duration::from_secs(300)).build().unwrap();
+    let c = common::http_client().timeout(Duration::from_secs(300)).build().unwrap();
     let sc = scene();
     let k = sc.k;
     let b64 = |b: &[u8]| base64::engine::general_purpose::STANDARD.encode(b);

@@ -122,7 +122,7 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
         "detections": [{"object_id": "box", "mask_png": b64(&mask), "score": 0.9}],
         "options": {"rrc": false}
     });
-    let http: serde_json::Value = reqwest::Client::new().post(format!("{}/v1/estimate", server.http)).json(&http_body).send().await.unwrap().json().await.unwrap();
+    let http: serde_json::Value = common::async_http_client().build().unwrap().post(format!("{}/v1/estimate", server.http)).json(&http_body).send().await.unwrap().json().await.unwrap();
     let http_pose = &http["results"][0]["pose"];
     let nums = |v: &serde_json::Value| v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect::<Vec<_>>();
     assert_eq!((nums(&http_pose["R"]), nums(&http_pose["t"]), nums(&http_pose["quaternion_wxyz"])), (pose.r.clone(), pose.t.clone(), pose.quaternion_wxyz.clone()), "HTTP and gRPC differ");

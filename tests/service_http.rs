@@ -30,7 +30,7 @@ fn metric(c: &reqwest::blocking::Client, base: &str, name: &str) -> f64 {
 }
 
 fn client() -> reqwest::blocking::Client {
-    reqwest::blocking::Client::builder().timeout(Duration::from_secs(300)).build().unwrap()
+    common::http_client().timeout(Duration::from_secs(300)).build().unwrap()
 }
 
 fn call(c: &reqwest::blocking::Client, method: &str, url: &str, body: Option<&Value>) -> (u16, Value) {
@@ -402,11 +402,13 @@ fn await_metric(c: &reqwest::blocking::Client, base: &str, needle: &str) {
 
 /// A read-only replica notices, without a restart, that another process replaced or
 /// deleted an object it holds in memory (a generation check every --revalidate-s), on a
-/// store of each kind.
+/// store of each kind (S3: a real server on loopback, tests/common/s3.rs).
 #[test]
 fn replica_picks_up_replaced_and_deleted_objects() {
     let dir = tempfile::tempdir().unwrap();
-    for url in [format!("dir://{}", dir.path().join("objects").display()), format!("sqlite://{}", dir.path().join("objects.db").display())] {
+    let s3 = common::s3::S3Server::start(dir.path());
+    let urls = [format!("dir://{}", dir.path().join("objects").display()), format!("sqlite://{}", dir.path().join("objects.db").display())];
+    for url in urls.into_iter().chain(s3.as_ref().map(|s| s.url("objects"))) {
         writer(&["onboard"], &url, dir.path());
         let server = start(&url, None, &["--read-only", "--revalidate-s", "0.2"]);
         let (c, base) = (client(), server.http.clone());

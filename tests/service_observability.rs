@@ -27,7 +27,7 @@ fn is_generated(id: &str) -> bool {
 }
 
 fn wait_ready(base: &str) {
-    let c = reqwest::blocking::Client::new();
+    let c = common::http_client().build().unwrap();
     let t = Instant::now();
     while c.get(format!("{base}/readyz")).send().map(|r| r.status().as_u16()).unwrap_or(0) != 200 {
         assert!(t.elapsed() < Duration::from_secs(60), "never ready");
@@ -104,7 +104,7 @@ fn request_ids_on_every_answer_and_json_logs_without_secrets() {
     let dir = tempfile::tempdir().unwrap();
     let store = format!("sqlite://{}", dir.path().join("objects.db").display());
     let (server, logs) = start_logged(&store, Some(KEY), &["--log-format", "json", "--max-track-sessions", "1"], &[("B2TF_LOG", "info,b2tfpose=debug")]);
-    let (base, c) = (server.http.clone(), reqwest::blocking::Client::new());
+    let (base, c) = (server.http.clone(), common::http_client().build().unwrap());
     wait_ready(&base);
     let auth = |r: reqwest::blocking::RequestBuilder| r.bearer_auth(KEY);
     // (request id, expected status) of every call, for the log checks.
@@ -252,7 +252,7 @@ fn spans_reach_an_otlp_collector_with_the_request_id_and_stages() {
     let dir = tempfile::tempdir().unwrap();
     let store = format!("sqlite://{}", dir.path().join("objects.db").display());
     let (mut server, _logs) = start_logged(&store, None, &["--otlp-endpoint", &endpoint], &[]);
-    let (base, c) = (server.http.clone(), reqwest::blocking::Client::new());
+    let (base, c) = (server.http.clone(), common::http_client().build().unwrap());
     wait_ready(&base);
     let files = sample_files(dir.path());
     let onboard = json!({"object_id": "box", "options": {"level": 0, "in_plane": 2},
@@ -315,7 +315,7 @@ fn bad_telemetry_settings_are_refused_and_an_absent_collector_holds_nothing_up()
     // A collector that is not there: requests are answered at once, the exit is bounded.
     let store = format!("sqlite://{}", dir.path().join("objects.db").display());
     let (mut server, logs) = start_logged(&store, None, &["--otlp-endpoint", "http://127.0.0.1:9"], &[]);
-    let c = reqwest::blocking::Client::new();
+    let c = common::http_client().build().unwrap();
     let t = Instant::now();
     for _ in 0..20 {
         assert_eq!(c.get(format!("{}/v1/objects", server.http)).send().unwrap().status(), 200);

@@ -44,7 +44,7 @@ async fn scopes_on_both_protocols() {
     let keys = dir.path().join("keys");
     std::fs::write(&keys, KEYS).unwrap();
     let server = start(&format!("sqlite://{}", dir.path().join("o.db").display()), None, &["--api-keys-file", keys.to_str().unwrap()]);
-    let (c, base) = (reqwest::Client::new(), server.http.clone());
+    let (c, base) = (common::async_http_client().build().unwrap(), server.http.clone());
     let url = |p: &str| format!("{base}{p}");
 
     // (method, path, key, status): each scope lets its routes through (to 200 / 404 /
@@ -109,7 +109,7 @@ async fn scopes_on_both_protocols() {
 async fn rate_limits_per_key_and_per_address() {
     let dir = tempfile::tempdir().unwrap();
     let store = format!("sqlite://{}", dir.path().join("o.db").display());
-    let c = reqwest::Client::new();
+    let c = common::async_http_client().build().unwrap();
     // 6 a minute: nothing refills during the test.
     let server = start(&store, Some("key-a,key-b"), &["--rate-limit", "6/m", "--rate-burst", "3"]);
     let url = |p: &str| format!("{}{p}", server.http);

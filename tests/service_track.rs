@@ -101,7 +101,7 @@ async fn sessions_and_streams_track_refuse_bad_frames_and_expire() {
 
     let server = start(&store, None, &["--max-track-sessions", "2", "--track-idle-timeout-s", "3"]);
     let base = server.http.clone();
-    let c = reqwest::Client::builder().timeout(Duration::from_secs(300)).build().unwrap();
+    let c = common::async_http_client().timeout(Duration::from_secs(300)).build().unwrap();
     let t = Instant::now();
     while c.get(format!("{base}/readyz")).send().await.map(|r| r.status().as_u16()).ok() != Some(200) {
         assert!(t.elapsed() < Duration::from_secs(60), "never ready");

@@ -1,7 +1,8 @@
 //! The shared test suite of the object stores (`src/store`): every check is one function
-//! `check_*(url)` that runs against both backends, `dir://` and `sqlite://` (see
-//! `shared_suite!` at the end), through the `ObjectStore` trait; only the deliberate damage
-//! to stored bytes is backend specific.
+//! `check_*(url)` that runs against every backend, `dir://`, `sqlite://` and `s3://` (a
+//! real S3 server, `s3s-fs`, on loopback; see `shared_suite!` at the end), through the
+//! `ObjectStore` trait; only the deliberate damage to stored bytes and the look at what a
+//! killed writer left are backend specific.
 //!
 //! The multi-process checks (a writer killed mid-put, readers beside a writer) re-run this
 //! test binary as the child processes: `child_entry` is an ignored test that returns at once
@@ -25,6 +26,9 @@ use b2tfpose::geometry::symmetry::{ContinuousSymmetry, DiscreteSymmetry, KnownSy
 use std::sync::{mpsc, Arc, OnceLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+#[path = "common/s3.rs"]
+mod s3_server;
 
 // ---------------------------------------------------------------------------------------
 // Test objects
@@ -156,6 +160,11 @@ fn now_unix_s() -> u64 {
 
 /// The file system path behind a store URL.
 fn store_path(url: &str) -> PathBuf {
+    if let Some(rest) = url.strip_prefix("s3://") {
+        let (location, _) = rest.split_once('?').unwrap_or((rest, ""));
+        let (bucket, prefix) = location.split_once('/').unwrap_or((location, ""));
+        return s3_root(url).join(bucket).join(prefix);
+    }
     let p = url.strip_prefix("dir://").or_else(|| url.strip_prefix("sqlite://")).unwrap_or_else(|| panic!("unexpected store URL {url}"));
     PathBuf::from(p)
 }
@@ -167,6 +176,28 @@ fn test_folder(url: &str) -> PathBuf {
 
 fn is_sqlite(url: &str) -> bool {
     url.starts_with("sqlite://")
+}
+
+fn is_s3(url: &str) -> bool {
+    url.starts_with("s3://")
+}
+
+/// The folders the S3 test servers of this process serve, by port.
+static S3_ROOTS: std::sync::Mutex<Vec<(u16, PathBuf)>> = std::sync::Mutex::new(Vec::new());
+
+/// The folder of the S3 server an `s3://` URL's endpoint names.
+fn s3_root(url: &str) -> PathBuf {
+    let port: u16 = url.split("127.0.0.1:").nth(1).and_then(|r| r.split('&').next()).and_then(|p| p.parse().ok()).unwrap_or_else(|| panic!("no test server port in {url}"));
+    S3_ROOTS.lock().unwrap().iter().find(|(p, _)| *p == port).map(|(_, r)| r.clone()).unwrap_or_else(|| panic!("no S3 test server on port {port}"))
+}
+
+/// How the store names itself in `url()` and in errors: its URL (secrets masked) or path.
+fn store_label(url: &str) -> String {
+    if is_s3(url) {
+        s3_server::shown(url)
+    } else {
+        store_path(url).display().to_string()
+    }
 }
 
 /// A plain connection to a SQLite store's file, for inspecting or damaging it by hand.
@@ -234,14 +265,22 @@ fn damage(url: &str, id: &str, how: Damage) {
         assert_eq!(changed, 1, "{how:?} of {id} changed {changed} rows");
     } else {
         let dir = store_path(url).join(id);
+        // S3: the parts of the object's one write.
+        let tensors = if is_s3(url) {
+            let writes: Vec<_> = std::fs::read_dir(dir.join("parts")).expect("parts").flatten().collect();
+            assert_eq!(writes.len(), 1, "one write of {id}");
+            writes[0].path().join("tensors.safetensors")
+        } else {
+            dir.join("tensors.safetensors")
+        };
         let (file, bytes) = match how {
             Damage::GarbledTensors => {
-                let f = dir.join("tensors.safetensors");
+                let f = tensors.clone();
                 let len = std::fs::metadata(&f).expect("tensors file").len() as usize;
                 (f, garbage(len))
             }
             Damage::TruncatedTensors => {
-                let f = dir.join("tensors.safetensors");
+                let f = tensors.clone();
                 let b = std::fs::read(&f).expect("tensors file");
                 (f, b[..b.len() / 2].to_vec())
             }
@@ -512,7 +551,7 @@ fn check_round_trip(url: &str) {
     let Some(m) = model() else { return };
     let started = now_unix_s();
     let store = store::open(url).expect("open");
-    assert_eq!(store.url(), url);
+    assert_eq!(store.url(), if is_s3(url) { s3_server::shown(url) } else { url.to_string() });
     assert!(store.list().expect("list").is_empty(), "a new store is empty");
 
     let info = store.put(m, false).expect("put");
@@ -621,32 +660,48 @@ fn check_list_info_exists_delete(url: &str) {
 /// neither creates a missing store nor removes a writer's leftovers.
 fn check_read_only(url: &str) {
     let Some(m) = model() else { return };
-    let path = store_path(url);
-    assert!(store::open_read_only(url).is_err(), "a missing store is refused");
-    assert!(!path.exists(), "a read-only open created {}", path.display());
+    // An S3 store is missing when its bucket is (buckets are made by their owner).
+    let missing = if is_s3(url) { url.replacen(s3_server::BUCKET, "b2tf-missing", 1) } else { url.to_string() };
+    assert!(store::open_read_only(&missing).is_err(), "a missing store is refused");
+    assert!(!store_path(&missing).exists(), "a read-only open created {}", store_path(&missing).display());
     let writer = store::open(url).expect("open");
     writer.put(&with_id(m, "obj-a"), false).expect("put");
-    // A temporary folder of a writer in another container: its pid means nothing here, so
-    // only a writer's open may judge it abandoned.
-    let leftover = path.join(".obj-z.tmp-999999999-0");
-    if !is_sqlite(url) {
-        std::fs::create_dir(&leftover).expect("leftover");
-    }
+    let leftover = plant_abandoned_write(url);
     let ro = store::open_read_only(url).expect("open read-only");
-    assert!(is_sqlite(url) || leftover.is_dir(), "a read-only open removed a writer's temporary folder");
+    assert!(leftover.as_ref().is_none_or(|p| p.exists()), "a read-only open removed a writer's unfinished put");
     assert_same(&with_id(m, "obj-a"), &ro.get("obj-a").expect("get"));
     assert_eq!(ro.info("obj-a").expect("info"), writer.info("obj-a").expect("info"));
     // Objects the writer adds later are served without reopening.
     writer.put(&with_id(m, "obj-b"), false).expect("put");
     assert_eq!(ro.list().expect("list").iter().map(|i| i.id.as_str()).collect::<Vec<_>>(), ["obj-a", "obj-b"]);
     let refused = |r: Result<(), StoreError>, what: &str| match r {
-        Err(e @ StoreError::ReadOnly(_)) => assert!(e.to_string().contains(&path.display().to_string()), "{what}: {e}"),
+        Err(e @ StoreError::ReadOnly(_)) => assert!(e.to_string().contains(&store_label(url)), "{what}: {e}"),
         other => panic!("{what} on a read-only store: {other:?}"),
     };
     refused(ro.put(&with_id(m, "obj-c"), false).map(|_| ()), "put");
     refused(ro.put(&with_id(m, "obj-a"), true).map(|_| ()), "replacing put");
     refused(ro.delete("obj-a"), "delete");
     assert!(ro.exists("obj-a").expect("exists") && !writer.exists("obj-c").expect("exists"));
+}
+
+/// Puts what a writer in another container left mid-put long ago (its pid means nothing
+/// here, so only a writer's open may judge it abandoned): dir, a temporary folder; S3,
+/// parts of a write without a manifest, two hours old. `None` for SQLite (its transaction
+/// simply never commits).
+fn plant_abandoned_write(url: &str) -> Option<PathBuf> {
+    if is_sqlite(url) {
+        return None;
+    }
+    if is_s3(url) {
+        let part = store_path(url).join("obj-z/parts/00000000000000ff/tensors.safetensors");
+        std::fs::create_dir_all(part.parent().unwrap()).expect("parts folder");
+        let f = std::fs::File::create(&part).expect("abandoned part");
+        f.set_modified(SystemTime::now() - Duration::from_secs(7200)).expect("aging it");
+        return Some(part);
+    }
+    let leftover = store_path(url).join(".obj-z.tmp-999999999-0");
+    std::fs::create_dir(&leftover).expect("leftover");
+    Some(leftover)
 }
 
 /// Ids that could escape the store (traversal, separators, hidden names) or are out of
@@ -733,10 +788,14 @@ fn check_damage(url: &str) {
 
 /// Bytes of a put of `id` by process `pid` that are on disk already (`None`: nothing yet).
 /// dir: the writer's hidden temporary folder's tensors file; sqlite: growth of the WAL
-/// beyond `wal_before` (the uncommitted transaction's pages).
+/// beyond `wal_before` (the uncommitted transaction's pages); S3: the upload the server is
+/// receiving (the tensors come first).
 fn partial_write_bytes(url: &str, id: &str, pid: u32, wal_before: u64) -> Option<u64> {
     let path = store_path(url);
-    if is_sqlite(url) {
+    if is_s3(url) {
+        let root = s3_root(url);
+        std::fs::read_dir(&root).ok()?.flatten().filter(|e| e.file_name().to_string_lossy().ends_with(".internal.part")).filter_map(|e| e.metadata().ok().map(|m| m.len())).max()
+    } else if is_sqlite(url) {
         let wal = std::fs::metadata(format!("{}-wal", path.display())).map(|m| m.len()).unwrap_or(0);
         wal.checked_sub(wal_before).filter(|&n| n > 0)
     } else {
@@ -789,7 +848,7 @@ fn check_killed_put(url: &str) {
     let out = child.finish(Duration::from_secs(30));
     assert_eq!(out.status.signal(), Some(9), "the writer must die of SIGKILL, not exit ({}); output:\n{}", out.status, out.output);
     assert!(!out.messages.iter().any(|l| l == "done"), "the put finished before the kill; output:\n{}", out.output);
-    if !is_sqlite(url) {
+    if url.starts_with("dir://") {
         // Still in its temporary folder: the kill came before the rename that commits.
         assert!(partial_write_bytes(url, "obj-big", pid, 0).is_some(), "the killed writer's temporary folder is gone: was the put complete?");
     }
@@ -808,7 +867,7 @@ fn check_killed_put(url: &str) {
         assert_eq!(check, "ok");
         let orphans: i64 = c.query_row("SELECT COUNT(*) FROM chunks WHERE object_id = 'obj-big'", [], |r| r.get(0)).expect("count");
         assert_eq!(orphans, 0, "no chunks of the killed put survive");
-    } else {
+    } else if url.starts_with("dir://") {
         let leftovers: Vec<PathBuf> = tree(&store_path(url)).into_iter().filter(|p| p.to_string_lossy().starts_with('.')).collect();
         assert!(leftovers.is_empty(), "opening removes what the killed writer left: {leftovers:?}");
     }
@@ -946,7 +1005,8 @@ fn check_cache(url: &str) {
     assert_eq!((s.objects, s.misses), (1, 2), "{s:?}");
 }
 
-/// Runs each check against both backends, each in a fresh temporary folder.
+/// Runs each check against every backend, each in a fresh temporary folder (S3: its own
+/// server).
 macro_rules! shared_suite {
     ($($name:ident => $check:ident),+ $(,)?) => {
         mod dir {
@@ -964,6 +1024,17 @@ macro_rules! shared_suite {
                 fn $name() {
                     let tmp = tempfile::tempdir().expect("temp dir");
                     super::$check(&format!("sqlite://{}", tmp.path().join("objects.db").display()));
+                }
+            )+
+        }
+        mod s3 {
+            $(
+                #[test]
+                fn $name() {
+                    let tmp = tempfile::tempdir().expect("temp dir");
+                    let Some(server) = super::s3_server::S3Server::start(tmp.path()) else { return };
+                    super::S3_ROOTS.lock().unwrap().push((server.port, server.root.clone()));
+                    super::$check(&server.url("objects"));
                 }
             )+
         }
@@ -987,5 +1058,127 @@ fn open_refuses_unknown_urls() {
     for url in ["", "objects.db", "ftp://host/objects", "dir://", "sqlite://", "sqlite://:memory:", "file:///tmp/x"] {
         assert!(matches!(store::open(url), Err(StoreError::BadUrl(_))), "{url:?}");
         assert!(matches!(store::open_read_only(url), Err(StoreError::BadUrl(_))), "{url:?}");
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// S3 only: what a network store adds
+// ---------------------------------------------------------------------------------------
+
+/// A server of this test's own (registered for the URL helpers), `None` when s3s-fs is
+/// not installed and not required.
+fn s3_test_server(dir: &Path) -> Option<s3_server::S3Server> {
+    let server = s3_server::S3Server::start(dir)?;
+    S3_ROOTS.lock().unwrap().push((server.port, server.root.clone()));
+    Some(server)
+}
+
+/// The S3 server dies (SIGKILL) while a big put uploads: the put returns an error instead
+/// of hanging, calls fail while the server is away, and once it is back the object is
+/// absent, the earlier one intact, and the id free.
+#[test]
+fn s3_server_that_disappears_mid_put_leaves_no_object() {
+    let Some(m) = model() else { return };
+    let tmp = tempfile::tempdir().expect("temp dir");
+    let Some(mut server) = s3_test_server(tmp.path()) else { return };
+    let url = server.url("objects");
+    let store = store::open(&url).expect("open");
+    store.put(&with_id(m, "obj-a"), false).expect("put");
+    let big = enlarged(m, "obj-big", big_copies(m));
+    let expected = codec::encode(&big).expect("encode").tensors.len() as u64;
+    let writer = {
+        let (store, big) = (store.clone(), big.clone());
+        std::thread::spawn(move || store.put(&big, false).map(|i| i.id))
+    };
+    let began = Instant::now();
+    while partial_write_bytes(&url, "obj-big", 0, 0).is_none_or(|n| n < expected / 2) {
+        assert!(!writer.is_finished(), "the put finished before the server could be stopped: make the object bigger");
+        assert!(began.elapsed() < CHILD_TIMEOUT, "no upload of obj-big seen within {CHILD_TIMEOUT:?}");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    server.kill();
+    let killed = Instant::now();
+    let outcome = writer.join().expect("the writer thread");
+    eprintln!("the put answered {:.2?} after the server died: {outcome:?}", killed.elapsed());
+    match outcome {
+        Err(e @ StoreError::Remote { .. }) => assert!(e.to_string().contains("obj-big"), "{e}"),
+        other => panic!("a put whose server died: expected a Remote error, got {other:?}"),
+    }
+    // Retries are bounded (the URL allows 2 in 10 s): generous, only to catch a hang.
+    assert!(killed.elapsed() < Duration::from_secs(120), "the put took {:.0?} to give up", killed.elapsed());
+    assert!(matches!(store.list(), Err(StoreError::Remote { .. })), "list while the server is down");
+    assert!(matches!(store.exists("obj-a"), Err(StoreError::Remote { .. })), "exists while the server is down");
+
+    server.restart();
+    assert!(!store.exists("obj-big").expect("exists"), "an interrupted put leaves no object");
+    assert_eq!(store.list().expect("list").into_iter().map(|i| i.id).collect::<Vec<_>>(), ["obj-a"]);
+    assert_same(&with_id(m, "obj-a"), &store.get("obj-a").expect("the earlier object is intact"));
+    store.put(&big, false).expect("the same put again, with the server back");
+    assert_same(&big, &store.get("obj-big").expect("get"));
+}
+
+/// Parts of writes that never got their manifest (killed puts) are removed by a writer's
+/// open once old enough, never by a read-only one; a replace removes the old write.
+#[test]
+fn s3_abandoned_and_replaced_writes_are_removed() {
+    let Some(m) = model() else { return };
+    let tmp = tempfile::tempdir().expect("temp dir");
+    let Some(server) = s3_test_server(tmp.path()) else { return };
+    let url = server.url("objects");
+    let store = store::open(&url).expect("open");
+    // Write folders that still hold a part (S3 has no folders; s3s-fs leaves empty ones).
+    let writes = |id: &str| tree(&store_path(&url).join(id).join("parts")).iter().filter(|p| p.components().count() > 1 && store_path(&url).join(id).join("parts").join(p).is_file()).filter_map(|p| p.components().next()).collect::<BTreeSet<_>>().len();
+    store.put(&with_id(m, "obj-a"), false).expect("put");
+    store.put(&generation(m, "obj-a", 2), true).expect("replace");
+    assert_eq!(writes("obj-a"), 1, "a replace removes the old write");
+
+    let old = plant_abandoned_write(&url).expect("an abandoned write");
+    let young = store_path(&url).join("obj-y/parts/00000000000000aa/tensors.safetensors");
+    std::fs::create_dir_all(young.parent().unwrap()).expect("folder");
+    std::fs::write(&young, b"uploading").expect("a young part");
+    store::open_read_only(&url).expect("read-only open");
+    assert!(old.exists() && young.exists(), "a read-only open removes nothing");
+    store::open(&url).expect("writer open");
+    assert!(!old.exists(), "a writer's open removes parts abandoned an hour ago");
+    assert!(young.exists(), "a young part may be a put under way elsewhere");
+    b2tfpose::store::s3::S3Store::open_with_orphan_age(&url, Duration::ZERO).expect("open");
+    assert!(!young.exists());
+    assert_eq!(store.list().expect("list").into_iter().map(|i| i.id).collect::<Vec<_>>(), ["obj-a"]);
+    assert_same(&generation(m, "obj-a", 2), &store.get("obj-a").expect("get"));
+}
+
+/// A wrong bucket, wrong credentials or no server at all fail the open with the store's
+/// URL (secrets masked) and S3's reason, quickly; malformed URLs are refused before any
+/// request.
+#[test]
+fn s3_open_names_what_is_wrong() {
+    let tmp = tempfile::tempdir().expect("temp dir");
+    let Some(mut server) = s3_test_server(tmp.path()) else { return };
+    let url = server.url("objects");
+    let cases = [
+        (url.replacen(s3_server::BUCKET, "no-such-bucket", 1), "NoSuchBucket"),
+        (url.replace("secret_access_key=b2tf-test-secret", "secret_access_key=wrong"), "SignatureDoesNotMatch"),
+    ];
+    for (bad, says) in &cases {
+        for (what, r) in [("open", store::open(bad).map(drop)), ("read-only open", store::open_read_only(bad).map(drop))] {
+            match r {
+                Err(e @ StoreError::Remote { .. }) => {
+                    let text = e.to_string();
+                    assert!(text.contains(says) && !text.contains("wrong") && !text.contains("b2tf-test-secret"), "{what} of {bad}: {text}");
+                }
+                other => panic!("{what} of {bad}: expected a Remote error, got {:?}", other.err()),
+            }
+        }
+    }
+    server.kill();
+    let began = Instant::now();
+    match store::open(&url) {
+        Err(e @ StoreError::Remote { .. }) => assert!(e.to_string().contains(&format!("127.0.0.1:{}", server.port)), "{e}"),
+        other => panic!("open without a server: {:?}", other.err()),
+    }
+    assert!(began.elapsed() < Duration::from_secs(60), "giving up took {:.0?}", began.elapsed());
+    for bad in ["s3://", "s3://UPPER/x", "s3://bucket/a/../b", "s3://bucket/x?colour=blue", "s3://bucket/x?max_retries=lots"] {
+        assert!(matches!(store::open(bad), Err(StoreError::BadUrl(_))), "{bad}");
+        assert!(matches!(store::open_read_only(bad), Err(StoreError::BadUrl(_))), "{bad}");
     }
 }

@@ -70,6 +70,8 @@ impl From<crate::store::StoreError> for ServiceError {
             S::NotFound(_) => ErrorKind::NotFound,
             S::AlreadyExists(_) => ErrorKind::AlreadyExists,
             S::ReadOnly(_) => ErrorKind::PermissionDenied,
+            // The store's server is down or refuses us: worth retrying, not a bug here.
+            S::Remote { .. } => ErrorKind::Unavailable,
             _ => ErrorKind::Internal,
         };
         Self::new(kind, e.to_string())

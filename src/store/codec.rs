@@ -93,6 +93,8 @@ pub struct ManifestSummary {
     pub templates: usize,
     pub created_unix_s: u64,
     pub symmetries: Option<KnownSymmetries>,
+    /// The write it comes from (`Manifest::generation`); `None` before format 2.
+    pub generation: Option<u64>,
 }
 
 /// A number for one write, different from every other write's (time, pid and a counter).
@@ -217,6 +219,7 @@ pub fn summary(manifest: &[u8]) -> Result<ManifestSummary, CodecError> {
         templates: m.templates.len(),
         created_unix_s: m.created_unix_s,
         symmetries: m.symmetries,
+        generation: m.generation,
     })
 }
 

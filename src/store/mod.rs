@@ -1,6 +1,7 @@
-//! Object databases: where onboarded objects live between runs. One trait, two backends:
-//! a folder per object (`dir://PATH`) and one SQLite file (`sqlite://PATH.db`, the
-//! default), both holding the same encoded form (`codec.rs`), plus an in-memory LRU cache
+//! Object databases: where onboarded objects live between runs. One trait, three backends:
+//! a folder per object (`dir://PATH`), one SQLite file (`sqlite://PATH.db`, the default)
+//! and an S3 bucket (`s3://BUCKET/PREFIX`), all holding the same encoded form
+//! (`codec.rs`), plus an in-memory LRU cache
 //! of loaded objects under a byte budget (`cache.rs`).
 //!
 //! Guarantees every backend keeps (and the shared test suite checks): a put is atomic (an
@@ -11,6 +12,7 @@ pub mod cache;
 pub mod codec;
 pub mod dir;
 pub mod read_only;
+pub mod s3;
 pub mod sqlite;
 
 pub use cache::ModelCache;
@@ -57,8 +59,12 @@ pub enum StoreError {
     Database { context: String, message: String },
     #[error("store database {path} has schema version {found}, newer than this program understands ({supported}); upgrade b2tfpose")]
     SchemaTooNew { path: PathBuf, found: u32, supported: u32 },
-    #[error("store URL {0:?}: expected dir://PATH or sqlite://PATH")]
+    #[error("store URL {0}: expected dir://PATH, sqlite://PATH or s3://BUCKET[/PREFIX][?OPTIONS]")]
     BadUrl(String),
+    /// A remote store (S3) did not answer as it should: unreachable, refused credentials,
+    /// a missing bucket.
+    #[error("{context}: {message}")]
+    Remote { context: String, message: String },
     #[error("store {0} is open read-only: onboard and delete objects with a writer on the same store (e.g. `b2tf onboard --store {0}`, or a server without --read-only)")]
     ReadOnly(String),
 }
@@ -114,9 +120,12 @@ pub fn default_url() -> String {
     format!("sqlite://{}", data.join("b2tfpose/objects.db").display())
 }
 
-/// Opens `dir://PATH` or `sqlite://PATH` (created when missing).
+/// Opens `dir://PATH` or `sqlite://PATH` (created when missing), or `s3://BUCKET/PREFIX`
+/// (the bucket must exist).
 pub fn open(url: &str) -> Result<Arc<dyn ObjectStore>, StoreError> {
-    if let Some(p) = url.strip_prefix("dir://") {
+    if url.starts_with("s3://") {
+        Ok(Arc::new(s3::S3Store::open(url)?))
+    } else if let Some(p) = url.strip_prefix("dir://") {
         if p.is_empty() {
             return Err(StoreError::BadUrl(url.into()));
         }
@@ -136,6 +145,7 @@ pub fn open(url: &str) -> Result<Arc<dyn ObjectStore>, StoreError> {
 /// deletes are refused. For replicas that share a store another process writes.
 pub fn open_read_only(url: &str) -> Result<Arc<dyn ObjectStore>, StoreError> {
     let inner: Arc<dyn ObjectStore> = match (url.strip_prefix("dir://"), url.strip_prefix("sqlite://")) {
+        _ if url.starts_with("s3://") => Arc::new(s3::S3Store::open_read_only(url)?),
         (Some(p), _) if !p.is_empty() => Arc::new(dir::DirStore::open_read_only(p)?),
         (_, Some(p)) if !p.is_empty() => Arc::new(sqlite::SqliteStore::open_read_only(p)?),
         _ => return Err(StoreError::BadUrl(url.into())),

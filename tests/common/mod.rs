@@ -2,6 +2,8 @@
 //! generated sample object with a rendered photo of it at a known pose.
 #![allow(dead_code)]
 
+pub mod s3;
+
 use b2tfpose::geometry::views::view_pose;
 use b2tfpose::geometry::{Intrinsics, Pose};
 use b2tfpose::mesh::procedural::textured_box;
@@ -9,6 +11,20 @@ use b2tfpose::mesh::Mesh;
 use b2tfpose::render::{RenderOptions, RenderOutput, RenderPool, RendererConfig};
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
+
+/// A blocking HTTP client builder. reqwest's TLS (rustls, which the S3 store enables) needs
+/// a process-wide crypto provider before any client is built, even for plain http; ring is
+/// the one the product uses.
+pub fn http_client() -> reqwest::blocking::ClientBuilder {
+    let _ = rustls::crypto::ring::default_provider().install_default();
+    reqwest::blocking::Client::builder()
+}
+
+/// `http_client`, async.
+pub fn async_http_client() -> reqwest::ClientBuilder {
+    let _ = rustls::crypto::ring::default_provider().install_default();
+    reqwest::Client::builder()
+}
 
 pub struct Server {
     pub child: Child,
