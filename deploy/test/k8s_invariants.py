@@ -1,13 +1,44 @@
 #!/usr/bin/env python3
 """What the schemas cannot check in rendered manifests (kubectl kustomize output):
 the replicas never write the shared store, refuse writes server-side, and get enough time
-to drain on SIGTERM; the onboarding Job is the store's writer.
+to drain on SIGTERM; the onboarding Job is the store's writer. A volume store: the replicas
+mount it read-only, the Job writable. An S3 store (B2TF_STORE=s3://...): no volume at all,
+and the replicas and the Job both get the bucket's settings and credentials.
 
 usage: k8s_invariants.py RENDERED.yaml
 """
 import sys
 
 import yaml
+
+
+def env_sources(spec: dict) -> set:
+    """The ConfigMaps and Secrets a pod's first container takes whole (envFrom)."""
+    out = set()
+    for e in spec["containers"][0].get("envFrom", []):
+        for kind, key in (("ConfigMap", "configMapRef"), ("Secret", "secretRef")):
+            if key in e:
+                out.add((kind, e[key]["name"]))
+    return out
+
+
+def check_s3(docs: dict, pod: dict, job: dict) -> list:
+    problems = []
+    if any(kind == "PersistentVolumeClaim" and name == "b2tf-store" for kind, name in docs):
+        problems.append("S3 store, yet the b2tf-store claim is still there")
+    for who, spec in (("Deployment", pod), ("Job b2tf-onboard", job)):
+        if any("persistentVolumeClaim" in v for v in spec.get("volumes", [])):
+            problems.append(f"{who}: mounts a volume claim although the store is S3")
+        sources = env_sources(spec)
+        for kind, name in sources:
+            if kind != "ConfigMap" or name != "b2tf-config":
+                if (kind, name) not in docs:
+                    problems.append(f"{who}: envFrom names {kind} {name}, which is not in the manifests")
+        if not any(kind == "Secret" for kind, _ in sources):
+            problems.append(f"{who}: gets no credentials Secret for the bucket")
+        if not any(kind == "ConfigMap" and name != "b2tf-config" for kind, name in sources):
+            problems.append(f"{who}: gets no AWS_* settings ConfigMap for the bucket")
+    return problems
 
 
 def main(path: str) -> None:
@@ -19,8 +50,11 @@ def main(path: str) -> None:
     problems = []
     if config.get("B2TF_READ_ONLY") != "1":
         problems.append('ConfigMap b2tf-config: B2TF_READ_ONLY is not "1"')
+    on_s3 = config["B2TF_STORE"].startswith("s3://")
     store = [v for v in pod["volumes"] if v.get("persistentVolumeClaim", {}).get("claimName") == "b2tf-store"]
-    if not store or not store[0]["persistentVolumeClaim"].get("readOnly"):
+    if on_s3:
+        problems += check_s3(docs, pod, job)
+    elif not store or not store[0]["persistentVolumeClaim"].get("readOnly"):
         problems.append("Deployment: the b2tf-store claim is not mounted readOnly")
     for c in pod.get("initContainers", []) + pod["containers"]:
         for m in c.get("volumeMounts", []):
@@ -36,11 +70,12 @@ def main(path: str) -> None:
         if probes != {"readinessProbe": "/readyz", "livenessProbe": "/healthz"}:
             problems.append(f"probes: {probes}")
     job_store = [v for v in job["volumes"] if v.get("persistentVolumeClaim", {}).get("claimName") == "b2tf-store"]
-    if not job_store or job_store[0]["persistentVolumeClaim"].get("readOnly"):
+    if not on_s3 and (not job_store or job_store[0]["persistentVolumeClaim"].get("readOnly")):
         problems.append("Job b2tf-onboard does not mount b2tf-store writable")
     if problems:
         sys.exit(f"{path}:\n  " + "\n  ".join(problems))
-    print(f"{path}: replicas read-only (volume and B2TF_READ_ONLY), drain fits the grace period, Job writes the store")
+    where = "an S3 bucket, no volume" if on_s3 else "volume and B2TF_READ_ONLY"
+    print(f"{path}: replicas read-only ({where}), drain fits the grace period, Job writes the store")
 
 
 if __name__ == "__main__":

@@ -25,7 +25,7 @@ echo "compose and monitoring files: valid"
 
 # Kubernetes: each kustomization rendered, against the schemas of an older and the newest
 # Kubernetes the validator knows, rejecting unknown fields (--strict).
-for k in base overlays/gpu; do
+for k in base overlays/gpu overlays/s3; do
   out="$work/$(basename "$k").yaml"
   kubectl kustomize "$deploy/k8s/$k" >"$out"
   for version in 1.30.0 1.37.0; do
@@ -34,6 +34,18 @@ for k in base overlays/gpu; do
   py "$deploy/test/k8s_invariants.py" "$out"
   echo "k8s/$k: $(grep -c '^kind:' "$out") resources valid for Kubernetes 1.30 and 1.37"
 done
+# The invariants are checked too: an S3 overlay whose replicas get no credentials fails.
+py - "$work/s3.yaml" "$work/bad-s3.yaml" <<'PY'
+import sys, yaml
+docs = [d for d in yaml.safe_load_all(open(sys.argv[1])) if d]
+for d in docs:
+    if d["kind"] == "Deployment":
+        c = d["spec"]["template"]["spec"]["containers"][0]
+        c["envFrom"] = [e for e in c["envFrom"] if "secretRef" not in e]
+yaml.safe_dump_all(docs, open(sys.argv[2], "w"))
+PY
+expect_rejected py "$deploy/test/k8s_invariants.py" "$work/bad-s3.yaml"
+grep -q "gets no credentials Secret" "$work/rejected.log" || { cat "$work/rejected.log" >&2; exit 1; }
 sed 's/^  replicas: 2$/  replicas: 2\n  no_such_field: 1/' "$deploy/k8s/base/deployment.yaml" >"$work/bad-deployment.yaml"
 expect_rejected py -m kubernetes_validate --strict --quiet "$work/bad-deployment.yaml"
 echo "validators reject broken files: yes"

@@ -1,6 +1,7 @@
 //! `b2tf bench store`: what the object stores cost: bytes per object (f16, PCA, product
 //! quantisation), put time,
-//! and load time from each backend, cold (page cache dropped, when allowed) and warm.
+//! and load time from each backend (dir, sqlite, and S3 with `--s3 URL`), cold (page cache
+//! dropped, when allowed) and warm.
 
 use crate::mesh::{load_mesh, Units};
 use crate::onboard::{compress, ObjectModel};
@@ -27,6 +28,10 @@ pub struct BenchStoreArgs {
     /// Store that caches the onboarded model between runs.
     #[arg(long, default_value = "dir://out/bench-models")]
     pub cache_store: String,
+    /// Also time an S3 store: `s3://BUCKET/PREFIX[?OPTIONS]` (as `--store` takes it; each
+    /// variant goes under its own folder in PREFIX and is deleted afterwards).
+    #[arg(long)]
+    pub s3: Option<String>,
     /// Loads timed per backend and variant.
     #[arg(long, default_value_t = 3)]
     pub repeats: usize,
@@ -44,6 +49,12 @@ fn drop_page_cache() -> bool {
 extern "C" {
     #[link_name = "sync"]
     fn libc_sync();
+}
+
+/// `s3://BUCKET/PREFIX?Q` with `folder` added to the prefix.
+fn s3_below(url: &str, folder: &str) -> String {
+    let (location, query) = url.split_once('?').map_or((url, String::new()), |(l, q)| (l, format!("?{q}")));
+    format!("{}/{folder}{query}", location.trim_end_matches('/'))
 }
 
 pub fn run(a: BenchStoreArgs) -> Result<()> {
@@ -78,11 +89,14 @@ pub fn run(a: BenchStoreArgs) -> Result<()> {
         println!("| backend | descriptors | stored MB | put (s) | cold load (s) | load, page cache warm (s) | cache hit (ms) | held in memory (MB) |");
         println!("|---|---|---:|---:|---:|---:|---:|---:|");
         let mut dropped_all = true;
-        for backend in ["dir", "sqlite"] {
+        let backends = ["dir", "sqlite"].into_iter().chain(a.s3.as_ref().map(|_| "s3"));
+        for backend in backends {
             for (label, model) in &variants {
+                let folder: String = label.chars().map(|c| if c.is_ascii_alphanumeric() { c } else { '_' }).collect();
                 let url = match backend {
-                    "dir" => format!("dir://{}", tmp.join(format!("dir-{}", label.replace(' ', "_"))).display()),
-                    _ => format!("sqlite://{}", tmp.join(format!("{}.db", label.replace(' ', "_"))).display()),
+                    "dir" => format!("dir://{}", tmp.join(format!("dir-{folder}")).display()),
+                    "s3" => s3_below(a.s3.as_deref().unwrap_or_default(), &folder),
+                    _ => format!("sqlite://{}", tmp.join(format!("{folder}.db")).display()),
                 };
                 let store: Arc<dyn ObjectStore> = crate::store::open(&url)?;
                 let t = Instant::now();
@@ -108,6 +122,9 @@ pub fn run(a: BenchStoreArgs) -> Result<()> {
                     v.sort_by(f64::total_cmp);
                     v[v.len() / 2]
                 };
+                if backend == "s3" {
+                    store.delete(&model.object_id)?;
+                }
                 println!("| {backend} | {label} | {:.1} | {put_s:.2} | {:.3} | {:.3} | {hit_ms:.3} | {:.1} |", info.bytes as f64 / 1e6, med(&mut cold), med(&mut warm), model.memory_bytes() as f64 / 1e6);
             }
         }
