@@ -6,7 +6,7 @@ use std::time::Instant;
 
 #[derive(Args, Debug)]
 pub struct ObjectsArgs {
-    /// Object store: sqlite://PATH.db or dir://PATH (default: $B2TF_STORE, else
+    /// Object store: sqlite://PATH.db, dir://PATH or s3://BUCKET/PREFIX (default: $B2TF_STORE, else
     /// sqlite://~/.local/share/b2tfpose/objects.db).
     #[arg(long, global = true)]
     pub store: Option<String>,

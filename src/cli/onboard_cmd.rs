@@ -17,7 +17,7 @@ pub struct OnboardArgs {
     /// Object id (1–64 of A–Z a–z 0–9 - _ .).
     #[arg(long)]
     pub id: String,
-    /// Object store: sqlite://PATH.db or dir://PATH (default: $B2TF_STORE, else
+    /// Object store: sqlite://PATH.db, dir://PATH or s3://BUCKET/PREFIX (default: $B2TF_STORE, else
     /// sqlite://~/.local/share/b2tfpose/objects.db).
     #[arg(long)]
     pub store: Option<String>,

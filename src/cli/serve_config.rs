@@ -5,7 +5,7 @@
 //! ```toml
 //! http = "0.0.0.0:8080"          # "none" turns a listener off
 //! grpc = "0.0.0.0:50051"
-//! store = "sqlite:///var/lib/b2tf/objects.db"
+//! store = "sqlite:///var/lib/b2tf/objects.db"   # or dir:///PATH, s3://BUCKET/PREFIX?region=...
 //! backbone = "embedded"         # or "onnx:/models/dinov3-vitl16.onnx" (its .json beside it)
 //! device = "cpu"                 # for an ONNX backbone: "cuda:0", "tensorrt:0"
 //! backbone_batch = 32            # crops per backbone pass of the batching queue; 0: none
@@ -43,7 +43,8 @@ pub struct ServeSettings {
     /// gRPC listen address ("none": off) [default: 127.0.0.1:50051]
     #[arg(long, env = "B2TF_GRPC_ADDR")]
     pub grpc: Option<String>,
-    /// Object store URL [default: sqlite://~/.local/share/b2tfpose/objects.db]
+    /// Object store URL: sqlite://PATH.db, dir://PATH or s3://BUCKET/PREFIX[?OPTIONS]
+    /// [default: sqlite://~/.local/share/b2tfpose/objects.db]
     #[arg(long, env = "B2TF_STORE")]
     pub store: Option<String>,
     /// Backbone: "embedded" (weight-free, built in) or "onnx:PATH" (an ONNX export with

@@ -13,6 +13,7 @@ pub mod codec;
 pub mod dir;
 pub mod read_only;
 pub mod s3;
+mod s3_url;
 pub mod sqlite;
 
 pub use cache::ModelCache;
