@@ -434,3 +434,28 @@ fn replica_picks_up_replaced_and_deleted_objects() {
         assert_eq!(s, 404, "{url}: the deleted object is not served from memory: {est}");
     }
 }
+
+/// A server whose S3 store goes away answers 503 / UNAVAILABLE naming the store, not 500,
+/// and serves again once the store is back, without a restart.
+#[test]
+fn s3_store_that_goes_away_answers_503() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(mut s3) = common::s3::S3Server::start(dir.path()) else { return };
+    let url = s3.url("objects");
+    writer(&["onboard"], &url, dir.path());
+    let server = start(&url, None, &["--read-only", "--revalidate-s", "0"]);
+    let (c, base) = (client(), server.http.clone());
+    let (s, list) = call(&c, "GET", &format!("{base}/v1/objects"), None);
+    assert!(s == 200 && list.to_string().contains("\"box\""), "{list}");
+    s3.kill();
+    for path in ["/v1/objects", "/v1/objects/box"] {
+        let (s, body) = call(&c, "GET", &format!("{base}{path}"), None);
+        assert_eq!(s, 503, "{path} with the store down: {body}");
+        let message = body.to_string();
+        assert!(message.contains("objects") && message.contains(&format!("127.0.0.1:{}", s3.port)), "{path}: {message}");
+        assert!(!message.contains("b2tf-test-secret"), "{path} shows the secret: {message}");
+    }
+    s3.restart();
+    let (s, _) = call(&c, "GET", &format!("{base}/v1/objects/box"), None);
+    assert_eq!(s, 200, "served again once the store is back");
+}
