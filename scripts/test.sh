@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Every test: unit and integration tests (renderer on lavapipe, onboarding, loaders, CLI,
-# the service over loopback: HTTP, gRPC, TLS), clippy's lints, the OpenAPI document's validity, cargo-deny
+# the object stores, S3 against a real s3s-fs on loopback, the service over loopback:
+# HTTP, gRPC, TLS), clippy's lints, the OpenAPI document's validity, cargo-deny
 # (scripts/deny.sh), the Python client's suite, the short overload and crash tests, and the
 # container checks.
 set -euo pipefail
