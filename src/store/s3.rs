@@ -41,6 +41,11 @@ const READ_ATTEMPTS: u32 = 6;
 pub const DEFAULT_ORPHAN_AGE: Duration = Duration::from_secs(3600);
 /// Requests in flight at once for one call (a listing's objects, a put's parts).
 const CONCURRENCY: usize = 16;
+/// Parts larger than two of these are read as byte ranges of this size, `RANGE_READS` at
+/// once: one HTTP stream rarely fills a link (S3's own advice for throughput), and a
+/// write's parts never change, so the ranges of one part cannot come from two writes.
+const RANGE_BYTES: u64 = 8 << 20;
+const RANGE_READS: usize = 8;
 
 pub struct S3Store {
     bucket: Bucket,
@@ -79,7 +84,15 @@ fn run<T: Send + 'static>(fut: impl Future<Output = Result<T, StoreError>> + Sen
 /// An object_store error as a store error about `what`.
 fn remote(what: impl Into<String>) -> impl FnOnce(object_store::Error) -> StoreError {
     let context = what.into();
-    move |e| StoreError::Remote { context, message: e.to_string() }
+    move |e| {
+        let mut message = e.to_string();
+        // With no credentials configured, object_store asks the EC2 instance metadata
+        // service, and the error names only that address.
+        if message.contains("169.254.169.254") {
+            message.push_str(" (no credentials were found: set AWS_ACCESS_KEY_ID and AWS_SECRET_ACCESS_KEY, or run where instance, container or web-identity credentials exist; skip_signature=true for a public bucket)");
+        }
+        StoreError::Remote { context, message }
+    }
 }
 
 /// `base/rel`, `rel` split at its slashes (a texture's name is `textures/NAME.png`; one
@@ -92,6 +105,11 @@ fn below(base: &Path, rel: &str) -> Path {
 fn age(meta: &ObjectMeta) -> Duration {
     let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs() as i64).unwrap_or(0);
     Duration::from_secs(now.saturating_sub(meta.last_modified.timestamp()).max(0) as u64)
+}
+
+/// `0..size` in `RANGE_BYTES` pieces, the last one shorter.
+fn ranges_of(size: u64) -> impl Iterator<Item = std::ops::Range<u64>> {
+    (0..size.div_ceil(RANGE_BYTES)).map(move |i| i * RANGE_BYTES..((i + 1) * RANGE_BYTES).min(size))
 }
 
 /// The write a manifest names (every manifest this store writes names one).
@@ -130,6 +148,25 @@ impl Bucket {
         }
     }
 
+    /// The whole of a part, in concurrent byte ranges when it is large; `None` when it is
+    /// gone.
+    async fn get_part(&self, meta: &ObjectMeta) -> object_store::Result<Option<Vec<u8>>> {
+        if meta.size <= 2 * RANGE_BYTES {
+            return self.get(&meta.location).await;
+        }
+        let chunks = futures_util::stream::iter(ranges_of(meta.size)).map(|r| async move { self.client.get_range(&meta.location, r.clone()).await.map(|b| (r, b)) }).buffer_unordered(RANGE_READS).try_collect::<Vec<_>>().await;
+        let chunks = match chunks {
+            Ok(c) => c,
+            Err(object_store::Error::NotFound { .. }) => return Ok(None),
+            Err(e) => return Err(e),
+        };
+        let mut out = vec![0u8; meta.size as usize];
+        for (r, bytes) in chunks {
+            out[r.start as usize..r.end as usize].copy_from_slice(&bytes);
+        }
+        Ok(Some(out))
+    }
+
     async fn head(&self, path: &Path) -> object_store::Result<Option<ObjectMeta>> {
         match self.client.head(path).await {
             Ok(m) => Ok(Some(m)),
@@ -164,7 +201,7 @@ impl Bucket {
                 async move {
                     let name = meta.location.prefix_match(folder).map(|segments| segments.map(|s| s.as_ref().to_string()).collect::<Vec<_>>().join("/")).unwrap_or_default();
                     // Gone since the listing: a replace removed it; the caller reads again.
-                    let bytes = self.get(&meta.location).await.map_err(remote(context()))?.ok_or_else(|| StoreError::Corrupt { object: id.into(), message: format!("its part {name} vanished while it was read") })?;
+                    let bytes = self.get_part(&meta).await.map_err(remote(context()))?.ok_or_else(|| StoreError::Corrupt { object: id.into(), message: format!("its part {name} vanished while it was read") })?;
                     Ok::<_, StoreError>((name, bytes))
                 }
             })
@@ -410,5 +447,30 @@ impl Store for S3Store {
 
     fn url(&self) -> String {
         self.url.clone()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn missing_credentials_are_named_as_such() {
+        let imds = object_store::Error::Generic { store: "S3", source: "Error performing PUT http://169.254.169.254/latest/api/token - denied".into() };
+        let e = remote("reaching store s3://b/p")(imds).to_string();
+        assert!(e.contains("no credentials were found") && e.contains("AWS_ACCESS_KEY_ID"), "{e}");
+        let other = remote("reaching store s3://b/p")(object_store::Error::Generic { store: "S3", source: "NoSuchBucket".into() }).to_string();
+        assert!(!other.contains("credentials"), "{other}");
+    }
+
+    #[test]
+    fn large_parts_are_split_into_ranges_that_cover_them() {
+        // Contiguous, non-overlapping, the last one short; an exact multiple has no empty tail.
+        let size = 5 * RANGE_BYTES / 2 + 7;
+        let ranges: Vec<_> = ranges_of(size).collect();
+        assert_eq!(ranges.len(), 3);
+        assert!(ranges.windows(2).all(|w| w[0].end == w[1].start) && ranges[0].start == 0 && ranges[2].end == size);
+        assert_eq!(ranges_of(3 * RANGE_BYTES).count(), 3);
+        assert_eq!(ranges_of(3 * RANGE_BYTES).last(), Some(2 * RANGE_BYTES..3 * RANGE_BYTES));
     }
 }
