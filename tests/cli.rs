@@ -53,12 +53,26 @@ fn sample_render_and_onboard() {
     assert!(std::fs::metadata(d.join("models/box/tensors.safetensors")).unwrap().len() < f16_bytes);
     let (ok, _, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box2", "--store", &dir_store, "--descriptors", "zip"]);
     assert!(!ok && err.contains("'zip'") && err.contains("f16"), "{err}");
+    // Copied into another store as it is (moving to a bucket works the same way).
+    let copy_store = format!("sqlite://{}", d.join("copy.db").display());
+    let (ok, out, err) = b2tf(&["objects", "copy", "--store", &dir_store, "--to", &copy_store]);
+    assert!(ok && out.contains("copied 1 object(s)"), "{out}{err}");
+    let (ok, out, err) = b2tf(&["objects", "show", "box", "--load", "--store", &copy_store]);
+    assert!(ok && out.contains("\"templates\": 24"), "{out}{err}");
+    let (ok, out, err) = b2tf(&["objects", "copy", "--store", &dir_store, "--to", &copy_store]);
+    assert!(ok && out.contains("left alone"), "a second copy without --replace: {out}{err}");
+    let (ok, _, err) = b2tf(&["objects", "copy", "--store", &dir_store, "--to", &dir_store]);
+    assert!(!ok && err.contains("--to names the store"), "{err}");
+    let (ok, _, err) = b2tf(&["objects", "copy", "nope", "--store", &dir_store, "--to", &copy_store]);
+    assert!(!ok && err.contains("not found"), "{err}");
+    let (ok, _, err) = b2tf(&["objects", "copy", "--store", &dir_store, "--to", "ftp://x"]);
+    assert!(!ok && err.contains("ftp://x"), "{err}");
     let (ok, out, err) = b2tf(&["objects", "delete", "box", "--store", &dir_store]);
     assert!(ok && out.contains("deleted"), "{out}{err}");
     let (ok, _, err) = b2tf(&["objects", "show", "box", "--store", &dir_store]);
     assert!(!ok && err.contains("not found"), "{err}");
     let (ok, _, err) = b2tf(&["objects", "list", "--store", "ftp://x"]);
-    assert!(!ok && err.contains("dir://PATH or sqlite://PATH"), "{err}");
+    assert!(!ok && err.contains("dir://PATH, sqlite://PATH or s3://"), "{err}");
 }
 
 #[test]

@@ -109,7 +109,7 @@ fn enlarged(m: &ObjectModel, id: &str, copies: usize) -> ObjectModel {
         .collect();
     big.global = m.global.repeat(copies);
     big.patch_descriptors = match &m.patch_descriptors {
-        PatchDescriptors::Half(v) => PatchDescriptors::Half(v.repeat(copies)),
+        PatchDescriptors::Half(v) => PatchDescriptors::Half(v.repeat(copies).into()),
         PatchDescriptors::Quantized { quantizer, codes } => PatchDescriptors::Quantized { quantizer: quantizer.clone(), codes: codes.repeat(copies) },
         PatchDescriptors::Int8 { codes, scales } => PatchDescriptors::Int8 { codes: codes.repeat(copies), scales: scales.repeat(copies) },
     };
@@ -566,6 +566,10 @@ fn check_round_trip(url: &str) {
     let back = store.get("obj-a").expect("get");
     back.validate().expect("loaded model is consistent");
     assert_same(m, &back);
+    // dir:// reads the f16 descriptors in place from the mapped tensors file; the others copy.
+    let PatchDescriptors::Half(rows) = &back.patch_descriptors else { panic!("f16 descriptors") };
+    assert_eq!(rows.is_mapped(), url.starts_with("dir://"), "{url}: descriptors mapped");
+    assert!(back.memory_bytes() < m.memory_bytes() || !rows.is_mapped(), "mapped rows are not heap");
 
     let other = store::open(url).expect("second handle");
     assert_same(m, &other.get("obj-a").expect("get through a second handle"));
@@ -941,7 +945,9 @@ fn check_cache(url: &str) {
     for id in ["obj-a", "obj-b", "obj-c"] {
         store.put(&with_id(m, id), false).expect("put");
     }
-    let one = m.memory_bytes() as u64;
+    // What one loaded object holds (dir://: less than the onboarded one, its descriptors
+    // stay in the mapped file).
+    let one = store.get("obj-a").expect("get").memory_bytes() as u64;
     // Room for two objects, not three.
     let cache = ModelCache::new(store.clone(), 2 * one + one / 2);
     let stats = |c: &ModelCache| {

@@ -1,4 +1,4 @@
-//! `b2tf objects list|show|delete`: what an object store holds.
+//! `b2tf objects list|show|delete|upgrade|copy`: what an object store holds.
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
@@ -34,6 +34,17 @@ pub enum ObjectsCommand {
     /// what they lack (the contour model, the detector's templates) from their stored mesh
     /// and writes them back, without re-onboarding. Default: every object in the store.
     Upgrade { ids: Vec<String> },
+    /// Copies objects into another store, as they are (e.g. from a folder into a bucket
+    /// when moving to `s3://`). Default: every object. An object already in the target is
+    /// left alone unless --replace.
+    Copy {
+        /// The store to copy into (dir://, sqlite:// or s3://).
+        #[arg(long)]
+        to: String,
+        ids: Vec<String>,
+        #[arg(long)]
+        replace: bool,
+    },
 }
 
 pub fn run(a: ObjectsArgs) -> Result<()> {
@@ -68,7 +79,30 @@ pub fn run(a: ObjectsArgs) -> Result<()> {
             println!("deleted {id:?} from {}", store.url());
         }
         ObjectsCommand::Upgrade { ids } => upgrade(store.as_ref(), ids)?,
+        ObjectsCommand::Copy { to, ids, replace } => copy(store.as_ref(), &to, ids, replace)?,
     }
+    Ok(())
+}
+
+fn copy(from: &dyn crate::store::ObjectStore, to: &str, ids: Vec<String>, replace: bool) -> Result<()> {
+    let target = crate::store::open(to)?;
+    if target.url() == from.url() {
+        anyhow::bail!("--to names the store the objects come from ({to})");
+    }
+    let ids = if ids.is_empty() { from.list()?.into_iter().map(|o| o.id).collect() } else { ids };
+    let (mut copied, mut skipped) = (0, 0);
+    for id in ids {
+        if !replace && target.exists(&id)? {
+            println!("{id}: already in {}, left alone (--replace overwrites)", target.url());
+            skipped += 1;
+            continue;
+        }
+        let t = Instant::now();
+        let info = target.put(&from.get(&id)?, replace)?;
+        println!("{id}: {:.1} MB in {:.2} s", info.bytes as f64 / 1e6, t.elapsed().as_secs_f64());
+        copied += 1;
+    }
+    println!("copied {copied} object(s) from {} to {}; {skipped} left alone", from.url(), target.url());
     Ok(())
 }
 

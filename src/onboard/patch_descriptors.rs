@@ -3,14 +3,15 @@
 //! `pq2`: an eighth / a quarter of the bytes). Matching reads them only through
 //! `widen_into`, a few templates at a time.
 
+use super::half_rows::HalfRows;
 use super::pq::ProductQuantizer;
 use half::f16;
 use std::ops::Range;
 
 #[derive(Clone, Debug, PartialEq)]
 pub enum PatchDescriptors {
-    /// `patches × dim` f16, L2-normalised rows.
-    Half(Vec<f16>),
+    /// `patches × dim` f16, L2-normalised rows (memory-mapped when loaded from `dir://`).
+    Half(HalfRows),
     /// `patches × subspaces` code bytes and the centroids they index.
     Quantized { quantizer: ProductQuantizer, codes: Vec<u8> },
     /// `patches × dim` int8 values and one scale per row (value = code × scale).
@@ -19,7 +20,7 @@ pub enum PatchDescriptors {
 
 impl Default for PatchDescriptors {
     fn default() -> Self {
-        PatchDescriptors::Half(Vec::new())
+        PatchDescriptors::Half(Vec::new().into())
     }
 }
 
@@ -63,10 +64,10 @@ impl PatchDescriptors {
         }
     }
 
-    /// Heap bytes held.
+    /// Heap bytes held (mapped rows: none).
     pub fn memory_bytes(&self) -> usize {
         match self {
-            PatchDescriptors::Half(v) => v.len() * 2,
+            PatchDescriptors::Half(v) => v.heap_bytes(),
             PatchDescriptors::Quantized { quantizer, codes } => codes.len() + quantizer.centroids.len() * 4,
             PatchDescriptors::Int8 { codes, scales } => codes.len() + scales.len() * 4,
         }
@@ -75,7 +76,7 @@ impl PatchDescriptors {
     /// The f16 rows, when that is the coding (PCA fits and projects on them).
     pub fn as_half(&self) -> Option<&[f16]> {
         match self {
-            PatchDescriptors::Half(v) => Some(v),
+            PatchDescriptors::Half(v) => Some(&**v),
             PatchDescriptors::Quantized { .. } | PatchDescriptors::Int8 { .. } => None,
         }
     }
@@ -152,7 +153,7 @@ mod tests {
     fn both_codings_hand_out_unit_rows_of_the_asked_patches() {
         let (n, dim) = (600, 8);
         let rows = unit_rows(n, dim);
-        let half = PatchDescriptors::Half(rows.clone());
+        let half = PatchDescriptors::Half(rows.clone().into());
         assert!(half.shape_ok(dim) && !half.shape_ok(7));
         assert_eq!((half.rows(dim), half.memory_bytes()), (n, n * dim * 2));
         let mut out = vec![1.0];

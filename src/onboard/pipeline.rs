@@ -150,7 +150,7 @@ pub fn compress(m: &mut ObjectModel, dim: usize) -> Result<(), OnboardError> {
     }
     let rows = m.patch_descriptors.as_half().ok_or_else(|| OnboardError::Config("PCA needs the f16 descriptors; these are quantised".into()))?;
     let pca = super::pca::Pca::fit(rows, m.local_dim, dim).map_err(OnboardError::Config)?;
-    m.patch_descriptors = super::PatchDescriptors::Half(pca.project_f16(rows));
+    m.patch_descriptors = super::PatchDescriptors::Half(pca.project_f16(rows).into());
     m.local_dim = dim;
     m.pca = Some(pca);
     Ok(())
@@ -307,6 +307,6 @@ fn assemble(
         m.patch_cells.extend(p.cells);
         m.silhouettes.extend(p.silhouettes);
     }
-    m.patch_descriptors = super::PatchDescriptors::Half(descriptors);
+    m.patch_descriptors = super::PatchDescriptors::Half(descriptors.into());
     m
 }

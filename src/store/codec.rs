@@ -7,6 +7,7 @@ use crate::features::BackboneIdentity;
 use crate::geometry::{Intrinsics, PatchGrid};
 use crate::mesh::{Material, Mesh, MeshData, Part, Units};
 use crate::geometry::symmetry::KnownSymmetries;
+use crate::onboard::half_rows::HalfRows;
 use crate::onboard::{ObjectModel, OnboardConfig, PatchDescriptors, Template, MODEL_FORMAT_VERSION};
 use safetensors::{tensor::TensorView, Dtype, SafeTensors};
 use std::sync::Arc;
@@ -225,6 +226,16 @@ pub fn summary(manifest: &[u8]) -> Result<ManifestSummary, CodecError> {
 
 /// Rebuilds the model; `texture(name)` returns the PNG bytes the manifest names.
 pub fn decode(manifest: &[u8], tensors: &[u8], texture: &mut dyn FnMut(&str) -> Result<Vec<u8>, String>) -> Result<ObjectModel, CodecError> {
+    decode_inner(manifest, tensors, None, texture)
+}
+
+/// `decode` of a memory-mapped tensors file: f16 patch descriptors stay in the mapping
+/// (`HalfRows::Mapped`) instead of being copied.
+pub fn decode_mapped(manifest: &[u8], tensors: &Arc<memmap2::Mmap>, texture: &mut dyn FnMut(&str) -> Result<Vec<u8>, String>) -> Result<ObjectModel, CodecError> {
+    decode_inner(manifest, tensors, Some(tensors), texture)
+}
+
+fn decode_inner(manifest: &[u8], tensors: &[u8], map: Option<&Arc<memmap2::Mmap>>, texture: &mut dyn FnMut(&str) -> Result<Vec<u8>, String>) -> Result<ObjectModel, CodecError> {
     let man = parse_manifest(manifest)?;
     if let Some(g) = man.generation {
         let (_, meta) = SafeTensors::read_metadata(tensors).map_err(|e| corrupt(format!("tensors: {e}")))?;
@@ -311,7 +322,8 @@ pub fn decode(manifest: &[u8], tensors: &[u8], texture: &mut dyn FnMut(&str) -> 
     } else if st.names().contains(&"patch_codes_i8") {
         PatchDescriptors::Int8 { codes: bytemuck::pod_collect_to_vec(get("patch_codes_i8", Dtype::I8, local_dim)?), scales: bytemuck::pod_collect_to_vec(get("patch_scales", Dtype::F32, 0)?) }
     } else {
-        PatchDescriptors::Half(bytemuck::pod_collect_to_vec(get("patch_descriptors", Dtype::F16, 0)?))
+        let bytes = get("patch_descriptors", Dtype::F16, 0)?;
+        PatchDescriptors::Half(map.and_then(|m| HalfRows::mapped(m, bytes)).unwrap_or_else(|| bytemuck::pod_collect_to_vec(bytes).into()))
     };
     let model = ObjectModel {
         object_id: man.object_id,

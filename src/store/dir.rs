@@ -102,9 +102,10 @@ impl DirStore {
         let file = std::fs::File::open(&tpath).map_err(|e| StoreError::Corrupt { object: id.into(), message: format!("{}: {e}", tpath.display()) })?;
         // SAFETY: stored files are never modified in place (puts write a new folder and
         // rename it), so the mapping cannot change under us while it is alive.
-        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(StoreError::io(format!("mapping {}", tpath.display())))?;
+        let map = std::sync::Arc::new(unsafe { memmap2::Mmap::map(&file) }.map_err(StoreError::io(format!("mapping {}", tpath.display())))?);
         let mut texture = |name: &str| std::fs::read(dir.join(name)).map_err(|e| e.to_string());
-        let model = codec::decode(&manifest, &map, &mut texture).map_err(|e| StoreError::from_codec(id, e))?;
+        // The model keeps the mapping: its f16 descriptors are read in place.
+        let model = codec::decode_mapped(&manifest, &map, &mut texture).map_err(|e| StoreError::from_codec(id, e))?;
         if model.object_id != id {
             return Err(StoreError::Corrupt { object: id.into(), message: format!("its folder holds object {:?}", model.object_id) });
         }

@@ -156,7 +156,7 @@ pub fn tiny_stored_object() -> Vec<u8> {
         templates: vec![template],
         global: vec![0.5; dim],
         global_dim: dim,
-        patch_descriptors: b2tfpose::onboard::PatchDescriptors::Half(vec![half::f16::from_f32(0.5); 2 * dim]),
+        patch_descriptors: b2tfpose::onboard::PatchDescriptors::Half(vec![half::f16::from_f32(0.5); 2 * dim].into()),
         local_dim: dim,
         pca: None,
         patch_points: vec![[0.01, 0.01, 0.0], [0.0, 0.01, 0.01]],
