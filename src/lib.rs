@@ -16,6 +16,7 @@ pub mod limits;
 pub mod linalg;
 pub mod mesh;
 pub mod onboard;
+pub mod percent;
 pub mod render;
 pub mod service;
 pub mod telemetry;

@@ -146,27 +146,7 @@ fn read_uri(uri: &str, files: &dyn MeshFiles) -> Result<Vec<u8>, String> {
         None if uri.contains(':') => return Err("unsupported URI scheme (expected data:, file: or a relative path)".into()),
         None => uri,
     };
-    files.read(&percent_decode(path)?)
-}
-
-/// `%XX` escapes to bytes; the result must be UTF-8.
-fn percent_decode(s: &str) -> Result<String, String> {
-    let (bytes, mut out) = (s.as_bytes(), Vec::with_capacity(s.len()));
-    let mut i = 0;
-    while i < bytes.len() {
-        let hex = bytes.get(i + 1..i + 3).and_then(|h| std::str::from_utf8(h).ok()).and_then(|h| u8::from_str_radix(h, 16).ok());
-        match (bytes[i], hex) {
-            (b'%', Some(b)) => {
-                out.push(b);
-                i += 3;
-            }
-            (b, _) => {
-                out.push(b);
-                i += 1;
-            }
-        }
-    }
-    String::from_utf8(out).map_err(|_| format!("{s:?} is not UTF-8 once percent-decoded"))
+    files.read(&crate::percent::decode(path, crate::percent::Malformed::Keep)?)
 }
 
 /// Names a buffer source for messages without dumping a whole data URI.

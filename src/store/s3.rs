@@ -188,13 +188,25 @@ impl Bucket {
         self.client.delete_stream(stream).try_collect::<Vec<_>>().await.map(drop)
     }
 
+    /// Removes every key under `folder`.
+    async fn delete_under(&self, folder: &Path) -> object_store::Result<()> {
+        self.delete_all(self.list(folder).await?.into_iter().map(|m| m.location).collect()).await
+    }
+
+    /// The object's manifest, its summary, and the folder and keys of the write it names.
+    async fn current_write(&self, id: &str) -> Result<(Vec<u8>, codec::ManifestSummary, Path, Vec<ObjectMeta>), StoreError> {
+        let context = || format!("reading object {id:?}");
+        let manifest = self.get(&self.manifest(id)).await.map_err(remote(context()))?.ok_or_else(|| StoreError::NotFound(id.into()))?;
+        let (summary, write) = write_of(id, &manifest)?;
+        let folder = self.write_folder(id, write);
+        let keys = self.list(&folder).await.map_err(remote(context()))?;
+        Ok((manifest, summary, folder, keys))
+    }
+
     /// The manifest and every part of the write it names, fetched concurrently.
     async fn fetch(&self, id: &str) -> Result<Fetched, StoreError> {
         let context = || format!("reading object {id:?}");
-        let manifest = self.get(&self.manifest(id)).await.map_err(remote(context()))?.ok_or_else(|| StoreError::NotFound(id.into()))?;
-        let (_, write) = write_of(id, &manifest)?;
-        let folder = self.write_folder(id, write);
-        let keys = self.list(&folder).await.map_err(remote(context()))?;
+        let (manifest, _, folder, keys) = self.current_write(id).await?;
         let parts = futures_util::stream::iter(keys)
             .map(|meta| {
                 let folder = &folder;
@@ -213,10 +225,7 @@ impl Bucket {
 
     /// What `list` shows of one object: its manifest's summary and the bytes of its write.
     async fn info(&self, id: &str) -> Result<ObjectInfo, StoreError> {
-        let context = || format!("reading object {id:?}");
-        let manifest = self.get(&self.manifest(id)).await.map_err(remote(context()))?.ok_or_else(|| StoreError::NotFound(id.into()))?;
-        let (summary, write) = write_of(id, &manifest)?;
-        let parts = self.list(&self.write_folder(id, write)).await.map_err(remote(context()))?;
+        let (manifest, summary, _, parts) = self.current_write(id).await?;
         Ok(info_of(&summary, manifest.len() as u64 + parts.iter().map(|m| m.size).sum::<u64>()))
     }
 
@@ -357,14 +366,13 @@ impl Store for S3Store {
             };
             if let Err(e) = committed {
                 // Best effort: what a failed put uploaded is unreferenced either way.
-                let _ = bucket.delete_all(bucket.list(&folder).await.unwrap_or_default().into_iter().map(|m| m.location).collect()).await;
+                let _ = bucket.delete_under(&folder).await;
                 return Err(e);
             }
             // Readers that fetched the old manifest read again when its parts vanish; writes
             // of killed earlier puts of this id go once surely abandoned.
             if let Some(previous) = previous {
-                let old_parts = bucket.list(&bucket.write_folder(&owned_id, previous)).await.map_err(remote(context.clone()))?;
-                bucket.delete_all(old_parts.into_iter().map(|m| m.location).collect()).await.map_err(remote(context.clone()))?;
+                bucket.delete_under(&bucket.write_folder(&owned_id, previous)).await.map_err(remote(context.clone()))?;
             }
             bucket.remove_writes(&owned_id, Some(write), Some(DEFAULT_ORPHAN_AGE)).await.map_err(remote(context))
         })?;
@@ -425,8 +433,7 @@ impl Store for S3Store {
             }
             // The manifest first: the object disappears at once and as a whole.
             bucket.client.delete(&manifest).await.map_err(remote(context.clone()))?;
-            let keys = bucket.list(&bucket.folder(&id)).await.map_err(remote(context.clone()))?;
-            bucket.delete_all(keys.into_iter().map(|m| m.location).collect()).await.map_err(remote(context))
+            bucket.delete_under(&bucket.folder(&id)).await.map_err(remote(context))
         })
     }
 

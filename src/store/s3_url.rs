@@ -35,7 +35,7 @@ pub(super) fn parse_url(url: &str) -> Result<Settings, StoreError> {
     let mut options = Vec::new();
     for pair in query.split('&').filter(|p| !p.is_empty()) {
         let (k, v) = pair.split_once('=').ok_or_else(|| bad(&format!("query part {pair:?} is not KEY=VALUE")))?;
-        let v = percent_decode(v).ok_or_else(|| bad(&format!("the value of {k} is not valid percent-encoding")))?;
+        let v = crate::percent::decode(v, crate::percent::Malformed::Refuse).map_err(|_| bad(&format!("the value of {k} is not valid percent-encoding")))?;
         match k {
             "max_retries" => retry.max_retries = v.parse().map_err(|_| bad("max_retries must be a whole number"))?,
             "retry_timeout_s" => retry.retry_timeout = v.parse::<f64>().ok().filter(|s| s.is_finite() && *s >= 0.0).map(Duration::from_secs_f64).ok_or_else(|| bad("retry_timeout_s must be a number of seconds"))?,
@@ -51,23 +51,6 @@ pub(super) fn parse_url(url: &str) -> Result<Settings, StoreError> {
 
 pub(super) fn config_key(k: &str) -> Option<AmazonS3ConfigKey> {
     format!("aws_{k}").parse().or_else(|_| k.parse()).ok()
-}
-
-fn percent_decode(s: &str) -> Option<String> {
-    let b = s.as_bytes();
-    let mut out = Vec::with_capacity(b.len());
-    let mut i = 0;
-    while i < b.len() {
-        if b[i] == b'%' {
-            let hex = std::str::from_utf8(b.get(i + 1..i + 3)?).ok()?;
-            out.push(u8::from_str_radix(hex, 16).ok()?);
-            i += 3;
-        } else {
-            out.push(b[i]);
-            i += 1;
-        }
-    }
-    String::from_utf8(out).ok()
 }
 
 /// The URL with the values of secret query keys replaced by `***`.
