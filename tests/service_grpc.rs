@@ -40,7 +40,7 @@ fn onboard_request(dir: &std::path::Path, id: &str, level: u32, in_plane: u32) -
             units: "m".into(),
             resources: files[1..].iter().map(|(n, b)| pb::Resource { name: n.clone(), data: b.clone() }).collect(),
         }),
-        options: Some(pb::OnboardOptions { level: Some(level), in_plane, pca: 0, full_descriptors: false }),
+        options: Some(pb::OnboardOptions { level: Some(level), in_plane, ..Default::default() }),
         replace: false,
     }
 }

@@ -106,6 +106,10 @@ fn onboard_estimate_and_bad_inputs_over_http() {
         let (s, v) = call(&c, "POST", &format!("{base}/v1/objects"), Some(&bad));
         assert!(s == 400 && v.to_string().contains(needle), "{needle}: {s} {v}");
     }
+    let mut bad = onboard.clone();
+    bad["options"]["descriptors"] = json!("int4");
+    let (s, v) = call(&c, "POST", &format!("{base}/v1/objects"), Some(&bad));
+    assert!(s == 400 && v.to_string().contains("int4"), "{s} {v}");
 
     // The same files as multipart/form-data, as they are (12 templates: quick).
     let part = |(name, bytes): &(String, Vec<u8>)| reqwest::blocking::multipart::Part::bytes(bytes.clone()).file_name(name.clone());
@@ -114,6 +118,7 @@ fn onboard_estimate_and_bad_inputs_over_http() {
         .text("units", "m")
         .text("level", "0")
         .text("in_plane", "1")
+        .text("descriptors", "pq4")
         .part("mesh", part(&files[0]))
         .part("resource", part(&files[1]))
         .part("resource", part(&files[2]));
@@ -131,6 +136,9 @@ fn onboard_estimate_and_bad_inputs_over_http() {
         std::thread::sleep(Duration::from_millis(200));
     };
     assert_eq!((mp_done["state"].as_str(), mp_done["object"]["templates"].as_u64()), (Some("succeeded"), Some(12)), "{mp_done}");
+    // Stored in the coding asked for: product-quantised codes, not f16 rows.
+    let stored = b2tfpose::store::open_read_only(&store).unwrap().get("box_mp").unwrap();
+    assert!(matches!(stored.patch_descriptors, b2tfpose::onboard::PatchDescriptors::Quantized { .. }), "{:?}", stored.config.descriptors);
     // Bad multipart bodies name what is wrong.
     for (form, needle) in [
         (reqwest::blocking::multipart::Form::new().text("object_id", "x").text("colour", "red"), "colour"),
@@ -138,6 +146,7 @@ fn onboard_estimate_and_bad_inputs_over_http() {
         (reqwest::blocking::multipart::Form::new().part("mesh", part(&files[0])), "object_id"),
         (reqwest::blocking::multipart::Form::new().text("object_id", "x").text("level", "two").part("mesh", part(&files[0])), "level"),
         (reqwest::blocking::multipart::Form::new().text("object_id", "x").text("pca", "half").part("mesh", part(&files[0])), "pca: PCA setting"),
+        (reqwest::blocking::multipart::Form::new().text("object_id", "x").text("descriptors", "pq3").part("mesh", part(&files[0])), "descriptors: unknown descriptor coding"),
     ] {
         let r = c.post(format!("{base}/v1/objects")).multipart(form).send().unwrap();
         let (s, v) = (r.status().as_u16(), r.text().unwrap());

@@ -150,7 +150,8 @@ pub fn onboard_request(r: pb::OnboardRequest) -> Result<rq::OnboardRequest, Serv
         (k, false) => PcaSetting::Components(k as usize),
         (k, true) => return Err(ServiceError::invalid(format!("options: pca {k} and full_descriptors contradict each other; set one"))),
     };
-    let options = OnboardOptions { level: o.level.unwrap_or(defaults.level), in_plane: non_zero(o.in_plane, defaults.in_plane), pca };
+    let descriptors = if o.descriptors.is_empty() { defaults.descriptors } else { o.descriptors.parse().map_err(|e: String| ServiceError::invalid(format!("options.descriptors: {e}")))? };
+    let options = OnboardOptions { level: o.level.unwrap_or(defaults.level), in_plane: non_zero(o.in_plane, defaults.in_plane), pca, descriptors };
     let mesh = rq::MeshInput {
         data: mesh.data.into(),
         format: mesh.format,
@@ -205,14 +206,18 @@ mod tests {
         let d = OnboardOptions::default();
         let o = onboard_with(None);
         assert_eq!((o.level, o.in_plane, o.pca), (d.level, d.in_plane, PcaSetting::Auto));
-        let o = onboard_with(Some(pb::OnboardOptions { level: Some(0), in_plane: 1, pca: 16, full_descriptors: false }));
-        assert_eq!((o.level, o.in_plane, o.pca), (0, 1, PcaSetting::Components(16)));
-        let o = onboard_with(Some(pb::OnboardOptions { level: None, in_plane: 0, pca: 0, full_descriptors: true }));
-        assert_eq!(o.pca, PcaSetting::Off);
+        let o = onboard_with(Some(pb::OnboardOptions { level: Some(0), in_plane: 1, pca: 16, full_descriptors: false, descriptors: "pq4".into() }));
+        assert_eq!((o.level, o.in_plane, o.pca, o.descriptors), (0, 1, PcaSetting::Components(16), crate::onboard::DescriptorCoding::Pq4));
+        let o = onboard_with(Some(pb::OnboardOptions { level: None, in_plane: 0, pca: 0, full_descriptors: true, descriptors: String::new() }));
+        assert_eq!((o.pca, o.descriptors), (PcaSetting::Off, crate::onboard::DescriptorCoding::F16));
         let mesh = Some(pb::Mesh { data: vec![1], format: "obj".into(), units: "m".into(), resources: vec![] });
-        let both = pb::OnboardOptions { level: None, in_plane: 0, pca: 8, full_descriptors: true };
+        let both = pb::OnboardOptions { level: None, in_plane: 0, pca: 8, full_descriptors: true, descriptors: String::new() };
         let err = onboard_request(pb::OnboardRequest { object_id: "x".into(), mesh, options: Some(both), replace: false }).unwrap_err();
         assert!(err.message.contains("pca 8 and full_descriptors contradict"), "{}", err.message);
+        let mesh = Some(pb::Mesh { data: vec![1], format: "obj".into(), units: "m".into(), resources: vec![] });
+        let unknown = pb::OnboardOptions { descriptors: "pq8".into(), ..Default::default() };
+        let err = onboard_request(pb::OnboardRequest { object_id: "x".into(), mesh, options: Some(unknown), replace: false }).unwrap_err();
+        assert!(err.message.contains("options.descriptors: unknown descriptor coding \"pq8\""), "{}", err.message);
         assert!(onboard_request(pb::OnboardRequest { object_id: "x".into(), mesh: None, options: None, replace: false }).unwrap_err().message.contains("mesh is required"));
     }
 

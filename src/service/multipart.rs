@@ -1,7 +1,7 @@
 //! `POST /v1/objects` as `multipart/form-data`, for clients that upload files as they are
 //! (curl -F, browsers, requests): the same `OnboardRequest` as the JSON body, without
 //! base64. Parts: `object_id`, `format` (else from the mesh file's extension), `units`,
-//! `replace`, `level`, `in_plane`, `pca` as text; the mesh file as `mesh`; each file it
+//! `replace`, `level`, `in_plane`, `pca`, `descriptors` as text; the mesh file as `mesh`; each file it
 //! refers to (MTL, textures, glTF buffers) as a `resource` part named by its file name.
 
 use super::error::{ErrorKind, ServiceError};
@@ -39,7 +39,7 @@ pub async fn onboard_request(mut form: Multipart) -> Result<OnboardRequest, Serv
                 };
                 resources.push(ResourceInput { name: file_name, data: field.bytes().await.map_err(part_error)?.to_vec().into() });
             }
-            "object_id" | "format" | "units" | "replace" | "level" | "in_plane" | "pca" => {
+            "object_id" | "format" | "units" | "replace" | "level" | "in_plane" | "pca" | "descriptors" => {
                 let text = field.text().await.map_err(part_error)?;
                 match name.as_str() {
                     "object_id" => object_id = Some(text),
@@ -48,10 +48,11 @@ pub async fn onboard_request(mut form: Multipart) -> Result<OnboardRequest, Serv
                     "replace" => replace = matches!(text.trim(), "true" | "1" | "yes"),
                     "level" => options.level = number(&name, &text)?,
                     "in_plane" => options.in_plane = number(&name, &text)?,
-                    _ => options.pca = text.parse().map_err(|e| ServiceError::invalid(format!("pca: {e}")))?,
+                    "pca" => options.pca = text.parse().map_err(|e| ServiceError::invalid(format!("pca: {e}")))?,
+                    _ => options.descriptors = text.parse().map_err(|e: String| ServiceError::invalid(format!("descriptors: {e}")))?,
                 }
             }
-            other => return Err(ServiceError::invalid(format!("unknown multipart part {other:?} (expected object_id, mesh, resource, format, units, replace, level, in_plane, pca)"))),
+            other => return Err(ServiceError::invalid(format!("unknown multipart part {other:?} (expected object_id, mesh, resource, format, units, replace, level, in_plane, pca, descriptors)"))),
         }
     }
     let object_id = object_id.ok_or_else(|| ServiceError::invalid("multipart body: the object_id part is missing"))?;

@@ -297,11 +297,13 @@ pub struct OnboardOptions {
     /// PCA of the patch descriptors: "auto" (default: compress only descriptors wider than
     /// 256), null/"off" (keep all) or a component count.
     pub pca: crate::onboard::PcaSetting,
+    /// How the patch descriptors are stored: "f16" (default), "i8", "pq2" or "pq4".
+    pub descriptors: crate::onboard::DescriptorCoding,
 }
 
 impl Default for OnboardOptions {
     fn default() -> Self {
-        Self { level: 2, in_plane: 12, pca: crate::onboard::PcaSetting::Auto }
+        Self { level: 2, in_plane: 12, pca: crate::onboard::PcaSetting::Auto, descriptors: crate::onboard::DescriptorCoding::F16 }
     }
 }
 

@@ -129,6 +129,19 @@ def test_pca_settings(client: b2tfpose.Client, sample_obj: Path) -> None:
         client.onboard("pca-65", sample_obj, units="m", level=0, in_plane=1, pca=65)
 
 
+def test_descriptor_codings(client: b2tfpose.Client, sample_obj: Path) -> None:
+    # A compact coding is smaller in the store than the exact f16 rows of the same views.
+    exact = client.onboard("codings-f16", sample_obj, units="m", level=0, in_plane=2, replace=True, retry=True)
+    compact = client.onboard("codings-pq4", sample_obj, units="m", level=0, in_plane=2, descriptors="pq4", replace=True, retry=True)
+    assert compact.templates == exact.templates and compact.bytes < exact.bytes, (compact, exact)
+    for object_id in ("codings-f16", "codings-pq4"):
+        client.delete_object(object_id)
+    # Refused in the client, before anything is uploaded.
+    for bad in ("pq8", "F16 ", 4):
+        with pytest.raises(ValueError, match="descriptors must be one of f16, i8, pq2, pq4"):
+            client.onboard("codings-bad", sample_obj, units="m", level=0, in_plane=1, descriptors=bad)  # type: ignore[arg-type]
+
+
 def test_health(client: b2tfpose.Client) -> None:
     assert client.health() == "SERVING"
     assert client.health("") == "SERVING"

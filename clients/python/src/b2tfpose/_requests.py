@@ -16,6 +16,7 @@ ProgressCallback = Callable[[OperationStatus], None]
 PcaSetting = Union[None, int, Literal["auto", "off"]]
 
 REFINERS = ("none", "silhouette-depth", "contour")
+DESCRIPTOR_CODINGS = ("f16", "i8", "pq2", "pq4")
 
 
 def pca_fields(pca: PcaSetting) -> Dict[str, Any]:
@@ -39,11 +40,14 @@ def onboard_request(
     level: Optional[int],
     in_plane: Optional[int],
     pca: PcaSetting,
+    descriptors: Optional[str] = None,
     replace: bool,
     format: Optional[str],
     resources: Optional[Mapping[str, bytes]],
 ) -> pb.OnboardRequest:
-    options = pb.OnboardOptions(in_plane=in_plane or 0, **pca_fields(pca))
+    if descriptors is not None and descriptors not in DESCRIPTOR_CODINGS:
+        raise ValueError(f"descriptors must be one of {', '.join(DESCRIPTOR_CODINGS)} (None: the server's default), not {descriptors!r}")
+    options = pb.OnboardOptions(in_plane=in_plane or 0, descriptors=descriptors or "", **pca_fields(pca))
     if level is not None:
         options.level = level  # optional field: 0 is a real level, unset is the default
     return pb.OnboardRequest(object_id=object_id, mesh=mesh_message(mesh, units, format, resources), options=options, replace=replace)

@@ -152,14 +152,14 @@ class AsyncClient:
     @overload
     async def onboard(
         self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
-        pca: PcaSetting = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
+        pca: PcaSetting = ..., descriptors: Optional[str] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
         progress: Optional[ProgressCallback] = ..., wait: Literal[True] = ..., timeout: Optional[float] = ..., retry: RetryArg = ...,
     ) -> ObjectInfo: ...
 
     @overload
     async def onboard(
         self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
-        pca: PcaSetting = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
+        pca: PcaSetting = ..., descriptors: Optional[str] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
         progress: Optional[ProgressCallback] = ..., wait: Literal[False], timeout: Optional[float] = ..., retry: RetryArg = ...,
     ) -> AsyncOperation: ...
 
@@ -172,6 +172,7 @@ class AsyncClient:
         level: Optional[int] = None,
         in_plane: Optional[int] = None,
         pca: PcaSetting = None,
+        descriptors: Optional[str] = None,
         replace: bool = False,
         format: Optional[str] = None,
         resources: Optional[Mapping[str, bytes]] = None,
@@ -181,7 +182,7 @@ class AsyncClient:
         retry: RetryArg = None,
     ) -> Union[ObjectInfo, AsyncOperation]:
         """As :meth:`b2tfpose.Client.onboard`."""
-        request = _requests.onboard_request(object_id, mesh, units=units, level=level, in_plane=in_plane, pca=pca, replace=replace, format=format, resources=resources)
+        request = _requests.onboard_request(object_id, mesh, units=units, level=level, in_plane=in_plane, pca=pca, descriptors=descriptors, replace=replace, format=format, resources=resources)
         status = OperationStatus.from_pb(await self._call("Onboard", self._stub.Onboard, request, None, retry, idempotent=False))
         op = AsyncOperation(self, status)
         if not wait:
