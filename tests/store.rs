@@ -145,7 +145,7 @@ fn assert_same(expected: &ObjectModel, got: &ObjectModel) {
     assert_eq!(b.materials().len(), a.materials().len(), "{id}: materials");
     for (i, (ma, mb)) in a.materials().iter().zip(b.materials()).enumerate() {
         assert_eq!((&mb.name, mb.base_color), (&ma.name, ma.base_color), "{id}: material {i}");
-        let pixels = |m: &b2tfpose::mesh::Material| m.texture.as_ref().map(|t| (t.dimensions(), t.as_raw().clone()));
+        let pixels = |m: &b2tfpose::mesh::Material| m.texture.as_ref().map(|t| (t.dimensions(), t.pixels().unwrap().as_raw().clone()));
         assert!(pixels(mb) == pixels(ma), "{id}: texture of material {i} differs");
     }
 }

@@ -41,6 +41,9 @@ pub enum BenchCommand {
     Refine(super::bench_refine::BenchRefineArgs),
     /// The HTTP service under concurrent estimate load: req/s, p50/p99, server memory.
     Serve(super::bench_serve::BenchServeArgs),
+    /// A server with a catalogue of many objects (copies of a store's): disk, resident
+    /// memory with all loaded, estimate latency of a not-yet-loaded object and a loaded one.
+    Catalogue(super::bench_catalogue::BenchCatalogueArgs),
     /// Object store costs: bytes per object (f16, PCA), put time, cold and warm loads.
     Store(super::bench_store::BenchStoreArgs),
     /// What descriptor size costs: mutual-NN matching (GEMM) per query against pools of
@@ -90,6 +93,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Detect(a) => super::bench_detect::run(a),
         BenchCommand::Backbone(a) => super::bench_backbone::run(a),
         BenchCommand::Store(a) => super::bench_store::run(a),
+        BenchCommand::Catalogue(a) => super::bench_catalogue::run(a),
         BenchCommand::Matching(a) => super::bench_matching::run(a),
         BenchCommand::Track(a) => super::bench_track::run(a),
         BenchCommand::Symmetries(a) => super::bench_symmetries::run(a),

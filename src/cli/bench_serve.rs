@@ -41,7 +41,7 @@ pub struct BenchServeArgs {
 }
 
 /// One HTTP/1.1 request on a fresh connection; returns (status, body).
-fn http(addr: &str, method: &str, path: &str, body: Option<&[u8]>) -> Result<(u16, Vec<u8>)> {
+pub(super) fn http(addr: &str, method: &str, path: &str, body: Option<&[u8]>) -> Result<(u16, Vec<u8>)> {
     let mut s = TcpStream::connect(addr)?;
     let body = body.unwrap_or(&[]);
     write!(s, "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n", body.len())?;
@@ -54,19 +54,27 @@ fn http(addr: &str, method: &str, path: &str, body: Option<&[u8]>) -> Result<(u1
     Ok((status, raw[split + 4..].to_vec()))
 }
 
-fn json_call(addr: &str, method: &str, path: &str, body: Option<&Value>) -> Result<(u16, Value)> {
+pub(super) fn json_call(addr: &str, method: &str, path: &str, body: Option<&Value>) -> Result<(u16, Value)> {
     let bytes = body.map(serde_json::to_vec).transpose()?;
     let (status, body) = http(addr, method, path, bytes.as_deref())?;
     Ok((status, serde_json::from_slice(&body).unwrap_or(Value::Null)))
 }
 
-fn rss_mb(pid: u32) -> Option<f64> {
-    let s = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    let kb: f64 = s.lines().find(|l| l.starts_with("VmRSS:"))?.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb / 1024.0)
+/// A process's resident memory, MB (NaN where /proc cannot tell): in all, and its
+/// anonymous (heap) and file-backed (mapped files, e.g. `dir://` tensors) parts.
+pub(super) struct Memory {
+    pub rss: f64,
+    pub anon: f64,
+    pub file: f64,
 }
 
-fn b64(bytes: &[u8]) -> String {
+pub(super) fn memory_mb(pid: u32) -> Memory {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    let mb = |key: &str| s.lines().find(|l| l.starts_with(key)).and_then(|l| l.split_whitespace().nth(1)).and_then(|kb| kb.parse::<f64>().ok()).map_or(f64::NAN, |kb| kb / 1024.0);
+    Memory { rss: mb("VmRSS:"), anon: mb("RssAnon:"), file: mb("RssFile:") }
+}
+
+pub(super) fn b64(bytes: &[u8]) -> String {
     base64::engine::general_purpose::STANDARD.encode(bytes)
 }
 
@@ -132,7 +140,7 @@ fn measure(a: &BenchServeArgs, object: &str, addr: &str, grpc: &str, pid: u32) -
         }
     }
     // Memory: every object of the store (up to 10) loaded into the server's cache.
-    let before = rss_mb(pid);
+    let before = memory_mb(pid).rss;
     let (_, list) = json_call(addr, "GET", "/v1/objects", None)?;
     let ids: Vec<String> = list["objects"].as_array().map(|a| a.iter().filter_map(|o| o["id"].as_str().map(String::from)).take(10).collect()).unwrap_or_default();
     for id in &ids {
@@ -145,8 +153,8 @@ fn measure(a: &BenchServeArgs, object: &str, addr: &str, grpc: &str, pid: u32) -
     let loaded = String::from_utf8_lossy(&metrics).lines().find(|l| l.starts_with("b2tf_objects_loaded")).map(String::from).unwrap_or_default();
     println!(
         "server RSS: {:.0} MB with the sample box loaded; {:.0} MB after loading {} objects ({loaded})",
-        before.unwrap_or(f64::NAN),
-        rss_mb(pid).unwrap_or(f64::NAN),
+        before,
+        memory_mb(pid).rss,
         ids.len()
     );
     Ok(())

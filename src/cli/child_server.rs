@@ -18,6 +18,8 @@ impl ChildServer {
         let mut child = std::process::Command::new(std::env::current_exe()?)
             .args(["serve", "--http", "127.0.0.1:0", "--grpc", "127.0.0.1:0", "--store", store])
             .args(extra)
+            // Quiet unless asked: a benchmark's figures, not the server's access log.
+            .env("B2TF_LOG", std::env::var("B2TF_LOG").unwrap_or_else(|_| "warn".into()))
             .stdout(std::process::Stdio::piped())
             .spawn()
             .context("starting b2tf serve")?;

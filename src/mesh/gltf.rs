@@ -276,7 +276,7 @@ impl Loader<'_> {
             None => (m.pbr_metallic_roughness().base_color_factor(), m.pbr_metallic_roughness().base_color_texture()),
         };
         let texture = match texture {
-            Some(info) => Some(self.image(info.texture().source())?),
+            Some(info) => Some(self.image(info.texture().source())?.into()),
             None => None,
         };
         self.materials.push(Material { name, base_color, texture });
@@ -499,7 +499,7 @@ mod tests {
         assert_eq!(mesh.parts().len(), 2);
         assert_close(&mesh.materials()[0].base_color, &[0.5, 0.25, 1.0, 1.0]);
         assert!(mesh.has_texture());
-        assert_eq!(mesh.materials()[0].texture.as_ref().unwrap().get_pixel(2, 1).0, [20, 10, 7, 255]);
+        assert_eq!(mesh.materials()[0].texture.as_ref().unwrap().pixels().unwrap().get_pixel(2, 1).0, [20, 10, 7, 255]);
         assert_eq!(mesh.source_units(), Units::M);
     }
 

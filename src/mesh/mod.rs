@@ -9,6 +9,7 @@ mod gltf;
 #[cfg(test)]
 mod hostile_tests;
 mod load;
+mod material_texture;
 mod obj;
 mod ply;
 #[cfg(test)]
@@ -21,6 +22,7 @@ pub use files::{Folder, InMemory, MeshFiles};
 pub use load::{load_mesh, load_mesh_bytes, load_mesh_with};
 pub use obj::load_obj;
 pub use ply::{load_ply, load_ply_points};
+pub use material_texture::Texture;
 pub use types::*;
 
 pub mod procedural;

@@ -127,7 +127,7 @@ fn convert_material(obj: &Path, m: &tobj::Material, mtl_dir: &Path, files: &dyn 
     let [r, g, b] = m.diffuse.unwrap_or([1.0; 3]);
     let texture = match m.diffuse_texture.as_deref().map(texture_file_name) {
         // Relative to the material library's folder, as OBJ readers resolve it.
-        Some(name) if !name.is_empty() => Some(textures.load(obj, files, &mtl_dir.join(name).to_string_lossy())?),
+        Some(name) if !name.is_empty() => Some(textures.load(obj, files, &mtl_dir.join(name).to_string_lossy())?.into()),
         _ => None,
     };
     Ok(Material { name: m.name.clone(), base_color: [r, g, b, m.dissolve.unwrap_or(1.0)], texture })

@@ -23,7 +23,7 @@ pub(super) fn ply_from_bytes(path: &Path, bytes: &[u8], units: Units, files: &dy
     let (mut data, texture) = parse_ply(bytes, units).map_err(|m| MeshError::format(path, m))?;
     if let Some(name) = texture {
         let image = load_texture(path, files, &name)?;
-        data.materials = vec![Material { name, texture: Some(image), ..Material::default() }];
+        data.materials = vec![Material { name, texture: Some(image.into()), ..Material::default() }];
     }
     Mesh::new(path.display().to_string(), units, data)
 }
@@ -692,7 +692,7 @@ mod tests {
         assert!(mesh.has_texture());
         let texture = mesh.materials()[0].texture.as_ref().unwrap();
         assert_eq!(texture.dimensions(), (4, 3));
-        assert_eq!(texture.get_pixel(2, 1).0, [20, 10, 7, 255]);
+        assert_eq!(texture.pixels().unwrap().get_pixel(2, 1).0, [20, 10, 7, 255]);
         assert!((mesh.diameter() - 0.02 * 3f64.sqrt()).abs() < 1e-6);
         assert_eq!(mesh.source_units(), Units::Mm);
     }

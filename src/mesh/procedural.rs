@@ -3,7 +3,6 @@
 //! unambiguous from any side, and a plain cylinder.
 
 use super::types::{Material, Mesh, MeshData, Units};
-use std::sync::Arc;
 
 /// Small deterministic generator (xorshift64*), so procedural assets are reproducible.
 #[derive(Clone, Debug)]
@@ -93,7 +92,7 @@ pub fn textured_box(size: [f32; 3], seed: u64) -> Mesh {
         d.triangles.push([base, base + 1, base + 2]);
         d.triangles.push([base, base + 2, base + 3]);
     }
-    d.materials.push(Material { name: "box".into(), base_color: [1.0; 4], texture: Some(Arc::new(atlas)) });
+    d.materials.push(Material { name: "box".into(), base_color: [1.0; 4], texture: Some(atlas.into()) });
     Mesh::new(format!("textured_box(seed {seed})"), Units::M, d).expect("procedural box is valid")
 }
 

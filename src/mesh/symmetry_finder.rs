@@ -112,6 +112,9 @@ impl Surface {
             cumulative.push(total);
         }
         let material_of = material_per_triangle(mesh);
+        // Decoded once here, not per sample (a stored texture is held encoded); one that
+        // cannot be decoded counts as untextured, as the renderer draws it.
+        let textures: Vec<Option<std::sync::Arc<image::RgbaImage>>> = mesh.materials().iter().map(|m| m.texture.as_ref().and_then(|t| t.pixels().ok())).collect();
         let mut rng = super::procedural::Rng::new(0x5EED_5A3D);
         let (mut points, mut colours) = (Vec::with_capacity(n), Vec::with_capacity(n));
         for _ in 0..n {
@@ -121,7 +124,7 @@ impl Surface {
             let w = [1.0 - r1, r1 * (1.0 - r2), r1 * r2];
             let t = mesh.triangles()[f];
             points.push(pos(t[0]) * w[0] + pos(t[1]) * w[1] + pos(t[2]) * w[2]);
-            colours.push(albedo(mesh, t, w, material_of[f]));
+            colours.push(albedo(mesh, &textures, t, w, material_of[f]));
         }
         let face_centres = mesh.triangles().iter().map(|t| (pos(t[0]) + pos(t[1]) + pos(t[2])) / 3.0).collect();
         Self { points, colours, faces, face_centres }
@@ -149,10 +152,10 @@ fn material_per_triangle(mesh: &Mesh) -> Vec<usize> {
 
 /// Base colour × texture × vertex colour at barycentric `w` of triangle `t`, as rendered
 /// without light.
-fn albedo(mesh: &Mesh, t: [u32; 3], w: [f64; 3], material: usize) -> [f32; 3] {
+fn albedo(mesh: &Mesh, textures: &[Option<std::sync::Arc<image::RgbaImage>>], t: [u32; 3], w: [f64; 3], material: usize) -> [f32; 3] {
     let lerp = |v: &[[f32; 2]]| -> [f64; 2] { [0, 1].map(|k| (0..3).map(|i| w[i] * v[t[i] as usize][k] as f64).sum()) };
     let mut c = mesh.materials().get(material).map(|m| [m.base_color[0], m.base_color[1], m.base_color[2]]).unwrap_or([1.0; 3]);
-    if let (Some(tex), Some(uvs)) = (mesh.materials().get(material).and_then(|m| m.texture.as_ref()), mesh.uvs()) {
+    if let (Some(tex), Some(uvs)) = (textures.get(material).and_then(Option::as_ref), mesh.uvs()) {
         let [u, v] = lerp(uvs);
         // UVs have v up; the image's row 0 is its top.
         let x = ((u.rem_euclid(1.0) * tex.width() as f64) as u32).min(tex.width() - 1);

@@ -1,6 +1,5 @@
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Arc;
 
 /// Length unit of a mesh file. glTF is metres by its specification; PLY and OBJ carry no
 /// unit, so the caller must say which one the file uses.
@@ -70,7 +69,7 @@ impl MeshError {
 pub struct Material {
     pub name: String,
     pub base_color: [f32; 4],
-    pub texture: Option<Arc<image::RgbaImage>>,
+    pub texture: Option<super::Texture>,
 }
 
 impl Default for Material {

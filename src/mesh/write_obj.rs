@@ -18,7 +18,8 @@ pub fn write_obj(mesh: &Mesh, dir: &Path, name: &str) -> Result<PathBuf, MeshErr
         if let Some(tex) = &m.texture {
             let file = format!("{name}_m{i}.png");
             let path = dir.join(&file);
-            tex.save(&path).map_err(|e| MeshError::Texture { path: path.clone(), texture: file.clone(), message: e.to_string() })?;
+            let error = |message: String| MeshError::Texture { path: path.clone(), texture: file.clone(), message };
+            tex.pixels().map_err(error)?.save(&path).map_err(|e| error(e.to_string()))?;
             let _ = writeln!(mtl, "map_Kd {file}");
         }
     }

@@ -20,7 +20,8 @@ pub fn write_bop_ply(mesh: &Mesh, dir: &Path, name: &str) -> Result<PathBuf, Mes
     let texture_file = format!("{name}.png");
     if let Some(tex) = textures.first() {
         let path = dir.join(&texture_file);
-        tex.save(&path).map_err(|e| MeshError::Texture { path: ply_path.clone(), texture: texture_file.clone(), message: e.to_string() })?;
+        let error = |message: String| MeshError::Texture { path: ply_path.clone(), texture: texture_file.clone(), message };
+        tex.pixels().map_err(error)?.save(&path).map_err(|e| error(e.to_string()))?;
     }
     let uvs = mesh.uvs().filter(|_| !textures.is_empty());
     let base = mesh.materials().first().map_or([1.0; 4], |m| m.base_color);

@@ -205,7 +205,7 @@ impl ObjectModel {
     pub fn memory_bytes(&self) -> usize {
         let d = self.mesh.data();
         let mesh = d.positions.len() * 12 + d.normals.len() * 12 + d.colors.len() * 12 + d.uvs.len() * 8 + d.triangles.len() * 12;
-        let textures: usize = self.mesh.materials().iter().filter_map(|m| m.texture.as_ref()).map(|t| t.as_raw().len()).sum();
+        let textures: usize = self.mesh.materials().iter().filter_map(|m| m.texture.as_ref()).map(|t| t.heap_bytes()).sum();
         self.global.len() * 4 + self.patch_descriptors.memory_bytes() + self.patch_points.len() * 12 + self.patch_cells.len() * 2 + self.silhouettes.len() * 8 + self.templates.len() * std::mem::size_of::<Template>() + mesh + textures + self.contours.get().map_or(0, |c| c.memory_bytes()) + self.detector.get().map_or(0, |d| d.memory_bytes())
     }
 

@@ -68,9 +68,12 @@ impl GpuMesh {
             .iter()
             .map(|m| {
                 // A texture is useless without UVs (or pixels); treat the material as untextured.
-                let texture = m.texture.as_deref().filter(|t| mesh.uvs().is_some() && t.width() > 0 && t.height() > 0);
-                let view = texture.map(|t| {
-                    let t = fit_texture(t, max_side);
+                let texture = m.texture.as_ref().filter(|t| mesh.uvs().is_some() && t.width() > 0 && t.height() > 0);
+                // A stored texture is decoded here, for this upload only. One whose file
+                // is damaged is drawn as the base colour rather than failing every render.
+                let pixels = texture.and_then(|t| t.pixels().map_err(|e| tracing::error!(mesh = mesh.name(), material = m.name, "texture not drawn: {e}")).ok());
+                let view = pixels.map(|t| {
+                    let t = fit_texture(&t, max_side);
                     upload_texture(device, queue, t.width(), t.height(), t.as_raw(), &m.name)
                 });
                 let uniform = MaterialUniform {

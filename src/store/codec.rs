@@ -116,10 +116,18 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
     let mut textures = Vec::new();
     for (i, m) in mesh.materials().iter().enumerate() {
         let texture_file = match &m.texture {
-            Some(img) => {
+            Some(texture) => {
                 let name = format!("textures/{generation:016x}-{i}.png");
-                let mut png = Vec::new();
-                img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).map_err(|e| corrupt(format!("cannot encode texture {i}: {e}")))?;
+                // A texture read from a store is still its PNG: written back as it is.
+                let png = match texture.png() {
+                    Some(png) => png.to_vec(),
+                    None => {
+                        let mut png = Vec::new();
+                        let pixels = texture.pixels().map_err(|e| corrupt(format!("texture {i}: {e}")))?;
+                        pixels.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).map_err(|e| corrupt(format!("cannot encode texture {i}: {e}")))?;
+                        png
+                    }
+                };
                 textures.push((name.clone(), png));
                 Some(name)
             }
@@ -260,9 +268,9 @@ fn decode_inner(manifest: &[u8], tensors: &[u8], map: Option<&Arc<memmap2::Mmap>
     for m in &man.mesh.materials {
         let texture = match &m.texture_file {
             Some(f) => {
+                // Kept as the PNG and decoded by the GPU uploads that need the pixels.
                 let bytes = texture(f).map_err(|e| corrupt(format!("texture {f}: {e}")))?;
-                let img = crate::limits::TEXTURE.decode(&bytes).map_err(|e| corrupt(format!("texture {f}: {e}")))?.to_rgba8();
-                Some(Arc::new(img))
+                Some(crate::mesh::Texture::from_png(bytes).map_err(|e| corrupt(format!("texture {f}: {e}")))?)
             }
             None => None,
         };

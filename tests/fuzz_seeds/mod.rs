@@ -32,7 +32,7 @@ fn joined(files: &[&[u8]]) -> Vec<u8> {
 /// The test box with an 8×8 texture instead of its large atlas.
 fn small_box() -> Mesh {
     let texture = image::DynamicImage::ImageRgb8(checker(8, 8)).to_rgba8();
-    let materials = vec![Material { name: "skin".into(), texture: Some(Arc::new(texture)), ..Material::default() }];
+    let materials = vec![Material { name: "skin".into(), texture: Some(texture.into()), ..Material::default() }];
     Mesh::new("box", Units::M, MeshData { materials, ..textured_box([0.1, 0.06, 0.16], 3).data().clone() }).unwrap()
 }
 
@@ -129,7 +129,7 @@ pub fn tiny_stored_object() -> Vec<u8> {
         colors: vec![[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.5, 0.5, 0.5]],
         uvs: vec![[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]],
         triangles: vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
-        materials: vec![Material { name: "skin".into(), texture: Some(Arc::new(texture)), ..Material::default() }],
+        materials: vec![Material { name: "skin".into(), texture: Some(texture.into()), ..Material::default() }],
         ..MeshData::default()
     };
     let mesh = Mesh::new("tetra", Units::M, data).unwrap();

@@ -1,6 +1,5 @@
 //! Small meshes built in code for the renderer tests.
 
-use std::sync::Arc;
 
 use crate::mesh::{Material, Mesh, MeshData, Units};
 
@@ -81,7 +80,7 @@ pub fn textured_quad(h: f32, texture: image::RgbaImage, flip_winding: bool) -> M
         // OBJ convention, v up: the top of the image is v = 1.
         uvs: vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
         triangles,
-        materials: vec![Material { name: "checker".into(), base_color: [1.0; 4], texture: Some(Arc::new(texture)) }],
+        materials: vec![Material { name: "checker".into(), base_color: [1.0; 4], texture: Some(texture.into()) }],
         ..Default::default()
     };
     Mesh::new("quad", Units::M, d).unwrap()

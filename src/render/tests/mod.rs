@@ -289,7 +289,32 @@ fn textured_sphere() -> Mesh {
     d.materials = vec![Material {
         name: "checker".into(),
         base_color: [1.0, 0.9, 0.8, 1.0],
-        texture: Some(std::sync::Arc::new(checkerboard(8, 8, [250, 200, 40], [30, 60, 200]))),
+        texture: Some(checkerboard(8, 8, [250, 200, 40], [30, 60, 200]).into()),
     }];
     Mesh::new("textured sphere", Units::M, d).unwrap()
+}
+
+/// `textured_sphere` with its texture as an object store holds it: a PNG, or damaged bytes.
+fn sphere_with_texture(texture: crate::mesh::Texture) -> Mesh {
+    let mut d = textured_sphere().data().clone();
+    d.materials[0].texture = Some(texture);
+    Mesh::new("textured sphere, stored", Units::M, d).unwrap()
+}
+
+#[test]
+fn a_texture_held_as_png_renders_as_its_pixels_and_a_damaged_one_as_the_base_colour() {
+    let Some(mut r) = renderer() else { return };
+    let (p, k, o) = (pose([30.0, 20.0, 0.0], [0.0, 0.0, 0.3]), camera(), RenderOptions::default());
+    let mut png = Vec::new();
+    checkerboard(8, 8, [250, 200, 40], [30, 60, 200]).write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).unwrap();
+    let decoded = r.render(&textured_sphere(), &p, &k, &o).unwrap();
+    let stored = r.render(&sphere_with_texture(crate::mesh::Texture::from_png(png.clone()).unwrap()), &p, &k, &o).unwrap();
+    assert!(stored == decoded, "the PNG's pixels are the decoded image's");
+    // The body cut short after a valid header: drawn untextured, not an error per render.
+    png.truncate(png.len() - 60);
+    let damaged = r.render(&sphere_with_texture(crate::mesh::Texture::from_png(png).unwrap()), &p, &k, &o).unwrap();
+    let mut untextured = textured_sphere().data().clone();
+    untextured.materials[0].texture = None;
+    let plain = r.render(&Mesh::new("untextured sphere", Units::M, untextured).unwrap(), &p, &k, &o).unwrap();
+    assert!(damaged.rgb == plain.rgb && damaged.rgb != decoded.rgb);
 }
