@@ -75,7 +75,7 @@ fn with_id(m: &ObjectModel, id: &str) -> ObjectModel {
 fn generation(base: &ObjectModel, id: &str, generation: u32) -> ObjectModel {
     let mut m = with_id(base, id);
     m.config.render_size = 1000 + generation;
-    m.silhouettes[0] = u64::from(generation);
+    m.silhouettes.to_mut()[0] = u64::from(generation);
     m
 }
 
@@ -110,12 +110,12 @@ fn enlarged(m: &ObjectModel, id: &str, copies: usize) -> ObjectModel {
     big.global = m.global.repeat(copies);
     big.patch_descriptors = match &m.patch_descriptors {
         PatchDescriptors::Half(v) => PatchDescriptors::Half(v.repeat(copies).into()),
-        PatchDescriptors::Quantized { quantizer, codes } => PatchDescriptors::Quantized { quantizer: quantizer.clone(), codes: codes.repeat(copies) },
-        PatchDescriptors::Int8 { codes, scales } => PatchDescriptors::Int8 { codes: codes.repeat(copies), scales: scales.repeat(copies) },
+        PatchDescriptors::Quantized { quantizer, codes } => PatchDescriptors::Quantized { quantizer: quantizer.clone(), codes: codes.repeat(copies).into() },
+        PatchDescriptors::Int8 { codes, scales } => PatchDescriptors::Int8 { codes: codes.repeat(copies).into(), scales: scales.repeat(copies).into() },
     };
-    big.patch_points = m.patch_points.repeat(copies);
-    big.patch_cells = m.patch_cells.repeat(copies);
-    big.silhouettes = m.silhouettes.repeat(copies);
+    big.patch_points = m.patch_points.repeat(copies).into();
+    big.patch_cells = m.patch_cells.repeat(copies).into();
+    big.silhouettes = m.silhouettes.repeat(copies).into();
     big.validate().expect("the enlarged model is consistent");
     big
 }
@@ -566,10 +566,13 @@ fn check_round_trip(url: &str) {
     let back = store.get("obj-a").expect("get");
     back.validate().expect("loaded model is consistent");
     assert_same(m, &back);
-    // dir:// reads the f16 descriptors in place from the mapped tensors file; the others copy.
+    // dir:// reads the per-patch arrays in place from the mapped tensors file; the others
+    // copy them. The texture stays its PNG in every store.
     let PatchDescriptors::Half(rows) = &back.patch_descriptors else { panic!("f16 descriptors") };
-    assert_eq!(rows.is_mapped(), url.starts_with("dir://"), "{url}: descriptors mapped");
-    assert!(back.memory_bytes() < m.memory_bytes() || !rows.is_mapped(), "mapped rows are not heap");
+    let mapped = [rows.is_mapped(), back.patch_points.is_mapped(), back.patch_cells.is_mapped(), back.silhouettes.is_mapped()];
+    assert_eq!(mapped, [url.starts_with("dir://"); 4], "{url}: descriptors, points, cells, silhouettes mapped");
+    assert!(back.mesh.materials().iter().filter_map(|t| t.texture.as_ref()).all(|t| t.png().is_some()), "{url}: textures kept encoded");
+    assert!(back.memory_bytes() < m.memory_bytes(), "{url}: mapped rows and encoded textures are not heap");
 
     let other = store::open(url).expect("second handle");
     assert_same(m, &other.get("obj-a").expect("get through a second handle"));
@@ -582,7 +585,10 @@ fn check_round_trip(url: &str) {
     let PatchDescriptors::Quantized { codes, .. } = &coded.patch_descriptors else { panic!("pq4 quantises") };
     assert_eq!(codes.len(), m.patch_count() * m.local_dim / 4);
     store.put(&coded, false).expect("put pq4");
-    assert_same(&coded, &store.get("obj-pq").expect("get pq4"));
+    let back = store.get("obj-pq").expect("get pq4");
+    assert_same(&coded, &back);
+    let PatchDescriptors::Quantized { codes, .. } = &back.patch_descriptors else { panic!("pq4 read back") };
+    assert_eq!(codes.is_mapped(), url.starts_with("dir://"), "{url}: codes mapped");
     assert!(store.info("obj-pq").unwrap().bytes < info.bytes, "codes take less room than f16 rows");
     let mut int8 = with_id(m, "obj-i8");
     b2tfpose::onboard::apply_coding(&mut int8, b2tfpose::onboard::DescriptorCoding::I8).expect("int8");

@@ -4,7 +4,7 @@ pub mod contour;
 pub mod model;
 pub mod pca;
 pub mod pca_setting;
-pub mod half_rows;
+pub mod stored_rows;
 pub mod patch_descriptors;
 pub mod pipeline;
 pub mod pq;

@@ -136,11 +136,11 @@ pub struct ObjectModel {
     /// The projection applied to the backbone's patch descriptors, if compressed.
     pub pca: Option<super::pca::Pca>,
     /// Object-frame point (metres) behind each patch centre.
-    pub patch_points: Vec<[f32; 3]>,
+    pub patch_points: super::stored_rows::StoredRows<[f32; 3]>,
     /// Patch index `i·n + j` in its template's crop grid.
-    pub patch_cells: Vec<u16>,
+    pub patch_cells: super::stored_rows::StoredRows<u16>,
     /// `templates × SILHOUETTE_WORDS` bit-packed crop masks, row-major, LSB first.
-    pub silhouettes: Vec<u64>,
+    pub silhouettes: super::stored_rows::StoredRows<u64>,
     /// Silhouette contour points per viewpoint, for the contour refiner. Set by onboarding
     /// and loading; objects stored before format 3 get it on first use
     /// (`contour_model_or_build`), once per loaded copy.
@@ -206,7 +206,7 @@ impl ObjectModel {
         let d = self.mesh.data();
         let mesh = d.positions.len() * 12 + d.normals.len() * 12 + d.colors.len() * 12 + d.uvs.len() * 8 + d.triangles.len() * 12;
         let textures: usize = self.mesh.materials().iter().filter_map(|m| m.texture.as_ref()).map(|t| t.heap_bytes()).sum();
-        self.global.len() * 4 + self.patch_descriptors.memory_bytes() + self.patch_points.len() * 12 + self.patch_cells.len() * 2 + self.silhouettes.len() * 8 + self.templates.len() * std::mem::size_of::<Template>() + mesh + textures + self.contours.get().map_or(0, |c| c.memory_bytes()) + self.detector.get().map_or(0, |d| d.memory_bytes())
+        self.global.len() * 4 + self.patch_descriptors.memory_bytes() + self.patch_points.heap_bytes() + self.patch_cells.heap_bytes() + self.silhouettes.heap_bytes() + self.templates.len() * std::mem::size_of::<Template>() + mesh + textures + self.contours.get().map_or(0, |c| c.memory_bytes()) + self.detector.get().map_or(0, |d| d.memory_bytes())
     }
 
     /// Query patch descriptors (`n × backbone local_dim`) in the space of the stored ones.

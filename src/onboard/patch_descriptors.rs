@@ -3,7 +3,7 @@
 //! `pq2`: an eighth / a quarter of the bytes). Matching reads them only through
 //! `widen_into`, a few templates at a time.
 
-use super::half_rows::HalfRows;
+use super::stored_rows::{HalfRows, StoredRows};
 use super::pq::ProductQuantizer;
 use half::f16;
 use std::ops::Range;
@@ -13,9 +13,9 @@ pub enum PatchDescriptors {
     /// `patches × dim` f16, L2-normalised rows (memory-mapped when loaded from `dir://`).
     Half(HalfRows),
     /// `patches × subspaces` code bytes and the centroids they index.
-    Quantized { quantizer: ProductQuantizer, codes: Vec<u8> },
+    Quantized { quantizer: ProductQuantizer, codes: StoredRows<u8> },
     /// `patches × dim` int8 values and one scale per row (value = code × scale).
-    Int8 { codes: Vec<i8>, scales: Vec<f32> },
+    Int8 { codes: StoredRows<i8>, scales: StoredRows<f32> },
 }
 
 impl Default for PatchDescriptors {
@@ -98,7 +98,7 @@ impl PatchDescriptors {
             codes.extend(row.iter().map(|v| (v.to_f32() / scale).round().clamp(-127.0, 127.0) as i8));
             scales.push(scale);
         }
-        *self = PatchDescriptors::Int8 { codes, scales };
+        *self = PatchDescriptors::Int8 { codes: codes.into(), scales: scales.into() };
         Ok(())
     }
 
@@ -109,7 +109,7 @@ impl PatchDescriptors {
         };
         let quantizer = ProductQuantizer::fit(rows, dim, subspaces)?;
         let codes = quantizer.encode(rows);
-        *self = PatchDescriptors::Quantized { quantizer, codes };
+        *self = PatchDescriptors::Quantized { quantizer, codes: codes.into() };
         Ok(())
     }
 }

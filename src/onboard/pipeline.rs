@@ -286,9 +286,9 @@ fn assemble(
         templates: vec![],
         global: vec![],
         patch_descriptors: Default::default(),
-        patch_points: vec![],
-        patch_cells: vec![],
-        silhouettes: vec![],
+        patch_points: Default::default(),
+        patch_cells: Default::default(),
+        silhouettes: Default::default(),
         pca: None,
         contours: Default::default(),
         detector: Default::default(),
@@ -303,9 +303,9 @@ fn assemble(
         }));
         m.global.extend(p.globals);
         descriptors.extend(p.descriptors);
-        m.patch_points.extend(p.points);
-        m.patch_cells.extend(p.cells);
-        m.silhouettes.extend(p.silhouettes);
+        m.patch_points.to_mut().extend(p.points);
+        m.patch_cells.to_mut().extend(p.cells);
+        m.silhouettes.to_mut().extend(p.silhouettes);
     }
     m.patch_descriptors = super::PatchDescriptors::Half(descriptors.into());
     m

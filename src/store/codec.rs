@@ -7,7 +7,7 @@ use crate::features::BackboneIdentity;
 use crate::geometry::{Intrinsics, PatchGrid};
 use crate::mesh::{Material, Mesh, MeshData, Part, Units};
 use crate::geometry::symmetry::KnownSymmetries;
-use crate::onboard::half_rows::HalfRows;
+use crate::onboard::stored_rows::{HalfRows, StoredRows};
 use crate::onboard::{ObjectModel, OnboardConfig, PatchDescriptors, Template, MODEL_FORMAT_VERSION};
 use safetensors::{tensor::TensorView, Dtype, SafeTensors};
 use std::sync::Arc;
@@ -176,12 +176,12 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
     match &model.patch_descriptors {
         PatchDescriptors::Half(v) => tensors.push(("patch_descriptors", Dtype::F16, vec![p, model.local_dim], bytemuck::cast_slice(v))),
         PatchDescriptors::Quantized { quantizer, codes } => tensors.extend([
-            ("patch_codes", Dtype::U8, vec![p, quantizer.subspaces], codes.as_slice()),
+            ("patch_codes", Dtype::U8, vec![p, quantizer.subspaces], &codes[..]),
             ("pq_centroids", Dtype::F32, vec![quantizer.subspaces * crate::onboard::pq::CENTROIDS, quantizer.sub_dim()], bytemuck::cast_slice(&quantizer.centroids)),
         ] as [(&str, Dtype, Vec<usize>, &[u8]); 2]),
         PatchDescriptors::Int8 { codes, scales } => tensors.extend([
-            ("patch_codes_i8", Dtype::I8, vec![p, model.local_dim], bytemuck::cast_slice(codes.as_slice())),
-            ("patch_scales", Dtype::F32, vec![p], bytemuck::cast_slice(scales.as_slice())),
+            ("patch_codes_i8", Dtype::I8, vec![p, model.local_dim], bytemuck::cast_slice(&codes[..])),
+            ("patch_scales", Dtype::F32, vec![p], bytemuck::cast_slice(&scales[..])),
         ] as [(&str, Dtype, Vec<usize>, &[u8]); 2]),
     }
     if let Some(c) = model.contours.get() {
@@ -326,12 +326,12 @@ fn decode_inner(manifest: &[u8], tensors: &[u8], map: Option<&Arc<memmap2::Mmap>
         }
         let quantizer = crate::onboard::pq::ProductQuantizer { dim: local_dim, subspaces, centroids: bytemuck::pod_collect_to_vec(get("pq_centroids", Dtype::F32, local_dim / subspaces)?) };
         quantizer.validate().map_err(|e| corrupt(format!("pq_centroids: {e}")))?;
-        PatchDescriptors::Quantized { quantizer, codes: codes.data().to_vec() }
+        PatchDescriptors::Quantized { quantizer, codes: StoredRows::mapped_or_copied(map, codes.data()) }
     } else if st.names().contains(&"patch_codes_i8") {
-        PatchDescriptors::Int8 { codes: bytemuck::pod_collect_to_vec(get("patch_codes_i8", Dtype::I8, local_dim)?), scales: bytemuck::pod_collect_to_vec(get("patch_scales", Dtype::F32, 0)?) }
+        PatchDescriptors::Int8 { codes: StoredRows::mapped_or_copied(map, get("patch_codes_i8", Dtype::I8, local_dim)?), scales: StoredRows::mapped_or_copied(map, get("patch_scales", Dtype::F32, 0)?) }
     } else {
         let bytes = get("patch_descriptors", Dtype::F16, 0)?;
-        PatchDescriptors::Half(map.and_then(|m| HalfRows::mapped(m, bytes)).unwrap_or_else(|| bytemuck::pod_collect_to_vec(bytes).into()))
+        PatchDescriptors::Half(HalfRows::mapped_or_copied(map, bytes))
     };
     let model = ObjectModel {
         object_id: man.object_id,
@@ -346,9 +346,9 @@ fn decode_inner(manifest: &[u8], tensors: &[u8], map: Option<&Arc<memmap2::Mmap>
         templates: man.templates,
         global: bytemuck::pod_collect_to_vec(get("global", Dtype::F32, 0)?),
         patch_descriptors,
-        patch_points: bytemuck::pod_collect_to_vec(get("patch_points", Dtype::F32, 3)?),
-        patch_cells: bytemuck::pod_collect_to_vec(get("patch_cells", Dtype::U16, 0)?),
-        silhouettes: bytemuck::pod_collect_to_vec(get("silhouettes", Dtype::U64, 0)?),
+        patch_points: StoredRows::mapped_or_copied(map, get("patch_points", Dtype::F32, 3)?),
+        patch_cells: StoredRows::mapped_or_copied(map, get("patch_cells", Dtype::U16, 0)?),
+        silhouettes: StoredRows::mapped_or_copied(map, get("silhouettes", Dtype::U64, 0)?),
         contours,
         detector,
         symmetries: man.symmetries,
