@@ -68,8 +68,8 @@ impl PatchDescriptors {
     pub fn memory_bytes(&self) -> usize {
         match self {
             PatchDescriptors::Half(v) => v.heap_bytes(),
-            PatchDescriptors::Quantized { quantizer, codes } => codes.len() + quantizer.centroids.len() * 4,
-            PatchDescriptors::Int8 { codes, scales } => codes.len() + scales.len() * 4,
+            PatchDescriptors::Quantized { quantizer, codes } => codes.heap_bytes() + quantizer.centroids.len() * 4,
+            PatchDescriptors::Int8 { codes, scales } => codes.heap_bytes() + scales.heap_bytes(),
         }
     }
 
