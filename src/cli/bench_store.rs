@@ -80,8 +80,8 @@ pub fn run(a: BenchStoreArgs) -> Result<()> {
         let mut m = full.clone();
         let t = Instant::now();
         crate::onboard::apply_coding(&mut m, coding)?;
-        println!("{coding:?}: learnt and encoded in {:.2} s", t.elapsed().as_secs_f64());
-        variants.push((format!("{} dims ({coding:?})", full.local_dim), m));
+        println!("{coding}: learnt and encoded in {:.2} s", t.elapsed().as_secs_f64());
+        variants.push((format!("{} dims ({coding})", full.local_dim), m));
     }
     let tmp = std::env::temp_dir().join(format!("b2tf-bench-store-{}", std::process::id()));
     let result = (|| -> Result<()> {

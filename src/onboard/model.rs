@@ -66,19 +66,13 @@ impl DescriptorCoding {
         DescriptorCoding::F16
     }
 
-    pub fn name(self) -> &'static str {
-        match self {
-            DescriptorCoding::F16 => "f16",
-            DescriptorCoding::Pq4 => "pq4",
-            DescriptorCoding::Pq2 => "pq2",
-            DescriptorCoding::I8 => "i8",
-        }
-    }
 }
 
+// The names are clap's (`--descriptors pq4`), so the CLI, the API and the docs agree.
 impl std::fmt::Display for DescriptorCoding {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
+        let name = clap::ValueEnum::to_possible_value(self).expect("no variant is skipped");
+        f.write_str(name.get_name())
     }
 }
 
@@ -86,12 +80,8 @@ impl std::str::FromStr for DescriptorCoding {
     type Err = String;
 
     fn from_str(s: &str) -> Result<Self, String> {
-        [DescriptorCoding::F16, DescriptorCoding::I8, DescriptorCoding::Pq2, DescriptorCoding::Pq4]
-            .into_iter()
-            .find(|c| c.name() == s.trim().to_ascii_lowercase())
-            .ok_or_else(|| format!("unknown descriptor coding {s:?} (expected f16, i8, pq2 or pq4)"))
+        <Self as clap::ValueEnum>::from_str(s.trim(), true).map_err(|_| format!("unknown descriptor coding {s:?} (expected f16, i8, pq2 or pq4)"))
     }
-
 }
 
 impl Default for OnboardConfig {

@@ -106,10 +106,11 @@ impl DirStore {
         let mut texture = |name: &str| std::fs::read(dir.join(name)).map_err(|e| e.to_string());
         // The model keeps the mapping: its f16 descriptors are read in place.
         let model = codec::decode_mapped(&manifest, &map, &mut texture).map_err(|e| StoreError::from_codec(id, e))?;
-        // The decode copied the other tensors out of the mapping, which left their pages
-        // mapped (resident, counted in the process's RSS) though they are never read there
-        // again. Unmapping them keeps them in the page cache, and the descriptors' pages
-        // come back on the first read, as they would anyway.
+        // The decode copied the small tensors (templates' globals, contour and detector
+        // models, mesh arrays) out of the mapping, which left their pages mapped (resident,
+        // counted in the process's RSS) though they are never read there again. Unmapping
+        // them keeps them in the page cache; the mapped arrays' pages come back on first
+        // read, as they would anyway.
         // SAFETY: a read-only mapping of a file never modified in place: pages dropped
         // from it read back the same bytes.
         if let Err(e) = unsafe { map.unchecked_advise(memmap2::UncheckedAdvice::DontNeed) } {
