@@ -11,11 +11,7 @@
 //! environment. A child reports through stdout lines that carry `MARK`.
 #![cfg(unix)]
 
-use b2tfpose::features::{EmbeddedBackbone, EmbeddedConfig};
-use b2tfpose::geometry::ViewSampling;
-use b2tfpose::mesh::procedural::textured_box;
-use b2tfpose::onboard::{onboard, ObjectModel, OnboardConfig, PatchDescriptors, Template};
-use b2tfpose::render::{RenderError, RenderPool, RendererConfig};
+use b2tfpose::onboard::{ObjectModel, PatchDescriptors, Template};
 use b2tfpose::store::{self, codec, ModelCache, ObjectStore, StoreError};
 use std::collections::BTreeSet;
 use std::io::{BufRead, BufReader, Read, Write};
@@ -41,18 +37,7 @@ fn model() -> Option<&'static ObjectModel> {
     static MODEL: OnceLock<Option<ObjectModel>> = OnceLock::new();
     MODEL
         .get_or_init(|| {
-            let pool = match RenderPool::new(1, RendererConfig::default()) {
-                Ok(p) => p,
-                Err(e @ RenderError::NoAdapter { .. }) if std::env::var_os("B2TF_REQUIRE_GPU").is_none() => {
-                    eprintln!("SKIPPED (no GPU adapter): {e}");
-                    return None;
-                }
-                Err(e) => panic!("render pool: {e}"),
-            };
-            let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).expect("embedded backbone");
-            let mesh = textured_box([0.1, 0.06, 0.16], 3);
-            let config = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps: 2 }, render_size: 128, ..Default::default() };
-            let mut m = onboard("obj-a", &mesh, &config, &backbone, &pool, &|_| {}).expect("onboarding the test object");
+            let mut m = b2tfpose::onboard::test_model::small_model()?.clone();
             assert!(m.mesh.has_texture(), "the test object should carry a texture, so that textures are stored too");
             // Symmetries of every kind, so that storing and listing them is checked (the
             // textured box itself has none).

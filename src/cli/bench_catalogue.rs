@@ -3,7 +3,8 @@
 //! (round robin, ids `<source>-<k>`: each copy its own files, so nothing is shared between
 //! them on disk, in the page cache or on the heap), starts `b2tf serve` on it, and sends
 //! each object one estimate of a view rendered from its own mesh while it is not loaded
-//! (cold: the store's load, its first GPU upload) and one once it is (warm). Prints the
+//! (cold: the store's load, its first GPU upload) and two once it is (warm, and warm again:
+//! their difference is the noise the cold − warm figure stands in). Prints the
 //! store's bytes, the server's resident memory before and after (anonymous = heap,
 //! file = mapped tensors), and cold/warm latency.
 
@@ -62,7 +63,7 @@ pub fn run(a: BenchCatalogueArgs) -> Result<()> {
     let k = Intrinsics::new(600.0, 600.0, 319.5, 239.5, 640, 480)?;
     let before = memory_mb(server.pid());
     let mut requests: std::collections::HashMap<String, Value> = Default::default();
-    let (mut cold, mut warm) = (Vec::new(), Vec::new());
+    let (mut cold, mut warm, mut again) = (Vec::new(), Vec::new(), Vec::new());
     for (i, id) in ids.iter().enumerate() {
         let source = source_of(id);
         if !requests.contains_key(source) {
@@ -70,16 +71,18 @@ pub fn run(a: BenchCatalogueArgs) -> Result<()> {
         }
         let mut request = requests[source].clone();
         request["detections"][0]["object_id"] = json!(id);
-        let timed = || -> Result<f64> {
+        let timed = || -> Result<Timed> {
             let t = Instant::now();
             let (s, v) = json_call(&addr, "POST", "/v1/estimate", Some(&request))?;
             if s != 200 {
                 bail!("estimate of {id} failed: {s} {v}");
             }
-            Ok(t.elapsed().as_secs_f64() * 1e3)
+            let stages = v["results"][0]["timings_ms"].as_object().map(|m| m.iter().filter_map(|(k, v)| Some((k.clone(), v.as_f64()?))).collect()).unwrap_or_default();
+            Ok(Timed { ms: t.elapsed().as_secs_f64() * 1e3, stages })
         };
         cold.push(timed()?);
         warm.push(timed()?);
+        again.push(timed()?);
         if (i + 1) % 25 == 0 {
             let m = memory_mb(server.pid());
             println!("  {} objects estimated: RSS {:.0} MB", i + 1, m.rss);
@@ -88,7 +91,9 @@ pub fn run(a: BenchCatalogueArgs) -> Result<()> {
     let after = memory_mb(server.pid());
     let (_, metrics) = super::bench_serve::http(&addr, "GET", "/metrics", None)?;
     let metric = |name: &str| String::from_utf8_lossy(&metrics).lines().find(|l| l.starts_with(name)).and_then(|l| l.split_whitespace().nth(1)).and_then(|v| v.parse::<f64>().ok()).unwrap_or(f64::NAN);
-    let extra_ms: Vec<f64> = cold.iter().zip(&warm).map(|(c, w)| c - w).collect();
+    let extra_ms: Vec<f64> = cold.iter().zip(&warm).map(|(c, w)| c.ms - w.ms).collect();
+    // The same difference between two warm estimates: what the noise alone gives.
+    let noise_ms: Vec<f64> = again.iter().zip(&warm).map(|(a, w)| a.ms - w.ms).collect();
     println!("catalogue: {} objects copied from {} ({} descriptors) into {}; server --max-estimates 1{}, RRC {}",
         ids.len(), a.from, a.descriptors, a.store, a.cache_mb.map_or(String::new(), |mb| format!(", --cache-mb {mb}")), if a.no_rrc { "off" } else { "on" });
     println!("| store | MB on disk | MB per object | server RSS before (MB) | after: RSS / anon / file (MB) | per object (MB) | objects loaded | cache MB |");
@@ -100,11 +105,38 @@ pub fn run(a: BenchCatalogueArgs) -> Result<()> {
     );
     println!("| estimate (ms) | median | p90 | max |");
     println!("|---|---:|---:|---:|");
-    for (name, v) in [("cold (object not loaded)", &cold), ("warm", &warm), ("cold − warm, per object", &extra_ms)] {
+    let ms = |v: &[Timed]| v.iter().map(|t| t.ms).collect::<Vec<_>>();
+    for (name, v) in [("cold (object not loaded)", &ms(&cold)), ("warm", &ms(&warm)), ("cold − warm, per object", &extra_ms), ("warm − warm (noise)", &noise_ms)] {
         let s = sorted(v);
         println!("| {name} | {:.0} | {:.0} | {:.0} |", pct(&s, 0.5), pct(&s, 0.9), s.last().copied().unwrap_or(f64::NAN));
     }
+    print_extra_by_stage(&cold, &warm);
     Ok(())
+}
+
+/// One estimate's round trip and the server's stage times (`timings_ms`), milliseconds.
+struct Timed {
+    ms: f64,
+    stages: std::collections::BTreeMap<String, f64>,
+}
+
+/// Where the cold estimate's extra time goes: per pipeline stage, and outside the pipeline
+/// (the request's round trip less the pipeline's `total`: the store's load, decoding).
+fn print_extra_by_stage(cold: &[Timed], warm: &[Timed]) {
+    let mut names: Vec<&String> = cold.first().map(|t| t.stages.keys().filter(|k| *k != "total").collect()).unwrap_or_default();
+    names.sort();
+    let outside = |t: &Timed| t.ms - t.stages.get("total").copied().unwrap_or(f64::NAN);
+    let cells: Vec<(String, Vec<f64>)> = names
+        .iter()
+        .map(|n| (n.to_string(), cold.iter().zip(warm).map(|(c, w)| c.stages.get(*n).copied().unwrap_or(0.0) - w.stages.get(*n).copied().unwrap_or(0.0)).collect()))
+        .chain(std::iter::once(("outside the pipeline".to_string(), cold.iter().zip(warm).map(|(c, w)| outside(c) - outside(w)).collect())))
+        .collect();
+    println!("| cold − warm by stage (ms) | median | p90 |");
+    println!("|---|---:|---:|");
+    for (name, v) in cells {
+        let s = sorted(&v);
+        println!("| {name} | {:.0} | {:.0} |", pct(&s, 0.5), pct(&s, 0.9));
+    }
 }
 
 /// Copies the sources into the scratch store until it holds `objects` ids; returns them.

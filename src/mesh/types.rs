@@ -124,8 +124,18 @@ impl Mesh {
     /// Checks the arrays (finite coordinates, attribute lengths, index range, at least one
     /// face, part ranges) and computes what is derived: normals if absent, bounding box and
     /// diameter. `name` is used in error messages (usually the file path).
-    pub fn new(name: impl Into<String>, source_units: Units, mut data: MeshData) -> Result<Self, MeshError> {
-        let name = name.into();
+    pub fn new(name: impl Into<String>, source_units: Units, data: MeshData) -> Result<Self, MeshError> {
+        Self::build(name.into(), source_units, data, None)
+    }
+
+    /// `new` for a mesh whose diameter was computed before (a stored object's): the O(n·512)
+    /// search, 60 % of a textured object's load, is skipped when `diameter` is plausible for
+    /// the vertices (between their bounding box's longest side and its diagonal).
+    pub fn with_diameter(name: impl Into<String>, source_units: Units, data: MeshData, diameter: f64) -> Result<Self, MeshError> {
+        Self::build(name.into(), source_units, data, Some(diameter))
+    }
+
+    fn build(name: String, source_units: Units, mut data: MeshData, known_diameter: Option<f64>) -> Result<Self, MeshError> {
         let err = |m: String| MeshError::format(name.clone(), m);
         let n = data.positions.len();
         if n == 0 {
@@ -168,7 +178,10 @@ impl Mesh {
             data.normals = vertex_normals(&data.positions, &data.triangles);
         }
         let (bbox_min, bbox_max) = bounding_box(&data.positions);
-        let diameter = diameter(&data.positions);
+        let sides = (0..3).map(|i| (bbox_max[i] - bbox_min[i]) as f64);
+        let (longest, diagonal) = (sides.clone().fold(0.0, f64::max), sides.map(|s| s * s).sum::<f64>().sqrt());
+        let plausible = |d: &f64| d.is_finite() && *d >= longest * (1.0 - 1e-6) && *d <= diagonal * (1.0 + 1e-6);
+        let diameter = known_diameter.filter(plausible).unwrap_or_else(|| diameter(&data.positions));
         Ok(Self { id: NEXT_MESH_ID.fetch_add(1, Ordering::Relaxed), name, source_units, data, bbox_min, bbox_max, diameter })
     }
 
@@ -369,6 +382,17 @@ mod tests {
         let fast = diameter(&pts);
         let slow = brute_diameter(pts.iter().map(|v| v.map(|x| x as f64)));
         assert!((fast - slow).abs() < 1e-9 * slow.max(1.0), "{fast} vs {slow}");
+    }
+
+    #[test]
+    fn a_known_diameter_is_kept_when_plausible_else_computed() {
+        let exact = 2f64.sqrt();
+        let kept = Mesh::with_diameter("t", Units::M, tetra(), exact * 0.99).unwrap();
+        assert_eq!(kept.diameter(), exact * 0.99);
+        // Beyond the box's diagonal, below its longest side, or not a number: recomputed.
+        for wrong in [2.0, 0.5, f64::NAN] {
+            assert!((Mesh::with_diameter("t", Units::M, tetra(), wrong).unwrap().diameter() - exact).abs() < 1e-6, "{wrong}");
+        }
     }
 
     #[test]

@@ -8,6 +8,8 @@ pub mod stored_rows;
 pub mod patch_descriptors;
 pub mod pipeline;
 pub mod pq;
+#[doc(hidden)]
+pub mod test_model;
 
 pub use contour::{ContourConfig, ContourModel};
 pub use model::{ObjectModel, OnboardConfig, Template, MODEL_FORMAT_VERSION};

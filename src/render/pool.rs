@@ -1,7 +1,7 @@
 //! `RenderPool`: a few renderers behind mutexes so that any thread can render. Each
 //! renderer has its own device and mesh cache, so a mesh is uploaded once per renderer.
 
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Mutex, MutexGuard, TryLockError};
 
 use super::{RenderError, RenderOptions, RenderOutput, Renderer, RendererConfig};
@@ -12,6 +12,9 @@ pub struct RenderPool {
     renderers: Vec<Mutex<Renderer>>,
     /// Where the next checkout starts looking, so that load spreads over the renderers.
     next: AtomicUsize,
+    /// Mesh uploads over all renderers, counted as checkouts end (readable without waiting
+    /// for a render in progress).
+    uploads: AtomicU64,
 }
 
 impl RenderPool {
@@ -26,7 +29,7 @@ impl RenderPool {
         let renderers = (0..size.max(1))
             .map(|_| Renderer::with_config(config.clone()).map(Mutex::new))
             .collect::<Result<_, _>>()?;
-        Ok(Self { renderers, next: AtomicUsize::new(0) })
+        Ok(Self { renderers, next: AtomicUsize::new(0), uploads: AtomicU64::new(0) })
     }
 
     pub fn size(&self) -> usize {
@@ -37,13 +40,21 @@ impl RenderPool {
         format!("{} x {}", self.size(), self.checkout().describe())
     }
 
-    /// Mesh uploads summed over all renderers.
+    /// Mesh uploads summed over all renderers (those of renders still in progress not yet).
     pub fn mesh_uploads(&self) -> u64 {
-        self.renderers.iter().map(|r| lock(r).mesh_uploads()).sum()
+        self.uploads.load(Ordering::Relaxed)
     }
 
     pub fn render(&self, mesh: &Mesh, pose: &Pose, k: &Intrinsics, opts: &RenderOptions) -> Result<RenderOutput, RenderError> {
         self.checkout().render(mesh, pose, k, opts)
+    }
+
+    /// Uploads `mesh` to every renderer that does not hold it yet. Its stored textures are
+    /// decoded once for all of them (held here until the last upload) rather than once per
+    /// renderer, as first renders on each would.
+    pub fn prepare(&self, mesh: &Mesh) -> Result<(), RenderError> {
+        let _decoded: Vec<_> = mesh.materials().iter().filter_map(|m| m.texture.as_ref()?.pixels().ok()).collect();
+        self.renderers.iter().try_for_each(|r| self.counted(lock(r)).prepare(mesh))
     }
 
     /// Several views of one mesh, in order, spread over the pool's renderers.
@@ -81,17 +92,47 @@ impl RenderPool {
     }
 
     /// A free renderer if there is one, else waits for the next in turn.
-    pub fn checkout(&self) -> MutexGuard<'_, Renderer> {
+    fn checkout(&self) -> Checkout<'_> {
         let n = self.renderers.len();
         let start = self.next.fetch_add(1, Ordering::Relaxed) % n;
         for i in 0..n {
             match self.renderers[(start + i) % n].try_lock() {
-                Ok(r) => return r,
-                Err(TryLockError::Poisoned(e)) => return e.into_inner(),
+                Ok(r) => return self.counted(r),
+                Err(TryLockError::Poisoned(e)) => return self.counted(e.into_inner()),
                 Err(TryLockError::WouldBlock) => {}
             }
         }
-        lock(&self.renderers[start])
+        self.counted(lock(&self.renderers[start]))
+    }
+
+    fn counted<'a>(&'a self, renderer: MutexGuard<'a, Renderer>) -> Checkout<'a> {
+        Checkout { uploads_before: renderer.mesh_uploads(), renderer, total: &self.uploads }
+    }
+}
+
+/// A renderer in use; adds the meshes it uploaded meanwhile to the pool's count when done.
+struct Checkout<'a> {
+    renderer: MutexGuard<'a, Renderer>,
+    uploads_before: u64,
+    total: &'a AtomicU64,
+}
+
+impl std::ops::Deref for Checkout<'_> {
+    type Target = Renderer;
+    fn deref(&self) -> &Renderer {
+        &self.renderer
+    }
+}
+
+impl std::ops::DerefMut for Checkout<'_> {
+    fn deref_mut(&mut self) -> &mut Renderer {
+        &mut self.renderer
+    }
+}
+
+impl Drop for Checkout<'_> {
+    fn drop(&mut self) {
+        self.total.fetch_add(self.renderer.mesh_uploads() - self.uploads_before, Ordering::Relaxed);
     }
 }
 

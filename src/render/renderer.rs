@@ -102,6 +102,18 @@ impl Renderer {
         t.read(&ctx.device, |rgba, depth| assemble(k.width, k.height, pitch, rgba, depth, opts.background))
     }
 
+    /// Uploads `mesh` now unless it is cached, so that its first render does not pay for it.
+    pub fn prepare(&mut self, mesh: &Mesh) -> Result<(), RenderError> {
+        let Self { ctx, pipeline, cache, .. } = self;
+        let uploaded = ctx.catching(|| {
+            cache.get_or_insert_with(mesh.id(), || GpuMesh::upload(&ctx.device, &ctx.queue, pipeline, mesh));
+        });
+        if uploaded.is_err() {
+            cache.remove(mesh.id());
+        }
+        uploaded
+    }
+
     /// Several views of one mesh, in order; the mesh is uploaded at most once.
     pub fn render_batch(&mut self, mesh: &Mesh, views: &[(Pose, Intrinsics)], opts: &RenderOptions) -> Result<Vec<RenderOutput>, RenderError> {
         views.iter().map(|(pose, k)| self.render(mesh, pose, k, opts)).collect()

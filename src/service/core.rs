@@ -119,7 +119,34 @@ impl Core {
 
     /// An object from the cache (the store on a miss), in a span of its own.
     pub(super) fn load(&self, id: &str) -> Result<Arc<crate::onboard::ObjectModel>, ServiceError> {
-        Ok(tracing::info_span!("store.get", object_id = id).in_scope(|| self.cache.get(id))?)
+        Ok(self.fetch(id)?.0)
+    }
+
+    /// `load` for a request that will render the object (an estimate, a track). One just
+    /// loaded is uploaded to the render pool on a thread of its own meanwhile: the upload
+    /// (for a textured mesh mostly its texture's decode, about 40 ms for 2048²) then
+    /// overlaps the request's feature extraction and retrieval instead of delaying its
+    /// first render, and the texture is decoded once for all renderers rather than once each.
+    pub(super) fn load_to_render(&self, id: &str) -> Result<Arc<crate::onboard::ObjectModel>, ServiceError> {
+        let (model, loaded) = self.fetch(id)?;
+        if loaded {
+            let (pool, model) = (self.pool.clone(), model.clone());
+            let span = tracing::info_span!("render.prepare", object_id = id);
+            let started = std::thread::Builder::new().name("render-prepare".into()).spawn(move || {
+                if let Err(e) = span.in_scope(|| pool.prepare(&model.mesh)) {
+                    // The request's own renders upload it again (and answer the error).
+                    tracing::warn!(object_id = model.object_id, "uploading the mesh ahead of its renders failed: {e}");
+                }
+            });
+            if let Err(e) = started {
+                tracing::warn!("no thread to upload the mesh ahead of its renders: {e}");
+            }
+        }
+        Ok(model)
+    }
+
+    fn fetch(&self, id: &str) -> Result<(Arc<crate::onboard::ObjectModel>, bool), ServiceError> {
+        Ok(tracing::info_span!("store.get", object_id = id).in_scope(|| self.cache.fetch(id))?)
     }
 
     pub fn store_url(&self) -> String {
@@ -138,6 +165,10 @@ impl Core {
 
     pub fn queue_stats(&self) -> Option<crate::features::batch_queue::QueueStats> {
         self.queue.as_ref().map(|q| q.stats())
+    }
+
+    pub fn render_mesh_uploads(&self) -> u64 {
+        self.pool.mesh_uploads()
     }
 
     pub fn onboardings_running(&self) -> usize {
@@ -278,7 +309,7 @@ impl Core {
             by_object.entry(id.as_str()).or_default().push((i, mask, score));
         }
         // Every object must exist before any work starts.
-        let models: BTreeMap<&str, _> = by_object.keys().map(|&id| Ok((id, self.load(id)?))).collect::<Result<_, ServiceError>>()?;
+        let models: BTreeMap<&str, _> = by_object.keys().map(|&id| Ok((id, self.load_to_render(id)?))).collect::<Result<_, ServiceError>>()?;
         let mut cfg = EstimateConfig { rrc: o.rrc, max_masks: o.max_masks, refiner: o.refiner, ..Default::default() };
         cfg.retrieval.k = o.k;
         cfg.verify.enabled = o.verify;
@@ -368,6 +399,31 @@ mod tests {
         let mut m = image::GrayImage::new(4, 1);
         m.put_pixel(x, 0, image::Luma([255]));
         m
+    }
+
+    /// An object loaded for rendering is uploaded to every renderer without a render; one
+    /// loaded otherwise (a detection, an object listing) is not.
+    #[test]
+    fn an_object_loaded_to_render_is_uploaded_to_every_renderer() {
+        let Some(model) = crate::onboard::test_model::small_model() else { return };
+        let dir = tempfile::tempdir().unwrap();
+        let store_url = format!("dir://{}", dir.path().display());
+        let core = Core::new(CoreConfig { store_url, render_pool: 2, ..Default::default() }).unwrap();
+        for id in ["a", "b"] {
+            core.store.put(&crate::onboard::ObjectModel { object_id: id.into(), ..model.clone() }, false).unwrap();
+        }
+        core.load("a").unwrap();
+        core.load_to_render("b").unwrap();
+        let t = Instant::now();
+        while core.render_mesh_uploads() < 2 {
+            assert!(t.elapsed().as_secs() < 60, "the mesh never reached both renderers");
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        std::thread::sleep(std::time::Duration::from_millis(200));
+        assert_eq!(core.render_mesh_uploads(), 2, "one upload per renderer, of b only");
+        core.load_to_render("b").unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(200));
+        assert_eq!(core.render_mesh_uploads(), 2, "a loaded object is not uploaded again");
     }
 
     #[test]

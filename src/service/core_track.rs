@@ -94,7 +94,7 @@ impl Core {
         let mut models = std::collections::BTreeMap::new();
         for d in &detections {
             if !models.contains_key(&d.object_id) {
-                models.insert(d.object_id.clone(), self.load(&d.object_id)?);
+                models.insert(d.object_id.clone(), self.load_to_render(&d.object_id)?);
             }
         }
         let resolve = |object_id: &str| models.get(object_id).cloned().ok_or_else(|| format!("object {object_id:?} was not loaded"));

@@ -57,6 +57,11 @@ impl ModelCache {
     /// The object, from memory or loaded from the store (the lock is not held while
     /// loading, so other objects stay available meanwhile).
     pub fn get(&self, id: &str) -> Result<Arc<ObjectModel>, StoreError> {
+        self.fetch(id).map(|(model, _)| model)
+    }
+
+    /// `get`, and whether this call loaded the object from the store.
+    pub fn fetch(&self, id: &str) -> Result<(Arc<ObjectModel>, bool), StoreError> {
         {
             let mut g = self.inner.lock().expect("cache lock");
             g.clock += 1;
@@ -65,7 +70,7 @@ impl ModelCache {
                 e.last_used = now;
                 let m = e.model.clone();
                 g.hits += 1;
-                return Ok(m);
+                return Ok((m, false));
             }
             g.misses += 1;
         }
@@ -91,7 +96,7 @@ impl ModelCache {
                 None => break,
             }
         }
-        Ok(model)
+        Ok((model, true))
     }
 
     /// Forgets an object (after it was replaced or deleted in the store).

@@ -285,7 +285,7 @@ fn decode_inner(manifest: &[u8], tensors: &[u8], map: Option<&Arc<memmap2::Mmap>
         parts: man.mesh.parts.iter().map(|&(first_triangle, triangle_count, material)| Part { first_triangle, triangle_count, material }).collect(),
         materials,
     };
-    let mesh = Mesh::new(man.mesh.name.clone(), man.mesh.source_units, data).map_err(|e| corrupt(format!("stored mesh: {e}")))?;
+    let mesh = Mesh::with_diameter(man.mesh.name.clone(), man.mesh.source_units, data, man.diameter_m).map_err(|e| corrupt(format!("stored mesh: {e}")))?;
     let contours = match man.contour {
         Some(config) => {
             let c = crate::onboard::ContourModel {

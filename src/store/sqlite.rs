@@ -456,31 +456,9 @@ impl ObjectStore for SqliteStore {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::ViewSampling;
-    use crate::onboard::OnboardConfig;
-    use crate::render::{RenderError, RenderPool, RendererConfig};
-    use std::sync::OnceLock;
 
-    /// A small real model, onboarded once for every test; `None` (the test skips) without a
-    /// GPU adapter unless B2TF_REQUIRE_GPU is set, as elsewhere in the crate.
     fn model() -> Option<&'static ObjectModel> {
-        static MODEL: OnceLock<Option<ObjectModel>> = OnceLock::new();
-        MODEL
-            .get_or_init(|| {
-                let pool = match RenderPool::new(1, RendererConfig::default()) {
-                    Ok(p) => p,
-                    Err(e @ RenderError::NoAdapter { .. }) if std::env::var_os("B2TF_REQUIRE_GPU").is_none() => {
-                        eprintln!("SKIPPED (no GPU adapter): {e}");
-                        return None;
-                    }
-                    Err(e) => panic!("{e}"),
-                };
-                let backbone = crate::features::EmbeddedBackbone::new(crate::features::EmbeddedConfig::default()).expect("embedded backbone");
-                let mesh = crate::mesh::procedural::textured_box([0.1, 0.06, 0.16], 3);
-                let config = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps: 2 }, render_size: 128, ..Default::default() };
-                Some(crate::onboard::onboard("obj-a", &mesh, &config, &backbone, &pool, &|_| {}).expect("onboarding the test object"))
-            })
-            .as_ref()
+        crate::onboard::test_model::small_model()
     }
 
     fn with_id(m: &ObjectModel, id: &str) -> ObjectModel {

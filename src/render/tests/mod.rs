@@ -25,7 +25,11 @@ pub(super) fn renderer_with(config: RendererConfig) -> Option<Renderer> {
 /// A one-renderer pool for GPU tests elsewhere in the crate: None (after saying why)
 /// without an adapter, unless B2TF_REQUIRE_GPU=1.
 pub(crate) fn test_pool() -> Option<RenderPool> {
-    match RenderPool::new(1, RendererConfig::default()) {
+    pool_of(1)
+}
+
+fn pool_of(size: usize) -> Option<RenderPool> {
+    match RenderPool::new(size, RendererConfig::default()) {
         Ok(p) => Some(p),
         Err(e @ RenderError::NoAdapter { .. }) if std::env::var_os("B2TF_REQUIRE_GPU").is_none() => {
             eprintln!("SKIPPED (no GPU adapter): {e}");
@@ -221,6 +225,19 @@ fn second_render_of_a_mesh_does_not_upload_again() {
         small.render(m, &p, &k, &o).unwrap();
     }
     assert_eq!((small.mesh_uploads(), small.cached_meshes()), (3, 1));
+}
+
+#[test]
+fn prepare_uploads_to_every_renderer_once_and_renders_reuse_it() {
+    let Some(pool) = pool_of(2) else { return };
+    let mesh = textured_sphere();
+    pool.prepare(&mesh).unwrap();
+    assert_eq!(pool.mesh_uploads(), 2);
+    let (k, p, o) = (camera(), pose([10.0, 0.0, 0.0], [0.0, 0.0, 0.4]), RenderOptions::default());
+    let views = vec![(p, k); 4];
+    assert_eq!(pool.render_batch(&mesh, &views, &o).unwrap().len(), 4);
+    pool.prepare(&mesh).unwrap();
+    assert_eq!(pool.mesh_uploads(), 2, "already uploaded everywhere");
 }
 
 #[test]
