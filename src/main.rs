@@ -1,16 +1,18 @@
 use clap::Parser;
 
 fn main() {
+    // Before any thread starts (it sets an environment variable).
+    b2tfpose::render::quiet_headless_vulkan_loader();
     let cli = b2tfpose::cli::Cli::parse();
     let telemetry = match b2tfpose::telemetry::init(&cli.telemetry, cli.command.default_log_filter()) {
         Ok(g) => g,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            b2tfpose::telemetry::fatal(&format!("{e:#}"));
             std::process::exit(2);
         }
     };
     if let Err(e) = b2tfpose::cli::run(cli) {
-        eprintln!("error: {e:#}");
+        b2tfpose::telemetry::fatal(&format!("{e:#}"));
         // `exit` runs no destructors: flush the exported spans first.
         drop(telemetry);
         std::process::exit(1);

@@ -92,18 +92,17 @@ fn status_id(s: &tonic::Status) -> String {
     s.metadata().get("x-request-id").unwrap_or_else(|| panic!("{s:?} has no x-request-id")).to_str().unwrap().to_string()
 }
 
-/// The JSON lines of the log; lines that are not ours (a driver writing to stderr) are
-/// skipped, every line of ours must parse.
+/// The log's lines, every one of which must be a JSON object (drivers' lines included).
 fn json_lines(logs: &Logs) -> Vec<Value> {
     let lines = logs.lock().unwrap().clone();
-    lines.iter().filter(|l| l.starts_with('{')).map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("not JSON ({e}): {l}"))).collect()
+    lines.iter().map(|l| serde_json::from_str::<Value>(l).ok().filter(Value::is_object).unwrap_or_else(|| panic!("not a JSON object: {l}"))).collect()
 }
 
 #[test]
 fn request_ids_on_every_answer_and_json_logs_without_secrets() {
     let dir = tempfile::tempdir().unwrap();
     let store = format!("sqlite://{}", dir.path().join("objects.db").display());
-    let (server, logs) = start_logged(&store, Some(KEY), &["--log-format", "json", "--max-track-sessions", "1"], &[("B2TF_LOG", "info,b2tfpose=debug")]);
+    let (server, logs) = start_logged(&store, Some(KEY), &["--log-format", "json", "--max-track-sessions", "1"], &[("B2TF_LOG", "info,b2tfpose=debug"), ("XDG_RUNTIME_DIR", "")]); // as on a bare server: no session
     let (base, c) = (server.http.clone(), common::http_client().build().unwrap());
     wait_ready(&base);
     let auth = |r: reqwest::blocking::RequestBuilder| r.bearer_auth(KEY);
@@ -308,6 +307,10 @@ fn bad_telemetry_settings_are_refused_and_an_absent_collector_holds_nothing_up()
         let (code, _, err) = b2tf(&["serve", "--otlp-endpoint", bad, "--http", "127.0.0.1:0", "--grpc", "none"], &[]);
         assert!(code == Some(2) && err.contains("--otlp-endpoint") && err.contains(bad), "{bad}: {err}");
     }
+    // A fatal error follows the log format.
+    let (code, _, err) = b2tf(&["objects", "list", "--store", "bogus://x", "--log-format", "json"], &[]);
+    let line: Value = serde_json::from_str(err.trim()).unwrap_or_else(|e| panic!("{e}: {err}"));
+    assert!(code == Some(1) && line["level"] == "ERROR" && line["message"].as_str().unwrap().contains("bogus://x"), "{err}");
     // Logs never reach stdout, whatever their format and level.
     let (code, stdout, _) = b2tf(&["sample", "--out", out, "--log-format", "json"], &[("B2TF_LOG", "trace")]);
     assert!(code == Some(0) && stdout.starts_with("wrote ") && stdout.lines().count() == 1, "{stdout}");

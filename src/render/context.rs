@@ -2,6 +2,20 @@
 
 use super::RenderError;
 
+/// Disables Mesa's Vulkan device-selection layer (`NODEVICE_SELECT=1`) unless the caller
+/// chose a device through it (`MESA_VK_DEVICE_SELECT`) or set the switch themselves. The
+/// layer connects to a Wayland display to rank GPUs by the one showing the desktop; on a
+/// headless server there is none, and libwayland says so on stderr (`error:
+/// XDG_RUNTIME_DIR is invalid or not set in the environment.`, twice per renderer), a
+/// line no log collector can parse. wgpu ranks adapters itself (high performance first).
+///
+/// Call it at the start of `main`, before any thread: it sets an environment variable.
+pub fn quiet_headless_vulkan_loader() {
+    if std::env::var_os("MESA_VK_DEVICE_SELECT").is_none() && std::env::var_os("NODEVICE_SELECT").is_none() {
+        std::env::set_var("NODEVICE_SELECT", "1");
+    }
+}
+
 pub(crate) struct GpuContext {
     // Held so the instance lives exactly as long as the device it opened.
     _instance: wgpu::Instance,

@@ -27,6 +27,7 @@ mod targets;
 #[cfg(test)]
 pub(crate) mod tests;
 
+pub use context::quiet_headless_vulkan_loader;
 pub use error::RenderError;
 pub use options::RenderOptions;
 pub use output::RenderOutput;

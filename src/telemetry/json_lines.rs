@@ -15,15 +15,32 @@ use tracing_subscriber::registry::LookupSpan;
 
 pub struct JsonLines;
 
+/// A line of the same shape written outside `tracing`: the server's start-up banner on
+/// stdout, a panic, a command's fatal error. `fields` go at the top level.
+pub fn line(level: tracing::Level, target: &str, message: &str, fields: Map<String, Value>) -> String {
+    let mut line = Map::new();
+    line.insert("ts".into(), now().into());
+    line.insert("level".into(), level.as_str().into());
+    line.insert("target".into(), target.into());
+    line.insert("message".into(), message.into());
+    line.extend(fields);
+    Value::Object(line).to_string()
+}
+
+fn now() -> String {
+    let mut ts = String::new();
+    // Writing into a String cannot fail.
+    let _ = SystemTime.format_time(&mut Writer::new(&mut ts));
+    ts
+}
+
 impl<S> FormatEvent<S, JsonFields> for JsonLines
 where
     S: Subscriber + for<'a> LookupSpan<'a>,
 {
     fn format_event(&self, ctx: &FmtContext<'_, S, JsonFields>, mut w: Writer<'_>, event: &Event<'_>) -> fmt::Result {
         let mut line = Map::new();
-        let mut ts = String::new();
-        SystemTime.format_time(&mut Writer::new(&mut ts))?;
-        line.insert("ts".into(), ts.into());
+        line.insert("ts".into(), now().into());
         // A bridged `log` record carries its own level and target.
         let normalized = event.normalized_metadata();
         let meta = normalized.as_ref().unwrap_or_else(|| event.metadata());

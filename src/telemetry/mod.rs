@@ -31,14 +31,36 @@ pub struct Guard {
     _otlp: Option<otlp::Otlp>,
 }
 
+static FORMAT: std::sync::OnceLock<LogFormat> = std::sync::OnceLock::new();
+
+/// The format `init` set up (human before it ran): what a command's own lines outside the
+/// log (the server's banner, a fatal error) follow.
+pub fn format() -> LogFormat {
+    FORMAT.get().copied().unwrap_or_default()
+}
+
+/// A command's fatal error, on stderr in the log's format.
+pub fn fatal(message: &str) {
+    match format() {
+        LogFormat::Human => eprintln!("error: {message}"),
+        LogFormat::Json => eprintln!("{}", json_lines::line(tracing::Level::ERROR, "b2tf", message, Default::default())),
+    }
+}
+
 /// Installs the global subscriber. `default_filter` applies when neither B2TF_LOG nor
-/// RUST_LOG is set. Fails on a bad filter or endpoint, naming it.
+/// RUST_LOG is set. Fails on a bad filter or endpoint, naming it. With JSON logs, panics
+/// are logged as JSON lines too (message, location, thread) instead of the default text.
 pub fn init(args: &TelemetryArgs, default_filter: &str) -> anyhow::Result<Guard> {
     use tracing_subscriber::layer::SubscriberExt;
     use tracing_subscriber::util::SubscriberInitExt;
     use tracing_subscriber::Layer;
+    let format = args.log_format.unwrap_or_default();
+    let _ = FORMAT.set(format);
+    if format == LogFormat::Json {
+        std::panic::set_hook(Box::new(json_panic));
+    }
     let filter = logging::filter(default_filter)?;
-    let logs = logging::layer(args.log_format.unwrap_or_default()).with_filter(filter);
+    let logs = logging::layer(format).with_filter(filter);
     let endpoint = args.otlp_endpoint.as_deref().map(str::trim).filter(|e| !e.is_empty());
     #[cfg(feature = "otlp")]
     {
@@ -55,4 +77,18 @@ pub fn init(args: &TelemetryArgs, default_filter: &str) -> anyhow::Result<Guard>
         tracing_subscriber::registry().with(logs).try_init()?;
         Ok(Guard {})
     }
+}
+
+/// A panic as one JSON line on stderr (not through `tracing`: the filter could hide it).
+fn json_panic(info: &std::panic::PanicHookInfo<'_>) {
+    let message = info.payload().downcast_ref::<&str>().map(|s| s.to_string()).or_else(|| info.payload().downcast_ref::<String>().cloned()).unwrap_or_else(|| "(a panic without a message)".into());
+    let mut fields = serde_json::Map::new();
+    if let Some(l) = info.location() {
+        fields.insert("location".into(), format!("{}:{}:{}", l.file(), l.line(), l.column()).into());
+    }
+    fields.insert("thread".into(), std::thread::current().name().unwrap_or("unnamed").into());
+    if std::env::var_os("RUST_BACKTRACE").is_some_and(|v| v != "0") {
+        fields.insert("backtrace".into(), std::backtrace::Backtrace::force_capture().to_string().into());
+    }
+    eprintln!("{}", json_lines::line(tracing::Level::ERROR, "panic", &format!("panicked: {message}"), fields));
 }

@@ -49,10 +49,17 @@ pub fn start(store: &str, keys: Option<&str>, extra: &[&str]) -> Server {
 /// The lines the server writes on stderr (its logs), as they come.
 pub type Logs = std::sync::Arc<std::sync::Mutex<Vec<String>>>;
 
-/// `start` with `env` set and stderr collected line by line.
+/// `start` with `env` set (an empty value removes the variable) and stderr collected line
+/// by line.
 pub fn start_logged(store: &str, keys: Option<&str>, extra: &[&str], env: &[(&str, &str)]) -> (Server, Logs) {
     let mut cmd = serve_command(store, keys, extra);
-    cmd.envs(env.iter().copied()).stderr(Stdio::piped());
+    for &(k, v) in env {
+        match v {
+            "" => cmd.env_remove(k),
+            v => cmd.env(k, v),
+        };
+    }
+    cmd.stderr(Stdio::piped());
     let mut server = spawn(cmd);
     let logs = Logs::default();
     let (stderr, sink) = (server.child.stderr.take().unwrap(), logs.clone());
@@ -87,7 +94,12 @@ fn spawn(mut cmd: Command) -> Server {
     let mut child = cmd.stdout(Stdio::piped()).spawn().expect("server starts");
     let mut line = String::new();
     BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
-    let word = |scheme: &str| line.split_whitespace().find(|w| w.starts_with(scheme)).map(str::to_string);
+    // `listening on http://… grpc://… (…)`, or with --log-format json one JSON object.
+    let json: Option<serde_json::Value> = serde_json::from_str(&line).ok();
+    let word = |scheme: &str| match &json {
+        Some(j) => ["http", "grpc"].iter().filter_map(|k| j[*k].as_str()).find(|w| w.starts_with(scheme)).map(str::to_string),
+        None => line.split_whitespace().find(|w| w.starts_with(scheme)).map(str::to_string),
+    };
     let http = word("http://").or_else(|| word("https://")).unwrap_or_else(|| panic!("no HTTP address in {line:?}"));
     let grpc = word("grpc://").map(|g| g.replacen("grpc://", "http://", 1)).or_else(|| word("grpcs://").map(|g| g.replacen("grpcs://", "https://", 1))).unwrap_or_else(|| panic!("no gRPC address in {line:?}"));
     Server { child, http, grpc }
