@@ -62,17 +62,12 @@ pub fn run(a: ServeArgs) -> Result<()> {
         }
         // Stdout's line is the one scripts wait for (as JSON with --log-format json); the
         // log line is for log collectors.
-        match crate::telemetry::format() {
-            crate::telemetry::LogFormat::Human => println!("{line} (store {store_url}; {auth})"),
-            crate::telemetry::LogFormat::Json => {
-                let mut fields = serde_json::Map::new();
-                fields.extend(b.http.map(|h| ("http".to_string(), format!("{}://{h}", scheme.0).into())));
-                fields.extend(b.grpc.map(|g| ("grpc".to_string(), format!("{}://{g}", scheme.1).into())));
-                fields.insert("store".into(), store_url.clone().into());
-                fields.insert("auth".into(), auth.clone().into());
-                println!("{}", crate::telemetry::json_lines::line(tracing::Level::INFO, "b2tf::serve", "listening", fields));
-            }
-        }
+        let mut fields = serde_json::Map::new();
+        fields.extend(b.http.map(|h| ("http".to_string(), format!("{}://{h}", scheme.0).into())));
+        fields.extend(b.grpc.map(|g| ("grpc".to_string(), format!("{}://{g}", scheme.1).into())));
+        fields.insert("store".into(), store_url.clone().into());
+        fields.insert("auth".into(), auth.clone().into());
+        println!("{}", crate::telemetry::own_line(tracing::Level::INFO, "b2tf::serve", &format!("{line} (store {store_url}; {auth})"), "listening", fields));
         tracing::info!(http = b.http.map(tracing::field::display), grpc = b.grpc.map(tracing::field::display), tls = scheme.0 == "https", store = %store_url, api_keys = keys.len(), "listening");
         let _ = std::io::stdout().flush();
     };
@@ -95,11 +90,7 @@ pub fn run(a: ServeArgs) -> Result<()> {
             tracing::warn!("shutdown: cancelled {cancelled} running onboarding(s); nothing of them was stored");
         }
         // The reader of stdout may be gone by now (a supervisor that only wanted the address).
-        let stopped = match crate::telemetry::format() {
-            crate::telemetry::LogFormat::Human => "stopped".to_string(),
-            crate::telemetry::LogFormat::Json => crate::telemetry::json_lines::line(tracing::Level::INFO, "b2tf::serve", "stopped", Default::default()),
-        };
-        let _ = writeln!(std::io::stdout(), "{stopped}");
+        let _ = writeln!(std::io::stdout(), "{}", crate::telemetry::own_line(tracing::Level::INFO, "b2tf::serve", "stopped", "stopped", Default::default()));
         Ok(())
     })
 }

@@ -39,12 +39,18 @@ pub fn format() -> LogFormat {
     FORMAT.get().copied().unwrap_or_default()
 }
 
+/// A line a command writes itself, outside the log (the server's banner, a fatal error), in
+/// the log's format: `human` as it is, or a JSON line of `message` and `fields`.
+pub fn own_line(level: tracing::Level, target: &str, human: &str, message: &str, fields: serde_json::Map<String, serde_json::Value>) -> String {
+    match format() {
+        LogFormat::Human => human.to_string(),
+        LogFormat::Json => json_lines::line(level, target, message, fields),
+    }
+}
+
 /// A command's fatal error, on stderr in the log's format.
 pub fn fatal(message: &str) {
-    match format() {
-        LogFormat::Human => eprintln!("error: {message}"),
-        LogFormat::Json => eprintln!("{}", json_lines::line(tracing::Level::ERROR, "b2tf", message, Default::default())),
-    }
+    eprintln!("{}", own_line(tracing::Level::ERROR, "b2tf", &format!("error: {message}"), message, Default::default()));
 }
 
 /// Installs the global subscriber. `default_filter` applies when neither B2TF_LOG nor
