@@ -113,8 +113,14 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
     assert_eq!((pose.quaternion_wxyz.len(), res.detection_index), (4, 0));
     assert!(res.timings_ms.contains_key("pnp") && res.diagnostics_json.starts_with('['), "{res:?}");
     assert!(res.symmetries == none && !res.arbitrary_rotation_about_axis, "{res:?}");
-    let by_raw = c.estimate(estimate_request(pb::image::Data::RawRgb8(sc.render.rgb.as_raw().clone()), 320, 240, mask.clone(), "box")).await.unwrap().into_inner();
+    let mut raw = estimate_request(pb::image::Data::RawRgb8(sc.render.rgb.as_raw().clone()), 320, 240, mask.clone(), "box");
+    raw.options.as_mut().unwrap().overlay = true;
+    let by_raw = c.estimate(raw).await.unwrap().into_inner();
     assert_eq!(by_raw.results[0].pose, res.pose);
+    // The overlay only when asked for: the photo's size, the pose drawn on it.
+    assert!(by_png.overlay_png.is_empty());
+    let overlay = image::load_from_memory(&by_raw.overlay_png).expect("overlay PNG").to_rgb8();
+    assert!(overlay.dimensions() == (320, 240) && overlay != sc.render.rgb);
     let b64 = |b: &[u8]| base64::engine::general_purpose::STANDARD.encode(b);
     let http_body = serde_json::json!({
         "image": {"encoded": b64(&rgb)},

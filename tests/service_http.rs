@@ -96,6 +96,17 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     let no_symmetries = json!({"source": "mesh", "discrete": [], "continuous": []});
     let (s, info) = call(&c, "GET", &format!("{base}/v1/objects/box"), None);
     assert!(s == 200 && info["symmetries"] == no_symmetries && list["objects"][0]["symmetries"] == no_symmetries, "{info} {list}");
+    // Its thumbnail: a PNG of the asked size with the object drawn on the plain background;
+    // a size out of range or an unknown object is refused, naming what is wrong.
+    let r = c.get(format!("{base}/v1/objects/box/thumbnail?size=96")).send().unwrap();
+    assert_eq!((r.status().as_u16(), r.headers()["content-type"].to_str().unwrap()), (200, "image/png"));
+    let thumb = image::load_from_memory(&r.bytes().unwrap()).unwrap().to_rgb8();
+    let drawn = thumb.pixels().filter(|p| p.0 != [238, 241, 245]).count();
+    assert!(thumb.dimensions() == (96, 96) && drawn > 96 * 96 / 5 && drawn < 96 * 96 * 9 / 10, "{:?}, {drawn} object pixels", thumb.dimensions());
+    for (path, status, needle) in [("box/thumbnail?size=4000", 400, "size 4000 is outside 32–512"), ("box/thumbnail?size=big", 400, "query"), ("nothing/thumbnail", 404, "not found")] {
+        let (s, v) = call(&c, "GET", &format!("{base}/v1/objects/{path}"), None);
+        assert!(s == status && v.to_string().contains(needle), "{path}: {s} {v}");
+    }
     // The same id again without replace: 409.
     assert_eq!(call(&c, "POST", &format!("{base}/v1/objects"), Some(&onboard)).0, 409);
     // PCA settings the backbone cannot give, or that are no setting at all: 400 at once.
@@ -188,6 +199,17 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     let (s, est_raw) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&request(raw, intrinsics.clone(), good_dets.clone())));
     assert_eq!(s, 200, "{est_raw}");
     assert_eq!(est_raw["results"][0]["pose"], res["pose"]);
+    // The answer drawn on the photo when asked for (and only then): the same pose.
+    assert!(est.get("overlay_png").is_none(), "an overlay nobody asked for");
+    let mut drawn = request(good_image.clone(), intrinsics.clone(), good_dets.clone());
+    drawn["options"]["overlay"] = json!(true);
+    let (s, est_drawn) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&drawn));
+    assert_eq!((s, &est_drawn["results"][0]["pose"]), (200, &res["pose"]), "{est_drawn}");
+    let overlay = base64::engine::general_purpose::STANDARD.decode(est_drawn["overlay_png"].as_str().unwrap()).unwrap();
+    let overlay = image::load_from_memory(&overlay).unwrap().to_rgb8();
+    let changed = overlay.pixels().zip(r.rgb.pixels()).filter(|(a, b)| a != b).count();
+    let object = r.mask.pixels().filter(|p| p.0[0] > 0).count();
+    assert!(overlay.dimensions() == (320, 240) && changed * 2 > object, "{:?}: {changed} pixels drawn over an object of {object}", overlay.dimensions());
 
     // A box alone: the object is segmented inside it, and the pose is as good.
     let (x0, y0, x1, y1) = b2tfpose::features::mask_bbox(&r.mask).unwrap();
@@ -337,6 +359,20 @@ fn api_keys_guard_everything_but_health() {
     }
     let ok = c.get(format!("{base}/v1/objects")).header("Authorization", "Bearer s3cret").send().unwrap();
     assert_eq!(ok.status().as_u16(), 200);
+    // The console's page needs no key (it asks for one); / leads to it; its answers
+    // forbid inline script and framing. Who a key is needs a key.
+    let page = c.get(format!("{base}/")).send().unwrap();
+    assert_eq!((page.status().as_u16(), page.url().path()), (200, "/console/"));
+    let csp = page.headers()["content-security-policy"].to_str().unwrap().to_string();
+    assert!(csp.contains("script-src 'self'") && !csp.contains("unsafe-inline") && csp.contains("frame-ancestors 'none'"), "{csp}");
+    assert!(page.text().unwrap().contains("<script type=\"module\" src=\"./main.js\">"));
+    let script = c.get(format!("{base}/console/main.js")).send().unwrap();
+    assert_eq!((script.status().as_u16(), script.headers()["content-type"].to_str().unwrap()), (200, "text/javascript; charset=utf-8"));
+    let (s, v) = call(&c, "GET", &format!("{base}/console/secrets.js"), None);
+    assert!(s == 404 && v.to_string().contains("no file"), "{s} {v}");
+    assert_eq!(call(&c, "GET", &format!("{base}/v1/caller"), None).0, 401);
+    let who: Value = c.get(format!("{base}/v1/caller")).header("Authorization", "Bearer other").send().unwrap().json().unwrap();
+    assert_eq!((&who["keys_required"], &who["scopes"], &who["read_only"]), (&json!(true), &json!(["read", "write", "admin"]), &json!(false)), "{who}");
     let ok = c.get(format!("{base}/metrics")).header("Authorization", "Bearer other").send().unwrap();
     assert_eq!(ok.status().as_u16(), 200);
 }
@@ -349,7 +385,7 @@ fn read_only_replica_serves_a_store_it_never_writes() {
     let root = dir.path().join("objects");
     std::fs::create_dir(&root).unwrap();
     let url = format!("dir://{}", root.display());
-    let server = start(&url, None, &["--read-only"]);
+    let server = start(&url, None, &["--read-only", "--console", "false"]);
     let (c, base) = (client(), server.http.clone());
     let t = Instant::now();
     while call(&c, "GET", &format!("{base}/readyz"), None).0 != 200 {
@@ -357,6 +393,11 @@ fn read_only_replica_serves_a_store_it_never_writes() {
         std::thread::sleep(Duration::from_millis(100));
     }
     assert_eq!(call(&c, "GET", &format!("{base}/v1/objects"), None).1["objects"], json!([]));
+    // Without keys everyone may do everything the server does; this one writes nothing,
+    // and serves no console (--console false).
+    let who = call(&c, "GET", &format!("{base}/v1/caller"), None).1;
+    assert_eq!((&who["keys_required"], &who["identity"], &who["read_only"]), (&json!(false), &Value::Null, &json!(true)), "{who}");
+    assert_eq!(call(&c, "GET", &format!("{base}/console/"), None).0, 404);
 
     // The onboarding job writes after the replica started.
     let files = sample_files(dir.path());

@@ -43,7 +43,7 @@ pub fn run(a: ServeArgs) -> Result<()> {
     let scheme = if tls.is_some() { ("https", "grpcs") } else { ("http", "grpc") };
     let mtls = tls.as_ref().is_some_and(|t| t.client_ca_pem.is_some());
     let rate = s.rate_limit;
-    let options = ServerOptions { http: s.http.clone(), grpc: s.grpc.clone(), max_body_bytes: s.max_body_bytes, tls };
+    let options = ServerOptions { http: s.http.clone(), grpc: s.grpc.clone(), max_body_bytes: s.max_body_bytes, tls, console: s.console };
     let store_url = if s.read_only { format!("{}, read-only", core.store_url()) } else { core.store_url() };
     let on_bound = move |b: Bound| {
         let mut line = String::from("listening on");

@@ -28,6 +28,7 @@
 //! revalidate_s = 5               # how often cached objects are checked against the store
 //! max_track_sessions = 8         # tracking sessions / Track streams open at once
 //! track_idle_timeout_s = 60      # a session with no frame for this long is closed
+//! console = true                 # the web console at /console/ on the HTTP port
 //! ```
 
 use anyhow::{bail, Context, Result};
@@ -132,6 +133,10 @@ pub struct ServeSettings {
     /// A tracking session with no frame for this long is closed, seconds [default: 60]
     #[arg(long, env = "B2TF_TRACK_IDLE_TIMEOUT_S")]
     pub track_idle_timeout_s: Option<f64>,
+    /// Serve the web console at /console/ (and redirect / there) on the HTTP port; its
+    /// calls go through the API with the user's key [default: true]
+    #[arg(long, env = "B2TF_CONSOLE", num_args = 0..=1, default_missing_value = "true", value_parser = clap::builder::BoolishValueParser::new())]
+    pub console: Option<bool>,
 }
 
 /// The settings in force.
@@ -162,6 +167,7 @@ pub struct Resolved {
     pub revalidate: Option<std::time::Duration>,
     pub max_track_sessions: usize,
     pub track_idle_timeout: std::time::Duration,
+    pub console: bool,
 }
 
 impl ServeSettings {
@@ -270,6 +276,7 @@ impl ServeSettings {
             revalidate: (revalidate_s > 0.0).then(|| std::time::Duration::from_secs_f64(revalidate_s)),
             max_track_sessions: positive("max_track_sessions", pick!(max_track_sessions).unwrap_or(8))?,
             track_idle_timeout: std::time::Duration::from_secs_f64(idle),
+            console: pick!(console).unwrap_or(true),
         })
     }
 }

@@ -72,7 +72,7 @@ fn take_slot(counter: &Arc<AtomicUsize>, max: usize) -> Option<Slot> {
 
 pub struct Core {
     pub config: CoreConfig,
-    store: Arc<dyn ObjectStore>,
+    pub(super) store: Arc<dyn ObjectStore>,
     pub(super) cache: Arc<ModelCache>,
     backbone: Arc<dyn Backbone>,
     /// The batching queue in front of the backbone, when configured (for its stats).
@@ -83,6 +83,7 @@ pub struct Core {
     pub(super) tracks: super::track_sessions::TrackSessions,
     pub(super) estimates: Arc<super::estimate_queue::EstimateQueue>,
     onboardings_running: Arc<AtomicUsize>,
+    pub(super) thumbnails: super::core_thumbnail::Thumbnails,
 }
 
 impl Core {
@@ -100,7 +101,7 @@ impl Core {
         let cache = Arc::new(ModelCache::new(store.clone(), config.cache_bytes));
         let tracks = super::track_sessions::TrackSessions::new(config.max_track_sessions, config.track_idle_timeout);
         let estimates = super::estimate_queue::EstimateQueue::new(super::estimate_queue::QueueConfig { running: config.max_estimates.max(1), depth: config.queue_depth, timeout: config.queue_timeout });
-        Ok(Self { config, store, cache, backbone, queue, pool, estimator, operations: Operations::default(), tracks, estimates, onboardings_running: Arc::new(AtomicUsize::new(0)) })
+        Ok(Self { config, store, cache, backbone, queue, pool, estimator, operations: Operations::default(), tracks, estimates, onboardings_running: Arc::new(AtomicUsize::new(0)), thumbnails: Default::default() })
     }
 
     /// One render and one backbone pass, so the first request does not pay for shader
@@ -363,8 +364,23 @@ impl Core {
         if choice != Choice::Given && results.is_empty() && reason.is_none() {
             reason = Some(format!("none of the {unconfirmed} candidate(s) estimated was confirmed at its pose with a score of {:.3} or more (for min_score {})", answer_threshold(req.detect.min_score), req.detect.min_score));
         }
-        Ok(EstimateResponse { results, detections, reason, total_ms: t0.elapsed().as_secs_f64() * 1e3 })
+        let overlay_png = if o.overlay { Some(draw_answer(&image, &k, &results, &models, &self.pool)?.into()) } else { None };
+        Ok(EstimateResponse { results, detections, reason, overlay_png, total_ms: t0.elapsed().as_secs_f64() * 1e3 })
     }
+}
+
+/// The photo with every answered pose drawn on it (`render::overlay`), one colour per
+/// result, as PNG.
+fn draw_answer(image: &image::RgbImage, k: &crate::geometry::Intrinsics, results: &[InstanceResult], models: &BTreeMap<&str, Arc<crate::onboard::ObjectModel>>, pool: &RenderPool) -> Result<Vec<u8>, ServiceError> {
+    const COLOURS: [[u8; 3]; 6] = [[0, 230, 118], [255, 196, 0], [0, 176, 255], [255, 64, 129], [178, 255, 89], [224, 64, 251]];
+    let _span = tracing::info_span!("overlay", results = results.len()).entered();
+    let mut out = image.clone();
+    for (i, r) in results.iter().enumerate() {
+        let (Some(p), Some(model)) = (&r.pose, models.get(r.object_id.as_str())) else { continue };
+        let pose = crate::geometry::Pose::from_row_major(&p.r, p.t);
+        out = crate::render::overlay::draw_overlay(&out, pool, &model.mesh, &pose, k, COLOURS[i % COLOURS.len()]).map_err(|e| ServiceError::internal(format!("drawing the overlay: {e}")))?;
+    }
+    super::core_thumbnail::encode_png(&out)
 }
 
 /// The request's detections as (object id, mask, score), boxes given without a mask

@@ -69,6 +69,7 @@ pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, S
         verify: o.verify.unwrap_or(defaults.verify),
         verify_templates: o.verify_templates.map_or(defaults.verify_templates, |n| n as usize),
         spin_steps: o.spin_steps.map_or(defaults.spin_steps, |n| n as usize),
+        overlay: o.overlay,
         refiner: if o.refiner.is_empty() { defaults.refiner } else { o.refiner.parse().map_err(|e: String| ServiceError::invalid(format!("options.refiner: {e}")))? },
     };
     Ok(rq::EstimateRequest { image, intrinsics, detections, objects: r.objects, detect: detect_options(r.detect), options })
@@ -137,7 +138,7 @@ pub fn estimate_response(r: rq::EstimateResponse) -> pb::EstimateResponse {
             arbitrary_rotation_about_axis: i.arbitrary_rotation_about_axis,
         })
         .collect();
-    pb::EstimateResponse { results, total_ms: r.total_ms, detections: r.detections.into_iter().map(detected_object).collect(), reason: r.reason.unwrap_or_default() }
+    pb::EstimateResponse { results, total_ms: r.total_ms, detections: r.detections.into_iter().map(detected_object).collect(), reason: r.reason.unwrap_or_default(), overlay_png: r.overlay_png.map(|b| b.0).unwrap_or_default() }
 }
 
 pub fn onboard_request(r: pb::OnboardRequest) -> Result<rq::OnboardRequest, ServiceError> {

@@ -156,6 +156,28 @@ async fn cancel_operation(State(s): State<Api>, Path(id): Path<String>) -> Resul
     Ok(Json(s.core.cancel_operation(&id)?).into_response())
 }
 
+/// Who the request's key is and what it may do, so a client (the console) can offer only
+/// what will be allowed. Without keys configured: everyone may do everything.
+async fn caller(State(s): State<Api>, req: Request) -> Response {
+    let caller = req.extensions().get::<super::auth::Caller>();
+    let scopes = caller.map_or_else(scopes::Scopes::all, |c| c.scopes);
+    let names: Vec<&str> = scopes::Scope::ALL.into_iter().filter(|x| scopes.has(*x)).map(scopes::Scope::name).collect();
+    Json(serde_json::json!({ "keys_required": s.keys.enabled(), "identity": caller.map(|c| &*c.identity), "scopes": names, "read_only": s.core.config.read_only })).into_response()
+}
+
+#[derive(serde::Deserialize)]
+struct ThumbnailQuery {
+    size: Option<u32>,
+}
+
+/// A PNG of the object drawn from a fixed three-quarter view (`?size=` pixels, square).
+async fn thumbnail(State(s): State<Api>, Path(id): Path<String>, q: Result<axum::extract::Query<ThumbnailQuery>, axum::extract::rejection::QueryRejection>) -> Result<Response, ServiceError> {
+    let size = q.map_err(|e| ServiceError::invalid(format!("query: {}", e.body_text())))?.size.unwrap_or(super::core_thumbnail::DEFAULT_SIZE);
+    let core = s.core.clone();
+    let png = super::api::blocking(move || core.thumbnail(&id, size)).await?;
+    Ok(([(header::CONTENT_TYPE, "image/png"), (header::CACHE_CONTROL, "private, max-age=300")], png.to_vec()).into_response())
+}
+
 async fn estimate(State(s): State<Api>, b: Result<Json<EstimateRequest>, JsonRejection>) -> Result<Response, ServiceError> {
     let req = body(b)?;
     let budget = s.budget(None);
@@ -168,19 +190,24 @@ async fn detect(State(s): State<Api>, b: Result<Json<DetectRequest>, JsonRejecti
     Ok(Json(s.detect(req, budget).await?).into_response())
 }
 
-pub fn router(state: Api, max_body_bytes: usize) -> Router {
-    Router::new()
+/// The API's routes, and the web console's unless `console` is false.
+pub fn router(state: Api, max_body_bytes: usize, console: bool) -> Router {
+    let api = Router::new()
         .route("/healthz", get(healthz))
         .route("/readyz", get(readyz))
         .route("/v1/objects", get(list_objects).post(onboard))
         .route("/v1/objects/{id}", get(get_object).delete(delete_object))
+        .route("/v1/objects/{id}/thumbnail", get(thumbnail))
+        .route("/v1/caller", get(caller))
         .route("/v1/operations/{id}", get(get_operation))
         .route("/v1/operations/{id}/cancel", post(cancel_operation))
         .route("/v1/estimate", post(estimate))
         .route("/v1/detect", post(detect))
         .merge(super::http_track::routes())
         .route("/metrics", get(metrics))
-        .route("/openapi.json", get(openapi))
+        .route("/openapi.json", get(openapi));
+    let routes = if console { api.merge(super::console::routes()) } else { api };
+    routes
         .route_layer(from_fn_with_state(state.clone(), guard))
         .layer(DefaultBodyLimit::max(max_body_bytes))
         .layer(from_fn_with_state(max_body_bytes, announced_size))

@@ -136,12 +136,15 @@ pub struct EstimateOptions {
     pub verify_templates: usize,
     /// Spins of the pose about each object axis verified: steps of a whole turn.
     pub spin_steps: usize,
+    /// Also answer the photo with each pose drawn on it (`overlay_png`): tinted
+    /// silhouette, outline and object axes, for people to check by eye. Default off.
+    pub overlay: bool,
 }
 
 impl Default for EstimateOptions {
     fn default() -> Self {
         let v = crate::estimate::VerifyConfig::default();
-        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default(), verify: true, verify_templates: v.templates, spin_steps: v.spin_steps }
+        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default(), verify: true, verify_templates: v.templates, spin_steps: v.spin_steps, overlay: false }
     }
 }
 
@@ -261,6 +264,9 @@ pub struct EstimateResponse {
     /// Why there is no result, when the detector found nothing.
     #[serde(default)]
     pub reason: Option<String>,
+    /// With `options.overlay`: the photo with the poses drawn on it, PNG (base64 in JSON).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub overlay_png: Option<Base64Bytes>,
     /// Whole request, milliseconds (decoding included).
     pub total_ms: f64,
 }

@@ -18,6 +18,8 @@ pub struct ServerOptions {
     /// Largest HTTP body / gRPC message.
     pub max_body_bytes: usize,
     pub tls: Option<TlsIdentity>,
+    /// Serve the web console (console.rs) on the HTTP listener.
+    pub console: bool,
 }
 
 /// Where the listeners ended up (port 0 picks a free one).
@@ -71,7 +73,7 @@ pub async fn run(api: Api, opts: ServerOptions, on_bound: impl FnOnce(Bound), sh
     if let Some(listener) = http {
         // The peer address reaches the handlers (the rate limit without keys uses it) and
         // the request's span.
-        let app = super::http::router(api.clone(), opts.max_body_bytes).into_make_service_with_connect_info::<super::http_observe::Peer>();
+        let app = super::http::router(api.clone(), opts.max_body_bytes, opts.console).into_make_service_with_connect_info::<super::http_observe::Peer>();
         let signal = stopped();
         match &opts.tls {
             Some(id) => {

@@ -60,6 +60,12 @@ impl ModelCache {
         self.fetch(id).map(|(model, _)| model)
     }
 
+    /// The object when it is held already; neither loads it nor counts as a use (for
+    /// side requests, such as a thumbnail, that must not evict the working set).
+    pub fn held(&self, id: &str) -> Option<Arc<ObjectModel>> {
+        self.inner.lock().expect("cache lock").entries.get(id).map(|e| e.model.clone())
+    }
+
     /// `get`, and whether this call loaded the object from the store.
     pub fn fetch(&self, id: &str) -> Result<(Arc<ObjectModel>, bool), StoreError> {
         {

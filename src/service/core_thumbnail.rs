@@ -1,0 +1,77 @@
+//! Thumbnails: an object drawn from a fixed three-quarter view, for lists of objects (the
+//! web console's). Drawn once per object version and size and kept (a few KB each); an
+//! object not already in memory is read from the store for the drawing without entering
+//! the model cache, so browsing a catalogue does not push out the objects being estimated.
+
+use super::core::Core;
+use super::error::{ErrorKind, ServiceError};
+use crate::geometry::{views, Intrinsics};
+use crate::mesh::Mesh;
+use crate::render::{RenderOptions, RenderPool};
+use nalgebra::Vector3;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+pub const DEFAULT_SIZE: u32 = 192;
+pub const SIZES: std::ops::RangeInclusive<u32> = 32..=512;
+/// Kept thumbnails; past this many, all are dropped and drawn again when asked for.
+const KEPT: usize = 1024;
+
+/// A drawn thumbnail and the object's generation (`ObjectStore::generation`) it shows.
+struct Kept {
+    generation: u64,
+    png: Arc<[u8]>,
+}
+
+/// Drawn thumbnails by (object id, size).
+#[derive(Default)]
+pub struct Thumbnails {
+    kept: Mutex<HashMap<(String, u32), Kept>>,
+}
+
+impl Core {
+    /// The PNG thumbnail of object `id`, `size` pixels square.
+    pub fn thumbnail(&self, id: &str, size: u32) -> Result<Arc<[u8]>, ServiceError> {
+        if !SIZES.contains(&size) {
+            return Err(ServiceError::invalid(format!("size {size} is outside {}–{} pixels", SIZES.start(), SIZES.end())));
+        }
+        crate::store::validate_id(id)?;
+        let Some(generation) = self.store.generation(id)? else {
+            return Err(crate::store::StoreError::NotFound(id.to_string()).into());
+        };
+        let key = (id.to_string(), size);
+        if let Some(k) = self.thumbnails.kept.lock().expect("thumbnail lock").get(&key).filter(|k| k.generation == generation) {
+            return Ok(k.png.clone());
+        }
+        let model = match self.cache.held(id) {
+            Some(m) => m,
+            None => Arc::new(tracing::info_span!("store.get", object_id = id).in_scope(|| self.store.get(id))?),
+        };
+        let png: Arc<[u8]> = draw(&self.pool, &model.mesh, size)?.into();
+        let mut kept = self.thumbnails.kept.lock().expect("thumbnail lock");
+        if kept.len() >= KEPT {
+            kept.clear();
+        }
+        kept.insert(key, Kept { generation, png: png.clone() });
+        Ok(png)
+    }
+}
+
+/// The mesh seen from above-front-right, filling about 90 % of a light grey square.
+fn draw(pool: &RenderPool, mesh: &Mesh, size: u32) -> Result<Vec<u8>, ServiceError> {
+    let f = 1.2 * size as f64;
+    let c = (size as f64 - 1.0) / 2.0;
+    let k = Intrinsics::new(f, f, c, c, size, size).map_err(|e| ServiceError::internal(e.to_string()))?;
+    let radius = mesh.bounding_radius().max(1e-6);
+    let pose = views::view_pose(&Vector3::new(1.0, -1.3, 0.9), 0.0, &Vector3::from(mesh.bbox_center()), f * radius / (0.45 * size as f64));
+    let opts = RenderOptions { light_dir: [0.4, -0.6, -1.0], background: [238, 241, 245], ..Default::default() };
+    let r = pool.render(mesh, &pose, &k, &opts).map_err(|e| ServiceError::new(ErrorKind::Internal, format!("drawing the thumbnail: {e}")))?;
+    encode_png(&r.rgb)
+}
+
+/// A picture for an answer (a thumbnail, an estimate's overlay) as PNG bytes.
+pub(super) fn encode_png(img: &image::RgbImage) -> Result<Vec<u8>, ServiceError> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut out, image::ImageFormat::Png).map_err(|e| ServiceError::internal(format!("encoding a PNG: {e}")))?;
+    Ok(out.into_inner())
+}
