@@ -116,26 +116,33 @@ function pointerDown(e) {
   if (!photo.image || mode() === "detect") return;
   $("photo-canvas").setPointerCapture(e.pointerId);
   drag = at(e);
-  if (mode() === "mask") brush(drag);
+  if (mode() === "mask") brush(drag, drag);
 }
 
 function pointerMove(e) {
   if (!drag) return;
   const p = at(e);
-  if (mode() === "mask") brush(p);
-  else {
+  if (mode() === "mask") {
+    brush(drag, p);
+    drag = p;
+  } else {
     const [x0, y0] = drag;
     setBox([Math.min(x0, p[0]), Math.min(y0, p[1]), Math.abs(p[0] - x0), Math.abs(p[1] - y0)].map(Math.round));
   }
   draw();
 }
 
-function brush([x, y]) {
+// A stroke from the last pointer position to this one (pointer events come sparsely
+// when the hand moves fast).
+function brush(from, to) {
   const g = paint.getContext("2d");
-  g.fillStyle = "#00e676";
+  g.strokeStyle = "#00e676";
+  g.lineWidth = Math.max(8, photo.width / 30);
+  g.lineCap = "round";
   g.beginPath();
-  g.arc(x, y, Math.max(4, photo.width / 60), 0, 2 * Math.PI);
-  g.fill();
+  g.moveTo(...from);
+  g.lineTo(...to);
+  g.stroke();
 }
 
 function setBox(b) {

@@ -2,8 +2,8 @@
 # Every test: unit and integration tests (renderer on lavapipe, onboarding, loaders, CLI,
 # the object stores, S3 against a real s3s-fs on loopback, the service over loopback:
 # HTTP, gRPC, TLS), clippy's lints, the OpenAPI document's validity, cargo-deny
-# (scripts/deny.sh), the Python client's suite, the short overload and crash tests, and the
-# container checks.
+# (scripts/deny.sh), the Python client's suite, the web console in a headless browser, the
+# short overload and crash tests, and the container checks.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -31,6 +31,10 @@ else
   echo "clippy is not installed with this toolchain: lints SKIPPED"
 fi
 bash clients/python/scripts/test.sh
+# The web console in headless Chromium (Debian's, installed when absent) against a real
+# server with API keys: onboard, estimate from a drawn box and a painted mask, detect,
+# scopes, delete (console/test; about 1 minute; screenshots in out/console-test).
+B2TF_BIN="${B2TF_BIN:-target/debug/b2tf}" bash console/test/run.sh
 # Overload and crash safety, short modes (docs/reliability.md; ~1.5 min together): the
 # server cargo test just built, Python from the client's venv that the step above made.
 B2TF_BIN="${B2TF_BIN:-target/debug/b2tf}" tools/reliability/python.sh tools/loadtest.py --short

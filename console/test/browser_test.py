@@ -63,9 +63,9 @@ def make_inputs(work: Path) -> dict:
     return {"mesh": work / "sample/sample_box.obj", "resources": [work / "sample/sample_box.mtl", work / "sample/sample_box_m0.png"], "photo": work / "photo/rgb.png", "mask": work / "photo/mask.png", "pose": pose}
 
 
-def mask_box(mask_png: Path) -> list:
-    """[x, y, w, h] of the mask's non-zero pixels, read with the browser-free PNG reader of
-    the standard library's zlib (8-bit greyscale, as `b2tf render` writes it)."""
+def mask_rows(mask_png: Path) -> list:
+    """The rows of an 8-bit greyscale PNG (as `b2tf render` writes masks), decoded with the
+    standard library's zlib."""
     import struct
     import zlib
 
@@ -91,6 +91,12 @@ def mask_box(mask_png: Path) -> list:
             line[x] = (line[x] + pred) & 0xFF
         rows.append(line)
         prev = line
+    return rows
+
+
+def mask_box(rows: list) -> list:
+    """[x, y, w, h] of the mask's non-zero pixels."""
+    width = len(rows[0])
     xs = [x for row in rows for x in range(width) if row[x]]
     ys = [y for y, row in enumerate(rows) if any(row)]
     return [min(xs), min(ys), max(xs) - min(xs) + 1, max(ys) - min(ys) + 1]
@@ -168,7 +174,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="b2tf-console-") as tmp:
         work = Path(tmp)
         inputs = make_inputs(work)
-        truth_box = mask_box(inputs["mask"])
+        mask = mask_rows(inputs["mask"])
+        truth_box = mask_box(mask)
         (work / "keys").write_text(f"{ADMIN_KEY} name=operator\n{READ_KEY} scopes=read name=viewer\n")
         server = Server(f"dir://{work / 'store'}", work / "server", ["--api-keys-file", str(work / "keys")])
         driver = None
@@ -177,7 +184,7 @@ def main() -> None:
             check_headers(server)
             driver = browser()
             page = Page(driver, server.http)
-            run(page, server, inputs, truth_box)
+            run(page, server, inputs, mask)
             assert not page.severe_logs(), f"browser errors: {page.severe_logs()}"
         except Exception:
             if driver is not None:
@@ -205,7 +212,8 @@ def check_headers(server: Server) -> None:
         assert e.code == 404, e.code
 
 
-def run(page: Page, server: Server, inputs: dict, truth_box: list) -> None:
+def run(page: Page, server: Server, inputs: dict, mask: list) -> None:
+    truth_box = mask_box(mask)
     d = page.d
     page.viewport(1280, 800)
     d.get(server.http + "/")
@@ -229,6 +237,16 @@ def run(page: Page, server: Server, inputs: dict, truth_box: list) -> None:
     assert page.by("onboard-progress").get_attribute("data-state") == "succeeded", page.by("onboard-state").text + page.notice()
     assert float(page.by("onboard-bar").get_attribute("value")) == 96, page.by("onboard-bar").get_attribute("value")
     page.shot("02-onboarded")
+    # A long onboarding (1944 templates) cancelled while it runs leaves nothing behind.
+    page.by("onboard-id").clear()
+    page.by("onboard-id").send_keys("cancelled-box")
+    page.by("onboard-mesh").send_keys(str(inputs["mesh"]))
+    Select(page.by("onboard-templates")).select_by_value("2:12")
+    page.by("onboard-submit").click()
+    page.wait(lambda: page.by("onboard-progress").get_attribute("data-state") == "running" and float(page.by("onboard-bar").get_attribute("value")) > 0, timeout=120, message="the onboarding made no progress")
+    page.by("onboard-cancel").click()
+    page.wait(lambda: page.by("onboard-progress").get_attribute("data-state") == "cancelled", timeout=120, message="not cancelled")
+    assert [o["id"] for o in api(server, "GET", "/v1/objects", ADMIN_KEY)["objects"]] == ["sample-box"]
 
     # The object's card, with a thumbnail drawn by the server.
     page.tab("objects")
@@ -272,15 +290,36 @@ def run(page: Page, server: Server, inputs: dict, truth_box: list) -> None:
     err_mm = math.dist(api_t, [v * 1000 for v in inputs["pose"]["t"]])
     print(f"the page's pose equals the API's; its translation is {err_mm:.1f} mm from the truth")
 
+    # A painted mask instead of the box: strokes across the object.
+    page.by("photo-clear").click()
+    d.find_element(By.CSS_SELECTOR, 'input[name="mode"][value="mask"]').click()
+    paint(page, mask)
+    page.by("photo-estimate").click()
+    page.wait(lambda: "pose(s) found" in page.by("photo-summary").text and "sample-box" in page.by("photo-results").text or page.notice(), timeout=300, message="no answer from the mask")
+    page.wait(lambda: page.by("photo-estimate").is_enabled(), timeout=300)
+    assert not page.notice(), page.notice()
+    assert "$MASK" in page.by("photo-curl").text and "mask=" in page.by("photo-python").text
+    masked_t = [float(v) for v in d.find_element(By.CSS_SELECTOR, "#photo-results tbody tr .t").text.split(",")]
+    assert math.dist(masked_t, [v * 1000 for v in inputs["pose"]["t"]]) < 20, masked_t
+    page.shot("05-photo-mask")
+    # The detector: no box, no mask.
+    d.find_element(By.CSS_SELECTOR, 'input[name="mode"][value="detect"]').click()
+    page.by("photo-estimate").click()
+    page.wait(lambda: not page.by("photo-estimate").is_enabled(), timeout=10)
+    page.wait(lambda: page.by("photo-estimate").is_enabled(), timeout=300, message="the detect estimate did not end")
+    assert not page.notice(), page.notice()
+    assert '"objects":["sample-box"]' in page.by("photo-curl").text, page.by("photo-curl").text
+    print(f"detect mode: {page.by('photo-summary').text}")
+
     # The same page at tablet width.
     page.viewport(820, 1180)
-    page.shot("05-photo-tablet")
+    page.shot("06-photo-tablet")
     page.viewport(1280, 800)
 
     # Service figures (admin key): the estimate is counted.
     page.tab("service")
     page.wait(lambda: "POST /v1/estimate" in page.by("service-requests").text, message="no request figures")
-    page.shot("06-service")
+    page.shot("07-service")
 
     # A read-only key: no onboarding, no deleting, the admin figures refused with the reason.
     d.execute_script("sessionStorage.clear()")
@@ -291,7 +330,7 @@ def run(page: Page, server: Server, inputs: dict, truth_box: list) -> None:
     page.tab("onboard")
     assert not page.by("onboard-submit").is_enabled(), "a read key may onboard"
     assert "lacks the write scope" in page.by("onboard-denied").text
-    page.shot("07-read-key-onboard")
+    page.shot("08-read-key-onboard")
     page.tab("service")
     page.wait(lambda: "lacks the `admin` scope" in page.by("service-metrics-note").text, message="metrics not refused")
 
@@ -307,15 +346,31 @@ def run(page: Page, server: Server, inputs: dict, truth_box: list) -> None:
     assert api(server, "GET", "/v1/objects", ADMIN_KEY)["objects"] == []
 
 
+def canvas_offsets(page: Page):
+    """A function from image pixels to offsets from the canvas's centre on the screen."""
+    canvas = page.by("photo-canvas")
+    page.d.execute_script("arguments[0].scrollIntoView({block: 'center'})", canvas)
+    w, h = page.d.execute_script("const r = arguments[0].getBoundingClientRect(); return [r.width, r.height]", canvas)
+    return canvas, lambda x, y: (round(x * w / K["width"] - w / 2), round(y * h / K["height"] - h / 2))
+
+
+def paint(page: Page, mask: list) -> None:
+    """Brush strokes across the object, every few rows, a little inside its outline (as a
+    careful hand would)."""
+    canvas, to = canvas_offsets(page)
+    covered = [y for y, row in enumerate(mask) if any(row)]
+    for y in range(covered[0] + 6, covered[-1] - 5, 8):
+        xs = [x for x, v in enumerate(mask[y]) if v]
+        if xs[-1] - xs[0] < 16:
+            continue
+        (a, b), (c, _) = to(xs[0] + 6, y), to(xs[-1] - 6, y)
+        ActionChains(page.d).move_to_element_with_offset(canvas, a, b).click_and_hold().move_by_offset((c - a) // 2, 0).move_by_offset(c - a - (c - a) // 2, 0).release().perform()
+
+
 def drag_box(page: Page, box: list) -> None:
     """Drags on the canvas from the box's top-left to its bottom-right corner (image
     pixels mapped to where the canvas is drawn)."""
-    canvas = page.by("photo-canvas")
-    page.d.execute_script("arguments[0].scrollIntoView({block: 'center'})", canvas)
-    rect = page.d.execute_script("const r = arguments[0].getBoundingClientRect(); return [r.width, r.height]", canvas)
-    sx, sy = rect[0] / K["width"], rect[1] / K["height"]
-    # Offsets are from the element's centre.
-    to = lambda x, y: (round(x * sx - rect[0] / 2), round(y * sy - rect[1] / 2))  # noqa: E731
+    canvas, to = canvas_offsets(page)
     x0, y0 = to(box[0], box[1])
     x1, y1 = to(box[0] + box[2], box[1] + box[3])
     ActionChains(page.d).move_to_element_with_offset(canvas, x0, y0).click_and_hold().move_by_offset((x1 - x0) // 2, (y1 - y0) // 2).move_by_offset(x1 - x0 - (x1 - x0) // 2, y1 - y0 - (y1 - y0) // 2).release().perform()

@@ -78,10 +78,15 @@ def test_box_only_matches_the_cli(client: b2tfpose.Client, scene: Scene, cli_box
 
 
 def test_options_reach_the_server(client: b2tfpose.Client, rgb_result: b2tfpose.Result, scene: Scene) -> None:
-    [r] = client.estimate(scene.rgb, scene.K, [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)], rrc=False, refiner="none", verify=False, k=20)
+    results = client.estimate(scene.rgb, scene.K, [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)], rrc=False, refiner="none", verify=False, k=20, overlay=True)
+    [r] = results
     d = r.diagnostics[0]
     assert r.pose is not None and d["rrc_used"] is False and d["retrieved_templates"] == 20 and "verified" not in d
     assert r.pose.rotation_error_deg(scene.truth) < 10
+    # The photo with the pose drawn on it, only when asked for.
+    overlay = cv2.imdecode(np.frombuffer(results.overlay_png or b"", np.uint8), cv2.IMREAD_COLOR)
+    assert overlay is not None and overlay.shape == scene.bgr.shape and (overlay != scene.bgr).any()
+    assert client.estimate(scene.rgb, scene.K, [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)], rrc=False, verify=False).overlay_png is None
 
 
 def test_verification_hypotheses_follow_the_options(client: b2tfpose.Client, scene: Scene) -> None:

@@ -108,6 +108,7 @@ def estimate_request(
     verify: Optional[bool],
     verify_templates: Optional[int] = None,
     spin_steps: Optional[int] = None,
+    overlay: bool = False,
 ) -> pb.EstimateRequest:
     ids = objects_list(objects)
     if detections is None:
@@ -121,7 +122,7 @@ def estimate_request(
     if refiner is not None and refiner not in REFINERS:
         raise ValueError(f"refiner {refiner!r}: expected one of {', '.join(REFINERS)}")
     img, w, h = image_message(image, bgr=bgr)
-    options = pb.EstimateOptions(k=k or 0, max_masks=max_masks or 0, instances_per_object=instances_per_object or 0, refiner=refiner or "")
+    options = pb.EstimateOptions(k=k or 0, max_masks=max_masks or 0, instances_per_object=instances_per_object or 0, refiner=refiner or "", overlay=bool(overlay))
     if rrc is not None:
         options.rrc = rrc
     if verify is not None:

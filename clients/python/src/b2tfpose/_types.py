@@ -274,21 +274,24 @@ class Estimates(List[Result]):
     grouped by object), plus the server's ``total_ms`` for the whole request. When the
     call named ``objects`` instead of giving detections, ``detections`` holds what the
     server's detector found (each result's ``detection_index`` points there) and
-    ``reason`` says why there is no result when it found nothing."""
+    ``reason`` says why there is no result when it found nothing. With ``overlay=True``,
+    ``overlay_png`` holds the photo with the poses drawn on it (PNG bytes), else None."""
 
     total_ms: float
     detections: List[DetectedObject]
     reason: Optional[str]
+    overlay_png: Optional[bytes]
 
-    def __init__(self, results: List[Result], total_ms: float, detections: Optional[List[DetectedObject]] = None, reason: Optional[str] = None) -> None:
+    def __init__(self, results: List[Result], total_ms: float, detections: Optional[List[DetectedObject]] = None, reason: Optional[str] = None, overlay_png: Optional[bytes] = None) -> None:
         super().__init__(results)
         self.total_ms = total_ms
         self.detections = detections or []
         self.reason = reason
+        self.overlay_png = overlay_png
 
     @classmethod
     def from_pb(cls, m: pb.EstimateResponse) -> "Estimates":
-        return cls([Result.from_pb(r) for r in m.results], m.total_ms, [DetectedObject.from_pb(d) for d in m.detections], m.reason or None)
+        return cls([Result.from_pb(r) for r in m.results], m.total_ms, [DetectedObject.from_pb(d) for d in m.detections], m.reason or None, m.overlay_png or None)
 
     def best(self, object_id: Optional[str] = None) -> Optional[Result]:
         """The highest-scoring result with a pose (of ``object_id`` if given)."""
