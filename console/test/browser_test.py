@@ -148,6 +148,12 @@ class Page:
         self.by("key-input").send_keys(key)
         self.by("key-use").click()
 
+    def reopen(self) -> None:
+        """The console afresh in this tab, its key forgotten."""
+        self.d.execute_script("sessionStorage.clear()")
+        self.d.get("about:blank")
+        self.d.get(self.base + "/console/#objects")
+
     def click_fresh(self, selector: str, tries: int = 5) -> None:
         """Clicks what `selector` finds, again if the page re-drew it meanwhile."""
         for attempt in range(tries):
@@ -322,8 +328,7 @@ def run(page: Page, server: Server, inputs: dict, mask: list) -> None:
     page.shot("07-service")
 
     # A read-only key: no onboarding, no deleting, the admin figures refused with the reason.
-    d.execute_script("sessionStorage.clear()")
-    d.get(server.http + "/console/#objects")
+    page.reopen()
     page.give_key(READ_KEY)
     page.wait(lambda: "viewer" in page.by("who").text, message="read key not accepted")
     page.wait(lambda: not d.find_element(By.CSS_SELECTOR, '.card[data-object="sample-box"] button.danger').is_enabled(), message="a read key may delete")
@@ -335,8 +340,7 @@ def run(page: Page, server: Server, inputs: dict, mask: list) -> None:
     page.wait(lambda: "lacks the `admin` scope" in page.by("service-metrics-note").text, message="metrics not refused")
 
     # Back to the operator key: delete through the confirmation dialog.
-    d.execute_script("sessionStorage.clear()")
-    d.get(server.http + "/console/#objects")
+    page.reopen()
     page.give_key(ADMIN_KEY)
     page.wait(lambda: d.find_elements(By.CSS_SELECTOR, '.card[data-object="sample-box"]'), message="no card")
     page.click_fresh('.card[data-object="sample-box"] button.danger')
