@@ -38,7 +38,7 @@ function wireTabs() {
   });
 }
 
-// Asks for a key; resolves once the server accepts one.
+// Opens the key prompt (useKey checks what is typed), saying why when there is a reason.
 function askKey(reason = "") {
   const d = $("key-dialog");
   if (d.open) return;

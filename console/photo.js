@@ -52,14 +52,15 @@ function modeChanged() {
   $("photo-canvas").dataset.mode = mode();
 }
 
+// One checkbox per stored object, keeping what was ticked; a lone object is ticked.
 function objectChoices(objects) {
-  const box = $("photo-objects");
-  const checked = new Set([...box.querySelectorAll("input:checked")].map((i) => i.value));
+  const group = $("photo-objects");
+  const checked = new Set([...group.querySelectorAll("input:checked")].map((i) => i.value));
   if (objects.length === 1) checked.add(objects[0].id);
-  box.replaceChildren(
+  group.replaceChildren(
     ...objects.map((o) => el("label", { class: "check" }, el("input", { type: "checkbox", value: o.id, checked: checked.has(o.id) }), ` ${o.id}`)),
   );
-  if (!objects.length) box.append(el("span", { class: "hint" }, "No objects: onboard one first."));
+  if (!objects.length) group.append(el("span", { class: "hint" }, "No objects: onboard one first."));
 }
 
 async function loadPhoto() {

@@ -24,6 +24,8 @@ export B2TF_REQUIRE_GPU=1
 # setup.sh installed ONNX Runtime: the ONNX backbone's tests run, they do not skip.
 : "${B2TF_ORT_LIB:?scripts/env.sh found no ONNX Runtime library in .deps/python}"
 cargo test --all-targets
+# The commands the README and docs show name existing subcommands, flags and scripts.
+python3 tools/check_doc_commands.py target/debug/b2tf
 # Lints as errors (where the toolchain has clippy; it needs no network once installed).
 if cargo clippy --version >/dev/null 2>&1; then
   cargo clippy --all-targets --quiet -- -D warnings
