@@ -35,6 +35,7 @@ export function init() {
   canvas.addEventListener("pointercancel", () => (drag = null));
   $("photo-camera").addEventListener("change", pickCamera);
   $("photo-save-camera").addEventListener("click", saveCamera);
+  $("photo-camera-file").addEventListener("change", loadCameraFile);
   for (const b of document.querySelectorAll("button.copy")) b.addEventListener("click", () => navigator.clipboard?.writeText($(b.dataset.copy).textContent));
   document.addEventListener("objects", (e) => objectChoices(e.detail));
   listCameras();
@@ -188,6 +189,23 @@ function pickCamera() {
   const c = cameras()[$("photo-camera").value];
   if (!c) return;
   for (const k of ["fx", "fy", "cx", "cy"]) $(`photo-${k}`).value = c[k];
+}
+
+// The CLI's camera files: {"K": 3×3, "resolution": [h, w]} or BOP's {"cam_K": 9 values}.
+async function loadCameraFile() {
+  const file = $("photo-camera-file").files[0];
+  if (!file) return;
+  let k;
+  try {
+    const c = JSON.parse(await file.text());
+    const m = c.cam_K ?? c.K?.flat();
+    if (!Array.isArray(m) || m.length !== 9 || !m.every(Number.isFinite)) throw new Error("no K (3×3) or cam_K (9 numbers)");
+    k = { fx: m[0], fy: m[4], cx: m[2], cy: m[5] };
+  } catch (e) {
+    return notice(`${file.name}: not a camera file (${e.message}).`);
+  }
+  for (const [n, v] of Object.entries(k)) $(`photo-${n}`).value = v;
+  clearNotice();
 }
 
 function saveCamera() {

@@ -60,7 +60,7 @@ def make_inputs(work: Path) -> dict:
     pose = {"R": rotation(0.5, -0.4, 0.3), "t": [0.01, -0.005, 0.42]}
     (work / "pose.json").write_text(json.dumps(pose))
     run_cli("render", "--mesh", str(work / "sample/sample_box.obj"), "--units", "m", "--pose", str(work / "pose.json"), "--camera", str(work / "camera.json"), "--out", str(work / "photo"))
-    return {"mesh": work / "sample/sample_box.obj", "resources": [work / "sample/sample_box.mtl", work / "sample/sample_box_m0.png"], "photo": work / "photo/rgb.png", "mask": work / "photo/mask.png", "pose": pose}
+    return {"mesh": work / "sample/sample_box.obj", "resources": [work / "sample/sample_box.mtl", work / "sample/sample_box_m0.png"], "photo": work / "photo/rgb.png", "camera": work / "camera.json", "mask": work / "photo/mask.png", "pose": pose}
 
 
 def mask_rows(mask_png: Path) -> list:
@@ -266,8 +266,9 @@ def run(page: Page, server: Server, inputs: dict, mask: list) -> None:
     page.tab("photo")
     page.by("photo-file").send_keys(str(inputs["photo"]))
     page.wait(lambda: page.by("photo-cx").get_attribute("value") == "319.5", message="photo not loaded")
-    page.by("photo-fx").send_keys("600")
-    page.by("photo-fy").send_keys("600")
+    # The intrinsics from the camera file the photo was rendered with (the CLI's format).
+    page.by("photo-camera-file").send_keys(str(inputs["camera"]))
+    page.wait(lambda: page.by("photo-fx").get_attribute("value") == "600" and page.by("photo-fy").get_attribute("value") == "600", message="camera file not read")
     drag_box(page, truth_box)
     drawn = [int(page.by(f"photo-box-{c}").get_attribute("value")) for c in "xywh"]
     assert all(abs(a - b) <= 3 for a, b in zip(drawn, truth_box)), (drawn, truth_box)
