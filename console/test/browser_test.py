@@ -335,6 +335,7 @@ def run(page: Page, server: Server, inputs: dict, mask: list) -> None:
     page.wait(lambda: not d.find_element(By.CSS_SELECTOR, '.card[data-object="sample-box"] button.danger').is_enabled(), message="a read key may delete")
     page.tab("onboard")
     assert not page.by("onboard-submit").is_enabled(), "a read key may onboard"
+    assert not page.by("onboard-progress").is_displayed(), "an onboarding's progress shown before any"
     assert "lacks the write scope" in page.by("onboard-denied").text
     page.shot("08-read-key-onboard")
     page.tab("service")
