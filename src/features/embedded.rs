@@ -159,8 +159,10 @@ impl EmbeddedBackbone {
                     continue;
                 }
                 let pos = gy.atan2(gx).rem_euclid(period) / period * b as f32;
-                let lo = (pos.floor() as usize) % b;
-                let frac = pos - pos.floor();
+                // pos ≥ 0: truncation is its floor (and no libm call per pixel).
+                let whole = pos as usize;
+                let lo = whole % b;
+                let frac = pos - whole as f32;
                 let base = (x / cell) * b;
                 row[base + lo] += mag * (1.0 - frac);
                 row[base + (lo + 1) % b] += mag * frac;

@@ -2,6 +2,7 @@
 
 pub mod camera;
 pub mod crop;
+pub mod pixel;
 pub mod pose;
 pub mod symmetric_poses;
 pub mod symmetry;

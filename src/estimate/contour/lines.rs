@@ -117,7 +117,8 @@ pub fn outline_distribution(probs: &[f64], inner: usize, s: f64) -> (f64, f64) {
     // Segment r seen from candidate c sits (2r + 1 − c)/2 segments beyond the outline, so
     // its likelihood depends on k = 2r + 1 − c alone.
     let step = |k: i64| 0.5 + STEP_AMPLITUDE * (k as f64 * 0.5).tanh();
-    let like = |p: f64, h_bg: f64| (h_bg * (1.0 - p) + (1.0 - h_bg) * p).max(1e-12).ln();
+    let chance = |p: f64, h_bg: f64| (h_bg * (1.0 - p) + (1.0 - h_bg) * p).max(1e-12);
+    let like = |p: f64, h_bg: f64| chance(p, h_bg).ln();
     let (flat_in, flat_out) = (step(-STEP_REACH - 1), step(STEP_REACH + 1));
     // Prefix sums of each segment's far-inside and far-outside log-likelihoods.
     let mut inside = vec![0.0; n + 1];
@@ -133,11 +134,13 @@ pub fn outline_distribution(probs: &[f64], inner: usize, s: f64) -> (f64, f64) {
         // Segments with k < −REACH (far inside): r < (c − 1 − REACH)/2; k > REACH: r > (c − 1 + REACH)/2.
         let lo = ((c - 1 - STEP_REACH + 1).div_euclid(2)).clamp(0, n as i64) as usize; // first r with k ≥ −REACH
         let hi = ((c - 1 + STEP_REACH).div_euclid(2) + 1).clamp(lo as i64, n as i64) as usize; // first r with k > REACH
-        let mut sum = inside[lo] + (outside[n] - outside[hi]);
+        // The near segments' chances multiplied, one logarithm for them all: at most
+        // REACH + 1 factors of at least 1e-12 each, far from underflow.
+        let mut near_chance = 1.0;
         for (r, &p) in probs.iter().enumerate().take(hi).skip(lo) {
-            sum += like(p, near[(2 * r as i64 + 1 - c + STEP_REACH) as usize]);
+            near_chance *= chance(p, near[(2 * r as i64 + 1 - c + STEP_REACH) as usize]);
         }
-        *ll = sum;
+        *ll = inside[lo] + (outside[n] - outside[hi]) + near_chance.ln();
     }
     let top = log_l.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
     let w: Vec<f64> = log_l.iter().map(|l| (l - top).exp()).collect();

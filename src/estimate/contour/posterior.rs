@@ -31,9 +31,8 @@ impl<'a> Posterior<'a> {
     /// moves continuously with the line, so many lines together place it to a fraction of a
     /// pixel (nearest-pixel lookups left small objects a few per cent off in depth).
     pub fn foreground(&self, u: f64, v: f64) -> f32 {
-        let (x0, y0) = (u.floor(), v.floor());
-        let (fx, fy) = ((u - x0) as f32, (v - y0) as f32);
-        let (x0, y0) = (x0 as i64, y0 as i64);
+        let (x0, y0) = (crate::geometry::pixel::floor_i64(u), crate::geometry::pixel::floor_i64(v));
+        let (fx, fy) = ((u - x0 as f64) as f32, (v - y0 as f64) as f32);
         let top = self.pixel(x0, y0) * (1.0 - fx) + self.pixel(x0 + 1, y0) * fx;
         let bottom = self.pixel(x0, y0 + 1) * (1.0 - fx) + self.pixel(x0 + 1, y0 + 1) * fx;
         top * (1.0 - fy) + bottom * fy
