@@ -64,6 +64,8 @@ function requestRows(m) {
   const rows = [];
   const counts = {};
   for (const [endpoint, byStatus] of m.requests) {
+    // The console's own files are not the API's traffic.
+    if (/^GET (\/|\/console.*)$/.test(endpoint)) continue;
     const total = [...byStatus.values()].reduce((a, b) => a + b, 0);
     const errors = [...byStatus].filter(([s]) => Number(s) >= 400).reduce((a, [, n]) => a + n, 0);
     counts[endpoint] = total;
