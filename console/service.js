@@ -104,9 +104,11 @@ export function parse(textBody) {
   const requests = new Map(); // "METHOD route" -> Map(status -> count)
   const latency = new Map(); // "METHOD route" -> [[le, cumulative count]]
   for (const line of textBody.split("\n")) {
-    const m = /^([a-zA-Z_:][\w:]*)(\{([^}]*)\})?\s+(\S+)$/.exec(line.trim());
+    // Label values hold route templates with braces ("/v1/objects/{id}"): the label
+    // block runs to the last "}" before the value.
+    const m = /^([a-zA-Z_:][\w:]*)(?:\{(.*)\})?\s+(\S+)$/.exec(line.trim());
     if (!m) continue;
-    const [, name, , labelText = "", v] = m;
+    const [, name, labelText = "", v] = m;
     const labels = Object.fromEntries([...labelText.matchAll(/(\w+)="([^"]*)"/g)].map((x) => [x[1], x[2]]));
     const value = Number(v);
     if (name === "b2tf_requests_total") {
