@@ -361,6 +361,7 @@ fn api_keys_guard_everything_but_health() {
     assert_eq!(ok.status().as_u16(), 200);
     // The console's page needs no key (it asks for one); / leads to it; its answers
     // forbid inline script and framing. Who a key is needs a key.
+    assert!(server.banner.contains(&format!("web console {base}/console/")), "{}", server.banner);
     let page = c.get(format!("{base}/")).send().unwrap();
     assert_eq!((page.status().as_u16(), page.url().path()), (200, "/console/"));
     let csp = page.headers()["content-security-policy"].to_str().unwrap().to_string();
@@ -398,6 +399,7 @@ fn read_only_replica_serves_a_store_it_never_writes() {
     let who = call(&c, "GET", &format!("{base}/v1/caller"), None).1;
     assert_eq!((&who["keys_required"], &who["identity"], &who["read_only"]), (&json!(false), &Value::Null, &json!(true)), "{who}");
     assert_eq!(call(&c, "GET", &format!("{base}/console/"), None).0, 404);
+    assert!(!server.banner.contains("console"), "{}", server.banner);
 
     // The onboarding job writes after the replica started.
     let files = sample_files(dir.path());

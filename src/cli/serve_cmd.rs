@@ -45,6 +45,7 @@ pub fn run(a: ServeArgs) -> Result<()> {
     let rate = s.rate_limit;
     let options = ServerOptions { http: s.http.clone(), grpc: s.grpc.clone(), max_body_bytes: s.max_body_bytes, tls, console: s.console };
     let store_url = if s.read_only { format!("{}, read-only", core.store_url()) } else { core.store_url() };
+    let console = s.console;
     let on_bound = move |b: Bound| {
         let mut line = String::from("listening on");
         if let Some(h) = b.http {
@@ -67,7 +68,11 @@ pub fn run(a: ServeArgs) -> Result<()> {
         fields.extend(b.grpc.map(|g| ("grpc".to_string(), format!("{}://{g}", scheme.1).into())));
         fields.insert("store".into(), store_url.clone().into());
         fields.insert("auth".into(), auth.clone().into());
-        println!("{}", crate::telemetry::own_line(tracing::Level::INFO, "b2tf::serve", &format!("{line} (store {store_url}; {auth})"), "listening", fields));
+        // Where people open the console (after the addresses: scripts take the first URL).
+        let page = b.http.filter(|_| console).map(|h| format!("{}://{h}/console/", scheme.0));
+        let page_note = page.as_ref().map_or_else(String::new, |p| format!("; web console {p}"));
+        fields.extend(page.map(|p| ("console".to_string(), p.into())));
+        println!("{}", crate::telemetry::own_line(tracing::Level::INFO, "b2tf::serve", &format!("{line} (store {store_url}; {auth}{page_note})"), "listening", fields));
         tracing::info!(http = b.http.map(tracing::field::display), grpc = b.grpc.map(tracing::field::display), tls = scheme.0 == "https", store = %store_url, api_keys = keys.len(), "listening");
         let _ = std::io::stdout().flush();
     };

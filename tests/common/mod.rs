@@ -32,6 +32,8 @@ pub struct Server {
     pub http: String,
     /// `http://HOST:PORT` of the gRPC listener, as tonic's endpoint wants it (or https).
     pub grpc: String,
+    /// The first stdout line: where it listens.
+    pub banner: String,
 }
 
 impl Drop for Server {
@@ -102,7 +104,7 @@ fn spawn(mut cmd: Command) -> Server {
     };
     let http = word("http://").or_else(|| word("https://")).unwrap_or_else(|| panic!("no HTTP address in {line:?}"));
     let grpc = word("grpc://").map(|g| g.replacen("grpc://", "http://", 1)).or_else(|| word("grpcs://").map(|g| g.replacen("grpcs://", "https://", 1))).unwrap_or_else(|| panic!("no gRPC address in {line:?}"));
-    Server { child, http, grpc }
+    Server { child, http, grpc, banner: line }
 }
 
 pub fn sample_mesh() -> Mesh {
