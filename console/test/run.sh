@@ -5,6 +5,9 @@
 set -euo pipefail
 REPO="$(cd "$(dirname "$0")/../.." && pwd)"
 cd "$REPO"
+# scripts/env.sh puts .deps/python on PYTHONPATH: pip would take its packages
+# (typing_extensions) as installed and leave them out of the venv.
+unset PYTHONPATH
 SUDO=""; [ "$(id -u)" = 0 ] || SUDO=sudo
 need=()
 for pkg in chromium chromium-driver python3-venv; do
@@ -22,8 +25,7 @@ if ! "$VENV/bin/python" -c "import selenium, sys; sys.exit(selenium.__version__ 
   "$VENV/bin/pip" install --quiet --disable-pip-version-check "selenium==$SELENIUM"
 fi
 export B2TF_BIN="${B2TF_BIN:-target/debug/b2tf}"
-[ -x "$B2TF_BIN" ] || { source scripts/env.sh; cargo build; }
+[ -x "$B2TF_BIN" ] || ( source scripts/env.sh && cargo build )
 # Selenium must not fetch a driver or browser of its own: the system's are given.
 export SE_OFFLINE=true CHROMIUM=/usr/bin/chromium CHROMEDRIVER=/usr/bin/chromedriver
-unset PYTHONPATH
 exec "$VENV/bin/python" console/test/browser_test.py
