@@ -79,7 +79,7 @@ pub fn sample_crop(
     CropInput { rgb: out_rgb, mask: out_mask }
 }
 
-/// The source image's raw rows, for sampling without per-pixel bounds checks.
+/// The source image's raw rows, read by index (no `get_pixel` with its own checks per tap).
 struct Source<'a> {
     rgb: &'a [u8],
     mask: &'a [u8],

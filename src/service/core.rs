@@ -380,7 +380,7 @@ fn draw_answer(image: &image::RgbImage, k: &crate::geometry::Intrinsics, results
         let pose = crate::geometry::Pose::from_row_major(&p.r, p.t);
         out = crate::render::overlay::draw_overlay(&out, pool, &model.mesh, &pose, k, COLOURS[i % COLOURS.len()]).map_err(|e| ServiceError::internal(format!("drawing the overlay: {e}")))?;
     }
-    super::core_thumbnail::encode_png(&out)
+    super::core_thumbnail::png(&out)
 }
 
 /// The request's detections as (object id, mask, score), boxes given without a mask

@@ -66,12 +66,11 @@ fn draw(pool: &RenderPool, mesh: &Mesh, size: u32) -> Result<Vec<u8>, ServiceErr
     let pose = views::view_pose(&Vector3::new(1.0, -1.3, 0.9), 0.0, &Vector3::from(mesh.bbox_center()), f * radius / (0.45 * size as f64));
     let opts = RenderOptions { light_dir: [0.4, -0.6, -1.0], background: [238, 241, 245], ..Default::default() };
     let r = pool.render(mesh, &pose, &k, &opts).map_err(|e| ServiceError::new(ErrorKind::Internal, format!("drawing the thumbnail: {e}")))?;
-    encode_png(&r.rgb)
+    png(&r.rgb)
 }
 
 /// A picture for an answer (a thumbnail, an estimate's overlay) as PNG bytes.
-pub(super) fn encode_png(img: &image::RgbImage) -> Result<Vec<u8>, ServiceError> {
-    let mut out = std::io::Cursor::new(Vec::new());
-    img.write_to(&mut out, image::ImageFormat::Png).map_err(|e| ServiceError::internal(format!("encoding a PNG: {e}")))?;
-    Ok(out.into_inner())
+pub(super) fn png(img: &image::RgbImage) -> Result<Vec<u8>, ServiceError> {
+    super::client::png_bytes(img).map_err(|e| ServiceError::internal(format!("encoding a PNG: {e}")))
 }
+
