@@ -294,8 +294,9 @@ impl Estimator {
         // The pipeline's own pose is always rendered: it must be beaten on the evidence.
         let pipeline = verified.iter().position(|v| v.source == super::hypotheses::Source::Pipeline);
         let rendered = super::verify::to_render(&verified, pipeline, &cfg.verify);
-        for &i in &rendered {
-            let e = render_evidence(&self.renderer, &ctx.model.mesh, &verified[i].pose, ctx.intrinsics, ctx.image, ctx.mask, window)?;
+        let poses: Vec<Pose> = rendered.iter().map(|&i| verified[i].pose).collect();
+        let evidence = render_evidence(&self.renderer, &ctx.model.mesh, &poses, ctx.intrinsics, ctx.image, ctx.mask, window)?;
+        for (&i, e) in rendered.iter().zip(evidence) {
             verified[i].iou = e.iou;
             verified[i].appearance = super::verify::appearance(e.edges, e.colour, cfg.verify.colour_share);
             verified[i].edges = e.edges;
@@ -306,7 +307,7 @@ impl Estimator {
             // The renders cropped exactly as the photo was, encoded in one batch.
             let (x0, y0) = (window.0 as f64, window.1 as f64);
             let crops: Vec<crate::features::CropInput> = rendered
-                .iter()
+                .par_iter()
                 .map(|&i| {
                     let r = verified[i].render.as_ref().expect("rendered above");
                     crate::features::sample_crop(&r.rgb, &r.mask, &query.crop_box, &|u, v| (u - x0, v - y0))

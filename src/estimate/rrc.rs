@@ -8,6 +8,7 @@ use crate::geometry::{CropBox, Intrinsics, Pose};
 use crate::onboard::ObjectModel;
 use crate::render::{RenderOptions, RenderPool};
 use nalgebra::{Rotation3, Vector3};
+use rayon::prelude::*;
 
 /// Identity plus rotations by 90°, 180°, 270° about the object's x, y and z axes.
 pub fn variant_rotations() -> Vec<Rotation3<f64>> {
@@ -67,14 +68,8 @@ pub fn rrc_pool(
         }
     }
     let renders = renderer.render_batch(&model.mesh, &views, &RenderOptions::default())?;
-    let mut crops: Vec<CropInput> = Vec::new();
-    let mut meta: Vec<(usize, CropBox)> = Vec::new();
-    for (i, r) in renders.iter().enumerate() {
-        if let Some((crop, bx)) = crop_query(&r.rgb, &r.mask, model.config.crop_padding, size) {
-            crops.push(crop);
-            meta.push((i, bx));
-        }
-    }
+    let cropped: Vec<Option<(CropInput, CropBox)>> = renders.par_iter().map(|r| crop_query(&r.rgb, &r.mask, model.config.crop_padding, size)).collect();
+    let (crops, meta): (Vec<CropInput>, Vec<(usize, CropBox)>) = cropped.into_iter().enumerate().filter_map(|(i, c)| c.map(|(crop, bx)| (crop, (i, bx)))).unzip();
     let maps = backbone.extract(&crops)?;
     // Fresh backbone descriptors: the backbone's size, whether or not the templates are PCA-compressed.
     let mut pool = PatchPool { dim: backbone.identity().local_dim as usize, ..Default::default() };

@@ -5,10 +5,11 @@
 
 use super::hypotheses::Source;
 use super::refine::RefineReport;
-use super::select::{render_window, window_iou};
+use super::select::{window_camera, window_iou};
 use crate::geometry::{Intrinsics, Pose};
-use crate::render::{RenderOutput, RenderPool};
+use crate::render::{RenderOptions, RenderOutput, RenderPool};
 use image::{GrayImage, RgbImage};
+use rayon::prelude::*;
 
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
@@ -251,16 +252,22 @@ pub fn appearance(edges: f64, colour: f64, colour_share: f64) -> f64 {
     if colour.is_nan() { edges } else { (1.0 - colour_share) * edges + colour_share * colour }
 }
 
-/// Renders `pose` over the mask's window and measures silhouette IoU and appearance.
-pub fn render_evidence(renderer: &RenderPool, mesh: &crate::mesh::Mesh, pose: &Pose, k: &Intrinsics, image: &RgbImage, mask: &GrayImage, window: (u32, u32, u32, u32)) -> Result<Evidence, crate::render::RenderError> {
-    let r = render_window(renderer, mesh, pose, k, window)?;
+/// Renders each of `poses` over the mask's window (spread over the pool's renderers) and
+/// measures silhouette IoU and appearance of each (on all cores), in order.
+pub fn render_evidence(renderer: &RenderPool, mesh: &crate::mesh::Mesh, poses: &[Pose], k: &Intrinsics, image: &RgbImage, mask: &GrayImage, window: (u32, u32, u32, u32)) -> Result<Vec<Evidence>, crate::render::RenderError> {
+    let camera = window_camera(k, window);
+    let views: Vec<(Pose, Intrinsics)> = poses.iter().map(|p| (*p, camera)).collect();
+    let renders = renderer.render_batch(mesh, &views, &RenderOptions::default())?;
     let coloured = mesh.has_colours();
-    Ok(Evidence {
-        iou: window_iou(&r, mask, window) as f64,
-        edges: appearance_agreement(&r, image, mask, window),
-        colour: if coloured { colour_agreement(&r, image, mask, window) } else { f64::NAN },
-        render: r,
-    })
+    Ok(renders
+        .into_par_iter()
+        .map(|r| Evidence {
+            iou: window_iou(&r, mask, window) as f64,
+            edges: appearance_agreement(&r, image, mask, window),
+            colour: if coloured { colour_agreement(&r, image, mask, window) } else { f64::NAN },
+            render: r,
+        })
+        .collect())
 }
 
 /// Which hypotheses (sorted by contour agreement, best first) get a render: the first

@@ -4,6 +4,7 @@
 use crate::geometry::pixel::floor_i64;
 use crate::geometry::CropBox;
 use image::{GrayImage, RgbImage};
+use rayon::prelude::*;
 
 /// A square crop ready for a backbone: RGB with the background set to black, and the
 /// mask (255 = object) at the same resolution.
@@ -54,9 +55,10 @@ pub fn sample_crop(
     let inv = 1.0 / (sub * sub) as f32;
     let source = Source { rgb: rgb.as_raw(), mask: mask.as_raw(), w: rgb.width() as i64, h: rgb.height() as i64 };
     let offsets: Vec<f64> = (0..sub).map(|k| (k as f64 + 0.5) / sub as f64 - 0.5).collect();
-    let (crop_rgb, crop_mask) = (&mut *out_rgb, &mut *out_mask);
-    for cv in 0..size {
-        for cu in 0..size {
+    // Rows on all cores: every output pixel depends on the source alone.
+    let rows = out_rgb.par_chunks_mut(3 * size as usize).zip(out_mask.par_chunks_mut(size as usize));
+    rows.enumerate().for_each(|(cv, (crop_rgb, crop_mask))| {
+        for cu in 0..size as usize {
             let mut acc = [0f32; 4];
             for &dv in &offsets {
                 for &du in &offsets {
@@ -69,13 +71,12 @@ pub fn sample_crop(
             // Premultiplied: background black, edge pixels darkened by their coverage.
             // Values are ≥ 0, so adding ½ and truncating rounds as `round` does (the
             // saturating cast clamps), without a libm call per channel.
-            let i = (cv * size + cu) as usize;
             for k in 0..3 {
-                crop_rgb[3 * i + k] = (acc[k] * inv + 0.5) as u8;
+                crop_rgb[3 * cu + k] = (acc[k] * inv + 0.5) as u8;
             }
-            crop_mask[i] = (m * 255.0 + 0.5) as u8;
+            crop_mask[cu] = (m * 255.0 + 0.5) as u8;
         }
-    }
+    });
     CropInput { rgb: out_rgb, mask: out_mask }
 }
 

@@ -177,9 +177,11 @@ impl Refiner for ContourRefiner {
         // The depth's standard deviation and the visible share of the outline from the last
         // step, on the finest lines.
         let (mut depth_sigma, mut visible) = (f64::NAN, f64::NAN);
+        // The first pass measures at the start pose on the first scale: the check's lines.
+        let mut first = Some(coarse);
         for scale in &scales {
             for _ in 0..self.config.passes_per_scale {
-                let lines = build_lines(&cm, &centre, &pose, k, &post, *scale);
+                let lines = first.take().unwrap_or_else(|| build_lines(&cm, &centre, &pose, k, &post, *scale));
                 for _ in 0..self.config.updates_per_pass {
                     let Some(step) = gauss_newton_update(&lines, &pose, &start, k, &self.config.regularisation, radius, self.config.occlusion_model) else { break };
                     pose = apply_update(&pose, &step.omega, &step.v);
