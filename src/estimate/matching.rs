@@ -1,6 +1,8 @@
 //! Dense matching: for each query patch its k nearest pool patches (cosine, by blocked
 //! matrix multiplication), then the mutual-nearest-neighbour filter.
 
+use rayon::prelude::*;
+
 /// A query patch matched to a pool patch.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Match {
@@ -11,6 +13,10 @@ pub struct Match {
 
 /// Pool columns per block: bounds the similarity buffer (queries × block floats).
 const BLOCK: usize = 8192;
+
+/// Pool columns per strip of the best-query scan: a strip's running maxima stay in cache
+/// while the rows stream past.
+const STRIP: usize = 512;
 
 /// `query` is `q × dim`, `pool` is `p × dim`, both row-major and L2-normalised. Returns the
 /// pairs (i, j) where j is among the `k_nn` most similar pool rows of query i and i is the
@@ -29,22 +35,31 @@ pub fn mutual_matches(query: &[f32], pool: &[f32], dim: usize, k_nn: usize) -> V
     for start in (0..p).step_by(BLOCK) {
         let n = BLOCK.min(p - start);
         let block = &pool[start * dim..(start + n) * dim];
-        crate::linalg::mul_transposed(query, block, q, n, dim, &mut sims[..q * n]);
-        for i in 0..q {
-            let row = &sims[i * n..(i + 1) * n];
-            let t = &mut top[i];
-            for (j, &s) in row.iter().enumerate() {
+        let sims = &mut sims[..q * n];
+        crate::linalg::mul_transposed(query, block, q, n, dim, sims);
+        let sims = &*sims;
+        // Two scans on all cores, each over its own outputs: rows for each query's best k,
+        // column strips for each pool row's best query (rows in order, so ties go to the
+        // first query as a single scan would).
+        top.par_iter_mut().enumerate().for_each(|(i, t)| {
+            for (j, &s) in sims[i * n..(i + 1) * n].iter().enumerate() {
                 if t.len() < k_nn || s > t[t.len() - 1].1 {
                     let pos = t.partition_point(|&(_, v)| v >= s);
                     t.insert(pos, (start + j, s));
                     t.truncate(k_nn);
                 }
-                let b = &mut best_query[start + j];
-                if s > b.1 {
-                    *b = (i, s);
+            }
+        });
+        best_query[start..start + n].par_chunks_mut(STRIP).enumerate().for_each(|(c, best)| {
+            let (j0, w) = (c * STRIP, best.len());
+            for i in 0..q {
+                for (b, &s) in best.iter_mut().zip(&sims[i * n + j0..i * n + j0 + w]) {
+                    if s > b.1 {
+                        *b = (i, s);
+                    }
                 }
             }
-        }
+        });
     }
     let mut out = Vec::new();
     for (i, t) in top.iter().enumerate() {
