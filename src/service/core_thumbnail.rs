@@ -10,6 +10,7 @@ use crate::mesh::Mesh;
 use crate::render::{RenderOptions, RenderPool};
 use nalgebra::Vector3;
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 pub const DEFAULT_SIZE: u32 = 192;
@@ -27,6 +28,23 @@ struct Kept {
 #[derive(Default)]
 pub struct Thumbnails {
     kept: Mutex<HashMap<(String, u32), Kept>>,
+    /// Held while one thumbnail is drawn. A console opening on a catalogue asks for every
+    /// card's picture at once; drawn one at a time, at most one object not in memory is
+    /// read for them (a whole object, on S3), and a request that waited finds its picture
+    /// kept rather than drawing it again.
+    drawing: Mutex<()>,
+    /// Thumbnails drawn since start (what the lock saves shows here).
+    drawn: AtomicU64,
+}
+
+impl Thumbnails {
+    fn kept(&self, key: &(String, u32), generation: u64) -> Option<Arc<[u8]>> {
+        self.kept.lock().expect("thumbnail lock").get(key).filter(|k| k.generation == generation).map(|k| k.png.clone())
+    }
+
+    pub fn drawn(&self) -> u64 {
+        self.drawn.load(Ordering::Relaxed)
+    }
 }
 
 impl Core {
@@ -40,14 +58,19 @@ impl Core {
             return Err(crate::store::StoreError::NotFound(id.to_string()).into());
         };
         let key = (id.to_string(), size);
-        if let Some(k) = self.thumbnails.kept.lock().expect("thumbnail lock").get(&key).filter(|k| k.generation == generation) {
-            return Ok(k.png.clone());
+        if let Some(png) = self.thumbnails.kept(&key, generation) {
+            return Ok(png);
+        }
+        let _drawing = self.thumbnails.drawing.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(png) = self.thumbnails.kept(&key, generation) {
+            return Ok(png);
         }
         let model = match self.cache.held(id) {
             Some(m) => m,
             None => Arc::new(tracing::info_span!("store.get", object_id = id).in_scope(|| self.store.get(id))?),
         };
         let png: Arc<[u8]> = draw(&self.pool, &model.mesh, size)?.into();
+        self.thumbnails.drawn.fetch_add(1, Ordering::Relaxed);
         let mut kept = self.thumbnails.kept.lock().expect("thumbnail lock");
         if kept.len() >= KEPT {
             kept.clear();
@@ -74,3 +97,26 @@ pub(super) fn png(img: &image::RgbImage) -> Result<Vec<u8>, ServiceError> {
     super::client::png_bytes(img).map_err(|e| ServiceError::internal(format!("encoding a PNG: {e}")))
 }
 
+
+#[cfg(test)]
+mod tests {
+    use crate::service::core::{Core, CoreConfig};
+
+    /// A burst of requests for one picture not yet drawn draws it once; the others wait
+    /// and get the same bytes. A new size is a new drawing.
+    #[test]
+    fn concurrent_requests_draw_a_thumbnail_once() {
+        let Some(model) = crate::onboard::test_model::small_model() else { return };
+        let dir = tempfile::tempdir().unwrap();
+        let core = Core::new(CoreConfig { store_url: format!("dir://{}", dir.path().display()), render_pool: 2, ..Default::default() }).unwrap();
+        core.store.put(&crate::onboard::ObjectModel { object_id: "a".into(), ..(*model).clone() }, false).unwrap();
+        let pngs: Vec<_> = std::thread::scope(|s| {
+            let handles: Vec<_> = (0..6).map(|_| s.spawn(|| core.thumbnail("a", 64).unwrap())).collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        assert_eq!(core.thumbnails.drawn(), 1, "six requests, one drawing");
+        assert!(pngs.iter().all(|p| p == &pngs[0]));
+        core.thumbnail("a", 96).unwrap();
+        assert_eq!(core.thumbnails.drawn(), 2);
+    }
+}
