@@ -24,6 +24,10 @@ pub struct VerifyArgs {
     /// term, 0–1 (default 0.5; 0 skips the backbone pass over the renders).
     #[arg(long, value_parser = share)]
     pub feature_share: Option<f64>,
+    /// Hypotheses refined in full: the best this many by outline agreement where they
+    /// start, and the pipeline's pose always (0: all).
+    #[arg(long)]
+    pub verify_refined: Option<usize>,
 }
 
 fn share(s: &str) -> Result<f64, String> {
@@ -34,7 +38,7 @@ fn share(s: &str) -> Result<f64, String> {
 impl VerifyArgs {
     pub fn config(&self) -> VerifyConfig {
         let d = VerifyConfig::default();
-        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, feature_share: self.feature_share.unwrap_or(d.feature_share), ..d }
+        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, feature_share: self.feature_share.unwrap_or(d.feature_share), refined: self.verify_refined.unwrap_or(d.refined), ..d }
     }
 }
 

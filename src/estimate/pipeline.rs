@@ -280,6 +280,9 @@ impl Estimator {
         if let Some(s) = &symmetric {
             candidates = s.distinct(candidates, |(_, p)| p);
         }
+        if cfg.verify.refined > 0 && candidates.len() > cfg.verify.refined {
+            candidates = self.most_agreeing(ctx, candidates, cfg.verify.refined);
+        }
         let refiner = self.refiner(cfg.refiner);
         let mut verified: Vec<Verified> = candidates
             .par_iter()
@@ -329,6 +332,14 @@ impl Estimator {
             v.render = None;
         }
         Ok(verified)
+    }
+
+    /// The `keep` candidates whose outline agrees best with the mask where they start, and
+    /// the pipeline's pose (the first) whatever its agreement, in their order.
+    fn most_agreeing(&self, ctx: &RefineContext<'_>, candidates: Vec<(super::hypotheses::Source, Pose)>, keep: usize) -> Vec<(super::hypotheses::Source, Pose)> {
+        let scores: Vec<f64> = candidates.par_iter().map(|(_, p)| self.contour.agreement(ctx, p).map_or(f64::NEG_INFINITY, |a| a.score)).collect();
+        let kept = super::verify::first_and_best(&scores, keep);
+        candidates.into_iter().zip(kept).filter_map(|(c, k)| k.then_some(c)).collect()
     }
 
     /// Steps 5–8 for one mask: retrieval, matching, PnP, RRC. Returns the retrieved

@@ -48,6 +48,9 @@ pub struct VerifyConfig {
     /// right from wrong hypotheses best of all terms on default, harsh and gap scenes, and
     /// picked 2 more right poses of 120 for one batched backbone pass over the renders.
     pub feature_share: f64,
+    /// Hypotheses refined in full: the best this many by contour agreement where they
+    /// start, and the pipeline's pose always; 0 refines all.
+    pub refined: usize,
 }
 
 impl Default for VerifyConfig {
@@ -57,7 +60,7 @@ impl Default for VerifyConfig {
         // templates and the flips alone (oracle 79.5 → 88.5 % on seed 7), colour agreement
         // picks it more often (+1–1.5 points at any share from 0.25 to 1), and 12 renders
         // keep most of what rendering all would.
-        Self { enabled: true, templates: 10, spin_steps: 8, rendered: 3, contour_tie: 0.05, max_rendered: 12, weights: [0.4, 0.3, 0.3], colour_share: 0.5, skip_symmetric: false, feature_share: 0.5 }
+        Self { enabled: true, templates: 10, spin_steps: 8, rendered: 3, contour_tie: 0.05, max_rendered: 12, weights: [0.4, 0.3, 0.3], colour_share: 0.5, skip_symmetric: false, feature_share: 0.5, refined: 0 }
     }
 }
 
@@ -283,6 +286,21 @@ pub fn to_render(sorted: &[Verified], pipeline: Option<usize>, cfg: &VerifyConfi
     out
 }
 
+/// Which of `scores` to keep: the first (the pipeline's pose) and the best others, `keep`
+/// in all; equal scores go to the earlier.
+pub fn first_and_best(scores: &[f64], keep: usize) -> Vec<bool> {
+    let mut order: Vec<usize> = (1..scores.len()).collect();
+    order.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]).then(a.cmp(&b)));
+    let mut kept = vec![false; scores.len()];
+    if let Some(first) = kept.first_mut() {
+        *first = true;
+    }
+    for &i in order.iter().take(keep.saturating_sub(1)) {
+        kept[i] = true;
+    }
+    kept
+}
+
 /// Weighted score of the three terms; an unrendered hypothesis counts its contour alone,
 /// scaled as if the others matched it (it only competes when nothing was rendered).
 pub fn score(v: &Verified, w: &[f64; 3]) -> f64 {
@@ -295,6 +313,16 @@ pub fn score(v: &Verified, w: &[f64; 3]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_first_and_the_best_others_are_kept() {
+        let scores = [0.1, 0.9, 0.5, 0.9, f64::NEG_INFINITY, 0.7];
+        assert_eq!(first_and_best(&scores, 3), [true, true, false, true, false, false]);
+        assert_eq!(first_and_best(&scores, 4), [true, true, false, true, false, true]);
+        assert_eq!(first_and_best(&scores, 1), [true, false, false, false, false, false]);
+        assert_eq!(first_and_best(&scores, 10), [true; 6]);
+        assert!(first_and_best(&[], 3).is_empty());
+    }
 
     fn striped(width: u32, vertical: bool) -> RgbImage {
         RgbImage::from_fn(width, width, |x, y| {
