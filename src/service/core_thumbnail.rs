@@ -97,7 +97,6 @@ pub(super) fn png(img: &image::RgbImage) -> Result<Vec<u8>, ServiceError> {
     super::client::png_bytes(img).map_err(|e| ServiceError::internal(format!("encoding a PNG: {e}")))
 }
 
-
 #[cfg(test)]
 mod tests {
     use crate::service::core::{Core, CoreConfig};
