@@ -10,11 +10,15 @@ the JSON sidecar b2tfpose checks (docs/onnx_backbone.md). The ONNX model is comp
 with PyTorch on one input and nothing is written when they disagree.
 
     python3 tools/export_backbone.py --model PATH_OR_ID --out models/dinov3-vitl16.onnx
-        [--local-layer N] [--fp16] [--size S] [--opset 18]
+        [--local-layer N] [--fp16] [--fused-attention] [--size S] [--opset 18]
     python3 tools/export_backbone.py --random-init dinov3-tiny --out /tmp/t.onnx   # tests
 
 Default local layer: 18 for a 24-block ViT-L (the paper), else three quarters of the
-depth. Needs torch, transformers (≥ 4.56 for DINOv3), onnx and onnxruntime.
+depth. `--fused-attention` writes each block's attention as ONNX Runtime's
+`com.microsoft.MultiHeadAttention` (rotary positions applied before it), which its CUDA
+provider runs as one fused kernel; the plain export spells attention out as
+MatMul/Softmax/MatMul, which ONNX Runtime's optimizer cannot fuse around DINOv3's rotary
+positions. Needs torch, transformers (≥ 4.56 for DINOv3), onnx and onnxruntime.
 """
 
 import argparse
@@ -86,6 +90,48 @@ def freeze_position_embeddings(model, size, patch, dim):
     emb.interpolate_pos_encoding = lambda embeddings, height, width: fixed.to(embeddings.dtype)
 
 
+def use_fused_attention(model):
+    """Routes the model's attention through `com.microsoft.MultiHeadAttention` in the export.
+
+    transformers' ViTs call a pluggable attention function with query, key and value as
+    [batch, heads, tokens, head_dim] (DINOv3's rotary positions already applied); this one
+    computes the same attention in PyTorch (the reference the export is checked against)
+    and exports as the single contrib op, which takes [batch, tokens, heads × head_dim]."""
+    import torch
+    from transformers import AttentionInterface
+
+    # A custom op, so the tracer records it as one node and the symbolic below writes it.
+    @torch.library.custom_op("b2tf::multi_head_attention", mutates_args=())
+    def multi_head_attention(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, num_heads: int, scale: float) -> torch.Tensor:
+        b, s, _ = q.shape
+        split = lambda t: t.view(b, s, num_heads, -1).transpose(1, 2)  # noqa: E731
+        out = torch.nn.functional.scaled_dot_product_attention(split(q), split(k), split(v), scale=scale)
+        return out.transpose(1, 2).reshape(b, s, -1)
+
+    def symbolic(g, q, k, v, num_heads, scale):
+        from torch.onnx import symbolic_helper
+
+        heads = symbolic_helper._get_const(num_heads, "i", "num_heads")
+        factor = symbolic_helper._get_const(scale, "f", "scale")
+        out = g.op("com.microsoft::MultiHeadAttention", q, k, v, num_heads_i=heads, scale_f=factor)
+        out.setType(q.type())  # same shape and type as the query: tells the exporter's shape inference
+        return out
+
+    torch.onnx.register_custom_op_symbolic("b2tf::multi_head_attention", symbolic, 1)
+
+    def attention(module, query, key, value, attention_mask, scaling=None, dropout=0.0, **kwargs):
+        if attention_mask is not None:
+            raise ValueError("--fused-attention: this model passes an attention mask, which the export does not carry")
+        b, heads, tokens, head_dim = query.shape
+        scale = float(scaling if scaling is not None else head_dim**-0.5)
+        merge = lambda t: t.transpose(1, 2).reshape(b, tokens, heads * head_dim)  # noqa: E731
+        out = multi_head_attention(merge(query), merge(key), merge(value), heads, scale)
+        return out.view(b, tokens, heads, head_dim), None
+
+    AttentionInterface.register("b2tf_mha", attention)
+    model.set_attn_implementation("b2tf_mha")
+
+
 class PatchTokens:
     """Wraps the ViT: pixels in, (local block's patch tokens, final-norm patch tokens) out."""
 
@@ -134,6 +180,8 @@ def export(args):
     if size % patch:
         sys.exit(f"--size {size} is not a multiple of the patch size {patch}")
     freeze_position_embeddings(model, size, patch, dim)
+    if args.fused_attention:
+        use_fused_attention(model)
     wrapped = PatchTokens(model, local_layer, args.fp16).module
     example = torch.randn(2, 3, size, size, generator=torch.Generator().manual_seed(0))
     # Tracing and the reference pass run on a GPU where there is one (a ViT-L in fp16 crawls on
@@ -156,6 +204,7 @@ def export(args):
                 output_names=["local_tokens", "global_tokens"],
                 dynamic_axes={"pixel_values": {0: "batch"}, "local_tokens": {0: "batch"}, "global_tokens": {0: "batch"}},
                 opset_version=args.opset,
+                custom_opsets={"com.microsoft": 1} if args.fused_attention else None,
                 dynamo=False,
             )
             ref_local, ref_global = (t.cpu().numpy() for t in wrapped(example.to(device)))
@@ -176,7 +225,7 @@ def export(args):
         sidecar = {
             "format": "b2tfpose-backbone",
             "version": 1,
-            "model": f"{name}{'-fp16' if args.fp16 else ''}",
+            "model": f"{name}{'-fp16' if args.fp16 else ''}{'-mha' if args.fused_attention else ''}",
             "source": source,
             "patch_size": patch,
             "input_size": size,
@@ -209,6 +258,7 @@ def main():
     p.add_argument("--local-layer", type=int, help="block giving the local descriptors (default: 18 of 24, else 3/4 of the depth)")
     p.add_argument("--size", type=int, help="input side in pixels (default: 32 patches)")
     p.add_argument("--fp16", action="store_true", help="half-precision weights and activations (inputs and outputs stay float32)")
+    p.add_argument("--fused-attention", action="store_true", help="attention as ONNX Runtime's fused com.microsoft.MultiHeadAttention op (faster on its CUDA provider)")
     p.add_argument("--opset", type=int, default=18)
     p.add_argument("--tolerance", type=float, help="largest |ONNX − PyTorch| accepted, relative to the outputs' largest value (default: 1e-3, with --fp16 5e-2)")
     export(p.parse_args())

@@ -6,7 +6,8 @@
 #   here:  tools/gpu_backbone_check.sh pack           # .gpu/: onnxruntime-gpu's libraries in
 #                                                     # parts, a stripped b2tf, zstd, a manifest
 #   there: tools/gpu_backbone_check.sh torch          # PyTorch timings of DINOv3's shapes
-#          tools/gpu_backbone_check.sh export         # ViT-L/16 exports, fp32 and fp16
+#          tools/gpu_backbone_check.sh export         # ViT-L/16 exports: fp32 and fp16, each with
+#                                                     # plain and fused (-mha) attention
 #          tools/gpu_backbone_check.sh stash          # keep the parts carried by this call
 #          tools/gpu_backbone_check.sh bench          # b2tf on CUDA: backbone, estimate, serve
 #          tools/gpu_backbone_check.sh other-devices  # ViT-L on TensorRT (refused without
@@ -56,8 +57,12 @@ torch_stage() {
 }
 
 export_stage() {
-  for flags in "" "--fp16"; do
-    python3 tools/export_backbone.py --random-init dinov3-vitl16 $flags --out "$STATE/models/vitl16${flags:+-fp16}.onnx"
+  local precision attention
+  for precision in "" "-fp16"; do
+    for attention in "" "-mha"; do
+      python3 tools/export_backbone.py --random-init dinov3-vitl16 ${precision:+--fp16} ${attention:+--fused-attention} \
+        --out "$STATE/models/vitl16$precision$attention.onnx"
+    done
   done
 }
 
@@ -87,9 +92,10 @@ setup_b2tf() {
 bench() {
   setup_b2tf
   local b2tf="$STATE/b2tf" m="$STATE/models"
-  "$b2tf" bench backbone --onnx "$m/vitl16.onnx" --onnx "$m/vitl16-fp16.onnx" --device cuda:0 --batches 1,8,32 --passes 5
-  "$b2tf" bench estimate --backbone "onnx:$m/vitl16-fp16.onnx" --device cuda:0 --images 5 --store "dir://$STATE/store"
-  "$b2tf" bench serve --backbone "onnx:$m/vitl16-fp16.onnx" --device cuda:0 --store "dir://$STATE/store" --clients 1,4,16 --requests 4 --protocols grpc
+  "$b2tf" bench backbone --onnx "$m/vitl16.onnx" --onnx "$m/vitl16-mha.onnx" --onnx "$m/vitl16-fp16.onnx" \
+    --onnx "$m/vitl16-fp16-mha.onnx" --device cuda:0 --batches 1,8,32 --passes 5
+  "$b2tf" bench estimate --backbone "onnx:$m/vitl16-fp16-mha.onnx" --device cuda:0 --images 5 --store "dir://$STATE/store"
+  "$b2tf" bench serve --backbone "onnx:$m/vitl16-fp16-mha.onnx" --device cuda:0 --store "dir://$STATE/store" --clients 1,4,16 --requests 4 --protocols grpc
 }
 
 other_devices() {

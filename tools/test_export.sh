@@ -18,9 +18,9 @@ fi
 out="${1:-out/export-test}"
 mkdir -p "$out"
 cargo build --release --quiet
-for spec in "dinov3-tiny:" "dinov3-tiny:--fp16" "dinov2reg-tiny:"; do
+for spec in "dinov3-tiny:" "dinov3-tiny:--fp16" "dinov3-tiny:--fused-attention" "dinov3-tiny:--fp16 --fused-attention" "dinov2reg-tiny:" "dinov2reg-tiny:--fused-attention"; do
   kind="${spec%%:*}"; flags="${spec#*:}"
-  name="$kind${flags:+-fp16}"
+  name="$kind"; [[ $flags == *--fp16* ]] && name+="-fp16"; [[ $flags == *--fused-attention* ]] && name+="-mha"
   PYTHONPATH="$torch_deps:$PYTHONPATH" python3 tools/export_backbone.py --random-init "$kind" $flags --out "$out/$name.onnx" 2>&1 | grep -E "tokens \[|wrote"
   target/release/b2tf bench estimate --backbone "onnx:$out/$name.onnx" --images 1 --store "dir://$out/models" | grep -E "^\| with RRC"
 done

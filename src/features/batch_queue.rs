@@ -53,8 +53,10 @@ pub struct QueueStats {
 
 pub struct BatchingBackbone {
     identity: BackboneIdentity,
-    jobs: Sender<Job>,
+    /// `None` only while dropping.
+    jobs: Option<Sender<Job>>,
     counters: Arc<Counters>,
+    worker: Option<std::thread::JoinHandle<()>>,
 }
 
 impl BatchingBackbone {
@@ -71,11 +73,11 @@ impl BatchingBackbone {
         let counters = Arc::new(Counters::default());
         let identity = inner.identity();
         let worker_counters = counters.clone();
-        std::thread::Builder::new()
+        let worker = std::thread::Builder::new()
             .name("backbone-queue".into())
             .spawn(move || worker(inner, rx, max_batch.max(1), max_wait, worker_counters))
             .expect("spawning the backbone queue thread");
-        Self { identity, jobs: tx, counters }
+        Self { identity, jobs: Some(tx), counters, worker: Some(worker) }
     }
 
     pub fn stats(&self) -> QueueStats {
@@ -88,6 +90,22 @@ impl BatchingBackbone {
             jobs: c.jobs.load(Ordering::Relaxed),
             wait_seconds: c.wait_us.load(Ordering::Relaxed) as f64 * 1e-6,
             pass_seconds: c.pass_us.load(Ordering::Relaxed) as f64 * 1e-6,
+        }
+    }
+}
+
+/// Dropping the queue waits for its worker to drop the backbone. A process that returns
+/// from `main` while the worker is still releasing a GPU session crashes in its exit: ONNX
+/// Runtime's CUDA allocator frees pinned memory after the CUDA driver has shut down and
+/// aborts ("CUDA failure 4: driver shutting down", seen when `b2tf serve` on `cuda:0`
+/// stopped).
+impl Drop for BatchingBackbone {
+    fn drop(&mut self) {
+        drop(self.jobs.take()); // the worker's `recv` fails once the pass in hand is done
+        if let Some(worker) = self.worker.take() {
+            if worker.join().is_err() {
+                tracing::warn!("the backbone queue worker panicked while stopping");
+            }
         }
     }
 }
@@ -184,8 +202,8 @@ impl Backbone for BatchingBackbone {
         super::backbone::check_sizes(crops, self.identity.input_size)?;
         let (reply, answer) = sync_channel(1);
         self.counters.queued.fetch_add(crops.len(), Ordering::Relaxed);
-        let sent = self.jobs.send(Job { crops: crops.to_vec(), queued_at: Instant::now(), reply });
-        if sent.is_err() {
+        let sent = self.jobs.as_ref().map(|jobs| jobs.send(Job { crops: crops.to_vec(), queued_at: Instant::now(), reply }));
+        if !matches!(sent, Some(Ok(()))) {
             self.counters.queued.fetch_sub(crops.len(), Ordering::Relaxed);
             return Err(FeatureError::Backend("the backbone queue has stopped".into()));
         }
@@ -283,6 +301,32 @@ mod tests {
         fn extract(&self, _: &[CropInput]) -> Result<Vec<FeatureMap>, FeatureError> {
             panic!("backend bug")
         }
+    }
+
+    /// Releases slowly, as a GPU session does, and says when it is gone.
+    struct SlowToRelease(Arc<std::sync::atomic::AtomicBool>);
+    impl Backbone for SlowToRelease {
+        fn identity(&self) -> BackboneIdentity {
+            Panics.identity()
+        }
+        fn extract(&self, _: &[CropInput]) -> Result<Vec<FeatureMap>, FeatureError> {
+            Ok(Vec::new())
+        }
+    }
+    impl Drop for SlowToRelease {
+        fn drop(&mut self) {
+            std::thread::sleep(Duration::from_millis(200));
+            self.0.store(true, Ordering::SeqCst);
+        }
+    }
+
+    #[test]
+    fn dropping_the_queue_waits_until_its_backbone_is_released() {
+        let released = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let queue = BatchingBackbone::new(Arc::new(SlowToRelease(released.clone())), 4);
+        let _ = queue.extract(&crops(1, 0)); // one pass, answered (as "too few maps") before the drop
+        drop(queue);
+        assert!(released.load(Ordering::SeqCst), "the queue returned before its worker released the backbone");
     }
 
     #[test]
