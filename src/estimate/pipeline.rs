@@ -313,7 +313,7 @@ impl Estimator {
                 .par_iter()
                 .map(|&i| {
                     let r = verified[i].render.as_ref().expect("rendered above");
-                    crate::features::sample_crop(&r.rgb, &r.mask, &query.crop_box, &|u, v| (u - x0, v - y0))
+                    crate::features::sample_crop(&r.rgb, &r.mask, &query.crop_box, crate::features::ToSource::Shift(x0, y0))
                 })
                 .collect();
             let maps = self.backbone.extract(&crops)?;

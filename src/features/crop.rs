@@ -38,33 +38,58 @@ pub fn mask_bbox(mask: &GrayImage) -> Option<(u32, u32, u32, u32)> {
     (lo_u != u32::MAX).then_some((lo_u, lo_v, hi_u, hi_v))
 }
 
+/// Where a crop's sample points fall in the source image.
+#[derive(Clone, Copy)]
+pub enum ToSource<'a> {
+    /// Source = image coordinates − (dx, dy): a query (0, 0) or a render of a window.
+    Shift(f64, f64),
+    /// Any map of image coordinates to source pixels (an in-plane-rotated template).
+    Map(&'a (dyn Fn(f64, f64) -> (f64, f64) + Sync)),
+}
+
 /// Samples the crop `b` of `rgb`/`mask`. `to_source` maps image coordinates of the crop's
-/// frame to source pixel coordinates (the identity for a query; a rotation about the
-/// principal point for an in-plane-rotated template). When the crop shrinks the source,
-/// each crop pixel averages a grid of sub-samples so that thin edges are not aliased.
-pub fn sample_crop(
-    rgb: &RgbImage,
-    mask: &GrayImage,
-    b: &CropBox,
-    to_source: &(dyn Fn(f64, f64) -> (f64, f64) + Sync),
-) -> CropInput {
-    let size = b.size;
-    let sub = b.scale().ceil().clamp(1.0, 4.0) as u32;
-    let mut out_rgb = RgbImage::new(size, size);
-    let mut out_mask = GrayImage::new(size, size);
+/// frame to source pixel coordinates. When the crop shrinks the source, each crop pixel
+/// averages a grid of sub-samples so that thin edges are not aliased.
+pub fn sample_crop(rgb: &RgbImage, mask: &GrayImage, b: &CropBox, to_source: ToSource) -> CropInput {
+    let size = b.size as usize;
+    let sub = b.scale().ceil().clamp(1.0, 4.0) as usize;
+    let mut out_rgb = RgbImage::new(b.size, b.size);
+    let mut out_mask = GrayImage::new(b.size, b.size);
     let inv = 1.0 / (sub * sub) as f32;
     let source = Source { rgb: rgb.as_raw(), mask: mask.as_raw(), w: rgb.width() as i64, h: rgb.height() as i64 };
     let offsets: Vec<f64> = (0..sub).map(|k| (k as f64 + 0.5) / sub as f64 - 0.5).collect();
+    // A shift moves columns and rows independently: each column's and each row's taps are
+    // found once rather than per pixel (the same arithmetic as `to_image`, so the same bits).
+    let taps = |origin: f64, shift: f64| -> Vec<(i64, f32)> {
+        let s = b.scale();
+        (0..size).flat_map(|c| offsets.iter().map(move |&d| Source::tap(origin + ((c as f64 + d) + 0.5) * s - shift))).collect()
+    };
+    let plan = match to_source {
+        ToSource::Shift(dx, dy) => Plan::Separable { columns: taps(b.origin_u, dx), rows: taps(b.origin_v, dy) },
+        ToSource::Map(map) => Plan::Mapped(map),
+    };
     // Rows on all cores: every output pixel depends on the source alone.
-    let rows = out_rgb.par_chunks_mut(3 * size as usize).zip(out_mask.par_chunks_mut(size as usize));
+    let rows = out_rgb.par_chunks_mut(3 * size).zip(out_mask.par_chunks_mut(size));
     rows.enumerate().for_each(|(cv, (crop_rgb, crop_mask))| {
-        for cu in 0..size as usize {
+        for cu in 0..size {
             let mut acc = [0f32; 4];
-            for &dv in &offsets {
-                for &du in &offsets {
-                    let (iu, iv) = b.to_image(cu as f64 + du, cv as f64 + dv);
-                    let (su, sv) = to_source(iu, iv);
-                    source.add_bilinear(su, sv, &mut acc);
+            match &plan {
+                Plan::Separable { columns, rows } => {
+                    for &(v0, fv) in &rows[cv * sub..(cv + 1) * sub] {
+                        for &(u0, fu) in &columns[cu * sub..(cu + 1) * sub] {
+                            source.add_taps(u0, fu, v0, fv, &mut acc);
+                        }
+                    }
+                }
+                Plan::Mapped(map) => {
+                    for &dv in &offsets {
+                        for &du in &offsets {
+                            let (iu, iv) = b.to_image(cu as f64 + du, cv as f64 + dv);
+                            let (su, sv) = map(iu, iv);
+                            let ((u0, fu), (v0, fv)) = (Source::tap(su), Source::tap(sv));
+                            source.add_taps(u0, fu, v0, fv, &mut acc);
+                        }
+                    }
                 }
             }
             let m = acc[3] * inv; // 0..1 object coverage
@@ -80,6 +105,12 @@ pub fn sample_crop(
     CropInput { rgb: out_rgb, mask: out_mask }
 }
 
+/// How `sample_crop` finds its taps: per column and per row, or per sample point.
+enum Plan<'a> {
+    Separable { columns: Vec<(i64, f32)>, rows: Vec<(i64, f32)> },
+    Mapped(&'a (dyn Fn(f64, f64) -> (f64, f64) + Sync)),
+}
+
 /// The source image's raw rows, read by index (no `get_pixel` with its own checks per tap).
 struct Source<'a> {
     rgb: &'a [u8],
@@ -89,12 +120,17 @@ struct Source<'a> {
 }
 
 impl Source<'_> {
-    /// Adds the bilinear sample at (u, v) of mask-weighted RGB (0..255) and mask coverage
-    /// (0..1) to `acc`; taps outside the image count as background.
+    /// A coordinate's first bilinear tap and its weight towards the second.
     #[inline]
-    fn add_bilinear(&self, u: f64, v: f64, acc: &mut [f32; 4]) {
-        let (u0, v0) = (floor_i64(u), floor_i64(v));
-        let (fu, fv) = ((u - u0 as f64) as f32, (v - v0 as f64) as f32);
+    fn tap(x: f64) -> (i64, f32) {
+        let x0 = floor_i64(x);
+        (x0, (x - x0 as f64) as f32)
+    }
+
+    /// Adds the bilinear sample at (u0 + fu, v0 + fv) of mask-weighted RGB (0..255) and mask
+    /// coverage (0..1) to `acc`; taps outside the image count as background.
+    #[inline]
+    fn add_taps(&self, u0: i64, fu: f32, v0: i64, fv: f32, acc: &mut [f32; 4]) {
         let taps = [(0, 0, (1.0 - fu) * (1.0 - fv)), (1, 0, fu * (1.0 - fv)), (0, 1, (1.0 - fu) * fv), (1, 1, fu * fv)];
         for (du, dv, wgt) in taps {
             let (x, y) = (u0.saturating_add(du), v0.saturating_add(dv));
@@ -102,6 +138,10 @@ impl Source<'_> {
                 continue;
             }
             let i = (y * self.w + x) as usize;
+            // Background adds nothing (0 × anything, to sums that are ≥ 0).
+            if self.mask[i] == 0 {
+                continue;
+            }
             let m = self.mask[i] as f32 / 255.0 * wgt;
             acc[0] += self.rgb[3 * i] as f32 * m;
             acc[1] += self.rgb[3 * i + 1] as f32 * m;
@@ -115,7 +155,7 @@ impl Source<'_> {
 pub fn crop_query(rgb: &RgbImage, mask: &GrayImage, padding: f64, size: u32) -> Option<(CropInput, CropBox)> {
     let (a, b, c, d) = mask_bbox(mask)?;
     let bx = CropBox::around(a, b, c, d, padding, size);
-    Some((sample_crop(rgb, mask, &bx, &|u, v| (u, v)), bx))
+    Some((sample_crop(rgb, mask, &bx, ToSource::Shift(0.0, 0.0)), bx))
 }
 
 #[cfg(test)]
@@ -172,8 +212,14 @@ mod tests {
             let bx = CropBox::around(a, b, c, d, pad, size);
             for angle in [0.0, 0.4, -2.0] {
                 let f = rotate(angle);
-                let (fast, slow) = (sample_crop(&rgb, &mask, &bx, &f), reference_crop(&rgb, &mask, &bx, &f));
+                let (fast, slow) = (sample_crop(&rgb, &mask, &bx, ToSource::Map(&f)), reference_crop(&rgb, &mask, &bx, &f));
                 assert_eq!((fast.rgb.as_raw(), fast.mask.as_raw()), (slow.rgb.as_raw(), slow.mask.as_raw()), "box {:?}, angle {angle}", (a, b, c, d, pad, size));
+            }
+            // The separable path of a shift, against the same shift as a map.
+            for (dx, dy) in [(0.0, 0.0), (3.0, -7.0), (-0.25, 12.5)] {
+                let f = move |u: f64, v: f64| (u - dx, v - dy);
+                let (fast, slow) = (sample_crop(&rgb, &mask, &bx, ToSource::Shift(dx, dy)), reference_crop(&rgb, &mask, &bx, &f));
+                assert_eq!((fast.rgb.as_raw(), fast.mask.as_raw()), (slow.rgb.as_raw(), slow.mask.as_raw()), "box {:?}, shift {:?}", (a, b, c, d, pad, size), (dx, dy));
             }
         }
     }

@@ -2,7 +2,7 @@
 
 use crate::geometry::symmetry::{KnownSymmetries, SymmetrySource};
 use super::model::{pack_silhouette, ObjectModel, OnboardConfig, Template};
-use crate::features::{sample_crop, Backbone, CropInput};
+use crate::features::{sample_crop, Backbone, CropInput, ToSource};
 use crate::geometry::views::{fitted_distance, icosphere, view_pose};
 use crate::geometry::{CropBox, Intrinsics, PatchGrid, Pose};
 use crate::mesh::Mesh;
@@ -218,7 +218,7 @@ fn templates_of_view(
         }
         let bx = CropBox::around_edges(l + k.cx - 0.5, t + k.cy - 0.5, r + k.cx + 0.5, b + k.cy + 0.5, config.crop_padding, crop_size);
         let to_base = rotation_to_base(k, a);
-        crops.push(sample_crop(&base.rgb, &base.mask, &bx, &to_base));
+        crops.push(sample_crop(&base.rgb, &base.mask, &bx, ToSource::Map(&to_base)));
         boxes.push(bx);
     }
     let features = backbone.extract(&crops)?;
