@@ -107,6 +107,13 @@ fn segment_probabilities(post: &Posterior<'_>, c: &Vector2<f64>, n: &Vector2<f64
 /// uses to sum the far segments by prefix sums instead of one logarithm per pair.
 const STEP_REACH: i64 = 7;
 
+/// The smoothed step at k = −REACH − 1 ..= REACH + 1 half-segment steps beyond the outline:
+/// the same for every line, so its `tanh`s are taken once per process, not per line.
+fn step_table() -> &'static [f64; 2 * STEP_REACH as usize + 3] {
+    static TABLE: std::sync::OnceLock<[f64; 2 * STEP_REACH as usize + 3]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| std::array::from_fn(|i| 0.5 + STEP_AMPLITUDE * ((i as i64 - STEP_REACH - 1) as f64 * 0.5).tanh()))
+}
+
 /// Mean and variance (px) of the outline's offset along the line, given the segments'
 /// foreground probabilities: a uniform prior over offsets at half-segment steps, and for
 /// each segment the likelihood of its probability if the outline sat at that offset.
@@ -116,10 +123,10 @@ pub fn outline_distribution(probs: &[f64], inner: usize, s: f64) -> (f64, f64) {
     let offset = |c: usize| (c as f64 * 0.5 - inner as f64) * s;
     // Segment r seen from candidate c sits (2r + 1 − c)/2 segments beyond the outline, so
     // its likelihood depends on k = 2r + 1 − c alone.
-    let step = |k: i64| 0.5 + STEP_AMPLITUDE * (k as f64 * 0.5).tanh();
+    let steps = step_table();
     let chance = |p: f64, h_bg: f64| (h_bg * (1.0 - p) + (1.0 - h_bg) * p).max(1e-12);
     let like = |p: f64, h_bg: f64| chance(p, h_bg).ln();
-    let (flat_in, flat_out) = (step(-STEP_REACH - 1), step(STEP_REACH + 1));
+    let (flat_in, flat_out) = (steps[0], steps[steps.len() - 1]);
     // Prefix sums of each segment's far-inside and far-outside log-likelihoods.
     let mut inside = vec![0.0; n + 1];
     let mut outside = vec![0.0; n + 1];
@@ -127,7 +134,7 @@ pub fn outline_distribution(probs: &[f64], inner: usize, s: f64) -> (f64, f64) {
         inside[r + 1] = inside[r] + like(p, flat_in);
         outside[r + 1] = outside[r] + like(p, flat_out);
     }
-    let near: Vec<f64> = (-STEP_REACH..=STEP_REACH).map(step).collect();
+    let near = &steps[1..steps.len() - 1]; // k = −REACH ..= REACH
     let mut log_l = vec![0.0f64; candidates];
     for (c, ll) in log_l.iter_mut().enumerate() {
         let c = c as i64;
