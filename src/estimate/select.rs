@@ -33,14 +33,13 @@ pub fn mask_window(mask: &GrayImage) -> Option<(u32, u32, u32, u32)> {
 
 /// Renders `pose` inside `window` (x, y, w, h) of the image of camera `k`, at native resolution.
 pub fn render_window(renderer: &RenderPool, mesh: &crate::mesh::Mesh, pose: &Pose, k: &Intrinsics, window: (u32, u32, u32, u32)) -> Result<RenderOutput, crate::render::RenderError> {
-    renderer.render(mesh, pose, &window_camera(k, window), &RenderOptions::default())
+    renderer.render(mesh, pose, &window_camera(k, window)?, &RenderOptions::default())
 }
 
-/// The camera `k` cut down to `window` (x, y, w, h): the same pixel grid, so a render
-/// through it is that window of a full-size render.
-pub fn window_camera(k: &Intrinsics, window: (u32, u32, u32, u32)) -> Intrinsics {
-    let (x, y, w, h) = window;
-    Intrinsics { cx: k.cx - x as f64, cy: k.cy - y as f64, width: w, height: h, ..*k }
+/// The camera `k` cut down to `window` (x, y, w, h) (`Intrinsics::window`); an empty window
+/// is a render error.
+pub fn window_camera(k: &Intrinsics, (x, y, w, h): (u32, u32, u32, u32)) -> Result<Intrinsics, crate::render::RenderError> {
+    k.window(x, y, w, h).ok_or_else(|| crate::render::RenderError::InvalidIntrinsics(format!("empty window {w}×{h} at ({x}, {y})")))
 }
 
 /// IoU of a window render's mask with the same window of a full-size mask.

@@ -258,7 +258,7 @@ pub fn appearance(edges: f64, colour: f64, colour_share: f64) -> f64 {
 /// Renders each of `poses` over the mask's window (spread over the pool's renderers) and
 /// measures silhouette IoU and appearance of each (on all cores), in order.
 pub fn render_evidence(renderer: &RenderPool, mesh: &crate::mesh::Mesh, poses: &[Pose], k: &Intrinsics, image: &RgbImage, mask: &GrayImage, window: (u32, u32, u32, u32)) -> Result<Vec<Evidence>, crate::render::RenderError> {
-    let camera = window_camera(k, window);
+    let camera = window_camera(k, window)?;
     let views: Vec<(Pose, Intrinsics)> = poses.iter().map(|p| (*p, camera)).collect();
     let renders = renderer.render_batch(mesh, &views, &RenderOptions::default())?;
     let coloured = mesh.has_colours();

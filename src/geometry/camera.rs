@@ -39,6 +39,13 @@ impl Intrinsics {
         Ok(Self { fx, fy, cx, cy, width, height })
     }
 
+    /// This camera cut down to the pixel window of `width` × `height` at (`x`, `y`): a render
+    /// through it draws exactly those pixels of this camera's image. `None` for an empty
+    /// window.
+    pub fn window(&self, x: u32, y: u32, width: u32, height: u32) -> Option<Self> {
+        (width > 0 && height > 0).then_some(Self { cx: self.cx - x as f64, cy: self.cy - y as f64, width, height, ..*self })
+    }
+
     pub fn k(&self) -> Matrix3<f64> {
         Matrix3::new(self.fx, 0.0, self.cx, 0.0, self.fy, self.cy, 0.0, 0.0, 1.0)
     }
@@ -54,5 +61,21 @@ impl Intrinsics {
     /// Camera-frame point at pixel (u, v) and depth z (metres along the optical axis).
     pub fn back_project(&self, u: f64, v: f64, z: f64) -> Point3<f64> {
         Point3::new((u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_window_sees_the_same_pixels_shifted() {
+        let k = Intrinsics::new(600.0, 610.0, 320.0, 240.0, 640, 480).unwrap();
+        let w = k.window(100, 50, 200, 150).unwrap();
+        assert_eq!((w.width, w.height, w.fx, w.fy), (200, 150, 600.0, 610.0));
+        let p = Point3::new(0.05, -0.02, 0.8);
+        let (full, cut) = (k.project(&p).unwrap(), w.project(&p).unwrap());
+        assert!((full - cut - Vector2::new(100.0, 50.0)).norm() < 1e-12, "{full} vs {cut}");
+        assert!(k.window(10, 10, 0, 5).is_none() && k.window(10, 10, 5, 0).is_none());
     }
 }

@@ -35,7 +35,7 @@ impl Window {
     /// `k` seeing only this window: a render through it covers the window's pixels alone.
     pub fn intrinsics(&self, k: &crate::geometry::Intrinsics) -> Option<crate::geometry::Intrinsics> {
         let (w, h) = self.size();
-        crate::geometry::Intrinsics::new(k.fx, k.fy, k.cx - self.x0 as f64, k.cy - self.y0 as f64, w, h).ok()
+        k.window(self.x0, self.y0, w, h)
     }
 
     fn pixels(&self) -> impl Iterator<Item = (u32, u32)> + '_ {
