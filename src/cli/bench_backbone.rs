@@ -56,8 +56,10 @@ pub fn run(a: BenchBackboneArgs) -> Result<()> {
         let b = open_backbone(&choice, &device).map_err(anyhow::Error::msg)?;
         let id = b.identity();
         let all = crops(largest, id.input_size)?;
-        b.extract(&all[..1])?; // warm-up: allocation, kernel selection
         for &n in &a.batches {
+            // Warm-up at each batch size: allocation, and whatever a provider sets up per
+            // input shape, stay out of the timed passes.
+            b.extract(&all[..n])?;
             let t = Instant::now();
             for _ in 0..a.passes {
                 b.extract(&all[..n])?;
