@@ -305,7 +305,7 @@ fn onboard_estimate_and_bad_inputs_over_http() {
 
     // Metrics count what happened; the OpenAPI document lists every route.
     let metrics = c.get(format!("{base}/metrics")).send().unwrap().text().unwrap();
-    for needle in ["b2tf_requests_total{method=\"POST\",route=\"/v1/estimate\",status=\"200\"}", "b2tf_estimate_queue_wait_seconds_count", "b2tf_estimate_queue_length 0", "b2tf_estimate_queue_refused_total{reason=\"full\"}", "b2tf_estimate_service_seconds", "status=\"429\"", "b2tf_request_seconds_bucket", "b2tf_stage_seconds_bucket{stage=\"pnp\"", "b2tf_objects_loaded 1", "b2tf_ready 1"] {
+    for needle in ["b2tf_requests_total{method=\"POST\",route=\"/v1/estimate\",status=\"200\"}", "b2tf_estimate_queue_wait_seconds_count", "b2tf_estimate_queue_length 0", "b2tf_estimate_queue_refused_total{reason=\"full\"}", "b2tf_estimate_service_seconds", "status=\"429\"", "b2tf_request_seconds_bucket", "b2tf_stage_seconds_bucket{stage=\"pnp\"", "b2tf_objects_loaded 1", "b2tf_ready 1", "b2tf_thumbnails_drawn_total 1\n"] {
         assert!(metrics.contains(needle), "{needle} not in metrics:\n{metrics}");
     }
     let (s, doc) = call(&c, "GET", &format!("{base}/openapi.json"), None);

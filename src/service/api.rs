@@ -45,7 +45,7 @@ impl Api {
     pub fn gauges(&self) -> Gauges {
         let c = self.core.cache_stats();
         let q = &self.core.estimates;
-        Gauges { estimates_running: q.running(), estimates_waiting: q.waiting(), estimate_service_seconds: q.service_time().map(|d| d.as_secs_f64()), onboardings_running: self.core.onboardings_running(), objects_loaded: c.objects, cache_bytes: c.bytes, cache_stale: c.stale, ready: self.is_ready(), queue: self.core.queue_stats(), track_sessions: self.core.track_sessions_open(), render_mesh_uploads: self.core.render_mesh_uploads() }
+        Gauges { estimates_running: q.running(), estimates_waiting: q.waiting(), estimate_service_seconds: q.service_time().map(|d| d.as_secs_f64()), onboardings_running: self.core.onboardings_running(), objects_loaded: c.objects, cache_bytes: c.bytes, cache_stale: c.stale, ready: self.is_ready(), queue: self.core.queue_stats(), track_sessions: self.core.track_sessions_open(), render_mesh_uploads: self.core.render_mesh_uploads(), thumbnails_drawn: self.core.thumbnails.drawn() }
     }
 
     /// The time this request may take: the server's limit or the client's deadline,

@@ -33,7 +33,8 @@ pub struct Thumbnails {
     /// read for them (a whole object, on S3), and a request that waited finds its picture
     /// kept rather than drawing it again.
     drawing: Mutex<()>,
-    /// Thumbnails drawn since start (what the lock saves shows here).
+    /// Thumbnails drawn since start (`b2tf_thumbnails_drawn_total`: what the lock saves
+    /// shows there).
     drawn: AtomicU64,
 }
 
