@@ -111,7 +111,7 @@ pub fn run(a: BenchCatalogueArgs) -> Result<()> {
         println!("| {name} | {:.0} | {:.0} | {:.0} |", pct(&s, 0.5), pct(&s, 0.9), s.last().copied().unwrap_or(f64::NAN));
     }
     print_extra_by_stage(&cold, &warm);
-    Ok(())
+    server.stop()
 }
 
 /// One estimate's round trip and the server's stage times (`timings_ms`), milliseconds.

@@ -91,7 +91,8 @@ pub fn run(a: BenchServeArgs) -> Result<()> {
     let object = object_id(&a)?;
     let extra: Vec<String> = ["--max-estimates", &max_clients.to_string(), "--backbone-batch", &a.backbone_batch.to_string(), "--backbone", &a.backbone.backbone.to_string(), "--device", &a.backbone.device.to_string()].map(String::from).to_vec();
     let server = super::child_server::ChildServer::start(&a.store, &extra)?;
-    measure(&a, &object, &server.http, &server.grpc, server.pid())
+    measure(&a, &object, &server.http, &server.grpc, server.pid())?;
+    server.stop()
 }
 
 fn measure(a: &BenchServeArgs, object: &str, addr: &str, grpc: &str, pid: u32) -> Result<()> {

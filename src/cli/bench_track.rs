@@ -165,5 +165,5 @@ pub fn run(a: BenchTrackArgs) -> Result<()> {
             println!("{r}");
         }
     }
-    Ok(())
+    server.map_or(Ok(()), |s| s.stop())
 }
