@@ -143,7 +143,8 @@ fn b2tf(args: &[&str]) -> (bool, String, String) {
     (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
 }
 
-/// `b2tf objects upgrade` gives an object stored without detector templates its templates;
+/// `b2tf objects upgrade` gives an object stored without detector templates (and with the
+/// f32 patch points of format 6) its templates and grid-coded points;
 /// `b2tf detect` writes BOP default detections and refuses bad input by name.
 #[test]
 fn upgrade_and_detect_from_the_command_line() {
@@ -157,13 +158,17 @@ fn upgrade_and_detect_from_the_command_line() {
     let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap();
     let cfg = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps: 2 }, render_size: 128, ..Default::default() };
     let model = onboard("box_7", &f.mesh, &cfg, &backbone, &f.pool, &|_| {}).unwrap();
-    let old = b2tfpose::onboard::ObjectModel { detector: OnceLock::new(), ..model };
+    let mut points = Vec::new();
+    model.patch_points.extend_range(0..model.patch_count(), &mut points);
+    let old = b2tfpose::onboard::ObjectModel { detector: OnceLock::new(), patch_points: b2tfpose::onboard::PatchPoints::Exact(points.into()), ..model };
     let store = b2tfpose::store::open(&store_url).unwrap();
     store.put(&old, false).unwrap();
-    assert!(store.get("box_7").unwrap().detector.get().is_none());
+    assert!(store.get("box_7").unwrap().detector.get().is_none() && !store.get("box_7").unwrap().patch_points.is_grid());
     let (ok, out, err) = b2tf(&["objects", "upgrade", "--store", &store_url]);
-    assert!(ok && out.contains("box_7: added detector templates"), "{out}{err}");
-    assert_eq!(store.get("box_7").unwrap().detector.get().map(|d| d.template_count()), Some(f.shape.template_count()));
+    assert!(ok && out.contains("box_7: added detector templates and compact patch points"), "{out}{err}");
+    let upgraded = store.get("box_7").unwrap();
+    assert_eq!(upgraded.detector.get().map(|d| d.template_count()), Some(f.shape.template_count()));
+    assert!(upgraded.patch_points.is_grid());
     let (ok, out, _) = b2tf(&["objects", "upgrade", "--store", &store_url, "box_7"]);
     assert!(ok && out.contains("box_7: up to date"), "{out}");
 

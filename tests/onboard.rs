@@ -32,7 +32,7 @@ fn templates_have_consistent_points_and_round_trip() {
     for t in &m.templates {
         assert!(t.patch_count > 20, "template {t:?} has few patches");
         for p in t.patch_start as usize..(t.patch_start + t.patch_count) as usize {
-            let x = m.patch_points[p];
+            let x = m.patch_points.point(p);
             // On the box surface: one coordinate at ± half its size (1 mm tolerance).
             let on_face = (0..3).any(|a| (x[a].abs() - half[a]).abs() < 1e-3);
             assert!(on_face && (0..3).all(|a| x[a].abs() <= half[a] + 1e-3), "point {x:?} is not on the box");

@@ -11,7 +11,7 @@
 //! environment. A child reports through stdout lines that carry `MARK`.
 #![cfg(unix)]
 
-use b2tfpose::onboard::{ObjectModel, PatchDescriptors, Template};
+use b2tfpose::onboard::{ObjectModel, PatchDescriptors, PatchPoints, Template};
 use b2tfpose::store::{self, codec, ModelCache, ObjectStore, StoreError};
 use std::collections::BTreeSet;
 use std::io::{BufRead, BufReader, Read, Write};
@@ -98,7 +98,10 @@ fn enlarged(m: &ObjectModel, id: &str, copies: usize) -> ObjectModel {
         PatchDescriptors::Quantized { quantizer, codes } => PatchDescriptors::Quantized { quantizer: quantizer.clone(), codes: codes.repeat(copies).into() },
         PatchDescriptors::Int8 { codes, scales } => PatchDescriptors::Int8 { codes: codes.repeat(copies).into(), scales: scales.repeat(copies).into() },
     };
-    big.patch_points = m.patch_points.repeat(copies).into();
+    big.patch_points = match &m.patch_points {
+        PatchPoints::Exact(p) => PatchPoints::Exact(p.repeat(copies).into()),
+        PatchPoints::Grid { grid, steps } => PatchPoints::Grid { grid: *grid, steps: steps.repeat(copies).into() },
+    };
     big.patch_cells = m.patch_cells.repeat(copies).into();
     big.silhouettes = m.silhouettes.repeat(copies).into();
     big.validate().expect("the enlarged model is consistent");

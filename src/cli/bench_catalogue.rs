@@ -157,6 +157,8 @@ fn fill(a: &BenchCatalogueArgs) -> Result<Vec<String>> {
         }
         let mut model = from.get(source)?;
         crate::onboard::apply_coding(&mut model, a.descriptors)?;
+        // As onboarding stores them since format 7, whatever the source's format.
+        model.patch_points.to_grid();
         model.config.descriptors = a.descriptors;
         for id in missing {
             model.object_id = id.clone();

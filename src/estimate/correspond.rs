@@ -28,7 +28,7 @@ impl PatchPool {
         for t in templates {
             let tp = &model.templates[t];
             let range = tp.patch_start as usize..(tp.patch_start + tp.patch_count) as usize;
-            pool.points.extend_from_slice(&model.patch_points[range.clone()]);
+            model.patch_points.extend_range(range.clone(), &mut pool.points);
             model.patch_descriptors.widen_into(model.local_dim, range, &mut pool.descriptors);
         }
         pool

@@ -6,6 +6,8 @@ pub mod pca;
 pub mod pca_setting;
 pub mod stored_rows;
 pub mod patch_descriptors;
+pub mod patch_points;
+pub mod point_grid;
 pub mod pipeline;
 pub mod pq;
 #[doc(hidden)]
@@ -14,6 +16,7 @@ pub mod test_model;
 pub use contour::{ContourConfig, ContourModel};
 pub use model::{ObjectModel, OnboardConfig, Template, MODEL_FORMAT_VERSION};
 pub use patch_descriptors::PatchDescriptors;
+pub use patch_points::PatchPoints;
 pub use pca_setting::PcaSetting;
 pub use model::DescriptorCoding;
 pub use pipeline::{apply_coding, apply_pca, compress, mesh_symmetries, onboard, onboard_cancellable, validate_object_id, OnboardError, Progress};

@@ -16,8 +16,10 @@ use std::sync::{Arc, OnceLock};
 /// shape templates (older models likewise get them on first use, or `b2tf objects upgrade`).
 /// 5: the object's symmetries (older models load with them unknown). 6: product-quantised
 /// patch descriptors (`patch_codes` and `pq_centroids` in place of `patch_descriptors`;
-/// older models keep their f16 ones).
-pub const MODEL_FORMAT_VERSION: u32 = 6;
+/// older models keep their f16 ones). 7: patch points as 16-bit grid steps
+/// (`patch_point_steps` and `patch_point_grid` in place of `patch_points`; older models
+/// keep their f32 ones) and the contour points and normals likewise compact.
+pub const MODEL_FORMAT_VERSION: u32 = 7;
 
 /// Side of the stored template silhouettes (crop mask downsampled, 1 bit per cell).
 pub const SILHOUETTE_SIZE: usize = 64;
@@ -126,7 +128,7 @@ pub struct ObjectModel {
     /// The projection applied to the backbone's patch descriptors, if compressed.
     pub pca: Option<super::pca::Pca>,
     /// Object-frame point (metres) behind each patch centre.
-    pub patch_points: super::stored_rows::StoredRows<[f32; 3]>,
+    pub patch_points: super::PatchPoints,
     /// Patch index `i·n + j` in its template's crop grid.
     pub patch_cells: super::stored_rows::StoredRows<u16>,
     /// `templates × SILHOUETTE_WORDS` bit-packed crop masks, row-major, LSB first.

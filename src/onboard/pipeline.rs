@@ -294,19 +294,21 @@ fn assemble(
         detector: Default::default(),
         symmetries: None,
     };
-    let mut descriptors = Vec::new();
+    let (mut descriptors, mut points) = (Vec::new(), Vec::new());
     for p in parts {
-        let offset = m.patch_points.len() as u32;
+        let offset = points.len() as u32;
         m.templates.extend(p.templates.into_iter().map(|mut t| {
             t.patch_start += offset;
             t
         }));
         m.global.extend(p.globals);
         descriptors.extend(p.descriptors);
-        m.patch_points.to_mut().extend(p.points);
+        points.extend(p.points);
         m.patch_cells.to_mut().extend(p.cells);
         m.silhouettes.to_mut().extend(p.silhouettes);
     }
     m.patch_descriptors = super::PatchDescriptors::Half(descriptors.into());
+    m.patch_points = super::PatchPoints::Exact(points.into());
+    m.patch_points.to_grid();
     m
 }

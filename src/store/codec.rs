@@ -8,7 +8,8 @@ use crate::geometry::{Intrinsics, PatchGrid};
 use crate::mesh::{Material, Mesh, MeshData, Part, Units};
 use crate::geometry::symmetry::KnownSymmetries;
 use crate::onboard::stored_rows::{HalfRows, StoredRows};
-use crate::onboard::{ObjectModel, OnboardConfig, PatchDescriptors, Template, MODEL_FORMAT_VERSION};
+use crate::onboard::point_grid::PointGrid;
+use crate::onboard::{ObjectModel, OnboardConfig, PatchDescriptors, PatchPoints, Template, MODEL_FORMAT_VERSION};
 use safetensors::{tensor::TensorView, Dtype, SafeTensors};
 use std::sync::Arc;
 
@@ -164,7 +165,6 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
     let p = model.patch_points.len();
     let mut tensors: Vec<(&str, Dtype, Vec<usize>, &[u8])> = vec![
         ("global", Dtype::F32, vec![t, model.global_dim], bytemuck::cast_slice(&model.global)),
-        ("patch_points", Dtype::F32, vec![p, 3], bytemuck::cast_slice(&model.patch_points)),
         ("patch_cells", Dtype::U16, vec![p], bytemuck::cast_slice(&model.patch_cells)),
         ("silhouettes", Dtype::U64, vec![model.silhouettes.len()], bytemuck::cast_slice(&model.silhouettes)),
         ("mesh_positions", Dtype::F32, vec![d.positions.len(), 3], bytemuck::cast_slice(&d.positions)),
@@ -173,6 +173,17 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
         ("mesh_uvs", Dtype::F32, vec![d.uvs.len(), 2], bytemuck::cast_slice(&d.uvs)),
         ("mesh_triangles", Dtype::U32, vec![d.triangles.len(), 3], bytemuck::cast_slice(&d.triangles)),
     ];
+    let grid_rows = match &model.patch_points {
+        PatchPoints::Grid { grid, .. } => grid.rows(),
+        PatchPoints::Exact(_) => Default::default(),
+    };
+    match &model.patch_points {
+        PatchPoints::Exact(points) => tensors.push(("patch_points", Dtype::F32, vec![p, 3], bytemuck::cast_slice(points))),
+        PatchPoints::Grid { steps, .. } => tensors.extend([
+            ("patch_point_steps", Dtype::U16, vec![p, 3], bytemuck::cast_slice(steps)),
+            ("patch_point_grid", Dtype::F32, vec![2, 3], bytemuck::cast_slice(&grid_rows)),
+        ] as [(&str, Dtype, Vec<usize>, &[u8]); 2]),
+    }
     match &model.patch_descriptors {
         PatchDescriptors::Half(v) => tensors.push(("patch_descriptors", Dtype::F16, vec![p, model.local_dim], bytemuck::cast_slice(v))),
         PatchDescriptors::Quantized { quantizer, codes } => tensors.extend([
@@ -333,6 +344,14 @@ fn decode_inner(manifest: &[u8], tensors: &[u8], map: Option<&Arc<memmap2::Mmap>
         let bytes = get("patch_descriptors", Dtype::F16, 0)?;
         PatchDescriptors::Half(HalfRows::mapped_or_copied(map, bytes))
     };
+    // Format 7 stores grid steps in place of the f32 points.
+    let patch_points = if st.names().contains(&"patch_point_steps") {
+        let rows: Vec<[f32; 3]> = bytemuck::pod_collect_to_vec(get("patch_point_grid", Dtype::F32, 3)?);
+        let grid = PointGrid::from_rows(&rows).map_err(|e| corrupt(format!("tensor patch_point_grid: {e}")))?;
+        PatchPoints::Grid { grid, steps: StoredRows::mapped_or_copied(map, get("patch_point_steps", Dtype::U16, 3)?) }
+    } else {
+        PatchPoints::Exact(StoredRows::mapped_or_copied(map, get("patch_points", Dtype::F32, 3)?))
+    };
     let model = ObjectModel {
         object_id: man.object_id,
         global_dim: man.backbone.global_dim as usize,
@@ -346,7 +365,7 @@ fn decode_inner(manifest: &[u8], tensors: &[u8], map: Option<&Arc<memmap2::Mmap>
         templates: man.templates,
         global: bytemuck::pod_collect_to_vec(get("global", Dtype::F32, 0)?),
         patch_descriptors,
-        patch_points: StoredRows::mapped_or_copied(map, get("patch_points", Dtype::F32, 3)?),
+        patch_points,
         patch_cells: StoredRows::mapped_or_copied(map, get("patch_cells", Dtype::U16, 0)?),
         silhouettes: StoredRows::mapped_or_copied(map, get("silhouettes", Dtype::U64, 0)?),
         contours,
@@ -407,7 +426,6 @@ mod hostile_tests {
         assert!(load(&manifest, &empty, &texture).is_ok());
     }
 
-    /// Symmetries load when they are rotations and axes, and are refused naming what is wrong.
     /// Format 6's quantised descriptors: codes and the centroids they index load and
     /// decode; codes that do not split the descriptors, of another type or count, and
     /// missing, short or non-finite centroids are refused.
@@ -450,6 +468,35 @@ mod hostile_tests {
         refused(&with_tensor(&int8, "patch_scales", Dtype::F32, vec![2], bytemuck::cast_slice(&[1f32, f32::NAN])), "patch descriptors do not match");
     }
 
+    /// Format 7's patch points as grid steps load in place of the f32 ones (the seed is
+    /// format 6: it keeps loading its f32 points); a grid that is not two finite rows with
+    /// non-negative steps, or steps of another shape or count, are refused.
+    #[test]
+    fn grid_coded_patch_points_load_and_bad_ones_are_refused() {
+        let (manifest, tensors, texture) = seed();
+        assert!(!load(&manifest, &tensors, &texture).unwrap().patch_points.is_grid(), "format 6 keeps f32 points");
+        let grid: [[f32; 3]; 2] = [[-0.01, 0.0, 0.02], [1e-6, 2e-6, 0.0]];
+        let steps: [[u16; 3]; 2] = [[0, 10, 5], [65535, 0, 9]];
+        let with_steps = with_tensor(&tensors, "patch_point_steps", Dtype::U16, vec![2, 3], bytemuck::cast_slice(&steps));
+        let coded = with_tensor(&with_steps, "patch_point_grid", Dtype::F32, vec![2, 3], bytemuck::cast_slice(&grid));
+        let m = load(&manifest, &coded, &texture).unwrap();
+        assert!(m.patch_points.is_grid());
+        let mut points = Vec::new();
+        m.patch_points.extend_range(0..2, &mut points);
+        assert_eq!(points, [[-0.01, 2e-5, 0.02], [-0.01 + 65535.0 * 1e-6, 0.0, 0.02]]);
+        let refused = |t: &[u8], needle: &str| {
+            let e = load(&manifest, t, &texture).unwrap_err();
+            assert!(e.contains(needle), "{needle:?} not in {e:?}");
+        };
+        refused(&with_steps, "patch_point_grid");
+        refused(&with_tensor(&coded, "patch_point_grid", Dtype::F32, vec![1, 3], &[0; 12]), "2 rows");
+        refused(&with_tensor(&coded, "patch_point_grid", Dtype::F32, vec![2, 3], bytemuck::cast_slice(&[[0f32; 3], [f32::NAN, 0.0, 0.0]])), "not finite");
+        refused(&with_tensor(&coded, "patch_point_grid", Dtype::F32, vec![2, 3], bytemuck::cast_slice(&[[0f32; 3], [-1.0, 0.0, 0.0]])), "non-negative");
+        refused(&with_tensor(&coded, "patch_point_steps", Dtype::U16, vec![2, 2], &[0; 8]), "expected U16 with 3 columns");
+        refused(&with_tensor(&coded, "patch_point_steps", Dtype::U16, vec![3, 3], &[0; 18]), "patch descriptors do not match");
+    }
+
+    /// Symmetries load when they are rotations and axes, and are refused naming what is wrong.
     #[test]
     fn stored_symmetries_load_and_bad_ones_are_refused() {
         let (manifest, tensors, texture) = seed();

@@ -159,7 +159,11 @@ pub fn tiny_stored_object() -> Vec<u8> {
         patch_descriptors: b2tfpose::onboard::PatchDescriptors::Half(vec![half::f16::from_f32(0.5); 2 * dim].into()),
         local_dim: dim,
         pca: None,
-        patch_points: vec![[0.01, 0.01, 0.0], [0.0, 0.01, 0.01]].into(),
+        patch_points: {
+            let mut p = b2tfpose::onboard::PatchPoints::Exact(vec![[0.01, 0.01, 0.0], [0.0, 0.01, 0.01]].into());
+            p.to_grid();
+            p
+        },
         patch_cells: vec![0, 3].into(),
         silhouettes: (0..b2tfpose::onboard::model::SILHOUETTE_WORDS as u64).map(|w| w * 0x0101).collect::<Vec<u64>>().into(),
         contours: std::sync::OnceLock::from(Arc::new(contour)),
