@@ -78,19 +78,9 @@ impl EmbeddedBackbone {
                 shape_bins[((di + n - 1) as usize) * side + (dj + n - 1) as usize] = ring * SHAPE_SECTORS + sector;
             }
         }
-        let (n, d) = (n as usize, SHAPE_RINGS.len() * SHAPE_SECTORS);
-        let mut shape_counts = vec![0f32; n * n * d];
-        for (k, counts) in shape_counts.chunks_exact_mut(d).enumerate() {
-            let (i, j) = (k / n, k % n);
-            for ii in 0..n {
-                for jj in 0..n {
-                    let bin = shape_bins[(ii + n - 1 - i) * side + jj + n - 1 - j];
-                    if bin != usize::MAX {
-                        counts[bin] += 1.0;
-                    }
-                }
-            }
-        }
+        let n = n as usize;
+        let every_cell: Vec<(usize, usize, f32)> = (0..n * n).map(|k| (k / n, k % n, 1.0)).collect();
+        let shape_counts = shape_bin_sums(&shape_bins, n, &every_cell);
         Ok(Self { config, grid, shape_bins, shape_counts })
     }
 
@@ -241,20 +231,12 @@ impl EmbeddedBackbone {
     /// Object coverage in log-polar bins around every patch, L2-normalised per patch.
     fn shape_context(&self, coverage: &[f32]) -> Vec<f32> {
         let n = self.grid.n as usize;
-        let side = 2 * n - 1;
         let d = SHAPE_RINGS.len() * SHAPE_SECTORS;
         // Only covered patches add to a bin; kept in grid order, so every sum is the full
         // scan's, bit for bit, at a fraction of the work (crops are mostly background).
         let covered: Vec<(usize, usize, f32)> = coverage.iter().enumerate().filter(|(_, c)| **c != 0.0).map(|(k, c)| (k / n, k % n, *c)).collect();
-        let mut out = vec![0f32; n * n * d];
+        let mut out = shape_bin_sums(&self.shape_bins, n, &covered);
         for (k, o) in out.chunks_exact_mut(d).enumerate() {
-            let (i, j) = (k / n, k % n);
-            for &(ii, jj, c) in &covered {
-                let bin = self.shape_bins[(ii + n - 1 - i) * side + jj + n - 1 - j];
-                if bin != usize::MAX {
-                    o[bin] += c;
-                }
-            }
             // Bins that fall outside the crop count as background (their cells are 0).
             for (v, c) in o.iter_mut().zip(&self.shape_counts[k * d..(k + 1) * d]) {
                 if *c > 0.0 {
@@ -265,6 +247,24 @@ impl EmbeddedBackbone {
         }
         out
     }
+}
+
+/// For every patch of an `n`×`n` grid, the sums of `weights` (row, column, weight) over
+/// each silhouette-context bin around it (`shape_bins`: the bin of every offset), in the
+/// order given: `[patch][bin]`.
+fn shape_bin_sums(shape_bins: &[usize], n: usize, weights: &[(usize, usize, f32)]) -> Vec<f32> {
+    let (side, d) = (2 * n - 1, SHAPE_RINGS.len() * SHAPE_SECTORS);
+    let mut out = vec![0f32; n * n * d];
+    for (k, o) in out.chunks_exact_mut(d).enumerate() {
+        let (i, j) = (k / n, k % n);
+        for &(ii, jj, w) in weights {
+            let bin = shape_bins[(ii + n - 1 - i) * side + jj + n - 1 - j];
+            if bin != usize::MAX {
+                o[bin] += w;
+            }
+        }
+    }
+    out
 }
 
 impl Backbone for EmbeddedBackbone {
