@@ -124,6 +124,7 @@ fn assert_same(expected: &ObjectModel, got: &ObjectModel) {
     assert!(got.patch_points == expected.patch_points, "{id}: patch points differ");
     assert!(got.patch_cells == expected.patch_cells, "{id}: patch cells differ");
     assert!(got.silhouettes == expected.silhouettes, "{id}: silhouettes differ");
+    assert!(got.contours.get() == expected.contours.get(), "{id}: contour models differ");
     assert_eq!(got.symmetries, expected.symmetries, "{id}: symmetries");
     let (a, b) = (&expected.mesh, &got.mesh);
     assert_eq!(b.name(), a.name(), "{id}: mesh name");

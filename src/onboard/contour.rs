@@ -5,6 +5,7 @@
 //! the nearest view and projects its points: no rendering inside the refinement loop.
 
 use super::pipeline::base_intrinsics;
+use super::point_grid::{i16_to_unit, unit_to_i16, PointGrid};
 use crate::geometry::views::{fitted_distance, icosphere, view_pose};
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Mesh;
@@ -149,7 +150,19 @@ impl ContourModel {
         if model.directions.is_empty() {
             return Err(RenderError::InvalidOptions("no view of the mesh has a silhouette contour (is the mesh degenerate?)".into()));
         }
+        // Kept as they will be stored, so a loaded object refines as the onboarded one did.
+        let grid = Self::storage_grid(mesh);
+        model.points.iter_mut().for_each(|p| *p = grid.snap(*p));
+        model.normals.iter_mut().for_each(|n| *n = i16_to_unit(unit_to_i16(*n)));
         Ok(model)
+    }
+
+    /// The grid the contour points are stored on (format 7): the mesh's bounding box with a
+    /// margin for rim samples a little outside it (a render's depth is not exact), made
+    /// again from the stored mesh when loading.
+    pub fn storage_grid(mesh: &Mesh) -> PointGrid {
+        let (lo, hi) = mesh.bbox();
+        PointGrid::around_box(lo, hi, 0.05)
     }
 }
 

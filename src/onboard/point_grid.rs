@@ -26,7 +26,25 @@ impl PointGrid {
         if points.is_empty() {
             return Self { origin: [0.0; 3], step: [0.0; 3] };
         }
-        Self { origin: lo, step: [0, 1, 2].map(|a| (hi[a] - lo[a]) / STEPS) }
+        Self::spanning(lo, hi)
+    }
+
+    /// The grid from corner `lo` to corner `hi`.
+    pub fn spanning(lo: [f32; 3], hi: [f32; 3]) -> Self {
+        Self { origin: lo, step: [0, 1, 2].map(|a| (hi[a] - lo[a]).max(0.0) / STEPS) }
+    }
+
+    /// A grid over the box `lo`–`hi` grown by `margin` of its longest side on every side:
+    /// made again from the same box (a mesh's, stored exactly), it is the same grid, so
+    /// points already on it are stored and loaded without change.
+    pub fn around_box(lo: [f32; 3], hi: [f32; 3], margin: f32) -> Self {
+        let m = margin * (0..3).map(|a| hi[a] - lo[a]).fold(0.0f32, f32::max);
+        Self::spanning(lo.map(|v| v - m), hi.map(|v| v + m))
+    }
+
+    /// `p` moved to the nearest grid point (what storing it keeps).
+    pub fn snap(&self, p: [f32; 3]) -> [f32; 3] {
+        self.decode(self.encode(p))
     }
 
     pub fn encode(&self, p: [f32; 3]) -> [u16; 3] {
@@ -55,6 +73,16 @@ impl PointGrid {
     }
 }
 
+/// A unit vector as three signed 16-bit values (components × 32 767): within 2·10⁻⁵ of
+/// each component.
+pub fn unit_to_i16(v: [f32; 3]) -> [i16; 3] {
+    v.map(|x| (x.clamp(-1.0, 1.0) * 32767.0).round() as i16)
+}
+
+pub fn i16_to_unit(q: [i16; 3]) -> [f32; 3] {
+    q.map(|x| x as f32 / 32767.0)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -78,6 +106,22 @@ mod tests {
         assert_eq!(grid.encode(hi), [u16::MAX, u16::MAX, 0]);
         assert_eq!(PointGrid::from_rows(&grid.rows()).unwrap(), grid);
         assert_eq!(PointGrid::covering(&[]).decode([7, 7, 7]), [0.0; 3]);
+    }
+
+    #[test]
+    fn snapped_points_and_unit_vectors_store_without_change() {
+        let grid = PointGrid::around_box([-0.05, -0.02, 0.0], [0.05, 0.03, 0.1], 0.02);
+        assert_eq!(grid, PointGrid::around_box([-0.05, -0.02, 0.0], [0.05, 0.03, 0.1], 0.02), "the same box gives the same grid");
+        // A point a little outside the box (a rim sample's depth error) is not clamped.
+        let p = [0.0507, -0.0201, 0.0999];
+        let s = grid.snap(p);
+        assert!((0..3).all(|a| (s[a] - p[a]).abs() <= grid.step[a] * 0.5 + 1e-7), "{p:?} → {s:?}");
+        assert_eq!(grid.snap(s), s, "snapping again keeps the point");
+        let n = [0.6, -0.8, 0.0];
+        let q = unit_to_i16(n);
+        let back = i16_to_unit(q);
+        assert!((0..3).all(|a| (back[a] - n[a]).abs() < 2e-5), "{back:?}");
+        assert_eq!(unit_to_i16(back), q, "a stored vector stores the same again");
     }
 
     #[test]

@@ -8,7 +8,7 @@ use crate::geometry::{Intrinsics, PatchGrid};
 use crate::mesh::{Material, Mesh, MeshData, Part, Units};
 use crate::geometry::symmetry::KnownSymmetries;
 use crate::onboard::stored_rows::{HalfRows, StoredRows};
-use crate::onboard::point_grid::PointGrid;
+use crate::onboard::point_grid::{i16_to_unit, unit_to_i16, PointGrid};
 use crate::onboard::{ObjectModel, OnboardConfig, PatchDescriptors, PatchPoints, Template, MODEL_FORMAT_VERSION};
 use safetensors::{tensor::TensorView, Dtype, SafeTensors};
 use std::sync::Arc;
@@ -195,12 +195,17 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
             ("patch_scales", Dtype::F32, vec![p], bytemuck::cast_slice(&scales[..])),
         ] as [(&str, Dtype, Vec<usize>, &[u8]); 2]),
     }
+    // Format 7: contour points as steps of a grid over the mesh's box (found again from
+    // the stored mesh) and normals as 16-bit components.
+    let contour_grid = crate::onboard::ContourModel::storage_grid(mesh);
+    let contour_steps: Vec<[u16; 3]> = model.contours.get().map_or(vec![], |c| c.points.iter().map(|&p| contour_grid.encode(p)).collect());
+    let contour_normals: Vec<[i16; 3]> = model.contours.get().map_or(vec![], |c| c.normals.iter().map(|&n| unit_to_i16(n)).collect());
     if let Some(c) = model.contours.get() {
         let rows = c.points.len();
         tensors.extend([
             ("contour_directions", Dtype::F32, vec![c.directions.len(), 3], bytemuck::cast_slice(&c.directions)),
-            ("contour_points", Dtype::F32, vec![rows, 3], bytemuck::cast_slice(&c.points)),
-            ("contour_normals", Dtype::F32, vec![rows, 3], bytemuck::cast_slice(&c.normals)),
+            ("contour_point_steps", Dtype::U16, vec![rows, 3], bytemuck::cast_slice(&contour_steps)),
+            ("contour_normals_i16", Dtype::I16, vec![rows, 3], bytemuck::cast_slice(&contour_normals)),
             ("contour_foreground_m", Dtype::F32, vec![rows], bytemuck::cast_slice(&c.foreground_m)),
             ("contour_background_m", Dtype::F32, vec![rows], bytemuck::cast_slice(&c.background_m)),
         ] as [(&str, Dtype, Vec<usize>, &[u8]); 5]);
@@ -297,13 +302,24 @@ fn decode_inner(manifest: &[u8], tensors: &[u8], map: Option<&Arc<memmap2::Mmap>
         materials,
     };
     let mesh = Mesh::with_diameter(man.mesh.name.clone(), man.mesh.source_units, data, man.diameter_m).map_err(|e| corrupt(format!("stored mesh: {e}")))?;
+    // Format 7 stores the contour points and normals compactly.
+    let compact_contour = st.names().contains(&"contour_point_steps");
     let contours = match man.contour {
         Some(config) => {
             let c = crate::onboard::ContourModel {
                 config,
                 directions: bytemuck::pod_collect_to_vec(get("contour_directions", Dtype::F32, 3)?),
-                points: bytemuck::pod_collect_to_vec(get("contour_points", Dtype::F32, 3)?),
-                normals: bytemuck::pod_collect_to_vec(get("contour_normals", Dtype::F32, 3)?),
+                points: if compact_contour {
+                    let grid = crate::onboard::ContourModel::storage_grid(&mesh);
+                    bytemuck::pod_collect_to_vec::<u8, [u16; 3]>(get("contour_point_steps", Dtype::U16, 3)?).into_iter().map(|q| grid.decode(q)).collect()
+                } else {
+                    bytemuck::pod_collect_to_vec(get("contour_points", Dtype::F32, 3)?)
+                },
+                normals: if compact_contour {
+                    bytemuck::pod_collect_to_vec::<u8, [i16; 3]>(get("contour_normals_i16", Dtype::I16, 3)?).into_iter().map(i16_to_unit).collect()
+                } else {
+                    bytemuck::pod_collect_to_vec(get("contour_normals", Dtype::F32, 3)?)
+                },
                 foreground_m: bytemuck::pod_collect_to_vec(get("contour_foreground_m", Dtype::F32, 0)?),
                 background_m: bytemuck::pod_collect_to_vec(get("contour_background_m", Dtype::F32, 0)?),
             };
@@ -470,7 +486,8 @@ mod hostile_tests {
 
     /// Format 7's patch points as grid steps load in place of the f32 ones (the seed is
     /// format 6: it keeps loading its f32 points); a grid that is not two finite rows with
-    /// non-negative steps, or steps of another shape or count, are refused.
+    /// non-negative steps, or steps of another shape or count, are refused. Likewise the
+    /// contour's compact points and normals.
     #[test]
     fn grid_coded_patch_points_load_and_bad_ones_are_refused() {
         let (manifest, tensors, texture) = seed();
@@ -494,6 +511,21 @@ mod hostile_tests {
         refused(&with_tensor(&coded, "patch_point_grid", Dtype::F32, vec![2, 3], bytemuck::cast_slice(&[[0f32; 3], [-1.0, 0.0, 0.0]])), "non-negative");
         refused(&with_tensor(&coded, "patch_point_steps", Dtype::U16, vec![2, 2], &[0; 8]), "expected U16 with 3 columns");
         refused(&with_tensor(&coded, "patch_point_steps", Dtype::U16, vec![3, 3], &[0; 18]), "patch descriptors do not match");
+
+        // Contour points as steps of the grid over the mesh's box, normals as 16-bit values.
+        let old = load(&manifest, &tensors, &texture).unwrap();
+        let rows = old.contours.get().unwrap().points.len();
+        let grid = crate::onboard::ContourModel::storage_grid(&old.mesh);
+        let steps: Vec<[u16; 3]> = (0..rows).map(|i| [i as u16, 0, u16::MAX]).collect();
+        let normals: Vec<[i16; 3]> = vec![[0, -32767, 0]; rows];
+        let with_steps = with_tensor(&tensors, "contour_point_steps", Dtype::U16, vec![rows, 3], bytemuck::cast_slice(&steps));
+        let compact = with_tensor(&with_steps, "contour_normals_i16", Dtype::I16, vec![rows, 3], bytemuck::cast_slice(&normals));
+        let c = load(&manifest, &compact, &texture).unwrap().contours.get().unwrap().clone();
+        assert_eq!(c.points, steps.iter().map(|&q| grid.decode(q)).collect::<Vec<_>>());
+        assert_eq!(c.normals, vec![[0.0, -1.0, 0.0]; rows]);
+        refused(&with_steps, "contour_normals_i16");
+        refused(&with_tensor(&compact, "contour_point_steps", Dtype::U16, vec![rows, 2], &vec![0; rows * 4]), "expected U16 with 3 columns");
+        refused(&with_tensor(&compact, "contour_normals_i16", Dtype::I16, vec![rows + 1, 3], &vec![0; (rows + 1) * 6]), "contour arrays do not match");
     }
 
     /// Symmetries load when they are rotations and axes, and are refused naming what is wrong.
