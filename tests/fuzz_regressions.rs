@@ -45,6 +45,13 @@ fn the_store_seed_with_tensors_decodes() {
     let model = b2tfpose::store::codec::decode(parts[0], parts[1], &mut |_| texture.take().ok_or_else(|| "asked twice".to_string())).unwrap();
     assert_eq!((model.template_count(), model.patch_count(), model.mesh.data().triangles.len()), (1, 2, 4));
     assert!(model.contours.get().is_some() && model.mesh.materials()[0].texture.is_some());
+    assert!(!model.patch_points.is_grid(), "tiny_object is the format 6 seed");
+    // The format 7 seed: patch points as grid steps, the contour compact.
+    let data = std::fs::read(fuzz_dir().join("seeds/store_manifest/tiny_object_v7")).unwrap();
+    let parts = b2tfpose::fuzzing::split(&data);
+    let mut texture = Some(parts[2].to_vec());
+    let model = b2tfpose::store::codec::decode(parts[0], parts[1], &mut |_| texture.take().ok_or_else(|| "asked twice".to_string())).unwrap();
+    assert!(model.patch_points.is_grid() && model.contours.get().is_some());
     // The generator still writes an object that decodes (it is not byte-identical: each
     // write gets a fresh generation and timestamp).
     let fresh = fuzz_seeds::tiny_stored_object();

@@ -211,7 +211,9 @@ fn seeds() -> Vec<(&'static str, &'static str, Vec<u8>)> {
         ("results_csv", "results.csv", RESULTS.as_bytes().to_vec()),
     ];
     out.extend(stored_manifest());
-    out.push(("store_manifest", "tiny_object", tiny_stored_object()));
+    // The current format; `tiny_object` beside it is kept as written in format 6 (f32
+    // patch and contour points), so the older layout stays in the corpus and loads.
+    out.push(("store_manifest", "tiny_object_v7", tiny_stored_object()));
     // Real files, when the shared data is there: a vertex-coloured GLB.
     let glb = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/meshes/cubevc.glb");
     if let Ok(bytes) = std::fs::read(glb) {
