@@ -265,7 +265,8 @@ impl Mesh {
     }
 }
 
-fn bounding_box(p: &[[f32; 3]]) -> ([f32; 3], [f32; 3]) {
+/// Axis-aligned bounding box (min, max) of `p`; infinite corners when `p` is empty.
+pub fn bounding_box(p: &[[f32; 3]]) -> ([f32; 3], [f32; 3]) {
     let mut lo = [f32::INFINITY; 3];
     let mut hi = [f32::NEG_INFINITY; 3];
     for v in p {

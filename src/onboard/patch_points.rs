@@ -1,6 +1,7 @@
-//! The object point behind each template patch: f32 rows (objects before format 7), or 16-bit steps of a grid over their bounding box
-//! (point_grid.rs; every object onboarded since). Matching reads them only through
-//! `extend_range`, a few templates at a time, like the descriptors.
+//! The object point behind each template patch: f32 rows (objects before format 7), or
+//! 16-bit steps of a grid over their bounding box (point_grid.rs; every object onboarded
+//! since). Matching reads them only through `extend_range`, a few templates at a time,
+//! like the descriptors.
 
 use super::point_grid::PointGrid;
 use super::stored_rows::StoredRows;

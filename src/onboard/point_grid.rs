@@ -3,8 +3,10 @@
 //! at most half a step (1.2 µm on a 15 cm object, 15 µm on a 2 m one): far below what a
 //! patch centre or a contour sample can be placed to, so estimates do not change.
 
-/// Where grid step 0 lies and how far one step goes, per axis (metres).
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// Where grid step 0 lies and how far one step goes, per axis (metres). Stored as its
+/// bytes: two rows of three f32, origin then step.
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct PointGrid {
     pub origin: [f32; 3],
     pub step: [f32; 3],
@@ -15,17 +17,10 @@ const STEPS: f32 = u16::MAX as f32;
 impl PointGrid {
     /// The grid over the bounding box of `points` (an empty or flat side gets step 0).
     pub fn covering(points: &[[f32; 3]]) -> Self {
-        let mut lo = [f32::INFINITY; 3];
-        let mut hi = [f32::NEG_INFINITY; 3];
-        for p in points {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
         if points.is_empty() {
             return Self { origin: [0.0; 3], step: [0.0; 3] };
         }
+        let (lo, hi) = crate::mesh::bounding_box(points);
         Self::spanning(lo, hi)
     }
 
@@ -53,11 +48,6 @@ impl PointGrid {
 
     pub fn decode(&self, q: [u16; 3]) -> [f32; 3] {
         [0, 1, 2].map(|a| self.origin[a] + q[a] as f32 * self.step[a])
-    }
-
-    /// Origin and step as two rows, the way they are stored.
-    pub fn rows(&self) -> [[f32; 3]; 2] {
-        [self.origin, self.step]
     }
 
     /// The grid two stored rows describe; refused when a value is not finite or a step is
@@ -104,7 +94,7 @@ mod tests {
         // The box's corners are grid points: nothing is clamped away.
         let hi = [0, 1, 2].map(|a| points.iter().map(|p| p[a]).fold(f32::MIN, f32::max));
         assert_eq!(grid.encode(hi), [u16::MAX, u16::MAX, 0]);
-        assert_eq!(PointGrid::from_rows(&grid.rows()).unwrap(), grid);
+        assert_eq!(PointGrid::from_rows(bytemuck::cast_slice(bytemuck::bytes_of(&grid))).unwrap(), grid);
         assert_eq!(PointGrid::covering(&[]).decode([7, 7, 7]), [0.0; 3]);
     }
 

@@ -173,15 +173,11 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
         ("mesh_uvs", Dtype::F32, vec![d.uvs.len(), 2], bytemuck::cast_slice(&d.uvs)),
         ("mesh_triangles", Dtype::U32, vec![d.triangles.len(), 3], bytemuck::cast_slice(&d.triangles)),
     ];
-    let grid_rows = match &model.patch_points {
-        PatchPoints::Grid { grid, .. } => grid.rows(),
-        PatchPoints::Exact(_) => Default::default(),
-    };
     match &model.patch_points {
         PatchPoints::Exact(points) => tensors.push(("patch_points", Dtype::F32, vec![p, 3], bytemuck::cast_slice(points))),
-        PatchPoints::Grid { steps, .. } => tensors.extend([
+        PatchPoints::Grid { grid, steps } => tensors.extend([
             ("patch_point_steps", Dtype::U16, vec![p, 3], bytemuck::cast_slice(steps)),
-            ("patch_point_grid", Dtype::F32, vec![2, 3], bytemuck::cast_slice(&grid_rows)),
+            ("patch_point_grid", Dtype::F32, vec![2, 3], bytemuck::bytes_of(grid)),
         ] as [(&str, Dtype, Vec<usize>, &[u8]); 2]),
     }
     match &model.patch_descriptors {
