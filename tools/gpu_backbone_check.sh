@@ -10,6 +10,8 @@
 #                                                     # plain and fused (-mha) attention
 #          tools/gpu_backbone_check.sh stash          # keep the parts carried by this call
 #          tools/gpu_backbone_check.sh bench          # b2tf on CUDA: backbone, estimate, serve
+#          tools/gpu_backbone_check.sh serve-ab       # fp16 fused export only: the service with this
+#                                                     # b2tf and with a carried .gpu/b2tf-baseline.zst
 #          tools/gpu_backbone_check.sh other-devices  # ViT-L on TensorRT (refused without
 #                                                     # libnvinfer) and on the CPU
 #
@@ -45,7 +47,7 @@ pack() {
 }
 
 stash() {
-  for f in .gpu/ort-part-* .gpu/b2tf.zst .gpu/manifest; do
+  for f in .gpu/ort-part-* .gpu/b2tf.zst .gpu/b2tf-baseline.zst .gpu/manifest; do
     [ -f "$f" ] && cp "$f" "$STATE/parts/"
   done
   ls -la "$STATE/parts"
@@ -98,6 +100,21 @@ bench() {
   "$b2tf" bench serve --backbone "onnx:$m/vitl16-fp16-mha.onnx" --device cuda:0 --store "dir://$STATE/store" --clients 1,4,16 --requests 4 --protocols grpc
 }
 
+# The service with two builds on one machine (this one, and an earlier one carried as
+# .gpu/b2tf-baseline.zst): server CPU per request, the rate, latency. Needs only the fp16
+# fused-attention export (`export_backbone.py ... --fp16 --fused-attention`).
+serve_ab() {
+  setup_b2tf
+  local m="$STATE/models/vitl16-fp16-mha.onnx" b
+  "$STATE/b2tf" bench backbone --onnx "$m" --device cuda:0 --batches 1,8,32 --passes 20
+  "$STATE/b2tf" bench estimate --backbone "onnx:$m" --device cuda:0 --images 5 --store "dir://$STATE/store" | tail -3
+  zstd -d -q -f "$STATE/parts/b2tf-baseline.zst" -o "$STATE/b2tf-baseline" && chmod +x "$STATE/b2tf-baseline"
+  for b in b2tf-baseline b2tf; do
+    echo "== $b"
+    "$STATE/$b" bench serve --backbone "onnx:$m" --device cuda:0 --store "dir://$STATE/store" --clients 1,4,16 --requests 4 --protocols grpc
+  done
+}
+
 other_devices() {
   setup_b2tf
   local b2tf="$STATE/b2tf" m="$STATE/models"
@@ -111,6 +128,7 @@ case "${1:-}" in
   export) export_stage ;;
   stash) stash ;;
   bench) bench ;;
+  serve-ab) serve_ab ;;
   other-devices) other_devices ;;
   *) echo "usage: $0 pack|torch|export|stash|bench|other-devices" >&2; exit 2 ;;
 esac

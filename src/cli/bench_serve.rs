@@ -74,6 +74,18 @@ pub(super) fn memory_mb(pid: u32) -> Memory {
     Memory { rss: mb("VmRSS:"), anon: mb("RssAnon:"), file: mb("RssFile:") }
 }
 
+/// A process's CPU time so far (user + system), seconds; NaN where /proc cannot tell.
+fn cpu_seconds(pid: u32) -> f64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    // The command name (field 2) may hold spaces: count fields after its closing parenthesis,
+    // where utime and stime are the 12th and 13th.
+    let fields: Vec<&str> = stat.rsplit_once(')').map_or(vec![], |(_, rest)| rest.split_whitespace().collect());
+    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(f64::NAN);
+    // SAFETY: sysconf only reads a constant of the running system.
+    let per_second = unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
+    (ticks(11) + ticks(12)) / per_second
+}
+
 pub(super) fn b64(bytes: &[u8]) -> String {
     base64::engine::general_purpose::STANDARD.encode(bytes)
 }
@@ -122,22 +134,25 @@ fn measure(a: &BenchServeArgs, object: &str, addr: &str, grpc: &str, pid: u32) -
         bail!("estimate failed: {s} {}", String::from_utf8_lossy(&v));
     }
     println!("server pid {pid}, store {}; 640×480 PNG of the sample box, RRC {}, backbone batch {}", a.store, if a.no_rrc { "off" } else { "on" }, a.backbone_batch);
-    println!("| protocol | clients | requests | req/s | p50 (ms) | p99 (ms) | failed |");
-    println!("|---|---:|---:|---:|---:|---:|---:|");
+    // Server CPU per request and the cores it kept busy say whether the CPU stages, not
+    // the backbone, set the rate (on a GPU machine with many cores).
+    println!("| protocol | clients | requests | req/s | p50 (ms) | p99 (ms) | server CPU ms/req | server cores busy | failed |");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
     for protocol in &a.protocols {
         for &c in &a.clients {
-            let t0 = Instant::now();
+            let (t0, cpu0) = (Instant::now(), cpu_seconds(pid));
             let results: Vec<(bool, f64)> = match protocol.as_str() {
                 "http" => http_load(addr, &body, c, a.requests),
                 "grpc" => grpc_load(grpc, &grpc_request, c, a.requests)?,
                 other => bail!("--protocols: {other:?} is neither http nor grpc"),
             };
-            let wall = t0.elapsed().as_secs_f64();
+            let (wall, cpu) = (t0.elapsed().as_secs_f64(), cpu_seconds(pid) - cpu0);
             let mut ms: Vec<f64> = results.iter().map(|r| r.1).collect();
             ms.sort_by(f64::total_cmp);
             let pct = |p: f64| ms[((ms.len() as f64 * p).ceil() as usize).clamp(1, ms.len()) - 1];
             let bad = results.iter().filter(|r| !r.0).count();
-            println!("| {protocol} | {c} | {} | {:.2} | {:.0} | {:.0} | {bad} |", results.len(), results.len() as f64 / wall, pct(0.5), pct(0.99));
+            let n = results.len();
+            println!("| {protocol} | {c} | {n} | {:.2} | {:.0} | {:.0} | {:.0} | {:.1} | {bad} |", n as f64 / wall, pct(0.5), pct(0.99), cpu * 1e3 / n as f64, cpu / wall);
         }
     }
     // Memory: every object of the store (up to 10) loaded into the server's cache.
