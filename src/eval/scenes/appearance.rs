@@ -2,10 +2,10 @@
 //! functions of `eval::degrade`.
 
 use super::config::Appearance;
-use crate::eval::degrade::{add_noise, color_shift, gaussian_blur};
+use crate::eval::degrade::{add_noise, color_shift, gaussian_blur, jpeg_round_trip, PrintDrift};
 use crate::mesh::procedural::Rng;
 use crate::render::RenderOptions;
-use image::RgbImage;
+use image::{GrayImage, RgbImage};
 
 fn draw(rng: &mut Rng, (lo, hi): (f64, f64)) -> f64 {
     rng.range(lo, hi)
@@ -42,5 +42,23 @@ pub(super) fn degrade(img: &RgbImage, a: &Appearance, rng: &mut Rng) -> RgbImage
         add_noise(&shifted, noise, rng)
     } else {
         shifted
+    }
+}
+
+/// An object's print drifting from its mesh's texture, on its render alone (so the drift
+/// follows the object, not the image). Draws nothing when the appearance has no drift, so
+/// such scenes stay as they were.
+pub(super) fn drift_print(rgb: &mut RgbImage, mask: &GrayImage, a: &Appearance, rng: &mut Rng) {
+    if a.print_gain > 0.0 || a.print_shift_px > 0.0 {
+        PrintDrift::sample(a.print_gain, a.print_shift_px, rng).apply(rgb, mask);
+    }
+}
+
+/// The photo as stored: a JPEG round trip at a quality drawn from the appearance's range,
+/// or the image itself when it has none.
+pub(super) fn store(img: RgbImage, a: &Appearance, rng: &mut Rng) -> anyhow::Result<RgbImage> {
+    match a.jpeg_quality {
+        Some((lo, hi)) => jpeg_round_trip(&img, rng.range(lo as f64, hi as f64 + 1.0).floor().min(hi as f64) as u8),
+        None => Ok(img),
     }
 }

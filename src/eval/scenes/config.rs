@@ -74,6 +74,16 @@ pub struct Appearance {
     pub color_gain: f64,
     /// Largest per-channel offset, grey levels.
     pub color_offset: f64,
+    /// JPEG quality the photo is stored at, drawn per image (1–100); `None`: lossless.
+    #[serde(default)]
+    pub jpeg_quality: Option<(u8, u8)>,
+    /// Largest per-channel gain deviation of an object's print from its mesh's texture, a
+    /// colour field varying smoothly across the object (`eval::degrade::PrintDrift`).
+    #[serde(default)]
+    pub print_gain: f64,
+    /// Largest misregistration of an object's print against its shape, pixels per axis.
+    #[serde(default)]
+    pub print_shift_px: f64,
 }
 
 impl Default for Appearance {
@@ -86,14 +96,18 @@ impl Default for Appearance {
             noise_sigma: (1.0, 3.0),
             color_gain: 0.08,
             color_offset: 6.0,
+            jpeg_quality: None,
+            print_gain: 0.0,
+            print_shift_px: 0.0,
         }
     }
 }
 
 impl Appearance {
     /// What `render_to_real_gap` uses: light up to 80° off the viewing direction with half
-    /// the ambient (hard shading the templates never show), and twice the blur, noise and
-    /// colour shift (lower bounds raised too, so no image escapes clean).
+    /// the ambient (hard shading the templates never show), twice the blur, noise and
+    /// colour shift (lower bounds raised too, so no image escapes clean), JPEG at quality
+    /// 50–85, and prints that drift from the texture by up to 15 % and 1 pixel.
     pub fn harsher(&self) -> Self {
         let double = |(lo, hi): (f64, f64)| (lo.max(hi * 0.5) * 2.0, hi * 2.0);
         Self {
@@ -104,6 +118,9 @@ impl Appearance {
             noise_sigma: double(self.noise_sigma),
             color_gain: self.color_gain * 2.0,
             color_offset: self.color_offset * 2.0,
+            jpeg_quality: Some(self.jpeg_quality.map_or((50, 85), |(lo, hi)| (lo.min(50), hi.min(85)))),
+            print_gain: (self.print_gain * 2.0).max(0.15),
+            print_shift_px: (self.print_shift_px * 2.0).max(1.0),
         }
     }
 }
@@ -148,6 +165,11 @@ impl SceneConfig {
         range("blur_sigma", a.blur_sigma, 0.0, 20.0)?;
         range("noise_sigma", a.noise_sigma, 0.0, 100.0)?;
         range("color_gain", (a.color_gain, a.color_gain), 0.0, 0.9)?;
-        range("color_offset", (a.color_offset, a.color_offset), 0.0, 128.0)
+        range("color_offset", (a.color_offset, a.color_offset), 0.0, 128.0)?;
+        if let Some((lo, hi)) = a.jpeg_quality {
+            range("jpeg_quality", (lo as f64, hi as f64), 1.0, 100.0)?;
+        }
+        range("print_gain", (a.print_gain, a.print_gain), 0.0, 0.5)?;
+        range("print_shift_px", (a.print_shift_px, a.print_shift_px), 0.0, 10.0)
     }
 }

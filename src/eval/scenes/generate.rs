@@ -1,7 +1,7 @@
 //! One generated image: place objects without hiding each other too much, render each
 //! alone, composite by depth over clutter, add occluders, degrade.
 
-use super::appearance::{degrade, sample_lighting};
+use super::appearance::{degrade, drift_print, sample_lighting, store};
 use super::config::SceneConfig;
 use super::layers::Layers;
 use super::occluders::{sample_occluder, Occluder};
@@ -171,9 +171,12 @@ fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, i
     }
 
     let background = clutter_background(cam.width, cam.height, rng);
+    for (_, _, out) in placed.iter_mut() {
+        drift_print(&mut out.rgb, &out.mask, &appearance, rng);
+    }
     let renders: Vec<&RenderOutput> = placed.iter().map(|(_, _, out)| out).collect();
     let clean = layers.paint(&renders, &occluders, &background);
-    let rgb = degrade(&clean, &appearance, rng);
+    let rgb = store(degrade(&clean, &appearance, rng), &appearance, rng)?;
     let visible = layers.visible_counts(placed.len());
     let instances = placed
         .into_iter()

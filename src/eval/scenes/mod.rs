@@ -4,7 +4,8 @@
 //! SO(3), placed wholly inside the frame at a distance that makes them fill a chosen share
 //! of the image height; each rendered alone (textured as the mesh is, one random light per
 //! image), composited by depth over procedural clutter; flat occluders in front of parts of
-//! the objects; blur, colour shift and sensor noise. Placements and occluders that leave an
+//! the objects; blur, colour shift and sensor noise (and, where the appearance asks for them,
+//! prints that drift from the texture and JPEG). Placements and occluders that leave an
 //! instance less than `1 − max_occlusion` visible are drawn again.
 //!
 //! `render_to_real_gap`: the templates are rendered elsewhere from the bare mesh, so the

@@ -220,6 +220,10 @@ fn config_is_validated_and_the_gap_is_harsher() {
         SceneConfig { min_occlusion: 0.2, occluders: false, ..Default::default() },
         SceneConfig { fill_range: (0.4, 0.1), ..Default::default() },
         SceneConfig { image_size: (8, 480), ..Default::default() },
+        SceneConfig { appearance: Appearance { jpeg_quality: Some((0, 80)), ..Default::default() }, ..Default::default() },
+        SceneConfig { appearance: Appearance { jpeg_quality: Some((90, 60)), ..Default::default() }, ..Default::default() },
+        SceneConfig { appearance: Appearance { print_gain: 0.8, ..Default::default() }, ..Default::default() },
+        SceneConfig { appearance: Appearance { print_shift_px: f64::NAN, ..Default::default() }, ..Default::default() },
     ];
     for c in bad {
         assert!(c.validate().is_err(), "{c:?} passed");
@@ -229,6 +233,13 @@ fn config_is_validated_and_the_gap_is_harsher() {
     assert_eq!(h, a.harsher());
     assert!(h.light_angle_deg > a.light_angle_deg && h.ambient.1 < a.ambient.1);
     assert!(h.blur_sigma.0 > a.blur_sigma.0 && h.noise_sigma.1 > a.noise_sigma.1 && h.color_gain > a.color_gain);
+    assert!(a.jpeg_quality.is_none() && h.jpeg_quality == Some((50, 85)) && h.print_gain > a.print_gain && h.print_shift_px >= 1.0);
+    // A config written before these fields existed still reads, with none of them.
+    let mut old = serde_json::to_value(a).unwrap();
+    for key in ["jpeg_quality", "print_gain", "print_shift_px"] {
+        old.as_object_mut().unwrap().remove(key);
+    }
+    assert_eq!(serde_json::from_value::<Appearance>(old).unwrap(), Appearance::default());
 }
 
 /// `cargo test --release -- --ignored scene_generation_speed --nocapture`
