@@ -13,6 +13,10 @@ Only hypotheses rendered in the run have IoU and appearance: run the bench with
 
 The feature-metric term (`features`) is in the CSV only where the run computed it
 (`--feature-share` above 0 in the bench).
+
+It also prints each term's separation of right from wrong hypotheses: the within-instance
+AUC, the chance that a right hypothesis of an instance scores above a wrong one of the same
+instance (ties count half), over the rendered hypotheses of instances that have both.
 """
 import argparse
 import csv
@@ -48,6 +52,23 @@ def pick(cands, weights, colour_share, rendered, tie, max_rendered, feature_shar
     return s[max(range(len(s)), key=score)]
 
 
+TERMS = ["contour", "iou", "edges", "colour", "features", "score"]
+
+
+def separation(instances, term, right):
+    """Within-instance AUC of `term` (right above wrong), and the pairs it counts."""
+    wins, pairs = 0.0, 0
+    for cands in instances.values():
+        scored = [d for d in cands if not math.isnan(d.get(term, math.nan)) and not math.isnan(d["iou"])]
+        good = [d[term] for d in scored if right(d)]
+        bad = [d[term] for d in scored if not right(d)]
+        for g in good:
+            for b in bad:
+                wins += 1.0 if g > b else 0.5 if g == b else 0.0
+                pairs += 1
+    return (wins / pairs if pairs else math.nan), pairs
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("csv")
@@ -61,6 +82,9 @@ def main():
     inst = load(a.csv)
     right = lambda d: d["mssd_over_diameter"] < 0.1
     print(f"{len(inst)} instances; oracle {sum(any(right(d) for d in c) for c in inst.values()) / len(inst):.1%}")
+    for term in TERMS:
+        auc, pairs = separation(inst, term, right)
+        print(f"AUC {term}: " + ("– (not in the run)" if math.isnan(auc) else f"{auc:.3f} over {pairs} right/wrong pairs"))
     for f in a.feature_share:
         for m in a.max_rendered:
             cells = [f"colour {c}: {sum(right(pick(v, a.weights, c, a.rendered, a.tie, m, f)) for v in inst.values()) / len(inst):.1%}" for c in a.colour_share]

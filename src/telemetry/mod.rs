@@ -87,14 +87,49 @@ pub fn init(args: &TelemetryArgs, default_filter: &str) -> anyhow::Result<Guard>
 
 /// A panic as one JSON line on stderr (not through `tracing`: the filter could hide it).
 fn json_panic(info: &std::panic::PanicHookInfo<'_>) {
-    let message = info.payload().downcast_ref::<&str>().map(|s| s.to_string()).or_else(|| info.payload().downcast_ref::<String>().cloned()).unwrap_or_else(|| "(a panic without a message)".into());
+    let location = info.location().map(|l| format!("{}:{}:{}", l.file(), l.line(), l.column()));
+    let backtrace = std::env::var_os("RUST_BACKTRACE").is_some_and(|v| v != "0").then(|| std::backtrace::Backtrace::force_capture().to_string());
+    eprintln!("{}", panic_line(info.payload(), location, std::thread::current().name(), backtrace));
+}
+
+/// The JSON line of a panic with `payload` (what `panic!` was given: a `&str`, a `String`
+/// when it formatted, anything else otherwise).
+fn panic_line(payload: &(dyn std::any::Any + Send), location: Option<String>, thread: Option<&str>, backtrace: Option<String>) -> String {
+    let message = payload.downcast_ref::<&str>().map(|s| s.to_string()).or_else(|| payload.downcast_ref::<String>().cloned()).unwrap_or_else(|| "(a panic without a message)".into());
     let mut fields = serde_json::Map::new();
-    if let Some(l) = info.location() {
-        fields.insert("location".into(), format!("{}:{}:{}", l.file(), l.line(), l.column()).into());
+    if let Some(l) = location {
+        fields.insert("location".into(), l.into());
     }
-    fields.insert("thread".into(), std::thread::current().name().unwrap_or("unnamed").into());
-    if std::env::var_os("RUST_BACKTRACE").is_some_and(|v| v != "0") {
-        fields.insert("backtrace".into(), std::backtrace::Backtrace::force_capture().to_string().into());
+    fields.insert("thread".into(), thread.unwrap_or("unnamed").into());
+    if let Some(b) = backtrace {
+        fields.insert("backtrace".into(), b.into());
     }
-    eprintln!("{}", json_lines::line(tracing::Level::ERROR, "panic", &format!("panicked: {message}"), fields));
+    json_lines::line(tracing::Level::ERROR, "panic", &format!("panicked: {message}"), fields)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::panic_line;
+    use serde_json::Value;
+
+    #[test]
+    fn a_panic_becomes_one_json_line_with_its_message_location_and_thread() {
+        let quiet = std::panic::take_hook();
+        std::panic::set_hook(Box::new(|_| {}));
+        let formatted = std::panic::catch_unwind(|| panic!("bad crop {}", 7)).unwrap_err();
+        let literal = std::panic::catch_unwind(|| panic!("no mask")).unwrap_err();
+        let other = std::panic::catch_unwind(|| std::panic::panic_any(42u8)).unwrap_err();
+        std::panic::set_hook(quiet);
+        let line = panic_line(&*formatted, Some("src/x.rs:1:2".into()), Some("worker-3"), None);
+        assert!(!line.contains('\n'), "one line: {line}");
+        let v: Value = serde_json::from_str(&line).unwrap();
+        assert_eq!((v["level"].as_str(), v["target"].as_str(), v["message"].as_str()), (Some("ERROR"), Some("panic"), Some("panicked: bad crop 7")));
+        assert_eq!((v["location"].as_str(), v["thread"].as_str()), (Some("src/x.rs:1:2"), Some("worker-3")));
+        assert!(v.get("backtrace").is_none());
+        let v: Value = serde_json::from_str(&panic_line(&*literal, None, None, Some("frames".into()))).unwrap();
+        assert_eq!((v["message"].as_str(), v["thread"].as_str(), v["backtrace"].as_str()), (Some("panicked: no mask"), Some("unnamed"), Some("frames")));
+        assert!(v.get("location").is_none());
+        let v: Value = serde_json::from_str(&panic_line(&*other, None, None, None)).unwrap();
+        assert_eq!(v["message"].as_str(), Some("panicked: (a panic without a message)"));
+    }
 }
