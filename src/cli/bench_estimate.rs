@@ -17,8 +17,9 @@ pub struct BenchEstimateArgs {
     /// Simulate the render-to-real gap: templates from the untextured mesh, harsher scenes.
     #[arg(long)]
     pub gap: bool,
-    /// Only the scene side of the gap (lighting, blur, noise) with textured templates: the
-    /// case of a user with a textured CAD model and a real camera.
+    /// Only the scene side of the gap (lighting, blur, noise, colour shift, JPEG, prints
+    /// that drift from the texture) with textured templates: the case of a user with a
+    /// textured CAD model and a real camera.
     #[arg(long, conflicts_with = "gap")]
     pub harsh_scenes: bool,
     /// Weight of the silhouette IoU in template retrieval (default: the library's).
