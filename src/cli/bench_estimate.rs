@@ -395,12 +395,13 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         if a.gap {
             ", render-to-real gap: untextured templates, harsher scenes"
         } else if a.harsh_scenes {
-            ", harsher scenes (lighting, blur, noise), textured templates"
+            ", harsher scenes (lighting, blur, noise, JPEG, print drift), textured templates"
         } else {
             ""
         },
         meshes.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(", ")
     );
+    println!("rendering: {}", pool.describe());
     println!("| setting | MSSD < 0.1·d | < 100 px | 100–200 px | ≥ 200 px | pose found | median rot. err (°) | median trans. err (mm) | median / p90 Δz/z (rot. < 10°) | median ms: crop | features | retrieval | matching | pnp | rrc | refine | selection | total | p90 ms total |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for t in &mut tallies {

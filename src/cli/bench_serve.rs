@@ -133,7 +133,8 @@ fn measure(a: &BenchServeArgs, object: &str, addr: &str, grpc: &str, pid: u32) -
     if s != 200 {
         bail!("estimate failed: {s} {}", String::from_utf8_lossy(&v));
     }
-    println!("server pid {pid}, store {}; 640×480 PNG of the sample box, RRC {}, backbone batch {}", a.store, if a.no_rrc { "off" } else { "on" }, a.backbone_batch);
+    // The server renders on the adapter this process gets (same machine, same environment).
+    println!("server pid {pid}, store {}; 640×480 PNG of the sample box, RRC {}, backbone batch {}; rendering: {}", a.store, if a.no_rrc { "off" } else { "on" }, a.backbone_batch, pool.describe());
     // Server CPU per request and the cores it kept busy say whether the CPU stages, not
     // the backbone, set the rate (on a GPU machine with many cores).
     println!("| protocol | clients | requests | req/s | p50 (ms) | p99 (ms) | server CPU ms/req | server cores busy | failed |");
