@@ -8,7 +8,7 @@
 //! store's bytes, the server's resident memory before and after (anonymous = heap,
 //! file = mapped tensors), and cold/warm latency.
 
-use super::bench_serve::{b64, json_call, memory_mb};
+use super::bench_serve::{b64, json_call, memory_mb, nearest_rank};
 use crate::geometry::views::{fitted_distance, view_pose};
 use crate::geometry::Intrinsics;
 use crate::onboard::DescriptorCoding;
@@ -108,7 +108,7 @@ pub fn run(a: BenchCatalogueArgs) -> Result<()> {
     let ms = |v: &[Timed]| v.iter().map(|t| t.ms).collect::<Vec<_>>();
     for (name, v) in [("cold (object not loaded)", &ms(&cold)), ("warm", &ms(&warm)), ("cold − warm, per object", &extra_ms), ("warm − warm (noise)", &noise_ms)] {
         let s = sorted(v);
-        println!("| {name} | {:.0} | {:.0} | {:.0} |", pct(&s, 0.5), pct(&s, 0.9), s.last().copied().unwrap_or(f64::NAN));
+        println!("| {name} | {:.0} | {:.0} | {:.0} |", nearest_rank(&s, 0.5), nearest_rank(&s, 0.9), s.last().copied().unwrap_or(f64::NAN));
     }
     print_extra_by_stage(&cold, &warm);
     server.stop()
@@ -135,7 +135,7 @@ fn print_extra_by_stage(cold: &[Timed], warm: &[Timed]) {
     println!("|---|---:|---:|");
     for (name, v) in cells {
         let s = sorted(&v);
-        println!("| {name} | {:.0} | {:.0} |", pct(&s, 0.5), pct(&s, 0.9));
+        println!("| {name} | {:.0} | {:.0} |", nearest_rank(&s, 0.5), nearest_rank(&s, 0.9));
     }
 }
 
@@ -195,9 +195,3 @@ fn sorted(v: &[f64]) -> Vec<f64> {
     s
 }
 
-fn pct(sorted: &[f64], p: f64) -> f64 {
-    match sorted.len() {
-        0 => f64::NAN,
-        n => sorted[((n as f64 * p).ceil() as usize).clamp(1, n) - 1],
-    }
-}

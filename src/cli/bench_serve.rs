@@ -74,6 +74,14 @@ pub(super) fn memory_mb(pid: u32) -> Memory {
     Memory { rss: mb("VmRSS:"), anon: mb("RssAnon:"), file: mb("RssFile:") }
 }
 
+/// The nearest-rank percentile `p` (0–1) of ascending `sorted`; NaN when it is empty.
+pub(super) fn nearest_rank(sorted: &[f64], p: f64) -> f64 {
+    match sorted.len() {
+        0 => f64::NAN,
+        n => sorted[((n as f64 * p).ceil() as usize).clamp(1, n) - 1],
+    }
+}
+
 /// A process's CPU time so far (user + system), seconds; NaN where /proc cannot tell.
 fn cpu_seconds(pid: u32) -> f64 {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
@@ -150,10 +158,9 @@ fn measure(a: &BenchServeArgs, object: &str, addr: &str, grpc: &str, pid: u32) -
             let (wall, cpu) = (t0.elapsed().as_secs_f64(), cpu_seconds(pid) - cpu0);
             let mut ms: Vec<f64> = results.iter().map(|r| r.1).collect();
             ms.sort_by(f64::total_cmp);
-            let pct = |p: f64| ms[((ms.len() as f64 * p).ceil() as usize).clamp(1, ms.len()) - 1];
             let bad = results.iter().filter(|r| !r.0).count();
             let n = results.len();
-            println!("| {protocol} | {c} | {n} | {:.2} | {:.0} | {:.0} | {:.0} | {:.1} | {bad} |", n as f64 / wall, pct(0.5), pct(0.99), cpu * 1e3 / n as f64, cpu / wall);
+            println!("| {protocol} | {c} | {n} | {:.2} | {:.0} | {:.0} | {:.0} | {:.1} | {bad} |", n as f64 / wall, nearest_rank(&ms, 0.5), nearest_rank(&ms, 0.99), cpu * 1e3 / n as f64, cpu / wall);
         }
     }
     // Memory: every object of the store (up to 10) loaded into the server's cache.
@@ -223,4 +230,16 @@ fn grpc_load(addr: &str, request: &pb::EstimateRequest, clients: usize, requests
         }
         Ok(all)
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::nearest_rank;
+
+    #[test]
+    fn nearest_rank_takes_the_ceiling_rank() {
+        let v = [1.0, 2.0, 3.0, 4.0];
+        assert_eq!((nearest_rank(&v, 0.0), nearest_rank(&v, 0.5), nearest_rank(&v, 0.51), nearest_rank(&v, 0.99), nearest_rank(&v, 1.0)), (1.0, 2.0, 3.0, 4.0, 4.0));
+        assert!(nearest_rank(&[], 0.5).is_nan());
+    }
 }
