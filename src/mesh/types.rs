@@ -304,9 +304,13 @@ fn vertex_normals(p: &[[f32; 3]], tris: &[[u32; 3]]) -> Vec<[f32; 3]> {
         .collect()
 }
 
-/// Exact vertex diameter without the O(n²) scan: the farthest pair lies on the convex hull,
-/// and hull vertices are extreme along some direction, so candidates are the extremes over
-/// many directions; the pairwise scan then runs over those few points only.
+/// Vertex diameter without the O(n²) scan (exact up to 2000 vertices): the farthest pair
+/// lies on the convex hull, and hull vertices are extreme along some direction, so the
+/// candidates are the extremes over 512 directions and the pairwise scan runs over those few
+/// points only. Not exact in general: the result is at least cos θ of the true diameter, θ
+/// being the angle from the true pair's direction to the nearest sampled one (about 0.1 rad
+/// at most for this many directions, so under 1 %); on the point cloud of the test below it
+/// equals the brute-force scan.
 fn diameter(p: &[[f32; 3]]) -> f64 {
     if p.len() <= 2000 {
         return brute_diameter(p.iter().map(|v| v.map(|x| x as f64)));
