@@ -82,18 +82,6 @@ pub(super) fn nearest_rank(sorted: &[f64], p: f64) -> f64 {
     }
 }
 
-/// A process's CPU time so far (user + system), seconds; NaN where /proc cannot tell.
-fn cpu_seconds(pid: u32) -> f64 {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-    // The command name (field 2) may hold spaces: count fields after its closing parenthesis,
-    // where utime and stime are the 12th and 13th.
-    let fields: Vec<&str> = stat.rsplit_once(')').map_or(vec![], |(_, rest)| rest.split_whitespace().collect());
-    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(f64::NAN);
-    // SAFETY: sysconf only reads a constant of the running system.
-    let per_second = unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
-    (ticks(11) + ticks(12)) / per_second
-}
-
 pub(super) fn b64(bytes: &[u8]) -> String {
     base64::engine::general_purpose::STANDARD.encode(bytes)
 }
@@ -147,21 +135,28 @@ fn measure(a: &BenchServeArgs, object: &str, addr: &str, grpc: &str, pid: u32) -
     // the backbone, set the rate (on a GPU machine with many cores).
     println!("| protocol | clients | requests | req/s | p50 (ms) | p99 (ms) | server CPU ms/req | server cores busy | failed |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let mut by_thread = Vec::new();
     for protocol in &a.protocols {
         for &c in &a.clients {
-            let (t0, cpu0) = (Instant::now(), cpu_seconds(pid));
+            let (t0, cpu0, threads0) = (Instant::now(), super::thread_cpu::process_cpu_seconds(pid), super::thread_cpu::cpu_by_thread_group(pid));
             let results: Vec<(bool, f64)> = match protocol.as_str() {
                 "http" => http_load(addr, &body, c, a.requests),
                 "grpc" => grpc_load(grpc, &grpc_request, c, a.requests)?,
                 other => bail!("--protocols: {other:?} is neither http nor grpc"),
             };
-            let (wall, cpu) = (t0.elapsed().as_secs_f64(), cpu_seconds(pid) - cpu0);
+            let (wall, cpu) = (t0.elapsed().as_secs_f64(), super::thread_cpu::process_cpu_seconds(pid) - cpu0);
             let mut ms: Vec<f64> = results.iter().map(|r| r.1).collect();
             ms.sort_by(f64::total_cmp);
             let bad = results.iter().filter(|r| !r.0).count();
             let n = results.len();
+            let threads = super::thread_cpu::describe_growth(&threads0, &super::thread_cpu::cpu_by_thread_group(pid), n, 6);
+            by_thread.push(format!("{protocol}, {c} clients: {threads}"));
             println!("| {protocol} | {c} | {n} | {:.2} | {:.0} | {:.0} | {:.0} | {:.1} | {bad} |", n as f64 / wall, nearest_rank(&ms, 0.5), nearest_rank(&ms, 0.99), cpu * 1e3 / n as f64, cpu / wall);
         }
+    }
+    println!("server CPU per request by thread group (the largest; threads that ended are not counted):");
+    for line in &by_thread {
+        println!("  {line}");
     }
     // Memory: every object of the store (up to 10) loaded into the server's cache.
     let before = memory_mb(pid).rss;

@@ -32,6 +32,7 @@ pub mod progress;
 pub mod render_cmd;
 pub mod serve_cmd;
 pub mod serve_config;
+pub mod thread_cpu;
 pub mod track_cmd;
 pub mod verify_args;
 pub mod video_source;
