@@ -56,7 +56,7 @@ pub(super) fn drift_print(rgb: &mut RgbImage, mask: &GrayImage, a: &Appearance, 
 
 /// The photo as stored: a JPEG round trip at a quality drawn from the appearance's range,
 /// or the image itself when it has none.
-pub(super) fn store(img: RgbImage, a: &Appearance, rng: &mut Rng) -> anyhow::Result<RgbImage> {
+pub(super) fn as_stored(img: RgbImage, a: &Appearance, rng: &mut Rng) -> anyhow::Result<RgbImage> {
     match a.jpeg_quality {
         Some((lo, hi)) => jpeg_round_trip(&img, rng.range(lo as f64, hi as f64 + 1.0).floor().min(hi as f64) as u8),
         None => Ok(img),

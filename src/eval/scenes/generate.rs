@@ -1,7 +1,7 @@
 //! One generated image: place objects without hiding each other too much, render each
-//! alone, composite by depth over clutter, add occluders, degrade.
+//! alone, composite by depth over clutter, add occluders, degrade (and store as JPEG).
 
-use super::appearance::{degrade, drift_print, sample_lighting, store};
+use super::appearance::{as_stored, degrade, drift_print, sample_lighting};
 use super::config::SceneConfig;
 use super::layers::Layers;
 use super::occluders::{sample_occluder, Occluder};
@@ -176,7 +176,7 @@ fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, i
     }
     let renders: Vec<&RenderOutput> = placed.iter().map(|(_, _, out)| out).collect();
     let clean = layers.paint(&renders, &occluders, &background);
-    let rgb = store(degrade(&clean, &appearance, rng), &appearance, rng)?;
+    let rgb = as_stored(degrade(&clean, &appearance, rng), &appearance, rng)?;
     let visible = layers.visible_counts(placed.len());
     let instances = placed
         .into_iter()
