@@ -118,7 +118,7 @@ impl PrintDrift {
     /// outline does not move.
     pub fn apply(&self, img: &mut RgbImage, mask: &GrayImage) {
         let inside = |x: i64, y: i64| x >= 0 && y >= 0 && x < mask.width() as i64 && y < mask.height() as i64 && mask.get_pixel(x as u32, y as u32)[0] > 0;
-        let Some((x0, y0, x1, y1)) = mask_box(mask) else { return };
+        let Some((x0, y0, x1, y1)) = crate::features::mask_bbox(mask) else { return };
         let (cx, cy) = ((x0 + x1) as f64 * 0.5, (y0 + y1) as f64 * 0.5);
         let (hx, hy) = (((x1 - x0) as f64 * 0.5).max(1.0), ((y1 - y0) as f64 * 0.5).max(1.0));
         let source = img.clone();
@@ -135,13 +135,6 @@ impl PrintDrift {
             }
         }
     }
-}
-
-/// Inclusive (x0, y0, x1, y1) of a mask's pixels; `None` when it is empty.
-fn mask_box(mask: &GrayImage) -> Option<(u32, u32, u32, u32)> {
-    mask.enumerate_pixels().filter(|(_, _, p)| p[0] > 0).fold(None, |b, (x, y, _)| {
-        Some(b.map_or((x, y, x, y), |(x0, y0, x1, y1): (u32, u32, u32, u32)| (x0.min(x), y0.min(y), x1.max(x), y1.max(y))))
-    })
 }
 
 /// Binary dilation by a square of radius `r` (segmentation masks overshoot the object).

@@ -114,12 +114,13 @@ mod tests {
 
     #[test]
     fn a_panic_becomes_one_json_line_with_its_message_location_and_thread() {
-        let quiet = std::panic::take_hook();
-        std::panic::set_hook(Box::new(|_| {}));
-        let formatted = std::panic::catch_unwind(|| panic!("bad crop {}", 7)).unwrap_err();
-        let literal = std::panic::catch_unwind(|| panic!("no mask")).unwrap_err();
-        let other = std::panic::catch_unwind(|| std::panic::panic_any(42u8)).unwrap_err();
-        std::panic::set_hook(quiet);
+        // The payloads `panic!` makes: a String when it formatted, a &str when it did not;
+        // `panic_any` can carry anything. Built directly, so that the test does not swap
+        // the process-wide panic hook under the other tests.
+        type Payload = Box<dyn std::any::Any + Send>;
+        let formatted: Payload = Box::new(format!("bad crop {}", 7));
+        let literal: Payload = Box::new("no mask");
+        let other: Payload = Box::new(42u8);
         let line = panic_line(&*formatted, Some("src/x.rs:1:2".into()), Some("worker-3"), None);
         assert!(!line.contains('\n'), "one line: {line}");
         let v: Value = serde_json::from_str(&line).unwrap();
