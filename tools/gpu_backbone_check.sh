@@ -108,6 +108,7 @@ serve_ab() {
   local m="$STATE/models/vitl16-fp16-mha.onnx" b
   "$STATE/b2tf" bench backbone --onnx "$m" --device cuda:0 --batches 1,8,32 --passes 20
   "$STATE/b2tf" bench estimate --backbone "onnx:$m" --device cuda:0 --images 5 --store "dir://$STATE/store" | tail -3
+  [ -f "$STATE/parts/b2tf-baseline.zst" ] || { echo "no baseline: carry .gpu/b2tf-baseline.zst (an earlier build, stripped and zstd-packed as pack does) and stash it" >&2; exit 1; }
   zstd -d -q -f "$STATE/parts/b2tf-baseline.zst" -o "$STATE/b2tf-baseline" && chmod +x "$STATE/b2tf-baseline"
   for b in b2tf-baseline b2tf; do
     echo "== $b"
