@@ -27,7 +27,8 @@ pub const MAX_RLE_RUNS: usize = 2_000_000;
 pub const MAX_RETRIEVAL_K: usize = 100_000;
 /// `max_masks` and `instances_per_object` of an estimate: at most one per detection.
 pub const MAX_MASKS_PER_INSTANCE: usize = MAX_DETECTIONS;
-/// `verify_templates` of an estimate: each is a hypothesis refined (a few ms of CPU).
+/// `verify_templates` and `verify_matched` of an estimate: each is a hypothesis refined (a
+/// few ms of CPU).
 pub const MAX_VERIFY_TEMPLATES: usize = 64;
 /// `spin_steps` of an estimate: 72 is 5° steps, 3 × 68 hypotheses.
 pub const MAX_SPIN_STEPS: usize = 72;

@@ -380,7 +380,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         base.retrieval.silhouette_weight,
         base.pnp.reprojection_threshold_px,
         base.refiner.name(),
-        if base.verify.enabled { format!("{} templates, {} rendered, weights {:?}", base.verify.templates, base.verify.rendered, base.verify.weights) } else { "off".into() }
+        if base.verify.enabled { format!("{} templates, {} matched, {} rendered, weights {:?}", base.verify.templates, base.verify.matched_templates, base.verify.rendered, base.verify.weights) } else { "off".into() }
     );
     println!(
         "{} instances in {} generated images ({} objects/image, diameter {:.2}–{:.2} of the image height, {:.0}–{:.0} % occluded, seed {}){}; objects: {}",

@@ -20,7 +20,7 @@ use std::sync::Arc;
 pub enum BopCommand {
     /// Estimate every target of a BOP split from its detections (a file, or found by the
     /// detector); write the BOP results CSV.
-    Run(RunArgs),
+    Run(Box<RunArgs>),
     /// Score a results CSV with the BOP'19 metrics (VSD, MSSD, MSPD; AR), and/or a
     /// detections JSON with the BOP'22 2D detection / segmentation AP (COCO).
     Eval(super::bop_eval_cmd::EvalArgs),
@@ -99,7 +99,7 @@ pub struct SynthArgs {
 
 pub fn run(cmd: BopCommand) -> Result<()> {
     match cmd {
-        BopCommand::Run(a) => run_cmd(a),
+        BopCommand::Run(a) => run_cmd(*a),
         BopCommand::Eval(a) => super::bop_eval_cmd::run(a),
         BopCommand::Synth(a) => synth_cmd(a),
     }

@@ -11,6 +11,10 @@ pub struct VerifyArgs {
     /// Retrieved templates placed at the mask as hypotheses (default 10).
     #[arg(long)]
     pub verify_templates: Option<usize>,
+    /// Templates with the most matches, each placed where its matches put it rather than
+    /// at the mask's box, as hypotheses: they survive occlusion (default 5; 0: none).
+    #[arg(long)]
+    pub verify_matched: Option<usize>,
     /// Spins of the pose about each object axis as hypotheses, in this many steps of a
     /// whole turn; the quarter turns are the axis flips (default 8: 45°; 0: none).
     #[arg(long)]
@@ -38,7 +42,7 @@ fn share(s: &str) -> Result<f64, String> {
 impl VerifyArgs {
     pub fn config(&self) -> VerifyConfig {
         let d = VerifyConfig::default();
-        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, feature_share: self.feature_share.unwrap_or(d.feature_share), refined: self.verify_refined.unwrap_or(d.refined), ..d }
+        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), matched_templates: self.verify_matched.unwrap_or(d.matched_templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, feature_share: self.feature_share.unwrap_or(d.feature_share), refined: self.verify_refined.unwrap_or(d.refined), ..d }
     }
 }
 

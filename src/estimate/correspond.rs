@@ -11,6 +11,9 @@ pub struct PatchPool {
     pub dim: usize,
     pub descriptors: Vec<f32>,
     pub points: Vec<[f32; 3]>,
+    /// Per patch, the template it comes from and its cell in that template's crop grid
+    /// (for pools built from templates; empty for RRC's renders).
+    pub origins: Vec<(u32, u16)>,
 }
 
 impl PatchPool {
@@ -29,7 +32,8 @@ impl PatchPool {
             let tp = &model.templates[t];
             let range = tp.patch_start as usize..(tp.patch_start + tp.patch_count) as usize;
             model.patch_points.extend_range(range.clone(), &mut pool.points);
-            model.patch_descriptors.widen_into(model.local_dim, range, &mut pool.descriptors);
+            model.patch_descriptors.widen_into(model.local_dim, range.clone(), &mut pool.descriptors);
+            pool.origins.extend(model.patch_cells[range].iter().map(|&cell| (t as u32, cell)));
         }
         pool
     }
@@ -43,6 +47,9 @@ pub struct Correspondences {
     /// Object points in metres.
     pub object_points: Vec<[f64; 3]>,
     pub similarities: Vec<f32>,
+    /// The pool patch of each pair, and the query patch (an index into `foreground`).
+    pub pool_index: Vec<usize>,
+    pub query_index: Vec<usize>,
 }
 
 impl Correspondences {
@@ -67,6 +74,8 @@ pub fn correspond(query: &QueryView, descriptors: &[f32], pool: &PatchPool, k_nn
         c.image_points.push([u, v]);
         c.object_points.push([p[0] as f64, p[1] as f64, p[2] as f64]);
         c.similarities.push(m.similarity);
+        c.pool_index.push(m.pool);
+        c.query_index.push(m.query);
     }
     c
 }

@@ -20,6 +20,9 @@ pub enum Source {
     Flip(usize),
     /// Retrieved template number `i` (0 = best), placed at the mask.
     Template(usize),
+    /// The template with the `i`-th most matches (0 = most), placed where its matches put
+    /// it (`placement::matched_templates`).
+    Matched(usize),
     /// That pose turned `degrees` about the object's `axis` (0 = x, 1 = y, 2 = z) through its
     /// centre: the angles between the quarter turns of `Flip`.
     Spin { axis: usize, degrees: u32 },
@@ -32,6 +35,7 @@ impl std::fmt::Display for Source {
             Source::Pipeline => write!(f, "pipeline"),
             Source::Flip(i) => write!(f, "flip-{i}"),
             Source::Template(i) => write!(f, "template-{i}"),
+            Source::Matched(i) => write!(f, "matched-{i}"),
             Source::Spin { axis, degrees } => write!(f, "spin-{}-{degrees}", ['x', 'y', 'z'].get(*axis).copied().unwrap_or('?')),
         }
     }
@@ -75,15 +79,26 @@ fn spins(pose: &Pose, centre: &Vector3<f64>, steps: usize) -> Vec<(Source, Pose)
 /// where the template's crop has it, the depth from the ratio of the crop sizes, and the
 /// template's rotation turned so its optical axis becomes the ray through that centre.
 pub fn place_template(model: &ObjectModel, t: usize, query_crop: &CropBox, k: &Intrinsics) -> Option<Pose> {
+    place_in(model, t, &|cu, cv| query_crop.to_image(cu, cv), query_crop.scale(), k)
+}
+
+/// Template `t` placed so that its crop pixel (cu, cv) lands on image pixel
+/// `to_image(cu, cv)`, `scale` image pixels per crop pixel: the object centre where the
+/// template's crop has it, the depth from the ratio of the scales, and the template's
+/// rotation turned so its optical axis becomes the ray through that centre.
+pub fn place_in(model: &ObjectModel, t: usize, to_image: &dyn Fn(f64, f64) -> (f64, f64), scale: f64, k: &Intrinsics) -> Option<Pose> {
     let tp = &model.templates[t];
     let kt = &model.render_intrinsics;
     let centre = Vector3::from(model.mesh.bbox_center());
     let c_t = tp.pose.rotation * centre + tp.pose.translation;
     let uv_t = kt.project(&nalgebra::Point3::from(c_t))?;
     let (cu, cv) = tp.crop.to_crop(uv_t.x, uv_t.y);
-    let (u, v) = query_crop.to_image(cu, cv);
-    // Same share of the crop ⇒ same apparent size: z ∝ focal / window side.
-    let z = c_t.z * (k.fx.max(k.fy) / kt.fx.max(kt.fy)) * (tp.crop.side / query_crop.side);
+    let (u, v) = to_image(cu, cv);
+    // Same size in pixels ⇒ same apparent size: z ∝ focal / pixels per crop pixel.
+    let z = c_t.z * (k.fx.max(k.fy) / kt.fx.max(kt.fy)) * (tp.crop.scale() / scale);
+    if !(z.is_finite() && z > 0.0) {
+        return None;
+    }
     let ray = Vector3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);
     let turn = Rotation3::rotation_between(&Vector3::z(), &ray).unwrap_or_else(Rotation3::identity);
     let rotation = turn * tp.pose.rotation;

@@ -6,6 +6,7 @@ pub mod correspond;
 pub mod hypotheses;
 pub mod matching;
 pub mod pipeline;
+pub mod placement;
 pub mod pnp;
 pub mod query;
 pub mod refine;

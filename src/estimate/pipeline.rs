@@ -235,13 +235,13 @@ impl Estimator {
         for (q, &mi) in queries.iter().zip(&chosen) {
             let _mask_span = tracing::info_span!("mask", index = mi).entered();
             let mut h = Hypothesis { mask_index: mi, detector_score: detections[mi].score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() };
-            let retrieved = self.pose_for_mask(model, q, k, cfg, &mut h, &mut timings)?;
+            let (retrieved, matched) = self.pose_for_mask(model, q, k, cfg, &mut h, &mut timings)?;
             if let Some(p) = h.pose {
                 let ctx = RefineContext { model, image, intrinsics: k, mask: &detections[mi].mask, unknown: others, mask_is_probability: false };
                 let t = Instant::now();
                 let _span = tracing::info_span!("refine", refiner = cfg.refiner.name(), verify = cfg.verify.enabled).entered();
                 if cfg.verify.enabled {
-                    h.verified = self.verify(&ctx, p, &retrieved, q, cfg)?;
+                    h.verified = self.verify(&ctx, p, &retrieved, &matched, q, cfg)?;
                     if let Some(best) = h.verified.first_mut() {
                         h.pose = Some(best.pose);
                         h.refinement = Some(best.refinement.clone());
@@ -268,12 +268,13 @@ impl Estimator {
         Ok(EstimateResult { timings, ..result })
     }
 
-    /// Refines the pose, its axis flips and the best templates placed at the mask, and
-    /// verifies them: contour agreement for all, then a render (IoU, appearance) for the
+    /// Refines the pose, its axis flips and spins, the best templates placed at the mask
+    /// and those placed by their matches (`matched`), and verifies them: contour agreement for all, then a render (IoU, appearance) for the
     /// best by contour and those the outline cannot tell from it (`verify::to_render`).
     /// Best first.
-    fn verify(&self, ctx: &RefineContext<'_>, pose: Pose, retrieved: &[usize], query: &QueryView, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
+    fn verify(&self, ctx: &RefineContext<'_>, pose: Pose, retrieved: &[usize], matched: &[Pose], query: &QueryView, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
         let mut candidates = super::hypotheses::candidates(ctx.model, &pose, retrieved, cfg.verify.templates, cfg.verify.spin_steps, &query.crop_box, ctx.intrinsics);
+        candidates.extend(matched.iter().enumerate().map(|(i, &p)| (super::hypotheses::Source::Matched(i), p)));
         // Hypotheses that are the same pose up to the object's symmetry show the same image:
         // when asked, one of each is refined (the pipeline's pose comes first, so it stays).
         let symmetric = ctx.model.symmetries.as_ref().filter(|_| cfg.verify.skip_symmetric).and_then(|s| crate::geometry::symmetric_poses::SymmetricPoses::new(&s.symmetries, ctx.model.diameter()));
@@ -343,8 +344,8 @@ impl Estimator {
     }
 
     /// Steps 5–8 for one mask: retrieval, matching, PnP, RRC. Returns the retrieved
-    /// templates, best first.
-    fn pose_for_mask(&self, model: &ObjectModel, q: &QueryView, k: &Intrinsics, cfg: &EstimateConfig, h: &mut Hypothesis, timings: &mut StageTimings) -> Result<Vec<usize>, EstimateError> {
+    /// templates, best first, and the templates placed by their matches (for verification).
+    fn pose_for_mask(&self, model: &ObjectModel, q: &QueryView, k: &Intrinsics, cfg: &EstimateConfig, h: &mut Hypothesis, timings: &mut StageTimings) -> Result<(Vec<usize>, Vec<Pose>), EstimateError> {
         let t = Instant::now();
         let span = tracing::info_span!("retrieval").entered();
         let retrieved = retrieve(model, &q.features.global, &q.silhouette, &cfg.retrieval);
@@ -362,6 +363,7 @@ impl Estimator {
         // Templates may hold PCA-compressed descriptors; the query goes into their space.
         let corr = tracing::info_span!("matching").in_scope(|| correspond(q, &model.to_stored_space(&q.descriptors), &pool, cfg.k_nn));
         h.matches = corr.len();
+        let matched = if cfg.verify.enabled { super::placement::matched_templates(model, &corr, &pool, q.crop_box.scale(), k, cfg.verify.matched_templates) } else { vec![] };
         timings.matching += ms(t);
 
         let t = Instant::now();
@@ -371,7 +373,7 @@ impl Estimator {
             Ok(r) => r,
             Err(e) => {
                 h.failure = Some(format!("no pose from {} matches: {e}", corr.len()));
-                return Ok(ranked);
+                return Ok((ranked, matched));
             }
         };
         h.inliers = first.inliers.len();
@@ -396,7 +398,7 @@ impl Estimator {
             }
             timings.rrc += ms(t);
         }
-        Ok(ranked)
+        Ok((ranked, matched))
     }
 
     /// Step 10: IoU gate and z-normalised scoring across hypotheses.

@@ -20,6 +20,10 @@ pub struct VerifyConfig {
     pub enabled: bool,
     /// Retrieved templates placed at the mask as extra hypotheses.
     pub templates: usize,
+    /// The templates with the most matches, each placed where its matches put it (not
+    /// where the mask's box does): hypotheses that survive occlusion
+    /// (`placement::matched_templates`).
+    pub matched_templates: usize,
     /// Spins of the pose about each object axis: this many equal steps of a whole turn
     /// (the quarter turns are the axis flips already; 0 or 4 adds none).
     pub spin_steps: usize,
@@ -59,8 +63,11 @@ impl Default for VerifyConfig {
         // 10 templates and 45° spins give the right pose a candidate far more often than 3
         // templates and the flips alone (oracle 79.5 → 88.5 % on seed 7), colour agreement
         // picks it more often (+1–1.5 points at any share from 0.25 to 1), and 12 renders
-        // keep most of what rendering all would.
-        Self { enabled: true, templates: 10, spin_steps: 8, rendered: 3, contour_tie: 0.05, max_rendered: 12, weights: [0.4, 0.3, 0.3], colour_share: 0.5, skip_symmetric: false, feature_share: 0.5, refined: 0 }
+        // keep most of what rendering all would. Half of those 10 templates are now the
+        // ones with the most matches, placed by their matches: right more often than the
+        // retrieved ones placed at the mask, for the same time (docs/benchmarks.md,
+        // "Templates placed by their matches").
+        Self { enabled: true, templates: 5, matched_templates: 5, spin_steps: 8, rendered: 3, contour_tie: 0.05, max_rendered: 12, weights: [0.4, 0.3, 0.3], colour_share: 0.5, skip_symmetric: false, feature_share: 0.5, refined: 0 }
     }
 }
 

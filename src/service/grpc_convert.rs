@@ -69,6 +69,7 @@ pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, S
         verify: o.verify.unwrap_or(defaults.verify),
         verify_templates: o.verify_templates.map_or(defaults.verify_templates, |n| n as usize),
         spin_steps: o.spin_steps.map_or(defaults.spin_steps, |n| n as usize),
+        verify_matched: o.verify_matched.map_or(defaults.verify_matched, |n| n as usize),
         overlay: o.overlay,
         refiner: if o.refiner.is_empty() { defaults.refiner } else { o.refiner.parse().map_err(|e: String| ServiceError::invalid(format!("options.refiner: {e}")))? },
     };
@@ -236,17 +237,15 @@ mod tests {
 
     #[test]
     fn verification_hypotheses_default_when_unset_and_zero_means_none() {
-        let with = |verify_templates, spin_steps| {
-            let options = Some(pb::EstimateOptions { verify_templates, spin_steps, ..Default::default() });
-            estimate_request(pb::EstimateRequest { image: Some(pb::Image::default()), intrinsics: Some(pb::Intrinsics::default()), options, ..Default::default() }).unwrap().options
+        let with = |verify_templates, spin_steps, verify_matched| {
+            let options = Some(pb::EstimateOptions { verify_templates, spin_steps, verify_matched, ..Default::default() });
+            let o = estimate_request(pb::EstimateRequest { image: Some(pb::Image::default()), intrinsics: Some(pb::Intrinsics::default()), options, ..Default::default() }).unwrap().options;
+            (o.verify_templates, o.spin_steps, o.verify_matched)
         };
         let d = crate::estimate::VerifyConfig::default();
-        let unset = with(None, None);
-        assert_eq!((unset.verify_templates, unset.spin_steps), (d.templates, d.spin_steps));
-        let none = with(Some(0), Some(0));
-        assert_eq!((none.verify_templates, none.spin_steps), (0, 0));
-        let more = with(Some(20), Some(12));
-        assert_eq!((more.verify_templates, more.spin_steps), (20, 12));
+        assert_eq!(with(None, None, None), (d.templates, d.spin_steps, d.matched_templates));
+        assert_eq!(with(Some(0), Some(0), Some(0)), (0, 0, 0));
+        assert_eq!(with(Some(20), Some(12), Some(7)), (20, 12, 7));
     }
 
     #[test]

@@ -136,6 +136,8 @@ pub struct EstimateOptions {
     pub verify_templates: usize,
     /// Spins of the pose about each object axis verified: steps of a whole turn.
     pub spin_steps: usize,
+    /// Templates with the most matches, placed where their matches put them, verified.
+    pub verify_matched: usize,
     /// Also answer the photo with each pose drawn on it (`overlay_png`): tinted
     /// silhouette, outline and object axes, for people to check by eye. Default off.
     pub overlay: bool,
@@ -144,7 +146,7 @@ pub struct EstimateOptions {
 impl Default for EstimateOptions {
     fn default() -> Self {
         let v = crate::estimate::VerifyConfig::default();
-        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default(), verify: true, verify_templates: v.templates, spin_steps: v.spin_steps, overlay: false }
+        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default(), verify: true, verify_templates: v.templates, spin_steps: v.spin_steps, verify_matched: v.matched_templates, overlay: false }
     }
 }
 
@@ -190,7 +192,7 @@ impl EstimateRequest {
             return Err(invalid(format!("detections: {} masks of {w}×{h} are {mask_pixels} mask pixels, over the limit of {} per request", self.detections.len(), limits::MAX_MASK_PIXELS_PER_REQUEST)));
         }
         let o = &self.options;
-        for (name, value, max) in [("options.k", o.k, limits::MAX_RETRIEVAL_K), ("options.max_masks", o.max_masks, limits::MAX_MASKS_PER_INSTANCE), ("options.instances_per_object", o.instances_per_object, limits::MAX_MASKS_PER_INSTANCE), ("options.verify_templates", o.verify_templates, limits::MAX_VERIFY_TEMPLATES), ("options.spin_steps", o.spin_steps, limits::MAX_SPIN_STEPS)] {
+        for (name, value, max) in [("options.k", o.k, limits::MAX_RETRIEVAL_K), ("options.max_masks", o.max_masks, limits::MAX_MASKS_PER_INSTANCE), ("options.instances_per_object", o.instances_per_object, limits::MAX_MASKS_PER_INSTANCE), ("options.verify_templates", o.verify_templates, limits::MAX_VERIFY_TEMPLATES), ("options.verify_matched", o.verify_matched, limits::MAX_VERIFY_TEMPLATES), ("options.spin_steps", o.spin_steps, limits::MAX_SPIN_STEPS)] {
             if value > max {
                 return Err(invalid(format!("{name} is {value}, over the limit of {max}")));
             }
@@ -382,6 +384,9 @@ mod tests {
         let mut v = estimate(1, 64, 48);
         v["options"] = serde_json::json!({"verify_templates": 65});
         assert_eq!(refusal(v), "options.verify_templates is 65, over the limit of 64");
+        let mut v = estimate(1, 64, 48);
+        v["options"] = serde_json::json!({"verify_matched": 65});
+        assert_eq!(refusal(v), "options.verify_matched is 65, over the limit of 64");
         let mut v = estimate(1, 64, 48);
         v["options"] = serde_json::json!({"spin_steps": 360});
         assert_eq!(refusal(v), "options.spin_steps is 360, over the limit of 72");

@@ -91,14 +91,16 @@ def test_options_reach_the_server(client: b2tfpose.Client, rgb_result: b2tfpose.
 
 def test_verification_hypotheses_follow_the_options(client: b2tfpose.Client, scene: Scene) -> None:
     det = [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)]
-    [r] = client.estimate(scene.rgb, scene.K, det, rrc=False, verify_templates=0, spin_steps=0)
+    [r] = client.estimate(scene.rgb, scene.K, det, rrc=False, verify_templates=0, spin_steps=0, verify_matched=0)
     assert {v["source"]["kind"] for v in r.diagnostics[0]["verified"]} == {"pipeline", "flip"}
-    [r] = client.estimate(scene.rgb, scene.K, det, rrc=False, verify_templates=2, spin_steps=12)
+    [r] = client.estimate(scene.rgb, scene.K, det, rrc=False, verify_templates=2, spin_steps=12, verify_matched=3)
     kinds = [v["source"]["kind"] for v in r.diagnostics[0]["verified"]]
     # 30° steps: 8 angles that are not quarter turns, about each of three axes.
-    assert 0 < kinds.count("template") <= 2 and 0 < kinds.count("spin") <= 24
+    assert 0 < kinds.count("template") <= 2 and 0 < kinds.count("spin") <= 24 and 0 < kinds.count("matched") <= 3
     with pytest.raises(b2tfpose.InvalidArgument, match="options.spin_steps"):
         client.estimate(scene.rgb, scene.K, det, spin_steps=1000)
+    with pytest.raises(b2tfpose.InvalidArgument, match="options.verify_matched"):
+        client.estimate(scene.rgb, scene.K, det, verify_matched=1000)
 
 
 def test_two_detections_one_instance_and_a_low_score_mask(client: b2tfpose.Client, scene: Scene) -> None:

@@ -108,6 +108,7 @@ def estimate_request(
     verify: Optional[bool],
     verify_templates: Optional[int] = None,
     spin_steps: Optional[int] = None,
+    verify_matched: Optional[int] = None,
     overlay: bool = False,
 ) -> pb.EstimateRequest:
     ids = objects_list(objects)
@@ -131,6 +132,8 @@ def estimate_request(
         options.verify_templates = verify_templates
     if spin_steps is not None:
         options.spin_steps = spin_steps
+    if verify_matched is not None:
+        options.verify_matched = verify_matched
     return pb.EstimateRequest(
         image=img,
         intrinsics=intrinsics_message(K, w, h),

@@ -227,6 +227,7 @@ class AsyncClient:
         verify: Optional[bool] = None,
         verify_templates: Optional[int] = None,
         spin_steps: Optional[int] = None,
+        verify_matched: Optional[int] = None,
         overlay: bool = False,
         max_detections: Optional[int] = None,
         min_score: Optional[float] = None,
@@ -238,7 +239,7 @@ class AsyncClient:
         """As :meth:`b2tfpose.Client.estimate`."""
         request = _requests.estimate_request(
             image, K, detections, objects=objects, detect=_requests.detect_options(max_detections, min_score, min_distance, max_distance), bgr=bgr, rrc=rrc,
-            refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify, verify_templates=verify_templates, spin_steps=spin_steps,
+            refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify, verify_templates=verify_templates, spin_steps=spin_steps, verify_matched=verify_matched,
             overlay=overlay,
         )
         return Estimates.from_pb(await self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
