@@ -28,6 +28,11 @@ pub struct VerifyArgs {
     /// term, 0–1 (default 0.5; 0 skips the backbone pass over the renders).
     #[arg(long, value_parser = share)]
     pub feature_share: Option<f64>,
+    /// No second look: where the winner's rendered print agrees with nothing in the photo,
+    /// verification renders every hypothesis and tries the axis flips of the one whose
+    /// print agrees best; this turns that off.
+    #[arg(long)]
+    pub no_second_look: bool,
     /// Hypotheses refined in full: the best this many by outline agreement where they
     /// start, and the pipeline's pose always (0: all).
     #[arg(long)]
@@ -42,7 +47,7 @@ fn share(s: &str) -> Result<f64, String> {
 impl VerifyArgs {
     pub fn config(&self) -> VerifyConfig {
         let d = VerifyConfig::default();
-        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), matched_templates: self.verify_matched.unwrap_or(d.matched_templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, feature_share: self.feature_share.unwrap_or(d.feature_share), refined: self.verify_refined.unwrap_or(d.refined), ..d }
+        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), matched_templates: self.verify_matched.unwrap_or(d.matched_templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, feature_share: self.feature_share.unwrap_or(d.feature_share), refined: self.verify_refined.unwrap_or(d.refined), second_look: !self.no_second_look, ..d }
     }
 }
 

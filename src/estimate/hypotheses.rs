@@ -23,6 +23,9 @@ pub enum Source {
     /// The template with the `i`-th most matches (0 = most), placed where its matches put
     /// it (`placement::matched_templates`).
     Matched(usize),
+    /// Axis variant `i` (1–9) of the rendered hypothesis whose print agreed best with the
+    /// photo's, where the winner's agreed with nothing (`pipeline::second_look`).
+    PrintFlip(usize),
     /// That pose turned `degrees` about the object's `axis` (0 = x, 1 = y, 2 = z) through its
     /// centre: the angles between the quarter turns of `Flip`.
     Spin { axis: usize, degrees: u32 },
@@ -36,6 +39,7 @@ impl std::fmt::Display for Source {
             Source::Flip(i) => write!(f, "flip-{i}"),
             Source::Template(i) => write!(f, "template-{i}"),
             Source::Matched(i) => write!(f, "matched-{i}"),
+            Source::PrintFlip(i) => write!(f, "print-flip-{i}"),
             Source::Spin { axis, degrees } => write!(f, "spin-{}-{degrees}", ['x', 'y', 'z'].get(*axis).copied().unwrap_or('?')),
         }
     }
@@ -48,9 +52,7 @@ impl std::fmt::Display for Source {
 pub fn candidates(model: &ObjectModel, pose: &Pose, retrieved: &[usize], templates: usize, spin_steps: usize, query_crop: &CropBox, k: &Intrinsics) -> Vec<(Source, Pose)> {
     let centre = Vector3::from(model.mesh.bbox_center());
     let mut out = vec![(Source::Pipeline, *pose)];
-    for (i, delta) in variant_rotations().iter().enumerate().skip(1) {
-        out.push((Source::Flip(i), variant_pose(pose, delta, &centre)));
-    }
+    out.extend(flips(model, pose).map(|(i, p)| (Source::Flip(i), p)));
     out.extend(spins(pose, &centre, spin_steps));
     for (i, &t) in retrieved.iter().take(templates).enumerate() {
         if let Some(p) = place_template(model, t, query_crop, k) {
@@ -58,6 +60,13 @@ pub fn candidates(model: &ObjectModel, pose: &Pose, retrieved: &[usize], templat
         }
     }
     out
+}
+
+/// The nine axis variants of `pose` (90°, 180° and 270° about each object axis through
+/// the object's centre), numbered 1–9 as `rrc::variant_rotations`.
+pub fn flips<'a>(model: &ObjectModel, pose: &'a Pose) -> impl Iterator<Item = (usize, Pose)> + 'a {
+    let centre = Vector3::from(model.mesh.bbox_center());
+    variant_rotations().into_iter().enumerate().skip(1).map(move |(i, delta)| (i, variant_pose(pose, &delta, &centre)))
 }
 
 /// `pose` turned about the object axes through `centre` by every multiple of a

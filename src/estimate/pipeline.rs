@@ -20,6 +20,8 @@ use image::{GrayImage, RgbImage};
 use std::sync::Arc;
 use std::time::Instant;
 
+mod second_look;
+
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct EstimateConfig {
     pub retrieval: RetrievalConfig,
@@ -269,9 +271,10 @@ impl Estimator {
     }
 
     /// Refines the pose, its axis flips and spins, the best templates placed at the mask
-    /// and those placed by their matches (`matched`), and verifies them: contour agreement for all, then a render (IoU, appearance) for the
-    /// best by contour and those the outline cannot tell from it (`verify::to_render`).
-    /// Best first.
+    /// and those placed by their matches (`matched`), and verifies them: contour agreement
+    /// for all, then a render (IoU, appearance) for the best by contour and those the
+    /// outline cannot tell from it (`verify::to_render`), then, where nothing the winner
+    /// shows agrees with the photo's print, a second look (`second_look`). Best first.
     fn verify(&self, ctx: &RefineContext<'_>, pose: Pose, retrieved: &[usize], matched: &[Pose], query: &QueryView, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
         let mut candidates = super::hypotheses::candidates(ctx.model, &pose, retrieved, cfg.verify.templates, cfg.verify.spin_steps, &query.crop_box, ctx.intrinsics);
         candidates.extend(matched.iter().enumerate().map(|(i, &p)| (super::hypotheses::Source::Matched(i), p)));
@@ -284,33 +287,55 @@ impl Estimator {
         if cfg.verify.refined > 0 && candidates.len() > cfg.verify.refined {
             candidates = self.most_agreeing(ctx, candidates, cfg.verify.refined);
         }
+        let mut verified = self.refine_hypotheses(ctx, &candidates, cfg);
+        verified.sort_by(|a, b| b.contour.total_cmp(&a.contour));
+        let window = mask_window(ctx.mask).expect("validated non-empty");
+        // The pipeline's own pose is always rendered: it must be beaten on the evidence.
+        let pipeline = verified.iter().position(|v| v.source == super::hypotheses::Source::Pipeline);
+        let rendered = super::verify::to_render(&verified, pipeline, &cfg.verify);
+        self.judge(ctx, &mut verified, &rendered, window, query, cfg)?;
+        verified.sort_by(|a, b| b.score.total_cmp(&a.score));
+        if cfg.verify.second_look {
+            self.second_look(ctx, &mut verified, window, query, cfg)?;
+        }
+        // Only the winner's render is reused (by selection); the others are dropped now.
+        for v in verified.iter_mut().skip(1) {
+            v.render = None;
+        }
+        Ok(verified)
+    }
+
+    /// Each candidate refined, with its contour agreement; those the refiner fails on are
+    /// left out. Not yet rendered or scored.
+    fn refine_hypotheses(&self, ctx: &RefineContext<'_>, candidates: &[(super::hypotheses::Source, Pose)], cfg: &EstimateConfig) -> Vec<Verified> {
         let refiner = self.refiner(cfg.refiner);
-        let mut verified: Vec<Verified> = candidates
+        candidates
             .par_iter()
             .filter_map(|&(source, p)| {
                 let r = refiner.refine(ctx, p).ok()?;
                 let contour = if cfg.refiner == RefinerKind::Contour { r.report.agreement } else { self.contour.agreement(ctx, &r.pose).ok()?.score };
                 Some(Verified { source, pose: r.pose, refinement: r.report, contour, iou: f64::NAN, appearance: f64::NAN, edges: f64::NAN, colour: f64::NAN, features: f64::NAN, score: f64::NAN, render: None })
             })
-            .collect();
-        verified.sort_by(|a, b| b.contour.total_cmp(&a.contour));
-        let window = mask_window(ctx.mask).expect("validated non-empty");
-        // The pipeline's own pose is always rendered: it must be beaten on the evidence.
-        let pipeline = verified.iter().position(|v| v.source == super::hypotheses::Source::Pipeline);
-        let rendered = super::verify::to_render(&verified, pipeline, &cfg.verify);
-        let poses: Vec<Pose> = rendered.iter().map(|&i| verified[i].pose).collect();
+            .collect()
+    }
+
+    /// Renders the hypotheses `which` over the mask's `window` and measures what the
+    /// renders say (IoU, edges, colour, and the backbone's features when they count), then
+    /// scores every hypothesis of `verified` (unrendered ones by their outline alone).
+    fn judge(&self, ctx: &RefineContext<'_>, verified: &mut [Verified], which: &[usize], window: (u32, u32, u32, u32), query: &QueryView, cfg: &EstimateConfig) -> Result<(), EstimateError> {
+        let poses: Vec<Pose> = which.iter().map(|&i| verified[i].pose).collect();
         let evidence = render_evidence(&self.renderer, &ctx.model.mesh, &poses, ctx.intrinsics, ctx.image, ctx.mask, window)?;
-        for (&i, e) in rendered.iter().zip(evidence) {
+        for (&i, e) in which.iter().zip(evidence) {
             verified[i].iou = e.iou;
             verified[i].appearance = super::verify::appearance(e.edges, e.colour, cfg.verify.colour_share);
             verified[i].edges = e.edges;
             verified[i].colour = e.colour;
             verified[i].render = Some(e.render);
         }
-        if cfg.verify.feature_share > 0.0 {
+        if cfg.verify.feature_share > 0.0 && !which.is_empty() {
             // The renders cropped exactly as the photo was, encoded in one batch.
             let (x0, y0) = (window.0 as f64, window.1 as f64);
-            let crops: Vec<crate::features::CropInput> = rendered
+            let crops: Vec<crate::features::CropInput> = which
                 .par_iter()
                 .map(|&i| {
                     let r = verified[i].render.as_ref().expect("rendered above");
@@ -318,21 +343,16 @@ impl Estimator {
                 })
                 .collect();
             let maps = self.backbone.extract(&crops)?;
-            for (&i, map) in rendered.iter().zip(&maps) {
+            for (&i, map) in which.iter().zip(&maps) {
                 let v = &mut verified[i];
                 v.features = super::verify::feature_agreement(&query.features, map, ctx.model.config.min_coverage);
                 v.appearance = super::verify::with_features(v.appearance, v.features, cfg.verify.feature_share);
             }
         }
-        for v in &mut verified {
+        for v in verified.iter_mut() {
             v.score = verification_score(v, &cfg.verify.weights);
         }
-        verified.sort_by(|a, b| b.score.total_cmp(&a.score));
-        // Only the winner's render is reused (by selection); the others are dropped now.
-        for v in verified.iter_mut().skip(1) {
-            v.render = None;
-        }
-        Ok(verified)
+        Ok(())
     }
 
     /// The `keep` candidates whose outline agrees best with the mask where they start, and

@@ -55,6 +55,10 @@ pub struct VerifyConfig {
     /// Hypotheses refined in full: the best this many by contour agreement where they
     /// start, and the pipeline's pose always; 0 refines all.
     pub refined: usize,
+    /// Where the mesh has colours and the winner's print (edges and colour) agrees with
+    /// nothing in the photo, render every hypothesis and verify the axis flips of the one
+    /// whose print agrees best (`pipeline::second_look`).
+    pub second_look: bool,
 }
 
 impl Default for VerifyConfig {
@@ -67,7 +71,7 @@ impl Default for VerifyConfig {
         // ones with the most matches, placed by their matches: right more often than the
         // retrieved ones placed at the mask, for the same time (docs/benchmarks.md,
         // "Templates placed by their matches").
-        Self { enabled: true, templates: 5, matched_templates: 5, spin_steps: 8, rendered: 3, contour_tie: 0.05, max_rendered: 12, weights: [0.4, 0.3, 0.3], colour_share: 0.5, skip_symmetric: false, feature_share: 0.5, refined: 0 }
+        Self { enabled: true, templates: 5, matched_templates: 5, spin_steps: 8, rendered: 3, contour_tie: 0.05, max_rendered: 12, weights: [0.4, 0.3, 0.3], colour_share: 0.5, skip_symmetric: false, feature_share: 0.5, refined: 0, second_look: true }
     }
 }
 

@@ -1,0 +1,85 @@
+//! Verification's second look: when the winner's print agrees with nothing in the photo.
+//!
+//! Verification renders only the hypotheses whose outline agrees best, because the outline
+//! is what the mask can judge. A textured object turned the wrong way round about an axis
+//! its outline does not show (a bottle seen from the back, or upside down) can still win
+//! on the outline; then its rendered print agrees with nothing in the photo, and the right
+//! pose may be among the hypotheses whose outline agreed less, or be an axis flip of one
+//! of them: one that shows the right face of the print but turned 180° about the line of
+//! sight, its outline off where the object's ends differ. So, only then, every hypothesis
+//! is rendered, and the axis flips of the one whose print agrees best are refined and
+//! verified too (docs/benchmarks.md, "A real photo").
+
+use super::{Estimator, EstimateConfig, EstimateError, QueryView, RefineContext, Verified};
+use crate::estimate::hypotheses::{flips, Source};
+use crate::estimate::verify::appearance;
+
+/// Print agreement (edges and colour; `verify::appearance`) below which a render confirms
+/// nothing. Right hypotheses on generated HOPE scenes agree at 0.48 or more in 95 % of
+/// cases and never below 0.1; wrong ones fall below 0.1 in 9–13 % of cases
+/// (`tools/hypothesis_sources.py`; docs/benchmarks.md, "A real photo").
+pub(super) const CONFIRMS: f64 = 0.1;
+
+/// The print agreement of a rendered hypothesis; `None` where it was not rendered or the
+/// mesh has no colours (untextured objects have little print to judge by).
+fn print(v: &Verified, colour_share: f64) -> Option<f64> {
+    (!v.iou.is_nan() && !v.colour.is_nan()).then(|| appearance(v.edges, v.colour, colour_share))
+}
+
+/// Whether `sorted`'s winner calls for a second look: rendered, on a mesh with colours,
+/// and its print below [`CONFIRMS`].
+pub(super) fn needed(sorted: &[Verified], colour_share: f64) -> bool {
+    sorted.first().and_then(|w| print(w, colour_share)).is_some_and(|p| p < CONFIRMS)
+}
+
+impl Estimator {
+    /// Takes the second look where [`needed`]: renders the hypotheses not rendered yet,
+    /// and if one's print confirms something ([`CONFIRMS`]) and agrees better than the
+    /// winner's, adds its nine axis flips, refined and rendered. `verified` is sorted best
+    /// first before and after.
+    pub(super) fn second_look(&self, ctx: &RefineContext<'_>, verified: &mut Vec<Verified>, window: (u32, u32, u32, u32), query: &QueryView, cfg: &EstimateConfig) -> Result<(), EstimateError> {
+        let share = cfg.verify.colour_share;
+        if !needed(verified, share) {
+            return Ok(());
+        }
+        let unrendered: Vec<usize> = (0..verified.len()).filter(|&i| verified[i].iou.is_nan()).collect();
+        self.judge(ctx, verified, &unrendered, window, query, cfg)?;
+        let winner = print(&verified[0], share).unwrap_or(0.0);
+        let best = (0..verified.len()).filter_map(|i| print(&verified[i], share).map(|p| (i, p))).max_by(|a, b| a.1.total_cmp(&b.1));
+        if let Some((i, p)) = best.filter(|&(_, p)| p >= CONFIRMS && p > winner) {
+            tracing::debug!(source = %verified[i].source, print = p, winner, "second look: the flips of the best print");
+            let candidates: Vec<(Source, _)> = flips(ctx.model, &verified[i].pose).map(|(k, pose)| (Source::PrintFlip(k), pose)).collect();
+            let mut more = self.refine_hypotheses(ctx, &candidates, cfg);
+            let all: Vec<usize> = (0..more.len()).collect();
+            self.judge(ctx, &mut more, &all, window, query, cfg)?;
+            verified.extend(more);
+        }
+        verified.sort_by(|a, b| b.score.total_cmp(&a.score));
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimate::refine::RefineReport;
+    use crate::geometry::Pose;
+
+    fn rendered(edges: f64, colour: f64) -> Verified {
+        let nan = f64::NAN;
+        Verified { source: Source::Pipeline, pose: Pose::identity(), refinement: RefineReport::default(), contour: 0.9, iou: 0.9, appearance: nan, edges, colour, features: nan, score: nan, render: None }
+    }
+
+    /// Only a rendered winner on a coloured mesh whose print agrees with nothing asks for
+    /// a second look.
+    #[test]
+    fn a_second_look_only_where_the_winner_confirms_nothing() {
+        assert!(needed(&[rendered(0.04, 0.0)], 0.5));
+        assert!(!needed(&[rendered(0.5, 0.6)], 0.5), "a print that agrees");
+        assert!(!needed(&[rendered(0.04, f64::NAN)], 0.5), "no colours: untextured");
+        let mut unrendered = rendered(0.0, 0.0);
+        unrendered.iou = f64::NAN;
+        assert!(!needed(&[unrendered], 0.5), "not rendered");
+        assert!(!needed(&[], 0.5));
+    }
+}
