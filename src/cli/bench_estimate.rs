@@ -43,12 +43,6 @@ pub struct BenchEstimateArgs {
     pub no_occlusion_model: bool,
     #[command(flatten)]
     pub verify: super::verify_args::VerifyArgs,
-    /// Hypotheses rendered in verification (best by contour agreement).
-    #[arg(long)]
-    pub verify_rendered: Option<usize>,
-    /// Most hypotheses rendered in verification (those the outline cannot tell apart).
-    #[arg(long)]
-    pub verify_max_rendered: Option<usize>,
     /// Share of colour agreement (the rest edge agreement) in verification's appearance term.
     #[arg(long)]
     pub colour_share: Option<f64>,
@@ -258,12 +252,6 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         base.retrieval.nms_degrees = d;
     }
     base.verify = a.verify.config();
-    if let Some(n) = a.verify_rendered {
-        base.verify.rendered = n;
-    }
-    if let Some(n) = a.verify_max_rendered {
-        base.verify.max_rendered = n;
-    }
     if let Some(c) = a.colour_share {
         base.verify.colour_share = c;
     }
@@ -380,7 +368,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         base.retrieval.silhouette_weight,
         base.pnp.reprojection_threshold_px,
         base.refiner.name(),
-        if base.verify.enabled { format!("{} templates, {} matched, {} rendered, weights {:?}", base.verify.templates, base.verify.matched_templates, base.verify.rendered, base.verify.weights) } else { "off".into() }
+        if base.verify.enabled { format!("{} templates, {} matched, {} rendered, weights {:?}, second look {}", base.verify.templates, base.verify.matched_templates, base.verify.rendered, base.verify.weights, if base.verify.second_look { "on" } else { "off" }) } else { "off".into() }
     );
     println!(
         "{} instances in {} generated images ({} objects/image, diameter {:.2}–{:.2} of the image height, {:.0}–{:.0} % occluded, seed {}){}; objects: {}",

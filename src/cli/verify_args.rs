@@ -28,6 +28,13 @@ pub struct VerifyArgs {
     /// term, 0–1 (default 0.5; 0 skips the backbone pass over the renders).
     #[arg(long, value_parser = share)]
     pub feature_share: Option<f64>,
+    /// Hypotheses rendered in verification, best by contour agreement first (default 3).
+    #[arg(long)]
+    pub verify_rendered: Option<usize>,
+    /// Most hypotheses rendered in verification, those the outline cannot tell apart
+    /// included (default 12).
+    #[arg(long)]
+    pub verify_max_rendered: Option<usize>,
     /// No second look: where the winner's rendered print agrees with nothing in the photo,
     /// verification renders every hypothesis and tries the axis flips of the one whose
     /// print agrees best; this turns that off.
@@ -47,7 +54,7 @@ fn share(s: &str) -> Result<f64, String> {
 impl VerifyArgs {
     pub fn config(&self) -> VerifyConfig {
         let d = VerifyConfig::default();
-        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), matched_templates: self.verify_matched.unwrap_or(d.matched_templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, feature_share: self.feature_share.unwrap_or(d.feature_share), refined: self.verify_refined.unwrap_or(d.refined), second_look: !self.no_second_look, ..d }
+        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), matched_templates: self.verify_matched.unwrap_or(d.matched_templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, feature_share: self.feature_share.unwrap_or(d.feature_share), refined: self.verify_refined.unwrap_or(d.refined), second_look: !self.no_second_look, rendered: self.verify_rendered.unwrap_or(d.rendered), max_rendered: self.verify_max_rendered.unwrap_or(d.max_rendered), ..d }
     }
 }
 

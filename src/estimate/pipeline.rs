@@ -324,7 +324,8 @@ impl Estimator {
     /// scores every hypothesis of `verified` (unrendered ones by their outline alone).
     fn judge(&self, ctx: &RefineContext<'_>, verified: &mut [Verified], which: &[usize], window: (u32, u32, u32, u32), query: &QueryView, cfg: &EstimateConfig) -> Result<(), EstimateError> {
         let poses: Vec<Pose> = which.iter().map(|&i| verified[i].pose).collect();
-        let evidence = render_evidence(&self.renderer, &ctx.model.mesh, &poses, ctx.intrinsics, ctx.image, ctx.mask, window)?;
+        // Nothing to render must not wait for a pooled renderer.
+        let evidence = if poses.is_empty() { vec![] } else { render_evidence(&self.renderer, &ctx.model.mesh, &poses, ctx.intrinsics, ctx.image, ctx.mask, window)? };
         for (&i, e) in which.iter().zip(evidence) {
             verified[i].iou = e.iou;
             verified[i].appearance = super::verify::appearance(e.edges, e.colour, cfg.verify.colour_share);
