@@ -47,9 +47,8 @@ pub struct Correspondences {
     /// Object points in metres.
     pub object_points: Vec<[f64; 3]>,
     pub similarities: Vec<f32>,
-    /// The pool patch of each pair, and the query patch (an index into `foreground`).
+    /// The pool patch of each pair.
     pub pool_index: Vec<usize>,
-    pub query_index: Vec<usize>,
 }
 
 impl Correspondences {
@@ -75,7 +74,6 @@ pub fn correspond(query: &QueryView, descriptors: &[f32], pool: &PatchPool, k_nn
         c.object_points.push([p[0] as f64, p[1] as f64, p[2] as f64]);
         c.similarities.push(m.similarity);
         c.pool_index.push(m.pool);
-        c.query_index.push(m.query);
     }
     c
 }

@@ -84,9 +84,8 @@ fn spins(pose: &Pose, centre: &Vector3<f64>, steps: usize) -> Vec<(Source, Pose)
     out
 }
 
-/// The pose that makes the query crop look like template `t`'s crop: the object centre
-/// where the template's crop has it, the depth from the ratio of the crop sizes, and the
-/// template's rotation turned so its optical axis becomes the ray through that centre.
+/// The pose that makes the query crop look like template `t`'s crop: [`place_in`] with
+/// the query crop's own mapping from crop to image.
 pub fn place_template(model: &ObjectModel, t: usize, query_crop: &CropBox, k: &Intrinsics) -> Option<Pose> {
     place_in(model, t, &|cu, cv| query_crop.to_image(cu, cv), query_crop.scale(), k)
 }
