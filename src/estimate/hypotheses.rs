@@ -6,7 +6,7 @@
 //! the evidence favours.
 
 use super::rrc::{variant_pose, variant_rotations};
-use crate::geometry::{CropBox, Intrinsics, Pose};
+use crate::geometry::{CropBox, Intrinsics, Pose, ScaleShift};
 use crate::onboard::ObjectModel;
 use nalgebra::{Rotation3, Vector3};
 
@@ -87,23 +87,23 @@ fn spins(pose: &Pose, centre: &Vector3<f64>, steps: usize) -> Vec<(Source, Pose)
 /// The pose that makes the query crop look like template `t`'s crop: [`place_in`] with
 /// the query crop's own mapping from crop to image.
 pub fn place_template(model: &ObjectModel, t: usize, query_crop: &CropBox, k: &Intrinsics) -> Option<Pose> {
-    place_in(model, t, &|cu, cv| query_crop.to_image(cu, cv), query_crop.scale(), k)
+    place_in(model, t, &query_crop.to_image_map(), k)
 }
 
-/// Template `t` placed so that its crop pixel (cu, cv) lands on image pixel
-/// `to_image(cu, cv)`, `scale` image pixels per crop pixel: the object centre where the
-/// template's crop has it, the depth from the ratio of the scales, and the template's
-/// rotation turned so its optical axis becomes the ray through that centre.
-pub fn place_in(model: &ObjectModel, t: usize, to_image: &dyn Fn(f64, f64) -> (f64, f64), scale: f64, k: &Intrinsics) -> Option<Pose> {
+/// Template `t` placed so that its crop pixels land on the image pixels `to_image` maps
+/// them to: the object centre where the template's crop has it, the depth from the ratio
+/// of the scales (image pixels per crop pixel), and the template's rotation turned so its
+/// optical axis becomes the ray through that centre.
+pub fn place_in(model: &ObjectModel, t: usize, to_image: &ScaleShift, k: &Intrinsics) -> Option<Pose> {
     let tp = &model.templates[t];
     let kt = &model.render_intrinsics;
     let centre = Vector3::from(model.mesh.bbox_center());
     let c_t = tp.pose.rotation * centre + tp.pose.translation;
     let uv_t = kt.project(&nalgebra::Point3::from(c_t))?;
     let (cu, cv) = tp.crop.to_crop(uv_t.x, uv_t.y);
-    let (u, v) = to_image(cu, cv);
+    let [u, v] = to_image.apply([cu, cv]);
     // Same size in pixels ⇒ same apparent size: z ∝ focal / pixels per crop pixel.
-    let z = c_t.z * (k.fx.max(k.fy) / kt.fx.max(kt.fy)) * (tp.crop.scale() / scale);
+    let z = c_t.z * (k.fx.max(k.fy) / kt.fx.max(kt.fy)) * (tp.crop.scale() / to_image.scale);
     if !(z.is_finite() && z > 0.0) {
         return None;
     }

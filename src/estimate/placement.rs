@@ -11,39 +11,25 @@
 
 use super::correspond::{Correspondences, PatchPool};
 use super::hypotheses::place_in;
-use crate::geometry::{Intrinsics, Pose};
+use crate::geometry::{Intrinsics, Pose, ScaleShift};
 use crate::onboard::ObjectModel;
 
-/// A scale and a shift in the plane: `p ↦ s·p + t`. No rotation: the templates hold the
-/// in-plane rotations already.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct ScaleShift {
-    pub scale: f64,
-    pub shift: [f64; 2],
-}
-
-impl ScaleShift {
-    pub fn apply(&self, p: [f64; 2]) -> [f64; 2] {
-        [self.scale * p[0] + self.shift[0], self.scale * p[1] + self.shift[1]]
+/// The least-squares fit of `to ≈ s·from + t` over the pairs `idx`; `None` when the
+/// `from` points coincide. No rotation: the templates hold the in-plane rotations already.
+fn least_squares(from: &[[f64; 2]], to: &[[f64; 2]], idx: &[usize]) -> Option<ScaleShift> {
+    let n = idx.len() as f64;
+    let mean = |pts: &[[f64; 2]]| idx.iter().fold([0.0; 2], |m, &i| [m[0] + pts[i][0] / n, m[1] + pts[i][1] / n]);
+    let (mf, mt) = (mean(from), mean(to));
+    let (mut num, mut den) = (0.0, 0.0);
+    for &i in idx {
+        let (dx, dy) = ([from[i][0] - mf[0], from[i][1] - mf[1]], [to[i][0] - mt[0], to[i][1] - mt[1]]);
+        num += dx[0] * dy[0] + dx[1] * dy[1];
+        den += dx[0] * dx[0] + dx[1] * dx[1];
     }
-
-    /// The least-squares fit of `to ≈ s·from + t` over the pairs `idx`; `None` when the
-    /// `from` points coincide.
-    fn least_squares(from: &[[f64; 2]], to: &[[f64; 2]], idx: &[usize]) -> Option<Self> {
-        let n = idx.len() as f64;
-        let mean = |pts: &[[f64; 2]]| idx.iter().fold([0.0; 2], |m, &i| [m[0] + pts[i][0] / n, m[1] + pts[i][1] / n]);
-        let (mf, mt) = (mean(from), mean(to));
-        let (mut num, mut den) = (0.0, 0.0);
-        for &i in idx {
-            let (dx, dy) = ([from[i][0] - mf[0], from[i][1] - mf[1]], [to[i][0] - mt[0], to[i][1] - mt[1]]);
-            num += dx[0] * dy[0] + dx[1] * dy[1];
-            den += dx[0] * dx[0] + dx[1] * dx[1];
-        }
-        (den > 1e-12).then(|| {
-            let scale = num / den;
-            Self { scale, shift: [mt[0] - scale * mf[0], mt[1] - scale * mf[1]] }
-        })
-    }
+    (den > 1e-12).then(|| {
+        let scale = num / den;
+        ScaleShift { scale, shift: [mt[0] - scale * mf[0], mt[1] - scale * mf[1]] }
+    })
 }
 
 /// Robust fit of `to ≈ s·from + t`: every pair of pairs (at most `MAX_TRIALS`, spread
@@ -72,7 +58,7 @@ pub fn fit_scale_shift(from: &[[f64; 2]], to: &[[f64; 2]], tolerance: f64, scale
             if !(k - 1).is_multiple_of(stride) {
                 continue;
             }
-            let Some(f) = ScaleShift::least_squares(from, to, &[a, b]) else { continue };
+            let Some(f) = least_squares(from, to, &[a, b]) else { continue };
             if !(scales.0..=scales.1).contains(&f.scale) {
                 continue;
             }
@@ -83,7 +69,7 @@ pub fn fit_scale_shift(from: &[[f64; 2]], to: &[[f64; 2]], tolerance: f64, scale
         }
     }
     let (_, inl) = best?;
-    let refit = ScaleShift::least_squares(from, to, &inl)?;
+    let refit = least_squares(from, to, &inl)?;
     let inl = inliers_of(&refit);
     (inl.len() >= 3 && (scales.0..=scales.1).contains(&refit.scale)).then_some((refit, inl))
 }
@@ -123,7 +109,7 @@ pub fn matched_templates(model: &ObjectModel, corr: &Correspondences, pool: &Pat
         .iter()
         .filter_map(|(t, m)| {
             let (fit, _) = fit_scale_shift(&m.crop, &m.image, tolerance, scales)?;
-            place_in(model, *t as usize, &|cu, cv| { let p = fit.apply([cu, cv]); (p[0], p[1]) }, fit.scale, k)
+            place_in(model, *t as usize, &fit, k)
         })
         .take(count)
         .collect()

@@ -36,6 +36,13 @@ impl CropBox {
         self.side / self.size as f64
     }
 
+    /// [`to_image`](Self::to_image) as a scale and a shift, for code that maps crops to
+    /// images in other ways too (`estimate::placement` fits such maps to matches).
+    pub fn to_image_map(&self) -> ScaleShift {
+        let s = self.scale();
+        ScaleShift { scale: s, shift: [self.origin_u + 0.5 * s, self.origin_v + 0.5 * s] }
+    }
+
     /// Crop pixel coordinates → image pixel coordinates (both centre-at-integer).
     pub fn to_image(&self, cu: f64, cv: f64) -> (f64, f64) {
         let s = self.scale();
@@ -60,6 +67,20 @@ impl CropBox {
     pub fn to_crop(&self, u: f64, v: f64) -> (f64, f64) {
         let s = self.scale();
         ((u - self.origin_u) / s - 0.5, (v - self.origin_v) / s - 0.5)
+    }
+}
+
+/// A scale and a shift in the plane, `p ↦ scale·p + shift`: a map from crop pixels to
+/// image pixels without rotation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScaleShift {
+    pub scale: f64,
+    pub shift: [f64; 2],
+}
+
+impl ScaleShift {
+    pub fn apply(&self, p: [f64; 2]) -> [f64; 2] {
+        [self.scale * p[0] + self.shift[0], self.scale * p[1] + self.shift[1]]
     }
 }
 
@@ -121,6 +142,9 @@ mod tests {
             let (u, v) = b.to_image(cu, cv);
             let (a, c) = b.to_crop(u, v);
             assert!((a - cu).abs() < 1e-9 && (c - cv).abs() < 1e-9);
+            // The same map as a scale and a shift.
+            let [mu, mv] = b.to_image_map().apply([cu, cv]);
+            assert!((mu - u).abs() < 1e-9 && (mv - v).abs() < 1e-9, "{mu} {mv} against {u} {v}");
         }
         // The box centre maps to the crop centre.
         let (cu, cv) = b.to_crop(41.5, 30.0);

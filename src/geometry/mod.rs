@@ -9,6 +9,6 @@ pub mod symmetry;
 pub mod views;
 
 pub use camera::{Intrinsics, IntrinsicsError};
-pub use crop::{CropBox, PatchGrid};
+pub use crop::{CropBox, PatchGrid, ScaleShift};
 pub use pose::{geodesic_distance, Pose};
 pub use views::{icosphere, view_pose, ViewSampling};

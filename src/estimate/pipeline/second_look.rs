@@ -18,7 +18,7 @@ use crate::estimate::verify::appearance;
 /// nothing. Right hypotheses on generated HOPE scenes agree at 0.48 or more in 95 % of
 /// cases and never below 0.1; wrong ones fall below 0.1 in 9–13 % of cases
 /// (`tools/hypothesis_sources.py`; docs/benchmarks.md, "A real photo").
-pub(super) const CONFIRMS: f64 = 0.1;
+const CONFIRMS: f64 = 0.1;
 
 /// The print agreement of a rendered hypothesis; `None` where it was not rendered or the
 /// mesh has no colours (untextured objects have little print to judge by).
@@ -28,7 +28,7 @@ fn print(v: &Verified, colour_share: f64) -> Option<f64> {
 
 /// Whether `sorted`'s winner calls for a second look: rendered, on a mesh with colours,
 /// and its print below [`CONFIRMS`].
-pub(super) fn needed(sorted: &[Verified], colour_share: f64) -> bool {
+fn needed(sorted: &[Verified], colour_share: f64) -> bool {
     sorted.first().and_then(|w| print(w, colour_share)).is_some_and(|p| p < CONFIRMS)
 }
 
