@@ -51,6 +51,12 @@ fn sample_render_and_onboard() {
     let (ok, out, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--store", &dir_store, "--level", "0", "--in-plane", "2", "--replace", "--descriptors", "i8"]);
     assert!(ok && out.contains("int8 with a scale each"), "{out}{err}");
     assert!(std::fs::metadata(d.join("models/box/tensors.safetensors")).unwrap().len() < f16_bytes);
+    let i8_bytes = std::fs::metadata(d.join("models/box/tensors.safetensors")).unwrap().len();
+    let (ok, out, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--store", &dir_store, "--level", "0", "--in-plane", "2", "--replace", "--descriptors", "i8", "--patch-rows", "per-view"]);
+    assert!(ok && out.contains("patch rows: per view, shared by its 2 in-plane turns"), "{out}{err}");
+    assert!(std::fs::metadata(d.join("models/box/tensors.safetensors")).unwrap().len() < i8_bytes);
+    let (ok, _, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box2", "--store", &dir_store, "--patch-rows", "per-face"]);
+    assert!(!ok && err.contains("'per-face'") && err.contains("per-view"), "{err}");
     let (ok, _, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box2", "--store", &dir_store, "--descriptors", "zip"]);
     assert!(!ok && err.contains("'zip'") && err.contains("f16"), "{err}");
     // Copied into another store as it is (moving to a bucket works the same way).

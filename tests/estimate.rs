@@ -191,6 +191,38 @@ fn pca_compressed_model_stores_smaller_and_still_finds_the_pose() {
     assert!(correct >= 3, "{correct} of 4 scenes within MSSD 0.1·d with 24 PCA components");
 }
 
+/// Patch rows per view: the model keeps a twelfth of its rows, survives a memory-mapped
+/// store round trip as such, and the turned queries find the pose as the full model does
+/// (without RRC and verification, which re-match against fresh renders or try other
+/// templates, and would hide matches gone wrong).
+#[test]
+fn rows_per_view_model_stores_smaller_and_still_finds_the_pose() {
+    let f = fixture();
+    let mut shared = f.model.clone();
+    b2tfpose::onboard::share_rows_per_view(&mut shared).unwrap();
+    let unturned: u32 = f.model.templates.iter().filter(|t| t.in_plane == 0).map(|t| t.patch_count).sum();
+    assert_eq!(shared.patch_count(), unturned as usize);
+    assert!(shared.patch_count() * 10 < f.model.patch_count(), "kept {} rows of {}", shared.patch_count(), f.model.patch_count());
+    let dir = tempfile::tempdir().unwrap();
+    let store = b2tfpose::store::open(&format!("dir://{}", dir.path().display())).unwrap();
+    store.put(&shared, false).unwrap();
+    let back = store.get("box").unwrap();
+    assert!(back.rows_per_view() && back.patch_count() == shared.patch_count());
+    let cfg = EstimateConfig { rrc: false, verify: b2tfpose::estimate::VerifyConfig { enabled: false, ..Default::default() }, ..Default::default() };
+    let mut correct = 0;
+    for seed in [1u64, 2, 3, 4] {
+        let s = scene(seed);
+        let inst = &s.instances[0];
+        let det = [Detection { mask: inst.mask_visib.clone(), score: 0.9 }];
+        let r = f.estimator.estimate(&back, &s.rgb, &s.cam, &det, &cfg).unwrap();
+        assert!(r.hypotheses[0].inliers > 0, "{:?}", r.hypotheses[0]);
+        if r.pose.is_some_and(|p| mssd(&p, &inst.pose, back.mesh.positions()) < 0.1 * back.diameter()) {
+            correct += 1;
+        }
+    }
+    assert!(correct >= 3, "{correct} of 4 scenes within MSSD 0.1·d with rows per view");
+}
+
 /// With the feature-metric term on, every rendered hypothesis gets a feature agreement in
 /// [0, 1] (the render and the photo encoded on the query's crop), unrendered ones none, and
 /// the right pose scores higher on it than every wrong rendered one where both were tried.

@@ -121,6 +121,10 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     bad["options"]["descriptors"] = json!("int4");
     let (s, v) = call(&c, "POST", &format!("{base}/v1/objects"), Some(&bad));
     assert!(s == 400 && v.to_string().contains("int4"), "{s} {v}");
+    let mut bad = onboard.clone();
+    bad["options"]["patch_rows"] = json!("per-face");
+    let (s, v) = call(&c, "POST", &format!("{base}/v1/objects"), Some(&bad));
+    assert!(s == 400 && v.to_string().contains("per-face"), "{s} {v}");
 
     // The same files as multipart/form-data, as they are (12 templates: quick).
     let part = |(name, bytes): &(String, Vec<u8>)| reqwest::blocking::multipart::Part::bytes(bytes.clone()).file_name(name.clone());
@@ -158,6 +162,7 @@ fn onboard_estimate_and_bad_inputs_over_http() {
         (reqwest::blocking::multipart::Form::new().text("object_id", "x").text("level", "two").part("mesh", part(&files[0])), "level"),
         (reqwest::blocking::multipart::Form::new().text("object_id", "x").text("pca", "half").part("mesh", part(&files[0])), "pca: PCA setting"),
         (reqwest::blocking::multipart::Form::new().text("object_id", "x").text("descriptors", "pq3").part("mesh", part(&files[0])), "descriptors: unknown descriptor coding"),
+        (reqwest::blocking::multipart::Form::new().text("object_id", "x").text("patch_rows", "per-face").part("mesh", part(&files[0])), "patch_rows: unknown patch rows"),
     ] {
         let r = c.post(format!("{base}/v1/objects")).multipart(form).send().unwrap();
         let (s, v) = (r.status().as_u16(), r.text().unwrap());

@@ -59,6 +59,9 @@ pub struct BenchEstimateArgs {
     /// default), pq4 or pq2 (product-quantised in memory, as onboarding would).
     #[arg(long, value_enum, default_value = "f16")]
     pub descriptors: crate::onboard::DescriptorCoding,
+    /// Which templates hold patch rows, as `b2tf onboard --patch-rows` (applied in memory).
+    #[arg(long, value_enum, default_value = "per-template")]
+    pub patch_rows: crate::onboard::PatchRows,
     /// Write one CSV row per instance and setting (errors, apparent size) into this file.
     #[arg(long)]
     pub per_instance: Option<PathBuf>,
@@ -213,6 +216,9 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     let meshes = a.scenes.load_meshes()?;
     let mut models = bench_models(&meshes, a.gap, &a.scenes.store, backbone.as_ref(), &pool)?;
     for model in &mut models {
+        if a.patch_rows == crate::onboard::PatchRows::PerView {
+            crate::onboard::share_rows_per_view(model).map_err(anyhow::Error::msg)?;
+        }
         crate::onboard::apply_pca(model, a.pca)?;
         let (t, before) = (std::time::Instant::now(), model.patch_descriptors.memory_bytes());
         crate::onboard::apply_coding(model, a.descriptors)?;

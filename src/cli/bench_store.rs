@@ -25,6 +25,10 @@ pub struct BenchStoreArgs {
     /// Descriptor codings to compare with f16 (`b2tf onboard --descriptors`).
     #[arg(long, value_delimiter = ',', value_enum, default_value = "pq4,pq2")]
     pub descriptors: Vec<crate::onboard::DescriptorCoding>,
+    /// Also store f16 and each coding with patch rows per view (`b2tf onboard --patch-rows
+    /// per-view`).
+    #[arg(long)]
+    pub per_view: bool,
     /// Store that caches the onboarded model between runs.
     #[arg(long, default_value = "dir://out/bench-models")]
     pub cache_store: String,
@@ -76,12 +80,22 @@ pub fn run(a: BenchStoreArgs) -> Result<()> {
         compress_s.push((d, t.elapsed().as_secs_f64()));
         variants.push((format!("PCA {d} (f16)"), m));
     }
-    for &coding in &a.descriptors {
+    let per_view = if a.per_view {
         let mut m = full.clone();
-        let t = Instant::now();
-        crate::onboard::apply_coding(&mut m, coding)?;
-        println!("{coding}: learnt and encoded in {:.2} s", t.elapsed().as_secs_f64());
-        variants.push((format!("{} dims ({coding})", full.local_dim), m));
+        crate::onboard::share_rows_per_view(&mut m).map_err(anyhow::Error::msg)?;
+        variants.push((format!("{} dims (f16), rows per view", full.local_dim), m.clone()));
+        Some(m)
+    } else {
+        None
+    };
+    for &coding in &a.descriptors {
+        for (base, rows) in std::iter::once((&full, "")).chain(per_view.as_ref().map(|m| (m, ", rows per view"))) {
+            let mut m = base.clone();
+            let t = Instant::now();
+            crate::onboard::apply_coding(&mut m, coding)?;
+            println!("{coding}{rows}: learnt and encoded in {:.2} s", t.elapsed().as_secs_f64());
+            variants.push((format!("{} dims ({coding}){rows}", full.local_dim), m));
+        }
     }
     let tmp = std::env::temp_dir().join(format!("b2tf-bench-store-{}", std::process::id()));
     let result = (|| -> Result<()> {

@@ -37,6 +37,11 @@ pub struct OnboardArgs {
     /// (a quarter); the quantised ones cost accuracy (docs/store.md).
     #[arg(long, value_enum, default_value = "f16")]
     pub descriptors: crate::onboard::DescriptorCoding,
+    /// Which templates keep patch rows: `per-template`, or `per-view` (each view's
+    /// in-plane turns share its unturned template's rows, about a twelfth of the bytes at 12
+    /// turns; estimation then encodes the query once per turn it needs: docs/store.md).
+    #[arg(long, value_enum, default_value = "per-template")]
+    pub patch_rows: crate::onboard::PatchRows,
     /// Replace an existing object with the same id.
     #[arg(long)]
     pub replace: bool,
@@ -56,7 +61,7 @@ pub fn run(a: OnboardArgs) -> Result<()> {
     let mesh = load_mesh(&a.mesh, a.units)?;
     let load_s = t0.elapsed().as_secs_f64();
     let given = a.symmetries.as_deref().map(|s| symmetries_from_models_info(s, mesh.source_units())).transpose()?;
-    let config = OnboardConfig { views: ViewSampling { level: a.level, in_plane_steps: a.in_plane }, pca: a.pca, descriptors: a.descriptors, ..Default::default() };
+    let config = OnboardConfig { views: ViewSampling { level: a.level, in_plane_steps: a.in_plane }, pca: a.pca, descriptors: a.descriptors, patch_rows: a.patch_rows, ..Default::default() };
     config.views.validate().map_err(anyhow::Error::msg)?;
     crate::onboard::validate_object_id(&a.id)?;
     let store = crate::store::open(&a.store.clone().unwrap_or_else(crate::store::default_url))?;
@@ -98,6 +103,9 @@ pub fn run(a: OnboardArgs) -> Result<()> {
     match &model.pca {
         Some(p) => println!("patch descriptors: {} PCA components of {} (--pca {}), {stored}", p.output_dim, p.input_dim, a.pca),
         None => println!("patch descriptors: all {} dimensions (--pca {}), {stored}", model.local_dim, a.pca),
+    }
+    if model.rows_per_view() {
+        println!("patch rows: per view, shared by its {} in-plane turns", model.config.views.in_plane_steps);
     }
     println!("mesh load {load_s:.2} s, onboarding {onboard_s:.1} s, storing {store_s:.2} s; {:.1} MB in {}", info.bytes as f64 / 1e6, store.url());
     Ok(())

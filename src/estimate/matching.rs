@@ -22,10 +22,73 @@ const STRIP: usize = 512;
 /// pairs (i, j) where j is among the `k_nn` most similar pool rows of query i and i is the
 /// most similar query row of pool j.
 pub fn mutual_matches(query: &[f32], pool: &[f32], dim: usize, k_nn: usize) -> Vec<Match> {
+    let Some(Ranked { top, best_query }) = rank(query, pool, dim, k_nn) else { return vec![] };
+    let mut out = Vec::new();
+    for (i, t) in top.iter().enumerate() {
+        for &(j, s) in t {
+            // Orthogonal or opposite descriptors share nothing: never a match.
+            if best_query[j].0 == i && s > 0.0 {
+                out.push(Match { query: i, pool: j, similarity: s });
+            }
+        }
+    }
+    out
+}
+
+/// One part of a grouped match: query rows, the pool rows they may match, and for each
+/// query row the patch it stands for (rows of different groups may stand for one patch).
+pub struct MatchGroup<'a> {
+    pub query: &'a [f32],
+    pub patches: &'a [usize],
+    pub pool: &'a [f32],
+}
+
+/// `mutual_matches` where the query is seen several ways (the photo turned for each turn of
+/// the templates, `estimate::turned`), each way against its own pool: a query row's pool
+/// neighbours and a pool row's best query come from its own group, but the `k_nn` nearest
+/// are counted per *patch* across the groups, so a patch keeps its best matches over all
+/// the turns as one pool of all templates would. Returns (group, match within the group).
+pub fn grouped_mutual_matches(groups: &[MatchGroup<'_>], dim: usize, k_nn: usize) -> Vec<(usize, Match)> {
+    let ranked: Vec<Option<Ranked>> = groups.iter().map(|g| rank(g.query, g.pool, dim, k_nn)).collect();
+    // Per patch: its best k (group, query row, pool row, similarity) over every group.
+    let mut per_patch: std::collections::BTreeMap<usize, Vec<(usize, usize, usize, f32)>> = Default::default();
+    for (g, r) in ranked.iter().enumerate() {
+        let Some(r) = r else { continue };
+        for (i, t) in r.top.iter().enumerate() {
+            let best = per_patch.entry(groups[g].patches[i]).or_default();
+            for &(j, s) in t {
+                if best.len() < k_nn || s > best[best.len() - 1].3 {
+                    let pos = best.partition_point(|&(.., v)| v >= s);
+                    best.insert(pos, (g, i, j, s));
+                    best.truncate(k_nn);
+                }
+            }
+        }
+    }
+    let mut out = Vec::new();
+    for best in per_patch.values() {
+        for &(g, i, j, s) in best {
+            let r = ranked[g].as_ref().expect("ranked above");
+            if r.best_query[j].0 == i && s > 0.0 {
+                out.push((g, Match { query: i, pool: j, similarity: s }));
+            }
+        }
+    }
+    out
+}
+
+/// Each query row's `k_nn` most similar pool rows (best first) and each pool row's most
+/// similar query row; `None` when either side is empty.
+struct Ranked {
+    top: Vec<Vec<(usize, f32)>>,
+    best_query: Vec<(usize, f32)>,
+}
+
+fn rank(query: &[f32], pool: &[f32], dim: usize, k_nn: usize) -> Option<Ranked> {
     let q = query.len() / dim.max(1);
     let p = pool.len() / dim.max(1);
     if q == 0 || p == 0 || dim == 0 || k_nn == 0 {
-        return vec![];
+        return None;
     }
     // Per query: its best k (pool index, similarity), sorted descending.
     let mut top: Vec<Vec<(usize, f32)>> = vec![Vec::with_capacity(k_nn + 1); q];
@@ -61,16 +124,7 @@ pub fn mutual_matches(query: &[f32], pool: &[f32], dim: usize, k_nn: usize) -> V
             }
         });
     }
-    let mut out = Vec::new();
-    for (i, t) in top.iter().enumerate() {
-        for &(j, s) in t {
-            // Orthogonal or opposite descriptors share nothing: never a match.
-            if best_query[j].0 == i && s > 0.0 {
-                out.push(Match { query: i, pool: j, similarity: s });
-            }
-        }
-    }
-    out
+    Some(Ranked { top, best_query })
 }
 
 #[cfg(test)]
@@ -95,5 +149,32 @@ mod tests {
         // With k = 3, query 2's list holds pool 1 too, still not mutual.
         assert_eq!(mutual_matches(&query, &pool, 3, 3).len(), 2);
         assert!(mutual_matches(&[], &pool, 3, 3).is_empty());
+    }
+
+    /// One group whose rows stand for themselves is `mutual_matches`; across groups, a
+    /// patch's nearest pool rows are counted over all its rows, so a better match in one
+    /// group pushes out a worse one in another.
+    #[test]
+    fn grouped_matches_compete_per_patch_across_groups() {
+        let query = normalized(&[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.9, 0.1, 0.0]]);
+        let pool = normalized(&[[0.0, 1.0, 0.05], [1.0, 0.02, 0.0], [0.0, 0.0, 1.0]]);
+        let one = [MatchGroup { query: &query, patches: &[0, 1, 2], pool: &pool }];
+        let grouped: Vec<Match> = grouped_mutual_matches(&one, 3, 2).into_iter().map(|(g, m)| {
+            assert_eq!(g, 0);
+            m
+        }).collect();
+        assert_eq!(grouped, mutual_matches(&query, &pool, 3, 2));
+
+        // Patch 0 seen two ways: at 0.9 to group 0's pool, exactly to group 1's.
+        let (q0, p0) = (normalized(&[[1.0, 0.0, 0.0]]), normalized(&[[0.9, 0.44, 0.0]]));
+        let (q1, p1) = (normalized(&[[0.0, 0.0, 1.0]]), normalized(&[[0.0, 0.0, 1.0]]));
+        let both = [MatchGroup { query: &q0, patches: &[0], pool: &p0 }, MatchGroup { query: &q1, patches: &[0], pool: &p1 }];
+        let m = grouped_mutual_matches(&both, 3, 1);
+        assert_eq!(m.len(), 1);
+        assert_eq!((m[0].0, m[0].1.query, m[0].1.pool), (1, 0, 0));
+        assert_eq!(grouped_mutual_matches(&both, 3, 2).len(), 2, "with two neighbours each keeps its own");
+        // Different patches do not compete.
+        let apart = [MatchGroup { query: &q0, patches: &[0], pool: &p0 }, MatchGroup { query: &q1, patches: &[1], pool: &p1 }];
+        assert_eq!(grouped_mutual_matches(&apart, 3, 1).len(), 2);
     }
 }

@@ -14,6 +14,7 @@ pub mod retrieve;
 pub mod rrc;
 pub mod select;
 pub mod silhouette_refiner;
+pub mod turned;
 pub mod verify;
 
 pub use pipeline::{Detection, EstimateConfig, EstimateResult, Estimator, Hypothesis, StageTimings};

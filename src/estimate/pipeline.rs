@@ -237,7 +237,7 @@ impl Estimator {
         for (q, &mi) in queries.iter().zip(&chosen) {
             let _mask_span = tracing::info_span!("mask", index = mi).entered();
             let mut h = Hypothesis { mask_index: mi, detector_score: detections[mi].score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() };
-            let (retrieved, matched) = self.pose_for_mask(model, q, k, cfg, &mut h, &mut timings)?;
+            let (retrieved, matched) = self.pose_for_mask(model, q, (image, &detections[mi].mask), k, cfg, &mut h, &mut timings)?;
             if let Some(p) = h.pose {
                 let ctx = RefineContext { model, image, intrinsics: k, mask: &detections[mi].mask, unknown: others, mask_is_probability: false };
                 let t = Instant::now();
@@ -366,7 +366,10 @@ impl Estimator {
 
     /// Steps 5–8 for one mask: retrieval, matching, PnP, RRC. Returns the retrieved
     /// templates, best first, and the templates placed by their matches (for verification).
-    fn pose_for_mask(&self, model: &ObjectModel, q: &QueryView, k: &Intrinsics, cfg: &EstimateConfig, h: &mut Hypothesis, timings: &mut StageTimings) -> Result<(Vec<usize>, Vec<Pose>), EstimateError> {
+    /// `photo` is the image and the mask `q` was cropped from (turned again where the object
+    /// shares its patch rows per view).
+    #[allow(clippy::too_many_arguments)]
+    fn pose_for_mask(&self, model: &ObjectModel, q: &QueryView, photo: (&RgbImage, &GrayImage), k: &Intrinsics, cfg: &EstimateConfig, h: &mut Hypothesis, timings: &mut StageTimings) -> Result<(Vec<usize>, Vec<Pose>), EstimateError> {
         let t = Instant::now();
         let span = tracing::info_span!("retrieval").entered();
         let retrieved = retrieve(model, &q.features.global, &q.silhouette, &cfg.retrieval);
@@ -375,14 +378,23 @@ impl Estimator {
             h.top_template_cosine = top.cosine;
             h.top_template_silhouette_iou = top.silhouette_iou;
         }
-        let pool = PatchPool::from_templates(model, retrieved.iter().map(|r| r.template));
         let ranked: Vec<usize> = retrieved.iter().map(|r| r.template).collect();
         drop(span);
         timings.retrieval += ms(t);
 
         let t = Instant::now();
-        // Templates may hold PCA-compressed descriptors; the query goes into their space.
-        let corr = tracing::info_span!("matching").in_scope(|| correspond(q, &model.to_stored_space(&q.descriptors), &pool, cfg.k_nn));
+        let (pool, corr) = if model.rows_per_view() {
+            let m = tracing::info_span!("matching", turned = true).in_scope(|| super::turned::match_turned(model, self.backbone.as_ref(), photo.0, photo.1, q, &ranked, cfg.k_nn))?;
+            // Encoding the turned queries is feature work, not matching.
+            timings.features += m.encode_ms;
+            timings.matching -= m.encode_ms;
+            (m.pool, m.correspondences)
+        } else {
+            let pool = PatchPool::from_templates(model, ranked.iter().copied());
+            // Templates may hold PCA-compressed descriptors; the query goes into their space.
+            let corr = tracing::info_span!("matching").in_scope(|| correspond(q, &model.to_stored_space(&q.descriptors), &pool, cfg.k_nn));
+            (pool, corr)
+        };
         h.matches = corr.len();
         let matched = if cfg.verify.enabled { super::placement::matched_templates(model, &corr, &pool, q.crop_box.scale(), k, cfg.verify.matched_templates) } else { vec![] };
         timings.matching += ms(t);

@@ -92,7 +92,7 @@ pub fn matched_templates(model: &ObjectModel, corr: &Correspondences, pool: &Pat
     let mut by_template: std::collections::BTreeMap<u32, TemplateMatches> = Default::default();
     for (m, &j) in corr.pool_index.iter().enumerate() {
         let (t, cell) = pool.origins[j];
-        let (cu, cv) = model.grid.centre_of(cell as usize);
+        let (cu, cv) = model.patch_centre_in_template(t as usize, cell);
         let e = by_template.entry(t).or_default();
         e.crop.push([cu, cv]);
         e.image.push(corr.image_points[m]);

@@ -15,13 +15,20 @@ pub struct QueryView {
     pub descriptors: Vec<f32>,
     /// 64×64 crop silhouette, bit-packed like the templates'.
     pub silhouette: Vec<u64>,
+    /// For a query turned to meet shared patch rows (`estimate::turned`), the map from its
+    /// crop's image coordinates back to the photo's; `None` for the photo as it is.
+    pub turn: Option<crate::geometry::Turn>,
 }
 
 impl QueryView {
     /// Image-pixel centre of foreground patch number `i` (an index into `foreground`).
     pub fn patch_centre(&self, i: usize) -> (f64, f64) {
         let (cu, cv) = self.features.grid.centre_of(self.foreground[i]);
-        self.crop_box.to_image(cu, cv)
+        let (u, v) = self.crop_box.to_image(cu, cv);
+        match &self.turn {
+            Some(t) => t.apply(u, v),
+            None => (u, v),
+        }
     }
 }
 
@@ -41,7 +48,7 @@ pub fn encode(backbone: &dyn Backbone, crops: Vec<(CropInput, CropBox)>, min_cov
         .map(|(features, (crop_box, silhouette))| {
             let foreground = features.foreground(min_coverage);
             let descriptors = foreground.iter().flat_map(|&p| features.descriptor(p).iter().copied()).collect();
-            QueryView { crop_box, features, foreground, descriptors, silhouette }
+            QueryView { crop_box, features, foreground, descriptors, silhouette, turn: None }
         })
         .collect())
 }

@@ -18,8 +18,9 @@ use std::sync::{Arc, OnceLock};
 /// patch descriptors (`patch_codes` and `pq_centroids` in place of `patch_descriptors`;
 /// older models keep their f16 ones). 7: patch points as 16-bit grid steps
 /// (`patch_point_steps` and `patch_point_grid` in place of `patch_points`; older models
-/// keep their f32 ones) and the contour points and normals likewise compact.
-pub const MODEL_FORMAT_VERSION: u32 = 7;
+/// keep their f32 ones) and the contour points and normals likewise compact. 8: patch rows
+/// may be held per view (`config.patch_rows`), which a program of format 7 would misread.
+pub const MODEL_FORMAT_VERSION: u32 = 8;
 
 /// Side of the stored template silhouettes (crop mask downsampled, 1 bit per cell).
 pub const SILHOUETTE_SIZE: usize = 64;
@@ -44,6 +45,23 @@ pub struct OnboardConfig {
     /// How the patch descriptors are stored; records before format 6 kept f16.
     #[serde(default = "DescriptorCoding::f16")]
     pub descriptors: DescriptorCoding,
+    /// Whether each template holds its own patch rows or the in-plane turns of a view share
+    /// the rows of its first; records before format 8 held them per template.
+    #[serde(default)]
+    pub patch_rows: PatchRows,
+}
+
+/// Which templates hold patch rows (`b2tf onboard --patch-rows`). The in-plane turns of a
+/// view show the same patches turned; per view, they are stored once and estimation turns
+/// the query instead (docs/store.md, "Patch rows per view").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum PatchRows {
+    /// Every template its own rows.
+    #[default]
+    PerTemplate,
+    /// The rows of each view's in-plane-0 template only, shared by its turns.
+    PerView,
 }
 
 /// How an object's patch descriptors are stored (`b2tf onboard --descriptors`).
@@ -86,9 +104,25 @@ impl std::str::FromStr for DescriptorCoding {
     }
 }
 
+// The names are clap's (`--patch-rows per-view`), as for the descriptor codings.
+impl std::fmt::Display for PatchRows {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let name = clap::ValueEnum::to_possible_value(self).expect("no variant is skipped");
+        f.write_str(name.get_name())
+    }
+}
+
+impl std::str::FromStr for PatchRows {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        <Self as clap::ValueEnum>::from_str(s.trim(), true).map_err(|_| format!("unknown patch rows {s:?} (expected per-template or per-view)"))
+    }
+}
+
 impl Default for OnboardConfig {
     fn default() -> Self {
-        Self { views: ViewSampling::default(), render_size: 512, render_fill: 0.9, crop_padding: 0.1, min_coverage: 0.5, pca: PcaSetting::Auto, descriptors: DescriptorCoding::F16 }
+        Self { views: ViewSampling::default(), render_size: 512, render_fill: 0.9, crop_padding: 0.1, min_coverage: 0.5, pca: PcaSetting::Auto, descriptors: DescriptorCoding::F16, patch_rows: PatchRows::PerTemplate }
     }
 }
 
@@ -201,6 +235,31 @@ impl ObjectModel {
         self.global.len() * 4 + self.patch_descriptors.memory_bytes() + self.patch_points.heap_bytes() + self.patch_cells.heap_bytes() + self.silhouettes.heap_bytes() + self.templates.len() * std::mem::size_of::<Template>() + mesh + textures + self.contours.get().map_or(0, |c| c.memory_bytes()) + self.detector.get().map_or(0, |d| d.memory_bytes())
     }
 
+    /// Whether the in-plane turns of a view share its first template's patch rows.
+    pub fn rows_per_view(&self) -> bool {
+        self.config.patch_rows == PatchRows::PerView
+    }
+
+    /// The in-plane angle of template `t` (radians): the turn a query needs to meet its
+    /// rows when they are shared per view.
+    pub fn in_plane_angle(&self, t: usize) -> f64 {
+        self.templates[t].in_plane as f64 * std::f64::consts::TAU / self.config.views.in_plane_steps.max(1) as f64
+    }
+
+    /// Crop pixel coordinates, in template `t`'s own crop, of the patch `cell` of its rows:
+    /// the grid cell's centre, or where the shared row's cell lands once turned.
+    pub fn patch_centre_in_template(&self, t: usize, cell: u16) -> (f64, f64) {
+        let (cu, cv) = self.grid.centre_of(cell as usize);
+        let tp = &self.templates[t];
+        if !self.rows_per_view() || tp.in_plane == 0 {
+            return (cu, cv);
+        }
+        let owner = &self.templates[t - tp.in_plane as usize];
+        let (bu, bv) = owner.crop.to_image(cu, cv);
+        let (u, v) = super::pipeline::in_plane_turn(&self.render_intrinsics, self.in_plane_angle(t)).apply(bu, bv);
+        tp.crop.to_crop(u, v)
+    }
+
     /// Query patch descriptors (`n × backbone local_dim`) in the space of the stored ones.
     pub fn to_stored_space<'a>(&self, descriptors: &'a [f32]) -> std::borrow::Cow<'a, [f32]> {
         match &self.pca {
@@ -232,6 +291,12 @@ impl ObjectModel {
         for (i, tp) in self.templates.iter().enumerate() {
             if tp.patch_start as usize + tp.patch_count as usize > p {
                 return Err(format!("object {:?}: template {i} points past the patch arrays", self.object_id));
+            }
+            if self.rows_per_view() {
+                let owner = i.checked_sub(tp.in_plane as usize).map(|o| &self.templates[o]);
+                if !owner.is_some_and(|o| o.view == tp.view && o.in_plane == 0 && (o.patch_start, o.patch_count) == (tp.patch_start, tp.patch_count)) {
+                    return Err(format!("object {:?}: template {i} does not share its view's patch rows", self.object_id));
+                }
             }
         }
         if self.patch_cells.iter().any(|&c| c as usize >= self.grid.len()) {

@@ -73,6 +73,15 @@ impl PatchDescriptors {
         }
     }
 
+    /// Only the rows in `rows` (of `dim` values), in that order, in the same coding.
+    pub fn gather(&self, dim: usize, rows: &[Range<usize>]) -> Self {
+        match self {
+            PatchDescriptors::Half(v) => PatchDescriptors::Half(v.gather(rows, dim)),
+            PatchDescriptors::Quantized { quantizer, codes } => PatchDescriptors::Quantized { quantizer: quantizer.clone(), codes: codes.gather(rows, quantizer.subspaces) },
+            PatchDescriptors::Int8 { codes, scales } => PatchDescriptors::Int8 { codes: codes.gather(rows, dim), scales: scales.gather(rows, 1) },
+        }
+    }
+
     /// The f16 rows, when that is the coding (PCA fits and projects on them).
     pub fn as_half(&self) -> Option<&[f16]> {
         match self {

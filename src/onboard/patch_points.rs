@@ -67,6 +67,14 @@ impl PatchPoints {
         }
     }
 
+    /// Only the points of the patches in `rows`, in that order, coded as they are.
+    pub fn gather(&self, rows: &[Range<usize>]) -> Self {
+        match self {
+            PatchPoints::Exact(p) => PatchPoints::Exact(p.gather(rows, 1)),
+            PatchPoints::Grid { grid, steps } => PatchPoints::Grid { grid: *grid, steps: steps.gather(rows, 1) },
+        }
+    }
+
     /// Replaces f32 rows by grid steps over their bounding box (a no-op when they are).
     pub fn to_grid(&mut self) {
         if let PatchPoints::Exact(p) = self {

@@ -1,7 +1,7 @@
 //! Mesh → base-view renders → in-plane rotated crops → features + 3D points → ObjectModel.
 
 use crate::geometry::symmetry::{KnownSymmetries, SymmetrySource};
-use super::model::{pack_silhouette, ObjectModel, OnboardConfig, Template};
+use super::model::{pack_silhouette, ObjectModel, OnboardConfig, PatchRows, Template};
 use crate::features::{sample_crop, Backbone, CropInput, ToSource};
 use crate::geometry::views::{fitted_distance, icosphere, view_pose};
 use crate::geometry::{CropBox, Intrinsics, PatchGrid, Pose};
@@ -112,7 +112,11 @@ pub fn onboard_cancellable(
         progress(Progress { templates_done: parts.len() * angles.len(), templates_total: total });
     }
     drop(span);
-    let mut model = assemble(object_id, mesh, config, identity, k, grid, parts);
+    // Templates are made with their own rows; sharing them per view is a step after.
+    let mut model = assemble(object_id, mesh, &OnboardConfig { patch_rows: PatchRows::PerTemplate, ..config.clone() }, identity, k, grid, parts);
+    if config.patch_rows == PatchRows::PerView {
+        super::share_rows_per_view(&mut model).map_err(OnboardError::Config)?;
+    }
     if cancel.load(std::sync::atomic::Ordering::Relaxed) {
         return Err(OnboardError::Cancelled);
     }
@@ -197,7 +201,7 @@ fn templates_of_view(
         .mask
         .enumerate_pixels()
         .filter(|(_, _, m)| m[0] > 0)
-        .map(|(x, y, _)| (x as f64 - k.cx, y as f64 - k.cy))
+        .map(|(x, y, _)| (x as f64, y as f64))
         .collect();
     if fg.is_empty() {
         return Err(OnboardError::EmptyView(view));
@@ -206,18 +210,12 @@ fn templates_of_view(
     let mut boxes = Vec::with_capacity(angles.len());
     let mut crops: Vec<CropInput> = Vec::with_capacity(angles.len());
     for &a in angles {
-        let (s, c) = a.sin_cos();
-        // Template pixel q = centre + R(a)·(p − centre) for base pixel p (fx = fy).
-        let (mut l, mut t, mut r, mut b) = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
-        for &(x, y) in &fg {
-            let (u, v) = (c * x - s * y, s * x + c * y);
-            l = l.min(u);
-            r = r.max(u);
-            t = t.min(v);
-            b = b.max(v);
-        }
-        let bx = CropBox::around_edges(l + k.cx - 0.5, t + k.cy - 0.5, r + k.cx + 0.5, b + k.cy + 0.5, config.crop_padding, crop_size);
-        let to_base = rotation_to_base(k, a);
+        // Template pixel = the base pixel turned by `a` about the principal point (fx = fy).
+        let turn = in_plane_turn(k, a);
+        let [l, t, r, b] = turn.extents(fg.iter().copied()).expect("checked non-empty");
+        let bx = CropBox::around_edges(l - 0.5, t - 0.5, r + 0.5, b + 0.5, config.crop_padding, crop_size);
+        let back = turn.inverse();
+        let to_base = move |u, v| back.apply(u, v);
         crops.push(sample_crop(&base.rgb, &base.mask, &bx, ToSource::Map(&to_base)));
         boxes.push(bx);
     }
@@ -225,12 +223,12 @@ fn templates_of_view(
     let inv_pose = base_pose.inverse();
     let mut out = ViewTemplates { templates: vec![], globals: vec![], descriptors: vec![], points: vec![], cells: vec![], silhouettes: vec![] };
     for (ai, ((&a, bx), (fm, crop))) in angles.iter().zip(&boxes).zip(features.iter().zip(&crops)).enumerate() {
-        let to_base = rotation_to_base(k, a);
+        let to_base = in_plane_turn(k, a).inverse();
         let start = out.points.len();
         for patch in fm.foreground(config.min_coverage) {
             let (cu, cv) = grid.centre_of(patch);
             let (tu, tv) = bx.to_image(cu, cv);
-            let (bu, bv) = to_base(tu, tv);
+            let (bu, bv) = to_base.apply(tu, tv);
             let search = (grid.patch as f64 * bx.scale() * 0.5).ceil() as i64;
             let Some(z) = base.depth_near(bu, bv, search) else { continue };
             let p_cam = k.back_project(bu, bv, z as f64);
@@ -254,15 +252,10 @@ fn templates_of_view(
     Ok(out)
 }
 
-/// Maps template-image pixels to base-render pixels: a rotation by −`angle` about the
-/// principal point.
-fn rotation_to_base(k: &Intrinsics, angle: f64) -> impl Fn(f64, f64) -> (f64, f64) + Sync {
-    let (s, c) = angle.sin_cos();
-    let (cx, cy) = (k.cx, k.cy);
-    move |u, v| {
-        let (x, y) = (u - cx, v - cy);
-        (cx + c * x + s * y, cy - s * x + c * y)
-    }
+/// How the template of in-plane angle `angle` is made from its base render: turned about
+/// the principal point (exact for the square, fx = fy base camera).
+pub fn in_plane_turn(k: &Intrinsics, angle: f64) -> crate::geometry::Turn {
+    crate::geometry::Turn::new(angle, [k.cx, k.cy])
 }
 
 fn assemble(

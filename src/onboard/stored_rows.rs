@@ -50,6 +50,15 @@ impl<T: Pod> StoredRows<T> {
         }
     }
 
+    /// A copy of the rows in `rows` (each `per_row` values), in that order.
+    pub fn gather(&self, rows: &[std::ops::Range<usize>], per_row: usize) -> StoredRows<T> {
+        let mut out = Vec::with_capacity(rows.iter().map(|r| r.len() * per_row).sum());
+        for r in rows {
+            out.extend_from_slice(&self[r.start * per_row..r.end * per_row]);
+        }
+        out.into()
+    }
+
     /// The values to change, copied out of the mapping first when mapped.
     pub fn to_mut(&mut self) -> &mut Vec<T> {
         if let StoredRows::Mapped { .. } = self {

@@ -221,7 +221,7 @@ impl Core {
         let mesh = req.mesh.load(&staging);
         let _ = std::fs::remove_dir_all(&staging);
         let mesh = mesh?;
-        let config = OnboardConfig { views, pca: req.options.pca, descriptors: req.options.descriptors, ..Default::default() };
+        let config = OnboardConfig { views, pca: req.options.pca, descriptors: req.options.descriptors, patch_rows: req.options.patch_rows, ..Default::default() };
         let total = (crate::geometry::icosphere(views.level).len() as u32 * views.in_plane_steps) as u64;
         // The slot is taken now (refusing at once) and held by the worker thread.
         let slot = take_slot(&self.onboardings_running, self.config.max_onboardings).ok_or_else(|| ServiceError::new(ErrorKind::ResourceExhausted, format!("{} onboarding(s) already running; retry later", self.config.max_onboardings)))?;

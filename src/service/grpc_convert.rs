@@ -153,7 +153,8 @@ pub fn onboard_request(r: pb::OnboardRequest) -> Result<rq::OnboardRequest, Serv
         (k, true) => return Err(ServiceError::invalid(format!("options: pca {k} and full_descriptors contradict each other; set one"))),
     };
     let descriptors = if o.descriptors.is_empty() { defaults.descriptors } else { o.descriptors.parse().map_err(|e: String| ServiceError::invalid(format!("options.descriptors: {e}")))? };
-    let options = OnboardOptions { level: o.level.unwrap_or(defaults.level), in_plane: non_zero(o.in_plane, defaults.in_plane), pca, descriptors };
+    let patch_rows = if o.patch_rows.is_empty() { defaults.patch_rows } else { o.patch_rows.parse().map_err(|e: String| ServiceError::invalid(format!("options.patch_rows: {e}")))? };
+    let options = OnboardOptions { level: o.level.unwrap_or(defaults.level), in_plane: non_zero(o.in_plane, defaults.in_plane), pca, descriptors, patch_rows };
     let mesh = rq::MeshInput {
         data: mesh.data.into(),
         format: mesh.format,
@@ -208,18 +209,22 @@ mod tests {
         let d = OnboardOptions::default();
         let o = onboard_with(None);
         assert_eq!((o.level, o.in_plane, o.pca), (d.level, d.in_plane, PcaSetting::Auto));
-        let o = onboard_with(Some(pb::OnboardOptions { level: Some(0), in_plane: 1, pca: 16, full_descriptors: false, descriptors: "pq4".into() }));
-        assert_eq!((o.level, o.in_plane, o.pca, o.descriptors), (0, 1, PcaSetting::Components(16), crate::onboard::DescriptorCoding::Pq4));
-        let o = onboard_with(Some(pb::OnboardOptions { level: None, in_plane: 0, pca: 0, full_descriptors: true, descriptors: String::new() }));
-        assert_eq!((o.pca, o.descriptors), (PcaSetting::Off, crate::onboard::DescriptorCoding::F16));
+        let o = onboard_with(Some(pb::OnboardOptions { level: Some(0), in_plane: 1, pca: 16, full_descriptors: false, descriptors: "pq4".into(), patch_rows: "per-view".into() }));
+        assert_eq!((o.level, o.in_plane, o.pca, o.descriptors, o.patch_rows), (0, 1, PcaSetting::Components(16), crate::onboard::DescriptorCoding::Pq4, crate::onboard::PatchRows::PerView));
+        let o = onboard_with(Some(pb::OnboardOptions { level: None, in_plane: 0, pca: 0, full_descriptors: true, descriptors: String::new(), patch_rows: String::new() }));
+        assert_eq!((o.pca, o.descriptors, o.patch_rows), (PcaSetting::Off, crate::onboard::DescriptorCoding::F16, crate::onboard::PatchRows::PerTemplate));
         let mesh = Some(pb::Mesh { data: vec![1], format: "obj".into(), units: "m".into(), resources: vec![] });
-        let both = pb::OnboardOptions { level: None, in_plane: 0, pca: 8, full_descriptors: true, descriptors: String::new() };
+        let both = pb::OnboardOptions { level: None, in_plane: 0, pca: 8, full_descriptors: true, ..Default::default() };
         let err = onboard_request(pb::OnboardRequest { object_id: "x".into(), mesh, options: Some(both), replace: false }).unwrap_err();
         assert!(err.message.contains("pca 8 and full_descriptors contradict"), "{}", err.message);
         let mesh = Some(pb::Mesh { data: vec![1], format: "obj".into(), units: "m".into(), resources: vec![] });
         let unknown = pb::OnboardOptions { descriptors: "pq8".into(), ..Default::default() };
         let err = onboard_request(pb::OnboardRequest { object_id: "x".into(), mesh, options: Some(unknown), replace: false }).unwrap_err();
         assert!(err.message.contains("options.descriptors: unknown descriptor coding \"pq8\""), "{}", err.message);
+        let mesh = Some(pb::Mesh { data: vec![1], format: "obj".into(), units: "m".into(), resources: vec![] });
+        let unknown = pb::OnboardOptions { patch_rows: "per-face".into(), ..Default::default() };
+        let err = onboard_request(pb::OnboardRequest { object_id: "x".into(), mesh, options: Some(unknown), replace: false }).unwrap_err();
+        assert!(err.message.contains("options.patch_rows: unknown patch rows \"per-face\""), "{}", err.message);
         assert!(onboard_request(pb::OnboardRequest { object_id: "x".into(), mesh: None, options: None, replace: false }).unwrap_err().message.contains("mesh is required"));
     }
 

@@ -39,7 +39,7 @@ pub async fn onboard_request(mut form: Multipart) -> Result<OnboardRequest, Serv
                 };
                 resources.push(ResourceInput { name: file_name, data: field.bytes().await.map_err(part_error)?.to_vec().into() });
             }
-            "object_id" | "format" | "units" | "replace" | "level" | "in_plane" | "pca" | "descriptors" => {
+            "object_id" | "format" | "units" | "replace" | "level" | "in_plane" | "pca" | "descriptors" | "patch_rows" => {
                 let text = field.text().await.map_err(part_error)?;
                 match name.as_str() {
                     "object_id" => object_id = Some(text),
@@ -49,10 +49,11 @@ pub async fn onboard_request(mut form: Multipart) -> Result<OnboardRequest, Serv
                     "level" => options.level = number(&name, &text)?,
                     "in_plane" => options.in_plane = number(&name, &text)?,
                     "pca" => options.pca = text.parse().map_err(|e| ServiceError::invalid(format!("pca: {e}")))?,
-                    _ => options.descriptors = text.parse().map_err(|e: String| ServiceError::invalid(format!("descriptors: {e}")))?,
+                    "descriptors" => options.descriptors = text.parse().map_err(|e: String| ServiceError::invalid(format!("descriptors: {e}")))?,
+                    _ => options.patch_rows = text.parse().map_err(|e: String| ServiceError::invalid(format!("patch_rows: {e}")))?,
                 }
             }
-            other => return Err(ServiceError::invalid(format!("unknown multipart part {other:?} (expected object_id, mesh, resource, format, units, replace, level, in_plane, pca, descriptors)"))),
+            other => return Err(ServiceError::invalid(format!("unknown multipart part {other:?} (expected object_id, mesh, resource, format, units, replace, level, in_plane, pca, descriptors, patch_rows)"))),
         }
     }
     let object_id = object_id.ok_or_else(|| ServiceError::invalid("multipart body: the object_id part is missing"))?;

@@ -307,11 +307,13 @@ pub struct OnboardOptions {
     pub pca: crate::onboard::PcaSetting,
     /// How the patch descriptors are stored: "f16" (default), "i8", "pq2" or "pq4".
     pub descriptors: crate::onboard::DescriptorCoding,
+    /// Which templates keep patch rows: "per-template" (default) or "per-view".
+    pub patch_rows: crate::onboard::PatchRows,
 }
 
 impl Default for OnboardOptions {
     fn default() -> Self {
-        Self { level: 2, in_plane: 12, pca: crate::onboard::PcaSetting::Auto, descriptors: crate::onboard::DescriptorCoding::F16 }
+        Self { level: 2, in_plane: 12, pca: crate::onboard::PcaSetting::Auto, descriptors: crate::onboard::DescriptorCoding::F16, patch_rows: crate::onboard::PatchRows::PerTemplate }
     }
 }
 

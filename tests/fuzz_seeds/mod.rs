@@ -97,7 +97,7 @@ fn grpc_detect() -> Vec<u8> {
 fn grpc_onboard() -> Vec<u8> {
     let resources = vec![pb::Resource { name: "a.mtl".into(), data: b"newmtl a\n".to_vec() }];
     let mesh = pb::Mesh { data: b"mtllib a.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".to_vec(), format: "obj".into(), units: "mm".into(), resources };
-    let options = pb::OnboardOptions { level: Some(1), in_plane: 4, pca: 16, full_descriptors: false, descriptors: "pq4".into() };
+    let options = pb::OnboardOptions { level: Some(1), in_plane: 4, pca: 16, full_descriptors: false, descriptors: "pq4".into(), patch_rows: "per-view".into() };
     pb::OnboardRequest { object_id: "box".into(), mesh: Some(mesh), options: Some(options), replace: false }.encode_to_vec()
 }
 

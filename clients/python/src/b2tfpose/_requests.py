@@ -17,6 +17,7 @@ PcaSetting = Union[None, int, Literal["auto", "off"]]
 
 REFINERS = ("none", "silhouette-depth", "contour")
 DESCRIPTOR_CODINGS = ("f16", "i8", "pq2", "pq4")
+PATCH_ROWS = ("per-template", "per-view")
 
 
 def pca_fields(pca: PcaSetting) -> Dict[str, Any]:
@@ -41,13 +42,16 @@ def onboard_request(
     in_plane: Optional[int],
     pca: PcaSetting,
     descriptors: Optional[str] = None,
+    patch_rows: Optional[str] = None,
     replace: bool,
     format: Optional[str],
     resources: Optional[Mapping[str, bytes]],
 ) -> pb.OnboardRequest:
     if descriptors is not None and descriptors not in DESCRIPTOR_CODINGS:
         raise ValueError(f"descriptors must be one of {', '.join(DESCRIPTOR_CODINGS)} (None: the server's default), not {descriptors!r}")
-    options = pb.OnboardOptions(in_plane=in_plane or 0, descriptors=descriptors or "", **pca_fields(pca))
+    if patch_rows is not None and patch_rows not in PATCH_ROWS:
+        raise ValueError(f"patch_rows must be one of {', '.join(PATCH_ROWS)} (None: the server's default), not {patch_rows!r}")
+    options = pb.OnboardOptions(in_plane=in_plane or 0, descriptors=descriptors or "", patch_rows=patch_rows or "", **pca_fields(pca))
     if level is not None:
         options.level = level  # optional field: 0 is a real level, unset is the default
     return pb.OnboardRequest(object_id=object_id, mesh=mesh_message(mesh, units, format, resources), options=options, replace=replace)

@@ -152,14 +152,14 @@ class AsyncClient:
     @overload
     async def onboard(
         self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
-        pca: PcaSetting = ..., descriptors: Optional[str] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
+        pca: PcaSetting = ..., descriptors: Optional[str] = ..., patch_rows: Optional[str] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
         progress: Optional[ProgressCallback] = ..., wait: Literal[True] = ..., timeout: Optional[float] = ..., retry: RetryArg = ...,
     ) -> ObjectInfo: ...
 
     @overload
     async def onboard(
         self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
-        pca: PcaSetting = ..., descriptors: Optional[str] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
+        pca: PcaSetting = ..., descriptors: Optional[str] = ..., patch_rows: Optional[str] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
         progress: Optional[ProgressCallback] = ..., wait: Literal[False], timeout: Optional[float] = ..., retry: RetryArg = ...,
     ) -> AsyncOperation: ...
 
@@ -173,6 +173,7 @@ class AsyncClient:
         in_plane: Optional[int] = None,
         pca: PcaSetting = None,
         descriptors: Optional[str] = None,
+        patch_rows: Optional[str] = None,
         replace: bool = False,
         format: Optional[str] = None,
         resources: Optional[Mapping[str, bytes]] = None,
@@ -182,7 +183,7 @@ class AsyncClient:
         retry: RetryArg = None,
     ) -> Union[ObjectInfo, AsyncOperation]:
         """As :meth:`b2tfpose.Client.onboard`."""
-        request = _requests.onboard_request(object_id, mesh, units=units, level=level, in_plane=in_plane, pca=pca, descriptors=descriptors, replace=replace, format=format, resources=resources)
+        request = _requests.onboard_request(object_id, mesh, units=units, level=level, in_plane=in_plane, pca=pca, descriptors=descriptors, patch_rows=patch_rows, replace=replace, format=format, resources=resources)
         status = OperationStatus.from_pb(await self._call("Onboard", self._stub.Onboard, request, None, retry, idempotent=False))
         op = AsyncOperation(self, status)
         if not wait:
