@@ -33,6 +33,9 @@ pub struct BenchCatalogueArgs {
     /// Descriptor coding of the copies (each source is recoded once, as onboarding would).
     #[arg(long, value_enum, default_value_t = DescriptorCoding::F16)]
     pub descriptors: DescriptorCoding,
+    /// Which templates keep patch rows in the copies (`b2tf onboard --patch-rows`).
+    #[arg(long, value_enum, default_value_t = crate::onboard::PatchRows::PerTemplate)]
+    pub patch_rows: crate::onboard::PatchRows,
     /// The server's model cache budget, MB (its default: 4000).
     #[arg(long)]
     pub cache_mb: Option<u64>,
@@ -94,8 +97,8 @@ pub fn run(a: BenchCatalogueArgs) -> Result<()> {
     let extra_ms: Vec<f64> = cold.iter().zip(&warm).map(|(c, w)| c.ms - w.ms).collect();
     // The same difference between two warm estimates: what the noise alone gives.
     let noise_ms: Vec<f64> = again.iter().zip(&warm).map(|(a, w)| a.ms - w.ms).collect();
-    println!("catalogue: {} objects copied from {} ({} descriptors) into {}; server --max-estimates 1{}, RRC {}",
-        ids.len(), a.from, a.descriptors, a.store, a.cache_mb.map_or(String::new(), |mb| format!(", --cache-mb {mb}")), if a.no_rrc { "off" } else { "on" });
+    println!("catalogue: {} objects copied from {} ({} descriptors, patch rows {}) into {}; server --max-estimates 1{}, RRC {}",
+        ids.len(), a.from, a.descriptors, a.patch_rows, a.store, a.cache_mb.map_or(String::new(), |mb| format!(", --cache-mb {mb}")), if a.no_rrc { "off" } else { "on" });
     println!("| store | MB on disk | MB per object | server RSS before (MB) | after: RSS / anon / file (MB) | per object (MB) | objects loaded | cache MB |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|");
     println!(
@@ -156,6 +159,9 @@ fn fill(a: &BenchCatalogueArgs) -> Result<Vec<String>> {
             continue;
         }
         let mut model = from.get(source)?;
+        if a.patch_rows == crate::onboard::PatchRows::PerView && !model.rows_per_view() {
+            crate::onboard::share_rows_per_view(&mut model).map_err(anyhow::Error::msg)?;
+        }
         crate::onboard::apply_coding(&mut model, a.descriptors)?;
         // As onboarding stores them since format 7, whatever the source's format.
         model.patch_points.to_grid();
