@@ -54,6 +54,8 @@ fn sample_render_and_onboard() {
     let i8_bytes = std::fs::metadata(d.join("models/box/tensors.safetensors")).unwrap().len();
     let (ok, out, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--store", &dir_store, "--level", "0", "--in-plane", "2", "--replace", "--descriptors", "i8", "--patch-rows", "per-view"]);
     assert!(ok && out.contains("patch rows: per view, shared by its 2 in-plane turns"), "{out}{err}");
+    let (ok, out, err) = b2tf(&["objects", "show", "box", "--load", "--store", &dir_store]);
+    assert!(ok && out.contains("\"patch_rows\": \"per-view\"") && out.contains("\"descriptors\": \"i8\""), "{out}{err}");
     assert!(std::fs::metadata(d.join("models/box/tensors.safetensors")).unwrap().len() < i8_bytes);
     let (ok, _, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box2", "--store", &dir_store, "--patch-rows", "per-face"]);
     assert!(!ok && err.contains("'per-face'") && err.contains("per-view"), "{err}");

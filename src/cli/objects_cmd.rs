@@ -70,7 +70,9 @@ pub fn run(a: ObjectsArgs) -> Result<()> {
             if load {
                 let t = Instant::now();
                 let m = store.get(&id)?;
-                v["loaded"] = serde_json::json!({"seconds": t.elapsed().as_secs_f64(), "patches": m.patch_count(), "memory_bytes": m.memory_bytes()});
+                // How the object is held, which the store's listing does not record.
+                let stored = serde_json::json!({"descriptors": m.config.descriptors.to_string(), "pca_components": m.pca.as_ref().map(|p| p.output_dim), "patch_rows": m.config.patch_rows.to_string()});
+                v["loaded"] = serde_json::json!({"seconds": t.elapsed().as_secs_f64(), "patches": m.patch_count(), "memory_bytes": m.memory_bytes(), "stored": stored});
             }
             println!("{}", serde_json::to_string_pretty(&v)?);
         }
