@@ -67,6 +67,14 @@ impl Correspondences {
     pub fn is_empty(&self) -> bool {
         self.image_points.is_empty()
     }
+
+    /// Adds the pair of image pixel `uv` and object point `p` (pool patch `pool`).
+    pub fn push(&mut self, uv: (f64, f64), p: [f32; 3], similarity: f32, pool: usize) {
+        self.image_points.push([uv.0, uv.1]);
+        self.object_points.push([p[0] as f64, p[1] as f64, p[2] as f64]);
+        self.similarities.push(similarity);
+        self.pool_index.push(pool);
+    }
 }
 
 /// Mutual nearest neighbours (each query patch's `k_nn` best) between query and pool.
@@ -76,12 +84,7 @@ pub fn correspond(query: &QueryView, descriptors: &[f32], pool: &PatchPool, k_nn
         return c;
     }
     for m in mutual_matches(descriptors, &pool.descriptors, pool.dim, k_nn) {
-        let (u, v) = query.patch_centre(m.query);
-        let p = pool.points[m.pool];
-        c.image_points.push([u, v]);
-        c.object_points.push([p[0] as f64, p[1] as f64, p[2] as f64]);
-        c.similarities.push(m.similarity);
-        c.pool_index.push(m.pool);
+        c.push(query.patch_centre(m.query), pool.points[m.pool], m.similarity, m.pool);
     }
     c
 }

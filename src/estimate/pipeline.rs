@@ -1,6 +1,6 @@
 //! The online stage end to end (DESIGN.md steps 4–10) for one object in one image.
 
-use super::correspond::{correspond, Correspondences, PatchPool};
+use super::correspond::{correspond, Correspondences};
 use super::pnp::{solve_pnp_ransac, PnpConfig, PnpResult};
 use super::query::{crop_all, encode, QueryView};
 use super::contour::ContourRefiner;
@@ -383,18 +383,11 @@ impl Estimator {
         timings.retrieval += ms(t);
 
         let t = Instant::now();
-        let (pool, corr) = if model.rows_per_view() {
-            let m = tracing::info_span!("matching", turned = true).in_scope(|| super::turned::match_turned(model, self.backbone.as_ref(), photo.0, photo.1, q, &ranked, cfg.k_nn))?;
-            // Encoding the turned queries is feature work, not matching.
-            timings.features += m.encode_ms;
-            timings.matching -= m.encode_ms;
-            (m.pool, m.correspondences)
-        } else {
-            let pool = PatchPool::from_templates(model, ranked.iter().copied());
-            // Templates may hold PCA-compressed descriptors; the query goes into their space.
-            let corr = tracing::info_span!("matching").in_scope(|| correspond(q, &model.to_stored_space(&q.descriptors), &pool, cfg.k_nn));
-            (pool, corr)
-        };
+        let m = tracing::info_span!("matching").in_scope(|| super::turned::match_templates(model, self.backbone.as_ref(), photo.0, photo.1, q, &ranked, cfg.k_nn))?;
+        // Encoding turned queries (rows shared per view) is feature work, not matching.
+        timings.features += m.encode_ms;
+        timings.matching -= m.encode_ms;
+        let (pool, corr) = (m.pool, m.correspondences);
         h.matches = corr.len();
         let matched = if cfg.verify.enabled { super::placement::matched_templates(model, &corr, &pool, q.crop_box.scale(), k, cfg.verify.matched_templates) } else { vec![] };
         timings.matching += ms(t);

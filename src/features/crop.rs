@@ -38,6 +38,23 @@ pub fn mask_bbox(mask: &GrayImage) -> Option<(u32, u32, u32, u32)> {
     (lo_u != u32::MAX).then_some((lo_u, lo_v, hi_u, hi_v))
 }
 
+/// The first and last nonzero pixel of each row of `mask` (x, y): a turned mask's extents
+/// are those of these points, since a pixel between two others of its row is never
+/// extreme in any direction. Empty for an empty mask.
+pub fn mask_row_ends(mask: &GrayImage) -> Vec<(f64, f64)> {
+    let w = mask.width() as usize;
+    mask.as_raw()
+        .chunks_exact(w.max(1))
+        .enumerate()
+        .filter_map(|(v, row)| {
+            let first = row.iter().position(|&m| m > 0)?;
+            let last = row.iter().rposition(|&m| m > 0)?;
+            Some([(first as f64, v as f64), (last as f64, v as f64)])
+        })
+        .flatten()
+        .collect()
+}
+
 /// Where a crop's sample points fall in the source image.
 #[derive(Clone, Copy)]
 pub enum ToSource<'a> {
@@ -222,6 +239,17 @@ mod tests {
                 assert_eq!((fast.rgb.as_raw(), fast.mask.as_raw()), (slow.rgb.as_raw(), slow.mask.as_raw()), "box {:?}, shift {:?}", (a, b, c, d, pad, size), (dx, dy));
             }
         }
+    }
+
+    /// Each row's first and last object pixel, and nothing for rows without one.
+    #[test]
+    fn row_ends_of_mask() {
+        let mut m = GrayImage::new(6, 4);
+        assert!(mask_row_ends(&m).is_empty());
+        for (x, y) in [(1, 1), (2, 1), (4, 1), (3, 3)] {
+            m.put_pixel(x, y, image::Luma([255]));
+        }
+        assert_eq!(mask_row_ends(&m), vec![(1.0, 1.0), (4.0, 1.0), (3.0, 3.0), (3.0, 3.0)]);
     }
 
     #[test]

@@ -197,13 +197,8 @@ fn templates_of_view(
     backbone: &dyn Backbone,
     grid: &PatchGrid,
 ) -> Result<ViewTemplates, OnboardError> {
-    let fg: Vec<(f64, f64)> = base
-        .mask
-        .enumerate_pixels()
-        .filter(|(_, _, m)| m[0] > 0)
-        .map(|(x, y, _)| (x as f64, y as f64))
-        .collect();
-    if fg.is_empty() {
+    let outline = crate::features::mask_row_ends(&base.mask);
+    if outline.is_empty() {
         return Err(OnboardError::EmptyView(view));
     }
     let crop_size = grid.n * grid.patch;
@@ -212,7 +207,7 @@ fn templates_of_view(
     for &a in angles {
         // Template pixel = the base pixel turned by `a` about the principal point (fx = fy).
         let turn = in_plane_turn(k, a);
-        let [l, t, r, b] = turn.extents(fg.iter().copied()).expect("checked non-empty");
+        let [l, t, r, b] = turn.extents(outline.iter().copied()).expect("checked non-empty");
         let bx = CropBox::around_edges(l - 0.5, t - 0.5, r + 0.5, b + 0.5, config.crop_padding, crop_size);
         let back = turn.inverse();
         let to_base = move |u, v| back.apply(u, v);
