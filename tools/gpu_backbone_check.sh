@@ -14,6 +14,10 @@
 #                                                     # b2tf and with a carried .gpu/b2tf-baseline.zst
 #          tools/gpu_backbone_check.sh other-devices  # ViT-L on TensorRT (refused without
 #                                                     # libnvinfer) and on the CPU
+#          tools/gpu_backbone_check.sh export-served  # only the fp16 fused export (for `threads`)
+#          tools/gpu_backbone_check.sh threads        # the service with the global thread pool
+#                                                     # capped (RAYON_NUM_THREADS): CPU per request
+#                                                     # by thread group, rate, latency
 #
 # Each stage keeps what it made in $STATE (default /tmp/b2tf-gpu), which lives as long as
 # the machine stays warm; `bench` names any part that did not arrive.
@@ -68,6 +72,10 @@ export_stage() {
   done
 }
 
+export_served() {
+  python3 tools/export_backbone.py --random-init dinov3-vitl16 --fp16 --fused-attention --out "$STATE/models/vitl16-fp16-mha.onnx"
+}
+
 cuda_library_path() {
   # The CUDA provider needs cuDNN, cuBLAS, cuFFT, cuRAND and the CUDA runtime: the image has
   # them as PyTorch's nvidia-* packages and under /usr/local/cuda.
@@ -116,6 +124,23 @@ serve_ab() {
   done
 }
 
+# Where the server's CPU goes when the GPU runs the backbone: the same build with the global
+# rayon pool at its default (one thread per core) and capped. The server runs as many
+# estimates at once as there are clients, each spreading its parallel stages over the pool.
+threads() {
+  setup_b2tf
+  local m="$STATE/models/vitl16-fp16-mha.onnx" n
+  "$STATE/b2tf" bench estimate --backbone "onnx:$m" --device cuda:0 --images 5 --store "dir://$STATE/store"
+  for n in default ${THREAD_CAPS:-4 1}; do
+    echo "== RAYON_NUM_THREADS=$n"
+    if [ "$n" = default ]; then
+      "$STATE/b2tf" bench serve --backbone "onnx:$m" --device cuda:0 --store "dir://$STATE/store" --clients 1,16 --requests 4 --protocols grpc
+    else
+      RAYON_NUM_THREADS=$n "$STATE/b2tf" bench serve --backbone "onnx:$m" --device cuda:0 --store "dir://$STATE/store" --clients 1,16 --requests 4 --protocols grpc
+    fi
+  done
+}
+
 other_devices() {
   setup_b2tf
   local b2tf="$STATE/b2tf" m="$STATE/models"
@@ -131,5 +156,7 @@ case "${1:-}" in
   bench) bench ;;
   serve-ab) serve_ab ;;
   other-devices) other_devices ;;
-  *) echo "usage: $0 pack|torch|export|stash|bench|other-devices" >&2; exit 2 ;;
+  export-served) export_served ;;
+  threads) threads ;;
+  *) echo "usage: $0 pack|torch|export|export-served|stash|bench|serve-ab|threads|other-devices" >&2; exit 2 ;;
 esac
