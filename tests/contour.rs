@@ -3,7 +3,7 @@
 //! a wrong or empty mask changes nothing, and an object stored without a contour model
 //! still loads and gets one.
 
-use b2tfpose::estimate::contour::ContourRefiner;
+use b2tfpose::estimate::contour::{ContourRefiner, PhotoEdges};
 use b2tfpose::estimate::{RefineContext, Refiner};
 use b2tfpose::eval::pose_error::{rotation_error_deg, translation_error_m};
 use b2tfpose::eval::scenes::{generate_image, SceneConfig, SceneImage};
@@ -197,4 +197,41 @@ fn objects_stored_without_a_contour_model_get_one_on_first_use() {
     store.put(&f.model, false).unwrap();
     let back = store.get("box").unwrap();
     assert_eq!(back.contours.get().map(|c| c.as_ref()), f.model.contours.get().map(|c| c.as_ref()));
+}
+
+/// A mask one pixel too wide all round (as a segmenter's often is) on small boxes in
+/// scenes whose pixels average the light over their area: on the mask alone the refiner
+/// takes the wide outline and brings the box nearer, by about a pixel's share of its size;
+/// with the photo's edges (`photo_edge`) the lines that find the true outline pull the
+/// depth back towards the truth (measured: mean |Δz|/z 2.4 % against 3.8 %; 3.1 % with the
+/// search reaching 1 px from the mask's outline instead of 1.5).
+#[test]
+fn photo_edges_keep_the_depth_under_a_mask_a_pixel_too_wide() {
+    let f = fixture();
+    // The box is textured, where photo edges are off by default: asked for here.
+    let mut with = ContourRefiner::new(f.pool.clone());
+    with.config.photo_edges = PhotoEdges::All;
+    let mut without = ContourRefiner::new(f.pool.clone());
+    without.config.photo_edges = PhotoEdges::Off;
+    let (mut err_with, mut err_without) = (Vec::new(), Vec::new());
+    for seed in 1..=4u64 {
+        let cfg = SceneConfig { images: 1, objects_per_image: 1, image_size: (320, 240), fill_range: (0.25, 0.3), max_occlusion: 0.05, occluders: false, supersampling: 3, seed, ..Default::default() };
+        let s = generate_image(&[(1, f.model.mesh.clone())], &cfg, &f.pool, 0).unwrap();
+        let inst = &s.instances[0];
+        let m = &inst.mask_visib;
+        let on = |x: i64, y: i64| x >= 0 && y >= 0 && x < m.width() as i64 && y < m.height() as i64 && m.get_pixel(x as u32, y as u32)[0] > 0;
+        let wide = image::GrayImage::from_fn(m.width(), m.height(), |x, y| {
+            let (x, y) = (x as i64, y as i64);
+            image::Luma([if on(x, y) || on(x - 1, y) || on(x + 1, y) || on(x, y - 1) || on(x, y + 1) { 255 } else { 0 }])
+        });
+        let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &wide, unknown: None, mask_is_probability: false };
+        let z = inst.pose.translation.z;
+        let dz = |r: &ContourRefiner| (r.refine(&ctx, inst.pose).unwrap().pose.translation.z - z) / z;
+        let (a, b) = (dz(&with), dz(&without));
+        eprintln!("seed {seed}: Δz/z with photo edges {a:.4}, mask alone {b:.4}");
+        err_with.push(a.abs());
+        err_without.push(b.abs());
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    assert!(mean(&err_with) < 0.75 * mean(&err_without), "mean |Δz|/z with photo edges {:.4}, mask alone {:.4}", mean(&err_with), mean(&err_without));
 }

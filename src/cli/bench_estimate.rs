@@ -41,6 +41,10 @@ pub struct BenchEstimateArgs {
     /// Run the contour refiner without its occlusion model (for comparison).
     #[arg(long)]
     pub no_occlusion_model: bool,
+    /// Which objects' outlines the contour refiner places on the photo's edges, to a
+    /// fraction of a pixel, rather than on the mask alone.
+    #[arg(long, value_enum, default_value_t = crate::estimate::contour::PhotoEdges::default())]
+    pub photo_edges: crate::estimate::contour::PhotoEdges,
     #[command(flatten)]
     pub verify: super::verify_args::VerifyArgs,
     /// Share of colour agreement (the rest edge agreement) in verification's appearance term.
@@ -239,9 +243,10 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         .collect();
     let scene_cfg = a.scenes.scene_config(a.gap || a.harsh_scenes);
     let mut estimator = crate::estimate::Estimator::new(backbone, pool.clone());
-    if a.no_occlusion_model {
+    if a.no_occlusion_model || a.photo_edges != crate::estimate::contour::PhotoEdges::default() {
         let mut contour = crate::estimate::contour::ContourRefiner::new(pool.clone());
-        contour.config.occlusion_model = false;
+        contour.config.occlusion_model = !a.no_occlusion_model;
+        contour.config.photo_edges = a.photo_edges;
         estimator = estimator.with_refiner(crate::estimate::RefinerKind::Contour, Arc::new(contour));
     }
     let mut base = EstimateConfig { refiner: a.refiner, ..Default::default() };

@@ -92,11 +92,19 @@ pub fn run(a: BenchRefineArgs) -> Result<()> {
     let estimator = crate::estimate::Estimator::new(backbone, pool.clone());
     let mut without_occlusion = crate::estimate::contour::ContourRefiner::new(pool.clone());
     without_occlusion.config.occlusion_model = false;
+    let photo = |edges| {
+        let mut r = crate::estimate::contour::ContourRefiner::new(pool.clone());
+        r.config.photo_edges = edges;
+        r
+    };
+    let (photo_off, photo_all) = (photo(crate::estimate::contour::PhotoEdges::Off), photo(crate::estimate::contour::PhotoEdges::All));
     let mut refiners: Vec<(String, &dyn crate::estimate::Refiner)> = Vec::new();
     for kind in &kinds {
         refiners.push((kind.name().to_string(), estimator.refiner(*kind)));
         if *kind == RefinerKind::Contour {
             refiners.push(("contour, no occlusion model".into(), &without_occlusion));
+            refiners.push(("contour, photo edges off".into(), &photo_off));
+            refiners.push(("contour, photo edges on every object".into(), &photo_all));
         }
     }
     let axes = [Vector3::new(1.0, 0.3, 0.0), Vector3::new(-0.2, 1.0, 0.5), Vector3::new(0.3, -0.4, 1.0)];

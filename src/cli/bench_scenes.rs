@@ -36,6 +36,11 @@ pub struct BenchSceneArgs {
     /// case of an untextured part (a grey casting, a plain bottle).
     #[arg(long)]
     pub untextured: bool,
+    /// Render the scenes at this many times the resolution and average down (1, 3 or 5):
+    /// outlines blend into the background as a camera's pixels integrate them, where at 1
+    /// they move in whole-pixel steps, as the masks do.
+    #[arg(long, default_value_t = 1)]
+    pub supersample: u32,
     /// Object store that caches onboarded objects between runs.
     #[arg(long, default_value = "dir://out/bench-models")]
     pub store: String,
@@ -51,6 +56,6 @@ impl BenchSceneArgs {
 
     /// The scene generator's settings; `harsh`: the scene side of the render-to-real gap.
     pub fn scene_config(&self, harsh: bool) -> crate::eval::scenes::SceneConfig {
-        crate::eval::scenes::SceneConfig { images: self.images, objects_per_image: self.objects_per_image, max_occlusion: self.max_occlusion, min_occlusion: self.min_occlusion, fill_range: self.fill, render_to_real_gap: harsh, seed: self.seed, ..Default::default() }
+        crate::eval::scenes::SceneConfig { images: self.images, objects_per_image: self.objects_per_image, max_occlusion: self.max_occlusion, min_occlusion: self.min_occlusion, fill_range: self.fill, render_to_real_gap: harsh, seed: self.seed, supersampling: self.supersample, ..Default::default() }
     }
 }

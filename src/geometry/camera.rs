@@ -46,6 +46,14 @@ impl Intrinsics {
         (width > 0 && height > 0).then_some(Self { cx: self.cx - x as f64, cy: self.cy - y as f64, width, height, ..*self })
     }
 
+    /// The same camera with `s`×`s` pixels in place of each pixel (pixel centres at
+    /// integers in both): pixel u's area spans s·u … s·u + s − 1 there, centred on
+    /// s·u + (s − 1)/2.
+    pub fn supersampled(&self, s: u32) -> Self {
+        let (f, half) = (s as f64, (s as f64 - 1.0) * 0.5);
+        Self { fx: self.fx * f, fy: self.fy * f, cx: self.cx * f + half, cy: self.cy * f + half, width: self.width * s, height: self.height * s }
+    }
+
     pub fn k(&self) -> Matrix3<f64> {
         Matrix3::new(self.fx, 0.0, self.cx, 0.0, self.fy, self.cy, 0.0, 0.0, 1.0)
     }

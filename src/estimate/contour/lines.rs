@@ -3,9 +3,11 @@
 //! those segments a distribution over where the object's outline crosses the line (the
 //! discrete formulation of SRT3D, with a smoothed step as the segment likelihood).
 
+use super::photo_edge::edge_offset;
 use super::posterior::Posterior;
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ContourModel;
+use image::RgbImage;
 use nalgebra::{Matrix2x3, Point3, Vector2, Vector3};
 use rayon::prelude::*;
 
@@ -13,6 +15,16 @@ use rayon::prelude::*;
 /// smoothed step runs from 0.5 − this to 0.5 + this); below 0.5 so that one wrong segment
 /// cannot veto a location.
 const STEP_AMPLITUDE: f64 = 0.43;
+
+/// Lines of segments at most this long (px) look for the photo's edge near the mask's
+/// outline (`photo_edge`): at coarser scales the mask's pixel steps are below what the
+/// line resolves anyway.
+const PHOTO_EDGE_MAX_SEGMENT_PX: f64 = 2.0;
+/// How far (px) from the mask's outline the photo's edge may lie: the mask's own pixel
+/// steps, and a mask drawn a pixel wide or narrow, as segmenters' often are (at 1.0 the
+/// true outline sat on the reach's border under such a mask and fewer lines found it:
+/// `tests/contour.rs`, photo_edges_keep_the_depth_under_a_mask_a_pixel_too_wide).
+const PHOTO_EDGE_REACH_PX: f64 = 1.5;
 
 /// One correspondence line.
 #[derive(Clone, Debug)]
@@ -29,6 +41,9 @@ pub struct Line {
     pub edge: bool,
     /// How far the line reaches inside the model's outline, px.
     pub inside_px: f64,
+    /// `mean` is where the photo's edge is, to a fraction of a pixel, rather than the
+    /// mask's outline.
+    pub photo_edge: bool,
 }
 
 /// Line settings for one scale.
@@ -52,14 +67,16 @@ pub fn camera_direction(pose: &Pose, centre: &Vector3<f64>) -> Vector3<f64> {
     pose.inverse().translation - centre
 }
 
-/// Builds the lines of the view nearest to `pose` and measures the outline on each.
-pub fn build_lines(cm: &ContourModel, centre: &Vector3<f64>, pose: &Pose, k: &Intrinsics, post: &Posterior<'_>, scale: LineScale) -> Vec<Line> {
+/// Builds the lines of the view nearest to `pose` and measures the outline on each: on
+/// the mask, and at fine scales, where `photo` is given, on the photo's edge beside it.
+pub fn build_lines(cm: &ContourModel, centre: &Vector3<f64>, pose: &Pose, k: &Intrinsics, post: &Posterior<'_>, scale: LineScale, photo: Option<&RgbImage>) -> Vec<Line> {
     let view = cm.nearest_view(&camera_direction(pose, centre));
-    cm.view_range(view).into_par_iter().filter_map(|i| line(cm, i, pose, k, post, scale)).collect()
+    let photo = photo.filter(|_| scale.segment_px <= PHOTO_EDGE_MAX_SEGMENT_PX);
+    cm.view_range(view).into_par_iter().filter_map(|i| line(cm, i, pose, k, post, scale, photo)).collect()
 }
 
 /// Line `i` of the model at `pose`; `None` when it cannot be measured at this scale.
-fn line(cm: &ContourModel, i: usize, pose: &Pose, k: &Intrinsics, post: &Posterior<'_>, scale: LineScale) -> Option<Line> {
+fn line(cm: &ContourModel, i: usize, pose: &Pose, k: &Intrinsics, post: &Posterior<'_>, scale: LineScale, photo: Option<&RgbImage>) -> Option<Line> {
     let x = Vector3::new(cm.points[i][0] as f64, cm.points[i][1] as f64, cm.points[i][2] as f64);
     let n = Vector3::new(cm.normals[i][0] as f64, cm.normals[i][1] as f64, cm.normals[i][2] as f64);
     let p = Point3::from(pose.rotation * x + pose.translation);
@@ -81,7 +98,10 @@ fn line(cm: &ContourModel, i: usize, pose: &Pose, k: &Intrinsics, post: &Posteri
     let probs = segment_probabilities(post, &centre_px, &normal, scale.segment_px, inner, outer);
     let (mean, variance) = outline_distribution(&probs, inner, scale.segment_px);
     let edge = probs.iter().any(|&p| p > 0.7) && probs.iter().any(|&p| p < 0.3);
-    Some(Line { object_point: x, centre: centre_px, normal, mean, variance, edge, inside_px: inner as f64 * scale.segment_px })
+    // The photo moves the outline within the mask's pixel step; its weight stays the
+    // mask's, so a line is trusted no more for having found a sharp edge.
+    let on_photo = photo.filter(|_| edge).and_then(|img| edge_offset(img, &centre_px, &normal, mean, PHOTO_EDGE_REACH_PX));
+    Some(Line { object_point: x, centre: centre_px, normal, mean: on_photo.unwrap_or(mean), variance, edge, inside_px: inner as f64 * scale.segment_px, photo_edge: on_photo.is_some() })
 }
 
 /// Mean foreground probability of each segment, innermost first: `inner` segments inside

@@ -6,8 +6,9 @@
 
 pub mod lines;
 pub mod occlusion;
+pub mod photo_edge;
 pub mod posterior;
 pub mod refiner;
 pub mod solve;
 
-pub use refiner::{Agreement, ContourRefiner, ContourRefinerConfig};
+pub use refiner::{Agreement, ContourRefiner, ContourRefinerConfig, PhotoEdges};

@@ -40,6 +40,36 @@ pub struct ContourRefinerConfig {
     pub max_turn_deg: f64,
     #[serde(default = "default_max_depth_change")]
     pub max_depth_change: f64,
+    /// Which objects' lines, at the fine scales, take the photo's edge as the outline where
+    /// it shows one clearly near the mask's (`photo_edge`); the others use the mask alone.
+    #[serde(default)]
+    pub photo_edges: PhotoEdges,
+}
+
+/// Where the contour refiner reads outlines off the photo's edges, not the mask's alone.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum PhotoEdges {
+    /// The mask alone, for every object.
+    Off,
+    /// Objects without colours of their own (no texture, no vertex colours): their
+    /// outline is the only strong edge near it. On textured objects a print's edges beside
+    /// the outline moved small objects' depths outward (docs/benchmarks.md, "Outlines
+    /// from the photo's edges"), so they keep the mask.
+    #[default]
+    Untextured,
+    /// Every object.
+    All,
+}
+
+impl PhotoEdges {
+    fn applies_to(self, mesh: &crate::mesh::Mesh) -> bool {
+        match self {
+            Self::Off => false,
+            Self::Untextured => !mesh.has_colours(),
+            Self::All => true,
+        }
+    }
 }
 
 fn default_max_turn_deg() -> f64 {
@@ -68,6 +98,7 @@ impl Default for ContourRefinerConfig {
             occlusion_model: true,
             max_turn_deg: default_max_turn_deg(),
             max_depth_change: default_max_depth_change(),
+            photo_edges: PhotoEdges::default(),
         }
     }
 }
@@ -135,7 +166,7 @@ impl ContourRefiner {
     /// Agreement at `pose` on the verification scale for the object's size there.
     fn agreement_at(&self, ctx: &RefineContext<'_>, cm: &ContourModel, centre: &Vector3<f64>, post: &Posterior<'_>, pose: &Pose) -> Agreement {
         let scale = self.verification_scale(Self::apparent_diameter(ctx, pose, centre));
-        agreement(&build_lines(cm, centre, pose, ctx.intrinsics, post, scale), &scale)
+        agreement(&build_lines(cm, centre, pose, ctx.intrinsics, post, scale, None), &scale)
     }
 
     /// The agreement of `pose` with the mask on the verification scale (what `refine`
@@ -167,7 +198,8 @@ impl Refiner for ContourRefiner {
         // Too few lines see the mask's outline (empty, wrong or far-off mask): no update
         // could be trusted.
         let scales = self.scales(Self::apparent_diameter(ctx, &start, &centre));
-        let coarse = build_lines(&cm, &centre, &start, k, &post, scales[0]);
+        let photo = self.config.photo_edges.applies_to(&ctx.model.mesh).then_some(ctx.image);
+        let coarse = build_lines(&cm, &centre, &start, k, &post, scales[0], photo);
         let edges = coarse.iter().filter(|l| l.edge).count();
         if (edges as f64) < self.config.min_edge_share * coarse.len().max(1) as f64 {
             return keep(format!("no improvement: {edges} of {} lines see the mask's outline", coarse.len()));
@@ -181,7 +213,7 @@ impl Refiner for ContourRefiner {
         let mut first = Some(coarse);
         for scale in &scales {
             for _ in 0..self.config.passes_per_scale {
-                let lines = first.take().unwrap_or_else(|| build_lines(&cm, &centre, &pose, k, &post, *scale));
+                let lines = first.take().unwrap_or_else(|| build_lines(&cm, &centre, &pose, k, &post, *scale, photo));
                 for _ in 0..self.config.updates_per_pass {
                     let Some(step) = gauss_newton_update(&lines, &pose, &start, k, &self.config.regularisation, radius, self.config.occlusion_model) else { break };
                     pose = apply_update(&pose, &step.omega, &step.v);

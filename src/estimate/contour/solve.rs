@@ -167,7 +167,7 @@ mod tests {
             };
             let (c, t) = (proj(&start), proj(&truth));
             let n = (c - Vector2::new(320.0, 240.0)).normalize();
-            lines.push(Line { object_point: x, centre: c, normal: n, mean: n.dot(&(t - c)), variance: 1.0, edge: true, inside_px: 20.0 });
+            lines.push(Line { object_point: x, centre: c, normal: n, mean: n.dot(&(t - c)), variance: 1.0, edge: true, inside_px: 20.0, photo_edge: false });
         }
         let reg = Regularisation { rotation: 0.0, translation: 0.0 };
         let mut pose = start;
@@ -196,7 +196,7 @@ mod tests {
                 let c = Vector2::new(k.fx * p.x / p.z + k.cx, k.fy * p.y / p.z + k.cy);
                 let n = (c - Vector2::new(320.0, 240.0)).normalize();
                 let mean = if i < 36 { 0.0 } else { -12.0 };
-                Line { object_point: x, centre: c, normal: n, mean, variance: 1.0, edge: true, inside_px: 40.0 }
+                Line { object_point: x, centre: c, normal: n, mean, variance: 1.0, edge: true, inside_px: 40.0, photo_edge: false }
             })
             .collect();
         let reg = Regularisation::default();

@@ -36,7 +36,20 @@ pub struct SceneConfig {
     /// the blur, noise and colour shift.
     pub render_to_real_gap: bool,
     pub seed: u64,
+    /// Render and composite at this many times the resolution in each direction, then
+    /// average each block down to one pixel, as a camera's pixel integrates the light over
+    /// its area: an outline then blends into what is behind it, where at 1 every pixel shows
+    /// one surface and outlines move in whole-pixel steps. Masks and depth are each pixel's
+    /// centre sample, as BOP renders them. 1 or an odd number up to `MAX_SUPERSAMPLING`.
+    #[serde(default = "one")]
+    pub supersampling: u32,
 }
+
+fn one() -> u32 {
+    1
+}
+
+pub const MAX_SUPERSAMPLING: u32 = 5;
 
 pub const MAX_OBJECTS_PER_IMAGE: usize = 8;
 
@@ -54,6 +67,7 @@ impl Default for SceneConfig {
             appearance: Appearance::default(),
             render_to_real_gap: false,
             seed: 1,
+            supersampling: 1,
         }
     }
 }
@@ -155,6 +169,9 @@ impl SceneConfig {
         range("fill_range", self.fill_range, 0.01, 0.9)?;
         range("max_occlusion", (self.max_occlusion, self.max_occlusion), 0.0, 0.9)?;
         range("(min_occlusion, max_occlusion)", (self.min_occlusion, self.max_occlusion), 0.0, 0.9)?;
+        if self.supersampling == 0 || self.supersampling > MAX_SUPERSAMPLING || self.supersampling.is_multiple_of(2) {
+            return Err(format!("supersampling must be 1 or an odd number up to {MAX_SUPERSAMPLING} (each pixel needs a centre sample), got {}", self.supersampling));
+        }
         if self.min_occlusion > 0.0 && !self.occluders {
             return Err("min_occlusion needs occluders".into());
         }

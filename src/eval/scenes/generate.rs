@@ -2,7 +2,8 @@
 //! alone, composite by depth over clutter, add occluders, degrade (and store as JPEG).
 
 use super::appearance::{as_stored, degrade, drift_print, sample_lighting};
-use super::config::SceneConfig;
+use super::config::{Appearance, SceneConfig};
+use super::supersample::{average_down, centre_depth, centre_samples, repeat_up};
 use super::layers::Layers;
 use super::occluders::{sample_occluder, Occluder};
 use super::placement::{sample_intrinsics, sample_placement, Extent, Placement};
@@ -90,12 +91,17 @@ pub fn generate_image(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderP
 /// instance.
 fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, im_id: u32, rng: &mut Rng) -> Result<Option<SceneImage>> {
     let cam = sample_intrinsics(cfg, rng);
+    // Everything up to the painted image happens on `fine`, the camera with `s`×`s` pixels
+    // for each of the image's (placements are in metres and fill shares, so they do not
+    // change with it).
+    let s = cfg.supersampling.max(1);
+    let fine = cam.supersampled(s);
     let appearance = cfg.effective_appearance();
     let lighting = sample_lighting(&appearance, rng);
     let min_visible = 1.0 - cfg.max_occlusion;
     let extents: Vec<Extent> = objects.iter().map(|(_, m)| Extent::of(m)).collect();
 
-    let mut layers = Layers::new(cam.width, cam.height);
+    let mut layers = Layers::new(fine.width, fine.height);
     let mut placed: Vec<(usize, Placement, RenderOutput)> = Vec::new();
     let mut full: Vec<usize> = Vec::new();
     for &obj in &slot_objects(objects.len(), cfg.objects_per_image, rng) {
@@ -119,7 +125,7 @@ fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, i
                 continue;
             }
             renders += 1;
-            let out = pool.render(&objects[obj].1, &p.pose, &cam, &lighting)?;
+            let out = pool.render(&objects[obj].1, &p.pose, &fine, &lighting)?;
             let count = out.depth.iter().filter(|&&z| z > 0.0).count();
             if count == 0 {
                 continue;
@@ -171,26 +177,27 @@ fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, i
     }
 
     let background = clutter_background(cam.width, cam.height, rng);
+    let print = Appearance { print_shift_px: appearance.print_shift_px * s as f64, ..appearance.clone() };
     for (_, _, out) in placed.iter_mut() {
-        drift_print(&mut out.rgb, &out.mask, &appearance, rng);
+        drift_print(&mut out.rgb, &out.mask, &print, rng);
     }
     let renders: Vec<&RenderOutput> = placed.iter().map(|(_, _, out)| out).collect();
-    let clean = layers.paint(&renders, &occluders, &background);
+    let clean = if s == 1 { layers.paint(&renders, &occluders, &background) } else { average_down(&layers.paint(&renders, &occluders, &repeat_up(&background, s)), s) };
     let rgb = as_stored(degrade(&clean, &appearance, rng), &appearance, rng)?;
+    let at_image = |mask: GrayImage| if s == 1 { mask } else { centre_samples(&mask, s) };
+    let count = |mask: &GrayImage| mask.pixels().filter(|p| p[0] > 0).count();
+    let depth = if s == 1 { layers.depth().to_vec() } else { centre_depth(layers.depth(), fine.width, s) };
     let visible = layers.visible_counts(placed.len());
     let instances = placed
         .into_iter()
         .enumerate()
-        .map(|(i, (obj, p, out))| SceneInstance {
-            obj_id: objects[obj].0,
-            pose: p.pose,
-            mask: out.mask,
-            mask_visib: layers.visible_mask(i),
-            px_count_all: full[i],
-            px_count_visib: visible[i],
+        .map(|(i, (obj, p, out))| {
+            let (mask, mask_visib) = (at_image(out.mask), at_image(layers.visible_mask(i)));
+            let (px_count_all, px_count_visib) = if s == 1 { (full[i], visible[i]) } else { (count(&mask), count(&mask_visib)) };
+            SceneInstance { obj_id: objects[obj].0, pose: p.pose, px_count_all, px_count_visib, mask, mask_visib }
         })
         .collect();
-    Ok(Some(SceneImage { cam, rgb, depth: layers.depth().to_vec(), instances }))
+    Ok(Some(SceneImage { cam, rgb, depth, instances }))
 }
 
 /// Which object fills each slot: a random order of all objects, repeated when there are

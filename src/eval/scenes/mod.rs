@@ -26,10 +26,11 @@ mod generate;
 mod layers;
 mod occluders;
 mod placement;
+mod supersample;
 #[cfg(test)]
 mod tests;
 
-pub use config::{Appearance, SceneConfig, MAX_OBJECTS_PER_IMAGE};
+pub use config::{Appearance, SceneConfig, MAX_OBJECTS_PER_IMAGE, MAX_SUPERSAMPLING};
 pub use generate::{generate_image, SceneImage, SceneInstance};
 
 use crate::mesh::Mesh;
