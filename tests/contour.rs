@@ -226,9 +226,14 @@ fn photo_edges_keep_the_depth_under_a_mask_a_pixel_too_wide() {
         });
         let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &wide, unknown: None, mask_is_probability: false };
         let z = inst.pose.translation.z;
-        let dz = |r: &ContourRefiner| (r.refine(&ctx, inst.pose).unwrap().pose.translation.z - z) / z;
-        let (a, b) = (dz(&with), dz(&without));
-        eprintln!("seed {seed}: Δz/z with photo edges {a:.4}, mask alone {b:.4}");
+        let dz = |r: &ContourRefiner| {
+            let refined = r.refine(&ctx, inst.pose).unwrap();
+            ((refined.pose.translation.z - z) / z, refined.report.photo_edge_share)
+        };
+        let ((a, share), (b, none)) = (dz(&with), dz(&without));
+        // The report says how many lines the photo placed (none with photo edges off).
+        assert!(share > 0.2 && none == 0.0, "photo edge share {share} with, {none} without");
+        eprintln!("seed {seed}: Δz/z with photo edges {a:.4} ({share:.2} of the lines on them), mask alone {b:.4}");
         err_with.push(a.abs());
         err_without.push(b.abs());
     }

@@ -81,11 +81,16 @@ pub struct RefineReport {
     /// image border, or showing no edge); NaN (null) where it did not move the pose, and
     /// for the other refiners.
     pub visible_fraction: f64,
+    /// Share of the contour refiner's last lines whose outline came from the photo's edge
+    /// rather than the mask's pixel steps (`contour::photo_edge`; 0 where photo edges are
+    /// off for the object); NaN (null) where it did not move the pose, and for the other
+    /// refiners.
+    pub photo_edge_share: f64,
 }
 
 impl Default for RefineReport {
     fn default() -> Self {
-        Self { moved: false, residual_px: 0.0, lines: 0, lines_with_edge: 0, agreement: 0.0, note: None, depth_sigma_m: f64::NAN, visible_fraction: f64::NAN }
+        Self { moved: false, residual_px: 0.0, lines: 0, lines_with_edge: 0, agreement: 0.0, note: None, depth_sigma_m: f64::NAN, visible_fraction: f64::NAN, photo_edge_share: f64::NAN }
     }
 }
 

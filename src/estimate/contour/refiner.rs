@@ -208,12 +208,13 @@ impl Refiner for ContourRefiner {
         let mut pose = start;
         // The depth's standard deviation and the visible share of the outline from the last
         // step, on the finest lines.
-        let (mut depth_sigma, mut visible) = (f64::NAN, f64::NAN);
+        let (mut depth_sigma, mut visible, mut photo_share) = (f64::NAN, f64::NAN, f64::NAN);
         // The first pass measures at the start pose on the first scale: the check's lines.
         let mut first = Some(coarse);
         for scale in &scales {
             for _ in 0..self.config.passes_per_scale {
                 let lines = first.take().unwrap_or_else(|| build_lines(&cm, &centre, &pose, k, &post, *scale, photo));
+                photo_share = lines.iter().filter(|l| l.photo_edge).count() as f64 / lines.len().max(1) as f64;
                 for _ in 0..self.config.updates_per_pass {
                     let Some(step) = gauss_newton_update(&lines, &pose, &start, k, &self.config.regularisation, radius, self.config.occlusion_model) else { break };
                     pose = apply_update(&pose, &step.omega, &step.v);
@@ -236,6 +237,6 @@ impl Refiner for ContourRefiner {
         if after.score < before.score {
             return keep(format!("no improvement: contour agreement {:.3} after, {:.3} before", after.score, before.score));
         }
-        Ok(Refined { pose, report: RefineReport { depth_sigma_m: depth_sigma, visible_fraction: visible, ..after.report(true, None) } })
+        Ok(Refined { pose, report: RefineReport { depth_sigma_m: depth_sigma, visible_fraction: visible, photo_edge_share: photo_share, ..after.report(true, None) } })
     }
 }
