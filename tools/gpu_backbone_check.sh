@@ -133,11 +133,8 @@ threads() {
   "$STATE/b2tf" bench estimate --backbone "onnx:$m" --device cuda:0 --images 5 --store "dir://$STATE/store"
   for n in default ${THREAD_CAPS:-4 1}; do
     echo "== RAYON_NUM_THREADS=$n"
-    if [ "$n" = default ]; then
-      "$STATE/b2tf" bench serve --backbone "onnx:$m" --device cuda:0 --store "dir://$STATE/store" --clients 1,16 --requests 4 --protocols grpc
-    else
-      RAYON_NUM_THREADS=$n "$STATE/b2tf" bench serve --backbone "onnx:$m" --device cuda:0 --store "dir://$STATE/store" --clients 1,16 --requests 4 --protocols grpc
-    fi
+    env $([ "$n" = default ] || echo "RAYON_NUM_THREADS=$n") "$STATE/b2tf" bench serve --backbone "onnx:$m" --device cuda:0 \
+      --store "dir://$STATE/store" --clients 1,16 --requests 4 --protocols grpc
   done
 }
 

@@ -242,13 +242,10 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         })
         .collect();
     let scene_cfg = a.scenes.scene_config(a.gap || a.harsh_scenes);
-    let mut estimator = crate::estimate::Estimator::new(backbone, pool.clone());
-    if a.no_occlusion_model || a.photo_edges != crate::estimate::contour::PhotoEdges::default() {
-        let mut contour = crate::estimate::contour::ContourRefiner::new(pool.clone());
-        contour.config.occlusion_model = !a.no_occlusion_model;
-        contour.config.photo_edges = a.photo_edges;
-        estimator = estimator.with_refiner(crate::estimate::RefinerKind::Contour, Arc::new(contour));
-    }
+    let mut contour = crate::estimate::contour::ContourRefiner::new(pool.clone());
+    contour.config.occlusion_model = !a.no_occlusion_model;
+    contour.config.photo_edges = a.photo_edges;
+    let estimator = crate::estimate::Estimator::new(backbone, pool.clone()).with_refiner(crate::estimate::RefinerKind::Contour, Arc::new(contour));
     let mut base = EstimateConfig { refiner: a.refiner, ..Default::default() };
     if let Some(w) = a.silhouette_weight {
         base.retrieval.silhouette_weight = w;

@@ -6,6 +6,7 @@
 use super::hypotheses::Source;
 use super::refine::RefineReport;
 use super::select::{window_camera, window_iou};
+use crate::features::grey;
 use crate::geometry::{Intrinsics, Pose};
 use crate::render::{RenderOptions, RenderOutput, RenderPool};
 use image::{GrayImage, RgbImage};
@@ -98,11 +99,6 @@ pub struct Verified {
     /// selection does not render the same pose again.
     #[serde(skip)]
     pub render: Option<RenderOutput>,
-}
-
-/// Grey level of an sRGB pixel (0–255).
-fn grey(p: &image::Rgb<u8>) -> f32 {
-    0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32
 }
 
 /// Sobel gradient of `at(x, y)` at interior point (x, y).

@@ -38,6 +38,13 @@ pub fn mask_bbox(mask: &GrayImage) -> Option<(u32, u32, u32, u32)> {
     (lo_u != u32::MAX).then_some((lo_u, lo_v, hi_u, hi_v))
 }
 
+/// Grey level (0–255) of an sRGB pixel, Rec. 601 weights: what every image comparison
+/// here (verification's edges, the tracker's photometric term, the embedded descriptor,
+/// the contour refiner's photo edges) reads of a colour.
+pub fn grey(p: &image::Rgb<u8>) -> f32 {
+    0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32
+}
+
 /// The first and last nonzero pixel of each row of `mask` (x, y): a turned mask's extents
 /// are those of these points, since a pixel between two others of its row is never
 /// extreme in any direction. Empty for an empty mask.

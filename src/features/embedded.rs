@@ -146,7 +146,7 @@ impl EmbeddedBackbone {
     /// two nearest orientation bins.
     fn cell_histograms(&self, crop: &CropInput) -> Vec<f32> {
         let s = self.config.input_size as usize;
-        let mut lum: Vec<f32> = crop.rgb.pixels().map(|p| (0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32) / 255.0).collect();
+        let mut lum: Vec<f32> = crop.rgb.pixels().map(|p| super::grey(p) / 255.0).collect();
         for _ in 0..self.config.smoothing_passes {
             binomial_blur(&mut lum, s);
         }

@@ -61,8 +61,7 @@ impl GreyWindow {
         let mut values = Vec::with_capacity(w * h);
         for y in 0..h {
             for x in 0..w {
-                let p = image.get_pixel(window.x0 + x as u32, window.y0 + y as u32);
-                values.push(0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32);
+                values.push(crate::features::grey(image.get_pixel(window.x0 + x as u32, window.y0 + y as u32)));
             }
         }
         if sigma > 0.0 {

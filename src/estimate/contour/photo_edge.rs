@@ -7,6 +7,8 @@
 //! line takes the edge's position; elsewhere (a low-contrast outline, texture or another
 //! edge nearby) it keeps the mask's.
 
+use crate::features::grey;
+use crate::geometry::pixel::floor_i64;
 use image::RgbImage;
 use nalgebra::Vector2;
 
@@ -29,15 +31,12 @@ const RUN_FLOOR: f64 = 0.1;
 /// Luminance (0–255) at image point (u, v), pixel centres at integers, bilinear; `None`
 /// where the four pixels are not all inside the image.
 fn luminance(img: &RgbImage, u: f64, v: f64) -> Option<f64> {
-    let (x0, y0) = (u.floor(), v.floor());
-    if x0 < 0.0 || y0 < 0.0 || x0 + 1.0 >= img.width() as f64 || y0 + 1.0 >= img.height() as f64 {
+    let (x0, y0) = (floor_i64(u), floor_i64(v));
+    if x0 < 0 || y0 < 0 || x0 + 1 >= img.width() as i64 || y0 + 1 >= img.height() as i64 {
         return None;
     }
-    let (fx, fy, x, y) = (u - x0, v - y0, x0 as u32, y0 as u32);
-    let lum = |x: u32, y: u32| {
-        let p = img.get_pixel(x, y).0;
-        0.299 * p[0] as f64 + 0.587 * p[1] as f64 + 0.114 * p[2] as f64
-    };
+    let (fx, fy, x, y) = (u - x0 as f64, v - y0 as f64, x0 as u32, y0 as u32);
+    let lum = |x: u32, y: u32| grey(img.get_pixel(x, y)) as f64;
     let top = lum(x, y) * (1.0 - fx) + lum(x + 1, y) * fx;
     let bottom = lum(x, y + 1) * (1.0 - fx) + lum(x + 1, y + 1) * fx;
     Some(top * (1.0 - fy) + bottom * fy)

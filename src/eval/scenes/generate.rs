@@ -182,22 +182,20 @@ fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, i
         drift_print(&mut out.rgb, &out.mask, &print, rng);
     }
     let renders: Vec<&RenderOutput> = placed.iter().map(|(_, _, out)| out).collect();
-    let clean = if s == 1 { layers.paint(&renders, &occluders, &background) } else { average_down(&layers.paint(&renders, &occluders, &repeat_up(&background, s)), s) };
+    // At s = 1 each helper below is a copy.
+    let clean = average_down(&layers.paint(&renders, &occluders, &repeat_up(&background, s)), s);
     let rgb = as_stored(degrade(&clean, &appearance, rng), &appearance, rng)?;
-    let at_image = |mask: GrayImage| if s == 1 { mask } else { centre_samples(&mask, s) };
+    // The counts are the image-resolution masks' (a render's mask is its depth > 0).
     let count = |mask: &GrayImage| mask.pixels().filter(|p| p[0] > 0).count();
-    let depth = if s == 1 { layers.depth().to_vec() } else { centre_depth(layers.depth(), fine.width, s) };
-    let visible = layers.visible_counts(placed.len());
     let instances = placed
         .into_iter()
         .enumerate()
         .map(|(i, (obj, p, out))| {
-            let (mask, mask_visib) = (at_image(out.mask), at_image(layers.visible_mask(i)));
-            let (px_count_all, px_count_visib) = if s == 1 { (full[i], visible[i]) } else { (count(&mask), count(&mask_visib)) };
-            SceneInstance { obj_id: objects[obj].0, pose: p.pose, px_count_all, px_count_visib, mask, mask_visib }
+            let (mask, mask_visib) = (centre_samples(&out.mask, s), centre_samples(&layers.visible_mask(i), s));
+            SceneInstance { obj_id: objects[obj].0, pose: p.pose, px_count_all: count(&mask), px_count_visib: count(&mask_visib), mask, mask_visib }
         })
         .collect();
-    Ok(Some(SceneImage { cam, rgb, depth, instances }))
+    Ok(Some(SceneImage { cam, rgb, depth: centre_depth(layers.depth(), fine.width, s), instances }))
 }
 
 /// Which object fills each slot: a random order of all objects, repeated when there are
