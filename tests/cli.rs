@@ -100,6 +100,10 @@ fn bad_inputs_give_clear_errors() {
         (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--device".into(), "cuda:0".into()], "needs an ONNX backbone"),
         (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--device".into(), "gpu".into()], "unknown device \"gpu\""),
         (vec!["render".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--camera".into(), s(&d.join("missing.json")).into(), "--out".into(), s(d).into()], "missing.json"),
+        // Scene flags are checked before anything is onboarded.
+        (vec!["bench".into(), "estimate".into(), "--images".into(), "1".into(), "--supersample".into(), "2".into(), "--store".into(), format!("dir://{}", d.join("bench").display())], "supersampling must be 1 or an odd number"),
+        (vec!["bench".into(), "refine".into(), "--images".into(), "1".into(), "--supersample".into(), "9".into(), "--store".into(), format!("dir://{}", d.join("bench").display())], "supersampling must be 1 or an odd number"),
+        (vec!["bench".into(), "estimate".into(), "--images".into(), "1".into(), "--photo-edges".into(), "textured".into()], "'textured'"),
         (vec!["render".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "furlongs".into(), "--camera".into(), "c.json".into(), "--out".into(), s(d).into()], "unknown length unit"),
     ];
     for (args, needle) in cases {

@@ -215,6 +215,7 @@ pub(super) fn bench_models(meshes: &[(String, Mesh)], gap: bool, store: &str, ba
 }
 
 pub fn run(a: BenchEstimateArgs) -> Result<()> {
+    let scene_cfg = a.scenes.scene_config(a.gap || a.harsh_scenes)?;
     let backbone = a.scenes.backbone.open()?;
     let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
     let meshes = a.scenes.load_meshes()?;
@@ -241,7 +242,6 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
             (symmetries, crate::eval::pose_error::sample_points(m.mesh.positions(), 500))
         })
         .collect();
-    let scene_cfg = a.scenes.scene_config(a.gap || a.harsh_scenes);
     let mut contour = crate::estimate::contour::ContourRefiner::new(pool.clone());
     contour.config.occlusion_model = !a.no_occlusion_model;
     contour.config.photo_edges = a.photo_edges;

@@ -82,12 +82,12 @@ fn perturbed(pose: &Pose, centre: &Vector3<f64>, axis: Vector3<f64>, degrees: f6
 }
 
 pub fn run(a: BenchRefineArgs) -> Result<()> {
+    let scene_cfg = a.scenes.scene_config(a.harsh_scenes)?;
     let backbone = a.scenes.backbone.open()?;
     let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
     let meshes = a.scenes.load_meshes()?;
     let models = bench_models(&meshes, false, &a.scenes.store, backbone.as_ref(), &pool)?;
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
-    let scene_cfg = a.scenes.scene_config(a.harsh_scenes);
     let kinds = if a.refiners.is_empty() { vec![RefinerKind::Contour, RefinerKind::SilhouetteDepth] } else { a.refiners.clone() };
     let estimator = crate::estimate::Estimator::new(backbone, pool.clone());
     let mut without_occlusion = crate::estimate::contour::ContourRefiner::new(pool.clone());
