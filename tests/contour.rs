@@ -65,6 +65,20 @@ fn contour_model_is_built_at_onboarding() {
         let n = cm.normals[i];
         assert!((v[0] * n[0] + v[1] * n[1] + v[2] * n[2]).abs() < 0.2);
     }
+    // The box is printed: every row knows how far inwards its print stays plain, short
+    // where a pattern's edge is near the rim, long where it is not.
+    assert_eq!(cm.plain_share.len(), cm.points.len());
+    let (short, long) = (cm.plain_share.iter().filter(|&&s| s < 64).count(), cm.plain_share.iter().filter(|&&s| s > 128).count());
+    assert!(short > 0 && long > 0, "{short} short and {long} long plain runs");
+}
+
+#[test]
+fn an_unprinted_object_has_no_plain_runs_to_keep() {
+    let grey = fixture().model.mesh.without_appearance();
+    let config = b2tfpose::onboard::ContourConfig { level: 1, ..Default::default() };
+    let cm = b2tfpose::onboard::ContourModel::build(&grey, &fixture().pool, &config).unwrap();
+    assert!(cm.plain_share.is_empty());
+    cm.validate().unwrap();
 }
 
 #[test]
@@ -239,4 +253,39 @@ fn photo_edges_keep_the_depth_under_a_mask_a_pixel_too_wide() {
     }
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
     assert!(mean(&err_with) < 0.75 * mean(&err_without), "mean |Δz|/z with photo edges {:.4}, mask alone {:.4}", mean(&err_with), mean(&err_without));
+}
+
+/// By default (`PhotoEdges::Plain`) a printed object's lines read the photo only where its
+/// stored plain runs cover the stretch the edge finder reads: with every run long the
+/// refinement is the one on every line, with every run short the mask's alone.
+#[test]
+fn printed_objects_read_the_photo_where_their_print_is_plain() {
+    let f = fixture();
+    let with_runs = |share: u8| {
+        let cm = f.model.contours.get().unwrap();
+        let runs = b2tfpose::onboard::ContourModel { plain_share: vec![share; cm.points.len()], ..(**cm).clone() };
+        ObjectModel { contours: OnceLock::from(Arc::new(runs)), ..f.model.clone() }
+    };
+    let (long, short) = (with_runs(255), with_runs(0));
+    let refiner = |edges: PhotoEdges| {
+        let mut r = ContourRefiner::new(f.pool.clone());
+        r.config.photo_edges = edges;
+        r
+    };
+    assert_eq!(PhotoEdges::default(), PhotoEdges::Plain);
+    let cfg = SceneConfig { images: 1, objects_per_image: 1, image_size: (320, 240), fill_range: (0.25, 0.3), max_occlusion: 0.05, occluders: false, supersampling: 3, seed: 2, ..Default::default() };
+    let s = generate_image(&[(1, f.model.mesh.clone())], &cfg, &f.pool, 0).unwrap();
+    let inst = &s.instances[0];
+    let start = perturbed(&inst.pose, Vector3::new(0.3, 1.0, 0.2), 3.0, 1.03);
+    let refine = |model: &ObjectModel, edges: PhotoEdges| {
+        let ctx = RefineContext { model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false };
+        let r = refiner(edges).refine(&ctx, start).unwrap();
+        (r.pose.translation, r.report.photo_edge_share)
+    };
+    let (plain_long, all) = (refine(&long, PhotoEdges::Plain), refine(&long, PhotoEdges::All));
+    let (plain_short, off) = (refine(&short, PhotoEdges::Plain), refine(&short, PhotoEdges::Off));
+    assert!(all.1 > 0.2, "photo edge share {}", all.1);
+    assert_eq!(plain_long, all);
+    assert_eq!(plain_short.0, off.0);
+    assert_eq!(plain_short.1, 0.0);
 }

@@ -144,7 +144,8 @@ fn b2tf(args: &[&str]) -> (bool, String, String) {
 }
 
 /// `b2tf objects upgrade` gives an object stored without detector templates (and with the
-/// f32 patch points of format 6) its templates and grid-coded points;
+/// f32 patch points of format 6, and a contour model without plain runs) its templates,
+/// grid-coded points and plain runs;
 /// `b2tf detect` writes BOP default detections and refuses bad input by name.
 #[test]
 fn upgrade_and_detect_from_the_command_line() {
@@ -160,13 +161,16 @@ fn upgrade_and_detect_from_the_command_line() {
     let model = onboard("box_7", &f.mesh, &cfg, &backbone, &f.pool, &|_| {}).unwrap();
     let mut points = Vec::new();
     model.patch_points.extend_range(0..model.patch_count(), &mut points);
-    let old = b2tfpose::onboard::ObjectModel { detector: OnceLock::new(), patch_points: b2tfpose::onboard::PatchPoints::Exact(points.into()), ..model };
+    // The printed box's contour model as stored before plain runs were kept.
+    let contour = b2tfpose::onboard::ContourModel { plain_share: vec![], ..(**model.contours.get().unwrap()).clone() };
+    let old = b2tfpose::onboard::ObjectModel { detector: OnceLock::new(), patch_points: b2tfpose::onboard::PatchPoints::Exact(points.into()), contours: OnceLock::from(std::sync::Arc::new(contour)), ..model };
     let store = b2tfpose::store::open(&store_url).unwrap();
     store.put(&old, false).unwrap();
     assert!(store.get("box_7").unwrap().detector.get().is_none() && !store.get("box_7").unwrap().patch_points.is_grid());
     let (ok, out, err) = b2tf(&["objects", "upgrade", "--store", &store_url]);
-    assert!(ok && out.contains("box_7: added detector templates and compact patch points"), "{out}{err}");
+    assert!(ok && out.contains("box_7: added plain print runs and detector templates and compact patch points"), "{out}{err}");
     let upgraded = store.get("box_7").unwrap();
+    assert_eq!(upgraded.contours.get().unwrap().plain_share.len(), upgraded.contours.get().unwrap().points.len());
     assert_eq!(upgraded.detector.get().map(|d| d.template_count()), Some(f.shape.template_count()));
     assert!(upgraded.patch_points.is_grid());
     let (ok, out, _) = b2tf(&["objects", "upgrade", "--store", &store_url, "box_7"]);

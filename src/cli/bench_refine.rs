@@ -97,14 +97,16 @@ pub fn run(a: BenchRefineArgs) -> Result<()> {
         r.config.photo_edges = edges;
         r
     };
-    let (photo_off, photo_all) = (photo(crate::estimate::contour::PhotoEdges::Off), photo(crate::estimate::contour::PhotoEdges::All));
+    use crate::estimate::contour::PhotoEdges;
+    let (photo_off, photo_plain, photo_all) = (photo(PhotoEdges::Off), photo(PhotoEdges::Plain), photo(PhotoEdges::All));
     let mut refiners: Vec<(String, &dyn crate::estimate::Refiner)> = Vec::new();
     for kind in &kinds {
         refiners.push((kind.name().to_string(), estimator.refiner(*kind)));
         if *kind == RefinerKind::Contour {
             refiners.push(("contour, no occlusion model".into(), &without_occlusion));
             refiners.push(("contour, photo edges off".into(), &photo_off));
-            refiners.push(("contour, photo edges on every object".into(), &photo_all));
+            refiners.push(("contour, photo edges where the print is plain".into(), &photo_plain));
+            refiners.push(("contour, photo edges on every line".into(), &photo_all));
         }
     }
     let axes = [Vector3::new(1.0, 0.3, 0.0), Vector3::new(-0.2, 1.0, 0.5), Vector3::new(0.3, -0.4, 1.0)];

@@ -113,7 +113,7 @@ fn upgrade(store: &dyn crate::store::ObjectStore, ids: Vec<String>) -> Result<()
     let renderer = super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?;
     for id in ids {
         let mut m = store.get(&id)?;
-        let lacked: Vec<&str> = [("contour model", m.contours.get().is_none()), ("detector templates", m.detector.get().is_none()), ("symmetries", m.symmetries.is_none()), ("compact patch points", !m.patch_points.is_grid())].iter().filter(|(_, missing)| *missing).map(|(what, _)| *what).collect();
+        let lacked: Vec<&str> = [("contour model", m.contours.get().is_none()), ("plain print runs", m.contour_lacks_plain_runs()), ("detector templates", m.detector.get().is_none()), ("symmetries", m.symmetries.is_none()), ("compact patch points", !m.patch_points.is_grid())].iter().filter(|(_, missing)| *missing).map(|(what, _)| *what).collect();
         if lacked.is_empty() {
             println!("{id}: up to date");
             continue;
@@ -122,6 +122,7 @@ fn upgrade(store: &dyn crate::store::ObjectStore, ids: Vec<String>) -> Result<()
         if m.symmetries.is_none() {
             m.symmetries = Some(crate::onboard::mesh_symmetries(&m.mesh));
         }
+        m.rebuild_stale_contour_model(&renderer)?;
         m.contour_model_or_build(&renderer)?;
         m.shape_model_or_build(&renderer)?;
         m.patch_points.to_grid();

@@ -7,6 +7,7 @@
 use super::pipeline::base_intrinsics;
 use super::point_grid::{i16_to_unit, unit_to_i16, PointGrid};
 use crate::geometry::views::{fitted_distance, icosphere, view_pose};
+use crate::features::grey;
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Mesh;
 use crate::render::{RenderError, RenderOptions, RenderOutput, RenderPool};
@@ -61,6 +62,12 @@ pub struct ContourModel {
     /// Metres of background outwards (along the normal) before the object again, capped at
     /// the render's extent.
     pub background_m: Vec<f32>,
+    /// For objects with colours of their own: how far inwards from the rim the surface's
+    /// colour stays plain (no print edge), in 255ths of `foreground_m`. Where it is short, an
+    /// edge the photo shows just inside the outline may be the print's, not the outline's
+    /// (`estimate::contour::photo_edge`). Empty for objects without colours (nothing is
+    /// printed on them) and for objects stored before it was kept (unknown).
+    pub plain_share: Vec<u8>,
 }
 
 /// One contour point of one view, before it joins the model's arrays.
@@ -70,7 +77,17 @@ struct RimPoint {
     normal: [f32; 3],
     foreground_m: f32,
     background_m: f32,
+    plain_share: u8,
 }
+
+/// Largest grey-level difference (0–255) from the rim's own colour that still counts as the
+/// same plain surface. Scanned textures darken towards the rim (their lighting is baked in),
+/// so the photo-edge finder's least clear edge (12) ended most runs within a pixel or two
+/// and left 13 % of the HOPE objects' lines on the photo's edges; at 30 the pipeline on
+/// those objects from boxes did best (docs/benchmarks.md, "Outlines from the photo's
+/// edges"). A smooth darkening that remains is the edge finder's to refuse (a run lopsided
+/// about its centroid).
+const PLAIN_TOLERANCE: f32 = 30.0;
 
 /// Views rendered at once (bounds memory: renders are small, but keep batches modest).
 const VIEW_CHUNK: usize = 32;
@@ -95,7 +112,13 @@ impl ContourModel {
 
     /// Heap bytes of the arrays.
     pub fn memory_bytes(&self) -> usize {
-        self.directions.len() * 12 + self.points.len() * 12 + self.normals.len() * 12 + self.foreground_m.len() * 4 + self.background_m.len() * 4
+        self.directions.len() * 12 + self.points.len() * 12 + self.normals.len() * 12 + self.foreground_m.len() * 4 + self.background_m.len() * 4 + self.plain_share.len()
+    }
+
+    /// Metres the surface's colour stays plain inwards from row `i`'s rim point; `None`
+    /// where that is not known (no colours, or an object stored before it was kept).
+    pub fn plain_m(&self, i: usize) -> Option<f32> {
+        self.plain_share.get(i).map(|&s| self.foreground_m[i] * s as f32 / 255.0)
     }
 
     /// Checks the arrays agree with the configuration (used after loading).
@@ -105,7 +128,7 @@ impl ContourModel {
         if self.directions.is_empty() {
             return Err("contour model has no views".into());
         }
-        if [self.points.len(), self.normals.len(), self.foreground_m.len(), self.background_m.len()].iter().any(|&n| n != rows) {
+        if [self.points.len(), self.normals.len(), self.foreground_m.len(), self.background_m.len()].iter().any(|&n| n != rows) || !(self.plain_share.is_empty() || self.plain_share.len() == rows) {
             return Err(format!("contour arrays do not match {} views × {} points", self.directions.len(), self.config.points_per_view));
         }
         let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
@@ -115,7 +138,8 @@ impl ContourModel {
         Ok(())
     }
 
-    /// Renders the silhouette of `mesh` from every viewpoint and samples its contour.
+    /// Renders the silhouette of `mesh` from every viewpoint and samples its contour (and,
+    /// for a mesh with colours, how far its print stays plain inside the rim).
     pub fn build(mesh: &Mesh, renderer: &RenderPool, config: &ContourConfig) -> Result<ContourModel, RenderError> {
         config.validate().map_err(RenderError::InvalidOptions)?;
         // A long focal length puts the camera about ten radii away, where real cameras
@@ -125,9 +149,12 @@ impl ContourModel {
         let (centre, radius) = (Vector3::from(mesh.bbox_center()), mesh.bounding_radius().max(1e-6));
         let distance = fitted_distance(radius, k.fx, config.render_size as f64 * 0.5, 0.85);
         let dirs = icosphere(config.level);
-        // Appearance does not matter for a silhouette: the grey render skips texture lookups.
-        let opts = RenderOptions::grey();
-        let mut model = ContourModel { config: *config, directions: vec![], points: vec![], normals: vec![], foreground_m: vec![], background_m: vec![] };
+        // A silhouette needs no appearance (the grey render skips texture lookups); the plain
+        // runs of a coloured mesh need its own colours, unlit, so that only the print (not
+        // the renderer's shading) ends a run.
+        let coloured = mesh.has_colours();
+        let opts = if coloured { RenderOptions { light_intensity: 0.0, ambient: 1.0, ..RenderOptions::default() } } else { RenderOptions::grey() };
+        let mut model = ContourModel { config: *config, directions: vec![], points: vec![], normals: vec![], foreground_m: vec![], background_m: vec![], plain_share: vec![] };
         for chunk in dirs.chunks(VIEW_CHUNK) {
             let views: Vec<(Pose, Intrinsics)> = chunk.iter().map(|d| (view_pose(d, 0.0, &centre, distance), k)).collect();
             let renders = renderer.render_batch(mesh, &views, &opts)?;
@@ -144,6 +171,9 @@ impl ContourModel {
                     model.normals.push(p.normal);
                     model.foreground_m.push(p.foreground_m);
                     model.background_m.push(p.background_m);
+                    if coloured {
+                        model.plain_share.push(p.plain_share);
+                    }
                 }
             }
         }
@@ -192,18 +222,28 @@ fn contour_normal(mask: &image::GrayImage, x: i64, y: i64) -> Option<(f64, f64)>
 
 /// Pixels walked from (x, y) along (nx, ny) while the mask equals `inside`.
 fn run_length(mask: &image::GrayImage, x: f64, y: f64, nx: f64, ny: f64, inside: bool) -> f64 {
-    let (w, h) = (mask.width() as f64, mask.height() as f64);
+    walk(mask.width(), mask.height(), x, y, nx, ny, |px, py| (mask.get_pixel(px, py)[0] > 0) == inside)
+}
+
+/// Pixels walked from (x, y) along (nx, ny), one pixel a step, while `go` holds for the
+/// pixel reached and it lies inside a `w` × `h` image.
+fn walk(w: u32, h: u32, x: f64, y: f64, nx: f64, ny: f64, go: impl Fn(u32, u32) -> bool) -> f64 {
     let mut s = 1.0;
     loop {
         let (px, py) = ((x + nx * s).round(), (y + ny * s).round());
-        if px < 0.0 || py < 0.0 || px >= w || py >= h {
-            return s;
-        }
-        if (mask.get_pixel(px as u32, py as u32)[0] > 0) != inside {
+        if px < 0.0 || py < 0.0 || px >= w as f64 || py >= h as f64 || !go(px as u32, py as u32) {
             return s;
         }
         s += 1.0;
     }
+}
+
+/// Share (255ths) of the object's run inwards from rim pixel (x, y) over which the render's
+/// colour stays within `PLAIN_TOLERANCE` of the rim's own.
+fn plain_share(r: &RenderOutput, x: i64, y: i64, nx: f64, ny: f64, object_run: f64) -> u8 {
+    let rim = grey(r.rgb.get_pixel(x as u32, y as u32));
+    let plain = walk(r.rgb.width(), r.rgb.height(), x as f64, y as f64, -nx, -ny, |px, py| r.mask.get_pixel(px, py)[0] > 0 && (grey(r.rgb.get_pixel(px, py)) - rim).abs() <= PLAIN_TOLERANCE);
+    (255.0 * (plain / object_run).min(1.0)).round() as u8
 }
 
 /// `count` contour points of one silhouette render, evenly spread over its contour pixels;
@@ -257,17 +297,20 @@ fn rim_point(r: &RenderOutput, inv: &Pose, k: &Intrinsics, (x, y): (i64, i64)) -
     let p = inv.transform_point(&k.back_project(u, v, z));
     let n = inv.rotation * Vector3::new(nx, ny, 0.0);
     let px_to_m = z / k.fx;
+    let object_run = run_length(mask, x as f64, y as f64, -nx, -ny, true);
     Some(RimPoint {
         point: [p.x as f32, p.y as f32, p.z as f32],
         normal: [n.x as f32, n.y as f32, n.z as f32],
-        foreground_m: (run_length(mask, x as f64, y as f64, -nx, -ny, true) * px_to_m) as f32,
+        foreground_m: (object_run * px_to_m) as f32,
         background_m: (run_length(mask, x as f64, y as f64, nx, ny, false) * px_to_m) as f32,
+        plain_share: plain_share(r, x, y, nx, ny, object_run),
     })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use image::RgbImage;
 
     #[test]
     fn normal_points_out_of_a_disc() {
@@ -287,6 +330,29 @@ mod tests {
         // Across the disc from the right edge: about 39 px of object, then background to the border.
         assert!((run_length(&m, 51.0, 32.0, -1.0, 0.0, true) - 39.0).abs() <= 1.0);
         assert_eq!(run_length(&m, 51.0, 32.0, 1.0, 0.0, false), 13.0);
+    }
+
+    #[test]
+    fn plain_runs_end_at_the_first_print_edge() {
+        // A 30 px square of plain grey with a dark stripe 4 px in from its left side, and a
+        // slow shading drift (under the tolerance) towards its right side.
+        let (w, h) = (40u32, 40u32);
+        let inside = |x: u32, y: u32| (5..35).contains(&x) && (5..35).contains(&y);
+        let rgb = RgbImage::from_fn(w, h, |x, y| match (inside(x, y), x) {
+            (false, _) => image::Rgb([0, 0, 0]),
+            (true, 9) => image::Rgb([40, 40, 40]),
+            (true, x) => image::Rgb([(150 - (x.saturating_sub(20) / 2)) as u8; 3]),
+        });
+        let mask = image::GrayImage::from_fn(w, h, |x, y| image::Luma([if inside(x, y) { 255 } else { 0 }]));
+        let r = RenderOutput { rgb, depth: vec![], mask };
+        // From the left rim (x = 5) inwards: x = 5..8 plain, the stripe at x = 9 ends it:
+        // 4 of the 30 pixels across.
+        assert_eq!(plain_share(&r, 5, 20, -1.0, 0.0, 30.0), (255.0 * 4.0 / 30.0_f64).round() as u8);
+        // From the right rim (x = 34): the drift of 7 levels never ends it, and the stripe
+        // does at x = 9, 25 pixels in.
+        assert_eq!(plain_share(&r, 34, 20, 1.0, 0.0, 30.0), (255.0 * 25.0 / 30.0_f64).round() as u8);
+        // From the top rim down a column clear of the stripe: plain all the way across.
+        assert_eq!(plain_share(&r, 20, 5, 0.0, -1.0, 30.0), 255);
     }
 
     #[test]

@@ -20,6 +20,8 @@ use std::sync::{Arc, OnceLock};
 /// (`patch_point_steps` and `patch_point_grid` in place of `patch_points`; older models
 /// keep their f32 ones) and the contour points and normals likewise compact. 8: patch rows
 /// may be held per view (`config.patch_rows`), which a program of format 7 would misread.
+/// Optional tensors an older program may ignore without misreading anything (the contour's
+/// `contour_plain_share`) do not bump it, so that nodes of both versions can share a store.
 pub const MODEL_FORMAT_VERSION: u32 = 8;
 
 /// Side of the stored template silhouettes (crop mask downsampled, 1 bit per cell).
@@ -205,6 +207,23 @@ impl ObjectModel {
     /// stored without one.
     pub fn contour_model_or_build(&self, renderer: &crate::render::RenderPool) -> Result<Arc<ContourModel>, crate::render::RenderError> {
         self.built_on_first_use(&self.contours, "a contour model (format < 3)", || ContourModel::build(&self.mesh, renderer, &Default::default()))
+    }
+
+    /// Whether the contour model was stored before plain runs were kept for objects with
+    /// colours (such an object reads no photo edges under `PhotoEdges::Plain`).
+    pub fn contour_lacks_plain_runs(&self) -> bool {
+        self.mesh.has_colours() && self.contours.get().is_some_and(|c| c.plain_share.is_empty())
+    }
+
+    /// Makes the contour model again where it lacks what onboarding now stores (the plain
+    /// runs of an object with colours), as `objects upgrade` and the benchmarks' cache do.
+    pub fn rebuild_stale_contour_model(&mut self, renderer: &crate::render::RenderPool) -> Result<bool, crate::render::RenderError> {
+        if !self.contour_lacks_plain_runs() {
+            return Ok(false);
+        }
+        let config = self.contours.get().map(|c| c.config).unwrap_or_default();
+        self.contours = OnceLock::from(Arc::new(ContourModel::build(&self.mesh, renderer, &config)?));
+        Ok(true)
     }
 
     /// The detector's templates, computed now (renders of the mesh) if the object was stored

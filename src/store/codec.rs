@@ -205,6 +205,11 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
             ("contour_foreground_m", Dtype::F32, vec![rows], bytemuck::cast_slice(&c.foreground_m)),
             ("contour_background_m", Dtype::F32, vec![rows], bytemuck::cast_slice(&c.background_m)),
         ] as [(&str, Dtype, Vec<usize>, &[u8]); 5]);
+        // Only objects with colours have plain runs; an older program ignores the tensor
+        // (and, as before, reads no photo edges on a textured object), so the format stays.
+        if !c.plain_share.is_empty() {
+            tensors.push(("contour_plain_share", Dtype::U8, vec![rows], &c.plain_share));
+        }
     }
     if let Some(d) = model.detector.get() {
         tensors.extend([
@@ -318,6 +323,7 @@ fn decode_inner(manifest: &[u8], tensors: &[u8], map: Option<&Arc<memmap2::Mmap>
                 },
                 foreground_m: bytemuck::pod_collect_to_vec(get("contour_foreground_m", Dtype::F32, 0)?),
                 background_m: bytemuck::pod_collect_to_vec(get("contour_background_m", Dtype::F32, 0)?),
+                plain_share: if st.names().contains(&"contour_plain_share") { get("contour_plain_share", Dtype::U8, 0)?.to_vec() } else { vec![] },
             };
             std::sync::OnceLock::from(Arc::new(c))
         }
@@ -522,6 +528,14 @@ mod hostile_tests {
         refused(&with_steps, "contour_normals_i16");
         refused(&with_tensor(&compact, "contour_point_steps", Dtype::U16, vec![rows, 2], &vec![0; rows * 4]), "expected U16 with 3 columns");
         refused(&with_tensor(&compact, "contour_normals_i16", Dtype::I16, vec![rows + 1, 3], &vec![0; (rows + 1) * 6]), "contour arrays do not match");
+
+        // Plain runs: absent (unknown) before they were kept, one byte per row after.
+        assert!(c.plain_share.is_empty());
+        let shares: Vec<u8> = (0..rows).map(|i| (i * 37 % 256) as u8).collect();
+        let plain = with_tensor(&compact, "contour_plain_share", Dtype::U8, vec![rows], &shares);
+        assert_eq!(load(&manifest, &plain, &texture).unwrap().contours.get().unwrap().plain_share, shares);
+        refused(&with_tensor(&compact, "contour_plain_share", Dtype::U8, vec![rows + 1], &vec![0; rows + 1]), "contour arrays do not match");
+        refused(&with_tensor(&compact, "contour_plain_share", Dtype::F32, vec![rows], &vec![0; rows * 4]), "expected U8");
     }
 
     /// Symmetries load when they are rotations and axes, and are refused naming what is wrong.

@@ -145,6 +145,7 @@ pub fn tiny_stored_object() -> Vec<u8> {
         normals: vec![[1.0, 0.0, 0.0]; points_per_view],
         foreground_m: vec![0.01; points_per_view],
         background_m: vec![0.02; points_per_view],
+        plain_share: vec![128; points_per_view],
     };
     let model = ObjectModel {
         object_id: "tetra".into(),

@@ -3,7 +3,7 @@
 //! those segments a distribution over where the object's outline crosses the line (the
 //! discrete formulation of SRT3D, with a smoothed step as the segment likelihood).
 
-use super::photo_edge::edge_offset;
+use super::photo_edge::{edge_offset, profile_inside_px};
 use super::posterior::Posterior;
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ContourModel;
@@ -25,6 +25,16 @@ const PHOTO_EDGE_MAX_SEGMENT_PX: f64 = 2.0;
 /// true outline sat on the reach's border under such a mask and fewer lines found it:
 /// `tests/contour.rs`, photo_edges_keep_the_depth_under_a_mask_a_pixel_too_wide).
 const PHOTO_EDGE_REACH_PX: f64 = 1.5;
+
+/// Where fine lines read the photo's edges.
+#[derive(Clone, Copy)]
+pub struct PhotoLines<'a> {
+    pub image: &'a RgbImage,
+    /// Only lines whose surface stays plain (`ContourModel::plain_m`) as far inside the
+    /// outline as the edge finder reads: on a printed object the others could take a print's
+    /// edge for the outline.
+    pub plain_only: bool,
+}
 
 /// One correspondence line.
 #[derive(Clone, Debug)]
@@ -69,14 +79,14 @@ pub fn camera_direction(pose: &Pose, centre: &Vector3<f64>) -> Vector3<f64> {
 
 /// Builds the lines of the view nearest to `pose` and measures the outline on each: on
 /// the mask, and at fine scales, where `photo` is given, on the photo's edge beside it.
-pub fn build_lines(cm: &ContourModel, centre: &Vector3<f64>, pose: &Pose, k: &Intrinsics, post: &Posterior<'_>, scale: LineScale, photo: Option<&RgbImage>) -> Vec<Line> {
+pub fn build_lines(cm: &ContourModel, centre: &Vector3<f64>, pose: &Pose, k: &Intrinsics, post: &Posterior<'_>, scale: LineScale, photo: Option<PhotoLines<'_>>) -> Vec<Line> {
     let view = cm.nearest_view(&camera_direction(pose, centre));
     let photo = photo.filter(|_| scale.segment_px <= PHOTO_EDGE_MAX_SEGMENT_PX);
     cm.view_range(view).into_par_iter().filter_map(|i| line(cm, i, pose, k, post, scale, photo)).collect()
 }
 
 /// Line `i` of the model at `pose`; `None` when it cannot be measured at this scale.
-fn line(cm: &ContourModel, i: usize, pose: &Pose, k: &Intrinsics, post: &Posterior<'_>, scale: LineScale, photo: Option<&RgbImage>) -> Option<Line> {
+fn line(cm: &ContourModel, i: usize, pose: &Pose, k: &Intrinsics, post: &Posterior<'_>, scale: LineScale, photo: Option<PhotoLines<'_>>) -> Option<Line> {
     let x = Vector3::new(cm.points[i][0] as f64, cm.points[i][1] as f64, cm.points[i][2] as f64);
     let n = Vector3::new(cm.normals[i][0] as f64, cm.normals[i][1] as f64, cm.normals[i][2] as f64);
     let p = Point3::from(pose.rotation * x + pose.translation);
@@ -100,7 +110,8 @@ fn line(cm: &ContourModel, i: usize, pose: &Pose, k: &Intrinsics, post: &Posteri
     let edge = probs.iter().any(|&p| p > 0.7) && probs.iter().any(|&p| p < 0.3);
     // The photo moves the outline within the mask's pixel step; its weight stays the
     // mask's, so a line is trusted no more for having found a sharp edge.
-    let on_photo = photo.filter(|_| edge).and_then(|img| edge_offset(img, &centre_px, &normal, mean, PHOTO_EDGE_REACH_PX));
+    let plain = |p: &PhotoLines<'_>| !p.plain_only || cm.plain_m(i).is_some_and(|m| m as f64 * px_per_m >= profile_inside_px(PHOTO_EDGE_REACH_PX));
+    let on_photo = photo.filter(|p| edge && plain(p)).and_then(|p| edge_offset(p.image, &centre_px, &normal, mean, PHOTO_EDGE_REACH_PX));
     Some(Line { object_point: x, centre: centre_px, normal, mean: on_photo.unwrap_or(mean), variance, edge, inside_px: inner as f64 * scale.segment_px, photo_edge: on_photo.is_some() })
 }
 

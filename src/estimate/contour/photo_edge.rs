@@ -23,6 +23,12 @@ const MIN_STEP: f64 = 12.0;
 /// A rival slope (the other way, or apart from the edge's own run) at least this share of
 /// the edge's steepest makes the position ambiguous: texture or a second edge.
 const MAX_RIVAL: f64 = 0.5;
+/// Most (px) by which the run may reach farther on one side of its centroid than on the
+/// other. An edge averaged over pixel areas and blurred symmetrically is nearly symmetric
+/// about its position (a sharp one by up to a pixel, where a sliver of slope falls in the
+/// neighbouring pixel interval); a ramp joined to the edge on one side (a print darkening
+/// towards the outline, shading) is not, and would pull the centroid off the outline.
+const MAX_ASYMMETRY_PX: f64 = 1.0;
 /// The edge's run: the samples around the steepest whose slope is above this share of it.
 /// Lower takes in the whole of a blurred edge (0.5 left small objects less precise in
 /// `bench refine`); what lies beyond a run is judged by `MAX_RIVAL`.
@@ -40,6 +46,13 @@ fn luminance(img: &RgbImage, u: f64, v: f64) -> Option<f64> {
     let top = lum(x, y) * (1.0 - fx) + lum(x + 1, y) * fx;
     let bottom = lum(x, y + 1) * (1.0 - fx) + lum(x + 1, y + 1) * fx;
     Some(top * (1.0 - fy) + bottom * fy)
+}
+
+/// How far inside the true outline the profile of `edge_offset` with this `reach` may read:
+/// the outline anywhere within `reach` of the expected offset, the profile `reach` and a
+/// margin beyond that. A print edge nearer than this could be taken for the outline.
+pub fn profile_inside_px(reach: f64) -> f64 {
+    2.0 * reach + MARGIN_PX
 }
 
 /// Where the photo's edge crosses the line through `centre` along unit `normal`, as an
@@ -87,6 +100,10 @@ pub fn edge_offset(img: &RgbImage, centre: &Vector2<f64>, normal: &Vector2<f64>,
     }
     let weight: f64 = slopes[lo..=hi].iter().sum();
     let centroid = (lo..=hi).map(|i| slopes[i] * at(i)).sum::<f64>() / weight;
+    let (below, above) = (centroid - at(lo), at(hi) - centroid);
+    if (below - above).abs() > MAX_ASYMMETRY_PX {
+        return None;
+    }
     ((centroid - expected).abs() <= reach).then_some(centroid)
 }
 
@@ -130,6 +147,47 @@ mod tests {
         let bias = errors.iter().sum::<f64>() / errors.len() as f64;
         let worst = errors.iter().fold(0.0f64, |m, e| m.max(e.abs()));
         assert!(worst < 0.15 && rms < 0.06 && bias.abs() < 0.02, "worst {worst}, RMS {rms}, bias {bias} px");
+    }
+
+    /// Offsets found around the disc at 36 angles, minus the true one; the mask's outline
+    /// said 0.5 px farther out.
+    fn disc_errors(img: &RgbImage, c: (f64, f64), r: f64) -> Vec<Option<f64>> {
+        (0..36)
+            .map(|k| {
+                let a = (k as f64 * 10.0).to_radians();
+                let normal = Vector2::new(a.cos(), a.sin());
+                let centre = Vector2::new(c.0, c.1) + normal * (r - 0.8);
+                edge_offset(img, &centre, &normal, 1.3, 1.0).map(|o| o - 0.8)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_blurred_edge_is_found_where_it_is() {
+        // Optics and demosaicing blur a photo's edges symmetrically: still one edge, found
+        // without bias.
+        let (c, r) = ((31.3, 30.8), 12.37);
+        let img = crate::eval::degrade::gaussian_blur(&disc(r, c, 64), 0.8);
+        let found: Vec<f64> = disc_errors(&img, c, r).into_iter().map(|e| e.expect("a blurred edge is still one edge")).collect();
+        let worst = found.iter().fold(0.0f64, |m, e| m.max(e.abs()));
+        assert!(worst < 0.15, "worst {worst} px");
+    }
+
+    #[test]
+    fn an_edge_with_a_ramp_joined_inside_is_not_taken() {
+        // A dark ground, the object's edge at x = 16 (rising 60 levels), then its print
+        // brightening by 60 more over the next 3 px, as a label darkened towards the outline
+        // does: the centroid of the joined run would sit a pixel inside the outline.
+        let ramp = RgbImage::from_fn(40, 8, |x, _| {
+            let g = if x < 16 { 40.0 } else { 100.0 + 60.0 * ((x as f64 - 15.5) / 3.0).min(1.0) };
+            image::Rgb([g as u8; 3])
+        });
+        let (centre, normal) = (Vector2::new(16.0, 4.0), Vector2::new(-1.0, 0.0));
+        assert_eq!(edge_offset(&ramp, &centre, &normal, 0.5, 1.5), None);
+        // The same edge with the print plain: found, between pixels 15 and 16.
+        let plain = RgbImage::from_fn(40, 8, |x, _| image::Rgb([if x < 16 { 40 } else { 100 }; 3]));
+        let found = edge_offset(&plain, &centre, &normal, 0.5, 1.5).expect("a plain edge");
+        assert!((found - 0.5).abs() < 0.05, "{found}");
     }
 
     #[test]

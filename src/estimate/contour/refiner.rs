@@ -3,7 +3,7 @@
 //! over line scales, without rendering. It keeps the hypothesis when its own agreement
 //! measure says the result is no better, so a good pose is never drifted away.
 
-use super::lines::{build_lines, Line, LineScale};
+use super::lines::{build_lines, Line, LineScale, PhotoLines};
 use super::posterior::Posterior;
 use super::solve::{apply_update, gauss_newton_update, Regularisation};
 use crate::estimate::refine::{RefineContext, RefineReport, Refined, Refiner};
@@ -52,22 +52,30 @@ pub struct ContourRefinerConfig {
 pub enum PhotoEdges {
     /// The mask alone, for every object.
     Off,
-    /// Objects without colours of their own (no texture, no vertex colours): their
-    /// outline is the only strong edge near it. On textured objects a print's edges beside
-    /// the outline moved small objects' depths outward (docs/benchmarks.md, "Outlines
-    /// from the photo's edges"), so they keep the mask.
-    #[default]
+    /// Objects without colours of their own (no texture, no vertex colours) only: their
+    /// outline is the only strong edge near it.
     Untextured,
-    /// Every object.
+    /// Every object; on an object with colours only the lines whose print stays plain
+    /// inside the outline as far as the edge finder reads (`ContourModel::plain_share`), so
+    /// that no print edge is there to be taken for the outline. On every line of textured
+    /// objects, print edges beside the outline moved small objects' depths outward
+    /// (docs/benchmarks.md, "Outlines from the photo's edges").
+    #[default]
+    Plain,
+    /// Every line of every object.
     All,
 }
 
 impl PhotoEdges {
-    fn applies_to(self, mesh: &crate::mesh::Mesh) -> bool {
+    /// How lines read `image` for an object with this mesh; `None` where they use the mask
+    /// alone.
+    fn lines<'a>(self, image: &'a image::RgbImage, mesh: &crate::mesh::Mesh) -> Option<PhotoLines<'a>> {
+        let coloured = mesh.has_colours();
         match self {
-            Self::Off => false,
-            Self::Untextured => !mesh.has_colours(),
-            Self::All => true,
+            Self::Off => None,
+            Self::Untextured => (!coloured).then_some(PhotoLines { image, plain_only: false }),
+            Self::Plain => Some(PhotoLines { image, plain_only: coloured }),
+            Self::All => Some(PhotoLines { image, plain_only: false }),
         }
     }
 }
@@ -198,7 +206,7 @@ impl Refiner for ContourRefiner {
         // Too few lines see the mask's outline (empty, wrong or far-off mask): no update
         // could be trusted.
         let scales = self.scales(Self::apparent_diameter(ctx, &start, &centre));
-        let photo = self.config.photo_edges.applies_to(&ctx.model.mesh).then_some(ctx.image);
+        let photo = self.config.photo_edges.lines(ctx.image, &ctx.model.mesh);
         let coarse = build_lines(&cm, &centre, &start, k, &post, scales[0], photo);
         let edges = coarse.iter().filter(|l| l.edge).count();
         if (edges as f64) < self.config.min_edge_share * coarse.len().max(1) as f64 {
