@@ -133,15 +133,9 @@ pub fn cached_model(id: &str, mesh: &crate::mesh::Mesh, store: &dyn crate::store
     let config = OnboardConfig { pca, descriptors, ..Default::default() };
     if let Ok(mut m) = store.get(id) {
         if m.backbone == backbone.identity() && m.config == config && m.mesh.positions() == mesh.positions() && m.mesh.has_texture() == mesh.has_texture() {
-            // Cached before format 5 or 7, or before plain runs: what it lacks is made as
-            // `objects upgrade` makes it, so benchmarks measure what onboarding makes now.
-            let mut old = m.symmetries.is_none() || !m.patch_points.is_grid();
-            if m.symmetries.is_none() {
-                m.symmetries = Some(crate::onboard::mesh_symmetries(&m.mesh));
-            }
-            m.patch_points.to_grid();
-            old |= m.rebuild_stale_contour_model(pool)?;
-            if old {
+            // Cached by an older version: what it lacks is made as `objects upgrade` makes
+            // it, so benchmarks measure what onboarding makes now.
+            if m.add_what_older_versions_lacked(pool)? {
                 store.put(&m, true)?;
             }
             return Ok(m);

@@ -119,13 +119,9 @@ fn upgrade(store: &dyn crate::store::ObjectStore, ids: Vec<String>) -> Result<()
             continue;
         }
         let t = Instant::now();
-        if m.symmetries.is_none() {
-            m.symmetries = Some(crate::onboard::mesh_symmetries(&m.mesh));
-        }
-        m.rebuild_stale_contour_model(&renderer)?;
+        m.add_what_older_versions_lacked(&renderer)?;
         m.contour_model_or_build(&renderer)?;
         m.shape_model_or_build(&renderer)?;
-        m.patch_points.to_grid();
         store.put(&m, true)?;
         println!("{id}: added {} in {:.1} s", lacked.join(" and "), t.elapsed().as_secs_f64());
     }

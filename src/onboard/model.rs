@@ -215,15 +215,22 @@ impl ObjectModel {
         self.mesh.has_colours() && self.contours.get().is_some_and(|c| c.plain_share.is_empty())
     }
 
-    /// Makes the contour model again where it lacks what onboarding now stores (the plain
-    /// runs of an object with colours), as `objects upgrade` and the benchmarks' cache do.
-    pub fn rebuild_stale_contour_model(&mut self, renderer: &crate::render::RenderPool) -> Result<bool, crate::render::RenderError> {
-        if !self.contour_lacks_plain_runs() {
-            return Ok(false);
+    /// Adds what an object stored by an older version lacks and first use does not make:
+    /// its symmetries (found from the mesh), grid-coded patch points and, for a printed
+    /// object, the contour model's plain runs. `objects upgrade` and the benchmarks' model
+    /// cache both use it; true where it changed anything.
+    pub fn add_what_older_versions_lacked(&mut self, renderer: &crate::render::RenderPool) -> Result<bool, crate::render::RenderError> {
+        let mut changed = !self.patch_points.is_grid();
+        self.patch_points.to_grid();
+        if self.symmetries.is_none() {
+            self.symmetries = Some(super::mesh_symmetries(&self.mesh));
+            changed = true;
         }
-        let config = self.contours.get().map(|c| c.config).unwrap_or_default();
-        self.contours = OnceLock::from(Arc::new(ContourModel::build(&self.mesh, renderer, &config)?));
-        Ok(true)
+        if let Some(config) = self.contours.get().filter(|_| self.contour_lacks_plain_runs()).map(|c| c.config) {
+            self.contours = OnceLock::from(Arc::new(ContourModel::build(&self.mesh, renderer, &config)?));
+            changed = true;
+        }
+        Ok(changed)
     }
 
     /// The detector's templates, computed now (renders of the mesh) if the object was stored

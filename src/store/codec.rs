@@ -325,9 +325,6 @@ fn decode_inner(manifest: &[u8], tensors: &[u8], map: Option<&Arc<memmap2::Mmap>
                 background_m: bytemuck::pod_collect_to_vec(get("contour_background_m", Dtype::F32, 0)?),
                 plain_share: if st.names().contains(&"contour_plain_share") { get("contour_plain_share", Dtype::U8, 0)?.to_vec() } else { vec![] },
             };
-            if c.plain_share.is_empty() && mesh.has_colours() {
-                tracing::warn!("object {:?} was stored before printed objects' plain runs were kept: its outline is fitted to the mask alone; `b2tf objects upgrade` adds them", man.object_id);
-            }
             std::sync::OnceLock::from(Arc::new(c))
         }
         None => std::sync::OnceLock::new(),
@@ -394,6 +391,9 @@ fn decode_inner(manifest: &[u8], tensors: &[u8], map: Option<&Arc<memmap2::Mmap>
         symmetries: man.symmetries,
     };
     model.validate().map_err(corrupt)?;
+    if model.contour_lacks_plain_runs() {
+        tracing::warn!("object {:?} was stored before printed objects' plain runs were kept: its outline is fitted to the mask alone; `b2tf objects upgrade` adds them", model.object_id);
+    }
     Ok(model)
 }
 
