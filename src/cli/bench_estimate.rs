@@ -80,6 +80,11 @@ pub struct BenchEstimateArgs {
     /// With --from-boxes: fill the boxes instead of segmenting them (the old behaviour).
     #[arg(long, requires = "from_boxes")]
     pub fill_boxes: bool,
+    /// Estimate each instance alone, as a request naming one object does: without the
+    /// other instances' detections, which tell the refiner and verification where this
+    /// object's mask may be cut by something in front.
+    #[arg(long)]
+    pub alone: bool,
 }
 
 /// Box segmentation against the truth, over the instances of a `--from-boxes` run.
@@ -245,7 +250,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     let mut contour = crate::estimate::contour::ContourRefiner::new(pool.clone());
     contour.config.occlusion_model = !a.no_occlusion_model;
     contour.config.photo_edges = a.photo_edges;
-    let estimator = crate::estimate::Estimator::new(backbone, pool.clone()).with_refiner(crate::estimate::RefinerKind::Contour, Arc::new(contour));
+    let estimator = crate::estimate::Estimator::new(backbone, pool.clone()).with_contour(Arc::new(contour));
     let mut base = EstimateConfig { refiner: a.refiner, ..Default::default() };
     if let Some(w) = a.silhouette_weight {
         base.retrieval.silhouette_weight = w;
@@ -260,6 +265,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         base.retrieval.nms_degrees = d;
     }
     base.verify = a.verify.config();
+    base.print = a.verify.print_config();
     if let Some(c) = a.colour_share {
         base.verify.colour_share = c;
     }
@@ -279,14 +285,18 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     for im in 0..a.scenes.images as u32 {
         let scene = generate_image(&objects, &scene_cfg, &pool, im)?;
         let mut overlay = scene.rgb.clone();
-        for inst in &scene.instances {
+        // Every instance's detection first: each is estimated among the others, as in a
+        // request that names every object in the picture.
+        let dets: Vec<Detection> = scene.instances.iter().map(|inst| if a.from_boxes { boxes.detection(&scene.rgb, &inst.mask_visib, if a.fill_boxes { crate::masks::BoxMask::Fill } else { crate::masks::BoxMask::Segment }) } else { Ok(Detection { mask: inst.mask_visib.clone(), score: 1.0 }) }).collect::<Result<_>>()?;
+        for (n, inst) in scene.instances.iter().enumerate() {
             instances += 1;
             let model = &models[inst.obj_id as usize - 1];
-            let det = [if a.from_boxes { boxes.detection(&scene.rgb, &inst.mask_visib, if a.fill_boxes { crate::masks::BoxMask::Fill } else { crate::masks::BoxMask::Segment })? } else { Detection { mask: inst.mask_visib.clone(), score: 1.0 } }];
+            let det = [dets[n].clone()];
+            let others = if a.alone { None } else { crate::masks::union(dets.iter().enumerate().filter(|&(o, _)| o != n).map(|(_, d)| &d.mask), scene.rgb.width(), scene.rgb.height()) };
             let (symmetries, sample) = &scoring[inst.obj_id as usize - 1];
             let truth = |p: &Pose| crate::eval::pose_error::closest_symmetric(p, &inst.pose, symmetries, sample);
             for (t, (_, cfg)) in tallies.iter_mut().zip(&configs) {
-                let r: EstimateResult = estimator.estimate(model, &scene.rgb, &scene.cam, &det, cfg)?;
+                let r: EstimateResult = estimator.estimate_among(model, &scene.rgb, &scene.cam, &det, others.as_ref(), cfg)?;
                 let tm = &r.timings;
                 t.stages.push([tm.crop, tm.features, tm.retrieval, tm.matching, tm.pnp, tm.rrc, tm.refine, tm.selection, tm.total]);
                 let bucket = size_bucket(&inst.mask);

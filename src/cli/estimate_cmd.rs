@@ -127,7 +127,7 @@ pub fn run(a: EstimateArgs) -> Result<()> {
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
     let backbone = a.target.backbone.open()?;
     let estimator = crate::estimate::Estimator::new(backbone, renderer.clone());
-    let mut cfg = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), ..Default::default() };
+    let mut cfg = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), print: a.verify.print_config(), ..Default::default() };
     cfg.retrieval.k = a.k;
     let (result, confirmation) = if given == 0 {
         let (r, c) = estimate_detected(&a, &model, &image, &k, &estimator, &renderer, &cfg)?;

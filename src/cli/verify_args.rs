@@ -1,5 +1,7 @@
-//! The hypothesis-verification options shared by `estimate`, `bop run` and `bench estimate`.
+//! The hypothesis-verification options shared by `estimate`, `bop run` and `bench estimate`,
+//! and the refinement of the kept pose on its print that follows verification.
 
+use crate::estimate::contour::PrintRefineConfig;
 use crate::estimate::VerifyConfig;
 
 #[derive(clap::Args, Debug, Clone)]
@@ -8,7 +10,7 @@ pub struct VerifyArgs {
     /// flips, spins and the best retrieved templates placed at the mask (faster, less accurate).
     #[arg(long)]
     pub no_verify: bool,
-    /// Retrieved templates placed at the mask as hypotheses (default 10).
+    /// Retrieved templates placed at the mask as hypotheses (default 5).
     #[arg(long)]
     pub verify_templates: Option<usize>,
     /// Templates with the most matches, each placed where its matches put it rather than
@@ -44,6 +46,14 @@ pub struct VerifyArgs {
     /// start, and the pipeline's pose always (0: all).
     #[arg(long)]
     pub verify_refined: Option<usize>,
+    /// Count the render's pixels under other detections against a pose's silhouette IoU,
+    /// as if nothing could hide the object there (by default they count neither way).
+    #[arg(long)]
+    pub iou_counts_occluded: bool,
+    /// Rounds of refining the kept pose on its print as well as its outline, on objects
+    /// with colours (render, find the print in the photo, update; default 3, 0: none).
+    #[arg(long)]
+    pub print_rounds: Option<usize>,
 }
 
 fn share(s: &str) -> Result<f64, String> {
@@ -54,7 +64,13 @@ fn share(s: &str) -> Result<f64, String> {
 impl VerifyArgs {
     pub fn config(&self) -> VerifyConfig {
         let d = VerifyConfig::default();
-        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), matched_templates: self.verify_matched.unwrap_or(d.matched_templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, feature_share: self.feature_share.unwrap_or(d.feature_share), refined: self.verify_refined.unwrap_or(d.refined), second_look: !self.no_second_look, rendered: self.verify_rendered.unwrap_or(d.rendered), max_rendered: self.verify_max_rendered.unwrap_or(d.max_rendered), ..d }
+        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), matched_templates: self.verify_matched.unwrap_or(d.matched_templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, feature_share: self.feature_share.unwrap_or(d.feature_share), refined: self.verify_refined.unwrap_or(d.refined), second_look: !self.no_second_look, rendered: self.verify_rendered.unwrap_or(d.rendered), max_rendered: self.verify_max_rendered.unwrap_or(d.max_rendered), occlusion_aware_iou: !self.iou_counts_occluded, ..d }
+    }
+
+    /// The refinement on the print these options ask for.
+    pub fn print_config(&self) -> PrintRefineConfig {
+        let d = PrintRefineConfig::default();
+        PrintRefineConfig { rounds: self.print_rounds.unwrap_or(d.rounds), ..d }
     }
 }
 

@@ -3,7 +3,7 @@
 use super::correspond::{correspond, Correspondences};
 use super::pnp::{solve_pnp_ransac, PnpConfig, PnpResult};
 use super::query::{crop_all, encode, QueryView};
-use super::contour::ContourRefiner;
+use super::contour::{ContourRefiner, PrintRefineConfig};
 use super::refine::{PassThrough, RefineContext, Refiner, RefinerKind};
 use super::silhouette_refiner::SilhouetteDepthRefiner;
 use super::verify::{render_evidence, score as verification_score, Verified, VerifyConfig};
@@ -41,11 +41,15 @@ pub struct EstimateConfig {
     /// Hypothesis verification (flips and retrieved templates, refined and verified).
     #[serde(default)]
     pub verify: VerifyConfig,
+    /// The kept pose refined again on its print as well as its outline (contour refiner,
+    /// objects with colours): `contour::print_refine`.
+    #[serde(default)]
+    pub print: PrintRefineConfig,
 }
 
 impl Default for EstimateConfig {
     fn default() -> Self {
-        Self { retrieval: RetrievalConfig::default(), k_nn: 3, pnp: PnpConfig::default(), rrc: true, max_masks: 2, min_mask_score: 0.35, selection: SelectionConfig::default(), refiner: RefinerKind::default(), verify: VerifyConfig::default() }
+        Self { retrieval: RetrievalConfig::default(), k_nn: 3, pnp: PnpConfig::default(), rrc: true, max_masks: 2, min_mask_score: 0.35, selection: SelectionConfig::default(), refiner: RefinerKind::default(), verify: VerifyConfig::default(), print: PrintRefineConfig::default() }
     }
 }
 
@@ -155,6 +159,14 @@ impl Estimator {
         self
     }
 
+    /// Replaces the contour refiner everywhere it runs: the `Contour` slot, the outline
+    /// agreement of every hypothesis in verification, and the refinement on the print.
+    pub fn with_contour(mut self, contour: Arc<ContourRefiner>) -> Self {
+        self.refiners[Self::slot(RefinerKind::Contour)] = contour.clone();
+        self.contour = contour;
+        self
+    }
+
     fn slot(kind: RefinerKind) -> usize {
         RefinerKind::ALL.iter().position(|&k| k == kind).expect("every kind has a slot")
     }
@@ -258,16 +270,36 @@ impl Estimator {
                         Err(e) => h.failure = Some(format!("refiner {} failed: {e}", cfg.refiner.name())),
                     }
                 }
+                if cfg.refiner == RefinerKind::Contour {
+                    self.refine_on_print(&ctx, &mut h, cfg);
+                }
                 timings.refine += ms(t);
             }
             hyps.push(h);
         }
 
         let t = Instant::now();
-        let result = tracing::info_span!("selection").in_scope(|| self.select(model, &queries, &chosen, k, detections, hyps, cfg))?;
+        let result = tracing::info_span!("selection").in_scope(|| self.select(model, &queries, &chosen, k, (detections, others), hyps, cfg))?;
         timings.selection = ms(t);
         timings.total = ms(t_total);
         Ok(EstimateResult { timings, ..result })
+    }
+
+    /// The hypothesis's pose refined again on its print (`ContourRefiner::refine_on_print`),
+    /// where that finds more of the print where it puts it; kept as it is otherwise.
+    fn refine_on_print(&self, ctx: &RefineContext<'_>, h: &mut Hypothesis, cfg: &EstimateConfig) {
+        let Some(pose) = h.pose else { return };
+        let window = mask_window(ctx.mask).expect("validated non-empty");
+        match self.contour.refine_on_print(ctx, &pose, window, &cfg.print) {
+            Ok(Some(r)) => {
+                h.pose = Some(r.pose);
+                h.refinement = Some(r.report);
+                h.render = Some(r.render);
+            }
+            Ok(None) => {}
+            // Only a render can fail here; the pose stays as verification left it.
+            Err(e) => tracing::warn!("refining on the print failed: {e}"),
+        }
     }
 
     /// Refines the pose, its axis flips and spins, the best templates placed at the mask
@@ -325,7 +357,7 @@ impl Estimator {
     fn judge(&self, ctx: &RefineContext<'_>, verified: &mut [Verified], which: &[usize], window: (u32, u32, u32, u32), query: &QueryView, cfg: &EstimateConfig) -> Result<(), EstimateError> {
         let poses: Vec<Pose> = which.iter().map(|&i| verified[i].pose).collect();
         // Nothing to render must not wait for a pooled renderer.
-        let evidence = if poses.is_empty() { vec![] } else { render_evidence(&self.renderer, &ctx.model.mesh, &poses, ctx.intrinsics, ctx.image, ctx.mask, window)? };
+        let evidence = if poses.is_empty() { vec![] } else { render_evidence(&self.renderer, &ctx.model.mesh, &poses, ctx.intrinsics, ctx.image, ctx.mask, ctx.unknown.filter(|_| cfg.verify.occlusion_aware_iou), window)? };
         for (&i, e) in which.iter().zip(evidence) {
             verified[i].iou = e.iou;
             verified[i].appearance = super::verify::appearance(e.edges, e.colour, cfg.verify.colour_share);
@@ -429,7 +461,8 @@ impl Estimator {
 
     /// Step 10: IoU gate and z-normalised scoring across hypotheses.
     #[allow(clippy::too_many_arguments)]
-    fn select(&self, model: &ObjectModel, queries: &[QueryView], chosen: &[usize], k: &Intrinsics, detections: &[Detection], mut hyps: Vec<Hypothesis>, cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
+    /// `others` as for `estimate_among`.
+    fn select(&self, model: &ObjectModel, queries: &[QueryView], chosen: &[usize], k: &Intrinsics, (detections, others): (&[Detection], Option<&GrayImage>), mut hyps: Vec<Hypothesis>, cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
         let size = model.grid.n * model.grid.patch;
         let mut crops = Vec::new();
         let mut owners = Vec::new();
@@ -442,7 +475,7 @@ impl Estimator {
                 Some(r) => r,
                 None => render_window(&self.renderer, &model.mesh, &pose, k, window)?,
             };
-            h.iou = window_iou(&render, mask, window);
+            h.iou = window_iou(&render, mask, others.filter(|_| cfg.verify.occlusion_aware_iou), window);
             if h.iou < cfg.selection.iou_gate {
                 h.failure = Some(format!("rendered mask IoU {:.2} < gate {:.2}", h.iou, cfg.selection.iou_gate));
                 continue;

@@ -86,11 +86,16 @@ pub struct RefineReport {
     /// off for the object); NaN (null) where it did not move the pose, and for the other
     /// refiners.
     pub photo_edge_share: f64,
+    /// Where the kept pose was refined on its print (`contour::print_refine`): how many
+    /// print points the photo showed where the pose before and the result put them (the
+    /// refinement is kept only where the second is clearly the larger); absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub print_points: Option<[usize; 2]>,
 }
 
 impl Default for RefineReport {
     fn default() -> Self {
-        Self { moved: false, residual_px: 0.0, lines: 0, lines_with_edge: 0, agreement: 0.0, note: None, depth_sigma_m: f64::NAN, visible_fraction: f64::NAN, photo_edge_share: f64::NAN }
+        Self { moved: false, residual_px: 0.0, lines: 0, lines_with_edge: 0, agreement: 0.0, note: None, depth_sigma_m: f64::NAN, visible_fraction: f64::NAN, photo_edge_share: f64::NAN, print_points: None }
     }
 }
 

@@ -42,14 +42,20 @@ pub fn window_camera(k: &Intrinsics, (x, y, w, h): (u32, u32, u32, u32)) -> Resu
     k.window(x, y, w, h).ok_or_else(|| crate::render::RenderError::InvalidIntrinsics(format!("empty window {w}×{h} at ({x}, {y})")))
 }
 
-/// IoU of a window render's mask with the same window of a full-size mask.
-pub fn window_iou(render: &RenderOutput, mask: &GrayImage, window: (u32, u32, u32, u32)) -> f32 {
+/// IoU of a window render's mask with the same window of a full-size mask. Where `hidden`
+/// (full-size, non-zero where another detection is) covers a pixel that the render covers
+/// and the mask does not, that pixel counts neither way: a visible mask says nothing of what
+/// is behind what hides it, so a pose reaching under an occluder loses nothing for it.
+pub fn window_iou(render: &RenderOutput, mask: &GrayImage, hidden: Option<&GrayImage>, window: (u32, u32, u32, u32)) -> f32 {
     let (x0, y0, w, h) = window;
     let (mut inter, mut union) = (0u64, 0u64);
     for y in 0..h {
         for x in 0..w {
             let a = render.mask.get_pixel(x, y)[0] > 0;
             let b = mask.get_pixel(x0 + x, y0 + y)[0] > 0;
+            if a && !b && hidden.is_some_and(|o| o.get_pixel(x0 + x, y0 + y)[0] > 0) {
+                continue;
+            }
             inter += (a && b) as u64;
             union += (a || b) as u64;
         }
@@ -98,5 +104,22 @@ mod tests {
             }
         }
         assert_eq!(mask_window(&m), Some((22, 17, 56, 36)));
+    }
+
+    /// A render reaching under another detection loses nothing for it; reaching onto bare
+    /// background, or leaving the mask's own pixels uncovered, still costs.
+    #[test]
+    fn iou_spares_what_another_detection_hides() {
+        let lit = |x0: u32, x1: u32| GrayImage::from_fn(10, 1, |x, _| image::Luma([if (x0..x1).contains(&x) { 255 } else { 0 }]));
+        let render = |x0, x1| RenderOutput { rgb: image::RgbImage::new(10, 1), depth: vec![1.0; 10], mask: lit(x0, x1) };
+        let (mask, occluder) = (lit(0, 4), lit(4, 8));
+        let window = (0, 0, 10, 1);
+        // Twice as long as the visible part, the rest under the occluder: a full match.
+        assert_eq!(window_iou(&render(0, 8), &mask, Some(&occluder), window), 1.0);
+        assert_eq!(window_iou(&render(0, 8), &mask, None, window), 0.5);
+        // Beyond the occluder, onto the background: those two pixels count.
+        assert!((window_iou(&render(0, 10), &mask, Some(&occluder), window) - 4.0 / 6.0).abs() < 1e-6);
+        // The occluder does not excuse mask pixels the render leaves uncovered.
+        assert_eq!(window_iou(&render(2, 8), &mask, Some(&occluder), window), 0.5);
     }
 }

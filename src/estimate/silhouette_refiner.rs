@@ -23,7 +23,7 @@ impl SilhouetteDepthRefiner {
 
     fn iou_at(&self, ctx: &RefineContext<'_>, pose: &Pose, window: (u32, u32, u32, u32)) -> Result<f32, String> {
         let r = render_window(&self.renderer, &ctx.model.mesh, pose, ctx.intrinsics, window).map_err(|e| e.to_string())?;
-        Ok(window_iou(&r, ctx.mask, window))
+        Ok(window_iou(&r, ctx.mask, ctx.unknown, window))
     }
 }
 

@@ -60,6 +60,10 @@ pub struct VerifyConfig {
     /// nothing in the photo, render every hypothesis and verify the axis flips of the one
     /// whose print agrees best (`pipeline::second_look`).
     pub second_look: bool,
+    /// Silhouette IoU ignores the render's pixels under other detections (where the mask
+    /// cannot show this object even when it is there), rather than counting them against
+    /// the pose.
+    pub occlusion_aware_iou: bool,
 }
 
 impl Default for VerifyConfig {
@@ -72,7 +76,7 @@ impl Default for VerifyConfig {
         // ones with the most matches, placed by their matches: right more often than the
         // retrieved ones placed at the mask, for the same time (docs/benchmarks.md,
         // "Templates placed by their matches").
-        Self { enabled: true, templates: 5, matched_templates: 5, spin_steps: 8, rendered: 3, contour_tie: 0.05, max_rendered: 12, weights: [0.4, 0.3, 0.3], colour_share: 0.5, skip_symmetric: false, feature_share: 0.5, refined: 0, second_look: true }
+        Self { enabled: true, templates: 5, matched_templates: 5, spin_steps: 8, rendered: 3, contour_tie: 0.05, max_rendered: 12, weights: [0.4, 0.3, 0.3], colour_share: 0.5, skip_symmetric: false, feature_share: 0.5, refined: 0, second_look: true, occlusion_aware_iou: true }
     }
 }
 
@@ -263,8 +267,10 @@ pub fn appearance(edges: f64, colour: f64, colour_share: f64) -> f64 {
 }
 
 /// Renders each of `poses` over the mask's window (spread over the pool's renderers) and
-/// measures silhouette IoU and appearance of each (on all cores), in order.
-pub fn render_evidence(renderer: &RenderPool, mesh: &crate::mesh::Mesh, poses: &[Pose], k: &Intrinsics, image: &RgbImage, mask: &GrayImage, window: (u32, u32, u32, u32)) -> Result<Vec<Evidence>, crate::render::RenderError> {
+/// measures silhouette IoU (sparing what `hidden` may hide: `window_iou`) and appearance
+/// of each (on all cores), in order.
+#[allow(clippy::too_many_arguments)]
+pub fn render_evidence(renderer: &RenderPool, mesh: &crate::mesh::Mesh, poses: &[Pose], k: &Intrinsics, image: &RgbImage, mask: &GrayImage, hidden: Option<&GrayImage>, window: (u32, u32, u32, u32)) -> Result<Vec<Evidence>, crate::render::RenderError> {
     let camera = window_camera(k, window)?;
     let views: Vec<(Pose, Intrinsics)> = poses.iter().map(|p| (*p, camera)).collect();
     let renders = renderer.render_batch(mesh, &views, &RenderOptions::default())?;
@@ -272,7 +278,7 @@ pub fn render_evidence(renderer: &RenderPool, mesh: &crate::mesh::Mesh, poses: &
     Ok(renders
         .into_par_iter()
         .map(|r| Evidence {
-            iou: window_iou(&r, mask, window) as f64,
+            iou: window_iou(&r, mask, hidden, window) as f64,
             edges: appearance_agreement(&r, image, mask, window),
             colour: if coloured { colour_agreement(&r, image, mask, window) } else { f64::NAN },
             render: r,

@@ -58,14 +58,40 @@ fn pattern_tile(rng: &mut Rng, size: u32) -> image::RgbaImage {
     img
 }
 
+/// Random small discs over a tile: a fine print with corners everywhere, as a label's
+/// text and pictures have, rather than the few broad shapes of `pattern_tile`.
+fn sprinkle(rng: &mut Rng, tile: &mut image::RgbaImage, discs: usize) {
+    let size = tile.width() as f64;
+    for _ in 0..discs {
+        let (cx, cy, r) = (rng.range(0.0, size), rng.range(0.0, size), rng.range(0.015, 0.045) * size);
+        let col = image::Rgba([rng.range(0.0, 255.0) as u8, rng.range(0.0, 255.0) as u8, rng.range(0.0, 255.0) as u8, 255]);
+        let (x0, x1) = ((cx - r).max(0.0) as u32, ((cx + r).ceil() as u32).min(tile.width()));
+        let (y0, y1) = ((cy - r).max(0.0) as u32, ((cy + r).ceil() as u32).min(tile.height()));
+        for y in y0..y1 {
+            for x in x0..x1 {
+                if (x as f64 - cx).powi(2) + (y as f64 - cy).powi(2) < r * r {
+                    tile.put_pixel(x, y, col);
+                }
+            }
+        }
+    }
+}
+
 /// A box of `size` metres (x, y, z) centred on the origin, each face textured with its
 /// own pattern from a 3×2 atlas. Four vertices per face, so UVs and normals are per face.
 pub fn textured_box(size: [f32; 3], seed: u64) -> Mesh {
+    printed_box(size, seed, 0)
+}
+
+/// `textured_box` with `discs` small discs sprinkled over each face's pattern (a fine
+/// print: `sprinkle`); 0 gives `textured_box` itself.
+pub fn printed_box(size: [f32; 3], seed: u64, discs: usize) -> Mesh {
     let tile = 128u32;
     let mut rng = Rng::new(seed);
     let mut atlas = image::RgbaImage::new(tile * 3, tile * 2);
     for f in 0..6u32 {
-        let t = pattern_tile(&mut rng, tile);
+        let mut t = pattern_tile(&mut rng, tile);
+        sprinkle(&mut rng, &mut t, discs);
         image::imageops::replace(&mut atlas, &t, ((f % 3) * tile) as i64, ((f / 3) * tile) as i64);
     }
     let h = size.map(|s| s * 0.5);

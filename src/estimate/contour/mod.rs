@@ -8,7 +8,10 @@ pub mod lines;
 pub mod occlusion;
 pub mod photo_edge;
 pub mod posterior;
+pub mod print_points;
+pub mod print_refine;
 pub mod refiner;
 pub mod solve;
 
+pub use print_refine::PrintRefineConfig;
 pub use refiner::{Agreement, ContourRefiner, ContourRefinerConfig, PhotoEdges};

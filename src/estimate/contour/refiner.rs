@@ -69,7 +69,7 @@ pub enum PhotoEdges {
 impl PhotoEdges {
     /// How lines read `image` for an object with this mesh; `None` where they use the mask
     /// alone.
-    fn lines<'a>(self, image: &'a image::RgbImage, mesh: &crate::mesh::Mesh) -> Option<PhotoLines<'a>> {
+    pub(super) fn lines<'a>(self, image: &'a image::RgbImage, mesh: &crate::mesh::Mesh) -> Option<PhotoLines<'a>> {
         let coloured = mesh.has_colours();
         match self {
             Self::Off => None,
@@ -123,7 +123,7 @@ pub struct Agreement {
 }
 
 impl Agreement {
-    fn report(&self, moved: bool, note: Option<String>) -> RefineReport {
+    pub(super) fn report(&self, moved: bool, note: Option<String>) -> RefineReport {
         RefineReport { moved, residual_px: self.residual_px, lines: self.lines, lines_with_edge: self.lines_with_edge, agreement: self.score, note, ..RefineReport::default() }
     }
 }
@@ -144,7 +144,7 @@ fn agreement(lines: &[Line], scale: &LineScale) -> Agreement {
 }
 
 pub struct ContourRefiner {
-    renderer: Arc<RenderPool>,
+    pub(super) renderer: Arc<RenderPool>,
     pub config: ContourRefinerConfig,
 }
 
@@ -154,25 +154,25 @@ impl ContourRefiner {
     }
 
     /// Apparent diameter of the object at `pose`, px.
-    fn apparent_diameter(ctx: &RefineContext<'_>, pose: &Pose, centre: &Vector3<f64>) -> f64 {
+    pub(super) fn apparent_diameter(ctx: &RefineContext<'_>, pose: &Pose, centre: &Vector3<f64>) -> f64 {
         let z = (pose.rotation * centre + pose.translation).z.max(1e-6);
         ctx.intrinsics.fx.max(ctx.intrinsics.fy) * ctx.model.diameter() / z
     }
 
-    fn scales(&self, diameter_px: f64) -> Vec<LineScale> {
+    pub(super) fn scales(&self, diameter_px: f64) -> Vec<LineScale> {
         let first = (diameter_px * self.config.first_segment_share).clamp(1.0, self.config.max_segment_px);
         self.config.scale_factors.iter().map(|f| LineScale { segment_px: (first * f).max(1.0), segments: self.config.segments }).collect()
     }
 
     /// What every measurement at a pose needs: the contour model (built now for an object
     /// stored without one), the object centre and the mask's posterior.
-    fn inputs<'a>(&self, ctx: &RefineContext<'a>) -> Result<(Arc<ContourModel>, Vector3<f64>, Posterior<'a>), String> {
+    pub(super) fn inputs<'a>(&self, ctx: &RefineContext<'a>) -> Result<(Arc<ContourModel>, Vector3<f64>, Posterior<'a>), String> {
         let cm = ctx.model.contour_model_or_build(&self.renderer).map_err(|e| e.to_string())?;
         Ok((cm, Vector3::from(ctx.model.mesh.bbox_center()), if ctx.mask_is_probability { Posterior::probabilities(ctx.mask) } else { Posterior::new(ctx.mask, ctx.unknown) }))
     }
 
     /// Agreement at `pose` on the verification scale for the object's size there.
-    fn agreement_at(&self, ctx: &RefineContext<'_>, cm: &ContourModel, centre: &Vector3<f64>, post: &Posterior<'_>, pose: &Pose) -> Agreement {
+    pub(super) fn agreement_at(&self, ctx: &RefineContext<'_>, cm: &ContourModel, centre: &Vector3<f64>, post: &Posterior<'_>, pose: &Pose) -> Agreement {
         let scale = self.verification_scale(Self::apparent_diameter(ctx, pose, centre));
         agreement(&build_lines(cm, centre, pose, ctx.intrinsics, post, scale, None), &scale)
     }
@@ -224,7 +224,7 @@ impl Refiner for ContourRefiner {
                 let lines = first.take().unwrap_or_else(|| build_lines(&cm, &centre, &pose, k, &post, *scale, photo));
                 photo_share = lines.iter().filter(|l| l.photo_edge).count() as f64 / lines.len().max(1) as f64;
                 for _ in 0..self.config.updates_per_pass {
-                    let Some(step) = gauss_newton_update(&lines, &pose, &start, k, &self.config.regularisation, radius, self.config.occlusion_model) else { break };
+                    let Some(step) = gauss_newton_update(&lines, &[], &pose, &start, k, &self.config.regularisation, radius, self.config.occlusion_model) else { break };
                     pose = apply_update(&pose, &step.omega, &step.v);
                     depth_sigma = step.depth_sigma(&pose);
                     // Lines without an edge (hidden entirely, or past the image border)

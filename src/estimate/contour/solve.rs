@@ -4,8 +4,9 @@
 
 use super::lines::{projection_jacobian, Line};
 use super::occlusion::{median, visibility, LineResidual};
+use super::print_points::PrintPoint;
 use crate::geometry::{Intrinsics, Pose};
-use nalgebra::{Matrix6, Point3, Rotation3, Vector3, Vector6};
+use nalgebra::{Matrix6, Point3, Rotation3, Vector2, Vector3, Vector6};
 
 /// Regularisation, separate for rotation and translation (Tikhonov): a prior that the
 /// hypothesis is roughly right, pulling the total change since the start back towards
@@ -27,6 +28,10 @@ impl Default for Regularisation {
 /// (Tukey): a mask's stray pixels, and without the occlusion model an occluder's edges
 /// where they are a minority that disagrees with the rest.
 const TUKEY_SIGMAS: f64 = 3.0;
+
+/// Standard deviation of a print point's position in the photo, px: a patch correlated to
+/// a fraction of a pixel, less what the render-to-real gap blurs.
+const POINT_SIGMA_PX: f64 = 1.0;
 
 /// One Gauss–Newton step: the turn ω and shift v (object frame) and the step's
 /// covariance, the inverse of the weighted normal matrix (prior included; rows ω then v).
@@ -55,7 +60,11 @@ impl Step {
 /// Each line's weight is its biweight over its offset variance (px²), so the covariance is
 /// in the units of the pose as far as those variances are right; with `occlusion`, times
 /// the probability that its edge is the object's own (`occlusion::visibility`).
-pub fn gauss_newton_update(lines: &[Line], pose: &Pose, start: &Pose, k: &Intrinsics, reg: &Regularisation, radius: f64, occlusion: bool) -> Option<Step> {
+///
+/// `points` (print points: `print_points`) add their reprojection offsets, each with a
+/// standard deviation of `POINT_SIGMA_PX`; the prior stays in units of the lines.
+#[allow(clippy::too_many_arguments)]
+pub fn gauss_newton_update(lines: &[Line], points: &[PrintPoint], pose: &Pose, start: &Pose, k: &Intrinsics, reg: &Regularisation, radius: f64, occlusion: bool) -> Option<Step> {
     struct Row {
         j: Vector6<f64>,
         residual: f64,
@@ -106,6 +115,33 @@ pub fn gauss_newton_update(lines: &[Line], pose: &Pose, start: &Pose, k: &Intrin
     if weight_sum == 0.0 {
         return None;
     }
+    // Print points, two rows each (x and y), robust among themselves: a point matched to a
+    // repeat of its print is an outlier there whatever the lines say.
+    let point_rows: Vec<(Vector6<f64>, f64)> = points
+        .iter()
+        .flat_map(|pt| {
+            let p = Point3::from(pose.rotation * pt.object_point + pose.translation);
+            let uv = k.project(&p);
+            let jp = projection_jacobian(k, &p);
+            [Vector2::x(), Vector2::y()].into_iter().filter_map(move |n| {
+                let residual = n.dot(&(pt.observed - uv?));
+                let b: Vector3<f64> = pose.rotation.inverse() * (jp.transpose() * n);
+                let c = -b.cross(&pt.object_point);
+                Some((Vector6::new(c.x, c.y, c.z, b.x, b.y, b.z), residual))
+            })
+        })
+        .collect();
+    if !point_rows.is_empty() {
+        let spread = (1.4826 * median(point_rows.iter().map(|r| r.1.abs()).collect())).max(POINT_SIGMA_PX);
+        for (j, residual) in &point_rows {
+            let u = residual / (TUKEY_SIGMAS * spread);
+            if u.abs() < 1.0 {
+                let w = (1.0 - u * u).powi(2) / (POINT_SIGMA_PX * POINT_SIGMA_PX);
+                h += j * j.transpose() * w;
+                g += j * (w * residual);
+            }
+        }
+    }
     // The prior, in units of an average line: a line moves about f·radius/z px per radian
     // of turn and f/z px per metre of sideways shift (f·radius/z² along the depth).
     let w_mean = weight_sum / n;
@@ -148,7 +184,6 @@ pub fn apply_update(pose: &Pose, omega: &Vector3<f64>, v: &Vector3<f64>) -> Pose
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::Vector2;
 
     /// Lines that know the true outline exactly recover a small shift in one step.
     #[test]
@@ -172,12 +207,12 @@ mod tests {
         let reg = Regularisation { rotation: 0.0, translation: 0.0 };
         let mut pose = start;
         for _ in 0..3 {
-            let Step { omega: w, v, .. } = gauss_newton_update(&lines, &pose, &start, &k, &reg, 0.05, true).unwrap();
+            let Step { omega: w, v, .. } = gauss_newton_update(&lines, &[], &pose, &start, &k, &reg, 0.05, true).unwrap();
             pose = apply_update(&pose, &w, &v);
         }
         let err = (pose.translation - truth.translation).norm();
         assert!(err < 1e-3, "translation error {err} m after the update");
-        assert!(gauss_newton_update(&[], &start, &start, &k, &reg, 0.05, true).is_none());
+        assert!(gauss_newton_update(&[], &[], &start, &start, &k, &reg, 0.05, true).is_none());
     }
 
     /// At the true pose, with half the ring's lines seeing an occluder's edge 12 px inside
@@ -201,10 +236,10 @@ mod tests {
             .collect();
         let reg = Regularisation::default();
         let moved = |occlusion: bool| {
-            let s = gauss_newton_update(&lines, &truth, &truth, &k, &reg, 0.05, occlusion).unwrap();
+            let s = gauss_newton_update(&lines, &[], &truth, &truth, &k, &reg, 0.05, occlusion).unwrap();
             (apply_update(&truth, &s.omega, &s.v).translation - truth.translation).norm()
         };
-        let with = gauss_newton_update(&lines, &truth, &truth, &k, &reg, 0.05, true).unwrap();
+        let with = gauss_newton_update(&lines, &[], &truth, &truth, &k, &reg, 0.05, true).unwrap();
         assert!((with.own_edges - 36.0).abs() < 3.0, "own edges {}", with.own_edges);
         assert!(moved(true) < 2e-4, "moved {} m with the occlusion model", moved(true));
         assert!(moved(false) > 5.0 * moved(true).max(1e-4), "moved {} m without, {} m with", moved(false), moved(true));
