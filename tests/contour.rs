@@ -309,13 +309,13 @@ fn printed_objects_turn_back_on_their_print() {
         let inst = &s.instances[0];
         let ctx = RefineContext { model: &model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false };
         let window = b2tfpose::estimate::select::mask_window(&inst.mask_visib).unwrap();
-        if let Some(t) = refiner.refine_on_print(&ctx, &inst.pose, window, &cfg).unwrap() {
+        if let Some(t) = refiner.refine_on_print(&ctx, &inst.pose, window, None, &cfg).unwrap() {
             assert!(rotation_error_deg(&t.pose, &inst.pose) < 0.5, "seed {seed}: the true pose turned {}°", rotation_error_deg(&t.pose, &inst.pose));
         }
         for axis in [Vector3::new(1.0, 0.3, 0.0), Vector3::new(-0.2, 1.0, 0.5), Vector3::new(0.3, -0.4, 1.0)] {
             trials += 1;
             let start = perturbed(&inst.pose, axis, 5.0, 1.02);
-            let r = refiner.refine_on_print(&ctx, &start, window, &cfg).unwrap();
+            let r = refiner.refine_on_print(&ctx, &start, window, None, &cfg).unwrap();
             let end = r.as_ref().map_or(start, |r| r.pose);
             let (before, after) = (rotation_error_deg(&start, &inst.pose), rotation_error_deg(&end, &inst.pose));
             eprintln!("seed {seed} axis {axis:?}: {before:.2}° → {after:.2}° ({:?} print points agreeing)", r.as_ref().and_then(|r| r.report.print_points));
@@ -331,5 +331,5 @@ fn printed_objects_turn_back_on_their_print() {
     let plain = ObjectModel { mesh: mesh.without_appearance(), ..f.model.clone() };
     let s = scene(1);
     let ctx = RefineContext { model: &plain, image: &s.rgb, intrinsics: &s.cam, mask: &s.instances[0].mask_visib, unknown: None, mask_is_probability: false };
-    assert!(refiner.refine_on_print(&ctx, &s.instances[0].pose, (0, 0, 320, 240), &cfg).unwrap().is_none());
+    assert!(refiner.refine_on_print(&ctx, &s.instances[0].pose, (0, 0, 320, 240), None, &cfg).unwrap().is_none());
 }

@@ -85,6 +85,15 @@ pub struct BenchEstimateArgs {
     /// object's mask may be cut by something in front.
     #[arg(long)]
     pub alone: bool,
+    /// The refinement on the print's settings as JSON, those not named keeping their
+    /// defaults (`PrintRefineConfig`), e.g. '{"point_sigma_px": 0.5, "points": {"within_mask":
+    /// false}}'; `--print-rounds` overrides its rounds.
+    #[arg(long, value_parser = parse_print_config)]
+    pub print_config: Option<crate::estimate::contour::PrintRefineConfig>,
+}
+
+fn parse_print_config(s: &str) -> Result<crate::estimate::contour::PrintRefineConfig, String> {
+    serde_json::from_str(s).map_err(|e| format!("not a PrintRefineConfig: {e}"))
 }
 
 /// Box segmentation against the truth, over the instances of a `--from-boxes` run.
@@ -265,7 +274,10 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         base.retrieval.nms_degrees = d;
     }
     base.verify = a.verify.config();
-    base.print = a.verify.print_config();
+    base.print = a.print_config.unwrap_or_default();
+    if let Some(rounds) = a.verify.print_rounds {
+        base.print.rounds = rounds;
+    }
     if let Some(c) = a.colour_share {
         base.verify.colour_share = c;
     }
@@ -280,7 +292,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         std::fs::create_dir_all(dir)?;
     }
     let mut candidate_rows = String::from("image,obj_id,size_px,mask,source,mssd_over_diameter,rot_err_deg,contour,iou,edges,colour,features,score,lines,lines_with_edge\n");
-    let mut rows = String::from("image,obj_id,setting,size_px,visible,found,rot_err_deg,trans_err_mm,depth_err_mm,mssd_over_diameter,inliers,best_candidate_mssd_over_diameter,best_candidate_rank\n");
+    let mut rows = String::from("image,obj_id,setting,size_px,visible,found,rot_err_deg,trans_err_mm,depth_err_mm,mssd_over_diameter,inliers,best_candidate_mssd_over_diameter,best_candidate_rank,print_points\n");
     let pb = super::progress::bar(a.scenes.images as u64, "estimating");
     for im in 0..a.scenes.images as u32 {
         let scene = generate_image(&objects, &scene_cfg, &pool, im)?;
@@ -331,9 +343,12 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                     }
                 }
                 let gt = r.pose.as_ref().map_or(inst.pose, &truth);
+                // The print points before and after the kept pose was refined on its print
+                // ("before/after"), empty where it was not.
+                let print = r.hypotheses.iter().find(|h| Some(h.mask_index) == r.mask_index).and_then(|h| h.refinement.as_ref()?.print_points).map_or(String::new(), |[b, a]| format!("{b}/{a}"));
                 match &r.pose {
                     Some(p) => rows.push_str(&format!(
-                        "{im},{},{},{size_px},{:.3},1,{:.2},{:.1},{:.1},{:.3},{inliers},{oracle}\n",
+                        "{im},{},{},{size_px},{:.3},1,{:.2},{:.1},{:.1},{:.3},{inliers},{oracle},{print}\n",
                         inst.obj_id,
                         t.name,
                         inst.visib_fract(),
@@ -342,7 +357,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                         (p.translation.z - gt.translation.z) * 1e3,
                         mssd(p, &gt, model.mesh.positions()) / model.diameter(),
                     )),
-                    None => rows.push_str(&format!("{im},{},{},{size_px},{:.3},0,,,,,{inliers},{oracle}\n", inst.obj_id, t.name, inst.visib_fract())),
+                    None => rows.push_str(&format!("{im},{},{},{size_px},{:.3},0,,,,,{inliers},{oracle},\n", inst.obj_id, t.name, inst.visib_fract())),
                 }
                 if let Some(p) = r.pose {
                     t.found += 1;
@@ -429,4 +444,18 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    /// Settings not named keep their defaults; a wrong type or a setting that does not
+    /// exist is refused with what is wrong.
+    #[test]
+    fn print_settings_are_read_as_json() {
+        let c = super::parse_print_config(r#"{"point_sigma_px": 0.5, "points": {"within_mask": false}}"#).unwrap();
+        let d = crate::estimate::contour::PrintRefineConfig::default();
+        assert_eq!((c.point_sigma_px, c.points.within_mask, c.rounds, c.points.search_px), (0.5, false, d.rounds, d.points.search_px));
+        assert!(super::parse_print_config(r#"{"rounds": "three"}"#).unwrap_err().contains("not a PrintRefineConfig"));
+        assert!(super::parse_print_config(r#"{"round": 3}"#).unwrap_err().contains("unknown field"));
+    }
 }

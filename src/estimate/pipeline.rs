@@ -290,7 +290,7 @@ impl Estimator {
     fn refine_on_print(&self, ctx: &RefineContext<'_>, h: &mut Hypothesis, cfg: &EstimateConfig) {
         let Some(pose) = h.pose else { return };
         let window = mask_window(ctx.mask).expect("validated non-empty");
-        match self.contour.refine_on_print(ctx, &pose, window, &cfg.print) {
+        match self.contour.refine_on_print(ctx, &pose, window, h.render.as_ref(), &cfg.print) {
             Ok(Some(r)) => {
                 h.pose = Some(r.pose);
                 h.refinement = Some(r.report);

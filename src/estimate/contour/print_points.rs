@@ -9,7 +9,7 @@ use crate::features::grey;
 use crate::geometry::{Intrinsics, Pose};
 use crate::render::RenderOutput;
 use image::{GrayImage, RgbImage};
-use nalgebra::{Point3, Vector2, Vector3};
+use nalgebra::{Vector2, Vector3};
 
 /// One print point of the render found in the photo.
 #[derive(Clone, Debug)]
@@ -23,7 +23,7 @@ pub struct PrintPoint {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct PrintPointConfig {
     /// Patches of (2·radius + 1)² pixels.
     pub patch_radius: u32,
@@ -37,11 +37,14 @@ pub struct PrintPointConfig {
     pub min_margin: f64,
     /// Most points per render, the strongest corners first.
     pub max_points: usize,
+    /// Look for the print only inside the detection's mask (outside it, the photo shows
+    /// something else, unless the mask is wrong there).
+    pub within_mask: bool,
 }
 
 impl Default for PrintPointConfig {
     fn default() -> Self {
-        Self { patch_radius: 3, search_px: 6, cell_px: 5, min_ncc: 0.8, min_margin: 0.1, max_points: 150 }
+        Self { patch_radius: 3, search_px: 6, cell_px: 5, min_ncc: 0.8, min_margin: 0.1, max_points: 150, within_mask: true }
     }
 }
 
@@ -54,42 +57,96 @@ pub struct WindowRender<'a> {
     pub camera: &'a Intrinsics,
 }
 
-/// Grey levels of an image, row-major, with its width and height.
+/// Grey levels of a rectangle of an image (x0, y0 its top-left pixel), row-major; read in
+/// image coordinates.
 struct Grey {
     v: Vec<f32>,
+    x0: i64,
+    y0: i64,
     w: i64,
     h: i64,
 }
 
 impl Grey {
-    fn of(image: &RgbImage) -> Self {
-        Self { v: image.pixels().map(grey).collect(), w: image.width() as i64, h: image.height() as i64 }
+    /// The rectangle (x0, y0, w, h) of `image`, clipped to it.
+    fn of(image: &RgbImage, (x0, y0, w, h): (i64, i64, i64, i64)) -> Self {
+        let (ax, ay) = (x0.max(0), y0.max(0));
+        let (bx, by) = ((x0 + w).min(image.width() as i64), (y0 + h).min(image.height() as i64));
+        let (w, h) = ((bx - ax).max(0), (by - ay).max(0));
+        let v = (ay..ay + h).flat_map(|y| (ax..ax + w).map(move |x| (x, y))).map(|(x, y)| grey(image.get_pixel(x as u32, y as u32))).collect();
+        Self { v, x0: ax, y0: ay, w, h }
     }
 
     fn at(&self, x: i64, y: i64) -> f32 {
-        self.v[(y * self.w + x) as usize]
+        self.v[((y - self.y0) * self.w + x - self.x0) as usize]
     }
 
+    /// Whether (x, y) lies `margin` or more pixels inside the rectangle.
     fn inside(&self, x: i64, y: i64, margin: i64) -> bool {
-        x >= margin && y >= margin && x < self.w - margin && y < self.h - margin
+        x - margin >= self.x0 && y - margin >= self.y0 && x + margin < self.x0 + self.w && y + margin < self.y0 + self.h
     }
 }
 
-/// Shi–Tomasi corner strength (the structure tensor's smaller eigenvalue, central
-/// differences summed over the patch) at (x, y) of `g`, at least radius + 1 from its edges.
-fn corner_strength(g: &Grey, x: i64, y: i64, r: i64) -> f32 {
-    let (mut xx, mut xy, mut yy) = (0.0f32, 0.0f32, 0.0f32);
-    for v in y - r..=y + r {
-        for u in x - r..=x + r {
-            let gx = 0.5 * (g.at(u + 1, v) - g.at(u - 1, v));
-            let gy = 0.5 * (g.at(u, v + 1) - g.at(u, v - 1));
-            xx += gx * gx;
-            xy += gx * gy;
-            yy += gy * gy;
+/// Summed-area table over a w×h grid, for box sums in constant time.
+struct Integral {
+    s: Vec<f64>,
+    w: usize,
+}
+
+impl Integral {
+    fn new(w: usize, h: usize, f: impl Fn(usize, usize) -> f64) -> Self {
+        let mut s = vec![0.0; (w + 1) * (h + 1)];
+        for y in 0..h {
+            let mut row = 0.0;
+            for x in 0..w {
+                row += f(x, y);
+                s[(y + 1) * (w + 1) + x + 1] = s[y * (w + 1) + x + 1] + row;
+            }
+        }
+        Self { s, w }
+    }
+
+    /// Sum over the box of radius `r` about (x, y), which must lie inside the grid.
+    fn around(&self, x: usize, y: usize, r: usize) -> f64 {
+        let row = self.w + 1;
+        let (x0, y0, x1, y1) = (x - r, y - r, x + r + 1, y + r + 1);
+        self.s[y1 * row + x1] - self.s[y0 * row + x1] - self.s[y1 * row + x0] + self.s[y0 * row + x0]
+    }
+}
+
+/// Shi–Tomasi corner strength of every pixel of a render (the structure tensor's smaller
+/// eigenvalue, central differences summed over the (2·r + 1)² patch) where the patch and its
+/// gradients' reach lie wholly inside the silhouette (patches across the outline mix in the
+/// background, which the photo does not share); as (strength, x, y).
+fn corners(render: &RenderOutput, g: &Grey, r: usize) -> Vec<(f32, i64, i64)> {
+    let (w, h) = (g.w as usize, g.h as usize);
+    if w < 2 * r + 3 || h < 2 * r + 3 {
+        return vec![];
+    }
+    let gradient = |x: usize, y: usize| {
+        if x == 0 || y == 0 || x + 1 == w || y + 1 == h {
+            return (0.0, 0.0);
+        }
+        let (x, y) = (x as i64, y as i64);
+        (0.5 * (g.at(x + 1, y) - g.at(x - 1, y)) as f64, 0.5 * (g.at(x, y + 1) - g.at(x, y - 1)) as f64)
+    };
+    let xx = Integral::new(w, h, |x, y| gradient(x, y).0.powi(2));
+    let xy = Integral::new(w, h, |x, y| gradient(x, y).0 * gradient(x, y).1);
+    let yy = Integral::new(w, h, |x, y| gradient(x, y).1.powi(2));
+    let inside = Integral::new(w, h, |x, y| (render.mask.get_pixel(x as u32, y as u32)[0] > 0) as u8 as f64);
+    let full = ((2 * r + 3) * (2 * r + 3)) as f64;
+    let mut out = Vec::new();
+    for y in r + 1..h - r - 1 {
+        for x in r + 1..w - r - 1 {
+            if inside.around(x, y, r + 1) < full {
+                continue;
+            }
+            let (a, b, c) = (xx.around(x, y, r), xy.around(x, y, r), yy.around(x, y, r));
+            let strength = 0.5 * (a + c) - (0.25 * (a - c).powi(2) + b * b).sqrt();
+            out.push((strength as f32, x as i64, y as i64));
         }
     }
-    let half_trace = 0.5 * (xx + yy);
-    half_trace - (0.25 * (xx - yy).powi(2) + xy * xy).sqrt()
+    out
 }
 
 /// Zero-mean, unit-norm patch of `g` centred at (x, y); `None` where it is flat.
@@ -106,12 +163,6 @@ fn normalised_patch(g: &Grey, x: i64, y: i64, r: i64) -> Option<Vec<f32>> {
     Some(p)
 }
 
-/// Whether every pixel of the (2·r + 1)² box around (x, y) is in the render's silhouette:
-/// patches across the outline mix in the background, which the photo does not share.
-fn all_inside(mask: &GrayImage, x: i64, y: i64, r: i64) -> bool {
-    (y - r..=y + r).all(|v| (x - r..=x + r).all(|u| mask.get_pixel(u as u32, v as u32)[0] > 0))
-}
-
 /// The render's print points found in the photo near where `view`'s pose puts them,
 /// strongest corners first. Points whose photo position is outside `mask` or inside
 /// `hidden` (another detection, which may be in front) are not looked for.
@@ -119,22 +170,18 @@ pub fn print_points(view: &WindowRender<'_>, image: &RgbImage, mask: &GrayImage,
     let r = cfg.patch_radius as i64;
     let s = cfg.search_px as i64;
     let (x0, y0, _, _) = view.window;
-    let rendered = Grey::of(&view.render.rgb);
-    let photo = Grey::of(image);
-    // Corner candidates: the strongest per cell, where the whole patch (and the gradient's
-    // reach) is inside the silhouette.
+    let (w, h) = view.render.rgb.dimensions();
+    let rendered = Grey::of(&view.render.rgb, (0, 0, w as i64, h as i64));
+    // Only the photo the search can reach.
+    let reach = r + s + 1;
+    let photo = Grey::of(image, (x0 as i64 - reach, y0 as i64 - reach, w as i64 + 2 * reach, h as i64 + 2 * reach));
+    // Corner candidates: the strongest per cell.
     let cell = cfg.cell_px.max(1) as i64;
     let mut best_per_cell: std::collections::HashMap<(i64, i64), (f32, i64, i64)> = std::collections::HashMap::new();
-    for y in r + 1..rendered.h - r - 1 {
-        for x in r + 1..rendered.w - r - 1 {
-            if view.render.mask.get_pixel(x as u32, y as u32)[0] == 0 || !all_inside(&view.render.mask, x, y, r + 1) {
-                continue;
-            }
-            let c = corner_strength(&rendered, x, y, r);
-            let slot = best_per_cell.entry((x / cell, y / cell)).or_insert((0.0, x, y));
-            if c > slot.0 {
-                *slot = (c, x, y);
-            }
+    for (c, x, y) in corners(view.render, &rendered, r as usize) {
+        let slot = best_per_cell.entry((x / cell, y / cell)).or_insert((c, x, y));
+        if c > slot.0 {
+            *slot = (c, x, y);
         }
     }
     let mut corners: Vec<(f32, i64, i64)> = best_per_cell.into_values().collect();
@@ -144,6 +191,7 @@ pub fn print_points(view: &WindowRender<'_>, image: &RgbImage, mask: &GrayImage,
     let floor = 100.0 * ((2 * r + 1) * (2 * r + 1)) as f32;
     let inverse = view.pose.inverse();
     let on = |m: &GrayImage, x: i64, y: i64| m.get_pixel(x as u32, y as u32)[0] > 0;
+    let stats = PatchStats::of(&photo);
     corners
         .into_iter()
         .take_while(|c| c.0 >= floor)
@@ -151,64 +199,96 @@ pub fn print_points(view: &WindowRender<'_>, image: &RgbImage, mask: &GrayImage,
         .filter_map(|(_, x, y)| {
             let (ix, iy) = (x0 as i64 + x, y0 as i64 + y);
             let template = normalised_patch(&rendered, x, y, r)?;
-            let mut scores = vec![f32::NEG_INFINITY; ((2 * s + 1) * (2 * s + 1)) as usize];
-            for dy in -s..=s {
-                for dx in -s..=s {
-                    let (u, v) = (ix + dx, iy + dy);
-                    if !photo.inside(u, v, r) || !on(mask, u, v) || hidden.is_some_and(|h| on(h, u, v)) {
-                        continue;
-                    }
-                    if let Some(p) = normalised_patch(&photo, u, v, r) {
-                        scores[((dy + s) * (2 * s + 1) + dx + s) as usize] = template.iter().zip(&p).map(|(a, b)| a * b).sum();
-                    }
-                }
-            }
-            let at = |dx: i64, dy: i64| scores[((dy + s) * (2 * s + 1) + dx + s) as usize] as f64;
-            let (mut bx, mut by) = (0, 0);
-            for dy in -s..=s {
-                for dx in -s..=s {
-                    if at(dx, dy) > at(bx, by) {
-                        (bx, by) = (dx, dy);
-                    }
-                }
-            }
-            let best = at(bx, by);
-            // On the search's border the true peak may lie beyond it.
-            if best < cfg.min_ncc || bx.abs() == s || by.abs() == s {
-                return None;
-            }
-            let rival = (-s..=s).flat_map(|dy| (-s..=s).map(move |dx| (dx, dy))).filter(|&(dx, dy)| (dx - bx).abs().max((dy - by).abs()) >= 2).map(|(dx, dy)| at(dx, dy)).fold(f64::NEG_INFINITY, f64::max);
-            if best - rival < cfg.min_margin {
-                return None;
-            }
             let z = view.render.depth_at(x as u32, y as u32) as f64;
             if z <= 0.0 {
                 return None;
             }
-            // A parabola through the peak and its neighbours, each way: the sub-pixel peak.
-            let vertex = |m: f64, c: f64, p: f64| {
-                let d = m - 2.0 * c + p;
-                if m.is_finite() && p.is_finite() && d < 0.0 { (0.5 * (m - p) / d).clamp(-0.5, 0.5) } else { 0.0 }
-            };
-            let sx = vertex(at(bx - 1, by), best, at(bx + 1, by));
-            let sy = vertex(at(bx, by - 1), best, at(bx, by + 1));
-            let observed = Vector2::new((ix + bx) as f64 + sx, (iy + by) as f64 + sy);
+            let searchable = |u: i64, v: i64| (!cfg.within_mask || on(mask, u, v)) && !hidden.is_some_and(|h| on(h, u, v));
+            let offset = best_match(&template, &photo, &stats, (ix, iy), searchable, cfg)?;
             let object_point = inverse.transform_point(&view.camera.back_project(x as f64, y as f64, z)).coords;
-            Some(PrintPoint { object_point, observed, offset_px: (observed - Vector2::new(ix as f64, iy as f64)).norm() })
+            Some(PrintPoint { object_point, observed: Vector2::new(ix as f64, iy as f64) + offset, offset_px: offset.norm() })
         })
         .take(cfg.max_points)
         .collect()
 }
 
-/// Where `pose` puts each print point, px from where the photo shows it.
-pub fn reprojection_offsets(points: &[PrintPoint], pose: &Pose, k: &Intrinsics) -> Vec<f64> {
-    points.iter().filter_map(|p| k.project(&Point3::from(pose.rotation * p.object_point + pose.translation)).map(|uv| (uv - p.observed).norm())).collect()
+/// Sums of the photo's grey levels and of their squares, for every patch's mean and norm
+/// in constant time (normalised cross-correlation at many offsets).
+struct PatchStats {
+    sum: Integral,
+    squares: Integral,
+}
+
+impl PatchStats {
+    fn of(g: &Grey) -> Self {
+        let at = |x: usize, y: usize| g.at(g.x0 + x as i64, g.y0 + y as i64) as f64;
+        Self { sum: Integral::new(g.w as usize, g.h as usize, at), squares: Integral::new(g.w as usize, g.h as usize, |x, y| at(x, y).powi(2)) }
+    }
+}
+
+/// Where the zero-mean, unit-norm (2·r + 1)² `template` correlates best with the photo
+/// within `search_px` of `(ix, iy)`, as the offset to the peak of the correlation surface,
+/// placed to a fraction of a pixel; only photo positions that are `searchable` count.
+/// `None` unless the peak is clear: at least `min_ncc`, better by `min_margin` than any
+/// position 2 px or more from it, and not on the search's border (the true peak may lie
+/// beyond it).
+fn best_match(template: &[f32], photo: &Grey, stats: &PatchStats, (ix, iy): (i64, i64), searchable: impl Fn(i64, i64) -> bool, cfg: &PrintPointConfig) -> Option<Vector2<f64>> {
+    let (r, s) = (cfg.patch_radius as i64, cfg.search_px as i64);
+    let n = ((2 * r + 1) * (2 * r + 1)) as f64;
+    let side = 2 * s + 1;
+    let mut scores = vec![f64::NEG_INFINITY; (side * side) as usize];
+    for dy in -s..=s {
+        for dx in -s..=s {
+            let (u, v) = (ix + dx, iy + dy);
+            if !photo.inside(u, v, r) || !searchable(u, v) {
+                continue;
+            }
+            let (gx, gy) = ((u - photo.x0) as usize, (v - photo.y0) as usize);
+            let sum = stats.sum.around(gx, gy, r as usize);
+            let norm = (stats.squares.around(gx, gy, r as usize) - sum * sum / n).max(0.0).sqrt();
+            // Below about 2 grey levels of standard deviation there is nothing to correlate.
+            if norm < 2.0 * n.sqrt() {
+                continue;
+            }
+            // The template has zero mean, so the photo patch's mean drops out of the product.
+            let mut dot = 0.0f32;
+            for (row, t) in (v - r..=v + r).zip(template.chunks_exact((2 * r + 1) as usize)) {
+                for (col, tv) in (u - r..=u + r).zip(t) {
+                    dot += tv * photo.at(col, row);
+                }
+            }
+            scores[((dy + s) * side + dx + s) as usize] = dot as f64 / norm;
+        }
+    }
+    let at = |dx: i64, dy: i64| scores[((dy + s) * side + dx + s) as usize];
+    let (mut bx, mut by) = (0, 0);
+    for dy in -s..=s {
+        for dx in -s..=s {
+            if at(dx, dy) > at(bx, by) {
+                (bx, by) = (dx, dy);
+            }
+        }
+    }
+    let best = at(bx, by);
+    if best < cfg.min_ncc || bx.abs() == s || by.abs() == s {
+        return None;
+    }
+    let rival = (-s..=s).flat_map(|dy| (-s..=s).map(move |dx| (dx, dy))).filter(|&(dx, dy)| (dx - bx).abs().max((dy - by).abs()) >= 2).map(|(dx, dy)| at(dx, dy)).fold(f64::NEG_INFINITY, f64::max);
+    if best - rival < cfg.min_margin {
+        return None;
+    }
+    // A parabola through the peak and its neighbours, each way: the sub-pixel peak.
+    let vertex = |m: f64, c: f64, p: f64| {
+        let d = m - 2.0 * c + p;
+        if m.is_finite() && p.is_finite() && d < 0.0 { (0.5 * (m - p) / d).clamp(-0.5, 0.5) } else { 0.0 }
+    };
+    Some(Vector2::new(bx as f64 + vertex(at(bx - 1, by), best, at(bx + 1, by)), by as f64 + vertex(at(bx, by - 1), best, at(bx, by + 1))))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::Rotation3;
+    use nalgebra::{Point3, Rotation3};
 
     /// A print of random grey blobs about 3 px across (value noise: a hashed grey level
     /// every 3 px, bilinear between), grey 30–230: no repeats within the search's reach.

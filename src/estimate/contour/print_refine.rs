@@ -6,20 +6,23 @@
 
 use super::print_points::{print_points, PrintPoint, PrintPointConfig, WindowRender};
 use super::refiner::ContourRefiner;
-use super::solve::{apply_update, gauss_newton_update};
+use super::solve::{apply_update, gauss_newton_update, PointTerm};
 use crate::estimate::refine::{RefineContext, RefineReport};
 use crate::estimate::select::window_camera;
 use crate::geometry::Pose;
 use crate::render::{RenderOptions, RenderOutput};
 
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct PrintRefineConfig {
     /// Rounds of render, match and update (0: off).
     pub rounds: usize,
     /// Gauss–Newton steps per round.
     pub updates_per_round: usize,
     pub points: PrintPointConfig,
+    /// Standard deviation of a print point's position in the photo, px: a patch correlated
+    /// to a fraction of a pixel, less what the render-to-real gap blurs.
+    pub point_sigma_px: f64,
     /// A print point agrees with a pose when the photo shows it within this many pixels of
     /// where the pose puts it.
     pub agree_px: f64,
@@ -32,7 +35,7 @@ pub struct PrintRefineConfig {
 
 impl Default for PrintRefineConfig {
     fn default() -> Self {
-        Self { rounds: 3, updates_per_round: 2, points: PrintPointConfig::default(), agree_px: 1.5, min_gain: 3, contour_slack: 0.02 }
+        Self { rounds: 3, updates_per_round: 2, points: PrintPointConfig::default(), point_sigma_px: 1.0, agree_px: 1.5, min_gain: 3, contour_slack: 0.02 }
     }
 }
 
@@ -44,12 +47,21 @@ pub struct PrintRefined {
     pub render: RenderOutput,
 }
 
+/// A round that moves the pose less than this (a turn, and a shift as a share of the
+/// distance) has settled: a twentieth of a degree, and 0.05 %, are far below what a
+/// pixel of a small object's print shows.
+const SETTLED_RAD: f64 = 0.05 * std::f64::consts::PI / 180.0;
+const SETTLED_SHARE: f64 = 5e-4;
+
 impl ContourRefiner {
     /// `start` refined on its outline and its print together, rendered over `window` of the
     /// image; `None` where the object has no colours (no print to find), or where the result
     /// does not agree with more of the print (`PrintRefineConfig::min_gain`) or agrees
     /// less with the mask.
-    pub fn refine_on_print(&self, ctx: &RefineContext<'_>, start: &Pose, window: (u32, u32, u32, u32), cfg: &PrintRefineConfig) -> Result<Option<PrintRefined>, String> {
+    ///
+    /// `rendered`: `start` already rendered over `window` (verification's render of the
+    /// winner), which saves one render.
+    pub fn refine_on_print(&self, ctx: &RefineContext<'_>, start: &Pose, window: (u32, u32, u32, u32), rendered: Option<&RenderOutput>, cfg: &PrintRefineConfig) -> Result<Option<PrintRefined>, String> {
         if cfg.rounds == 0 || !ctx.model.mesh.has_colours() {
             return Ok(None);
         }
@@ -58,15 +70,22 @@ impl ContourRefiner {
         let camera = window_camera(k, window).map_err(|e| e.to_string())?;
         let radius = ctx.model.mesh.bounding_radius();
         let photo = self.config.photo_edges.lines(ctx.image, &ctx.model.mesh);
+        let find = |render: &RenderOutput, pose: &Pose| print_points(&WindowRender { render, pose, window, camera: &camera }, ctx.image, ctx.mask, ctx.unknown, &cfg.points);
         let look = |pose: &Pose| -> Result<(RenderOutput, Vec<PrintPoint>), String> {
             let render = self.renderer.render(&ctx.model.mesh, pose, &camera, &RenderOptions::default()).map_err(|e| e.to_string())?;
-            let points = print_points(&WindowRender { render: &render, pose, window, camera: &camera }, ctx.image, ctx.mask, ctx.unknown, &cfg.points);
+            let points = find(&render, pose);
             Ok((render, points))
         };
         let agreeing = |points: &[PrintPoint]| points.iter().filter(|p| p.offset_px <= cfg.agree_px).count();
-        let (mut render, mut points) = look(start)?;
+        let mut points = match rendered {
+            Some(r) if r.mask.dimensions() == (window.2, window.3) => find(r, start),
+            _ => look(start)?.1,
+        };
+        let mut render = None;
         let agreeing_before = agreeing(&points);
         let mut pose = *start;
+        // The pose the current points were found at.
+        let mut looked = *start;
         // The last step's depth σ, and the shares of its lines that saw the object's own
         // outline and that took it from the photo's edge.
         let mut last = None;
@@ -77,7 +96,7 @@ impl ContourRefiner {
             let scale = *self.scales(Self::apparent_diameter(ctx, &pose, &centre)).last().expect("at least one scale");
             let lines = super::lines::build_lines(&cm, &centre, &pose, k, &post, scale, photo);
             for _ in 0..cfg.updates_per_round {
-                let Some(s) = gauss_newton_update(&lines, &points, &pose, start, k, &self.config.regularisation, radius, self.config.occlusion_model) else { break };
+                let Some(s) = gauss_newton_update(&lines, PointTerm { points: &points, sigma_px: cfg.point_sigma_px }, &pose, start, k, &self.config.regularisation, radius, self.config.occlusion_model) else { break };
                 pose = apply_update(&pose, &s.omega, &s.v);
                 let n = lines.len().max(1) as f64;
                 last = Some((s.depth_sigma(&pose), s.own_edges / n, lines.iter().filter(|l| l.photo_edge).count() as f64 / n));
@@ -85,9 +104,16 @@ impl ContourRefiner {
             if pose.translation.z <= 0.0 || !pose.translation.iter().all(|x| x.is_finite()) {
                 return Ok(None);
             }
-            (render, points) = look(&pose)?;
+            // Settled: where the points were last found is the result, and another render
+            // would show the same.
+            if looked.rotation.rotation_to(&pose.rotation).angle() < SETTLED_RAD && (looked.translation - pose.translation).norm() < SETTLED_SHARE * looked.translation.z {
+                pose = looked;
+                break;
+            }
+            let (r, p) = look(&pose)?;
+            (render, points, looked) = (Some(r), p, pose);
         }
-        let Some((depth_sigma_m, visible_fraction, photo_edge_share)) = last else { return Ok(None) };
+        let (Some((depth_sigma_m, visible_fraction, photo_edge_share)), Some(render)) = (last, render) else { return Ok(None) };
         let agreeing_after = agreeing(&points);
         let before = self.agreement_at(ctx, &cm, &centre, &post, start);
         let after = self.agreement_at(ctx, &cm, &centre, &post, &pose);

@@ -5,7 +5,7 @@
 
 use super::lines::{build_lines, Line, LineScale, PhotoLines};
 use super::posterior::Posterior;
-use super::solve::{apply_update, gauss_newton_update, Regularisation};
+use super::solve::{apply_update, gauss_newton_update, PointTerm, Regularisation};
 use crate::estimate::refine::{RefineContext, RefineReport, Refined, Refiner};
 use crate::geometry::Pose;
 use crate::onboard::ContourModel;
@@ -224,7 +224,7 @@ impl Refiner for ContourRefiner {
                 let lines = first.take().unwrap_or_else(|| build_lines(&cm, &centre, &pose, k, &post, *scale, photo));
                 photo_share = lines.iter().filter(|l| l.photo_edge).count() as f64 / lines.len().max(1) as f64;
                 for _ in 0..self.config.updates_per_pass {
-                    let Some(step) = gauss_newton_update(&lines, &[], &pose, &start, k, &self.config.regularisation, radius, self.config.occlusion_model) else { break };
+                    let Some(step) = gauss_newton_update(&lines, PointTerm::NONE, &pose, &start, k, &self.config.regularisation, radius, self.config.occlusion_model) else { break };
                     pose = apply_update(&pose, &step.omega, &step.v);
                     depth_sigma = step.depth_sigma(&pose);
                     // Lines without an edge (hidden entirely, or past the image border)

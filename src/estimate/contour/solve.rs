@@ -29,9 +29,18 @@ impl Default for Regularisation {
 /// where they are a minority that disagrees with the rest.
 const TUKEY_SIGMAS: f64 = 3.0;
 
-/// Standard deviation of a print point's position in the photo, px: a patch correlated to
-/// a fraction of a pixel, less what the render-to-real gap blurs.
-const POINT_SIGMA_PX: f64 = 1.0;
+/// Print points (`print_points`) for an update, with the standard deviation of their
+/// positions in the photo, px.
+#[derive(Clone, Copy)]
+pub struct PointTerm<'a> {
+    pub points: &'a [PrintPoint],
+    pub sigma_px: f64,
+}
+
+impl PointTerm<'_> {
+    /// No points: the outline alone.
+    pub const NONE: PointTerm<'static> = PointTerm { points: &[], sigma_px: 1.0 };
+}
 
 /// One Gauss–Newton step: the turn ω and shift v (object frame) and the step's
 /// covariance, the inverse of the weighted normal matrix (prior included; rows ω then v).
@@ -61,10 +70,10 @@ impl Step {
 /// in the units of the pose as far as those variances are right; with `occlusion`, times
 /// the probability that its edge is the object's own (`occlusion::visibility`).
 ///
-/// `points` (print points: `print_points`) add their reprojection offsets, each with a
-/// standard deviation of `POINT_SIGMA_PX`; the prior stays in units of the lines.
+/// `points` add their reprojection offsets, x and y, each with their standard deviation;
+/// the prior stays in units of the lines.
 #[allow(clippy::too_many_arguments)]
-pub fn gauss_newton_update(lines: &[Line], points: &[PrintPoint], pose: &Pose, start: &Pose, k: &Intrinsics, reg: &Regularisation, radius: f64, occlusion: bool) -> Option<Step> {
+pub fn gauss_newton_update(lines: &[Line], points: PointTerm<'_>, pose: &Pose, start: &Pose, k: &Intrinsics, reg: &Regularisation, radius: f64, occlusion: bool) -> Option<Step> {
     struct Row {
         j: Vector6<f64>,
         residual: f64,
@@ -118,6 +127,7 @@ pub fn gauss_newton_update(lines: &[Line], points: &[PrintPoint], pose: &Pose, s
     // Print points, two rows each (x and y), robust among themselves: a point matched to a
     // repeat of its print is an outlier there whatever the lines say.
     let point_rows: Vec<(Vector6<f64>, f64)> = points
+        .points
         .iter()
         .flat_map(|pt| {
             let p = Point3::from(pose.rotation * pt.object_point + pose.translation);
@@ -132,11 +142,11 @@ pub fn gauss_newton_update(lines: &[Line], points: &[PrintPoint], pose: &Pose, s
         })
         .collect();
     if !point_rows.is_empty() {
-        let spread = (1.4826 * median(point_rows.iter().map(|r| r.1.abs()).collect())).max(POINT_SIGMA_PX);
+        let spread = (1.4826 * median(point_rows.iter().map(|r| r.1.abs()).collect())).max(points.sigma_px);
         for (j, residual) in &point_rows {
             let u = residual / (TUKEY_SIGMAS * spread);
             if u.abs() < 1.0 {
-                let w = (1.0 - u * u).powi(2) / (POINT_SIGMA_PX * POINT_SIGMA_PX);
+                let w = (1.0 - u * u).powi(2) / (points.sigma_px * points.sigma_px);
                 h += j * j.transpose() * w;
                 g += j * (w * residual);
             }
@@ -207,12 +217,12 @@ mod tests {
         let reg = Regularisation { rotation: 0.0, translation: 0.0 };
         let mut pose = start;
         for _ in 0..3 {
-            let Step { omega: w, v, .. } = gauss_newton_update(&lines, &[], &pose, &start, &k, &reg, 0.05, true).unwrap();
+            let Step { omega: w, v, .. } = gauss_newton_update(&lines, PointTerm::NONE, &pose, &start, &k, &reg, 0.05, true).unwrap();
             pose = apply_update(&pose, &w, &v);
         }
         let err = (pose.translation - truth.translation).norm();
         assert!(err < 1e-3, "translation error {err} m after the update");
-        assert!(gauss_newton_update(&[], &[], &start, &start, &k, &reg, 0.05, true).is_none());
+        assert!(gauss_newton_update(&[], PointTerm::NONE, &start, &start, &k, &reg, 0.05, true).is_none());
     }
 
     /// At the true pose, with half the ring's lines seeing an occluder's edge 12 px inside
@@ -236,10 +246,10 @@ mod tests {
             .collect();
         let reg = Regularisation::default();
         let moved = |occlusion: bool| {
-            let s = gauss_newton_update(&lines, &[], &truth, &truth, &k, &reg, 0.05, occlusion).unwrap();
+            let s = gauss_newton_update(&lines, PointTerm::NONE, &truth, &truth, &k, &reg, 0.05, occlusion).unwrap();
             (apply_update(&truth, &s.omega, &s.v).translation - truth.translation).norm()
         };
-        let with = gauss_newton_update(&lines, &[], &truth, &truth, &k, &reg, 0.05, true).unwrap();
+        let with = gauss_newton_update(&lines, PointTerm::NONE, &truth, &truth, &k, &reg, 0.05, true).unwrap();
         assert!((with.own_edges - 36.0).abs() < 3.0, "own edges {}", with.own_edges);
         assert!(moved(true) < 2e-4, "moved {} m with the occlusion model", moved(true));
         assert!(moved(false) > 5.0 * moved(true).max(1e-4), "moved {} m without, {} m with", moved(false), moved(true));
