@@ -21,7 +21,9 @@ pub struct PrintRefineConfig {
     pub updates_per_round: usize,
     pub points: PrintPointConfig,
     /// Standard deviation of a print point's position in the photo, px: a patch correlated
-    /// to a fraction of a pixel, less what the render-to-real gap blurs.
+    /// to a fraction of a pixel, less what the render-to-real gap blurs. 0.5 by measurement:
+    /// one instance more of 80 than 1.0 on each of three 10-HOPE sets (docs/benchmarks.md,
+    /// "Estimated among the other detections, and refining on the print").
     pub point_sigma_px: f64,
     /// A print point agrees with a pose when the photo shows it within this many pixels of
     /// where the pose puts it.
@@ -35,7 +37,7 @@ pub struct PrintRefineConfig {
 
 impl Default for PrintRefineConfig {
     fn default() -> Self {
-        Self { rounds: 3, updates_per_round: 2, points: PrintPointConfig::default(), point_sigma_px: 1.0, agree_px: 1.5, min_gain: 3, contour_slack: 0.02 }
+        Self { rounds: 3, updates_per_round: 2, points: PrintPointConfig::default(), point_sigma_px: 0.5, agree_px: 1.5, min_gain: 3, contour_slack: 0.02 }
     }
 }
 
