@@ -129,7 +129,7 @@ pub struct Estimator {
     /// One per `RefinerKind`, in `RefinerKind::ALL` order.
     refiners: Vec<Arc<dyn Refiner>>,
     /// Scores the outline of every hypothesis in verification, whichever refiner runs (the
-    /// same instance as the `Contour` slot unless `with_refiner` replaced that).
+    /// same instance as the `Contour` slot unless `with_refiner` replaced only that).
     contour: Arc<ContourRefiner>,
 }
 
@@ -459,9 +459,9 @@ impl Estimator {
         Ok((ranked, matched))
     }
 
-    /// Step 10: IoU gate and z-normalised scoring across hypotheses.
+    /// Step 10: IoU gate and z-normalised scoring across hypotheses; `others` as for
+    /// `estimate_among`.
     #[allow(clippy::too_many_arguments)]
-    /// `others` as for `estimate_among`.
     fn select(&self, model: &ObjectModel, queries: &[QueryView], chosen: &[usize], k: &Intrinsics, (detections, others): (&[Detection], Option<&GrayImage>), mut hyps: Vec<Hypothesis>, cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
         let size = model.grid.n * model.grid.patch;
         let mut crops = Vec::new();

@@ -87,10 +87,7 @@ pub fn gauss_newton_update(lines: &[Line], points: PointTerm<'_>, pose: &Pose, s
         let Some(uv) = k.project(&p) else { continue };
         depth += p.z;
         let residual = l.mean - l.normal.dot(&(uv - l.centre));
-        // b = (nᵀ·J_π·R)ᵀ: how the offset changes with an object-frame translation.
-        let b: Vector3<f64> = pose.rotation.inverse() * (projection_jacobian(k, &p).transpose() * l.normal);
-        let c = -b.cross(&l.object_point);
-        rows.push(Row { j: Vector6::new(c.x, c.y, c.z, b.x, b.y, b.z), residual, variance: l.variance, inside_px: l.inside_px });
+        rows.push(Row { j: offset_jacobian(pose, k, &p, &l.object_point, &l.normal), residual, variance: l.variance, inside_px: l.inside_px });
     }
     if rows.is_empty() {
         return None;
@@ -132,13 +129,7 @@ pub fn gauss_newton_update(lines: &[Line], points: PointTerm<'_>, pose: &Pose, s
         .flat_map(|pt| {
             let p = Point3::from(pose.rotation * pt.object_point + pose.translation);
             let uv = k.project(&p);
-            let jp = projection_jacobian(k, &p);
-            [Vector2::x(), Vector2::y()].into_iter().filter_map(move |n| {
-                let residual = n.dot(&(pt.observed - uv?));
-                let b: Vector3<f64> = pose.rotation.inverse() * (jp.transpose() * n);
-                let c = -b.cross(&pt.object_point);
-                Some((Vector6::new(c.x, c.y, c.z, b.x, b.y, b.z), residual))
-            })
+            [Vector2::x(), Vector2::y()].into_iter().filter_map(move |n| Some((offset_jacobian(pose, k, &p, &pt.object_point, &n), n.dot(&(pt.observed - uv?)))))
         })
         .collect();
     if !point_rows.is_empty() {
@@ -183,6 +174,15 @@ pub fn gauss_newton_update(lines: &[Line], points: PointTerm<'_>, pose: &Pose, s
         covariance: chol.inverse(),
         own_edges,
     })
+}
+
+/// How a point's image offset along `n` changes with the update (ω, v) at `pose`: the
+/// point `x` (object frame) at camera-frame `p`. b = (nᵀ·J_π·R)ᵀ answers an object-frame
+/// shift, and a turn moves the point by ω × x, hence −b × x.
+fn offset_jacobian(pose: &Pose, k: &Intrinsics, p: &Point3<f64>, x: &Vector3<f64>, n: &Vector2<f64>) -> Vector6<f64> {
+    let b: Vector3<f64> = pose.rotation.inverse() * (projection_jacobian(k, p).transpose() * n);
+    let c = -b.cross(x);
+    Vector6::new(c.x, c.y, c.z, b.x, b.y, b.z)
 }
 
 /// `pose · (exp(ω), v)`: the object turns by ω and shifts by v in its own frame.
