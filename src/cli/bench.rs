@@ -64,6 +64,12 @@ pub enum BenchCommand {
         size: u32,
         #[arg(long, default_value_t = 100)]
         count: usize,
+        /// Draw both sides of closed meshes too (as before back-face culling).
+        #[arg(long)]
+        two_sided: bool,
+        /// Draw every triangle as the mesh gives it: both sides, repeated faces again.
+        #[arg(long)]
+        every_triangle: bool,
     },
     /// Loads and onboards every mesh under a folder; prints vertices, faces, load time,
     /// onboarding time and model size.
@@ -98,7 +104,10 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Track(a) => super::bench_track::run(a),
         BenchCommand::Symmetries(a) => super::bench_symmetries::run(a),
         BenchCommand::Serve(a) => super::bench_serve::run(a),
-        BenchCommand::Render { mesh, units, size, count } => render(mesh_or_box(mesh, units)?, size, count),
+        BenchCommand::Render { mesh, units, size, count, two_sided, every_triangle } => {
+            let config = crate::render::RendererConfig { cull_closed_meshes: !(two_sided || every_triangle), drop_repeated_faces: !every_triangle, ..Default::default() };
+            render(mesh_or_box(mesh, units)?, size, count, config)
+        }
         BenchCommand::Onboard { data, default_units, store, filter } => onboard_table(&data, default_units, store, filter),
     }
 }
@@ -145,11 +154,12 @@ fn reid(mesh: Mesh, pairs: usize, seed: u64) -> Result<()> {
     Ok(())
 }
 
-fn render(mesh: Mesh, size: u32, count: usize) -> Result<()> {
+fn render(mesh: Mesh, size: u32, count: usize, config: crate::render::RendererConfig) -> Result<()> {
     if count == 0 || size == 0 {
         bail!("--count and --size must be positive");
     }
-    let pool = super::open_renderer(1)?;
+    let drawn = crate::mesh::surface::drawn_surface(&mesh, config.drop_repeated_faces);
+    let pool = super::open_renderer_with(1, config.clone())?;
     let c = (size as f64 - 1.0) * 0.5;
     let k = crate::geometry::Intrinsics::new(size as f64, size as f64, c, c, size, size)?;
     let centre = nalgebra::Vector3::from(mesh.bbox_center());
@@ -161,9 +171,11 @@ fn render(mesh: Mesh, size: u32, count: usize) -> Result<()> {
     pool.render_batch(&mesh, &views, &RenderOptions::default())?;
     let s = t.elapsed().as_secs_f64();
     println!(
-        "{count} renders of {} ({} triangles) at {size}×{size} on {}: {:.1} renders/s ({:.1} ms each, RGB + depth + mask read back)",
+        "{count} renders of {} ({} triangles, {} drawn, {}) at {size}×{size} on {}: {:.1} renders/s ({:.1} ms each, RGB + depth + mask read back)",
         mesh.name(),
         mesh.triangles().len(),
+        drawn.triangles.len(),
+        if config.cull_closed_meshes && drawn.closed { "closed: one-sided" } else if drawn.closed { "closed, drawn two-sided" } else { "open: two-sided" },
         pool.describe(),
         count as f64 / s,
         1e3 * s / count as f64

@@ -308,6 +308,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
             let (symmetries, sample) = &scoring[inst.obj_id as usize - 1];
             let truth = |p: &Pose| crate::eval::pose_error::closest_symmetric(p, &inst.pose, symmetries, sample);
             for (t, (_, cfg)) in tallies.iter_mut().zip(&configs) {
+                tracing::debug!(image = im, obj_id = inst.obj_id, setting = t.name, "bench instance");
                 let r: EstimateResult = estimator.estimate_among(model, &scene.rgb, &scene.cam, &det, others.as_ref(), cfg)?;
                 let tm = &r.timings;
                 t.stages.push([tm.crop, tm.features, tm.retrieval, tm.matching, tm.pnp, tm.rrc, tm.refine, tm.selection, tm.total]);

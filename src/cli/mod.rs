@@ -122,7 +122,12 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 /// Renderer pool shared by the commands, with a message that says what to install when
 /// no adapter can be found.
 pub fn open_renderer(size: usize) -> anyhow::Result<crate::render::RenderPool> {
-    Ok(crate::render::RenderPool::new(size, crate::render::RendererConfig::default())?)
+    open_renderer_with(size, crate::render::RendererConfig::default())
+}
+
+/// `open_renderer` with other renderer settings.
+pub fn open_renderer_with(size: usize, config: crate::render::RendererConfig) -> anyhow::Result<crate::render::RenderPool> {
+    Ok(crate::render::RenderPool::new(size, config)?)
 }
 
 /// The object `id` from `store` when it was made from this mesh (geometry and appearance)

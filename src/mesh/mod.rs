@@ -25,6 +25,7 @@ pub use ply::{load_ply, load_ply_points};
 pub use material_texture::Texture;
 pub use types::*;
 
+pub mod surface;
 pub mod procedural;
 pub mod symmetry_finder;
 pub mod write_obj;

@@ -8,6 +8,7 @@ use wgpu::util::DeviceExt;
 
 use super::color::srgb_to_linear3;
 use super::pipeline::{upload_texture, MaterialUniform, Pipeline};
+use crate::mesh::surface::drawn_surface;
 use crate::mesh::Mesh;
 
 /// Mirrors `VsIn` in shader.wgsl.
@@ -32,20 +33,36 @@ impl Vertex {
     };
 }
 
+/// What a renderer draws of each mesh (`RendererConfig`).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Drawing {
+    /// Back faces of closed meshes culled.
+    pub cull: bool,
+    /// Exact repeats of a face left out.
+    pub drop_repeats: bool,
+}
+
 pub(crate) struct GpuMesh {
     vertices: wgpu::Buffer,
     indices: wgpu::Buffer,
     /// (index range, material) per part.
     draws: Vec<(Range<u32>, usize)>,
     materials: Vec<wgpu::BindGroup>,
+    /// Closed: drawn with back faces culled.
+    pub culled: bool,
     /// Object-frame bounding sphere, for automatic near/far planes.
     pub sphere_center: [f64; 3],
     pub sphere_radius: f64,
 }
 
 impl GpuMesh {
-    pub fn upload(device: &wgpu::Device, queue: &wgpu::Queue, pipeline: &Pipeline, mesh: &Mesh) -> Self {
+    /// Draws `mesh`'s triangles (less exact repeats, wound outward where they close:
+    /// `mesh::surface`) as `drawing` says.
+    pub fn upload(device: &wgpu::Device, queue: &wgpu::Queue, pipeline: &Pipeline, mesh: &Mesh, drawing: Drawing) -> Self {
         let vertices = build_vertices(mesh);
+        let drawn = drawn_surface(mesh, drawing.drop_repeats);
+        tracing::debug!(mesh = mesh.name(), triangles = mesh.triangles().len(), repeats = drawn.repeats, closed = drawn.closed, rewound = drawn.rewound, "uploading a mesh");
+        let culled = drawing.cull && drawn.closed;
         let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some(mesh.name()),
             contents: bytemuck::cast_slice(&vertices),
@@ -53,11 +70,11 @@ impl GpuMesh {
         });
         let indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some(mesh.name()),
-            contents: bytemuck::cast_slice(mesh.triangles()),
+            contents: bytemuck::cast_slice(&drawn.triangles),
             usage: wgpu::BufferUsages::INDEX,
         });
-        let draws = mesh
-            .parts()
+        let draws = drawn
+            .parts
             .iter()
             .filter(|p| p.triangle_count > 0)
             .map(|p| (p.first_triangle * 3..(p.first_triangle + p.triangle_count) * 3, p.material as usize))
@@ -101,7 +118,7 @@ impl GpuMesh {
             .collect();
         let (lo, hi) = mesh.bbox();
         let half_diagonal = (0..3).map(|i| ((hi[i] - lo[i]) as f64 * 0.5).powi(2)).sum::<f64>().sqrt();
-        Self { vertices, indices, draws, materials, sphere_center: mesh.bbox_center(), sphere_radius: half_diagonal }
+        Self { vertices, indices, draws, materials, culled, sphere_center: mesh.bbox_center(), sphere_radius: half_diagonal }
     }
 
     /// Records the draws; the pipeline and frame bind group must already be set.

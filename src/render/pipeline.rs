@@ -18,6 +18,11 @@ pub(crate) const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth3
 /// sRGB: textures are authored in sRGB and the sampler must decode before filtering.
 pub(crate) const ALBEDO_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
 
+/// Which winding faces the camera in framebuffer space: counter-clockwise in the object
+/// frame seen from outside, once `projection`'s clip matrix (which flips the image's y
+/// axis) has mapped it.
+const FRONT_FACE: wgpu::FrontFace = wgpu::FrontFace::Ccw;
+
 /// Mirrors `Frame` in shader.wgsl (std140-compatible: only vec4/mat4 members).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -66,7 +71,10 @@ pub(crate) struct MaterialUniform {
 }
 
 pub(crate) struct Pipeline {
+    /// Draws both sides of every triangle.
     pub pipeline: wgpu::RenderPipeline,
+    /// Skips the triangles that face away from the camera: for closed meshes wound outward.
+    pub culling: wgpu::RenderPipeline,
     pub material_layout: wgpu::BindGroupLayout,
     pub frame_buffer: wgpu::Buffer,
     pub frame_group: wgpu::BindGroup,
@@ -109,7 +117,7 @@ impl Pipeline {
             bind_group_layouts: &[Some(&frame_layout), Some(&material_layout)],
             immediate_size: 0,
         });
-        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        let pipeline_culling = |cull_mode| device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some("b2tf"),
             layout: Some(&layout),
             vertex: wgpu::VertexState {
@@ -120,8 +128,8 @@ impl Pipeline {
             },
             primitive: wgpu::PrimitiveState {
                 topology: wgpu::PrimitiveTopology::TriangleList,
-                // CAD meshes have inconsistent winding: draw both sides.
-                cull_mode: None,
+                front_face: FRONT_FACE,
+                cull_mode,
                 ..Default::default()
             },
             depth_stencil: Some(wgpu::DepthStencilState {
@@ -145,6 +153,10 @@ impl Pipeline {
             multiview_mask: None,
             cache: None,
         });
+        // CAD meshes often have inconsistent winding: both sides are drawn unless the mesh
+        // is known to be closed and wound outward (`mesh::surface`).
+        let pipeline = pipeline_culling(None);
+        let culling = pipeline_culling(Some(wgpu::Face::Back));
         let frame_buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("b2tf frame uniform"),
             size: std::mem::size_of::<FrameUniform>() as u64,
@@ -166,7 +178,7 @@ impl Pipeline {
             ..Default::default()
         });
         let white = upload_texture(device, queue, 1, 1, &[255; 4], "b2tf white");
-        Self { pipeline, material_layout, frame_buffer, frame_group, sampler, white }
+        Self { pipeline, culling, material_layout, frame_buffer, frame_group, sampler, white }
     }
 }
 

@@ -2,7 +2,7 @@
 //! are synchronous: submit, wait, read back.
 
 use super::context::GpuContext;
-use super::gpu_mesh::GpuMesh;
+use super::gpu_mesh::{Drawing, GpuMesh};
 use super::mesh_cache::MeshCache;
 use super::output::{assemble, RenderOutput};
 use super::pipeline::{FrameUniform, Pipeline};
@@ -16,11 +16,17 @@ use crate::mesh::Mesh;
 pub struct RendererConfig {
     /// Meshes kept uploaded per renderer (least recently used evicted first); at least 1.
     pub max_cached_meshes: usize,
+    /// Skip the triangles facing away from the camera on closed meshes (`mesh::surface`),
+    /// which cannot show: the same images in about half the time on a software rasteriser
+    /// (docs/benchmarks.md, "Rendering closed meshes one-sided").
+    pub cull_closed_meshes: bool,
+    /// Draw a face that repeats an earlier one exactly only once (`mesh::surface`).
+    pub drop_repeated_faces: bool,
 }
 
 impl Default for RendererConfig {
     fn default() -> Self {
-        Self { max_cached_meshes: 8 }
+        Self { max_cached_meshes: 8, cull_closed_meshes: true, drop_repeated_faces: true }
     }
 }
 
@@ -28,6 +34,7 @@ pub struct Renderer {
     ctx: GpuContext,
     pipeline: Pipeline,
     cache: MeshCache<GpuMesh>,
+    drawing: Drawing,
     /// Targets of the last image size; most callers render one size repeatedly.
     targets: Option<Targets>,
 }
@@ -40,7 +47,7 @@ impl Renderer {
     pub fn with_config(config: RendererConfig) -> Result<Self, RenderError> {
         let ctx = GpuContext::open()?;
         let pipeline = ctx.catching(|| Pipeline::new(&ctx.device, &ctx.queue))?;
-        Ok(Self { ctx, pipeline, cache: MeshCache::new(config.max_cached_meshes), targets: None })
+        Ok(Self { ctx, pipeline, cache: MeshCache::new(config.max_cached_meshes), drawing: Drawing { cull: config.cull_closed_meshes, drop_repeats: config.drop_repeated_faces }, targets: None })
     }
 
     pub fn adapter_info(&self) -> &wgpu::AdapterInfo {
@@ -70,9 +77,9 @@ impl Renderer {
     /// each image holds.
     pub fn render(&mut self, mesh: &Mesh, pose: &Pose, k: &Intrinsics, opts: &RenderOptions) -> Result<RenderOutput, RenderError> {
         self.check_inputs(pose, k, opts)?;
-        let Self { ctx, pipeline, cache, targets } = self;
+        let Self { ctx, pipeline, cache, drawing, targets } = self;
         let submitted = ctx.catching(|| {
-            let gpu = cache.get_or_insert_with(mesh.id(), || GpuMesh::upload(&ctx.device, &ctx.queue, pipeline, mesh));
+            let gpu = cache.get_or_insert_with(mesh.id(), || GpuMesh::upload(&ctx.device, &ctx.queue, pipeline, mesh, *drawing));
             let (near, far) =
                 opts.clip_range.unwrap_or_else(|| clip_range_for_sphere(pose, gpu.sphere_center, gpu.sphere_radius));
             let frame = FrameUniform::new(pose, &clip_from_camera(k, near, far), opts);
@@ -84,7 +91,7 @@ impl Renderer {
             let mut encoder = ctx.device.create_command_encoder(&Default::default());
             {
                 let mut pass = t.begin_pass(&mut encoder);
-                pass.set_pipeline(&pipeline.pipeline);
+                pass.set_pipeline(if gpu.culled { &pipeline.culling } else { &pipeline.pipeline });
                 pass.set_bind_group(0, &pipeline.frame_group, &[]);
                 gpu.draw(&mut pass);
             }
@@ -104,9 +111,9 @@ impl Renderer {
 
     /// Uploads `mesh` now unless it is cached, so that its first render does not pay for it.
     pub fn prepare(&mut self, mesh: &Mesh) -> Result<(), RenderError> {
-        let Self { ctx, pipeline, cache, .. } = self;
+        let Self { ctx, pipeline, cache, drawing, .. } = self;
         let uploaded = ctx.catching(|| {
-            cache.get_or_insert_with(mesh.id(), || GpuMesh::upload(&ctx.device, &ctx.queue, pipeline, mesh));
+            cache.get_or_insert_with(mesh.id(), || GpuMesh::upload(&ctx.device, &ctx.queue, pipeline, mesh, *drawing));
         });
         if uploaded.is_err() {
             cache.remove(mesh.id());

@@ -119,7 +119,9 @@ impl ContourRefiner {
         let agreeing_after = agreeing(&points);
         let before = self.agreement_at(ctx, &cm, &centre, &post, start);
         let after = self.agreement_at(ctx, &cm, &centre, &post, &pose);
-        if agreeing_after < agreeing_before + cfg.min_gain || after.score < before.score - cfg.contour_slack {
+        let taken = agreeing_after >= agreeing_before + cfg.min_gain && after.score >= before.score - cfg.contour_slack;
+        tracing::debug!(agreeing_before, agreeing_after, points = points.len(), contour_before = before.score, contour_after = after.score, turn_deg = start.rotation.rotation_to(&pose.rotation).angle().to_degrees(), dz_mm = (pose.translation.z - start.translation.z) * 1e3, taken, "refined on the print");
+        if !taken {
             return Ok(None);
         }
         let report = RefineReport { depth_sigma_m, visible_fraction, photo_edge_share, print_points: Some([agreeing_before, agreeing_after]), ..after.report(true, None) };

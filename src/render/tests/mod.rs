@@ -2,6 +2,7 @@
 //! print why and pass, unless B2TF_REQUIRE_GPU=1 makes that a failure.
 
 mod bench;
+mod culling;
 mod meshes;
 
 use nalgebra::{Point3, Rotation3, Vector3};
@@ -219,7 +220,7 @@ fn second_render_of_a_mesh_does_not_upload_again() {
     r.render(&cube(0.05, None), &p, &k, &o).unwrap();
     assert_eq!(r.mesh_uploads(), 2);
 
-    let Some(mut small) = renderer_with(RendererConfig { max_cached_meshes: 1 }) else { return };
+    let Some(mut small) = renderer_with(RendererConfig { max_cached_meshes: 1, ..Default::default() }) else { return };
     let b = uv_sphere(0.05, 8, 16);
     for m in [&a, &b, &a] {
         small.render(m, &p, &k, &o).unwrap();
