@@ -25,8 +25,8 @@ pub use ply::{load_ply, load_ply_points};
 pub use material_texture::Texture;
 pub use types::*;
 
-pub mod surface;
 pub mod procedural;
+pub mod surface;
 pub mod symmetry_finder;
 pub mod write_obj;
 pub mod write_ply;

@@ -1,5 +1,5 @@
-//! What a renderer needs to draw of a mesh. Three things cut its work without changing a
-//! pixel. Some meshes hold every face twice (all ten HOPE meshes of `../shared/data` do:
+//! What a renderer needs to draw of a mesh. Three things cut its work without changing the
+//! picture. Some meshes hold every face twice (all ten HOPE meshes of `../shared/data` do:
 //! the same positions, winding and texture coordinates, on duplicated vertices whose
 //! normals point the other way, a back side for renderers that light one side only); the
 //! second copy never shows here, where both sides are lit alike. On a closed surface, every
@@ -36,19 +36,23 @@ pub struct DrawnSurface {
 /// wound outward where they close.
 pub fn drawn_surface(mesh: &Mesh, drop_repeats: bool) -> DrawnSurface {
     let welded = weld(mesh.positions(), WELD * mesh.diameter());
-    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
     let corner = |i: u32| {
         let i = i as usize;
-        (welded.0[i], mesh.colors().map(|c| bits(&c[i])), mesh.uvs().map(|t| bits(&t[i])))
+        let colour = mesh.colors().map_or([0; 3], |c| c[i].map(f32::to_bits));
+        let uv = mesh.uvs().map_or([0; 2], |t| t[i].map(f32::to_bits));
+        (welded.0[i], colour, uv)
     };
     // The renderer lights both sides alike (|N·L|), so a face with all its normals turned
     // round looks the same: the normals count up to one sign for the whole face.
     let normals = |corners: [u32; 3]| {
-        let mut n: Vec<f32> = corners.iter().flat_map(|&i| mesh.normals()[i as usize]).collect();
+        let mut n = [0f32; 9];
+        for (k, &i) in corners.iter().enumerate() {
+            n[3 * k..3 * k + 3].copy_from_slice(&mesh.normals()[i as usize]);
+        }
         if n.iter().find(|x| **x != 0.0).is_some_and(|x| *x < 0.0) {
             n.iter_mut().for_each(|x| *x = -*x);
         }
-        bits(&n)
+        n.map(f32::to_bits)
     };
     let mut triangles = Vec::with_capacity(mesh.triangles().len());
     let mut parts = Vec::with_capacity(mesh.parts().len());
@@ -116,21 +120,23 @@ fn weld(positions: &[[f32; 3]], tolerance: f64) -> (Vec<u32>, Vec<[f64; 3]>) {
 /// (corners welded together) show nothing and are left as they are.
 fn outward_turns(triangles: &[[u32; 3]], (welded, positions): &(Vec<u32>, Vec<[f64; 3]>)) -> Option<Vec<bool>> {
     let corners: Vec<Option<[u32; 3]>> = triangles.iter().map(|t| Some(t.map(|i| welded[i as usize])).filter(|w| w[0] != w[1] && w[1] != w[2] && w[0] != w[2])).collect();
-    // Each edge (lower id first) with the triangles on it, and whether each runs along it
-    // from the lower id.
-    let mut edges: HashMap<(u32, u32), Vec<(usize, bool)>> = HashMap::with_capacity(3 * triangles.len() / 2);
+    // Each edge (lower id first) with a triangle on it, and whether it runs along the edge
+    // from the lower id; sorted, an edge's triangles sit together.
+    let mut sides: Vec<((u32, u32), usize, bool)> = Vec::with_capacity(3 * triangles.len());
     for (i, c) in corners.iter().enumerate() {
         let Some(c) = c else { continue };
         for (a, b) in [(c[0], c[1]), (c[1], c[2]), (c[2], c[0])] {
-            edges.entry((a.min(b), a.max(b))).or_default().push((i, a < b));
+            sides.push(((a.min(b), a.max(b)), i, a < b));
         }
     }
-    if edges.is_empty() || edges.values().any(|on| on.len() != 2) {
+    sides.sort_unstable_by_key(|s| s.0);
+    let edges: Vec<&[((u32, u32), usize, bool)]> = sides.chunk_by(|a, b| a.0 == b.0).collect();
+    if edges.is_empty() || edges.iter().any(|on| on.len() != 2) {
         return None;
     }
-    let mut neighbours: Vec<Vec<(usize, bool)>> = vec![vec![]; triangles.len()];
-    for on in edges.values() {
-        let ((i, fi), (j, fj)) = (on[0], on[1]);
+    let mut neighbours: Vec<Vec<(usize, bool)>> = vec![Vec::with_capacity(3); triangles.len()];
+    for on in &edges {
+        let ((_, i, fi), (_, j, fj)) = (on[0], on[1]);
         // Wound alike, two neighbours run along their edge in opposite directions.
         neighbours[i].push((j, fi == fj));
         neighbours[j].push((i, fi == fj));

@@ -60,8 +60,9 @@ impl GpuMesh {
     /// `mesh::surface`) as `drawing` says.
     pub fn upload(device: &wgpu::Device, queue: &wgpu::Queue, pipeline: &Pipeline, mesh: &Mesh, drawing: Drawing) -> Self {
         let vertices = build_vertices(mesh);
+        let t = std::time::Instant::now();
         let drawn = drawn_surface(mesh, drawing.drop_repeats);
-        tracing::debug!(mesh = mesh.name(), triangles = mesh.triangles().len(), repeats = drawn.repeats, closed = drawn.closed, rewound = drawn.rewound, "uploading a mesh");
+        tracing::debug!(mesh = mesh.name(), triangles = mesh.triangles().len(), repeats = drawn.repeats, closed = drawn.closed, rewound = drawn.rewound, ms = t.elapsed().as_secs_f64() * 1e3, "uploading a mesh");
         let culled = drawing.cull && drawn.closed;
         let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some(mesh.name()),
