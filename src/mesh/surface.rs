@@ -113,6 +113,10 @@ fn weld(positions: &[[f32; 3]], tolerance: f64) -> (Vec<u32>, Vec<[f64; 3]>) {
     (welded, unique)
 }
 
+/// An edge (lower welded id first), a triangle on it, and whether the triangle runs along
+/// it from the lower id.
+type Side = ((u32, u32), usize, bool);
+
 /// Which of `triangles` (vertex indices; `welded` as from `weld`) to turn round so that
 /// every shell is wound consistently and outward (positive volume); `None` where the
 /// surface is not closed: an edge of one triangle (a hole) or of three or more, or a
@@ -120,9 +124,8 @@ fn weld(positions: &[[f32; 3]], tolerance: f64) -> (Vec<u32>, Vec<[f64; 3]>) {
 /// (corners welded together) show nothing and are left as they are.
 fn outward_turns(triangles: &[[u32; 3]], (welded, positions): &(Vec<u32>, Vec<[f64; 3]>)) -> Option<Vec<bool>> {
     let corners: Vec<Option<[u32; 3]>> = triangles.iter().map(|t| Some(t.map(|i| welded[i as usize])).filter(|w| w[0] != w[1] && w[1] != w[2] && w[0] != w[2])).collect();
-    // Each edge (lower id first) with a triangle on it, and whether it runs along the edge
-    // from the lower id; sorted, an edge's triangles sit together.
-    let mut sides: Vec<((u32, u32), usize, bool)> = Vec::with_capacity(3 * triangles.len());
+    // Sorted, an edge's triangles sit together.
+    let mut sides: Vec<Side> = Vec::with_capacity(3 * triangles.len());
     for (i, c) in corners.iter().enumerate() {
         let Some(c) = c else { continue };
         for (a, b) in [(c[0], c[1]), (c[1], c[2]), (c[2], c[0])] {
@@ -130,7 +133,7 @@ fn outward_turns(triangles: &[[u32; 3]], (welded, positions): &(Vec<u32>, Vec<[f
         }
     }
     sides.sort_unstable_by_key(|s| s.0);
-    let edges: Vec<&[((u32, u32), usize, bool)]> = sides.chunk_by(|a, b| a.0 == b.0).collect();
+    let edges: Vec<&[Side]> = sides.chunk_by(|a, b| a.0 == b.0).collect();
     if edges.is_empty() || edges.iter().any(|on| on.len() != 2) {
         return None;
     }
