@@ -34,6 +34,10 @@ pub struct BenchEstimateArgs {
     /// RANSAC reprojection threshold in pixels.
     #[arg(long)]
     pub pnp_threshold: Option<f64>,
+    /// RRC's renders in pixels per image pixel of the object (default 2; 0: at the
+    /// backbone's crop size).
+    #[arg(long)]
+    pub rrc_render_scale: Option<f64>,
     /// Refiner after PnP/RRC: none (pass-through), silhouette-depth (scales the depth to
     /// the best silhouette IoU) or contour (aligns the outline with the mask).
     #[arg(long, value_enum, default_value_t = crate::estimate::RefinerKind::default())]
@@ -272,6 +276,9 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     }
     if let Some(d) = a.nms_degrees {
         base.retrieval.nms_degrees = d;
+    }
+    if let Some(s) = a.rrc_render_scale {
+        base.rrc_render_scale = s;
     }
     base.verify = a.verify.config();
     base.print = a.print_config.unwrap_or_default();

@@ -30,6 +30,13 @@ pub struct EstimateConfig {
     pub pnp: PnpConfig,
     /// Render-guided re-correspondence on or off.
     pub rrc: bool,
+    /// RRC renders each variant at this many pixels per image pixel of the object in the
+    /// photo (at most the backbone's crop; 0: at the crop's size, as the paper). 2 by
+    /// measurement: the same MSSD as the crop's size over seven generated sets (one
+    /// instance more in all) for 10–15 % less time per estimate (docs/benchmarks.md,
+    /// "Each face drawn once, closed meshes one-sided").
+    #[serde(default = "default_rrc_render_scale")]
+    pub rrc_render_scale: f64,
     /// Candidate masks per object, and the detector score they need (the best one is kept
     /// regardless).
     pub max_masks: usize,
@@ -49,8 +56,12 @@ pub struct EstimateConfig {
 
 impl Default for EstimateConfig {
     fn default() -> Self {
-        Self { retrieval: RetrievalConfig::default(), k_nn: 3, pnp: PnpConfig::default(), rrc: true, max_masks: 2, min_mask_score: 0.35, selection: SelectionConfig::default(), refiner: RefinerKind::default(), verify: VerifyConfig::default(), print: PrintRefineConfig::default() }
+        Self { retrieval: RetrievalConfig::default(), k_nn: 3, pnp: PnpConfig::default(), rrc: true, rrc_render_scale: default_rrc_render_scale(), max_masks: 2, min_mask_score: 0.35, selection: SelectionConfig::default(), refiner: RefinerKind::default(), verify: VerifyConfig::default(), print: PrintRefineConfig::default() }
     }
+}
+
+fn default_rrc_render_scale() -> f64 {
+    2.0
 }
 
 /// A segmentation of the object in the image, with the detector's confidence.
@@ -441,7 +452,7 @@ impl Estimator {
         if cfg.rrc {
             let t = Instant::now();
             let _span = tracing::info_span!("rrc").entered();
-            let pool = rrc_pool(model, &first.pose, k, self.backbone.as_ref(), &self.renderer)?;
+            let pool = rrc_pool(model, &first.pose, k, self.backbone.as_ref(), &self.renderer, cfg.rrc_render_scale)?;
             // RRC's pool comes straight from the backbone: the query's own descriptors.
             let corr = correspond(q, &q.descriptors, &pool, cfg.k_nn);
             h.rrc_matches = corr.len();

@@ -50,13 +50,25 @@ pub fn sphere_window(pose: &Pose, centre: &Vector3<f64>, radius: f64, k: &Intrin
     Some(CropBox { origin_u: uv.x - r_px, origin_v: uv.y - r_px, side: 2.0 * r_px, size })
 }
 
-/// The RRC patch pool around `pose`; empty if no variant rendered visibly.
+/// Side in pixels of a render of a window `side` image pixels wide: `scale` render pixels
+/// per image pixel, between 64 and `crop` (the backbone's crop, which every render is
+/// resized to); `crop` itself where `scale` is 0 or less.
+pub fn render_side(side: f64, scale: f64, crop: u32) -> u32 {
+    if scale <= 0.0 || !side.is_finite() {
+        return crop;
+    }
+    ((side * scale).ceil().min(crop as f64) as u32).max(64.min(crop))
+}
+
+/// The RRC patch pool around `pose`; empty if no variant rendered visibly. Each variant is
+/// rendered at `render_scale` pixels per image pixel of its window (`render_side`).
 pub fn rrc_pool(
     model: &ObjectModel,
     pose: &Pose,
     k: &Intrinsics,
     backbone: &dyn Backbone,
     renderer: &RenderPool,
+    render_scale: f64,
 ) -> Result<PatchPool, super::EstimateError> {
     let (centre, radius) = bounding_sphere(model);
     let size = model.grid.n * model.grid.patch;
@@ -64,6 +76,7 @@ pub fn rrc_pool(
     for delta in variant_rotations() {
         let p = variant_pose(pose, &delta, &centre);
         if let Some(w) = sphere_window(&p, &centre, radius, k, size) {
+            let w = CropBox { size: render_side(w.side, render_scale, size), ..w };
             views.push((p, w.intrinsics(k)));
         }
     }
@@ -92,6 +105,17 @@ pub fn rrc_pool(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn renders_follow_the_object_size_in_the_photo_up_to_the_crop() {
+        assert_eq!(render_side(100.0, 2.0, 512), 200);
+        assert_eq!(render_side(100.4, 2.0, 512), 201);
+        assert_eq!(render_side(300.0, 2.0, 512), 512);
+        assert_eq!(render_side(10.0, 2.0, 512), 64);
+        assert_eq!(render_side(100.0, 0.0, 512), 512);
+        assert_eq!(render_side(f64::NAN, 2.0, 512), 512);
+        assert_eq!(render_side(10.0, 2.0, 32), 32);
+    }
 
     #[test]
     fn ten_distinct_variants_keep_the_centre_in_place() {
