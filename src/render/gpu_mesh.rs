@@ -8,6 +8,7 @@ use wgpu::util::DeviceExt;
 
 use super::color::srgb_to_linear3;
 use super::pipeline::{upload_texture, MaterialUniform, Pipeline};
+use super::RendererConfig;
 use crate::mesh::surface::drawn_surface;
 use crate::mesh::Mesh;
 
@@ -33,15 +34,6 @@ impl Vertex {
     };
 }
 
-/// What a renderer draws of each mesh (`RendererConfig`).
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Drawing {
-    /// Back faces of closed meshes culled.
-    pub cull: bool,
-    /// Exact repeats of a face left out.
-    pub drop_repeats: bool,
-}
-
 pub(crate) struct GpuMesh {
     vertices: wgpu::Buffer,
     indices: wgpu::Buffer,
@@ -57,13 +49,13 @@ pub(crate) struct GpuMesh {
 
 impl GpuMesh {
     /// Draws `mesh`'s triangles (less exact repeats, wound outward where they close:
-    /// `mesh::surface`) as `drawing` says.
-    pub fn upload(device: &wgpu::Device, queue: &wgpu::Queue, pipeline: &Pipeline, mesh: &Mesh, drawing: Drawing) -> Self {
+    /// `mesh::surface`) as `config` says.
+    pub fn upload(device: &wgpu::Device, queue: &wgpu::Queue, pipeline: &Pipeline, mesh: &Mesh, config: &RendererConfig) -> Self {
         let vertices = build_vertices(mesh);
         let t = std::time::Instant::now();
-        let drawn = drawn_surface(mesh, drawing.drop_repeats);
+        let drawn = drawn_surface(mesh, config.drop_repeated_faces);
         tracing::debug!(mesh = mesh.name(), triangles = mesh.triangles().len(), repeats = drawn.repeats, closed = drawn.closed, rewound = drawn.rewound, ms = t.elapsed().as_secs_f64() * 1e3, "uploading a mesh");
-        let culled = drawing.cull && drawn.closed;
+        let culled = config.cull_closed_meshes && drawn.closed;
         let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some(mesh.name()),
             contents: bytemuck::cast_slice(&vertices),

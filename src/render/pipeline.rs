@@ -117,7 +117,7 @@ impl Pipeline {
             bind_group_layouts: &[Some(&frame_layout), Some(&material_layout)],
             immediate_size: 0,
         });
-        let pipeline_culling = |cull_mode| device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        let render_pipeline = |cull_mode| device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some("b2tf"),
             layout: Some(&layout),
             vertex: wgpu::VertexState {
@@ -155,8 +155,8 @@ impl Pipeline {
         });
         // CAD meshes often have inconsistent winding: both sides are drawn unless the mesh
         // is known to be closed and wound outward (`mesh::surface`).
-        let pipeline = pipeline_culling(None);
-        let culling = pipeline_culling(Some(wgpu::Face::Back));
+        let pipeline = render_pipeline(None);
+        let culling = render_pipeline(Some(wgpu::Face::Back));
         let frame_buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("b2tf frame uniform"),
             size: std::mem::size_of::<FrameUniform>() as u64,

@@ -2,7 +2,7 @@
 //! are synchronous: submit, wait, read back.
 
 use super::context::GpuContext;
-use super::gpu_mesh::{Drawing, GpuMesh};
+use super::gpu_mesh::GpuMesh;
 use super::mesh_cache::MeshCache;
 use super::output::{assemble, RenderOutput};
 use super::pipeline::{FrameUniform, Pipeline};
@@ -36,7 +36,8 @@ pub struct Renderer {
     ctx: GpuContext,
     pipeline: Pipeline,
     cache: MeshCache<GpuMesh>,
-    drawing: Drawing,
+    /// What it draws of each mesh (the cache's size is in `cache`).
+    config: RendererConfig,
     /// Targets of the last image size; most callers render one size repeatedly.
     targets: Option<Targets>,
 }
@@ -49,7 +50,7 @@ impl Renderer {
     pub fn with_config(config: RendererConfig) -> Result<Self, RenderError> {
         let ctx = GpuContext::open()?;
         let pipeline = ctx.catching(|| Pipeline::new(&ctx.device, &ctx.queue))?;
-        Ok(Self { ctx, pipeline, cache: MeshCache::new(config.max_cached_meshes), drawing: Drawing { cull: config.cull_closed_meshes, drop_repeats: config.drop_repeated_faces }, targets: None })
+        Ok(Self { ctx, pipeline, cache: MeshCache::new(config.max_cached_meshes), config, targets: None })
     }
 
     pub fn adapter_info(&self) -> &wgpu::AdapterInfo {
@@ -79,9 +80,9 @@ impl Renderer {
     /// each image holds.
     pub fn render(&mut self, mesh: &Mesh, pose: &Pose, k: &Intrinsics, opts: &RenderOptions) -> Result<RenderOutput, RenderError> {
         self.check_inputs(pose, k, opts)?;
-        let Self { ctx, pipeline, cache, drawing, targets } = self;
+        let Self { ctx, pipeline, cache, config, targets } = self;
         let submitted = ctx.catching(|| {
-            let gpu = cache.get_or_insert_with(mesh.id(), || GpuMesh::upload(&ctx.device, &ctx.queue, pipeline, mesh, *drawing));
+            let gpu = cache.get_or_insert_with(mesh.id(), || GpuMesh::upload(&ctx.device, &ctx.queue, pipeline, mesh, config));
             let (near, far) =
                 opts.clip_range.unwrap_or_else(|| clip_range_for_sphere(pose, gpu.sphere_center, gpu.sphere_radius));
             let frame = FrameUniform::new(pose, &clip_from_camera(k, near, far), opts);
@@ -113,9 +114,9 @@ impl Renderer {
 
     /// Uploads `mesh` now unless it is cached, so that its first render does not pay for it.
     pub fn prepare(&mut self, mesh: &Mesh) -> Result<(), RenderError> {
-        let Self { ctx, pipeline, cache, drawing, .. } = self;
+        let Self { ctx, pipeline, cache, config, .. } = self;
         let uploaded = ctx.catching(|| {
-            cache.get_or_insert_with(mesh.id(), || GpuMesh::upload(&ctx.device, &ctx.queue, pipeline, mesh, *drawing));
+            cache.get_or_insert_with(mesh.id(), || GpuMesh::upload(&ctx.device, &ctx.queue, pipeline, mesh, config));
         });
         if uploaded.is_err() {
             cache.remove(mesh.id());

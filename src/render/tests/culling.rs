@@ -6,7 +6,7 @@ use crate::mesh::surface::drawn_surface;
 use crate::mesh::MeshData;
 
 /// `mesh` with every face again on vertices of its own whose normals point the other way
-/// (as the HOPE meshes come), or with every face wound the other way round.
+/// (as the HOPE meshes come).
 fn doubled(mesh: &Mesh) -> Mesh {
     let mut d = mesh.data().clone();
     let n = d.positions.len() as u32;
@@ -19,6 +19,7 @@ fn doubled(mesh: &Mesh) -> Mesh {
     Mesh::new("doubled", Units::M, d).unwrap()
 }
 
+/// `mesh` with every face wound the other way round.
 fn turned_inside_out(mesh: &Mesh) -> Mesh {
     let d = MeshData { triangles: mesh.triangles().iter().map(|t| [t[0], t[2], t[1]]).collect(), ..mesh.data().clone() };
     Mesh::new("wound inward", Units::M, d).unwrap()
@@ -55,4 +56,24 @@ fn closed_and_repeated_meshes_render_as_when_every_triangle_is_drawn_on_both_sid
     let p = pose([30.0, -40.0, 10.0], [0.0, 0.0, 0.45]);
     let (a, b) = (two_sided.render(&doubled(&printed), &p, &k, &RenderOptions::default()).unwrap(), two_sided.render(&printed, &p, &k, &RenderOptions::default()).unwrap());
     assert!(a.rgb == b.rgb && a.depth == b.depth);
+}
+
+/// The one image where culling shows: from inside a closed mesh, every face faces away. A
+/// renderer that stopped culling closed meshes (or culled the wrong side) fails here.
+#[test]
+fn from_inside_a_closed_mesh_one_sided_drawing_shows_nothing() {
+    let Some(mut one_sided) = renderer() else { return };
+    let Some(mut two_sided) = renderer_with(RendererConfig { cull_closed_meshes: false, ..Default::default() }) else { return };
+    let sphere = textured_sphere();
+    let k = camera();
+    let inside = pose([10.0, 20.0, 30.0], [0.0, 0.0, 0.01]);
+    let covered = |r: &RenderOutput| r.mask.pixels().filter(|m| m[0] > 0).count();
+    assert_eq!(covered(&one_sided.render(&sphere, &inside, &k, &RenderOptions::default()).unwrap()), 0);
+    assert!(covered(&two_sided.render(&sphere, &inside, &k, &RenderOptions::default()).unwrap()) > 100_000);
+    // From outside, the near side shows: culling the front faces instead would show the far
+    // side's depth.
+    let outside = pose([10.0, 20.0, 30.0], [0.0, 0.0, 0.4]);
+    let (a, b) = (one_sided.render(&sphere, &outside, &k, &RenderOptions::default()).unwrap(), two_sided.render(&sphere, &outside, &k, &RenderOptions::default()).unwrap());
+    let centre = (k.cy as usize) * k.width as usize + k.cx as usize;
+    assert!(a.depth[centre] > 0.0 && (a.depth[centre] - b.depth[centre]).abs() < 1e-4, "{} {}", a.depth[centre], b.depth[centre]);
 }
