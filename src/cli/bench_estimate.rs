@@ -60,6 +60,11 @@ pub struct BenchEstimateArgs {
     /// Write an overlay PNG per image into this folder.
     #[arg(long)]
     pub overlays: Option<PathBuf>,
+    /// Write each instance's given mask against its true visible mask into this folder
+    /// (IMAGE_OBJ.png: the photo, magenta where the mask holds too much, cyan where it
+    /// misses): for looking at box segmentations.
+    #[arg(long)]
+    pub mask_diffs: Option<PathBuf>,
     /// PCA of the patch descriptors, as `b2tf onboard --pca`: auto, off or a component count.
     #[arg(long, default_value = "auto")]
     pub pca: crate::onboard::PcaSetting,
@@ -84,6 +89,10 @@ pub struct BenchEstimateArgs {
     /// With --from-boxes: fill the boxes instead of segmenting them (the old behaviour).
     #[arg(long, requires = "from_boxes")]
     pub fill_boxes: bool,
+    /// With --from-boxes: keep the graph cut's outline as it is, without settling its
+    /// pixels by coverage (`masks::outline_matte`), for comparison.
+    #[arg(long, requires = "from_boxes")]
+    pub raw_box_outline: bool,
     /// Estimate each instance alone, as a request naming one object does: without the
     /// other instances' detections, which tell the refiner and verification where this
     /// object's mask may be cut by something in front.
@@ -96,6 +105,16 @@ pub struct BenchEstimateArgs {
     pub print_config: Option<crate::estimate::contour::PrintRefineConfig>,
 }
 
+/// The photo with the pixels `mask` holds beyond `truth` in magenta and those it misses
+/// in cyan.
+fn mask_diff(photo: &image::RgbImage, mask: &image::GrayImage, truth: &image::GrayImage) -> image::RgbImage {
+    image::RgbImage::from_fn(photo.width(), photo.height(), |x, y| match (mask.get_pixel(x, y).0[0] > 0, truth.get_pixel(x, y).0[0] > 0) {
+        (true, false) => image::Rgb([255, 0, 255]),
+        (false, true) => image::Rgb([0, 255, 255]),
+        _ => *photo.get_pixel(x, y),
+    })
+}
+
 fn parse_print_config(s: &str) -> Result<crate::estimate::contour::PrintRefineConfig, String> {
     serde_json::from_str(s).map_err(|e| format!("not a PrintRefineConfig: {e}"))
 }
@@ -103,7 +122,11 @@ fn parse_print_config(s: &str) -> Result<crate::estimate::contour::PrintRefineCo
 /// Box segmentation against the truth, over the instances of a `--from-boxes` run.
 #[derive(Default)]
 struct BoxTally {
+    segment: crate::masks::SegmentConfig,
     iou: Vec<f64>,
+    /// Pixels of the box's mask outside the true visible mask, and of that mask missed.
+    extra: Vec<f64>,
+    missed: Vec<f64>,
     filled_iou: Vec<f64>,
     ms: Vec<f64>,
     fallbacks: usize,
@@ -114,9 +137,12 @@ impl BoxTally {
     fn detection(&mut self, image: &image::RgbImage, truth: &image::GrayImage, how: crate::masks::BoxMask) -> Result<Detection> {
         let (x0, y0, x1, y1) = crate::features::mask_bbox(truth).ok_or_else(|| anyhow::anyhow!("empty visible mask"))?;
         let bbox = [x0 as f64, y0 as f64, (x1 - x0 + 1) as f64, (y1 - y0 + 1) as f64];
-        let s = crate::masks::box_to_mask(image, bbox, how)?;
+        let s = crate::masks::box_to_mask_with(image, bbox, how, &self.segment)?;
         let filled = crate::masks::box_to_mask(image, bbox, crate::masks::BoxMask::Fill)?;
         self.iou.push(crate::masks::mask_iou(&s.mask, truth));
+        let (ours, true_px) = (s.mask.as_raw(), truth.as_raw());
+        self.extra.push(ours.iter().zip(true_px).filter(|&(&a, &b)| a > 0 && b == 0).count() as f64);
+        self.missed.push(ours.iter().zip(true_px).filter(|&(&a, &b)| a == 0 && b > 0).count() as f64);
         self.filled_iou.push(crate::masks::mask_iou(&filled.mask, truth));
         self.ms.push(s.ms);
         self.fallbacks += (s.method == crate::masks::Method::EllipseFallback) as usize;
@@ -126,9 +152,11 @@ impl BoxTally {
     fn report(&mut self) {
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
         println!(
-            "masks from boxes: mean IoU with the true visible mask {:.3} (filled box {:.3}), {} of {} fell back to the ellipse, median {:.0} ms per box",
+            "masks from boxes: mean IoU with the true visible mask {:.3} (filled box {:.3}), median {:.0} pixels too many and {:.0} missed per mask, {} of {} fell back to the ellipse, median {:.0} ms per box",
             mean(&self.iou),
             mean(&self.filled_iou),
+            median(&mut self.extra),
+            median(&mut self.missed),
             self.fallbacks,
             self.iou.len(),
             median(&mut self.ms)
@@ -294,8 +322,8 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     let configs = [("with RRC", base.clone()), ("without RRC", EstimateConfig { rrc: false, ..base.clone() })];
     let mut tallies: Vec<Tally> = configs.iter().map(|(n, _)| Tally { name: n, ..Default::default() }).collect();
     let mut instances = 0;
-    let mut boxes = BoxTally::default();
-    if let Some(dir) = &a.overlays {
+    let mut boxes = BoxTally { segment: crate::masks::SegmentConfig { settle_outline: !a.raw_box_outline, ..Default::default() }, ..Default::default() };
+    for dir in [&a.overlays, &a.mask_diffs].into_iter().flatten() {
         std::fs::create_dir_all(dir)?;
     }
     let mut candidate_rows = String::from("image,obj_id,size_px,mask,source,mssd_over_diameter,rot_err_deg,contour,iou,edges,colour,features,score,lines,lines_with_edge\n");
@@ -309,6 +337,9 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         let dets: Vec<Detection> = scene.instances.iter().map(|inst| if a.from_boxes { boxes.detection(&scene.rgb, &inst.mask_visib, if a.fill_boxes { crate::masks::BoxMask::Fill } else { crate::masks::BoxMask::Segment }) } else { Ok(Detection { mask: inst.mask_visib.clone(), score: 1.0 }) }).collect::<Result<_>>()?;
         for (n, inst) in scene.instances.iter().enumerate() {
             instances += 1;
+            if let Some(dir) = &a.mask_diffs {
+                mask_diff(&scene.rgb, &dets[n].mask, &inst.mask_visib).save(dir.join(format!("{im:04}_{}.png", inst.obj_id)))?;
+            }
             let model = &models[inst.obj_id as usize - 1];
             let det = [dets[n].clone()];
             let others = if a.alone { None } else { crate::masks::union(dets.iter().enumerate().filter(|&(o, _)| o != n).map(|(_, d)| &d.mask), scene.rgb.width(), scene.rgb.height()) };

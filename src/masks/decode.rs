@@ -160,9 +160,14 @@ pub fn require_nonempty(mask: GrayImage) -> Result<GrayImage, MaskError> {
 /// The mask of a box-only detection on `image`: the object segmented inside the box, or
 /// the filled box. The box is validated and clipped first.
 pub fn box_to_mask(image: &RgbImage, bbox: [f64; 4], how: BoxMask) -> Result<Segmentation, MaskError> {
+    box_to_mask_with(image, bbox, how, &SegmentConfig::default())
+}
+
+/// `box_to_mask` with the segmentation's settings.
+pub fn box_to_mask_with(image: &RgbImage, bbox: [f64; 4], how: BoxMask, cfg: &SegmentConfig) -> Result<Segmentation, MaskError> {
     let b = PixelBox::from_xywh(bbox, image.width(), image.height())?;
     Ok(match how {
-        BoxMask::Segment => segment_box(image, &b, &SegmentConfig::default()),
+        BoxMask::Segment => segment_box(image, &b, cfg),
         BoxMask::Fill => {
             let t = Instant::now();
             let mask = b.filled(image.width(), image.height());

@@ -9,6 +9,7 @@ use super::components::components;
 use super::decode::{PixelBox, OBJECT};
 use super::gmm::{Colour, Gmm};
 use super::maxflow::Graph;
+use super::outline_matte::settle_outline;
 use image::imageops::{self, FilterType};
 use image::{GrayImage, Luma, RgbImage};
 use std::time::Instant;
@@ -31,11 +32,14 @@ pub struct SegmentConfig {
     pub min_fill: f64,
     /// ... above it, onto the whole box: both fall back to the inscribed ellipse.
     pub max_fill: f64,
+    /// Relabel the cut's outline pixels by how much of each the object covers
+    /// (`outline_matte`): the cut alone leaves the outline about a pixel outside.
+    pub settle_outline: bool,
 }
 
 impl Default for SegmentConfig {
     fn default() -> Self {
-        Self { max_side: 160, ring: 0.2, min_ring_px: 4, components: 5, iterations: 4, smoothness: 50.0, min_fill: 0.05, max_fill: 0.98 }
+        Self { max_side: 160, ring: 0.2, min_ring_px: 4, components: 5, iterations: 4, smoothness: 50.0, min_fill: 0.05, max_fill: 0.98, settle_outline: true }
     }
 }
 
@@ -74,7 +78,13 @@ const MIN_CELLS: usize = 16;
 pub fn segment_box(image: &RgbImage, b: &PixelBox, cfg: &SegmentConfig) -> Segmentation {
     let t = Instant::now();
     let grid = Grid::new(image, b, cfg);
-    let outcome = grid.graph_cut(cfg).map(|labels| grid.upsample(&clean(&grid, labels), b, image.width(), image.height()));
+    let outcome = grid.graph_cut(cfg).map(|labels| {
+        let mut mask = grid.upsample(&clean(&grid, labels), b, image.width(), image.height());
+        if cfg.settle_outline {
+            settle_outline(image, &mut mask, b);
+        }
+        mask
+    });
     let area = b.area() as f64;
     let share = |m: &GrayImage| m.as_raw().iter().filter(|&&v| v == OBJECT).count() as f64 / area;
     let checked = outcome.and_then(|mask| {

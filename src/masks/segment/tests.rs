@@ -15,8 +15,14 @@ fn hash(x: u32, y: u32, salt: u32) -> u32 {
 
 /// Two overlapping ellipses: not convex, so a box-shaped answer cannot pass.
 fn blob(cx: f64, cy: f64, r: f64) -> impl Fn(u32, u32) -> bool {
+    let shape = blob_shape(cx, cy, r);
+    move |x, y| shape(x as f64, y as f64)
+}
+
+/// `blob` at any point of the image plane.
+fn blob_shape(cx: f64, cy: f64, r: f64) -> impl Fn(f64, f64) -> bool {
     move |x, y| {
-        let (u, v) = (x as f64 - cx, y as f64 - cy);
+        let (u, v) = (x - cx, y - cy);
         (u / r).powi(2) + (v / (0.6 * r)).powi(2) <= 1.0 || ((u - 0.5 * r) / (0.45 * r)).powi(2) + ((v + 0.5 * r) / (0.5 * r)).powi(2) <= 1.0
     }
 }
@@ -114,4 +120,30 @@ fn cleaning_keeps_the_largest_region_and_fills_its_holes() {
     let cleaned = clean(&grid, labels);
     let shown: Vec<String> = cleaned.chunks(w).map(|r| r.iter().map(|&l| if l { '#' } else { '.' }).collect()).collect();
     assert_eq!(shown, ["........", ".###....", ".###....", ".###....", "........", "........"]);
+}
+
+/// A camera's pixels on the outline blend the object with what is behind it: the cut
+/// alone takes most such pixels into the mask, settling them by coverage
+/// (`outline_matte`) puts the outline where half of a pixel is the object's.
+#[test]
+fn blended_outline_pixels_are_settled_by_coverage() {
+    let inside = blob_shape(60.3, 50.6, 28.0);
+    // 4×4 samples per pixel: the share each pixel's colour takes from the blob.
+    let coverage = |x: u32, y: u32| (0..16).filter(|s| inside(x as f64 + (s % 4) as f64 / 4.0 + 0.125, y as f64 + (s / 4) as f64 / 4.0 + 0.125)).count() as f64 / 16.0;
+    let (object, back) = ([225.0, 110.0, 40.0], [70.0, 90.0, 120.0]);
+    let image = RgbImage::from_fn(130, 110, |x, y| {
+        let a = coverage(x, y);
+        Rgb(std::array::from_fn(|i| (object[i] * a + back[i] * (1.0 - a)).round() as u8))
+    });
+    let truth = GrayImage::from_fn(130, 110, |x, y| Luma([if coverage(x, y) >= 0.5 { OBJECT } else { 0 }]));
+    let b = tight_box(&GrayImage::from_fn(130, 110, |x, y| Luma([if coverage(x, y) > 0.0 { OBJECT } else { 0 }])), 0);
+    let wrong = |settle_outline: bool| {
+        let s = segment_box(&image, &b, &SegmentConfig { settle_outline, ..SegmentConfig::default() });
+        let count = |extra: bool| s.mask.pixels().zip(truth.pixels()).filter(|(m, t)| (m[0] > 0 && t[0] == 0) == extra && m[0] != t[0]).count();
+        (count(true), count(false))
+    };
+    let (raw, settled) = (wrong(false), wrong(true));
+    eprintln!("pixels too many / missed: cut alone {raw:?}, settled {settled:?}");
+    assert!(raw.0 > 3 * raw.1 + 10, "the cut alone should lean outward: {raw:?}");
+    assert!(settled.0 + settled.1 <= (raw.0 + raw.1) / 4, "{raw:?} -> {settled:?}");
 }
