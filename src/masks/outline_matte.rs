@@ -2,8 +2,8 @@
 //! A camera's pixel on an outline averages the object and the background; a graph cut
 //! labels such mixed pixels whichever way its colour models lean, and the object's
 //! mixture (fitted inside the box, where both show) usually explains a blend better than
-//! the background's does. The outline then sits about a pixel outside the object all
-//! round, which on a 60 px object is 3 % of its depth. Here each outline pixel's colour is
+//! the background's does. The outline then sits up to a pixel (half a pixel on average)
+//! outside the object all round, which on a 60 px object is nearly 2 % of its depth. Here each outline pixel's colour is
 //! unmixed against the nearest clean object and background colours (a local two-colour
 //! matte, as in Bayesian or closed-form matting, one pixel deep): it is the object's where
 //! the object covers at least half of it, which is where a mask of the true outline

@@ -33,7 +33,7 @@ pub struct SegmentConfig {
     /// ... above it, onto the whole box: both fall back to the inscribed ellipse.
     pub max_fill: f64,
     /// Relabel the cut's outline pixels by how much of each the object covers
-    /// (`outline_matte`): the cut alone leaves the outline about a pixel outside.
+    /// (`outline_matte`): the cut alone leaves the outline up to a pixel outside.
     pub settle_outline: bool,
 }
 
