@@ -324,7 +324,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     let mut instances = 0;
     let mut boxes = BoxTally { segment: crate::masks::SegmentConfig { settle_outline: !a.raw_box_outline, ..Default::default() }, ..Default::default() };
     for dir in [&a.overlays, &a.mask_diffs].into_iter().flatten() {
-        std::fs::create_dir_all(dir)?;
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create the folder {}", dir.display()))?;
     }
     let mut candidate_rows = String::from("image,obj_id,size_px,mask,source,mssd_over_diameter,rot_err_deg,contour,iou,edges,colour,features,score,lines,lines_with_edge\n");
     let mut rows = String::from("image,obj_id,setting,size_px,visible,found,rot_err_deg,trans_err_mm,depth_err_mm,mssd_over_diameter,inliers,best_candidate_mssd_over_diameter,best_candidate_rank,print_points\n");
@@ -338,7 +338,8 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         for (n, inst) in scene.instances.iter().enumerate() {
             instances += 1;
             if let Some(dir) = &a.mask_diffs {
-                mask_diff(&scene.rgb, &dets[n].mask, &inst.mask_visib).save(dir.join(format!("{im:04}_{}.png", inst.obj_id)))?;
+                let path = dir.join(format!("{im:04}_{}.png", inst.obj_id));
+                mask_diff(&scene.rgb, &dets[n].mask, &inst.mask_visib).save(&path).with_context(|| format!("cannot write {}", path.display()))?;
             }
             let model = &models[inst.obj_id as usize - 1];
             let det = [dets[n].clone()];
@@ -496,5 +497,15 @@ mod tests {
         assert_eq!((c.point_sigma_px, c.points.within_mask, c.rounds, c.points.search_px), (0.5, false, d.rounds, d.points.search_px));
         assert!(super::parse_print_config(r#"{"rounds": "three"}"#).unwrap_err().contains("not a PrintRefineConfig"));
         assert!(super::parse_print_config(r#"{"round": 3}"#).unwrap_err().contains("unknown field"));
+    }
+
+    /// Too many in magenta, missed in cyan, the photo where mask and truth agree.
+    #[test]
+    fn mask_diffs_colour_what_the_mask_gets_wrong() {
+        let photo = image::RgbImage::from_pixel(2, 2, image::Rgb([10, 20, 30]));
+        let mask = image::GrayImage::from_raw(2, 2, vec![255, 255, 0, 0]).unwrap();
+        let truth = image::GrayImage::from_raw(2, 2, vec![255, 0, 255, 0]).unwrap();
+        let d = super::mask_diff(&photo, &mask, &truth);
+        assert_eq!(d.pixels().map(|p| p.0).collect::<Vec<_>>(), vec![[10, 20, 30], [255, 0, 255], [0, 255, 255], [10, 20, 30]]);
     }
 }
