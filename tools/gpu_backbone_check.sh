@@ -18,6 +18,8 @@
 #          tools/gpu_backbone_check.sh threads        # the service with the global thread pool
 #                                                     # capped (RAYON_NUM_THREADS): CPU per request
 #                                                     # by thread group, rate, latency
+#          tools/gpu_backbone_check.sh pca-speed      # stage times of ViT-L estimates at PCA auto
+#                                                     # (192), 128, 96 and off; then the service
 #
 # Each stage keeps what it made in $STATE (default /tmp/b2tf-gpu), which lives as long as
 # the machine stays warm; `bench` names any part that did not arrive.
@@ -138,6 +140,19 @@ threads() {
   done
 }
 
+# What fewer PCA dimensions save with ViT-L on CUDA (their accuracy needs the real weights):
+# `bench estimate` applies each PCA in memory to the one cached full-width object, so only
+# the first setting onboards. Then the service at the store's default PCA, for the rate.
+pca_speed() {
+  setup_b2tf
+  local m="$STATE/models/vitl16-fp16-mha.onnx" p
+  for p in ${PCA_SIZES:-auto 128 96 off}; do
+    echo "== --pca $p"
+    "$STATE/b2tf" bench estimate --backbone "onnx:$m" --device cuda:0 --images 5 --store "dir://$STATE/store" --pca "$p"
+  done
+  "$STATE/b2tf" bench serve --backbone "onnx:$m" --device cuda:0 --store "dir://$STATE/store" --clients 1,16 --requests 4 --protocols grpc
+}
+
 other_devices() {
   setup_b2tf
   local b2tf="$STATE/b2tf" m="$STATE/models"
@@ -155,5 +170,6 @@ case "${1:-}" in
   other-devices) other_devices ;;
   export-served) export_served ;;
   threads) threads ;;
-  *) echo "usage: $0 pack|torch|export|export-served|stash|bench|serve-ab|threads|other-devices" >&2; exit 2 ;;
+  pca-speed) pca_speed ;;
+  *) echo "usage: $0 pack|torch|export|export-served|stash|bench|serve-ab|threads|pca-speed|other-devices" >&2; exit 2 ;;
 esac
