@@ -42,6 +42,11 @@ pub struct VerifyArgs {
     /// print agrees best; this turns that off.
     #[arg(long)]
     pub no_second_look: bool,
+    /// Take the flips and spins about the pipeline's pose as it is, even where its outline
+    /// and the mask disagree in size or place (by default they are taken about that pose
+    /// re-placed at the mask).
+    #[arg(long)]
+    pub no_replace_at_mask: bool,
     /// Hypotheses refined in full: the best this many by outline agreement where they
     /// start, and the pipeline's pose always (0: all).
     #[arg(long)]
@@ -64,7 +69,7 @@ fn share(s: &str) -> Result<f64, String> {
 impl VerifyArgs {
     pub fn config(&self) -> VerifyConfig {
         let d = VerifyConfig::default();
-        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), matched_templates: self.verify_matched.unwrap_or(d.matched_templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, feature_share: self.feature_share.unwrap_or(d.feature_share), refined: self.verify_refined.unwrap_or(d.refined), second_look: !self.no_second_look, rendered: self.verify_rendered.unwrap_or(d.rendered), max_rendered: self.verify_max_rendered.unwrap_or(d.max_rendered), occlusion_aware_iou: !self.iou_counts_occluded, ..d }
+        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), matched_templates: self.verify_matched.unwrap_or(d.matched_templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, feature_share: self.feature_share.unwrap_or(d.feature_share), refined: self.verify_refined.unwrap_or(d.refined), second_look: !self.no_second_look, rendered: self.verify_rendered.unwrap_or(d.rendered), max_rendered: self.verify_max_rendered.unwrap_or(d.max_rendered), occlusion_aware_iou: !self.iou_counts_occluded, replace_off_mask: !self.no_replace_at_mask, ..d }
     }
 
     /// The refinement on the print these options ask for.

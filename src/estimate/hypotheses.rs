@@ -7,6 +7,7 @@
 
 use super::rrc::{variant_pose, variant_rotations};
 use crate::geometry::{CropBox, Intrinsics, Pose, ScaleShift};
+use crate::mesh::Mesh;
 use crate::onboard::ObjectModel;
 use nalgebra::{Rotation3, Vector3};
 
@@ -16,6 +17,9 @@ use nalgebra::{Rotation3, Vector3};
 pub enum Source {
     /// The PnP (or RRC) pose of the pipeline.
     Pipeline,
+    /// That pose re-placed at the mask, where its outline and the mask disagree in size or
+    /// place (`replaced_at_mask`); the flips and spins are then taken about it.
+    Replaced,
     /// That pose turned by RRC variant `i` (1–9) about the object's centre.
     Flip(usize),
     /// Retrieved template number `i` (0 = best), placed at the mask.
@@ -36,6 +40,7 @@ impl std::fmt::Display for Source {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Source::Pipeline => write!(f, "pipeline"),
+            Source::Replaced => write!(f, "replaced"),
             Source::Flip(i) => write!(f, "flip-{i}"),
             Source::Template(i) => write!(f, "template-{i}"),
             Source::Matched(i) => write!(f, "matched-{i}"),
@@ -45,16 +50,24 @@ impl std::fmt::Display for Source {
     }
 }
 
-/// The pipeline's pose, its nine axis variants, its spins (`spin_steps` equal steps of a
-/// whole turn about each object axis, the quarter turns left out as the variants hold
-/// them; 0 or 4 adds none), and the first `templates` retrieved templates placed in the
-/// query crop.
-pub fn candidates(model: &ObjectModel, pose: &Pose, retrieved: &[usize], templates: usize, spin_steps: usize, query_crop: &CropBox, k: &Intrinsics) -> Vec<(Source, Pose)> {
+/// The pipeline's pose, that pose `replaced` at the mask where given, the nine axis
+/// variants and the spins (`spin_steps` equal steps of a whole turn about each object
+/// axis, the quarter turns left out as the variants hold them; 0 or 4 adds none) of the
+/// re-placed pose if any, else of the pipeline's, and the first `templates` retrieved
+/// templates placed in the query crop (`templates` and `spin_steps` of `cfg`).
+pub fn candidates(model: &ObjectModel, pose: &Pose, replaced: Option<&Pose>, retrieved: &[usize], cfg: &super::VerifyConfig, query_crop: &CropBox, k: &Intrinsics) -> Vec<(Source, Pose)> {
     let centre = Vector3::from(model.mesh.bbox_center());
     let mut out = vec![(Source::Pipeline, *pose)];
-    out.extend(flips(model, pose).map(|(i, p)| (Source::Flip(i), p)));
-    out.extend(spins(pose, &centre, spin_steps));
-    for (i, &t) in retrieved.iter().take(templates).enumerate() {
+    let base = match replaced {
+        Some(r) => {
+            out.push((Source::Replaced, *r));
+            r
+        }
+        None => pose,
+    };
+    out.extend(flips(model, base).map(|(i, p)| (Source::Flip(i), p)));
+    out.extend(spins(base, &centre, cfg.spin_steps));
+    for (i, &t) in retrieved.iter().take(cfg.templates).enumerate() {
         if let Some(p) = place_template(model, t, query_crop, k) {
             out.push((Source::Template(i), p));
         }
@@ -114,9 +127,89 @@ pub fn place_in(model: &ObjectModel, t: usize, to_image: &ScaleShift, k: &Intrin
     Some(Pose::new(rotation, c_q - rotation * centre))
 }
 
+/// How far a pose's projected outline box may differ from the mask's box, in size (ratio
+/// of the long sides) and centre (share of the mask's long side), before its flips and
+/// spins are taken about it re-placed at the mask instead.
+const PLACEMENT_SLACK: f64 = 0.25;
+/// Mesh vertices projected to measure an outline's box (every n-th, at most this many).
+const OUTLINE_POINTS: usize = 2000;
+
+/// `pose` moved where the mask is, where its projected outline's box and the mask's box
+/// (`mask_box`: min u, min v, max u, max v, inclusive pixels) disagree by more than
+/// `PLACEMENT_SLACK`: the depth from the ratio of their long sides, the object's centre
+/// shifted with the box's centre, and the rotation turned with the viewing ray so the
+/// object is seen as before. `None` where they agree, or the pose is not in front of the
+/// camera. A PnP pose can be right in how it is turned and far off in depth; turned about
+/// a wrong place, its flips and spins cannot reach the right pose either.
+pub fn replaced_at_mask(mesh: &Mesh, pose: &Pose, mask_box: (u32, u32, u32, u32), k: &Intrinsics) -> Option<Pose> {
+    let positions = mesh.positions();
+    let stride = positions.len().div_ceil(OUTLINE_POINTS).max(1);
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in positions.iter().step_by(stride) {
+        let uv = k.project(&nalgebra::Point3::from(pose.rotation * Vector3::from(p.map(f64::from)) + pose.translation))?;
+        for a in 0..2 {
+            lo[a] = lo[a].min(uv[a]);
+            hi[a] = hi[a].max(uv[a]);
+        }
+    }
+    let (m_lo, m_hi) = ([mask_box.0 as f64, mask_box.1 as f64], [mask_box.2 as f64 + 1.0, mask_box.3 as f64 + 1.0]);
+    let long = |lo: [f64; 2], hi: [f64; 2]| (hi[0] - lo[0]).max(hi[1] - lo[1]);
+    let (pose_long, mask_long) = (long(lo, hi), long(m_lo, m_hi));
+    if pose_long <= 0.0 {
+        return None;
+    }
+    let scale = mask_long / pose_long;
+    let shift = [0.5 * (m_lo[0] + m_hi[0]) - 0.5 * (lo[0] + hi[0]) * scale, 0.5 * (m_lo[1] + m_hi[1]) - 0.5 * (lo[1] + hi[1]) * scale];
+    let centre = Vector3::from(mesh.bbox_center());
+    let c = pose.rotation * centre + pose.translation;
+    let uv = k.project(&nalgebra::Point3::from(c))?;
+    let off = ((0.5 * (lo[0] + hi[0]) - 0.5 * (m_lo[0] + m_hi[0])).hypot(0.5 * (lo[1] + hi[1]) - 0.5 * (m_lo[1] + m_hi[1]))) / mask_long;
+    if (scale.ln().abs() < (1.0 + PLACEMENT_SLACK).ln()) && off < PLACEMENT_SLACK {
+        return None;
+    }
+    // The outline scaled about the image origin by `scale` and shifted: where the centre lands.
+    let (u, v) = (uv.x * scale + shift[0], uv.y * scale + shift[1]);
+    let z = c.z / scale;
+    let old_ray = Vector3::new((uv.x - k.cx) / k.fx, (uv.y - k.cy) / k.fy, 1.0);
+    let ray = Vector3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);
+    let turn = Rotation3::rotation_between(&old_ray, &ray).unwrap_or_else(Rotation3::identity);
+    let rotation = turn * pose.rotation;
+    Some(Pose::new(rotation, ray * z - rotation * centre))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The outline's box of `mesh` at `pose` (as `replaced_at_mask` measures it, all vertices).
+    fn outline_box(mesh: &Mesh, pose: &Pose, k: &Intrinsics) -> (u32, u32, u32, u32) {
+        let uv: Vec<_> = mesh.positions().iter().map(|p| k.project(&nalgebra::Point3::from(pose.rotation * Vector3::from(p.map(f64::from)) + pose.translation)).unwrap()).collect();
+        let (lo_u, hi_u) = uv.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.x), b.max(p.x)));
+        let (lo_v, hi_v) = uv.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.y), b.max(p.y)));
+        (lo_u.round() as u32, lo_v.round() as u32, hi_u.round() as u32 - 1, hi_v.round() as u32 - 1)
+    }
+
+    #[test]
+    fn a_pose_far_off_in_depth_is_replaced_where_the_mask_is_and_seen_alike() {
+        let mesh = crate::mesh::procedural::textured_box([0.08, 0.04, 0.02], 3);
+        let k = Intrinsics::new(600.0, 600.0, 320.0, 240.0, 640, 480).unwrap();
+        let turned = Rotation3::from_euler_angles(0.4, -0.3, 0.8);
+        let truth = Pose::new(turned, Vector3::new(0.05, -0.02, 0.4));
+        let mask_box = outline_box(&mesh, &truth, &k);
+        // Seen the same way (the rotation turned with the viewing ray), but at twice the
+        // distance and off to the side: PnP's depth gone wrong.
+        let far_c = Vector3::new(-0.06, 0.05, 0.8);
+        let turn = Rotation3::rotation_between(&(truth.rotation * Vector3::from(mesh.bbox_center()) + truth.translation), &far_c).unwrap();
+        let rotation = turn * turned;
+        let far = Pose::new(rotation, far_c - rotation * Vector3::from(mesh.bbox_center()));
+        let r = replaced_at_mask(&mesh, &far, mask_box, &k).expect("boxes disagree");
+        assert!((r.translation - truth.translation).norm() < 0.01, "{:?} against {:?}", r.translation, truth.translation);
+        assert!((r.rotation.inverse() * truth.rotation).angle().to_degrees() < 1.0);
+        // Where the outline fits the mask's box already, nothing is replaced.
+        assert!(replaced_at_mask(&mesh, &truth, mask_box, &k).is_none());
+        // Nor where the pose is behind the camera.
+        assert!(replaced_at_mask(&mesh, &Pose::new(turned, Vector3::new(0.0, 0.0, -0.5)), mask_box, &k).is_none());
+    }
 
     #[test]
     fn spins_fill_the_turns_between_the_flips() {

@@ -319,7 +319,8 @@ impl Estimator {
     /// outline cannot tell from it (`verify::to_render`), then, where nothing the winner
     /// shows agrees with the photo's print, a second look (`second_look`). Best first.
     fn verify(&self, ctx: &RefineContext<'_>, pose: Pose, retrieved: &[usize], matched: &[Pose], query: &QueryView, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
-        let mut candidates = super::hypotheses::candidates(ctx.model, &pose, retrieved, cfg.verify.templates, cfg.verify.spin_steps, &query.crop_box, ctx.intrinsics);
+        let replaced = crate::features::mask_bbox(ctx.mask).filter(|_| cfg.verify.replace_off_mask).and_then(|b| super::hypotheses::replaced_at_mask(&ctx.model.mesh, &pose, b, ctx.intrinsics));
+        let mut candidates = super::hypotheses::candidates(ctx.model, &pose, replaced.as_ref(), retrieved, &cfg.verify, &query.crop_box, ctx.intrinsics);
         candidates.extend(matched.iter().enumerate().map(|(i, &p)| (super::hypotheses::Source::Matched(i), p)));
         // Hypotheses that are the same pose up to the object's symmetry show the same image:
         // when asked, one of each is refined (the pipeline's pose comes first, so it stays).

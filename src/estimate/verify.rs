@@ -64,6 +64,12 @@ pub struct VerifyConfig {
     /// cannot show this object even when it is there), rather than counting them against
     /// the pose.
     pub occlusion_aware_iou: bool,
+    /// Where the pipeline's pose projects to an outline whose box differs from the mask's by
+    /// more than a quarter in size or centre, take its flips and spins about that pose
+    /// re-placed at the mask (`hypotheses::replaced_at_mask`), which is verified too: PnP can
+    /// turn the object right and put it far off in depth, and flips about a wrong place
+    /// cannot reach the right pose.
+    pub replace_off_mask: bool,
 }
 
 impl Default for VerifyConfig {
@@ -76,7 +82,7 @@ impl Default for VerifyConfig {
         // ones with the most matches, placed by their matches: right more often than the
         // retrieved ones placed at the mask, for the same time (docs/benchmarks.md,
         // "Templates placed by their matches").
-        Self { enabled: true, templates: 5, matched_templates: 5, spin_steps: 8, rendered: 3, contour_tie: 0.05, max_rendered: 12, weights: [0.4, 0.3, 0.3], colour_share: 0.5, skip_symmetric: false, feature_share: 0.5, refined: 0, second_look: true, occlusion_aware_iou: true }
+        Self { enabled: true, templates: 5, matched_templates: 5, spin_steps: 8, rendered: 3, contour_tie: 0.05, max_rendered: 12, weights: [0.4, 0.3, 0.3], colour_share: 0.5, skip_symmetric: false, feature_share: 0.5, refined: 0, second_look: true, occlusion_aware_iou: true, replace_off_mask: true }
     }
 }
 

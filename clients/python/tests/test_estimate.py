@@ -92,7 +92,8 @@ def test_options_reach_the_server(client: b2tfpose.Client, rgb_result: b2tfpose.
 def test_verification_hypotheses_follow_the_options(client: b2tfpose.Client, scene: Scene) -> None:
     det = [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)]
     [r] = client.estimate(scene.rgb, scene.K, det, rrc=False, verify_templates=0, spin_steps=0, verify_matched=0)
-    assert {v["source"]["kind"] for v in r.diagnostics[0]["verified"]} == {"pipeline", "flip"}
+    # "replaced": the pipeline's pose re-placed at the mask, where its outline disagrees with it.
+    assert {"pipeline", "flip"} <= {v["source"]["kind"] for v in r.diagnostics[0]["verified"]} <= {"pipeline", "replaced", "flip"}
     [r] = client.estimate(scene.rgb, scene.K, det, rrc=False, verify_templates=2, spin_steps=12, verify_matched=3)
     kinds = [v["source"]["kind"] for v in r.diagnostics[0]["verified"]]
     # 30° steps: 8 angles that are not quarter turns, about each of three axes.
