@@ -139,8 +139,8 @@ const OUTLINE_POINTS: usize = 2000;
 /// `PLACEMENT_SLACK`: the depth from the ratio of their long sides, the object's centre
 /// shifted with the box's centre, and the rotation turned with the viewing ray so the
 /// object is seen as before. `None` where they agree, or the pose is not in front of the
-/// camera. A PnP pose can be right in how it is turned and far off in depth; turned about
-/// a wrong place, its flips and spins cannot reach the right pose either.
+/// camera. A PnP pose can be far off in depth; turned about a wrong place, its flips and
+/// spins cannot reach the right pose.
 pub fn replaced_at_mask(mesh: &Mesh, pose: &Pose, mask_box: (u32, u32, u32, u32), k: &Intrinsics) -> Option<Pose> {
     let positions = mesh.positions();
     let stride = positions.len().div_ceil(OUTLINE_POINTS).max(1);

@@ -67,8 +67,8 @@ pub struct VerifyConfig {
     /// Where the pipeline's pose projects to an outline whose box differs from the mask's by
     /// more than a quarter in size or centre, take its flips and spins about that pose
     /// re-placed at the mask (`hypotheses::replaced_at_mask`), which is verified too: PnP can
-    /// turn the object right and put it far off in depth, and flips about a wrong place
-    /// cannot reach the right pose.
+    /// put the object far off in depth, and flips about a wrong place cannot reach the
+    /// right pose.
     pub replace_off_mask: bool,
 }
 
