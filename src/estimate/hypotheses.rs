@@ -9,7 +9,7 @@ use super::rrc::{variant_pose, variant_rotations};
 use crate::geometry::{CropBox, Intrinsics, Pose, ScaleShift};
 use crate::mesh::Mesh;
 use crate::onboard::ObjectModel;
-use nalgebra::{Rotation3, Vector3};
+use nalgebra::{Rotation3, Vector2, Vector3};
 
 /// Where a hypothesis came from (reported in the diagnostics).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -120,11 +120,18 @@ pub fn place_in(model: &ObjectModel, t: usize, to_image: &ScaleShift, k: &Intrin
     if !(z.is_finite() && z > 0.0) {
         return None;
     }
+    // The template's object centre is on its optical axis.
+    Some(seen_at(&tp.pose.rotation, &centre, &Vector3::z(), (u, v), z, k))
+}
+
+/// An object turned by `rotation` whose `centre` (object frame) was seen along `from_ray`,
+/// moved so that centre is at depth `z` on the ray through pixel `(u, v)`, the rotation
+/// turned with the ray so the object is seen as it was.
+fn seen_at(rotation: &Rotation3<f64>, centre: &Vector3<f64>, from_ray: &Vector3<f64>, (u, v): (f64, f64), z: f64, k: &Intrinsics) -> Pose {
     let ray = Vector3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);
-    let turn = Rotation3::rotation_between(&Vector3::z(), &ray).unwrap_or_else(Rotation3::identity);
-    let rotation = turn * tp.pose.rotation;
-    let c_q = ray * z;
-    Some(Pose::new(rotation, c_q - rotation * centre))
+    let turn = Rotation3::rotation_between(from_ray, &ray).unwrap_or_else(Rotation3::identity);
+    let rotation = turn * rotation;
+    Pose::new(rotation, ray * z - rotation * centre)
 }
 
 /// How far a pose's projected outline box may differ from the mask's box, in size (ratio
@@ -142,8 +149,33 @@ const OUTLINE_POINTS: usize = 2000;
 /// camera. A PnP pose can be far off in depth; turned about a wrong place, its flips and
 /// spins cannot reach the right pose.
 pub fn replaced_at_mask(mesh: &Mesh, pose: &Pose, mask_box: (u32, u32, u32, u32), k: &Intrinsics) -> Option<Pose> {
+    let (lo, hi) = outline_box(mesh, pose, k, OUTLINE_POINTS)?;
+    let (m_lo, m_hi) = ([mask_box.0 as f64, mask_box.1 as f64], [mask_box.2 as f64 + 1.0, mask_box.3 as f64 + 1.0]);
+    let long = |lo: [f64; 2], hi: [f64; 2]| (hi[0] - lo[0]).max(hi[1] - lo[1]);
+    let mid = |lo: [f64; 2], hi: [f64; 2]| Vector2::new(0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]));
+    let (pose_long, mask_long) = (long(lo, hi), long(m_lo, m_hi));
+    if pose_long <= 0.0 {
+        return None;
+    }
+    let scale = mask_long / pose_long;
+    let (pose_mid, mask_mid) = (mid(lo, hi), mid(m_lo, m_hi));
+    if scale.ln().abs() < (1.0 + PLACEMENT_SLACK).ln() && (pose_mid - mask_mid).norm() / mask_long < PLACEMENT_SLACK {
+        return None;
+    }
+    let centre = Vector3::from(mesh.bbox_center());
+    let c = pose.rotation * centre + pose.translation;
+    let uv = k.project(&nalgebra::Point3::from(c))?;
+    // The outline scaled onto the mask's box: the centre keeps its place in the box.
+    let target = mask_mid + (uv - pose_mid) * scale;
+    let seen_from = Vector3::new((uv.x - k.cx) / k.fx, (uv.y - k.cy) / k.fy, 1.0);
+    Some(seen_at(&pose.rotation, &centre, &seen_from, (target.x, target.y), c.z / scale, k))
+}
+
+/// The box (min, max pixel coordinates) of `mesh`'s vertices projected at `pose`, every
+/// n-th vertex so that at most `points` are; `None` where one is not in front of the camera.
+fn outline_box(mesh: &Mesh, pose: &Pose, k: &Intrinsics, points: usize) -> Option<([f64; 2], [f64; 2])> {
     let positions = mesh.positions();
-    let stride = positions.len().div_ceil(OUTLINE_POINTS).max(1);
+    let stride = positions.len().div_ceil(points.max(1)).max(1);
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
     for p in positions.iter().step_by(stride) {
         let uv = k.project(&nalgebra::Point3::from(pose.rotation * Vector3::from(p.map(f64::from)) + pose.translation))?;
@@ -152,41 +184,17 @@ pub fn replaced_at_mask(mesh: &Mesh, pose: &Pose, mask_box: (u32, u32, u32, u32)
             hi[a] = hi[a].max(uv[a]);
         }
     }
-    let (m_lo, m_hi) = ([mask_box.0 as f64, mask_box.1 as f64], [mask_box.2 as f64 + 1.0, mask_box.3 as f64 + 1.0]);
-    let long = |lo: [f64; 2], hi: [f64; 2]| (hi[0] - lo[0]).max(hi[1] - lo[1]);
-    let (pose_long, mask_long) = (long(lo, hi), long(m_lo, m_hi));
-    if pose_long <= 0.0 {
-        return None;
-    }
-    let scale = mask_long / pose_long;
-    let shift = [0.5 * (m_lo[0] + m_hi[0]) - 0.5 * (lo[0] + hi[0]) * scale, 0.5 * (m_lo[1] + m_hi[1]) - 0.5 * (lo[1] + hi[1]) * scale];
-    let centre = Vector3::from(mesh.bbox_center());
-    let c = pose.rotation * centre + pose.translation;
-    let uv = k.project(&nalgebra::Point3::from(c))?;
-    let off = ((0.5 * (lo[0] + hi[0]) - 0.5 * (m_lo[0] + m_hi[0])).hypot(0.5 * (lo[1] + hi[1]) - 0.5 * (m_lo[1] + m_hi[1]))) / mask_long;
-    if (scale.ln().abs() < (1.0 + PLACEMENT_SLACK).ln()) && off < PLACEMENT_SLACK {
-        return None;
-    }
-    // The outline scaled about the image origin by `scale` and shifted: where the centre lands.
-    let (u, v) = (uv.x * scale + shift[0], uv.y * scale + shift[1]);
-    let z = c.z / scale;
-    let old_ray = Vector3::new((uv.x - k.cx) / k.fx, (uv.y - k.cy) / k.fy, 1.0);
-    let ray = Vector3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);
-    let turn = Rotation3::rotation_between(&old_ray, &ray).unwrap_or_else(Rotation3::identity);
-    let rotation = turn * pose.rotation;
-    Some(Pose::new(rotation, ray * z - rotation * centre))
+    Some((lo, hi))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// The outline's box of `mesh` at `pose` (as `replaced_at_mask` measures it, all vertices).
-    fn outline_box(mesh: &Mesh, pose: &Pose, k: &Intrinsics) -> (u32, u32, u32, u32) {
-        let uv: Vec<_> = mesh.positions().iter().map(|p| k.project(&nalgebra::Point3::from(pose.rotation * Vector3::from(p.map(f64::from)) + pose.translation)).unwrap()).collect();
-        let (lo_u, hi_u) = uv.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.x), b.max(p.x)));
-        let (lo_v, hi_v) = uv.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.y), b.max(p.y)));
-        (lo_u.round() as u32, lo_v.round() as u32, hi_u.round() as u32 - 1, hi_v.round() as u32 - 1)
+    /// The mask box (inclusive pixels) of `mesh`'s outline at `pose`, every vertex counted.
+    fn mask_box_of(mesh: &Mesh, pose: &Pose, k: &Intrinsics) -> (u32, u32, u32, u32) {
+        let (lo, hi) = outline_box(mesh, pose, k, usize::MAX).unwrap();
+        (lo[0].round() as u32, lo[1].round() as u32, hi[0].round() as u32 - 1, hi[1].round() as u32 - 1)
     }
 
     #[test]
@@ -195,7 +203,7 @@ mod tests {
         let k = Intrinsics::new(600.0, 600.0, 320.0, 240.0, 640, 480).unwrap();
         let turned = Rotation3::from_euler_angles(0.4, -0.3, 0.8);
         let truth = Pose::new(turned, Vector3::new(0.05, -0.02, 0.4));
-        let mask_box = outline_box(&mesh, &truth, &k);
+        let mask_box = mask_box_of(&mesh, &truth, &k);
         // Seen the same way (the rotation turned with the viewing ray), but at twice the
         // distance and off to the side: PnP's depth gone wrong.
         let far_c = Vector3::new(-0.06, 0.05, 0.8);
