@@ -82,6 +82,13 @@ pub struct BenchEstimateArgs {
     /// every verification term, to study choices of weights and candidates offline.
     #[arg(long)]
     pub per_candidate: Option<PathBuf>,
+    /// Hand verification the true pose, turned by each of these angles in degrees about a
+    /// random axis through the object's centre (0: the truth itself), as hint poses
+    /// (`Estimator::estimate_hinted`): with `--per-candidate`, tells a right pose that is
+    /// never generated from one the refiner loses or the vote turns down. A diagnostic:
+    /// the figures then are no longer the estimator's own.
+    #[arg(long, value_delimiter = ',')]
+    pub truth_hints: Vec<f64>,
     /// Give the estimator the mask segmented inside the visible mask's box (as from a
     /// box-only detector) instead of the true visible mask; prints the masks' IoU.
     #[arg(long)]
@@ -103,6 +110,20 @@ pub struct BenchEstimateArgs {
     /// false}}'; `--print-rounds` overrides its rounds.
     #[arg(long, value_parser = parse_print_config)]
     pub print_config: Option<crate::estimate::contour::PrintRefineConfig>,
+}
+
+/// `truth` turned by each of `degrees` about a random axis (seeded) through the mesh's
+/// centre: the hint poses of `--truth-hints`.
+fn truth_hints(truth: &Pose, mesh: &Mesh, degrees: &[f64], seed: u64) -> Vec<Pose> {
+    let mut rng = crate::mesh::procedural::Rng::new(seed);
+    let centre = nalgebra::Vector3::from(mesh.bbox_center());
+    degrees
+        .iter()
+        .map(|&d| {
+            let axis = nalgebra::Unit::new_normalize(nalgebra::Vector3::new(rng.normal(), rng.normal(), rng.normal()));
+            crate::estimate::rrc::variant_pose(truth, &nalgebra::Rotation3::from_axis_angle(&axis, d.to_radians()), &centre)
+        })
+        .collect()
 }
 
 /// The photo with the pixels `mask` holds beyond `truth` in magenta and those it misses
@@ -348,7 +369,8 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
             let truth = |p: &Pose| crate::eval::pose_error::closest_symmetric(p, &inst.pose, symmetries, sample);
             for (t, (_, cfg)) in tallies.iter_mut().zip(&configs) {
                 tracing::debug!(image = im, obj_id = inst.obj_id, setting = t.name, "bench instance");
-                let r: EstimateResult = estimator.estimate_among(model, &scene.rgb, &scene.cam, &det, others.as_ref(), cfg)?;
+                let hints = truth_hints(&inst.pose, &model.mesh, &a.truth_hints, im as u64 * 1000 + n as u64);
+                let r: EstimateResult = estimator.estimate_hinted(model, &scene.rgb, &scene.cam, &det, others.as_ref(), &hints, cfg)?;
                 let tm = &r.timings;
                 t.stages.push([tm.crop, tm.features, tm.retrieval, tm.matching, tm.pnp, tm.rrc, tm.refine, tm.selection, tm.total]);
                 let bucket = size_bucket(&inst.mask);
@@ -488,6 +510,22 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
+    /// The truth itself at 0°, turned by the angle asked about the mesh's centre otherwise.
+    #[test]
+    fn truth_hints_are_the_truth_turned_by_the_angles_asked() {
+        use crate::geometry::Pose;
+        use nalgebra::{Rotation3, Vector3};
+        let mesh = crate::mesh::procedural::textured_box([0.08, 0.04, 0.02], 3);
+        let truth = Pose::new(Rotation3::from_euler_angles(0.4, -0.3, 0.8), Vector3::new(0.05, -0.02, 0.4));
+        let hints = super::truth_hints(&truth, &mesh, &[0.0, 10.0, 25.0], 7);
+        assert_eq!(hints.len(), 3);
+        let centre = Vector3::from(mesh.bbox_center());
+        for (h, degrees) in hints.iter().zip([0.0, 10.0, 25.0]) {
+            assert!((truth.rotation.rotation_to(&h.rotation).angle().to_degrees() - degrees).abs() < 1e-6);
+            assert!(((h.rotation * centre + h.translation) - (truth.rotation * centre + truth.translation)).norm() < 1e-12);
+        }
+    }
+
     /// Settings not named keep their defaults; a wrong type or a setting that does not
     /// exist is refused with what is wrong.
     #[test]

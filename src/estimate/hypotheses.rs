@@ -33,6 +33,11 @@ pub enum Source {
     /// That pose turned `degrees` about the object's `axis` (0 = x, 1 = y, 2 = z) through its
     /// centre: the angles between the quarter turns of `Flip`.
     Spin { axis: usize, degrees: u32 },
+    /// The winner turned a little about an object axis: `2·axis` one way, `2·axis + 1` the
+    /// other (`pipeline::nudge`).
+    Nudge(usize),
+    /// The caller's hint pose `i` (`Estimator::estimate_hinted`).
+    Hint(usize),
 }
 
 impl std::fmt::Display for Source {
@@ -45,6 +50,8 @@ impl std::fmt::Display for Source {
             Source::Template(i) => write!(f, "template-{i}"),
             Source::Matched(i) => write!(f, "matched-{i}"),
             Source::PrintFlip(i) => write!(f, "print-flip-{i}"),
+            Source::Hint(i) => write!(f, "hint-{i}"),
+            Source::Nudge(i) => write!(f, "nudge-{i}"),
             Source::Spin { axis, degrees } => write!(f, "spin-{}-{degrees}", ['x', 'y', 'z'].get(*axis).copied().unwrap_or('?')),
         }
     }

@@ -20,6 +20,7 @@ use image::{GrayImage, RgbImage};
 use std::sync::Arc;
 use std::time::Instant;
 
+mod nudge;
 mod second_look;
 
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -238,6 +239,15 @@ impl Estimator {
     /// (image-sized, non-zero where another detection is) tells the refiner that the
     /// mask's outline says nothing there, so an occluder's edge does not pull the pose.
     pub fn estimate_among(&self, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, detections: &[Detection], others: Option<&GrayImage>, cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
+        self.estimate_hinted(model, image, k, detections, others, &[], cfg)
+    }
+
+    /// `estimate_among` with `hints`: poses the caller holds possible (a previous estimate,
+    /// a planned placement, or in a benchmark the truth, to tell a right pose that is never
+    /// generated from one that loses the vote), verified with each mask's own hypotheses as
+    /// source `hint` (ignored without verification).
+    #[allow(clippy::too_many_arguments)]
+    pub fn estimate_hinted(&self, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, detections: &[Detection], others: Option<&GrayImage>, hints: &[Pose], cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
         let t_total = Instant::now();
         self.validate(model, image, k, detections)?;
         let mut timings = StageTimings::default();
@@ -266,7 +276,7 @@ impl Estimator {
                 let t = Instant::now();
                 let _span = tracing::info_span!("refine", refiner = cfg.refiner.name(), verify = cfg.verify.enabled).entered();
                 if cfg.verify.enabled {
-                    h.verified = self.verify(&ctx, p, &retrieved, &matched, q, cfg)?;
+                    h.verified = self.verify(&ctx, p, &retrieved, (&matched, hints), q, cfg)?;
                     if let Some(best) = h.verified.first_mut() {
                         h.pose = Some(best.pose);
                         h.refinement = Some(best.refinement.clone());
@@ -318,10 +328,11 @@ impl Estimator {
     /// for all, then a render (IoU, appearance) for the best by contour and those the
     /// outline cannot tell from it (`verify::to_render`), then, where nothing the winner
     /// shows agrees with the photo's print, a second look (`second_look`). Best first.
-    fn verify(&self, ctx: &RefineContext<'_>, pose: Pose, retrieved: &[usize], matched: &[Pose], query: &QueryView, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
+    fn verify(&self, ctx: &RefineContext<'_>, pose: Pose, retrieved: &[usize], (matched, hints): (&[Pose], &[Pose]), query: &QueryView, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
         let replaced = crate::features::mask_bbox(ctx.mask).filter(|_| cfg.verify.replace_off_mask).and_then(|b| super::hypotheses::replaced_at_mask(&ctx.model.mesh, &pose, b, ctx.intrinsics));
         let mut candidates = super::hypotheses::candidates(ctx.model, &pose, replaced.as_ref(), retrieved, &cfg.verify, &query.crop_box, ctx.intrinsics);
         candidates.extend(matched.iter().enumerate().map(|(i, &p)| (super::hypotheses::Source::Matched(i), p)));
+        candidates.extend(hints.iter().enumerate().map(|(i, &p)| (super::hypotheses::Source::Hint(i), p)));
         // Hypotheses that are the same pose up to the object's symmetry show the same image:
         // when asked, one of each is refined (the pipeline's pose comes first, so it stays).
         let symmetric = ctx.model.symmetries.as_ref().filter(|_| cfg.verify.skip_symmetric).and_then(|s| crate::geometry::symmetric_poses::SymmetricPoses::new(&s.symmetries, ctx.model.diameter()));
@@ -341,6 +352,9 @@ impl Estimator {
         verified.sort_by(|a, b| b.score.total_cmp(&a.score));
         if cfg.verify.second_look {
             self.second_look(ctx, &mut verified, window, query, cfg)?;
+        }
+        if cfg.verify.nudge_degrees > 0.0 {
+            self.nudge(ctx, &mut verified, window, query, cfg)?;
         }
         // Only the winner's render is reused (by selection); the others are dropped now.
         for v in verified.iter_mut().skip(1) {
