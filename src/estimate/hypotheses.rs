@@ -98,10 +98,16 @@ fn spins(pose: &Pose, centre: &Vector3<f64>, steps: usize) -> Vec<(Source, Pose)
         if (degrees / 90.0).fract().abs() < 1e-9 {
             continue;
         }
-        let delta = Rotation3::from_axis_angle(&[Vector3::x_axis(), Vector3::y_axis(), Vector3::z_axis()][axis], degrees.to_radians());
-        out.push((Source::Spin { axis, degrees: degrees.round() as u32 }, variant_pose(pose, &delta, centre)));
+        out.push((Source::Spin { axis, degrees: degrees.round() as u32 }, turned_about(pose, centre, axis, degrees)));
     }
     out
+}
+
+/// `pose` turned by `degrees` about object axis `axis` (0 = x, 1 = y, 2 = z) through
+/// `centre`: the spins, and verification's nudges (`pipeline::nudge`).
+pub fn turned_about(pose: &Pose, centre: &Vector3<f64>, axis: usize, degrees: f64) -> Pose {
+    let delta = Rotation3::from_axis_angle(&[Vector3::x_axis(), Vector3::y_axis(), Vector3::z_axis()][axis], degrees.to_radians());
+    variant_pose(pose, &delta, centre)
 }
 
 /// The pose that makes the query crop look like template `t`'s crop: [`place_in`] with

@@ -7,10 +7,9 @@
 //! and the render (IoU, print, features) tells which way is right.
 
 use super::{Estimator, EstimateConfig, EstimateError, QueryView, RefineContext, Verified};
-use crate::estimate::hypotheses::Source;
-use crate::estimate::rrc::variant_pose;
+use crate::estimate::hypotheses::{turned_about, Source};
 use crate::geometry::Pose;
-use nalgebra::{Rotation3, Vector3};
+use nalgebra::Vector3;
 
 impl Estimator {
     /// Adds the winner of `verified` (sorted best first) turned by ±`nudge_degrees` about
@@ -30,19 +29,13 @@ impl Estimator {
 /// `pose` turned by +`degrees` and −`degrees` about each object axis through `centre`:
 /// `Nudge(2·axis)` one way, `Nudge(2·axis + 1)` the other.
 fn nudges(pose: &Pose, centre: &Vector3<f64>, degrees: f64) -> Vec<(Source, Pose)> {
-    let axes = [Vector3::x_axis(), Vector3::y_axis(), Vector3::z_axis()];
-    (0..6)
-        .map(|i| {
-            let sign = if i % 2 == 0 { 1.0 } else { -1.0 };
-            let turn = Rotation3::from_axis_angle(&axes[i / 2], sign * degrees.to_radians());
-            (Source::Nudge(i), variant_pose(pose, &turn, centre))
-        })
-        .collect()
+    (0..6).map(|i| (Source::Nudge(i), turned_about(pose, centre, i / 2, if i % 2 == 0 { degrees } else { -degrees }))).collect()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Rotation3;
 
     #[test]
     fn nudges_turn_each_way_about_each_axis_and_keep_the_centre() {
