@@ -33,8 +33,8 @@ pub enum Source {
     /// That pose turned `degrees` about the object's `axis` (0 = x, 1 = y, 2 = z) through its
     /// centre: the angles between the quarter turns of `Flip`.
     Spin { axis: usize, degrees: u32 },
-    /// The winner turned a little about an object axis: `2·axis` one way, `2·axis + 1` the
-    /// other (`pipeline::nudge`).
+    /// The winner tilted a little across the line of sight: `0`, `1` each way about the
+    /// axis nearest the camera's x, `2`, `3` about the other (`pipeline::nudge`).
     Nudge(usize),
     /// The caller's hint pose `i` (`Estimator::estimate_hinted`).
     Hint(usize),
@@ -104,7 +104,7 @@ fn spins(pose: &Pose, centre: &Vector3<f64>, steps: usize) -> Vec<(Source, Pose)
 }
 
 /// `pose` turned by `degrees` about object axis `axis` (0 = x, 1 = y, 2 = z) through
-/// `centre`: the spins, and verification's nudges (`pipeline::nudge`).
+/// `centre`: the spins.
 pub fn turned_about(pose: &Pose, centre: &Vector3<f64>, axis: usize, degrees: f64) -> Pose {
     let delta = Rotation3::from_axis_angle(&[Vector3::x_axis(), Vector3::y_axis(), Vector3::z_axis()][axis], degrees.to_radians());
     variant_pose(pose, &delta, centre)

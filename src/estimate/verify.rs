@@ -70,11 +70,13 @@ pub struct VerifyConfig {
     /// put the object far off in depth, and flips about a wrong place cannot reach the
     /// right pose.
     pub replace_off_mask: bool,
-    /// Turn the winner by this many degrees each way about each object axis, refine and
-    /// judge the six turns (`pipeline::nudge`); 0: off. Off by default for its time: on
-    /// generated HOPE scenes 8° gained 2.6 points of MSSD recall at each of three seeds
-    /// (small objects settled 4–8° off, their depth pulled to fit the outline) for about
-    /// 130 ms more per instance on 2 CPU cores (docs/benchmarks.md, "The winner nudged").
+    /// Tilt the winner by this many degrees each way across the line of sight, refine the
+    /// four tilts and judge those the refiner does not bring back (`pipeline::nudge`); 0:
+    /// off, at most [`MAX_NUDGE_DEGREES`]. 8 by measurement: on generated HOPE scenes it
+    /// gained 1.2–3.8 points of MSSD recall on each of three seeds, from true masks and from
+    /// boxes (small objects settled 4–8° off, their depth pulled to fit the outline), for
+    /// about 50 ms more per instance on 2 CPU cores (docs/benchmarks.md, "The winner
+    /// nudged").
     pub nudge_degrees: f64,
 }
 
@@ -88,8 +90,17 @@ impl Default for VerifyConfig {
         // ones with the most matches, placed by their matches: right more often than the
         // retrieved ones placed at the mask, for the same time (docs/benchmarks.md,
         // "Templates placed by their matches").
-        Self { enabled: true, templates: 5, matched_templates: 5, spin_steps: 8, rendered: 3, contour_tie: 0.05, max_rendered: 12, weights: [0.4, 0.3, 0.3], colour_share: 0.5, skip_symmetric: false, feature_share: 0.5, refined: 0, second_look: true, occlusion_aware_iou: true, replace_off_mask: true, nudge_degrees: 0.0 }
+        Self { enabled: true, templates: 5, matched_templates: 5, spin_steps: 8, rendered: 3, contour_tie: 0.05, max_rendered: 12, weights: [0.4, 0.3, 0.3], colour_share: 0.5, skip_symmetric: false, feature_share: 0.5, refined: 0, second_look: true, occlusion_aware_iou: true, replace_off_mask: true, nudge_degrees: 8.0 }
     }
+}
+
+/// The largest nudge: beyond it a turn is no nudge, and the flips and spins cover it.
+pub const MAX_NUDGE_DEGREES: f64 = 45.0;
+
+/// `degrees` if it is a nudge (`VerifyConfig::nudge_degrees`): from 0 to
+/// [`MAX_NUDGE_DEGREES`]; what is wrong with it otherwise.
+pub fn nudge_in_range(degrees: f64) -> Result<f64, String> {
+    if (0.0..=MAX_NUDGE_DEGREES).contains(&degrees) { Ok(degrees) } else { Err(format!("{degrees} is outside 0–{MAX_NUDGE_DEGREES} degrees")) }
 }
 
 /// One verified hypothesis, as reported.

@@ -70,6 +70,7 @@ pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, S
         verify_templates: o.verify_templates.map_or(defaults.verify_templates, |n| n as usize),
         spin_steps: o.spin_steps.map_or(defaults.spin_steps, |n| n as usize),
         verify_matched: o.verify_matched.map_or(defaults.verify_matched, |n| n as usize),
+        nudge_degrees: o.nudge_degrees.unwrap_or(defaults.nudge_degrees),
         overlay: o.overlay,
         refiner: if o.refiner.is_empty() { defaults.refiner } else { o.refiner.parse().map_err(|e: String| ServiceError::invalid(format!("options.refiner: {e}")))? },
     };
@@ -251,6 +252,18 @@ mod tests {
         assert_eq!(with(None, None, None), (d.templates, d.spin_steps, d.matched_templates));
         assert_eq!(with(Some(0), Some(0), Some(0)), (0, 0, 0));
         assert_eq!(with(Some(20), Some(12), Some(7)), (20, 12, 7));
+    }
+
+    #[test]
+    fn the_nudge_defaults_when_unset_and_a_nan_is_refused() {
+        let with = |nudge_degrees| {
+            let options = Some(pb::EstimateOptions { nudge_degrees, ..Default::default() });
+            estimate_request(pb::EstimateRequest { image: Some(pb::Image::default()), intrinsics: Some(pb::Intrinsics { width: 64, height: 48, ..Default::default() }), detections: vec![pb::Detection::default()], options, ..Default::default() }).unwrap()
+        };
+        assert_eq!(with(None).options.nudge_degrees, crate::estimate::VerifyConfig::default().nudge_degrees);
+        assert_eq!(with(Some(0.0)).options.nudge_degrees, 0.0);
+        let e = with(Some(f64::NAN)).check_limits().unwrap_err();
+        assert!(e.message.contains("options.nudge_degrees: NaN is outside 0–45 degrees"), "{}", e.message);
     }
 
     #[test]

@@ -138,6 +138,9 @@ pub struct EstimateOptions {
     pub spin_steps: usize,
     /// Templates with the most matches, placed where their matches put them, verified.
     pub verify_matched: usize,
+    /// The winner tilted this many degrees each way across the line of sight, verified
+    /// (0: off).
+    pub nudge_degrees: f64,
     /// Also answer the photo with each pose drawn on it (`overlay_png`): tinted
     /// silhouette, outline and object axes, for people to check by eye. Default off.
     pub overlay: bool,
@@ -146,7 +149,7 @@ pub struct EstimateOptions {
 impl Default for EstimateOptions {
     fn default() -> Self {
         let v = crate::estimate::VerifyConfig::default();
-        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default(), verify: true, verify_templates: v.templates, spin_steps: v.spin_steps, verify_matched: v.matched_templates, overlay: false }
+        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default(), verify: true, verify_templates: v.templates, spin_steps: v.spin_steps, verify_matched: v.matched_templates, nudge_degrees: v.nudge_degrees, overlay: false }
     }
 }
 
@@ -197,6 +200,7 @@ impl EstimateRequest {
                 return Err(invalid(format!("{name} is {value}, over the limit of {max}")));
             }
         }
+        crate::estimate::verify::nudge_in_range(o.nudge_degrees).map_err(|e| invalid(format!("options.nudge_degrees: {e}")))?;
         Ok(())
     }
 }
@@ -392,6 +396,11 @@ mod tests {
         let mut v = estimate(1, 64, 48);
         v["options"] = serde_json::json!({"spin_steps": 360});
         assert_eq!(refusal(v), "options.spin_steps is 360, over the limit of 72");
+        for degrees in [90.0, -1.0] {
+            let mut v = estimate(1, 64, 48);
+            v["options"] = serde_json::json!({ "nudge_degrees": degrees });
+            assert_eq!(refusal(v), format!("options.nudge_degrees: {degrees} is outside 0–45 degrees"));
+        }
         let mut v = estimate(1, 64, 48);
         v["detections"][0]["mask_rle"] = serde_json::json!({"counts": vec![0; limits::MAX_RLE_RUNS + 1], "size": [48, 64]});
         assert!(refusal(v).contains("over the limit"));

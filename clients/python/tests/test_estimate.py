@@ -92,8 +92,9 @@ def test_options_reach_the_server(client: b2tfpose.Client, rgb_result: b2tfpose.
 def test_verification_hypotheses_follow_the_options(client: b2tfpose.Client, scene: Scene) -> None:
     det = [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)]
     [r] = client.estimate(scene.rgb, scene.K, det, rrc=False, verify_templates=0, spin_steps=0, verify_matched=0)
-    # "replaced": the pipeline's pose re-placed at the mask, where its outline disagrees with it.
-    assert {"pipeline", "flip"} <= {v["source"]["kind"] for v in r.diagnostics[0]["verified"]} <= {"pipeline", "replaced", "flip"}
+    # "replaced": the pipeline's pose re-placed at the mask, where its outline disagrees with
+    # it; "nudge": the winner tilted a little (test_the_nudge_follows_its_option).
+    assert {"pipeline", "flip"} <= {v["source"]["kind"] for v in r.diagnostics[0]["verified"]} <= {"pipeline", "replaced", "flip", "nudge"}
     [r] = client.estimate(scene.rgb, scene.K, det, rrc=False, verify_templates=2, spin_steps=12, verify_matched=3)
     kinds = [v["source"]["kind"] for v in r.diagnostics[0]["verified"]]
     # 30° steps: 8 angles that are not quarter turns, about each of three axes.
@@ -102,6 +103,17 @@ def test_verification_hypotheses_follow_the_options(client: b2tfpose.Client, sce
         client.estimate(scene.rgb, scene.K, det, spin_steps=1000)
     with pytest.raises(b2tfpose.InvalidArgument, match="options.verify_matched"):
         client.estimate(scene.rgb, scene.K, det, verify_matched=1000)
+
+
+def test_the_nudge_follows_its_option(client: b2tfpose.Client, scene: Scene) -> None:
+    det = [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)]
+    [r] = client.estimate(scene.rgb, scene.K, det, rrc=False, nudge_degrees=0)
+    assert "nudge" not in {v["source"]["kind"] for v in r.diagnostics[0]["verified"]}
+    # Four tilts, refined; those the refiner brings back to the winner are not rendered.
+    [r] = client.estimate(scene.rgb, scene.K, det, rrc=False, nudge_degrees=15)
+    assert [v["source"]["kind"] for v in r.diagnostics[0]["verified"]].count("nudge") == 4
+    with pytest.raises(b2tfpose.InvalidArgument, match="options.nudge_degrees: 90 is outside 0–45 degrees"):
+        client.estimate(scene.rgb, scene.K, det, nudge_degrees=90)
 
 
 def test_two_detections_one_instance_and_a_low_score_mask(client: b2tfpose.Client, scene: Scene) -> None:

@@ -113,6 +113,7 @@ def estimate_request(
     verify_templates: Optional[int] = None,
     spin_steps: Optional[int] = None,
     verify_matched: Optional[int] = None,
+    nudge_degrees: Optional[float] = None,
     overlay: bool = False,
 ) -> pb.EstimateRequest:
     ids = objects_list(objects)
@@ -138,6 +139,8 @@ def estimate_request(
         options.spin_steps = spin_steps
     if verify_matched is not None:
         options.verify_matched = verify_matched
+    if nudge_degrees is not None:
+        options.nudge_degrees = nudge_degrees
     return pb.EstimateRequest(
         image=img,
         intrinsics=intrinsics_message(K, w, h),

@@ -229,6 +229,7 @@ class AsyncClient:
         verify_templates: Optional[int] = None,
         spin_steps: Optional[int] = None,
         verify_matched: Optional[int] = None,
+        nudge_degrees: Optional[float] = None,
         overlay: bool = False,
         max_detections: Optional[int] = None,
         min_score: Optional[float] = None,
@@ -241,7 +242,7 @@ class AsyncClient:
         request = _requests.estimate_request(
             image, K, detections, objects=objects, detect=_requests.detect_options(max_detections, min_score, min_distance, max_distance), bgr=bgr, rrc=rrc,
             refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify, verify_templates=verify_templates, spin_steps=spin_steps, verify_matched=verify_matched,
-            overlay=overlay,
+            nudge_degrees=nudge_degrees, overlay=overlay,
         )
         return Estimates.from_pb(await self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
 
