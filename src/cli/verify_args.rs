@@ -56,8 +56,8 @@ pub struct VerifyArgs {
     #[arg(long)]
     pub iou_counts_occluded: bool,
     /// Also try the winner tilted by this many degrees each way across the line of sight,
-    /// refined and judged (default 8: 1.2–3.8 points more of generated HOPE scenes right,
-    /// for about 50 ms more per instance; 0: off; at most 45).
+    /// refined and judged (default 8: 1.2–7.5 points more of generated HOPE scenes right,
+    /// for 20–55 ms more per instance; 0: off; at most 45).
     #[arg(long, value_parser = nudge_degrees)]
     pub nudge: Option<f64>,
     /// Rounds of refining the kept pose on its print as well as its outline, on objects

@@ -73,10 +73,10 @@ pub struct VerifyConfig {
     /// Tilt the winner by this many degrees each way across the line of sight, refine the
     /// four tilts and judge those the refiner does not bring back (`pipeline::nudge`); 0:
     /// off, at most [`MAX_NUDGE_DEGREES`]. 8 by measurement: on generated HOPE scenes it
-    /// gained 1.2–3.8 points of MSSD recall on each of three seeds, from true masks and from
-    /// boxes (small objects settled 4–8° off, their depth pulled to fit the outline), for
-    /// about 50 ms more per instance on 2 CPU cores (docs/benchmarks.md, "The winner
-    /// nudged").
+    /// gained 1.2–7.5 points of MSSD recall on nine of ten sets, from true masks, boxes and
+    /// harsh scenes (small objects settled 4–8° off, their depth pulled to fit the outline),
+    /// for 20–55 ms more per instance on 2 CPU cores (docs/benchmarks.md, "The nudge across
+    /// the line of sight").
     pub nudge_degrees: f64,
 }
 
