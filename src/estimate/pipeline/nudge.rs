@@ -46,8 +46,9 @@ fn nudges(pose: &Pose, centre: &Vector3<f64>, degrees: f64) -> Vec<(Source, Pose
     let sight = pose.rotation * centre + pose.translation;
     let Some(sight) = Unit::try_new(sight, 1e-12) else { return vec![] };
     // Across the line of sight: the camera's x axis with its part along the sight removed,
-    // and the axis across both. An object straight ahead is tilted about x and y.
-    let across = Unit::new_normalize(Vector3::y().cross(&sight));
+    // and the axis across both. An object straight ahead is tilted about x and y; one on
+    // the camera's y axis itself (a pose no camera sees) about z and x.
+    let across = Unit::try_new(Vector3::y().cross(&sight), 1e-9).unwrap_or_else(|| Unit::new_normalize(sight.cross(&Vector3::x())));
     let axes = [across, Unit::new_normalize(sight.cross(&across))];
     (0..4)
         .map(|i| {
@@ -92,6 +93,10 @@ mod tests {
         assert!(axes[0].dot(&axes[2]).abs() < 1e-9);
         assert!(axes[0].x.abs() > 0.9, "the first axis is nearest the camera's x: {:?}", axes[0]);
         assert_eq!(n[3].0.to_string(), "nudge-3");
+        // Along the camera's y axis: still four tilts of 8°, none of them NaN.
+        let above = Pose::new(Rotation3::identity(), Vector3::new(0.0, 0.5, 0.0));
+        let n = nudges(&above, &Vector3::zeros(), 8.0);
+        assert!(n.len() == 4 && n.iter().all(|(_, p)| ((p.rotation * above.rotation.inverse()).angle().to_degrees() - 8.0).abs() < 1e-9));
     }
 
     #[test]
