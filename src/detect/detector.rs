@@ -367,7 +367,7 @@ fn coarse_pose(shape: &ShapeModel, mesh: &Mesh, k: &Intrinsics, c: &Candidate) -
 fn view_refined(window: &Window, renderer: &RenderPool, mesh: &Mesh, start: (Pose, Evidence, f32)) -> Result<(Pose, Evidence, f32), crate::render::RenderError> {
     let mut best = start;
     for (ax, ay) in [(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)] {
-        let turned = turned_about_centre(&best.0, mesh, &Vector3::new(ax, ay, 0.0), VIEW_STEP_DEG.to_radians());
+        let turned = best.0.turned_in_camera(&Vector3::from(mesh.bbox_center()), &nalgebra::Unit::new_normalize(Vector3::new(ax, ay, 0.0)), VIEW_STEP_DEG.to_radians());
         let ev = window.evidence(renderer, mesh, &turned)?;
         let s = combined_score(&ev);
         if s > best.2 {
@@ -379,15 +379,6 @@ fn view_refined(window: &Window, renderer: &RenderPool, mesh: &Mesh, start: (Pos
 
 fn render_error(t: &Target, e: crate::render::RenderError) -> DetectError {
     DetectError::Render { object: t.id.to_string(), message: e.to_string() }
-}
-
-/// `pose` turned by `angle` about `axis` (camera frame) through the object's centre.
-fn turned_about_centre(pose: &Pose, mesh: &Mesh, axis: &Vector3<f64>, angle: f64) -> Pose {
-    let centre = Vector3::from(mesh.bbox_center());
-    let in_camera = pose.rotation * centre + pose.translation;
-    let turn = Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(*axis), angle);
-    let rotation = turn * pose.rotation;
-    Pose::new(rotation, in_camera - rotation * centre)
 }
 
 /// The detection's score, from what the render at the candidate's pose says (the template

@@ -105,7 +105,7 @@ fn spins(pose: &Pose, centre: &Vector3<f64>, steps: usize) -> Vec<(Source, Pose)
 
 /// `pose` turned by `degrees` about object axis `axis` (0 = x, 1 = y, 2 = z) through
 /// `centre`: the spins.
-pub fn turned_about(pose: &Pose, centre: &Vector3<f64>, axis: usize, degrees: f64) -> Pose {
+fn turned_about(pose: &Pose, centre: &Vector3<f64>, axis: usize, degrees: f64) -> Pose {
     let delta = Rotation3::from_axis_angle(&[Vector3::x_axis(), Vector3::y_axis(), Vector3::z_axis()][axis], degrees.to_radians());
     variant_pose(pose, &delta, centre)
 }

@@ -1,7 +1,7 @@
 //! Rigid transforms `T_cam_obj` (object → camera, as BOP's `cam_R_m2c`/`cam_t_m2c`),
 //! translations in metres.
 
-use nalgebra::{Matrix3, Matrix4, Point3, Rotation3, Vector3};
+use nalgebra::{Matrix3, Matrix4, Point3, Rotation3, Unit, Vector3};
 
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Pose {
@@ -42,6 +42,14 @@ impl Pose {
     /// `self ∘ other`: apply `other` first.
     pub fn compose(&self, other: &Pose) -> Self {
         Self::new(self.rotation * other.rotation, self.rotation * other.translation + self.translation)
+    }
+
+    /// This pose turned by `angle` (radians) about `axis`, a direction in the camera's frame,
+    /// through the object point `centre` (which stays where it was in the camera's frame).
+    pub fn turned_in_camera(&self, centre: &Vector3<f64>, axis: &Unit<Vector3<f64>>, angle: f64) -> Pose {
+        let in_camera = self.rotation * centre + self.translation;
+        let rotation = Rotation3::from_axis_angle(axis, angle) * self.rotation;
+        Pose::new(rotation, in_camera - rotation * centre)
     }
 
     pub fn to_homogeneous(&self) -> Matrix4<f64> {

@@ -10,9 +10,8 @@
 
 use super::{Estimator, EstimateConfig, EstimateError, QueryView, RefineContext, Verified};
 use crate::estimate::hypotheses::Source;
-use crate::estimate::rrc::variant_pose;
-use crate::geometry::Pose;
-use nalgebra::{Rotation3, Unit, Vector3};
+use crate::geometry::{geodesic_distance, Pose};
+use nalgebra::{Unit, Vector3};
 
 /// A nudge the refiner brings back within this of the winner (rotation, degrees; and a
 /// hundredth of the diameter in translation) shows the winner's image again: it is not
@@ -53,9 +52,7 @@ fn nudges(pose: &Pose, centre: &Vector3<f64>, degrees: f64) -> Vec<(Source, Pose
     (0..4)
         .map(|i| {
             let angle = if i % 2 == 0 { degrees } else { -degrees }.to_radians();
-            // The camera-frame turn written in the object's frame, as `variant_pose` takes it.
-            let in_object = Unit::new_normalize(pose.rotation.inverse() * axes[i / 2].into_inner());
-            (Source::Nudge(i), variant_pose(pose, &Rotation3::from_axis_angle(&in_object, angle), centre))
+            (Source::Nudge(i), pose.turned_in_camera(centre, &axes[i / 2], angle))
         })
         .collect()
 }
@@ -63,12 +60,13 @@ fn nudges(pose: &Pose, centre: &Vector3<f64>, degrees: f64) -> Vec<(Source, Pose
 /// Whether `a` and `b` are the same pose within [`SAME_POSE_DEGREES`] and a hundredth of
 /// `diameter`.
 fn same_pose(a: &Pose, b: &Pose, diameter: f64) -> bool {
-    (a.rotation.inverse() * b.rotation).angle().to_degrees() < SAME_POSE_DEGREES && (a.translation - b.translation).norm() < 0.01 * diameter
+    geodesic_distance(&a.rotation, &b.rotation).to_degrees() < SAME_POSE_DEGREES && (a.translation - b.translation).norm() < 0.01 * diameter
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Rotation3;
 
     #[test]
     fn nudges_tilt_each_way_across_the_line_of_sight_and_keep_the_centre() {
