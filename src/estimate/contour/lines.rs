@@ -145,9 +145,20 @@ fn step_table() -> &'static [f64; 2 * STEP_REACH as usize + 3] {
     TABLE.get_or_init(|| std::array::from_fn(|i| 0.5 + STEP_AMPLITUDE * ((i as i64 - STEP_REACH - 1) as f64 * 0.5).tanh()))
 }
 
+/// Lowest and highest segment probability `outline_distribution` takes: the posterior's
+/// own bounds are 0.1 and 0.9, so this changes nothing it gives; it keeps every segment's
+/// chance at least 0.07, so that a product over a line's (at most a few dozen) segments
+/// stays far above f64's smallest value.
+const PROB_BOUNDS: (f64, f64) = (0.01, 0.99);
+
 /// Mean and variance (px) of the outline's offset along the line, given the segments'
 /// foreground probabilities: a uniform prior over offsets at half-segment steps, and for
 /// each segment the likelihood of its probability if the outline sat at that offset.
+///
+/// The likelihoods are multiplied, not summed as logarithms: a candidate's weight is the
+/// product of its far-inside segments' chances (a prefix product), of its far-outside ones'
+/// (a suffix product) and of its near ones', with no logarithm or exponential per
+/// candidate (they were a tenth of an estimate's time).
 pub fn outline_distribution(probs: &[f64], inner: usize, s: f64) -> (f64, f64) {
     let n = probs.len();
     let candidates = 2 * n + 1;
@@ -155,33 +166,29 @@ pub fn outline_distribution(probs: &[f64], inner: usize, s: f64) -> (f64, f64) {
     // Segment r seen from candidate c sits (2r + 1 − c)/2 segments beyond the outline, so
     // its likelihood depends on k = 2r + 1 − c alone.
     let steps = step_table();
-    let chance = |p: f64, h_bg: f64| (h_bg * (1.0 - p) + (1.0 - h_bg) * p).max(1e-12);
-    let like = |p: f64, h_bg: f64| chance(p, h_bg).ln();
+    let chance = |p: f64, h_bg: f64| h_bg * (1.0 - p) + (1.0 - h_bg) * p;
+    let probs: Vec<f64> = probs.iter().map(|p| p.clamp(PROB_BOUNDS.0, PROB_BOUNDS.1)).collect();
     let (flat_in, flat_out) = (steps[0], steps[steps.len() - 1]);
-    // Prefix sums of each segment's far-inside and far-outside log-likelihoods.
-    let mut inside = vec![0.0; n + 1];
-    let mut outside = vec![0.0; n + 1];
+    // inside[r]: the chances of segments 0..r all far inside; outside[r]: of segments r..n
+    // all far outside.
+    let mut inside = vec![1.0; n + 1];
+    let mut outside = vec![1.0; n + 1];
     for (r, &p) in probs.iter().enumerate() {
-        inside[r + 1] = inside[r] + like(p, flat_in);
-        outside[r + 1] = outside[r] + like(p, flat_out);
+        inside[r + 1] = inside[r] * chance(p, flat_in);
+    }
+    for (r, &p) in probs.iter().enumerate().rev() {
+        outside[r] = outside[r + 1] * chance(p, flat_out);
     }
     let near = &steps[1..steps.len() - 1]; // k = −REACH ..= REACH
-    let mut log_l = vec![0.0f64; candidates];
-    for (c, ll) in log_l.iter_mut().enumerate() {
-        let c = c as i64;
-        // Segments with k < −REACH (far inside): r < (c − 1 − REACH)/2; k > REACH: r > (c − 1 + REACH)/2.
-        let lo = ((c - 1 - STEP_REACH + 1).div_euclid(2)).clamp(0, n as i64) as usize; // first r with k ≥ −REACH
-        let hi = ((c - 1 + STEP_REACH).div_euclid(2) + 1).clamp(lo as i64, n as i64) as usize; // first r with k > REACH
-        // The near segments' chances multiplied, one logarithm for them all: at most
-        // REACH + 1 factors of at least 1e-12 each, far from underflow.
-        let mut near_chance = 1.0;
-        for (r, &p) in probs.iter().enumerate().take(hi).skip(lo) {
-            near_chance *= chance(p, near[(2 * r as i64 + 1 - c + STEP_REACH) as usize]);
-        }
-        *ll = inside[lo] + (outside[n] - outside[hi]) + near_chance.ln();
-    }
-    let top = log_l.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-    let w: Vec<f64> = log_l.iter().map(|l| (l - top).exp()).collect();
+    let w: Vec<f64> = (0..candidates as i64)
+        .map(|c| {
+            // Segments with k < −REACH (far inside): r < (c − 1 − REACH)/2; k > REACH: r > (c − 1 + REACH)/2.
+            let lo = ((c - 1 - STEP_REACH + 1).div_euclid(2)).clamp(0, n as i64) as usize; // first r with k ≥ −REACH
+            let hi = ((c - 1 + STEP_REACH).div_euclid(2) + 1).clamp(lo as i64, n as i64) as usize; // first r with k > REACH
+            let near_chance: f64 = (lo..hi).map(|r| chance(probs[r], near[(2 * r as i64 + 1 - c + STEP_REACH) as usize])).product();
+            inside[lo] * outside[hi] * near_chance
+        })
+        .collect();
     let total: f64 = w.iter().sum();
     let mean = w.iter().enumerate().map(|(c, wi)| wi * offset(c)).sum::<f64>() / total;
     let var = w.iter().enumerate().map(|(c, wi)| wi * (offset(c) - mean).powi(2)).sum::<f64>() / total;
@@ -208,33 +215,40 @@ mod tests {
         assert!(mean.abs() < 1e-9 && var > 10.0);
     }
 
-    /// The prefix-sum evaluation equals summing every segment with the exact step.
+    /// The product evaluation equals summing every segment's log-likelihood with the exact
+    /// step, on smooth probabilities and on a long line of the posterior's extremes (where
+    /// a product of every segment's chance is smallest).
     #[test]
     fn fast_distribution_matches_the_direct_sum() {
-        let probs: Vec<f64> = (0..20).map(|i| 0.5 + 0.4 * ((i as f64) * 0.7).sin()).collect();
-        for inner in [3usize, 8, 12] {
-            let s = 1.5;
-            let n = probs.len();
-            let offset = |c: usize| (c as f64 * 0.5 - inner as f64) * s;
-            let log_l: Vec<f64> = (0..2 * n + 1)
-                .map(|c| {
-                    probs
-                        .iter()
-                        .enumerate()
-                        .map(|(r, &p)| {
-                            let x = (r as f64 + 0.5 - inner as f64) * s - offset(c);
-                            let k = (2.0 * x / s).round() as i64;
-                            let h = 0.5 + STEP_AMPLITUDE * ((k.clamp(-STEP_REACH - 1, STEP_REACH + 1)) as f64 * 0.5).tanh();
-                            (h * (1.0 - p) + (1.0 - h) * p).ln()
-                        })
-                        .sum()
-                })
-                .collect();
-            let top = log_l.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-            let w: Vec<f64> = log_l.iter().map(|l| (l - top).exp()).collect();
-            let mean = w.iter().enumerate().map(|(c, wi)| wi * offset(c)).sum::<f64>() / w.iter().sum::<f64>();
-            let (fast, _) = outline_distribution(&probs, inner, s);
-            assert!((fast - mean).abs() < 1e-9, "inner {inner}: {fast} vs {mean}");
+        let smooth: Vec<f64> = (0..20).map(|i| 0.5 + 0.4 * ((i as f64) * 0.7).sin()).collect();
+        let extremes: Vec<f64> = (0..64).map(|i| if (i * 7) % 5 < 2 { 0.9 } else { 0.1 }).collect();
+        for (probs, inners) in [(&smooth, [3usize, 8, 12]), (&extremes, [5, 32, 60])] {
+            for inner in inners {
+                let s = 1.5;
+                let n = probs.len();
+                let offset = |c: usize| (c as f64 * 0.5 - inner as f64) * s;
+                let log_l: Vec<f64> = (0..2 * n + 1)
+                    .map(|c| {
+                        probs
+                            .iter()
+                            .enumerate()
+                            .map(|(r, &p)| {
+                                let x = (r as f64 + 0.5 - inner as f64) * s - offset(c);
+                                let k = (2.0 * x / s).round() as i64;
+                                let h = 0.5 + STEP_AMPLITUDE * ((k.clamp(-STEP_REACH - 1, STEP_REACH + 1)) as f64 * 0.5).tanh();
+                                (h * (1.0 - p) + (1.0 - h) * p).ln()
+                            })
+                            .sum()
+                    })
+                    .collect();
+                let top = log_l.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+                let w: Vec<f64> = log_l.iter().map(|l| (l - top).exp()).collect();
+                let total = w.iter().sum::<f64>();
+                let mean = w.iter().enumerate().map(|(c, wi)| wi * offset(c)).sum::<f64>() / total;
+                let var = w.iter().enumerate().map(|(c, wi)| wi * (offset(c) - mean).powi(2)).sum::<f64>() / total + s * s / 12.0;
+                let (fast_mean, fast_var) = outline_distribution(probs, inner, s);
+                assert!((fast_mean - mean).abs() < 1e-9 && (fast_var - var).abs() < 1e-9, "n {n}, inner {inner}: {fast_mean}, {fast_var} vs {mean}, {var}");
+            }
         }
     }
 
