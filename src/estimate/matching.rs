@@ -27,7 +27,7 @@ pub fn mutual_matches(query: &[f32], pool: &[f32], dim: usize, k_nn: usize) -> V
     for (i, t) in top.iter().enumerate() {
         for &(j, s) in t {
             // Orthogonal or opposite descriptors share nothing: never a match.
-            if best_query[j].0 == i && s > 0.0 {
+            if best_query[j] == i && s > 0.0 {
                 out.push(Match { query: i, pool: j, similarity: s });
             }
         }
@@ -69,7 +69,7 @@ pub fn grouped_mutual_matches(groups: &[MatchGroup<'_>], dim: usize, k_nn: usize
     for best in per_patch.values() {
         for &(g, i, j, s) in best {
             let r = ranked[g].as_ref().expect("ranked above");
-            if r.best_query[j].0 == i && s > 0.0 {
+            if r.best_query[j] == i && s > 0.0 {
                 out.push((g, Match { query: i, pool: j, similarity: s }));
             }
         }
@@ -81,8 +81,13 @@ pub fn grouped_mutual_matches(groups: &[MatchGroup<'_>], dim: usize, k_nn: usize
 /// similar query row; `None` when either side is empty.
 struct Ranked {
     top: Vec<Vec<(usize, f32)>>,
-    best_query: Vec<(usize, f32)>,
+    /// Per pool row, its most similar query (the first of equals).
+    best_query: Vec<usize>,
 }
+
+/// Similarities a query's best-k scan checks at once against its k-th best before looking
+/// at them one by one: once a query holds k, most of a block is below its k-th.
+const SKIP_RUN: usize = 16;
 
 fn rank(query: &[f32], pool: &[f32], dim: usize, k_nn: usize) -> Option<Ranked> {
     let q = query.len() / dim.max(1);
@@ -92,8 +97,9 @@ fn rank(query: &[f32], pool: &[f32], dim: usize, k_nn: usize) -> Option<Ranked> 
     }
     // Per query: its best k (pool index, similarity), sorted descending.
     let mut top: Vec<Vec<(usize, f32)>> = vec![Vec::with_capacity(k_nn + 1); q];
-    // Per pool row: its best query.
-    let mut best_query: Vec<(usize, f32)> = vec![(usize::MAX, f32::NEG_INFINITY); p];
+    // Per pool row: its best query and that similarity, in two arrays so that the scan
+    // below compares and selects whole vectors of them.
+    let (mut best_query, mut best_sim) = (vec![u32::MAX; p], vec![f32::NEG_INFINITY; p]);
     let mut sims = vec![0f32; q * BLOCK.min(p)];
     for start in (0..p).step_by(BLOCK) {
         let n = BLOCK.min(p - start);
@@ -105,26 +111,34 @@ fn rank(query: &[f32], pool: &[f32], dim: usize, k_nn: usize) -> Option<Ranked> 
         // column strips for each pool row's best query (rows in order, so ties go to the
         // first query as a single scan would).
         top.par_iter_mut().enumerate().for_each(|(i, t)| {
-            for (j, &s) in sims[i * n..(i + 1) * n].iter().enumerate() {
-                if t.len() < k_nn || s > t[t.len() - 1].1 {
-                    let pos = t.partition_point(|&(_, v)| v >= s);
-                    t.insert(pos, (start + j, s));
-                    t.truncate(k_nn);
+            for (run, values) in sims[i * n..(i + 1) * n].chunks(SKIP_RUN).enumerate() {
+                // Nothing in the run beats the k-th best: none would be inserted below.
+                if t.len() == k_nn && !values.iter().fold(false, |any, &s| any | (s > t[k_nn - 1].1)) {
+                    continue;
+                }
+                for (j, &s) in values.iter().enumerate() {
+                    if t.len() < k_nn || s > t[t.len() - 1].1 {
+                        let pos = t.partition_point(|&(_, v)| v >= s);
+                        t.insert(pos, (start + run * SKIP_RUN + j, s));
+                        t.truncate(k_nn);
+                    }
                 }
             }
         });
-        best_query[start..start + n].par_chunks_mut(STRIP).enumerate().for_each(|(c, best)| {
+        let strips = best_query[start..start + n].par_chunks_mut(STRIP).zip(best_sim[start..start + n].par_chunks_mut(STRIP));
+        strips.enumerate().for_each(|(c, (index, best))| {
             let (j0, w) = (c * STRIP, best.len());
             for i in 0..q {
-                for (b, &s) in best.iter_mut().zip(&sims[i * n + j0..i * n + j0 + w]) {
-                    if s > b.1 {
-                        *b = (i, s);
+                for ((b, bi), &s) in best.iter_mut().zip(index.iter_mut()).zip(&sims[i * n + j0..i * n + j0 + w]) {
+                    if s > *b {
+                        *b = s;
+                        *bi = i as u32;
                     }
                 }
             }
         });
     }
-    Some(Ranked { top, best_query })
+    Some(Ranked { top, best_query: best_query.into_iter().map(|i| if i == u32::MAX { usize::MAX } else { i as usize }).collect() })
 }
 
 #[cfg(test)]
@@ -149,6 +163,47 @@ mod tests {
         // With k = 3, query 2's list holds pool 1 too, still not mutual.
         assert_eq!(mutual_matches(&query, &pool, 3, 3).len(), 2);
         assert!(mutual_matches(&[], &pool, 3, 3).is_empty());
+    }
+
+    /// The blocked, run-skipping scans give exactly the pairs of a plain reading of the
+    /// definition: each query's k most similar pool rows (earlier rows first among equals),
+    /// kept where the query is the pool row's most similar (the first of equals), with
+    /// repeated descriptors so that ties occur.
+    #[test]
+    fn scans_match_the_definition() {
+        let dim = 6;
+        let mut seed = 7u64;
+        let mut next = || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((seed >> 33) % 1000) as f32 / 500.0 - 1.0
+        };
+        let rows = |n: usize, next: &mut dyn FnMut() -> f32| -> Vec<f32> {
+            let mut v: Vec<f32> = (0..n * dim).map(|_| next()).collect();
+            for r in v.chunks_mut(dim) {
+                let norm = r.iter().map(|x| x * x).sum::<f32>().sqrt();
+                r.iter_mut().for_each(|x| *x /= norm);
+            }
+            v
+        };
+        let query = rows(45, &mut next);
+        let mut pool = rows(700, &mut next);
+        pool.copy_within(0..dim * 20, dim * 300); // twenty pool rows twice
+        for k_nn in [1, 3, 5] {
+            let sim = |i: usize, j: usize| (0..dim).map(|d| query[i * dim + d] * pool[j * dim + d]).sum::<f32>();
+            let mut expected = vec![];
+            for i in 0..45 {
+                let mut order: Vec<usize> = (0..700).collect();
+                order.sort_by(|&a, &b| sim(i, b).total_cmp(&sim(i, a)));
+                for &j in order.iter().take(k_nn) {
+                    let best = (0..45).fold(0, |b, q| if sim(q, j) > sim(b, j) { q } else { b });
+                    if best == i && sim(i, j) > 0.0 {
+                        expected.push((i, j));
+                    }
+                }
+            }
+            let got: Vec<(usize, usize)> = mutual_matches(&query, &pool, dim, k_nn).iter().map(|m| (m.query, m.pool)).collect();
+            assert_eq!(got, expected, "k = {k_nn}");
+        }
     }
 
     /// One group whose rows stand for themselves is `mutual_matches`; across groups, a
