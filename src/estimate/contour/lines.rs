@@ -166,18 +166,20 @@ pub fn outline_distribution(probs: &[f64], inner: usize, s: f64) -> (f64, f64) {
     // Segment r seen from candidate c sits (2r + 1 − c)/2 segments beyond the outline, so
     // its likelihood depends on k = 2r + 1 − c alone.
     let steps = step_table();
-    let chance = |p: f64, h_bg: f64| h_bg * (1.0 - p) + (1.0 - h_bg) * p;
-    let probs: Vec<f64> = probs.iter().map(|p| p.clamp(PROB_BOUNDS.0, PROB_BOUNDS.1)).collect();
+    // A segment's chance under a step value h is h·(1 − p) + (1 − h)·p = p + h·(1 − 2p):
+    // p and 1 − 2p per segment, one multiply-add per (segment, candidate).
+    let terms: Vec<(f64, f64)> = probs.iter().map(|p| p.clamp(PROB_BOUNDS.0, PROB_BOUNDS.1)).map(|p| (p, 1.0 - 2.0 * p)).collect();
+    let chance = |(p, q): (f64, f64), h_bg: f64| p + h_bg * q;
     let (flat_in, flat_out) = (steps[0], steps[steps.len() - 1]);
     // inside[r]: the chances of segments 0..r all far inside; outside[r]: of segments r..n
     // all far outside.
     let mut inside = vec![1.0; n + 1];
     let mut outside = vec![1.0; n + 1];
-    for (r, &p) in probs.iter().enumerate() {
-        inside[r + 1] = inside[r] * chance(p, flat_in);
+    for (r, &t) in terms.iter().enumerate() {
+        inside[r + 1] = inside[r] * chance(t, flat_in);
     }
-    for (r, &p) in probs.iter().enumerate().rev() {
-        outside[r] = outside[r + 1] * chance(p, flat_out);
+    for (r, &t) in terms.iter().enumerate().rev() {
+        outside[r] = outside[r + 1] * chance(t, flat_out);
     }
     let near = &steps[1..steps.len() - 1]; // k = −REACH ..= REACH
     let w: Vec<f64> = (0..candidates as i64)
@@ -185,7 +187,9 @@ pub fn outline_distribution(probs: &[f64], inner: usize, s: f64) -> (f64, f64) {
             // Segments with k < −REACH (far inside): r < (c − 1 − REACH)/2; k > REACH: r > (c − 1 + REACH)/2.
             let lo = ((c - 1 - STEP_REACH + 1).div_euclid(2)).clamp(0, n as i64) as usize; // first r with k ≥ −REACH
             let hi = ((c - 1 + STEP_REACH).div_euclid(2) + 1).clamp(lo as i64, n as i64) as usize; // first r with k > REACH
-            let near_chance: f64 = (lo..hi).map(|r| chance(probs[r], near[(2 * r as i64 + 1 - c + STEP_REACH) as usize])).product();
+            // Segment lo's step, then every second one (k grows by 2 with r).
+            let first_k = (2 * lo as i64 + 1 - c + STEP_REACH) as usize;
+            let near_chance: f64 = terms[lo..hi].iter().zip(near[first_k..].iter().step_by(2)).map(|(&t, &h)| chance(t, h)).product();
             inside[lo] * outside[hi] * near_chance
         })
         .collect();
