@@ -79,35 +79,50 @@ pub fn sample_crop(rgb: &RgbImage, mask: &GrayImage, b: &CropBox, to_source: ToS
     let sub = b.scale().ceil().clamp(1.0, 4.0) as usize;
     let source = Source { rgb: rgb.as_raw(), mask: mask.as_raw(), w: rgb.width() as i64, h: rgb.height() as i64 };
     let offsets: Vec<f64> = (0..sub).map(|k| (k as f64 + 0.5) / sub as f64 - 0.5).collect();
-    let sums = match to_source {
-        ToSource::Shift(dx, dy) => {
-            // A shift moves columns and rows independently: each column's and each row's
-            // taps are found once (the same arithmetic as `to_image`, so the same points).
-            let taps = |origin: f64, shift: f64| -> Vec<(i64, f32)> {
-                let s = b.scale();
-                (0..size).flat_map(|c| offsets.iter().map(move |&d| Source::tap(origin + ((c as f64 + d) + 0.5) * s - shift))).collect()
-            };
-            source.separable_sums(size, sub, &taps(b.origin_u, dx), &taps(b.origin_v, dy))
-        }
-        ToSource::Map(map) => source.mapped_sums(size, &offsets, &|cu, cv| b.to_image(cu, cv), map),
+    // A shift moves columns and rows independently: each column's and each row's taps are
+    // found once (the same arithmetic as `to_image`, so the same points).
+    let taps = |origin: f64, shift: f64| -> Vec<(i64, f32)> {
+        let s = b.scale();
+        (0..size).flat_map(|c| offsets.iter().map(move |&d| Source::tap(origin + ((c as f64 + d) + 0.5) * s - shift))).collect()
+    };
+    let plan = match to_source {
+        ToSource::Shift(dx, dy) => Plan::Separable { columns: taps(b.origin_u, dx), rows: taps(b.origin_v, dy) },
+        ToSource::Map(map) => Plan::Mapped(map),
     };
     let inv = 1.0 / (sub * sub) as f32;
     let mut out_rgb = RgbImage::new(b.size, b.size);
     let mut out_mask = GrayImage::new(b.size, b.size);
-    for ((acc, px), m) in sums.iter().zip(out_rgb.as_mut().chunks_exact_mut(3)).zip(out_mask.as_mut().iter_mut()) {
-        // Premultiplied: background black, edge pixels darkened by their coverage. Values
-        // are ≥ 0, so adding ½ and truncating rounds as `round` does (the saturating cast
-        // clamps), without a libm call per channel.
-        for k in 0..3 {
-            px[k] = (acc[k] * inv + 0.5) as u8;
+    // Bands of crop rows on all cores: every output pixel depends on the source alone.
+    let band = (size * CROP_ROWS_PER_BAND).max(1);
+    let bands = out_rgb.par_chunks_mut(3 * band).zip(out_mask.par_chunks_mut(band)).enumerate();
+    bands.for_each(|(i, (band_rgb, band_mask))| {
+        let crop_rows = i * CROP_ROWS_PER_BAND..i * CROP_ROWS_PER_BAND + band_mask.len() / size.max(1);
+        let sums = match &plan {
+            Plan::Separable { columns, rows } => source.separable_sums(size, sub, columns, &rows[crop_rows.start * sub..crop_rows.end * sub]),
+            Plan::Mapped(map) => source.mapped_sums(size, crop_rows, &offsets, b, *map),
+        };
+        for ((acc, px), m) in sums.iter().zip(band_rgb.chunks_exact_mut(3)).zip(band_mask.iter_mut()) {
+            // Premultiplied: background black, edge pixels darkened by their coverage.
+            // Values are ≥ 0, so adding ½ and truncating rounds as `round` does (the
+            // saturating cast clamps), without a libm call per channel.
+            for k in 0..3 {
+                px[k] = (acc[k] * inv + 0.5) as u8;
+            }
+            *m = (acc[3] * inv * 255.0 + 0.5) as u8;
         }
-        *m = (acc[3] * inv * 255.0 + 0.5) as u8;
-    }
+    });
     CropInput { rgb: out_rgb, mask: out_mask }
 }
 
-/// Crop rows per band of `Source::separable_sums`: a band's source rows are interpolated
-/// once for all its crop rows, and a row two bands read is interpolated by both.
+/// How `sample_crop` finds its taps: per column and per row, or per sample point.
+enum Plan<'a> {
+    Separable { columns: Vec<(i64, f32)>, rows: Vec<(i64, f32)> },
+    Mapped(&'a (dyn Fn(f64, f64) -> (f64, f64) + Sync)),
+}
+
+/// Crop rows per band of `sample_crop`: a band's source rows are interpolated once for
+/// all its crop rows (`Source::separable_sums`), and a row two bands read is interpolated
+/// by both.
 const CROP_ROWS_PER_BAND: usize = 32;
 
 /// The source image's raw rows, read by index (no `get_pixel` with its own checks per tap).
@@ -126,68 +141,61 @@ impl Source<'_> {
         (x0, (x - x0 as f64) as f32)
     }
 
-    /// Each crop pixel's sums over its `offsets`² sample points (mask-weighted RGB and
-    /// mask coverage), the points mapped to the source one by one: crop (cu, cv) to image
-    /// by `to_image`, image to source by `map`.
-    fn mapped_sums(&self, size: usize, offsets: &[f64], to_image: &(dyn Fn(f64, f64) -> (f64, f64) + Sync), map: &(dyn Fn(f64, f64) -> (f64, f64) + Sync)) -> Vec<[f32; 4]> {
-        let mut sums = vec![[0f32; 4]; size * size];
-        sums.par_chunks_mut(size).enumerate().for_each(|(cv, row)| {
+    /// The sums (mask-weighted RGB and mask coverage) of each pixel of crop rows
+    /// `crop_rows` over its `offsets`² sample points, each point mapped to the source on
+    /// its own: crop to image by `b`, image to source by `map`.
+    fn mapped_sums(&self, size: usize, crop_rows: std::ops::Range<usize>, offsets: &[f64], b: &CropBox, map: &(dyn Fn(f64, f64) -> (f64, f64) + Sync)) -> Vec<[f32; 4]> {
+        let mut sums = vec![[0f32; 4]; crop_rows.len() * size];
+        for (cv, row) in crop_rows.zip(sums.chunks_mut(size.max(1))) {
             for (cu, acc) in row.iter_mut().enumerate() {
                 for &dv in offsets {
                     for &du in offsets {
-                        let (iu, iv) = to_image(cu as f64 + du, cv as f64 + dv);
+                        let (iu, iv) = b.to_image(cu as f64 + du, cv as f64 + dv);
                         let (su, sv) = map(iu, iv);
                         let ((u0, fu), (v0, fv)) = (Self::tap(su), Self::tap(sv));
                         self.add_taps(u0, fu, v0, fv, acc);
                     }
                 }
             }
-        });
+        }
         sums
     }
 
-    /// The same sums where each crop column samples the source at its own `sub` column
-    /// taps and each crop row at its row taps: bilinear interpolation is separable, so
-    /// every source row the row taps read is first interpolated at the column taps (once,
-    /// however many crop rows read it), and each crop pixel then blends those rows: about
-    /// a third of the per-tap work of `mapped_sums` for a crop that enlarges its source.
-    /// Equal to it up to float rounding (`tests`: within one level of 255). Bands of crop
-    /// rows, on all cores, each interpolate only the source rows they read: memory stays
-    /// a few rows per band however large the source and its window.
+    /// The same sums for the crop rows whose row taps are `rows` (`sub` per crop row),
+    /// each crop column sampling the source at its own `sub` column taps: bilinear
+    /// interpolation is separable, so every source row the rows read is first interpolated
+    /// at the column taps (once, however many crop rows read it), and each crop pixel then
+    /// blends those rows: about a third of the per-tap work of `mapped_sums` for a crop
+    /// that enlarges its source. Equal to it up to float rounding (`tests`: within one
+    /// level of 255). Only the source rows read are interpolated, so memory stays a few
+    /// rows per band however large the source and its window.
     fn separable_sums(&self, size: usize, sub: usize, columns: &[(i64, f32)], rows: &[(i64, f32)]) -> Vec<[f32; 4]> {
-        let mut sums = vec![[0f32; 4]; size * size];
-        sums.par_chunks_mut((size * CROP_ROWS_PER_BAND).max(1)).enumerate().for_each(|(band, out)| {
-            let first_row = band * CROP_ROWS_PER_BAND;
-            let taps = &rows[first_row * sub..(first_row + out.len() / size) * sub];
-            // The source rows the band reads (each tap reads v0 and v0 + 1), in the image.
-            let mut read: Vec<i64> = taps.iter().flat_map(|&(v0, _)| [v0, v0.saturating_add(1)]).filter(|&y| y >= 0 && y < self.h).collect();
-            read.sort_unstable();
-            read.dedup();
-            let mut across = vec![[0f32; 4]; read.len() * size];
-            for (&y, row) in read.iter().zip(across.chunks_mut(size)) {
-                for (cu, acc) in row.iter_mut().enumerate() {
-                    for &(u0, fu) in &columns[cu * sub..(cu + 1) * sub] {
-                        self.add_pixel(u0, y, 1.0 - fu, acc);
-                        self.add_pixel(u0.saturating_add(1), y, fu, acc);
-                    }
+        let mut sums = vec![[0f32; 4]; rows.len() / sub * size];
+        // The source rows read (each tap reads v0 and v0 + 1), in the image.
+        let mut read: Vec<i64> = rows.iter().flat_map(|&(v0, _)| [v0, v0.saturating_add(1)]).filter(|&y| y >= 0 && y < self.h).collect();
+        read.sort_unstable();
+        read.dedup();
+        let mut across = vec![[0f32; 4]; read.len() * size];
+        for (&y, row) in read.iter().zip(across.chunks_mut(size.max(1))) {
+            for (cu, acc) in row.iter_mut().enumerate() {
+                for &(u0, fu) in &columns[cu * sub..(cu + 1) * sub] {
+                    self.add_pixel(u0, y, 1.0 - fu, acc);
+                    self.add_pixel(u0.saturating_add(1), y, fu, acc);
                 }
             }
-            for (crop_row, out) in taps.chunks(sub).zip(out.chunks_mut(size)) {
-                for &(v0, fv) in crop_row {
-                    for (y, wgt) in [(v0, 1.0 - fv), (v0.saturating_add(1), fv)] {
-                        let Ok(r) = read.binary_search(&y) else { continue };
-                        if wgt == 0.0 {
-                            continue;
-                        }
-                        for (acc, a) in out.iter_mut().zip(&across[r * size..(r + 1) * size]) {
-                            for k in 0..4 {
-                                acc[k] += a[k] * wgt;
-                            }
+        }
+        for (crop_row, out) in rows.chunks(sub).zip(sums.chunks_mut(size.max(1))) {
+            for &(v0, fv) in crop_row {
+                for (y, wgt) in [(v0, 1.0 - fv), (v0.saturating_add(1), fv)] {
+                    let Some(r) = read.binary_search(&y).ok().filter(|_| wgt != 0.0) else { continue };
+                    for (acc, a) in out.iter_mut().zip(&across[r * size..(r + 1) * size]) {
+                        for k in 0..4 {
+                            acc[k] += a[k] * wgt;
                         }
                     }
                 }
             }
-        });
+        }
         sums
     }
 
