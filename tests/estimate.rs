@@ -285,3 +285,33 @@ fn hints_and_nudges_are_verified_with_the_other_hypotheses() {
     let hint = verified.iter().find(|v| v.source == Source::Hint(0)).expect("the hint is verified");
     assert!(mssd(&hint.pose, &inst.pose, f.model.mesh.positions()) < 0.05 * d, "the refined truth stays right");
 }
+
+/// Where PnP finds no pose (here it is asked for more inliers than there can be matches),
+/// verification starts from the template with the most matches instead and still finds
+/// the box; without verification the mask has no pose and says why.
+#[test]
+fn verification_starts_from_a_template_where_pnp_finds_no_pose() {
+    use b2tfpose::estimate::hypotheses::Source;
+    let f = fixture();
+    let s = scene(1);
+    let inst = &s.instances[0];
+    let det = [Detection { mask: inst.mask_visib.clone(), score: 0.9 }];
+    let mut cfg = EstimateConfig::default();
+    cfg.pnp.min_inliers = 1_000_000;
+    let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &det, &cfg).unwrap();
+    let h = &r.hypotheses[0];
+    let sources: Vec<Source> = h.verified.iter().map(|v| v.source).collect();
+    assert!(!sources.contains(&Source::Pipeline), "no PnP pose to verify: {sources:?}");
+    assert!(sources.contains(&Source::Matched(0)) || sources.contains(&Source::Template(0)), "{sources:?}");
+    assert!(sources.iter().any(|s| matches!(s, Source::Flip(_))), "the start's flips are verified too: {sources:?}");
+    assert!(h.failure.is_none(), "{:?}", h.failure);
+    let pose = r.pose.expect("a pose from verification");
+    let e = mssd(&pose, &inst.pose, f.model.mesh.positions());
+    assert!(e < 0.1 * f.model.diameter(), "MSSD {:.1} mm", e * 1e3);
+
+    cfg.verify.enabled = false;
+    let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &det, &cfg).unwrap();
+    assert!(r.pose.is_none());
+    let why = r.reason.expect("a reason");
+    assert!(why.contains("no pose from"), "{why}");
+}

@@ -57,14 +57,15 @@ impl std::fmt::Display for Source {
     }
 }
 
-/// The pipeline's pose, that pose `replaced` at the mask where given, the nine axis
-/// variants and the spins (`spin_steps` equal steps of a whole turn about each object
-/// axis, the quarter turns left out as the variants hold them; 0 or 4 adds none) of the
-/// re-placed pose if any, else of the pipeline's, and the first `templates` retrieved
-/// templates placed in the query crop (`templates` and `spin_steps` of `cfg`).
-pub fn candidates(model: &ObjectModel, pose: &Pose, replaced: Option<&Pose>, retrieved: &[usize], cfg: &super::VerifyConfig, query_crop: &CropBox, k: &Intrinsics) -> Vec<(Source, Pose)> {
+/// The start (the pipeline's pose, or `start_without_pnp`'s, labelled by where it came
+/// from), that pose `replaced` at the mask where given, the nine axis variants and the
+/// spins (`spin_steps` equal steps of a whole turn about each object axis, the quarter
+/// turns left out as the variants hold them; 0 or 4 adds none) of the re-placed pose if
+/// any, else of the start, and the first `templates` retrieved templates placed in the
+/// query crop (`templates` and `spin_steps` of `cfg`; the start not twice).
+pub fn candidates(model: &ObjectModel, (start, pose): (Source, &Pose), replaced: Option<&Pose>, retrieved: &[usize], cfg: &super::VerifyConfig, query_crop: &CropBox, k: &Intrinsics) -> Vec<(Source, Pose)> {
     let centre = Vector3::from(model.mesh.bbox_center());
-    let mut out = vec![(Source::Pipeline, *pose)];
+    let mut out = vec![(start, *pose)];
     let base = match replaced {
         Some(r) => {
             out.push((Source::Replaced, *r));
@@ -75,11 +76,28 @@ pub fn candidates(model: &ObjectModel, pose: &Pose, replaced: Option<&Pose>, ret
     out.extend(flips(model, base).map(|(i, p)| (Source::Flip(i), p)));
     out.extend(spins(base, &centre, cfg.spin_steps));
     for (i, &t) in retrieved.iter().take(cfg.templates).enumerate() {
+        if Source::Template(i) == start {
+            continue;
+        }
         if let Some(p) = place_template(model, t, query_crop, k) {
             out.push((Source::Template(i), p));
         }
     }
     out
+}
+
+/// Where verification starts when PnP found no pose (too few or too scattered matches: a
+/// small, blurred or mostly hidden object): the template with the most matches where its
+/// matches put it (`matched`, most first), else the best retrieved template placed at the
+/// mask; `None` where neither exists. Its flips, spins and the other templates are then
+/// verified as they would be about a PnP pose, so a failed PnP costs the estimate a
+/// start, not the answer.
+pub fn start_without_pnp(model: &ObjectModel, matched: &[Pose], retrieved: &[usize], query_crop: &CropBox, k: &Intrinsics) -> Option<(Source, Pose)> {
+    if let Some(&p) = matched.first() {
+        return Some((Source::Matched(0), p));
+    }
+    let &t = retrieved.first()?;
+    place_template(model, t, query_crop, k).map(|p| (Source::Template(0), p))
 }
 
 /// The nine axis variants of `pose` (90°, 180° and 270° about each object axis through

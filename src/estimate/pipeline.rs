@@ -1,5 +1,6 @@
 //! The online stage end to end (DESIGN.md steps 4–10) for one object in one image.
 
+use super::hypotheses::Source;
 use super::correspond::{correspond, Correspondences};
 use super::pnp::{solve_pnp_ransac, PnpConfig, PnpResult};
 use super::query::{crop_all, encode, QueryView};
@@ -271,16 +272,25 @@ impl Estimator {
             let _mask_span = tracing::info_span!("mask", index = mi).entered();
             let mut h = Hypothesis { mask_index: mi, detector_score: detections[mi].score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() };
             let (retrieved, matched) = self.pose_for_mask(model, q, (image, &detections[mi].mask), k, cfg, &mut h, &mut timings)?;
-            if let Some(p) = h.pose {
+            let start = match h.pose {
+                Some(p) => Some((Source::Pipeline, p)),
+                None if cfg.verify.enabled => super::hypotheses::start_without_pnp(model, &matched, &retrieved, &q.crop_box, k),
+                None => None,
+            };
+            if let Some((source, p)) = start {
                 let ctx = RefineContext { model, image, intrinsics: k, mask: &detections[mi].mask, unknown: others, mask_is_probability: false };
                 let t = Instant::now();
                 let _span = tracing::info_span!("refine", refiner = cfg.refiner.name(), verify = cfg.verify.enabled).entered();
                 if cfg.verify.enabled {
-                    h.verified = self.verify(&ctx, p, &retrieved, (&matched, hints), q, cfg)?;
+                    h.verified = self.verify(&ctx, (source, p), &retrieved, (&matched, hints), q, cfg)?;
                     if let Some(best) = h.verified.first_mut() {
                         h.pose = Some(best.pose);
                         h.refinement = Some(best.refinement.clone());
                         h.render = best.render.take();
+                        // PnP's failure (kept in the trace) no longer leaves the mask without a pose.
+                        if let Some(why) = h.failure.take() {
+                            tracing::debug!(%why, start = %source, "verified from a template where PnP found no pose");
+                        }
                     }
                 } else {
                     match self.refiner(cfg.refiner).refine(&ctx, p) {
@@ -328,11 +338,11 @@ impl Estimator {
     /// for all, then a render (IoU, appearance) for the best by contour and those the
     /// outline cannot tell from it (`verify::to_render`), then, where nothing the winner
     /// shows agrees with the photo's print, a second look (`second_look`). Best first.
-    fn verify(&self, ctx: &RefineContext<'_>, pose: Pose, retrieved: &[usize], (matched, hints): (&[Pose], &[Pose]), query: &QueryView, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
+    fn verify(&self, ctx: &RefineContext<'_>, (start, pose): (Source, Pose), retrieved: &[usize], (matched, hints): (&[Pose], &[Pose]), query: &QueryView, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
         let replaced = crate::features::mask_bbox(ctx.mask).filter(|_| cfg.verify.replace_off_mask).and_then(|b| super::hypotheses::replaced_at_mask(&ctx.model.mesh, &pose, b, ctx.intrinsics));
-        let mut candidates = super::hypotheses::candidates(ctx.model, &pose, replaced.as_ref(), retrieved, &cfg.verify, &query.crop_box, ctx.intrinsics);
-        candidates.extend(matched.iter().enumerate().map(|(i, &p)| (super::hypotheses::Source::Matched(i), p)));
-        candidates.extend(hints.iter().enumerate().map(|(i, &p)| (super::hypotheses::Source::Hint(i), p)));
+        let mut candidates = super::hypotheses::candidates(ctx.model, (start, &pose), replaced.as_ref(), retrieved, &cfg.verify, &query.crop_box, ctx.intrinsics);
+        candidates.extend(matched.iter().enumerate().map(|(i, &p)| (Source::Matched(i), p)).filter(|&(s, _)| s != start));
+        candidates.extend(hints.iter().enumerate().map(|(i, &p)| (Source::Hint(i), p)));
         // Hypotheses that are the same pose up to the object's symmetry show the same image:
         // when asked, one of each is refined (the pipeline's pose comes first, so it stays).
         let symmetric = ctx.model.symmetries.as_ref().filter(|_| cfg.verify.skip_symmetric).and_then(|s| crate::geometry::symmetric_poses::SymmetricPoses::new(&s.symmetries, ctx.model.diameter()));
@@ -345,13 +355,13 @@ impl Estimator {
         let mut verified = self.refine_hypotheses(ctx, &candidates, cfg);
         verified.sort_by(|a, b| b.contour.total_cmp(&a.contour));
         let window = mask_window(ctx.mask).expect("validated non-empty");
-        // The pipeline's own pose is always rendered: it must be beaten on the evidence.
-        let pipeline = verified.iter().position(|v| v.source == super::hypotheses::Source::Pipeline);
-        let rendered = super::verify::to_render(&verified, pipeline, &cfg.verify);
+        // The start (the pipeline's own pose) is always rendered: it must be beaten on the evidence.
+        let first = verified.iter().position(|v| v.source == start);
+        let rendered = super::verify::to_render(&verified, first, &cfg.verify);
         self.judge(ctx, &mut verified, &rendered, window, query, cfg)?;
         verified.sort_by(|a, b| b.score.total_cmp(&a.score));
         if cfg.verify.second_look {
-            self.second_look(ctx, &mut verified, window, query, cfg)?;
+            self.second_look(ctx, &mut verified, start, window, query, cfg)?;
         }
         if cfg.verify.nudge_degrees > 0.0 {
             self.nudge(ctx, &mut verified, window, query, cfg)?;
@@ -365,7 +375,7 @@ impl Estimator {
 
     /// Each candidate refined, with its contour agreement; those the refiner fails on are
     /// left out. Not yet rendered or scored.
-    fn refine_hypotheses(&self, ctx: &RefineContext<'_>, candidates: &[(super::hypotheses::Source, Pose)], cfg: &EstimateConfig) -> Vec<Verified> {
+    fn refine_hypotheses(&self, ctx: &RefineContext<'_>, candidates: &[(Source, Pose)], cfg: &EstimateConfig) -> Vec<Verified> {
         let refiner = self.refiner(cfg.refiner);
         candidates
             .par_iter()
@@ -416,7 +426,7 @@ impl Estimator {
 
     /// The `keep` candidates whose outline agrees best with the mask where they start, and
     /// the pipeline's pose (the first) whatever its agreement, in their order.
-    fn most_agreeing(&self, ctx: &RefineContext<'_>, candidates: Vec<(super::hypotheses::Source, Pose)>, keep: usize) -> Vec<(super::hypotheses::Source, Pose)> {
+    fn most_agreeing(&self, ctx: &RefineContext<'_>, candidates: Vec<(Source, Pose)>, keep: usize) -> Vec<(Source, Pose)> {
         let scores: Vec<f64> = candidates.par_iter().map(|(_, p)| self.contour.agreement(ctx, p).map_or(f64::NEG_INFINITY, |a| a.score)).collect();
         let kept = super::verify::first_and_best(&scores, keep);
         candidates.into_iter().zip(kept).filter_map(|(c, k)| k.then_some(c)).collect()

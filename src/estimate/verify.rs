@@ -311,18 +311,19 @@ pub fn render_evidence(renderer: &RenderPool, mesh: &crate::mesh::Mesh, poses: &
 
 /// Which hypotheses (sorted by contour agreement, best first) get a render: the first
 /// `rendered`, then any within `contour_tie` of the best up to `max_rendered`, and the
-/// pipeline's own pose (index `pipeline`) in any case: it must be beaten on the evidence.
-pub fn to_render(sorted: &[Verified], pipeline: Option<usize>, cfg: &VerifyConfig) -> Vec<usize> {
+/// start (index `start`: the pipeline's own pose) in any case: it must be beaten on the
+/// evidence.
+pub fn to_render(sorted: &[Verified], start: Option<usize>, cfg: &VerifyConfig) -> Vec<usize> {
     let best = sorted.first().map_or(0.0, |v| v.contour);
     let cap = cfg.max_rendered.max(cfg.rendered);
     let mut out: Vec<usize> = (0..sorted.len()).filter(|&i| i < cfg.rendered || sorted[i].contour >= best - cfg.contour_tie).take(cap).collect();
-    if let Some(p) = pipeline.filter(|p| !out.contains(p)) {
+    if let Some(p) = start.filter(|p| !out.contains(p)) {
         out.push(p);
     }
     out
 }
 
-/// Which of `scores` to keep: the first (the pipeline's pose) and the best others, `keep`
+/// Which of `scores` to keep: the first (the start: the pipeline's pose) and the best others, `keep`
 /// in all; equal scores go to the earlier.
 pub fn first_and_best(scores: &[f64], keep: usize) -> Vec<bool> {
     let mut order: Vec<usize> = (1..scores.len()).collect();

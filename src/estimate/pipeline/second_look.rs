@@ -37,11 +37,12 @@ fn needed(sorted: &[Verified], colour_share: f64) -> bool {
 
 /// The hypotheses of `sorted` (winner first) whose flips the second look tries: up to
 /// [`FLIPPED`] whose print confirms something and agrees better than the winner's, best
-/// print first. Not the pipeline's pose: its flips were hypotheses from the start.
-fn flip_sources(sorted: &[Verified], colour_share: f64) -> Vec<usize> {
+/// print first. Not the start (`start`: the pipeline's pose): its flips were hypotheses
+/// from the start.
+fn flip_sources(sorted: &[Verified], start: Source, colour_share: f64) -> Vec<usize> {
     let winner = sorted.first().and_then(|w| print(w, colour_share)).unwrap_or(0.0);
     let mut printed: Vec<(usize, f64)> = (0..sorted.len())
-        .filter(|&i| sorted[i].source != Source::Pipeline)
+        .filter(|&i| sorted[i].source != start)
         .filter_map(|i| print(&sorted[i], colour_share).map(|p| (i, p)))
         .filter(|&(_, p)| p >= CONFIRMS && p > winner)
         .collect();
@@ -53,7 +54,7 @@ impl Estimator {
     /// Takes the second look where [`needed`]: renders the hypotheses not rendered yet,
     /// and adds the nine axis flips of the best prints ([`flip_sources`]), refined and
     /// rendered. `verified` is sorted best first before and after.
-    pub(super) fn second_look(&self, ctx: &RefineContext<'_>, verified: &mut Vec<Verified>, window: (u32, u32, u32, u32), query: &QueryView, cfg: &EstimateConfig) -> Result<(), EstimateError> {
+    pub(super) fn second_look(&self, ctx: &RefineContext<'_>, verified: &mut Vec<Verified>, start: Source, window: (u32, u32, u32, u32), query: &QueryView, cfg: &EstimateConfig) -> Result<(), EstimateError> {
         let share = cfg.verify.colour_share;
         if !needed(verified, share) {
             return Ok(());
@@ -61,7 +62,7 @@ impl Estimator {
         let unrendered: Vec<usize> = (0..verified.len()).filter(|&i| verified[i].iou.is_nan()).collect();
         self.judge(ctx, verified, &unrendered, window, query, cfg)?;
         let mut more = Vec::new();
-        for i in flip_sources(verified, share) {
+        for i in flip_sources(verified, start, share) {
             tracing::debug!(source = %verified[i].source, "second look: the flips of a best print");
             let candidates: Vec<(Source, _)> = flips(ctx.model, &verified[i].pose).map(|(k, pose)| (Source::PrintFlip(k), pose)).collect();
             more.extend(self.refine_hypotheses(ctx, &candidates, cfg));
@@ -99,7 +100,7 @@ mod tests {
     }
 
     /// The flips tried are those of the best prints that beat the winner's and confirm
-    /// something, at most two, never the pipeline's pose.
+    /// something, at most two, never the start's (the pipeline's pose).
     #[test]
     fn flips_of_the_best_prints_but_not_the_pipelines() {
         let with = |source, edges, colour| Verified { source, ..rendered(edges, colour) };
@@ -111,7 +112,9 @@ mod tests {
             with(Source::Spin { axis: 0, degrees: 45 }, 0.12, 0.2),
             with(Source::Flip(3), 0.05, 0.05),
         ];
-        assert_eq!(flip_sources(&sorted, 0.5), vec![3, 4]);
-        assert!(flip_sources(&sorted[..2], 0.5).is_empty(), "only the pipeline's print beats the winner's");
+        assert_eq!(flip_sources(&sorted, Source::Pipeline, 0.5), vec![3, 4]);
+        assert!(flip_sources(&sorted[..2], Source::Pipeline, 0.5).is_empty(), "only the pipeline's print beats the winner's");
+        // Where PnP found no pose, the start is a template, and its flips are left out too.
+        assert_eq!(flip_sources(&sorted, Source::Matched(2), 0.5), vec![1, 4]);
     }
 }
