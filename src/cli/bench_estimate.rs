@@ -38,6 +38,10 @@ pub struct BenchEstimateArgs {
     /// backbone's crop size).
     #[arg(long)]
     pub rrc_render_scale: Option<f64>,
+    /// RRC's renders at most this many pixels a side, unless the object's window in the
+    /// photo is wider (default 256; 512 or more: no cap below the backbone's crop).
+    #[arg(long)]
+    pub rrc_render_cap: Option<u32>,
     /// Refiner after PnP/RRC: none (pass-through), silhouette-depth (scales the depth to
     /// the best silhouette IoU) or contour (aligns the outline with the mask).
     #[arg(long, value_enum, default_value_t = crate::estimate::RefinerKind::default())]
@@ -328,6 +332,9 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     }
     if let Some(s) = a.rrc_render_scale {
         base.rrc_render_scale = s;
+    }
+    if let Some(c) = a.rrc_render_cap {
+        base.rrc_render_cap = c;
     }
     base.verify = a.verify.config();
     base.print = a.print_config.unwrap_or_default();

@@ -51,17 +51,20 @@ pub fn sphere_window(pose: &Pose, centre: &Vector3<f64>, radius: f64, k: &Intrin
 }
 
 /// Side in pixels of a render of a window `side` image pixels wide: `scale` render pixels
-/// per image pixel, between 64 and `crop` (the backbone's crop, which every render is
-/// resized to); `crop` itself where `scale` is 0 or less.
-pub fn render_side(side: f64, scale: f64, crop: u32) -> u32 {
+/// per image pixel, but no more than `cap` unless the window itself is wider (then one
+/// render pixel per image pixel: never coarser than the photo), between 64 and `crop`
+/// (the backbone's crop, which every render is resized to); `crop` itself where `scale`
+/// is 0 or less.
+pub fn render_side(side: f64, scale: f64, cap: u32, crop: u32) -> u32 {
     if scale <= 0.0 || !side.is_finite() {
         return crop;
     }
-    ((side * scale).ceil().min(crop as f64) as u32).max(64.min(crop))
+    ((side * scale).ceil().min((cap as f64).max(side.ceil())).min(crop as f64) as u32).max(64.min(crop))
 }
 
 /// The RRC patch pool around `pose`; empty if no variant rendered visibly. Each variant is
-/// rendered at `render_scale` pixels per image pixel of its window (`render_side`).
+/// rendered at `render_scale` pixels per image pixel of its window, at most `render_cap`
+/// pixels a side where the window is narrower than that (`render_side`).
 pub fn rrc_pool(
     model: &ObjectModel,
     pose: &Pose,
@@ -69,6 +72,7 @@ pub fn rrc_pool(
     backbone: &dyn Backbone,
     renderer: &RenderPool,
     render_scale: f64,
+    render_cap: u32,
 ) -> Result<PatchPool, super::EstimateError> {
     let (centre, radius) = bounding_sphere(model);
     let size = model.grid.n * model.grid.patch;
@@ -76,7 +80,7 @@ pub fn rrc_pool(
     for delta in variant_rotations() {
         let p = variant_pose(pose, &delta, &centre);
         if let Some(w) = sphere_window(&p, &centre, radius, k, size) {
-            let w = CropBox { size: render_side(w.side, render_scale, size), ..w };
+            let w = CropBox { size: render_side(w.side, render_scale, render_cap, size), ..w };
             views.push((p, w.intrinsics(k)));
         }
     }
@@ -108,13 +112,18 @@ mod tests {
 
     #[test]
     fn renders_follow_the_object_size_in_the_photo_up_to_the_crop() {
-        assert_eq!(render_side(100.0, 2.0, 512), 200);
-        assert_eq!(render_side(100.4, 2.0, 512), 201);
-        assert_eq!(render_side(300.0, 2.0, 512), 512);
-        assert_eq!(render_side(10.0, 2.0, 512), 64);
-        assert_eq!(render_side(100.0, 0.0, 512), 512);
-        assert_eq!(render_side(f64::NAN, 2.0, 512), 512);
-        assert_eq!(render_side(10.0, 2.0, 32), 32);
+        assert_eq!(render_side(100.0, 2.0, 512, 512), 200);
+        assert_eq!(render_side(100.4, 2.0, 512, 512), 201);
+        assert_eq!(render_side(300.0, 2.0, 512, 512), 512);
+        assert_eq!(render_side(10.0, 2.0, 512, 512), 64);
+        assert_eq!(render_side(100.0, 0.0, 512, 512), 512);
+        assert_eq!(render_side(f64::NAN, 2.0, 512, 512), 512);
+        assert_eq!(render_side(10.0, 2.0, 512, 32), 32);
+        // The cap holds the render below twice the window, never below the window itself.
+        assert_eq!(render_side(100.0, 2.0, 256, 512), 200);
+        assert_eq!(render_side(200.0, 2.0, 256, 512), 256);
+        assert_eq!(render_side(300.4, 2.0, 256, 512), 301);
+        assert_eq!(render_side(600.0, 2.0, 256, 512), 512);
     }
 
     #[test]
