@@ -315,3 +315,34 @@ fn verification_starts_from_a_template_where_pnp_finds_no_pose() {
     let why = r.reason.expect("a reason");
     assert!(why.contains("no pose from"), "{why}");
 }
+
+/// A refiner plugged in with `with_refiner` is the one that runs for its kind: its report
+/// is the one kept.
+#[test]
+fn a_plugged_refiner_runs_in_place_of_the_built_in_one() {
+    use b2tfpose::estimate::{RefineContext, RefineReport, Refined, Refiner, RefinerKind};
+    use b2tfpose::geometry::Pose;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    struct Marked(AtomicUsize);
+    impl Refiner for Marked {
+        fn name(&self) -> &str {
+            "marked"
+        }
+        fn refine(&self, _: &RefineContext<'_>, pose: Pose) -> Result<Refined, String> {
+            self.0.fetch_add(1, Ordering::Relaxed);
+            Ok(Refined { pose, report: RefineReport { residual_px: 42.0, ..Default::default() } })
+        }
+    }
+    let f = fixture();
+    let marked = Arc::new(Marked(AtomicUsize::new(0)));
+    let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap());
+    let estimator = Estimator::new(backbone, f.pool.clone()).with_refiner(RefinerKind::SilhouetteDepth, marked.clone());
+    assert_eq!(estimator.refiner(RefinerKind::SilhouetteDepth).name(), "marked");
+    let s = scene(1);
+    let det = [Detection { mask: s.instances[0].mask_visib.clone(), score: 0.9 }];
+    let mut cfg = EstimateConfig { refiner: RefinerKind::SilhouetteDepth, ..Default::default() };
+    cfg.verify.enabled = false;
+    let r = estimator.estimate(&f.model, &s.rgb, &s.cam, &det, &cfg).unwrap();
+    assert_eq!(marked.0.load(Ordering::Relaxed), 1, "one mask, one refinement");
+    assert_eq!(r.hypotheses[0].refinement.as_ref().map(|rep| rep.residual_px), Some(42.0));
+}
