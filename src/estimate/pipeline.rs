@@ -42,7 +42,7 @@ pub struct EstimateConfig {
     /// RRC's renders no wider than this many pixels, unless the object's window in the
     /// photo is wider still (then one render pixel per image pixel). 256 by measurement:
     /// against no cap (512, the backbone's crop) the same MSSD over seven generated sets
-    /// (one instance gained, one lost) for 6–9 % less time per estimate, most on larger
+    /// (one instance gained, one lost) for 1–9 % less time per estimate (3–37 ms), most on larger
     /// objects (docs/benchmarks.md, "RRC's renders capped at 256 pixels").
     #[serde(default = "default_rrc_render_cap")]
     pub rrc_render_cap: u32,
