@@ -355,7 +355,7 @@ impl Estimator {
         candidates.extend(matched.iter().enumerate().map(|(i, &p)| (Source::Matched(i), p)).filter(|&(s, _)| s != start));
         candidates.extend(hints.iter().enumerate().map(|(i, &p)| (Source::Hint(i), p)));
         // Hypotheses that are the same pose up to the object's symmetry show the same image:
-        // when asked, one of each is refined (the pipeline's pose comes first, so it stays).
+        // when asked, one of each is refined (the start comes first, so it stays).
         let symmetric = ctx.model.symmetries.as_ref().filter(|_| cfg.verify.skip_symmetric).and_then(|s| crate::geometry::symmetric_poses::SymmetricPoses::new(&s.symmetries, ctx.model.diameter()));
         if let Some(s) = &symmetric {
             candidates = s.distinct(candidates, |(_, p)| p);
@@ -436,7 +436,7 @@ impl Estimator {
     }
 
     /// The `keep` candidates whose outline agrees best with the mask where they start, and
-    /// the pipeline's pose (the first) whatever its agreement, in their order.
+    /// the start (the first: the pipeline's pose) whatever its agreement, in their order.
     fn most_agreeing(&self, ctx: &RefineContext<'_>, candidates: Vec<(Source, Pose)>, keep: usize) -> Vec<(Source, Pose)> {
         let scores: Vec<f64> = candidates.par_iter().map(|(_, p)| self.contour.agreement(ctx, p).map_or(f64::NEG_INFINITY, |a| a.score)).collect();
         let kept = super::verify::first_and_best(&scores, keep);

@@ -323,8 +323,8 @@ pub fn to_render(sorted: &[Verified], start: Option<usize>, cfg: &VerifyConfig) 
     out
 }
 
-/// Which of `scores` to keep: the first (the start: the pipeline's pose) and the best others, `keep`
-/// in all; equal scores go to the earlier.
+/// Which of `scores` to keep: the first (the start: the pipeline's pose) and the best
+/// others, `keep` in all; equal scores go to the earlier.
 pub fn first_and_best(scores: &[f64], keep: usize) -> Vec<bool> {
     let mut order: Vec<usize> = (1..scores.len()).collect();
     order.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]).then(a.cmp(&b)));
