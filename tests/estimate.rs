@@ -36,6 +36,11 @@ fn scene(seed: u64) -> b2tfpose::eval::scenes::SceneImage {
     generate_image(&[(1, f.model.mesh.clone())], &cfg, &f.pool, 0).unwrap()
 }
 
+/// The scene's one instance as a detection: its visible mask, scored 0.9.
+fn true_detection(s: &b2tfpose::eval::scenes::SceneImage) -> [Detection; 1] {
+    [Detection { mask: s.instances[0].mask_visib.clone(), score: 0.9 }]
+}
+
 #[test]
 fn recovers_the_pose_of_the_box_in_generated_scenes() {
     let f = fixture();
@@ -44,7 +49,7 @@ fn recovers_the_pose_of_the_box_in_generated_scenes() {
     for &seed in &seeds {
         let s = scene(seed);
         let inst = &s.instances[0];
-        let det = [Detection { mask: inst.mask_visib.clone(), score: 0.9 }];
+        let det = true_detection(&s);
         let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &det, &EstimateConfig::default()).unwrap();
         let h = &r.hypotheses[0];
         assert!(h.matches >= h.inliers && h.retrieved_templates > 0, "{h:?}");
@@ -180,7 +185,7 @@ fn pca_compressed_model_stores_smaller_and_still_finds_the_pose() {
     for seed in [1u64, 2, 3, 4] {
         let s = scene(seed);
         let inst = &s.instances[0];
-        let det = [Detection { mask: inst.mask_visib.clone(), score: 0.9 }];
+        let det = true_detection(&s);
         let r = f.estimator.estimate(&back, &s.rgb, &s.cam, &det, &EstimateConfig::default()).unwrap();
         // RRC matches fresh (uncompressed) render descriptors against the raw query ones.
         assert!(r.hypotheses[0].rrc_matches > 0, "{:?}", r.hypotheses[0]);
@@ -213,7 +218,7 @@ fn rows_per_view_model_stores_smaller_and_still_finds_the_pose() {
     for seed in [1u64, 2, 3, 4] {
         let s = scene(seed);
         let inst = &s.instances[0];
-        let det = [Detection { mask: inst.mask_visib.clone(), score: 0.9 }];
+        let det = true_detection(&s);
         let r = f.estimator.estimate(&back, &s.rgb, &s.cam, &det, &cfg).unwrap();
         assert!(r.hypotheses[0].inliers > 0, "{:?}", r.hypotheses[0]);
         if r.pose.is_some_and(|p| mssd(&p, &inst.pose, back.mesh.positions()) < 0.1 * back.diameter()) {
@@ -234,7 +239,7 @@ fn feature_metric_verification_scores_rendered_hypotheses() {
     for seed in [1u64, 2, 3] {
         let s = scene(seed);
         let inst = &s.instances[0];
-        let det = [Detection { mask: inst.mask_visib.clone(), score: 0.9 }];
+        let det = true_detection(&s);
         let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &det, &cfg).unwrap();
         let verified = &r.hypotheses[0].verified;
         assert!(!verified.is_empty());
@@ -268,7 +273,7 @@ fn hints_and_nudges_are_verified_with_the_other_hypotheses() {
     let f = fixture();
     let s = scene(2);
     let inst = &s.instances[0];
-    let det = [Detection { mask: inst.mask_visib.clone(), score: 0.9 }];
+    let det = true_detection(&s);
     let cfg = EstimateConfig::default();
     assert!(cfg.verify.nudge_degrees > 0.0, "nudged by default");
     let r = f.estimator.estimate_hinted(&f.model, &s.rgb, &s.cam, &det, None, &[inst.pose], &cfg).unwrap();
@@ -295,7 +300,7 @@ fn verification_starts_from_a_template_where_pnp_finds_no_pose() {
     let f = fixture();
     let s = scene(1);
     let inst = &s.instances[0];
-    let det = [Detection { mask: inst.mask_visib.clone(), score: 0.9 }];
+    let det = true_detection(&s);
     let mut cfg = EstimateConfig::default();
     cfg.pnp.min_inliers = 1_000_000;
     let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &det, &cfg).unwrap();
@@ -339,7 +344,7 @@ fn a_plugged_refiner_runs_in_place_of_the_built_in_one() {
     let estimator = Estimator::new(backbone, f.pool.clone()).with_refiner(RefinerKind::SilhouetteDepth, marked.clone());
     assert_eq!(estimator.refiner(RefinerKind::SilhouetteDepth).name(), "marked");
     let s = scene(1);
-    let det = [Detection { mask: s.instances[0].mask_visib.clone(), score: 0.9 }];
+    let det = true_detection(&s);
     let mut cfg = EstimateConfig { refiner: RefinerKind::SilhouetteDepth, ..Default::default() };
     cfg.verify.enabled = false;
     let r = estimator.estimate(&f.model, &s.rgb, &s.cam, &det, &cfg).unwrap();
