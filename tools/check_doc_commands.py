@@ -19,7 +19,7 @@ from functools import lru_cache
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-DOCS = [REPO / "README.md", REPO / "DESIGN.md", REPO / "clients/python/README.md", *sorted((REPO / "docs").glob("*.md"))]
+DOCS = [REPO / "README.md", REPO / "DESIGN.md", REPO / "clients/python/README.md", *sorted((REPO / "docs").rglob("*.md"))]
 # The CLI as a command's first word.
 CLI = re.compile(r"^(?:\$B2TF|b2tf|(?:\./)?target/(?:release|debug)/b2tf)$")
 # Repository scripts and tools people are told to run.

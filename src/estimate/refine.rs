@@ -16,7 +16,7 @@ pub enum RefinerKind {
     /// Scale the depth to the best silhouette IoU (a few renders).
     SilhouetteDepth,
     /// Align the projected contour with the mask's outline (no rendering). The default:
-    /// it measured best (docs/benchmarks.md, "Contour refiner").
+    /// it measured best (docs/benchmarks/estimation-verification.md, "Contour refiner").
     #[default]
     Contour,
 }

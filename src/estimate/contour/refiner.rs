@@ -59,7 +59,7 @@ pub enum PhotoEdges {
     /// inside the outline as far as the edge finder reads (`ContourModel::plain_share`), so
     /// that no print edge is there to be taken for the outline. On every line of textured
     /// objects, print edges beside the outline moved small objects' depths outward
-    /// (docs/benchmarks.md, "Outlines from the photo's edges").
+    /// (docs/benchmarks/estimation-outlines.md, "Outlines from the photo's edges").
     #[default]
     Plain,
     /// Every line of every object.
