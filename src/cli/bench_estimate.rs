@@ -114,6 +114,10 @@ pub struct BenchEstimateArgs {
     /// false}}'; `--print-rounds` overrides its rounds.
     #[arg(long, value_parser = parse_print_config)]
     pub print_config: Option<crate::estimate::contour::PrintRefineConfig>,
+    /// Estimate each instance again (with RRC) on its mask less one outline pixel, and print
+    /// how often that alone changes the verdict: the noise floor for comparing settings.
+    #[arg(long)]
+    pub stability: bool,
 }
 
 /// `truth` turned by each of `degrees` about a random axis (seeded) through the mesh's
@@ -350,6 +354,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     let configs = [("with RRC", base.clone()), ("without RRC", EstimateConfig { rrc: false, ..base.clone() })];
     let mut tallies: Vec<Tally> = configs.iter().map(|(n, _)| Tally { name: n, ..Default::default() }).collect();
     let mut instances = 0;
+    let mut stability = super::bench_stability::Stability::default();
     let mut boxes = BoxTally { segment: crate::masks::SegmentConfig { settle_outline: !a.raw_box_outline, ..Default::default() }, ..Default::default() };
     for dir in [&a.overlays, &a.mask_diffs].into_iter().flatten() {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create the folder {}", dir.display()))?;
@@ -378,6 +383,12 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                 tracing::debug!(image = im, obj_id = inst.obj_id, setting = t.name, "bench instance");
                 let hints = truth_hints(&inst.pose, &model.mesh, &a.truth_hints, im as u64 * 1000 + n as u64);
                 let r: EstimateResult = estimator.estimate_hinted(model, &scene.rgb, &scene.cam, &det, others.as_ref(), &hints, cfg)?;
+                if a.stability && cfg.rrc {
+                    let less = [Detection { mask: super::bench_stability::less_one_pixel(&det[0].mask), ..det[0].clone() }];
+                    let again = estimator.estimate_hinted(model, &scene.rgb, &scene.cam, &less, others.as_ref(), &hints, cfg)?;
+                    let error = |p: &Option<Pose>| p.as_ref().map(|p| mssd(p, &truth(p), model.mesh.positions()) / model.diameter());
+                    stability.push(error(&r.pose), error(&again.pose));
+                }
                 let tm = &r.timings;
                 t.stages.push([tm.crop, tm.features, tm.retrieval, tm.matching, tm.pnp, tm.rrc, tm.refine, tm.selection, tm.total]);
                 let bucket = size_bucket(&inst.mask);
@@ -464,6 +475,9 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     }
     if a.from_boxes {
         boxes.report();
+    }
+    if a.stability {
+        println!("{}", stability.report());
     }
     println!(
         "retrieval: k {}, NMS {}°, silhouette weight {}; PnP threshold {} px; refiner {}; verification {}",
