@@ -35,15 +35,17 @@ pub struct EstimateConfig {
     /// RRC renders each variant at this many pixels per image pixel of the object in the
     /// photo (at most the backbone's crop; 0: at the crop's size, as the paper). 2 by
     /// measurement: the same MSSD as the crop's size over seven generated sets (one
-    /// instance more in all) for 10–15 % less time per estimate (docs/benchmarks/estimation-outlines.md,
-    /// "Each face drawn once, closed meshes one-sided").
+    /// instance more in all) for 10–15 % less time per estimate
+    /// (docs/benchmarks/estimation-outlines.md, "Each face drawn once, closed meshes
+    /// one-sided").
     #[serde(default = "default_rrc_render_scale")]
     pub rrc_render_scale: f64,
     /// RRC's renders no wider than this many pixels, unless the object's window in the
     /// photo is wider still (then one render pixel per image pixel). 256 by measurement:
     /// against no cap (512, the backbone's crop) the same MSSD over seven generated sets
-    /// (one instance gained, one lost) for 1–9 % less time per estimate (3–37 ms), most on larger
-    /// objects (docs/benchmarks/estimation-occlusion-and-speed.md, "RRC's renders capped at 256 pixels").
+    /// (one instance gained, one lost) for 1–9 % less time per estimate (3–37 ms), most on
+    /// larger objects (docs/benchmarks/estimation-occlusion-and-speed.md, "RRC's renders
+    /// capped at 256 pixels").
     #[serde(default = "default_rrc_render_cap")]
     pub rrc_render_cap: u32,
     /// Candidate masks per object, and the detector score they need (the best one is kept

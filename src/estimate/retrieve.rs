@@ -15,7 +15,8 @@ pub struct RetrievalConfig {
     /// Keep every template (ablation: no retrieval at all).
     pub all_templates: bool,
     /// Weight of the silhouette IoU added to the cosine similarity. 0 by default: on the
-    /// generated HOPE benchmark it did not help (docs/benchmarks/estimation-verification.md, "Silhouette in retrieval").
+    /// generated HOPE benchmark it did not help
+    /// (docs/benchmarks/estimation-verification.md, "Silhouette in retrieval").
     pub silhouette_weight: f32,
 }
 

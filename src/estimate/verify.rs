@@ -15,9 +15,10 @@ use rayon::prelude::*;
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct VerifyConfig {
-    /// Refine and verify the extra hypotheses at all (off: the pipeline's pose alone). On by
-    /// default: on generated HOPE scenes it gained 2–16 points of MSSD recall for about
-    /// 0.1 s per instance on 2 CPU cores (docs/benchmarks/estimation-verification.md, "Contour refiner").
+    /// Refine and verify the extra hypotheses at all (off: the pipeline's pose alone). On
+    /// by default: on generated HOPE scenes it gained 2–16 points of MSSD recall for about
+    /// 0.1 s per instance on 2 CPU cores (docs/benchmarks/estimation-verification.md,
+    /// "Contour refiner").
     pub enabled: bool,
     /// Retrieved templates placed at the mask as extra hypotheses.
     pub templates: usize,
@@ -49,9 +50,10 @@ pub struct VerifyConfig {
     /// Share of the backbone's own dense descriptors in the appearance term
     /// (`feature_agreement`: the render and the photo encoded on the same crop, compared
     /// patch by patch); the rest is edges and colour. 0 skips the extra backbone pass. 0.5
-    /// by measurement (docs/benchmarks/estimation-verification.md, "Feature-metric verification"): it separated
-    /// right from wrong hypotheses best of all terms on default, harsh and gap scenes, and
-    /// picked 2 more right poses of 120 for one batched backbone pass over the renders.
+    /// by measurement (docs/benchmarks/estimation-verification.md, "Feature-metric
+    /// verification"): it separated right from wrong hypotheses best of all terms on
+    /// default, harsh and gap scenes, and picked 2 more right poses of 120 for one batched
+    /// backbone pass over the renders.
     pub feature_share: f64,
     /// Hypotheses refined in full: the best this many by contour agreement where they
     /// start, and the pipeline's pose always; 0 refines all.
@@ -74,22 +76,25 @@ pub struct VerifyConfig {
     /// four tilts and judge those the refiner does not bring back (`pipeline::nudge`); 0:
     /// off, at most [`MAX_NUDGE_DEGREES`]. 8 by measurement: on generated HOPE scenes it
     /// gained 1.2–7.5 points of MSSD recall on nine of ten sets, from true masks, boxes and
-    /// harsh scenes (small objects settled 4–8° off, their depth pulled to fit the outline),
-    /// for 20–55 ms more per instance on 2 CPU cores (docs/benchmarks/estimation-boxes-and-nudges.md, "The nudge across
-    /// the line of sight").
+    /// harsh scenes (small objects settled 4–8° off, their depth pulled to fit the
+    /// outline), for 20–55 ms more per instance on 2 CPU cores
+    /// (docs/benchmarks/estimation-boxes-and-nudges.md, "The nudge across the line of
+    /// sight").
     pub nudge_degrees: f64,
 }
 
 impl Default for VerifyConfig {
     fn default() -> Self {
-        // Measured on 400 generated HOPE instances (docs/benchmarks/estimation-verification.md, "Contour refiner"):
-        // 10 templates and 45° spins give the right pose a candidate far more often than 3
-        // templates and the flips alone (oracle 79.5 → 88.5 % on seed 7), colour agreement
-        // picks it more often (+1–1.5 points at any share from 0.25 to 1), and 12 renders
-        // keep most of what rendering all would. Half of those 10 templates are now the
-        // ones with the most matches, placed by their matches: right more often than the
-        // retrieved ones placed at the mask, for the same time (docs/benchmarks/estimation-occlusion-and-speed.md,
-        // "Templates placed by their matches").
+        // Measured on 400 generated HOPE instances
+        // (docs/benchmarks/estimation-verification.md, "Contour refiner"): 10 templates and
+        // 45° spins give the right pose a candidate far more often than 3 templates and the
+        // flips alone (oracle 79.5 → 88.5 % on seed 7), colour agreement picks it more
+        // often (+1–1.5 points at any share from 0.25 to 1), and 12 renders keep most of
+        // what rendering all would. Half of those 10 templates are now the ones with the
+        // most matches, placed by their matches: right more often than the retrieved ones
+        // placed at the mask, for the same time
+        // (docs/benchmarks/estimation-occlusion-and-speed.md, "Templates placed by their
+        // matches").
         Self { enabled: true, templates: 5, matched_templates: 5, spin_steps: 8, rendered: 3, contour_tie: 0.05, max_rendered: 12, weights: [0.4, 0.3, 0.3], colour_share: 0.5, skip_symmetric: false, feature_share: 0.5, refined: 0, second_look: true, occlusion_aware_iou: true, replace_off_mask: true, nudge_degrees: 8.0 }
     }
 }

@@ -81,12 +81,12 @@ struct RimPoint {
 }
 
 /// Largest grey-level difference (0–255) from the rim's own colour that still counts as the
-/// same plain surface. Scanned textures darken towards the rim (their lighting is baked in),
-/// so the photo-edge finder's least clear edge (12) ended most runs within a pixel or two
-/// and left 13 % of the HOPE objects' lines on the photo's edges; at 30 the pipeline on
-/// those objects from boxes did best (docs/benchmarks/estimation-outlines.md, "Outlines from the photo's
-/// edges"). A smooth darkening that remains is the edge finder's to refuse (a run lopsided
-/// about its centroid).
+/// same plain surface. Scanned textures darken towards the rim (their lighting is baked
+/// in), so the photo-edge finder's least clear edge (12) ended most runs within a pixel or
+/// two and left 13 % of the HOPE objects' lines on the photo's edges; at 30 the pipeline on
+/// those objects from boxes did best (docs/benchmarks/estimation-outlines.md, "Outlines
+/// from the photo's edges"). A smooth darkening that remains is the edge finder's to refuse
+/// (a run lopsided about its centroid).
 const PLAIN_TOLERANCE: f32 = 30.0;
 
 /// Views rendered at once (bounds memory: renders are small, but keep batches modest).

@@ -17,10 +17,10 @@ pub struct RendererConfig {
     /// Meshes kept uploaded per renderer (least recently used evicted first); at least 1.
     pub max_cached_meshes: usize,
     /// Skip the triangles facing away from the camera on closed meshes (`mesh::surface`),
-    /// which cannot show from outside: the same images in about half the time on a
-    /// software rasteriser (docs/benchmarks/estimation-outlines.md, "Each face drawn once, closed meshes
-    /// one-sided"). A camera inside a closed mesh sees nothing of it, where two-sided
-    /// drawing shows its inside.
+    /// which cannot show from outside: the same images in about half the time on a software
+    /// rasteriser (docs/benchmarks/estimation-outlines.md, "Each face drawn once, closed
+    /// meshes one-sided"). A camera inside a closed mesh sees nothing of it, where
+    /// two-sided drawing shows its inside.
     pub cull_closed_meshes: bool,
     /// Draw a face that repeats an earlier one exactly only once (`mesh::surface`).
     pub drop_repeated_faces: bool,
