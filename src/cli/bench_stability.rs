@@ -20,8 +20,8 @@ pub fn less_one_pixel(mask: &GrayImage) -> GrayImage {
 /// Outcomes of the estimate on the mask as given and on the mask less one pixel.
 #[derive(Default)]
 pub struct Stability {
-    /// (right as given, right less one pixel, MSSD change over the diameter; ∞ where only one
-    /// of the two found a pose).
+    /// (right as given, right less one pixel, change of the MSSD over the diameter; ∞ where
+    /// only one of the two found a pose).
     pairs: Vec<(bool, bool, f64)>,
 }
 
@@ -40,7 +40,7 @@ impl Stability {
     pub fn report(&self) -> String {
         let count = |f: &dyn Fn(&(bool, bool, f64)) -> bool| self.pairs.iter().filter(|p| f(p)).count();
         format!(
-            "stability (each instance again on its mask less one outline pixel, with RRC): the verdict (MSSD < 0.1·d) changed on {} of {} instances ({} right as given, {} less one pixel), the pose moved by more than 0.01·d on {}",
+            "stability (each instance again on its mask less one outline pixel, with RRC): the verdict (MSSD < 0.1·d) changed on {} of {} instances ({} right as given, {} less one pixel), the error (MSSD) changed by more than 0.01·d on {}",
             count(&|p| p.0 != p.1),
             self.pairs.len(),
             count(&|p| p.0),
@@ -64,7 +64,7 @@ mod tests {
     }
 
     #[test]
-    fn the_report_counts_flips_both_ways_and_moved_poses() {
+    fn the_report_counts_flips_both_ways_and_changed_errors() {
         let mut s = Stability::default();
         s.push(Some(0.05), Some(0.052)); // right both times, hardly moved
         s.push(Some(0.05), Some(0.3)); // lost
@@ -73,6 +73,6 @@ mod tests {
         s.push(None, None);
         let r = s.report();
         assert!(r.contains("changed on 3 of 5 instances (3 right as given, 2 less one pixel)"), "{r}");
-        assert!(r.contains("more than 0.01·d on 3"), "{r}");
+        assert!(r.contains("error (MSSD) changed by more than 0.01·d on 3"), "{r}");
     }
 }
