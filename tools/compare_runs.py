@@ -84,6 +84,21 @@ def self_test():
         assert "not of the same instances" in str(e)
     else:
         raise AssertionError("mismatched runs were compared")
+    # Reading a file: only the asked setting, a row without a pose is wrong, and two
+    # instances of one object in one image stay apart.
+    import tempfile
+    header = "image,obj_id,setting,size_px,visible,found,rot_err_deg,trans_err_mm,depth_err_mm,mssd_over_diameter\n"
+    rows = ["0,3,with RRC,50,1,1,1,1,1,0.05", "0,3,with RRC,50,1,1,1,1,1,0.2", "0,3,without RRC,50,1,1,1,1,1,0.05", "1,4,with RRC,50,1,0,,,,"]
+    with tempfile.NamedTemporaryFile("w", suffix=".csv") as f:
+        f.write(header + "\n".join(rows) + "\n")
+        f.flush()
+        assert load(f.name, "with RRC") == {("0", "3", 0): True, ("0", "3", 1): False, ("1", "4", 0): False}
+        try:
+            load(f.name, "no such setting")
+        except SystemExit as e:
+            assert "no rows of setting" in str(e)
+        else:
+            raise AssertionError("a file without the setting's rows was read")
     print("compare_runs self-test: ok")
 
 
