@@ -245,18 +245,24 @@ async function request() {
 }
 
 async function estimate() {
-  clearNotice();
-  let req;
-  try {
-    req = await request();
-  } catch (e) {
-    return notice(e.message);
-  }
   const button = $("photo-estimate");
+  // Busy from the click on, before the photo and mask are encoded (awaited): a second click
+  // in between must not send a second request, and the last answer, hidden until this one
+  // comes, must not read as this one's.
+  if (button.disabled) return;
+  clearNotice();
   button.disabled = true;
   button.textContent = "Estimating…";
   $("photo-form").setAttribute("aria-busy", "true");
+  $("photo-result").hidden = true;
+  $("photo-overlay-figure").hidden = true;
   try {
+    let req;
+    try {
+      req = await request();
+    } catch (e) {
+      return notice(e.message);
+    }
     show(req, await api.call("POST", "/v1/estimate", req));
   } catch (e) {
     notice(`Estimating: ${e.message}`);

@@ -302,9 +302,12 @@ def run(page: Page, server: Server, inputs: dict, mask: list) -> None:
     d.find_element(By.CSS_SELECTOR, 'input[name="mode"][value="mask"]').click()
     paint(page, mask)
     page.by("photo-estimate").click()
-    page.wait(lambda: "pose(s) found" in page.by("photo-summary").text and "sample-box" in page.by("photo-results").text or page.notice(), timeout=300, message="no answer from the mask")
-    page.wait(lambda: page.by("photo-estimate").is_enabled(), timeout=300)
+    # Busy at once, before the mask is encoded, with the box's answer put away: no second
+    # request from a second click, and no old answer read as the new one.
+    assert not page.by("photo-estimate").is_enabled() and not page.by("photo-result").is_displayed()
+    page.wait(lambda: page.by("photo-estimate").is_enabled(), timeout=300, message="no answer from the mask")
     assert not page.notice(), page.notice()
+    assert "pose(s) found" in page.by("photo-summary").text and "sample-box" in page.by("photo-results").text
     assert "$MASK" in page.by("photo-curl").text and "mask=" in page.by("photo-python").text
     masked_t = [float(v) for v in d.find_element(By.CSS_SELECTOR, "#photo-results tbody tr .t").text.split(",")]
     assert math.dist(masked_t, [v * 1000 for v in inputs["pose"]["t"]]) < 20, masked_t
