@@ -294,7 +294,8 @@ function show(req, resp) {
         el("td", {}, fixed(r.confirmation_score, 3)),
         el("td", { class: "t" }, r.pose ? r.pose.t.map((v) => (v * 1000).toFixed(1)).join(", ") : "–"),
         el("td", { class: "q" }, r.pose ? r.pose.quaternion_wxyz.map((v) => v.toFixed(4)).join(", ") : "–"),
-        el("td", {}, r.reason ?? (r.arbitrary_rotation_about_axis ? "turns freely about an axis: any rotation about it is right" : "")),
+        el("td", { class: "runner-up" }, r.runner_up ? `lost by ${fixed(r.runner_up.margin, 3)}, ${fixed(r.runner_up.distance_over_diameter, 2)}·d away` : "–"),
+        el("td", {}, r.reason ?? note(r)),
       ),
     ),
   );
@@ -308,6 +309,17 @@ function show(req, resp) {
   $("photo-curl").textContent = snippets.curl(req, files, keyed);
   $("photo-python").textContent = snippets.python(req, files, keyed);
   $("photo-result").hidden = false;
+}
+
+// Below this margin the runner-up nearly won: on generated scenes the answer was right on
+// about three in five such instances, against 24 in 25 above (docs/service.md, "Runner-up").
+const CLOSE_CALL = 0.03;
+
+function note(r) {
+  const notes = [];
+  if (r.arbitrary_rotation_about_axis) notes.push("turns freely about an axis: any rotation about it is right");
+  if (r.runner_up && r.runner_up.margin < CLOSE_CALL) notes.push("a close call: another pose nearly won (look again, or from elsewhere)");
+  return notes.join("; ");
 }
 
 // One column per result, one row per stage.

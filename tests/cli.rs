@@ -144,6 +144,10 @@ fn estimate_writes_the_result_json_and_overlay() {
     assert_eq!(p["mask_index"], 0);
     let t: Vec<f64> = p["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
     assert!((t[2] - 0.6).abs() < 0.06, "depth {t:?}");
+    // The runner-up, printed and written as the service answers it.
+    let up = &p["runner_up"];
+    assert!(up["margin"].as_f64().unwrap() >= 0.0 && up["distance_over_diameter"].as_f64().unwrap() > 0.1 && up["pose"]["t"].as_array().unwrap().len() == 3, "{p}");
+    assert!(out.contains("runner-up: ") && out.contains("lost by"), "{out}");
     for stage in ["crop", "features", "retrieval", "matching", "pnp", "rrc", "selection", "total"] {
         assert!(doc["timings_ms"][stage].is_number(), "missing timing {stage}");
     }

@@ -113,6 +113,10 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
     assert_eq!((pose.quaternion_wxyz.len(), res.detection_index), (4, 0));
     assert!(res.timings_ms.contains_key("pnp") && res.diagnostics_json.starts_with('['), "{res:?}");
     assert!(res.symmetries == none && !res.arbitrary_rotation_about_axis, "{res:?}");
+    // Verification judged other poses on the photo: the best that is another answer (a
+    // flip or a template of this unsymmetric box) and by how much it lost.
+    let up = res.runner_up.as_ref().expect("a runner-up");
+    assert!(up.margin >= 0.0 && up.distance_over_diameter > 0.1 && up.pose.as_ref().is_some_and(|p| p.r.len() == 9 && p.t.len() == 3), "{up:?}");
     let mut raw = estimate_request(pb::image::Data::RawRgb8(sc.render.rgb.as_raw().clone()), 320, 240, mask.clone(), "box");
     raw.options.as_mut().unwrap().overlay = true;
     let by_raw = c.estimate(raw).await.unwrap().into_inner();
@@ -133,6 +137,8 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
     let nums = |v: &serde_json::Value| v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect::<Vec<_>>();
     assert_eq!((nums(&http_pose["R"]), nums(&http_pose["t"]), nums(&http_pose["quaternion_wxyz"])), (pose.r.clone(), pose.t.clone(), pose.quaternion_wxyz.clone()), "HTTP and gRPC differ");
     assert_eq!(http["results"][0]["score"].as_f64().unwrap() as f32, res.score);
+    let http_up = &http["results"][0]["runner_up"];
+    assert_eq!((http_up["margin"].as_f64().unwrap() as f32, nums(&http_up["pose"]["t"])), (up.margin, up.pose.as_ref().unwrap().t.clone()), "HTTP and gRPC runner-ups differ");
 
     // Bad inputs: each gets its code and a message naming the problem; the server stays up.
     let good = || estimate_request(pb::image::Data::Encoded(rgb.clone()), 0, 0, mask.clone(), "box");

@@ -198,6 +198,14 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     assert!(rot < 10.0 && trans < 0.03, "rotation error {rot:.1}°, translation error {:.1} mm", trans * 1e3);
     assert_eq!(res["pose"]["quaternion_wxyz"].as_array().unwrap().len(), 4);
     assert_eq!((&res["symmetries"], &res["arbitrary_rotation_about_axis"]), (&no_symmetries, &json!(false)), "{res}");
+    // The best other answer verification judged on the photo, and by how much it lost; none
+    // when verification is off (nothing else was judged).
+    let up = &res["runner_up"];
+    assert!(up["margin"].as_f64().unwrap() >= 0.0 && up["distance_over_diameter"].as_f64().unwrap() > 0.1 && up["pose"]["R"].as_array().unwrap().len() == 9, "{res}");
+    let mut unverified = request(good_image.clone(), intrinsics.clone(), good_dets.clone());
+    unverified["options"]["verify"] = json!(false);
+    let (s, est_unverified) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&unverified));
+    assert_eq!((s, &est_unverified["results"][0]["runner_up"]), (200, &Value::Null), "{est_unverified}");
 
     // Raw RGB8 gives the same answer as the PNG.
     let raw = json!({"raw_rgb8": b64(r.rgb.as_raw()), "width": 320, "height": 240});

@@ -355,12 +355,13 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     let mut tallies: Vec<Tally> = configs.iter().map(|(n, _)| Tally { name: n, ..Default::default() }).collect();
     let mut instances = 0;
     let mut stability = super::bench_stability::Stability::default();
+    let mut margins = super::bench_margin::MarginTally::default();
     let mut boxes = BoxTally { segment: crate::masks::SegmentConfig { settle_outline: !a.raw_box_outline, ..Default::default() }, ..Default::default() };
     for dir in [&a.overlays, &a.mask_diffs].into_iter().flatten() {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create the folder {}", dir.display()))?;
     }
     let mut candidate_rows = String::from("image,obj_id,size_px,mask,source,mssd_over_diameter,rot_err_deg,contour,iou,edges,colour,features,score,lines,lines_with_edge\n");
-    let mut rows = String::from("image,obj_id,setting,size_px,visible,found,rot_err_deg,trans_err_mm,depth_err_mm,mssd_over_diameter,inliers,best_candidate_mssd_over_diameter,best_candidate_rank,print_points\n");
+    let mut rows = String::from("image,obj_id,setting,size_px,visible,found,rot_err_deg,trans_err_mm,depth_err_mm,mssd_over_diameter,inliers,best_candidate_mssd_over_diameter,best_candidate_rank,print_points,runner_up_margin,runner_up_distance\n");
     let pb = super::progress::bar(a.scenes.images as u64, "estimating");
     for im in 0..a.scenes.images as u32 {
         let scene = generate_image(&objects, &scene_cfg, &pool, im)?;
@@ -428,9 +429,10 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                 // The print points before and after the kept pose was refined on its print
                 // ("before/after"), empty where it was not.
                 let print = r.hypotheses.iter().find(|h| Some(h.mask_index) == r.mask_index).and_then(|h| h.refinement.as_ref()?.print_points).map_or(String::new(), |[b, a]| format!("{b}/{a}"));
+                let runner_up = r.runner_up.map_or(",".to_string(), |u| format!("{:.4},{:.3}", u.margin, u.distance));
                 match &r.pose {
                     Some(p) => rows.push_str(&format!(
-                        "{im},{},{},{size_px},{:.3},1,{:.2},{:.1},{:.1},{:.4},{inliers},{oracle},{print}\n",
+                        "{im},{},{},{size_px},{:.3},1,{:.2},{:.1},{:.1},{:.4},{inliers},{oracle},{print},{runner_up}\n",
                         inst.obj_id,
                         t.name,
                         inst.visib_fract(),
@@ -439,7 +441,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                         (p.translation.z - gt.translation.z) * 1e3,
                         mssd(p, &gt, model.mesh.positions()) / model.diameter(),
                     )),
-                    None => rows.push_str(&format!("{im},{},{},{size_px},{:.3},0,,,,,{inliers},{oracle},\n", inst.obj_id, t.name, inst.visib_fract())),
+                    None => rows.push_str(&format!("{im},{},{},{size_px},{:.3},0,,,,,{inliers},{oracle},,,\n", inst.obj_id, t.name, inst.visib_fract())),
                 }
                 if let Some(p) = r.pose {
                     t.found += 1;
@@ -448,9 +450,13 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                     if rotation_error_deg(&p, &gt) < 10.0 {
                         t.depth_rel.push((p.translation.z - gt.translation.z).abs() / gt.translation.z);
                     }
-                    if mssd(&p, &gt, model.mesh.positions()) < 0.1 * model.diameter() {
+                    let right = mssd(&p, &gt, model.mesh.positions()) < 0.1 * model.diameter();
+                    if right {
                         t.correct += 1;
                         t.by_size[bucket].1 += 1;
+                    }
+                    if cfg.rrc {
+                        margins.push(r.runner_up.map(|u| u.margin), right);
                     }
                     if cfg.rrc && a.overlays.is_some() {
                         overlay = crate::render::overlay::draw_overlay(&overlay, &pool, &model.mesh, &p, &scene.cam, [0, 255, 0])?;
@@ -476,6 +482,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     if a.from_boxes {
         boxes.report();
     }
+    println!("{}", margins.report());
     if a.stability {
         println!("{}", stability.report());
     }

@@ -157,6 +157,10 @@ fn symmetries_json(s: &pb::Symmetries) -> serde_json::Value {
     })
 }
 
+fn pose_json(p: &pb::Pose) -> serde_json::Value {
+    serde_json::json!({"R": p.r, "t": p.t, "quaternion_wxyz": p.quaternion_wxyz})
+}
+
 /// The response as JSON: poses (R row-major, t in metres, quaternion), score, timings,
 /// symmetries and the diagnostics document.
 fn result_json(r: &pb::EstimateResponse) -> serde_json::Value {
@@ -167,12 +171,13 @@ fn result_json(r: &pb::EstimateResponse) -> serde_json::Value {
             serde_json::json!({
                 "object_id": i.object_id,
                 "instance": i.instance,
-                "pose": i.pose.as_ref().map(|p| serde_json::json!({"R": p.r, "t": p.t, "quaternion_wxyz": p.quaternion_wxyz})),
+                "pose": i.pose.as_ref().map(pose_json),
                 "score": i.score,
                 "reason": (!i.reason.is_empty()).then_some(&i.reason),
                 "timings_ms": i.timings_ms,
                 "symmetries": i.symmetries.as_ref().map(symmetries_json),
                 "arbitrary_rotation_about_axis": i.arbitrary_rotation_about_axis,
+                "runner_up": i.runner_up.as_ref().map(|u| serde_json::json!({"pose": u.pose.as_ref().map(pose_json), "margin": u.margin, "distance_over_diameter": u.distance_over_diameter})),
                 "diagnostics": serde_json::from_str::<serde_json::Value>(&i.diagnostics_json).unwrap_or_default(),
             })
         })

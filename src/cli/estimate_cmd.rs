@@ -144,6 +144,10 @@ pub fn run(a: EstimateArgs) -> Result<()> {
         Some(p) => println!("{}: {}", model.object_id, describe_pose(p, result.score)),
         None => println!("{}: no pose ({})", model.object_id, result.reason.as_deref().unwrap_or("unknown")),
     }
+    if let Some(u) = &result.runner_up {
+        let close = if u.margin < crate::estimate::runner_up::CLOSE_CALL { " — a close call: look again, or from elsewhere" } else { "" };
+        println!("runner-up: {} ({:.2}·d from the answer) lost by {:.3}{close}", u.source, u.distance, u.margin);
+    }
     println!("total {:.0} ms; wrote {}", result.timings.total, a.out.display());
     if let (Some(path), Some(pose)) = (&a.overlay, &result.pose) {
         write_overlay(&image, &renderer, &model, pose, &k, path)?;
@@ -181,6 +185,9 @@ pub fn result_json(model: &ObjectModel, r: &EstimateResult) -> serde_json::Value
                 // whether the turn about a continuous axis is arbitrary.
                 "symmetries": model.symmetries,
                 "arbitrary_rotation_about_axis": model.symmetries.as_ref().is_some_and(crate::geometry::symmetry::KnownSymmetries::arbitrary_rotation_about_axis),
+                // The best pose judged on the photo that is another answer, as the service
+                // answers it.
+                "runner_up": r.runner_up.as_ref().map(crate::service::requests::RunnerUpOutput::from),
                 "diagnostics": { "hypotheses": r.hypotheses },
             })
         })

@@ -9,6 +9,7 @@ pub mod bench_matching;
 pub mod bench_one_call;
 pub mod bench_refine;
 pub mod bench_scenes;
+pub mod bench_margin;
 pub mod bench_stability;
 pub mod bench_catalogue;
 pub mod bench_serve;

@@ -12,12 +12,14 @@ pub mod query;
 pub mod refine;
 pub mod retrieve;
 pub mod rrc;
+pub mod runner_up;
 pub mod select;
 pub mod silhouette_refiner;
 pub mod turned;
 pub mod verify;
 
 pub use pipeline::{Detection, EstimateConfig, EstimateResult, Estimator, Hypothesis, StageTimings};
+pub use runner_up::RunnerUp;
 pub use refine::{PassThrough, RefineContext, RefineReport, Refined, Refiner, RefinerKind};
 pub use verify::VerifyConfig;
 

@@ -146,6 +146,9 @@ pub struct EstimateResult {
     pub timings: StageTimings,
     /// Why there is no pose, when there is none.
     pub reason: Option<String>,
+    /// The best verified pose that is another answer, and by how much it lost (absent
+    /// without verification, or when every rendered hypothesis agreed with the answer).
+    pub runner_up: Option<super::runner_up::RunnerUp>,
 }
 
 /// Runs the pipeline; holds the backbone, the renderer and the refiners it can use.
@@ -323,7 +326,9 @@ impl Estimator {
         }
 
         let t = Instant::now();
-        let result = tracing::info_span!("selection").in_scope(|| self.select(model, &queries, &chosen, k, (detections, others), hyps, cfg))?;
+        let mut result = tracing::info_span!("selection").in_scope(|| self.select(model, &queries, &chosen, k, (detections, others), hyps, cfg))?;
+        let winner = result.mask_index.and_then(|m| result.hypotheses.iter().find(|h| h.mask_index == m));
+        result.runner_up = result.pose.as_ref().zip(winner).and_then(|(pose, h)| super::runner_up::runner_up(pose, &h.verified, model));
         timings.selection = ms(t);
         timings.total = ms(t_total);
         Ok(EstimateResult { timings, ..result })
@@ -559,6 +564,7 @@ impl Estimator {
             hypotheses: hyps,
             timings: StageTimings::default(),
             reason,
+            runner_up: None,
         })
     }
 }

@@ -14,22 +14,12 @@ pub fn translation_error_m(est: &Pose, gt: &Pose) -> f64 {
 
 /// Maximum symmetry-free surface distance: the largest displacement of a model vertex
 /// between the two poses, metres (BOP's MSSD with the identity as the only symmetry).
-pub fn mssd(est: &Pose, gt: &Pose, vertices: &[[f32; 3]]) -> f64 {
-    vertices
-        .iter()
-        .map(|v| {
-            let p = Point3::new(v[0] as f64, v[1] as f64, v[2] as f64);
-            (est.transform_point(&p) - gt.transform_point(&p)).norm()
-        })
-        .fold(0.0, f64::max)
-}
-
+pub use crate::geometry::surface_distance::max_displacement as mssd;
 /// The truth turned by the symmetry (`symmetries`: model-frame transformations, identity
 /// included) that brings it closest to `est`, by MSSD over `vertices` (a sample will do):
 /// errors measured against it are BOP's symmetry-aware errors.
-pub fn closest_symmetric(est: &Pose, gt: &Pose, symmetries: &[Pose], vertices: &[[f32; 3]]) -> Pose {
-    symmetries.iter().map(|s| gt.compose(s)).min_by(|a, b| mssd(est, a, vertices).total_cmp(&mssd(est, b, vertices))).unwrap_or(*gt)
-}
+pub use crate::geometry::surface_distance::closest_symmetric;
+pub use crate::geometry::surface_distance::sample_points;
 
 /// ADD: the mean displacement of the model's points between the two poses, metres.
 pub fn add(est: &Pose, gt: &Pose, points: &[[f32; 3]]) -> f64 {
@@ -57,11 +47,6 @@ pub fn auc(errors: &[f64], max: f64) -> f64 {
     errors.iter().filter(|e| **e < max).map(|e| (max - e.max(0.0)) / max).sum::<f64>() / errors.len() as f64
 }
 
-/// At most `n` of `points`, evenly spread through the list.
-pub fn sample_points(points: &[[f32; 3]], n: usize) -> Vec<[f32; 3]> {
-    let step = points.len().div_ceil(n.max(1)).max(1);
-    points.iter().step_by(step).copied().collect()
-}
 
 #[cfg(test)]
 mod tests {

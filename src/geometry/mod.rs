@@ -4,6 +4,7 @@ pub mod camera;
 pub mod crop;
 pub mod pixel;
 pub mod pose;
+pub mod surface_distance;
 pub mod symmetric_poses;
 pub mod symmetry;
 pub mod turn;

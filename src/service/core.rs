@@ -8,7 +8,7 @@
 use super::detect_requests::DetectionOutput;
 use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
-use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput};
+use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput, RunnerUpOutput};
 use crate::detect::confirm::{answer_threshold, candidate_options, confirm, estimate_instances, Choice};
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
@@ -355,6 +355,7 @@ impl Core {
                     timings_ms: serde_json::to_value(r.timings).unwrap_or_default(),
                     symmetries: model.symmetries.clone(),
                     arbitrary_rotation_about_axis: InstanceResult::arbitrary_rotation(model.symmetries.as_ref()),
+                    runner_up: r.runner_up.as_ref().map(RunnerUpOutput::from),
                 };
                 Ok((result, confirmation))
             })?;

@@ -251,6 +251,26 @@ pub struct InstanceResult {
     /// arbitrary (any turn about it is equally right).
     #[serde(default)]
     pub arbitrary_rotation_about_axis: bool,
+    /// The best pose judged on the photo that is another answer, and by how much it lost
+    /// (`estimate::runner_up`); absent when there was none.
+    #[serde(default)]
+    pub runner_up: Option<RunnerUpOutput>,
+}
+
+/// A pose the evidence nearly chose instead of the answer.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct RunnerUpOutput {
+    pub pose: PoseOutput,
+    /// The answer's verification score minus this pose's (≥ 0).
+    pub margin: f32,
+    /// Symmetry-aware largest surface distance from the answer, share of the diameter.
+    pub distance_over_diameter: f32,
+}
+
+impl From<&crate::estimate::RunnerUp> for RunnerUpOutput {
+    fn from(u: &crate::estimate::RunnerUp) -> Self {
+        Self { pose: PoseOutput::from(&u.pose), margin: u.margin as f32, distance_over_diameter: u.distance as f32 }
+    }
 }
 
 impl InstanceResult {

@@ -31,6 +31,10 @@ def test_numpy_rgb_with_mask_matches_the_cli(rgb_result: b2tfpose.Result, cli_ma
     assert isinstance(r.diagnostics, list) and r.diagnostics[0]["inliers"] > 0
     # The sample box's textured faces all differ: symmetries found from the mesh, none.
     assert r.symmetries == b2tfpose.Symmetries("mesh") and not r.arbitrary_rotation_about_axis
+    # The best other answer the server judged on the photo, and by how much it lost.
+    u = r.runner_up
+    assert isinstance(u, b2tfpose.RunnerUp) and u.margin >= 0.0 and u.distance_over_diameter > 0.1
+    assert u.pose.rotation_error_deg(r.pose) > 1.0 or u.pose.translation_error_m(r.pose) > 0.0
 
 
 def test_bgr_frame_gives_the_same_pose(client: b2tfpose.Client, rgb_result: b2tfpose.Result, scene: Scene) -> None:

@@ -147,6 +147,25 @@ def pose_from_pb(m: pb.Pose) -> Pose:
 
 
 @dataclass(frozen=True)
+class RunnerUp:
+    """A pose the evidence nearly chose instead of the answer: the best pose the server
+    judged on the photo that puts the surface more than a tenth of the object's diameter
+    from the answer's (up to its symmetries)."""
+
+    pose: Pose
+    margin: float
+    """The answer's verification score minus this pose's (>= 0). A small one (below about
+    0.03) says the photo could not tell the two apart: look again, or act on both."""
+    distance_over_diameter: float
+    """The largest distance of a surface point between this pose and the answer, up to the
+    symmetries, as a share of the object's diameter (above 0.1)."""
+
+    @classmethod
+    def from_pb(cls, m: pb.RunnerUp) -> "RunnerUp":
+        return cls(pose=pose_from_pb(m.pose), margin=m.margin, distance_over_diameter=m.distance_over_diameter)
+
+
+@dataclass(frozen=True)
 class Result:
     """The estimate of one object instance. ``pose`` is None when none was found; then
     ``reason`` says why."""
@@ -177,6 +196,9 @@ class Result:
     arbitrary_rotation_about_axis: bool = False
     """The object has a continuous symmetry: the pose's rotation about that axis is
     arbitrary, any turn about it being equally right (pick the grasp you prefer)."""
+    runner_up: Optional[RunnerUp] = None
+    """The best pose judged on the photo that is another answer, and by how much it lost
+    (None: there was none, or verification was off)."""
 
     @property
     def ok(self) -> bool:
@@ -201,6 +223,7 @@ class Result:
             diagnostics=diagnostics,
             symmetries=Symmetries.from_pb(m.symmetries) if m.HasField("symmetries") else None,
             arbitrary_rotation_about_axis=m.arbitrary_rotation_about_axis,
+            runner_up=RunnerUp.from_pb(m.runner_up) if m.HasField("runner_up") else None,
         )
 
 
