@@ -226,13 +226,24 @@ function intrinsics() {
 
 // --- the estimate
 
+// The verification settings given (left empty: the server's defaults), as API options.
+function settings() {
+  const given = {};
+  for (const input of $("photo-settings").querySelectorAll("[data-option]")) {
+    if (input.value === "") continue;
+    given[input.dataset.option] = input.type === "number" ? Number(input.value) : input.value;
+  }
+  return given;
+}
+
 async function request() {
   if (!photo.file) throw new Error("Choose a photo first.");
   const k = intrinsics();
   if (!k) throw new Error("Give the camera's intrinsics: fx and fy (positive), cx and cy, in pixels.");
   const ids = [...$("photo-objects").querySelectorAll("input:checked")].map((i) => i.value);
   if (!ids.length) throw new Error("Choose the object(s) to look for.");
-  const req = { image: { encoded: await base64(photo.file) }, intrinsics: k, options: { rrc: $("photo-rrc").checked, verify: $("photo-verify").checked, overlay: true } };
+  const options = { rrc: $("photo-rrc").checked, verify: $("photo-verify").checked, ...settings(), overlay: true };
+  const req = { image: { encoded: await base64(photo.file) }, intrinsics: k, options };
   if (mode() === "detect") return { ...req, objects: ids };
   if (ids.length > 1) throw new Error("A box or a mask is one object's: choose one object (or Detect to look for several).");
   if (mode() === "box") {

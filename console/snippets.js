@@ -30,6 +30,10 @@ export function python(request, files, keyed) {
   if (request.objects?.length) args.push(`objects=${json(request.objects)}`);
   else args.push(`[${request.detections.map((d) => detection(d, files)).join(", ")}]`);
   args.push(`rrc=${o.rrc ? "True" : "False"}`, `verify=${o.verify ? "True" : "False"}`);
+  // The client's keyword arguments carry the API options' names.
+  for (const name of ["refiner", "verify_templates", "verify_matched", "spin_steps", "nudge_degrees"]) {
+    if (o[name] !== undefined) args.push(`${name}=${json(o[name])}`);
+  }
   return [
     "import os",
     "import b2tfpose",

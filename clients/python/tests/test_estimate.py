@@ -35,6 +35,7 @@ def test_numpy_rgb_with_mask_matches_the_cli(rgb_result: b2tfpose.Result, cli_ma
     u = r.runner_up
     assert isinstance(u, b2tfpose.RunnerUp) and u.margin >= 0.0 and u.distance_over_diameter > 0.1
     assert u.pose.rotation_error_deg(r.pose) > 1.0 or u.pose.translation_error_m(r.pose) > 0.0
+    assert r.close_call(below=u.margin + 1e-6) and not r.close_call(below=u.margin)
 
 
 def test_bgr_frame_gives_the_same_pose(client: b2tfpose.Client, rgb_result: b2tfpose.Result, scene: Scene) -> None:
