@@ -1,7 +1,7 @@
 //! `b2tf demo`: the whole method on an object and a photo-like scene the program makes
 //! itself (no downloads): onboard, render a scene, estimate, compare with the truth.
 
-use super::estimate_cmd::{describe_pose, result_json, write_overlay};
+use super::estimate_cmd::{describe_pose, describe_runner_up, result_json, write_overlay};
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::eval::degrade::{add_noise, clutter_background, composite, gaussian_blur};
 use crate::features::{EmbeddedBackbone, EmbeddedConfig};
@@ -96,6 +96,9 @@ pub fn run(a: DemoArgs) -> Result<()> {
     match &result.pose {
         Some(p) => {
             report(&scene.truth, p, result.score, model.diameter(), result.timings.total);
+            if let Some(u) = &result.runner_up {
+                println!("{}", describe_runner_up(u));
+            }
             write_overlay(&scene.photo, &renderer, &model, p, &scene.k, &a.out.join("overlay.png"))?;
             println!("wrote {}/{{scene,mask,overlay}}.png and result.json", a.out.display());
         }

@@ -145,8 +145,7 @@ pub fn run(a: EstimateArgs) -> Result<()> {
         None => println!("{}: no pose ({})", model.object_id, result.reason.as_deref().unwrap_or("unknown")),
     }
     if let Some(u) = &result.runner_up {
-        let close = if u.margin < crate::estimate::runner_up::CLOSE_CALL { " — a close call: look again, or from elsewhere" } else { "" };
-        println!("runner-up: {} ({:.2}·d from the answer) lost by {:.3}{close}", u.source, u.distance, u.margin);
+        println!("{}", describe_runner_up(u));
     }
     println!("total {:.0} ms; wrote {}", result.timings.total, a.out.display());
     if let (Some(path), Some(pose)) = (&a.overlay, &result.pose) {
@@ -162,6 +161,12 @@ pub fn describe_pose(p: &Pose, score: f32) -> String {
         "t = [{:.4}, {:.4}, {:.4}] m, R = [{:.3} {:.3} {:.3}; {:.3} {:.3} {:.3}; {:.3} {:.3} {:.3}], score {:.3}",
         p.translation.x, p.translation.y, p.translation.z, r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], score
     )
+}
+
+/// The runner-up as one line: where it came from, how far, what it lost by; a close call said.
+pub fn describe_runner_up(u: &crate::estimate::RunnerUp) -> String {
+    let close = if u.margin < crate::estimate::runner_up::CLOSE_CALL { " — a close call: look again, or from elsewhere" } else { "" };
+    format!("runner-up: {} ({:.2}·d from the answer) lost by {:.3}{close}", u.source, u.distance, u.margin)
 }
 
 pub fn write_overlay(image: &image::RgbImage, renderer: &crate::render::RenderPool, model: &ObjectModel, pose: &Pose, k: &Intrinsics, path: &Path) -> Result<()> {
