@@ -47,7 +47,6 @@ pub fn auc(errors: &[f64], max: f64) -> f64 {
     errors.iter().filter(|e| **e < max).map(|e| (max - e.max(0.0)) / max).sum::<f64>() / errors.len() as f64
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

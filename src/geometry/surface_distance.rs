@@ -20,13 +20,25 @@ pub fn max_displacement(a: &Pose, b: &Pose, points: &[[f32; 3]]) -> f64 {
 /// `b` turned by the symmetry (object-frame transformations, identity included) that brings
 /// it closest to `a` by [`max_displacement`] over `points`; `b` itself without symmetries.
 pub fn closest_symmetric(a: &Pose, b: &Pose, symmetries: &[Pose], points: &[[f32; 3]]) -> Pose {
-    symmetries.iter().map(|s| b.compose(s)).min_by(|x, y| max_displacement(a, x, points).total_cmp(&max_displacement(a, y, points))).unwrap_or(*b)
+    nearest_symmetric(a, b, symmetries, points).map_or(*b, |(pose, _)| pose)
 }
 
 /// [`max_displacement`] up to the object's symmetries: two poses that show the same object
 /// the same way are 0 apart.
 pub fn symmetric_distance(a: &Pose, b: &Pose, symmetries: &[Pose], points: &[[f32; 3]]) -> f64 {
-    max_displacement(a, &closest_symmetric(a, b, symmetries, points), points)
+    nearest_symmetric(a, b, symmetries, points).map_or_else(|| max_displacement(a, b, points), |(_, distance)| distance)
+}
+
+/// The turn of `b` nearest to `a` and its distance, each distance computed once (`None`
+/// without symmetries).
+fn nearest_symmetric(a: &Pose, b: &Pose, symmetries: &[Pose], points: &[[f32; 3]]) -> Option<(Pose, f64)> {
+    symmetries
+        .iter()
+        .map(|s| {
+            let turned = b.compose(s);
+            (turned, max_displacement(a, &turned, points))
+        })
+        .min_by(|x, y| x.1.total_cmp(&y.1))
 }
 
 /// At most `n` of `points`, evenly strided (all of them when there are fewer): a surface
