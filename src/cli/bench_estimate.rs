@@ -384,11 +384,15 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                 tracing::debug!(image = im, obj_id = inst.obj_id, setting = t.name, "bench instance");
                 let hints = truth_hints(&inst.pose, &model.mesh, &a.truth_hints, im as u64 * 1000 + n as u64);
                 let r: EstimateResult = estimator.estimate_hinted(model, &scene.rgb, &scene.cam, &det, others.as_ref(), &hints, cfg)?;
+                // The answer's error (MSSD over the diameter, against the truth turned by its
+                // nearest symmetry), one pass over the mesh for the row, the tallies and the
+                // stability check.
+                let gt = r.pose.as_ref().map_or(inst.pose, &truth);
+                let error = r.pose.as_ref().map(|p| mssd(p, &gt, model.mesh.positions()) / model.diameter());
                 if a.stability && cfg.rrc {
                     let less = [Detection { mask: super::bench_stability::less_one_pixel(&det[0].mask), ..det[0].clone() }];
                     let again = estimator.estimate_hinted(model, &scene.rgb, &scene.cam, &less, others.as_ref(), &hints, cfg)?;
-                    let error = |p: &Option<Pose>| p.as_ref().map(|p| mssd(p, &truth(p), model.mesh.positions()) / model.diameter());
-                    stability.push(error(&r.pose), error(&again.pose));
+                    stability.push(error, again.pose.as_ref().map(|p| mssd(p, &truth(p), model.mesh.positions()) / model.diameter()));
                 }
                 let tm = &r.timings;
                 t.stages.push([tm.crop, tm.features, tm.retrieval, tm.matching, tm.pnp, tm.rrc, tm.refine, tm.selection, tm.total]);
@@ -425,7 +429,6 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                         }
                     }
                 }
-                let gt = r.pose.as_ref().map_or(inst.pose, &truth);
                 // The print points before and after the kept pose was refined on its print
                 // ("before/after"), empty where it was not.
                 let print = r.hypotheses.iter().find(|h| Some(h.mask_index) == r.mask_index).and_then(|h| h.refinement.as_ref()?.print_points).map_or(String::new(), |[b, a]| format!("{b}/{a}"));
@@ -439,7 +442,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                         rotation_error_deg(p, &gt),
                         translation_error_m(p, &gt) * 1e3,
                         (p.translation.z - gt.translation.z) * 1e3,
-                        mssd(p, &gt, model.mesh.positions()) / model.diameter(),
+                        error.unwrap_or(f64::NAN),
                     )),
                     None => rows.push_str(&format!("{im},{},{},{size_px},{:.3},0,,,,,{inliers},{oracle},,,\n", inst.obj_id, t.name, inst.visib_fract())),
                 }
@@ -450,7 +453,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                     if rotation_error_deg(&p, &gt) < 10.0 {
                         t.depth_rel.push((p.translation.z - gt.translation.z).abs() / gt.translation.z);
                     }
-                    let right = mssd(&p, &gt, model.mesh.positions()) < 0.1 * model.diameter();
+                    let right = error.is_some_and(|e| e < 0.1);
                     if right {
                         t.correct += 1;
                         t.by_size[bucket].1 += 1;
