@@ -306,7 +306,7 @@ function show(req, resp) {
         el("td", { class: "t" }, r.pose ? r.pose.t.map((v) => (v * 1000).toFixed(1)).join(", ") : "–"),
         el("td", { class: "q" }, r.pose ? r.pose.quaternion_wxyz.map((v) => v.toFixed(4)).join(", ") : "–"),
         el("td", { class: "runner-up" }, r.runner_up ? `lost by ${fixed(r.runner_up.margin, 3)}, ${fixed(r.runner_up.distance_over_diameter, 2)}·d away` : "–"),
-        el("td", {}, r.reason ?? note(r)),
+        el("td", { class: "note" }, r.reason ?? note(r)),
       ),
     ),
   );
@@ -322,14 +322,13 @@ function show(req, resp) {
   $("photo-result").hidden = false;
 }
 
-// Below this margin the runner-up nearly won: on generated scenes the answer was right on
-// about three in five such instances, against 24 in 25 above (docs/service.md, "Runner-up").
-const CLOSE_CALL = 0.03;
-
+// The server says when the runner-up nearly won (runner_up.close_call: its margin below
+// 0.03, where on generated scenes the answer was right on about three in five instances
+// against 24 in 25 above; docs/service.md, "Runner-up").
 function note(r) {
   const notes = [];
   if (r.arbitrary_rotation_about_axis) notes.push("turns freely about an axis: any rotation about it is right");
-  if (r.runner_up && r.runner_up.margin < CLOSE_CALL) notes.push("a close call: another pose nearly won (look again, or from elsewhere)");
+  if (r.runner_up && r.runner_up.close_call) notes.push("a close call: another pose nearly won (look again, or from elsewhere)");
   return notes.join("; ");
 }
 

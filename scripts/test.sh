@@ -15,6 +15,7 @@ python3 -c "import openapi_spec_validator" 2>/dev/null \
   || python3 -m pip install --quiet --break-system-packages openapi-spec-validator
 python3 tools/validate_openapi.py src/service/openapi.json
 python3 tools/compare_runs.py --self-test
+python3 tools/miss_classes.py --self-test
 # Licences, bans, sources (and advisories when GitHub answers): installs cargo-deny once.
 bash scripts/deny.sh
 # The S3 store's tests run against a real S3 server on loopback; installed, it must run.

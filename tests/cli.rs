@@ -148,6 +148,8 @@ fn estimate_writes_the_result_json_and_overlay() {
     let up = &p["runner_up"];
     assert!(up["margin"].as_f64().unwrap() >= 0.0 && up["distance_over_diameter"].as_f64().unwrap() > 0.1 && up["pose"]["t"].as_array().unwrap().len() == 3, "{p}");
     assert!(out.contains("runner-up: ") && out.contains("lost by"), "{out}");
+    // A close call is said where the answer says it is one, and only there.
+    assert_eq!(out.contains("a close call"), up["close_call"].as_bool().expect("close_call written"), "{out}{p}");
     for stage in ["crop", "features", "retrieval", "matching", "pnp", "rrc", "selection", "total"] {
         assert!(doc["timings_ms"][stage].is_number(), "missing timing {stage}");
     }

@@ -117,6 +117,7 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
     // flip or a template of this unsymmetric box) and by how much it lost.
     let up = res.runner_up.as_ref().expect("a runner-up");
     assert!(up.margin >= 0.0 && up.distance_over_diameter > 0.1 && up.pose.as_ref().is_some_and(|p| p.r.len() == 9 && p.t.len() == 3), "{up:?}");
+    assert_eq!(up.close_call, (up.margin as f64) < b2tfpose::estimate::runner_up::CLOSE_CALL, "{up:?}");
     let mut raw = estimate_request(pb::image::Data::RawRgb8(sc.render.rgb.as_raw().clone()), 320, 240, mask.clone(), "box");
     raw.options.as_mut().unwrap().overlay = true;
     let by_raw = c.estimate(raw).await.unwrap().into_inner();
@@ -138,7 +139,7 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
     assert_eq!((nums(&http_pose["R"]), nums(&http_pose["t"]), nums(&http_pose["quaternion_wxyz"])), (pose.r.clone(), pose.t.clone(), pose.quaternion_wxyz.clone()), "HTTP and gRPC differ");
     assert_eq!(http["results"][0]["score"].as_f64().unwrap() as f32, res.score);
     let http_up = &http["results"][0]["runner_up"];
-    assert_eq!((http_up["margin"].as_f64().unwrap() as f32, nums(&http_up["pose"]["t"])), (up.margin, up.pose.as_ref().unwrap().t.clone()), "HTTP and gRPC runner-ups differ");
+    assert_eq!((http_up["margin"].as_f64().unwrap() as f32, nums(&http_up["pose"]["t"]), http_up["close_call"].as_bool()), (up.margin, up.pose.as_ref().unwrap().t.clone(), Some(up.close_call)), "HTTP and gRPC runner-ups differ");
 
     // Bad inputs: each gets its code and a message naming the problem; the server stays up.
     let good = || estimate_request(pb::image::Data::Encoded(rgb.clone()), 0, 0, mask.clone(), "box");

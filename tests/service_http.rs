@@ -202,6 +202,8 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     // when verification is off (nothing else was judged).
     let up = &res["runner_up"];
     assert!(up["margin"].as_f64().unwrap() >= 0.0 && up["distance_over_diameter"].as_f64().unwrap() > 0.1 && up["pose"]["R"].as_array().unwrap().len() == 9, "{res}");
+    // The server's verdict on the margin, so that no client keeps a threshold of its own.
+    assert_eq!(up["close_call"].as_bool(), Some(up["margin"].as_f64().unwrap() < b2tfpose::estimate::runner_up::CLOSE_CALL), "{res}");
     let mut unverified = request(good_image.clone(), intrinsics.clone(), good_dets.clone());
     unverified["options"]["verify"] = json!(false);
     let (s, est_unverified) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&unverified));

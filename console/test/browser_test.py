@@ -297,6 +297,9 @@ def run(page: Page, server: Server, inputs: dict, mask: list) -> None:
     # The runner-up as the API gives it: how much it lost by, how far it is.
     up, cell = answer.get("runner_up"), row.find_element(By.CLASS_NAME, "runner-up").text
     assert (up is None and cell == "–") or (up is not None and f"lost by {up['margin']:.3f}" in cell and f"{up['distance_over_diameter']:.2f}·d" in cell), (cell, up)
+    # A close call is noted where, and only where, the server says it is one.
+    noted = "a close call" in row.find_element(By.CLASS_NAME, "note").text
+    assert noted == bool(up and up["close_call"]), (noted, up)
     err_mm = math.dist(api_t, [v * 1000 for v in inputs["pose"]["t"]])
     print(f"the page's pose equals the API's; its translation is {err_mm:.1f} mm from the truth")
 

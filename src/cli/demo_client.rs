@@ -177,7 +177,7 @@ fn result_json(r: &pb::EstimateResponse) -> serde_json::Value {
                 "timings_ms": i.timings_ms,
                 "symmetries": i.symmetries.as_ref().map(symmetries_json),
                 "arbitrary_rotation_about_axis": i.arbitrary_rotation_about_axis,
-                "runner_up": i.runner_up.as_ref().map(|u| serde_json::json!({"pose": u.pose.as_ref().map(pose_json), "margin": u.margin, "distance_over_diameter": u.distance_over_diameter})),
+                "runner_up": i.runner_up.as_ref().map(|u| serde_json::json!({"pose": u.pose.as_ref().map(pose_json), "margin": u.margin, "distance_over_diameter": u.distance_over_diameter, "close_call": u.close_call})),
                 "diagnostics": serde_json::from_str::<serde_json::Value>(&i.diagnostics_json).unwrap_or_default(),
             })
         })

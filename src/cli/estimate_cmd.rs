@@ -165,7 +165,7 @@ pub fn describe_pose(p: &Pose, score: f32) -> String {
 
 /// The runner-up as one line: where it came from, how far, what it lost by; a close call said.
 pub fn describe_runner_up(u: &crate::estimate::RunnerUp) -> String {
-    let close = if u.margin < crate::estimate::runner_up::CLOSE_CALL { " — a close call: look again, or from elsewhere" } else { "" };
+    let close = if u.close_call() { " — a close call: look again, or from elsewhere" } else { "" };
     format!("runner-up: {} ({:.2}·d from the answer) lost by {:.3}{close}", u.source, u.distance, u.margin)
 }
 

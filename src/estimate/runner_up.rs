@@ -35,6 +35,15 @@ pub struct RunnerUp {
     pub distance: f64,
 }
 
+impl RunnerUp {
+    /// Whether the answer won by less than [`CLOSE_CALL`]: the service sends this verdict
+    /// with the margin, so that clients (Python, the console, the CLI) need not each hold
+    /// the threshold.
+    pub fn close_call(&self) -> bool {
+        self.margin < CLOSE_CALL
+    }
+}
+
 /// The runner-up of `answer` among `verified` (one mask's verified hypotheses, best first,
 /// the first being the answer before any later refinement); `None` when no rendered
 /// hypothesis is another answer (nothing else was judged on the photo, or all agree).
@@ -100,6 +109,13 @@ mod tests {
         assert_eq!(u.source, Source::Flip(1));
         assert!((u.margin - 0.03).abs() < 1e-9, "{}", u.margin);
         assert!((u.distance - 1.0).abs() < 1e-6, "a half-turned rod is its length away: {}", u.distance);
+    }
+
+    #[test]
+    fn a_margin_below_the_threshold_is_a_close_call() {
+        let at = |margin| RunnerUp { pose: answer(), source: Source::Flip(1), margin, distance: 0.5 };
+        assert!(at(0.0).close_call() && at(CLOSE_CALL - 1e-9).close_call());
+        assert!(!at(CLOSE_CALL).close_call() && !at(0.2).close_call());
     }
 
     #[test]

@@ -138,7 +138,7 @@ pub fn estimate_response(r: rq::EstimateResponse) -> pb::EstimateResponse {
             timings_ms: timings(&i.timings_ms),
             symmetries: i.symmetries.map(symmetries),
             arbitrary_rotation_about_axis: i.arbitrary_rotation_about_axis,
-            runner_up: i.runner_up.map(|u| pb::RunnerUp { pose: Some(pose(u.pose)), margin: u.margin, distance_over_diameter: u.distance_over_diameter }),
+            runner_up: i.runner_up.map(|u| pb::RunnerUp { pose: Some(pose(u.pose)), margin: u.margin, distance_over_diameter: u.distance_over_diameter, close_call: u.close_call }),
         })
         .collect();
     pb::EstimateResponse { results, total_ms: r.total_ms, detections: r.detections.into_iter().map(detected_object).collect(), reason: r.reason.unwrap_or_default(), overlay_png: r.overlay_png.map(|b| b.0).unwrap_or_default() }

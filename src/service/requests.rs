@@ -265,11 +265,15 @@ pub struct RunnerUpOutput {
     pub margin: f32,
     /// Symmetry-aware largest surface distance from the answer, share of the diameter.
     pub distance_over_diameter: f32,
+    /// The margin is below the server's close-call threshold (`estimate::runner_up::CLOSE_CALL`):
+    /// the photo could hardly tell the two poses apart.
+    #[serde(default)]
+    pub close_call: bool,
 }
 
 impl From<&crate::estimate::RunnerUp> for RunnerUpOutput {
     fn from(u: &crate::estimate::RunnerUp) -> Self {
-        Self { pose: PoseOutput::from(&u.pose), margin: u.margin as f32, distance_over_diameter: u.distance as f32 }
+        Self { pose: PoseOutput::from(&u.pose), margin: u.margin as f32, distance_over_diameter: u.distance as f32, close_call: u.close_call() }
     }
 }
 

@@ -36,6 +36,8 @@ def test_numpy_rgb_with_mask_matches_the_cli(rgb_result: b2tfpose.Result, cli_ma
     assert isinstance(u, b2tfpose.RunnerUp) and u.margin >= 0.0 and u.distance_over_diameter > 0.1
     assert u.pose.rotation_error_deg(r.pose) > 1.0 or u.pose.translation_error_m(r.pose) > 0.0
     assert r.close_call(below=u.margin + 1e-6) and not r.close_call(below=u.margin)
+    # Without a threshold of its own the client takes the server's verdict (below 0.03).
+    assert r.close_call() == u.close_call == (u.margin < 0.03)
 
 
 def test_bgr_frame_gives_the_same_pose(client: b2tfpose.Client, rgb_result: b2tfpose.Result, scene: Scene) -> None:

@@ -146,12 +146,6 @@ def pose_from_pb(m: pb.Pose) -> Pose:
     return Pose(list(m.r), list(m.t))
 
 
-CLOSE_CALL = 0.03
-"""A runner-up margin below this is a close call: on unseen generated scenes the answer was
-right on 30 of 48 instances below it and on 185 of 192 above (the repository's
-docs/benchmarks.md, "The runner-up's margin")."""
-
-
 @dataclass(frozen=True)
 class RunnerUp:
     """A pose the evidence nearly chose instead of the answer: the best pose the server
@@ -160,15 +154,19 @@ class RunnerUp:
 
     pose: Pose
     margin: float
-    """The answer's verification score minus this pose's (>= 0). A small one (below about
-    0.03) says the photo could not tell the two apart: look again, or act on both."""
+    """The answer's verification score minus this pose's (>= 0). A small one says the photo
+    could not tell the two apart: look again, or act on both."""
     distance_over_diameter: float
     """The largest distance of a surface point between this pose and the answer, up to the
     symmetries, as a share of the object's diameter (above 0.1)."""
+    close_call: bool = False
+    """The server's verdict: the margin is below its close-call threshold (0.03; on unseen
+    generated scenes the answer was right on 30 of 48 instances below it and on 185 of 192
+    above, the repository's docs/benchmarks.md, "The runner-up's margin")."""
 
     @classmethod
     def from_pb(cls, m: pb.RunnerUp) -> "RunnerUp":
-        return cls(pose=pose_from_pb(m.pose), margin=m.margin, distance_over_diameter=m.distance_over_diameter)
+        return cls(pose=pose_from_pb(m.pose), margin=m.margin, distance_over_diameter=m.distance_over_diameter, close_call=m.close_call)
 
 
 @dataclass(frozen=True)
@@ -210,10 +208,13 @@ class Result:
     def ok(self) -> bool:
         return self.pose is not None
 
-    def close_call(self, below: float = CLOSE_CALL) -> bool:
-        """Whether another pose nearly won: the runner-up lost by less than ``below``. Worth
-        a second photo from elsewhere before acting on the pose."""
-        return self.runner_up is not None and self.runner_up.margin < below
+    def close_call(self, below: Optional[float] = None) -> bool:
+        """Whether another pose nearly won: the server's verdict (``runner_up.close_call``),
+        or, given ``below``, whether the runner-up lost by less than that. Worth a second
+        photo from elsewhere before acting on the pose."""
+        if self.runner_up is None:
+            return False
+        return self.runner_up.close_call if below is None else self.runner_up.margin < below
 
     @classmethod
     def from_pb(cls, m: pb.InstanceResult) -> "Result":
