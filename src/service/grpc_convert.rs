@@ -206,6 +206,19 @@ mod tests {
         onboard_request(pb::OnboardRequest { object_id: "x".into(), mesh, options, replace: false }).unwrap().options
     }
 
+    /// The server's close-call verdict reaches the gRPC answer as HTTP's JSON has it, each way.
+    #[test]
+    fn the_runner_up_keeps_its_close_call_verdict() {
+        for (margin, close) in [(0.01, true), (0.2, false)] {
+            let u = crate::estimate::RunnerUp { pose: crate::geometry::Pose::identity(), source: crate::estimate::hypotheses::Source::Flip(1), margin, distance: 0.5 };
+            let up = rq::RunnerUpOutput::from(&u);
+            let result = serde_json::json!({"object_id": "x", "instance": 0, "pose": null, "score": 0.9, "detection_index": 0, "reason": null, "diagnostics": [], "timings_ms": {}, "runner_up": up});
+            let r: rq::EstimateResponse = serde_json::from_value(serde_json::json!({"results": [result], "total_ms": 1.0})).unwrap();
+            let pb_up = estimate_response(r).results[0].runner_up.clone().expect("runner-up kept");
+            assert_eq!((pb_up.close_call, pb_up.margin), (close, margin as f32));
+        }
+    }
+
     #[test]
     fn unset_options_take_defaults_and_level_zero_is_kept() {
         let d = OnboardOptions::default();
