@@ -56,8 +56,9 @@ def candidates(path: str) -> dict:
     return out
 
 
-def classify(per_instance: str, per_candidate: str, setting: str) -> list:
-    """(instance row, class, depth miss?) for every wrong answer of `setting`."""
+def classify(per_instance: str, per_candidate: str, setting: str) -> tuple:
+    """The count of `setting`'s instances, and (instance row, class, depth miss?) for
+    every wrong answer among them."""
     cands = candidates(per_candidate)
     misses = []
     with open(per_instance, newline="") as f:
@@ -71,13 +72,13 @@ def classify(per_instance: str, per_candidate: str, setting: str) -> list:
         cls = "outscored" if rendered else "never rendered" if any_right else "no right hypothesis"
         depth = cls == "no right hypothesis" and number(r["rot_err_deg"]) < DEPTH_MISS_DEG
         misses.append((r, cls, depth))
-    return [len(rows)] + misses
+    return len(rows), misses
 
 
 def report(pairs: list, setting: str, listed: bool) -> Counter:
     total, counts, depth = 0, Counter(), 0
     for per_instance, per_candidate in pairs:
-        n, *misses = classify(per_instance, per_candidate, setting)
+        n, misses = classify(per_instance, per_candidate, setting)
         total += n
         for r, cls, d in misses:
             counts[cls] += 1
