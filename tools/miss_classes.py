@@ -25,41 +25,32 @@ import math
 import os
 import sys
 import tempfile
-from collections import Counter, defaultdict
+from collections import Counter
+
+# The same reading of a CSV cell and of an instance's key as the candidate-source tool.
+from hypothesis_sources import instance, number
 
 RIGHT = 0.1
 DEPTH_MISS_DEG = 5.0
 CLASSES = ["no right hypothesis", "outscored", "never rendered"]
 
 
-def number(s: str) -> float:
-    try:
-        return float(s)
-    except ValueError:
-        return math.inf
-
-
-def instance(row: dict) -> tuple:
-    # One object may appear twice in an image: its size tells the two apart.
-    return (row["image"], row["obj_id"], row["size_px"])
-
-
-def candidates(path: str) -> dict:
-    """instance -> (any right hypothesis rendered, any right hypothesis at all)."""
-    out = defaultdict(lambda: [False, False])
+def right_ones(path: str) -> tuple:
+    """The instances with a right hypothesis, and those with a right one that was rendered."""
+    right, rendered = set(), set()
     with open(path, newline="") as f:
         for row in csv.DictReader(f):
             if number(row["mssd_over_diameter"]) < RIGHT:
-                c = out[instance(row)]
-                c[1] = True
-                c[0] = c[0] or math.isfinite(number(row["iou"]))
-    return out
+                right.add(instance(row))
+                if math.isfinite(number(row["iou"])):
+                    rendered.add(instance(row))
+    return right, rendered
 
 
 def classify(per_instance: str, per_candidate: str, setting: str) -> tuple:
     """The count of `setting`'s instances, and (instance row, class, depth miss?) for
     every wrong answer among them."""
-    cands = candidates(per_candidate)
+    right, rendered = right_ones(per_candidate)
     misses = []
     with open(per_instance, newline="") as f:
         rows = [r for r in csv.DictReader(f) if r["setting"] == setting]
@@ -68,8 +59,8 @@ def classify(per_instance: str, per_candidate: str, setting: str) -> tuple:
     for r in rows:
         if number(r["mssd_over_diameter"]) < RIGHT:
             continue
-        rendered, any_right = cands[instance(r)]
-        cls = "outscored" if rendered else "never rendered" if any_right else "no right hypothesis"
+        key = instance(r)
+        cls = "outscored" if key in rendered else "never rendered" if key in right else "no right hypothesis"
         depth = cls == "no right hypothesis" and number(r["rot_err_deg"]) < DEPTH_MISS_DEG
         misses.append((r, cls, depth))
     return len(rows), misses
