@@ -38,7 +38,7 @@ fn scene(seed: u64) -> b2tfpose::eval::scenes::SceneImage {
 
 /// The scene's one instance as a detection: its visible mask, scored 0.9.
 fn true_detection(s: &b2tfpose::eval::scenes::SceneImage) -> [Detection; 1] {
-    [Detection { mask: s.instances[0].mask_visib.clone(), score: 0.9 }]
+    [Detection::new(s.instances[0].mask_visib.clone(), 0.9)]
 }
 
 #[test]
@@ -79,12 +79,12 @@ fn selection_prefers_the_right_mask_over_a_wrong_one() {
             wrong.put_pixel(x, y, image::Luma([255]));
         }
     }
-    let dets = [Detection { mask: wrong, score: 0.8 }, Detection { mask: inst.mask_visib.clone(), score: 0.7 }];
+    let dets = [Detection::new(wrong, 0.8), Detection::new(inst.mask_visib.clone(), 0.7)];
     let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &dets, &EstimateConfig { rrc: false, ..Default::default() }).unwrap();
     assert_eq!(r.hypotheses.len(), 2);
     assert_eq!(r.mask_index, Some(1), "{:?}", r.hypotheses);
     // Below the score threshold, only the best mask is tried.
-    let dets = [Detection { mask: inst.mask_visib.clone(), score: 0.2 }, Detection { mask: inst.mask_visib.clone(), score: 0.1 }];
+    let dets = [Detection::new(inst.mask_visib.clone(), 0.2), Detection::new(inst.mask_visib.clone(), 0.1)];
     let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &dets, &EstimateConfig { rrc: false, ..Default::default() }).unwrap();
     assert_eq!(r.hypotheses.len(), 1);
     assert_eq!(r.hypotheses[0].mask_index, 0);
@@ -95,13 +95,13 @@ fn bad_inputs_are_clear_errors() {
     let f = fixture();
     let s = scene(6);
     let mask = s.instances[0].mask_visib.clone();
-    let ok_det = vec![Detection { mask: mask.clone(), score: 1.0 }];
+    let ok_det = vec![Detection::new(mask.clone(), 1.0)];
     let cfg = EstimateConfig { rrc: false, ..Default::default() };
     let run = |img: &image::RgbImage, k: &Intrinsics, d: &[Detection]| f.estimator.estimate(&f.model, img, k, d, &cfg).unwrap_err().to_string();
 
-    let e = run(&s.rgb, &s.cam, &[Detection { mask: image::GrayImage::new(320, 240), score: 1.0 }]);
+    let e = run(&s.rgb, &s.cam, &[Detection::new(image::GrayImage::new(320, 240), 1.0)]);
     assert!(e.contains("mask 0 is empty"), "{e}");
-    let e = run(&s.rgb, &s.cam, &[Detection { mask: image::GrayImage::new(100, 100), score: 1.0 }]);
+    let e = run(&s.rgb, &s.cam, &[Detection::new(image::GrayImage::new(100, 100), 1.0)]);
     assert!(e.contains("mask 0 is 100×100"), "{e}");
     let e = run(&s.rgb, &Intrinsics { fx: -5.0, ..s.cam }, &ok_det);
     assert!(e.contains("focal"), "{e}");
@@ -111,7 +111,7 @@ fn bad_inputs_are_clear_errors() {
     assert!(e.contains("camera resolution 640×240"), "{e}");
     let e = run(&s.rgb, &s.cam, &[]);
     assert!(e.contains("no detection"), "{e}");
-    let e = run(&s.rgb, &s.cam, &[Detection { mask, score: f32::NAN }]);
+    let e = run(&s.rgb, &s.cam, &[Detection::new(mask, f32::NAN)]);
     assert!(e.contains("non-finite score"), "{e}");
 
     // A model made by another backbone (other parameters, other identity hash).

@@ -111,7 +111,7 @@ fn onboards_and_estimates_end_to_end() {
 
     let scene_cfg = SceneConfig { images: 1, objects_per_image: 1, image_size: (320, 240), fill_range: (0.45, 0.6), max_occlusion: 0.1, seed: 3, ..Default::default() };
     let scene = generate_image(&[(1, model.mesh.clone())], &scene_cfg, &pool, 0).unwrap();
-    let det = [Detection { mask: scene.instances[0].mask_visib.clone(), score: 1.0 }];
+    let det = [Detection::new(scene.instances[0].mask_visib.clone(), 1.0)];
     let estimator = Estimator::new(b.clone(), pool.clone());
     let r = estimator.estimate(&model, &scene.rgb, &scene.cam, &det, &EstimateConfig::default()).unwrap();
     // Random weights say nothing about the object, so only that the pipeline ran through.

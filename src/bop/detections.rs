@@ -214,6 +214,19 @@ impl DetectionRecord {
         };
         require_nonempty(mask).map_err(|e| format!("segmentation: {e}"))
     }
+
+    /// The detection as the estimator's candidates: its one mask (`mask`), or for a
+    /// box-only detection with `BoxMask::Propose` the box's proposals, each carrying the box.
+    pub fn candidates(&self, image: &RgbImage, how: BoxMask, proposals: &crate::masks::ProposalConfig) -> Result<Vec<crate::estimate::Detection>, String> {
+        let score = self.score as f32;
+        match (&self.segmentation, how) {
+            (None, BoxMask::Propose) => {
+                let b = crate::masks::box_masks(image, self.bbox, how, proposals).map_err(|e| format!("bbox: {e}"))?;
+                Ok(b.masks.into_iter().map(|m| crate::estimate::Detection { mask: m, score, from_box: Some(b.bbox) }).collect())
+            }
+            _ => Ok(vec![crate::estimate::Detection::new(self.mask(image, how)?, score)]),
+        }
+    }
 }
 
 /// Detections grouped by `(scene_id, image_id, obj_id)`, best score first.
@@ -453,5 +466,28 @@ mod tests {
         assert!(d.mask(&image, BoxMask::Fill).unwrap_err().contains("bbox: box [20.0, 0.0, 5.0, 5.0] ([x, y, w, h]) lies outside the 10×10 image"));
         d.bbox = [2.0, 2.0, 0.0, 3.0];
         assert!(d.mask(&image, BoxMask::Segment).unwrap_err().contains("zero area"));
+    }
+
+    #[test]
+    fn a_box_proposes_several_candidates_that_carry_it_and_a_mask_stays_one() {
+        // A dark square on a light background, boxed with a margin.
+        let image = RgbImage::from_fn(80, 60, |x, y| image::Rgb(if (30..50).contains(&x) && (20..40).contains(&y) { [30, 30, 90] } else { [230, 220, 210] }));
+        let mut d = record(1, 1, 1, 0.7);
+        d.bbox = [26.0, 16.0, 28.0, 28.0];
+        let all = crate::masks::ProposalConfig::default();
+        let c = d.candidates(&image, BoxMask::Propose, &all).unwrap();
+        assert!(c.len() >= 2, "{} proposals", c.len());
+        let b = crate::masks::PixelBox { x0: 26, y0: 16, x1: 54, y1: 44 };
+        assert!(c.iter().all(|c| c.from_box == Some(b) && c.score == 0.7));
+        // One segmentation, or a given mask: one candidate, without a box.
+        let one = d.candidates(&image, BoxMask::Segment, &all).unwrap();
+        assert_eq!((one.len(), one[0].from_box), (1, None));
+        d.segmentation = Some(crate::masks::Rle::encode(&one[0].mask));
+        let given = d.candidates(&image, BoxMask::Propose, &all).unwrap();
+        assert_eq!((given.len(), given[0].from_box), (1, None));
+        // A bad box is the same error whichever way it becomes masks.
+        d.segmentation = None;
+        d.bbox = [20.0, 0.0, 0.0, 5.0];
+        assert!(d.candidates(&image, BoxMask::Propose, &all).unwrap_err().contains("bbox: box [20.0, 0.0, 0.0, 5.0] ([x, y, w, h]) has zero area"));
     }
 }

@@ -37,13 +37,14 @@ pub struct RunOptions {
     /// Masks of one object overlapping their group's best mask at least this much are
     /// treated as candidates for the same instance.
     pub same_instance_iou: f64,
-    /// How box-only detections become masks.
+    /// How box-only detections become masks, and the proposals' sources.
     pub box_mask: BoxMask,
+    pub proposals: crate::masks::ProposalConfig,
 }
 
 impl Default for RunOptions {
     fn default() -> Self {
-        Self { split: "test".into(), estimate: EstimateConfig::default(), same_instance_iou: 0.5, box_mask: BoxMask::Segment }
+        Self { split: "test".into(), estimate: EstimateConfig::default(), same_instance_iou: 0.5, box_mask: BoxMask::Propose, proposals: Default::default() }
     }
 }
 
@@ -123,18 +124,19 @@ pub fn run(
             }
         };
         let mut rows = Vec::new();
-        // Every target's masks first: each instance's refiner learns where the other
-        // detections of the image are (it may be hidden there).
-        let mut decoded: Vec<Vec<(image::GrayImage, f64)>> = Vec::with_capacity(targets.len());
+        // Every target's candidates first: each instance's refiner learns where the other
+        // detections of the image are (it may be hidden there). A detection is one mask,
+        // or a box's proposals; its first mask stands for it in grouping and for others.
+        let mut decoded: Vec<Vec<Vec<Detection>>> = Vec::with_capacity(targets.len());
         for t in &targets {
-            let mut masks = Vec::new();
+            let mut found = Vec::new();
             for d in detections.get(scene_id, im_id, t.obj_id) {
-                match d.mask(&rgb, opts.box_mask) {
-                    Ok(m) => masks.push((m, d.score)),
+                match d.candidates(&rgb, opts.box_mask, &opts.proposals) {
+                    Ok(c) => found.push(c),
                     Err(_) => summary.unusable_detections += 1,
                 }
             }
-            decoded.push(masks);
+            decoded.push(found);
         }
         for (ti, (t, masks)) in targets.iter().zip(&decoded).enumerate() {
             summary.targets += 1;
@@ -144,7 +146,7 @@ pub fn run(
                 continue;
             }
             let m = model(t.obj_id)?;
-            let refs: Vec<_> = masks.iter().map(|(m, s)| (m, *s)).collect();
+            let refs: Vec<_> = masks.iter().map(|c| (&c[0].mask, c[0].score as f64)).collect();
             // The detector's own candidates are confirmed at their estimated poses, a few
             // more than wanted estimated so that confirmation can choose.
             let (choice, pool) = match &source {
@@ -153,9 +155,9 @@ pub fn run(
             };
             let wanted = t.inst_count as usize;
             let answered = estimate_instances(group_instances(&refs, opts.same_instance_iou), wanted, choice, |group| {
-                let candidates: Vec<Detection> = group.iter().map(|&i| Detection { mask: masks[i].0.clone(), score: masks[i].1 as f32 }).collect();
+                let candidates: Vec<Detection> = group.iter().flat_map(|&i| masks[i].iter().cloned()).collect();
                 let group = &group;
-                let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, (m, _))| m));
+                let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, c)| &c[0].mask));
                 let others = crate::masks::union(others, camera.cam.width, camera.cam.height);
                 let r = match estimator.estimate_among(&m, &rgb, &camera.cam, &candidates, others.as_ref(), &opts.estimate) {
                     Ok(r) => r,

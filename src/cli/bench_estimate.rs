@@ -175,7 +175,7 @@ impl BoxTally {
         self.filled_iou.push(crate::masks::mask_iou(&filled.mask, truth));
         self.ms.push(s.ms);
         self.fallbacks += (s.method == crate::masks::Method::EllipseFallback) as usize;
-        Ok(Detection { mask: s.mask, score: 1.0 })
+        Ok(Detection::new(s.mask, 1.0))
     }
 
     fn report(&mut self) {
@@ -368,7 +368,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         let mut overlay = scene.rgb.clone();
         // Every instance's detection first: each is estimated among the others, as in a
         // request that names every object in the picture.
-        let dets: Vec<Detection> = scene.instances.iter().map(|inst| if a.from_boxes { boxes.detection(&scene.rgb, &inst.mask_visib, if a.fill_boxes { crate::masks::BoxMask::Fill } else { crate::masks::BoxMask::Segment }) } else { Ok(Detection { mask: inst.mask_visib.clone(), score: 1.0 }) }).collect::<Result<_>>()?;
+        let dets: Vec<Detection> = scene.instances.iter().map(|inst| if a.from_boxes { boxes.detection(&scene.rgb, &inst.mask_visib, if a.fill_boxes { crate::masks::BoxMask::Fill } else { crate::masks::BoxMask::Segment }) } else { Ok(Detection::new(inst.mask_visib.clone(), 1.0)) }).collect::<Result<_>>()?;
         for (n, inst) in scene.instances.iter().enumerate() {
             instances += 1;
             if let Some(dir) = &a.mask_diffs {

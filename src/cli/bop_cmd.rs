@@ -65,9 +65,14 @@ pub struct RunArgs {
     /// Memory for loaded objects, MB (least recently used ones are dropped beyond it).
     #[arg(long, default_value_t = 4000)]
     pub cache_mb: u64,
-    /// Box-only detections: segment the object inside the box, or fill the box.
-    #[arg(long, default_value = "segment")]
+    /// Box-only detections: several mask proposals chosen among by their poses
+    /// (`propose`), one segmentation inside the box (`segment`), or the filled box.
+    #[arg(long, default_value = "propose")]
     pub box_mask: crate::masks::BoxMask,
+    /// With `--box-mask propose`: the proposals' sources, comma-separated (cut,
+    /// smooth-cut, wide-ring-cut, ellipse, fill).
+    #[arg(long, default_value = "cut,smooth-cut,wide-ring-cut,ellipse")]
+    pub box_proposals: crate::masks::ProposalConfig,
 }
 
 #[derive(Args, Debug)]
@@ -146,7 +151,7 @@ fn run_cmd(a: RunArgs) -> Result<()> {
         Ok(models.get(&id)?)
     };
     let estimate = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), print: a.verify.print_config(), ..Default::default() };
-    let opts = RunOptions { split: a.split.clone(), estimate, box_mask: a.box_mask, ..Default::default() };
+    let opts = RunOptions { split: a.split.clone(), estimate, box_mask: a.box_mask, proposals: a.box_proposals.clone(), ..Default::default() };
     let pb = super::progress::bar(0, "images");
     let progress = |done: usize, total: usize| {
         pb.set_length(total as u64);

@@ -91,7 +91,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let scene = make_scene(&mesh, &renderer, a.seed, &a.out)?;
     let estimator = Estimator::new(backbone, renderer.clone());
     let cfg = EstimateConfig { rrc: !a.no_rrc, ..Default::default() };
-    let result = estimator.estimate(&model, &scene.photo, &scene.k, &[Detection { mask: scene.mask.clone(), score: 1.0 }], &cfg)?;
+    let result = estimator.estimate(&model, &scene.photo, &scene.k, &[Detection::new(scene.mask.clone(), 1.0)], &cfg)?;
     std::fs::write(a.out.join("result.json"), serde_json::to_vec_pretty(&result_json(&model, &result))?)?;
     match &result.pose {
         Some(p) => {

@@ -71,12 +71,12 @@ fn detections(a: &EstimateArgs, image: &image::RgbImage) -> Result<Vec<Detection
         let mask = crate::masks::decode::check_size(load_mask(p)?, width, height)
             .and_then(crate::masks::require_nonempty)
             .with_context(|| format!("--mask {}", p.display()))?;
-        out.push(Detection { mask, score: score(i) });
+        out.push(Detection::new(mask, score(i)));
     }
     for (j, b) in a.boxes.iter().enumerate() {
         let s = crate::masks::box_to_mask(image, *b, crate::masks::BoxMask::Segment).with_context(|| format!("--box {}", b.map(|v| v.to_string()).join(",")))?;
         println!("box {j}: {:?}, {:.0} % of the box, {:.0} ms{}", s.method, s.fill * 100.0, s.ms, s.note.map(|n| format!(" ({n})")).unwrap_or_default());
-        out.push(Detection { mask: s.mask, score: score(a.masks.len() + j) });
+        out.push(Detection::new(s.mask, score(a.masks.len() + j)));
     }
     Ok(out)
 }
@@ -91,7 +91,7 @@ fn estimate_detected(a: &EstimateArgs, model: &ObjectModel, image: &image::RgbIm
     let refs: Vec<(&image::GrayImage, f64)> = found.iter().map(|d| (&d.mask, d.score as f64)).collect();
     let mut count = 0;
     let answered = estimate_instances(crate::masks::group_instances(&refs, 0.5), 1, Choice::Confirmed { min_score }, |group| {
-        let candidates: Vec<Detection> = group.iter().map(|&i| Detection { mask: found[i].mask.clone(), score: found[i].score }).collect();
+        let candidates: Vec<Detection> = group.iter().map(|&i| Detection::new(found[i].mask.clone(), found[i].score)).collect();
         let r = estimator.estimate(model, image, k, &candidates, cfg)?;
         count += 1;
         let confirmation = match &r.pose {

@@ -11,12 +11,13 @@ use super::verify::{render_evidence, score as verification_score, Verified, Veri
 use rayon::prelude::*;
 use super::retrieve::{retrieve, RetrievalConfig};
 use super::rrc::rrc_pool;
-use super::select::{combined_scores, mask_window, render_window, window_iou, SelectionConfig};
+use super::select::{box_agreement, combined_scores, mask_window, render_window, window_iou, SelectionConfig};
 use super::EstimateError;
 use crate::features::{crop_query, Backbone};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
 use crate::render::RenderPool;
+use crate::masks::PixelBox;
 use image::{GrayImage, RgbImage};
 use std::sync::Arc;
 use std::time::Instant;
@@ -84,6 +85,17 @@ fn default_rrc_render_cap() -> u32 {
 pub struct Detection {
     pub mask: GrayImage,
     pub score: f32,
+    /// The caller's box, where the mask is one of several proposed from a box
+    /// (`masks::proposals`): the proposals of one box count as one candidate, and their
+    /// poses are judged by how well they fill the box as well as by their own mask.
+    pub from_box: Option<PixelBox>,
+}
+
+impl Detection {
+    /// A mask the caller (or its detector) made.
+    pub fn new(mask: GrayImage, score: f32) -> Self {
+        Self { mask, score, from_box: None }
+    }
 }
 
 /// Milliseconds per stage, summed over the masks of one estimate.
@@ -131,6 +143,10 @@ pub struct Hypothesis {
     /// Selection inputs and result (NaN until scored).
     pub cosine: f32,
     pub iou: f32,
+    /// Where the mask was proposed from a box: the IoU of the box around the kept pose's
+    /// visible render with that box (`select::box_agreement`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub box_agreement: Option<f32>,
     pub score: f32,
     /// Why this hypothesis has no pose or was dropped.
     pub failure: Option<String>,
@@ -236,14 +252,22 @@ impl Estimator {
         Ok(())
     }
 
-    /// Indices of the masks to try: score ≥ threshold, best first, at most `max_masks`;
-    /// the best one when none passes.
+    /// Indices of the masks to try: score ≥ threshold, best first, at most `max_masks`
+    /// (the proposals of one box count once, and all of them are tried); the best one
+    /// when none passes.
     fn candidate_masks(detections: &[Detection], cfg: &EstimateConfig) -> Vec<usize> {
         let mut order: Vec<usize> = (0..detections.len()).collect();
         order.sort_by(|&a, &b| detections[b].score.total_cmp(&detections[a].score));
-        let mut kept: Vec<usize> = order.iter().copied().filter(|&i| detections[i].score >= cfg.min_mask_score).take(cfg.max_masks.max(1)).collect();
-        if kept.is_empty() {
-            kept.push(order[0]);
+        let mut kept: Vec<usize> = Vec::new();
+        let mut sources = 0;
+        for i in order {
+            let d = &detections[i];
+            if d.from_box.is_some() && kept.iter().any(|&j| detections[j].from_box == d.from_box) {
+                kept.push(i);
+            } else if sources < cfg.max_masks.max(1) && (d.score >= cfg.min_mask_score || sources == 0) {
+                kept.push(i);
+                sources += 1;
+            }
         }
         kept
     }
@@ -298,7 +322,7 @@ impl Estimator {
                 let t = Instant::now();
                 let _span = tracing::info_span!("refine", refiner = cfg.refiner.name(), verify = cfg.verify.enabled).entered();
                 if cfg.verify.enabled {
-                    h.verified = self.verify(&ctx, (source, p), &retrieved, (&matched, hints), q, cfg)?;
+                    h.verified = self.verify(&ctx, (source, p), detections[mi].from_box, &retrieved, (&matched, hints), q, cfg)?;
                     if let Some(best) = h.verified.first_mut() {
                         h.pose = Some(best.pose);
                         h.refinement = Some(best.refinement.clone());
@@ -356,8 +380,12 @@ impl Estimator {
     /// for all, then a render (IoU, appearance) for the best by contour and those the
     /// outline cannot tell from it (`verify::to_render`), then, where nothing the winner
     /// shows agrees with the photo's print, a second look (`second_look`). Best first.
-    fn verify(&self, ctx: &RefineContext<'_>, (start, pose): (Source, Pose), retrieved: &[usize], (matched, hints): (&[Pose], &[Pose]), query: &QueryView, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
-        let replaced = crate::features::mask_bbox(ctx.mask).filter(|_| cfg.verify.replace_off_mask).and_then(|b| super::hypotheses::replaced_at_mask(&ctx.model.mesh, &pose, b, ctx.intrinsics));
+    #[allow(clippy::too_many_arguments)]
+    fn verify(&self, ctx: &RefineContext<'_>, (start, pose): (Source, Pose), from_box: Option<PixelBox>, retrieved: &[usize], (matched, hints): (&[Pose], &[Pose]), query: &QueryView, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
+        // A box's proposals are placed at the box, which the caller drew, not at the
+        // proposal's own extent, which may have taken in clutter.
+        let place = from_box.map(|b| (b.x0, b.y0, b.x1 - 1, b.y1 - 1)).or_else(|| crate::features::mask_bbox(ctx.mask));
+        let replaced = place.filter(|_| cfg.verify.replace_off_mask).and_then(|b| super::hypotheses::replaced_at_mask(&ctx.model.mesh, &pose, b, ctx.intrinsics));
         let mut candidates = super::hypotheses::candidates(ctx.model, (start, &pose), replaced.as_ref(), retrieved, &cfg.verify, &query.crop_box, ctx.intrinsics);
         candidates.extend(matched.iter().enumerate().map(|(i, &p)| (Source::Matched(i), p)).filter(|&(s, _)| s != start));
         candidates.extend(hints.iter().enumerate().map(|(i, &p)| (Source::Hint(i), p)));
@@ -530,6 +558,7 @@ impl Estimator {
                 None => render_window(&self.renderer, &model.mesh, &pose, k, window)?,
             };
             h.iou = window_iou(&render, mask, others.filter(|_| cfg.verify.occlusion_aware_iou), window);
+            h.box_agreement = detections[chosen[i]].from_box.map(|b| box_agreement(&render, window, &b, others));
             if h.iou < cfg.selection.iou_gate {
                 h.failure = Some(format!("rendered mask IoU {:.2} < gate {:.2}", h.iou, cfg.selection.iou_gate));
                 continue;
@@ -544,7 +573,10 @@ impl Estimator {
             hyps[i].cosine = fm.global.iter().zip(&queries[i].features.global).map(|(a, b)| a * b).sum();
         }
         let cos: Vec<f32> = owners.iter().map(|&i| hyps[i].cosine).collect();
-        let iou: Vec<f32> = owners.iter().map(|&i| hyps[i].iou).collect();
+        // A pose from a box's proposal is judged by how well it fills the box, not by its
+        // own mask: every proposal's pose was fitted to that proposal, so agreeing with it
+        // says nothing about which proposal was right.
+        let iou: Vec<f32> = owners.iter().map(|&i| hyps[i].box_agreement.unwrap_or(hyps[i].iou)).collect();
         let det: Vec<f32> = owners.iter().map(|&i| hyps[i].detector_score).collect();
         let scores = combined_scores(&cos, &iou, &det, &cfg.selection.weights);
         for (&i, s) in owners.iter().zip(&scores) {
@@ -578,4 +610,28 @@ fn confidence(h: &Hypothesis, w: &[f32; 3]) -> f32 {
 
 fn run_pnp(c: &Correspondences, k: &Intrinsics, cfg: &PnpConfig) -> Result<PnpResult, super::pnp::PnpError> {
     solve_pnp_ransac(&c.image_points, &c.object_points, k, cfg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn det(score: f32, from_box: Option<PixelBox>) -> Detection {
+        Detection { mask: GrayImage::new(1, 1), score, from_box }
+    }
+
+    #[test]
+    fn a_boxs_proposals_count_as_one_candidate_and_are_all_tried() {
+        let (a, b) = (PixelBox { x0: 0, y0: 0, x1: 4, y1: 4 }, PixelBox { x0: 5, y0: 5, x1: 9, y1: 9 });
+        let cfg = EstimateConfig { max_masks: 2, ..Default::default() };
+        // Three proposals of box a, a mask of its own, then box b: over max_masks.
+        let dets = [det(0.9, Some(a)), det(0.9, Some(a)), det(0.8, Some(b)), det(0.85, None), det(0.9, Some(a)), det(0.8, Some(b))];
+        assert_eq!(Estimator::candidate_masks(&dets, &cfg), vec![0, 1, 4, 3]);
+        // Masks without boxes: the best max_masks above the threshold, as before.
+        let plain = [det(0.2, None), det(0.9, None), det(0.5, None), det(0.7, None)];
+        assert_eq!(Estimator::candidate_masks(&plain, &cfg), vec![1, 3]);
+        // None passes: the best alone.
+        let low = [det(0.1, None), det(0.3, None)];
+        assert_eq!(Estimator::candidate_masks(&low, &cfg), vec![1]);
+    }
 }

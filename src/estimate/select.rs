@@ -64,6 +64,33 @@ pub fn window_iou(render: &RenderOutput, mask: &GrayImage, hidden: Option<&GrayI
     if union == 0 { 0.0 } else { inter as f32 / union as f32 }
 }
 
+/// How well a window render fills the caller's box `b`: the IoU of `b` with the box around
+/// the render's pixels that no other detection (`hidden`, full-size) covers. An object
+/// half hidden behind another detection is judged on the part the box could have seen;
+/// 0 when nothing of the render is visible.
+pub fn box_agreement(render: &RenderOutput, window: (u32, u32, u32, u32), b: &crate::masks::PixelBox, hidden: Option<&GrayImage>) -> f32 {
+    let (x0, y0, w, h) = window;
+    let (mut lo, mut hi) = ([u32::MAX; 2], [0u32; 2]);
+    for y in 0..h {
+        for x in 0..w {
+            let (ix, iy) = (x0 + x, y0 + y);
+            if render.mask.get_pixel(x, y)[0] == 0 || hidden.is_some_and(|o| o.get_pixel(ix, iy)[0] > 0) {
+                continue;
+            }
+            lo = [lo[0].min(ix), lo[1].min(iy)];
+            hi = [hi[0].max(ix + 1), hi[1].max(iy + 1)];
+        }
+    }
+    if lo[0] >= hi[0] {
+        return 0.0;
+    }
+    let span = |a0: u32, a1: u32, b0: u32, b1: u32| a1.min(b1).saturating_sub(a0.max(b0)) as f64;
+    let inter = span(lo[0], hi[0], b.x0, b.x1) * span(lo[1], hi[1], b.y0, b.y1);
+    let area = |w: u32, h: u32| w as f64 * h as f64;
+    let union = area(hi[0] - lo[0], hi[1] - lo[1]) + b.area() as f64 - inter;
+    (inter / union) as f32
+}
+
 /// z-score of each value across the set; all zeros when the values do not vary.
 pub fn z_normalise(v: &[f32]) -> Vec<f32> {
     let n = v.len() as f32;
@@ -93,6 +120,25 @@ mod tests {
         // IoU dominates: the second hypothesis wins despite a lower cosine.
         let s = combined_scores(&[0.9, 0.8], &[0.5, 0.9], &[0.9, 0.9], &[0.2, 0.5, 0.3]);
         assert!(s[1] > s[0]);
+    }
+
+    #[test]
+    fn box_agreement_is_the_iou_of_the_visible_renders_box_with_the_callers() {
+        // A render of 20×10 pixels at (12, 14) in a window at (10, 10).
+        let mask = GrayImage::from_fn(40, 30, |x, y| image::Luma([if (2..22).contains(&x) && (4..14).contains(&y) { 255 } else { 0 }]));
+        let render = RenderOutput { rgb: image::RgbImage::new(40, 30), depth: vec![0.0; 1200], mask };
+        let window = (10, 10, 40, 30);
+        let exact = crate::masks::PixelBox { x0: 12, y0: 14, x1: 32, y1: 24 };
+        assert_eq!(box_agreement(&render, window, &exact, None), 1.0);
+        // The caller's box half as wide: IoU 100 / 200.
+        let half = crate::masks::PixelBox { x1: 22, ..exact };
+        assert_eq!(box_agreement(&render, window, &half, None), 0.5);
+        // The render's right half hidden by another detection: it fills the half box.
+        let hidden = GrayImage::from_fn(60, 50, |x, _| image::Luma([if x >= 22 { 255 } else { 0 }]));
+        assert_eq!(box_agreement(&render, window, &half, Some(&hidden)), 1.0);
+        // Nothing visible: no agreement.
+        let all = GrayImage::from_pixel(60, 50, image::Luma([255]));
+        assert_eq!(box_agreement(&render, window, &exact, Some(&all)), 0.0);
     }
 
     #[test]

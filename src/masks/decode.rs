@@ -45,8 +45,11 @@ impl From<ImageRefused> for MaskError {
 /// How a box-only detection becomes a mask.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum BoxMask {
-    /// Segment the object inside the box ([`segment_box`]).
+    /// Several proposals ([`super::proposals`]), among which the estimator chooses by
+    /// the poses they lead to.
     #[default]
+    Propose,
+    /// One segmentation of the object inside the box ([`segment_box`]).
     Segment,
     /// The whole box (the behaviour before segmentation existed; a poor outline).
     Fill,
@@ -56,9 +59,10 @@ impl std::str::FromStr for BoxMask {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
         match s {
+            "propose" => Ok(BoxMask::Propose),
             "segment" => Ok(BoxMask::Segment),
             "fill" => Ok(BoxMask::Fill),
-            other => Err(format!("box mask {other:?}: expected segment or fill")),
+            other => Err(format!("box mask {other:?}: expected propose, segment or fill")),
         }
     }
 }
@@ -163,16 +167,35 @@ pub fn box_to_mask(image: &RgbImage, bbox: [f64; 4], how: BoxMask) -> Result<Seg
     box_to_mask_with(image, bbox, how, &SegmentConfig::default())
 }
 
-/// `box_to_mask` with the segmentation's settings.
+/// `box_to_mask` with the segmentation's settings (`Propose` makes the one segmentation
+/// too: a single mask has no choice to offer).
 pub fn box_to_mask_with(image: &RgbImage, bbox: [f64; 4], how: BoxMask, cfg: &SegmentConfig) -> Result<Segmentation, MaskError> {
     let b = PixelBox::from_xywh(bbox, image.width(), image.height())?;
     Ok(match how {
-        BoxMask::Segment => segment_box(image, &b, cfg),
+        BoxMask::Propose | BoxMask::Segment => segment_box(image, &b, cfg),
         BoxMask::Fill => {
             let t = Instant::now();
             let mask = b.filled(image.width(), image.height());
             Segmentation { mask, method: Method::Fill, fill: 1.0, ms: t.elapsed().as_secs_f64() * 1e3, note: None }
         }
+    })
+}
+
+/// What a box-only detection offers the estimator: the box clipped to `image`, whether its
+/// masks are proposals to choose among (`Propose`), and the masks, never empty.
+pub struct BoxMasks {
+    pub bbox: PixelBox,
+    pub proposed: bool,
+    pub masks: Vec<GrayImage>,
+}
+
+/// The masks of a box-only detection as `how` says: every proposal of
+/// [`super::proposals::propose`], or the one mask of [`box_to_mask`].
+pub fn box_masks(image: &RgbImage, bbox: [f64; 4], how: BoxMask, proposals: &super::ProposalConfig) -> Result<BoxMasks, MaskError> {
+    let b = PixelBox::from_xywh(bbox, image.width(), image.height())?;
+    Ok(match how {
+        BoxMask::Propose => BoxMasks { bbox: b, proposed: true, masks: super::proposals::propose(image, &b, proposals).into_iter().map(|p| p.mask).collect() },
+        one => BoxMasks { bbox: b, proposed: false, masks: vec![box_to_mask(image, bbox, one)?.mask] },
     })
 }
 
@@ -211,7 +234,7 @@ mod tests {
             let err = PixelBox::from_xywh(bbox, 10, 10).unwrap_err().to_string();
             assert!(err.contains(expected), "{bbox:?}: {err}");
             let image = RgbImage::new(10, 10);
-            for how in [BoxMask::Segment, BoxMask::Fill] {
+            for how in [BoxMask::Propose, BoxMask::Segment, BoxMask::Fill] {
                 assert_eq!(box_to_mask(&image, bbox, how).unwrap_err().to_string(), err);
             }
         }

@@ -331,7 +331,7 @@ impl Core {
                 if deadline.is_some_and(|d| Instant::now() >= d) {
                     return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", results.len() + instance)));
                 }
-                let candidates: Vec<Detection> = group.iter().map(|&g| Detection { mask: dets[g].1.clone(), score: dets[g].2 }).collect();
+                let candidates: Vec<Detection> = group.iter().map(|&g| Detection::new(dets[g].1.clone(), dets[g].2)).collect();
                 let others = others_mask(&by_object, object_id, &group, k.width, k.height);
                 let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
                 let r = span.in_scope(|| self.estimator.estimate_among(model, &image, &k, &candidates, others.as_ref(), &cfg))?;

@@ -358,7 +358,7 @@ fn frame_number(given: Option<u64>, last: Option<u64>) -> Result<u64, SessionErr
 /// A full estimate from one mask: the pose and its rendered silhouette's IoU with the
 /// mask, or why there is none.
 fn full_estimate(estimator: &Estimator, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, mask: GrayImage, score: f32) -> Result<Result<(Pose, f64), String>, SessionError> {
-    match estimator.estimate(model, image, k, &[Detection { mask, score }], &EstimateConfig::default()) {
+    match estimator.estimate(model, image, k, &[Detection::new(mask, score)], &EstimateConfig::default()) {
         Ok(r) => {
             let iou = r.hypotheses.iter().find(|h| Some(h.mask_index) == r.mask_index).map_or(f64::NAN, |h| h.iou as f64);
             Ok(r.pose.map(|p| (p, iou)).ok_or_else(|| r.reason.unwrap_or_else(|| "no pose".into())))
