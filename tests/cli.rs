@@ -155,12 +155,13 @@ fn estimate_writes_the_result_json_and_overlay() {
     }
     assert!(image::open(&overlay).is_ok());
 
-    // A box instead of the mask: the object is segmented inside it.
+    // A box instead of the mask: mask proposals inside it, the answer naming the box.
     let (x0, y0, x1, y1) = b2tfpose::features::mask_bbox(&image::open(&mask).unwrap().to_luma8()).unwrap();
     let bbox = format!("{x0},{y0},{},{}", x1 - x0 + 1, y1 - y0 + 1);
     let (ok, out, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--box", &bbox, "--no-rrc", "--out", s(&result)]);
-    assert!(ok && out.contains("GraphCut"), "{out}{err}");
+    assert!(ok && out.contains("mask proposals filling"), "{out}{err}");
     let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&result).unwrap()).unwrap();
+    assert_eq!(doc["poses"][0]["mask_index"], 0, "{doc}");
     let t: Vec<f64> = doc["poses"][0]["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
     assert!((t[2] - 0.6).abs() < 0.06, "depth from a box {t:?}");
 

@@ -226,15 +226,27 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     let object = r.mask.pixels().filter(|p| p.0[0] > 0).count();
     assert!(overlay.dimensions() == (320, 240) && changed * 2 > object, "{:?}: {changed} pixels drawn over an object of {object}", overlay.dimensions());
 
-    // A box alone: the object is segmented inside it, and the pose is as good.
+    // A box alone: mask proposals inside it, and the pose is as good.
     let (x0, y0, x1, y1) = b2tfpose::features::mask_bbox(&r.mask).unwrap();
     let box_dets = json!([{"object_id": "box", "bbox": [x0, y0, x1 - x0 + 1, y1 - y0 + 1], "score": 0.9}]);
-    let (s, est_box) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&request(good_image.clone(), intrinsics.clone(), box_dets)));
+    let (s, est_box) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&request(good_image.clone(), intrinsics.clone(), box_dets.clone())));
     assert_eq!(s, 200, "{est_box}");
     let pose = &est_box["results"][0]["pose"];
     let floats = |v: &Value| v.as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect::<Vec<f64>>();
     let (rot, trans) = pose_errors(&floats(&pose["R"]), &floats(&pose["t"]), truth);
     assert!(rot < 10.0 && trans < 0.03, "from a box: rotation error {rot:.1}°, translation error {:.1} mm", trans * 1e3);
+    // The box became proposals (here, on a clean scene, the cuts agree and count once);
+    // the answer names the caller's detection, and each proposal's pose says how well it
+    // filled the box.
+    assert_eq!(est_box["results"][0]["detection_index"], 0, "{est_box}");
+    let hyps = est_box["results"][0]["diagnostics"].as_array().unwrap();
+    assert!(!hyps.is_empty() && hyps.iter().all(|h| h["box_agreement"].as_f64().is_some_and(|b| (0.0..=1.0).contains(&b))), "{hyps:?}");
+    // A box and a mask of the same instance: one instance, whose answer points at one of the
+    // two detections, never at a proposal's place in the list.
+    let (bx, mk) = (box_dets[0].clone(), json!({"object_id": "box", "mask_png": png(&r.mask), "score": 0.5}));
+    let (s, both) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&request(good_image.clone(), intrinsics.clone(), json!([bx, mk]))));
+    assert_eq!(s, 200, "{both}");
+    assert!(both["results"].as_array().unwrap().len() == 1 && both["results"][0]["detection_index"].as_u64().is_some_and(|i| i <= 1), "{both}");
 
     // Bad inputs: each gets its status and names the problem; the server keeps serving.
     let small_mask = png(&image::GrayImage::new(10, 10));

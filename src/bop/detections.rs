@@ -474,9 +474,12 @@ mod tests {
         let image = RgbImage::from_fn(80, 60, |x, y| image::Rgb(if (30..50).contains(&x) && (20..40).contains(&y) { [30, 30, 90] } else { [230, 220, 210] }));
         let mut d = record(1, 1, 1, 0.7);
         d.bbox = [26.0, 16.0, 28.0, 28.0];
-        let all = crate::masks::ProposalConfig::default();
+        // A clean square: the three cuts agree and count once; the ellipse differs.
+        let cuts = crate::masks::ProposalConfig::default();
+        assert_eq!(d.candidates(&image, BoxMask::Propose, &cuts).unwrap().len(), 1);
+        let all: crate::masks::ProposalConfig = "cut,smooth-cut,wide-ring-cut,ellipse".parse().unwrap();
         let c = d.candidates(&image, BoxMask::Propose, &all).unwrap();
-        assert!(c.len() >= 2, "{} proposals", c.len());
+        assert_eq!(c.len(), 2, "{} proposals", c.len());
         let b = crate::masks::PixelBox { x0: 26, y0: 16, x1: 54, y1: 44 };
         assert!(c.iter().all(|c| c.from_box == Some(b) && c.score == 0.7));
         // One segmentation, or a given mask: one candidate, without a box.

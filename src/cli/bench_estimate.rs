@@ -100,6 +100,12 @@ pub struct BenchEstimateArgs {
     /// With --from-boxes: fill the boxes instead of segmenting them (the old behaviour).
     #[arg(long, requires = "from_boxes")]
     pub fill_boxes: bool,
+    /// With --from-boxes: several mask proposals per box from these sources, chosen
+    /// among by their poses as `bop run`, the service and `b2tf estimate --box` do
+    /// (e.g. cut,smooth-cut,wide-ring-cut,ellipse); without it, the one cut. The mask
+    /// figures printed are the first proposal's (the cut's).
+    #[arg(long, requires = "from_boxes", conflicts_with = "fill_boxes")]
+    pub box_proposals: Option<crate::masks::ProposalConfig>,
     /// With --from-boxes: keep the graph cut's outline as it is, without settling its
     /// pixels by coverage (`masks::outline_matte`), for comparison.
     #[arg(long, requires = "from_boxes")]
@@ -162,8 +168,9 @@ struct BoxTally {
 }
 
 impl BoxTally {
-    /// The detection a box-only detector would give for `truth`: its tight box, segmented.
-    fn detection(&mut self, image: &image::RgbImage, truth: &image::GrayImage, how: crate::masks::BoxMask) -> Result<Detection> {
+    /// The detection a box-only detector would give for `truth`: its tight box, segmented
+    /// (and, with `proposals`, that cut's fellow proposals after it, each carrying the box).
+    fn detection(&mut self, image: &image::RgbImage, truth: &image::GrayImage, how: crate::masks::BoxMask, proposals: Option<&crate::masks::ProposalConfig>) -> Result<Vec<Detection>> {
         let (x0, y0, x1, y1) = crate::features::mask_bbox(truth).ok_or_else(|| anyhow::anyhow!("empty visible mask"))?;
         let bbox = [x0 as f64, y0 as f64, (x1 - x0 + 1) as f64, (y1 - y0 + 1) as f64];
         let s = crate::masks::box_to_mask_with(image, bbox, how, &self.segment)?;
@@ -175,7 +182,13 @@ impl BoxTally {
         self.filled_iou.push(crate::masks::mask_iou(&filled.mask, truth));
         self.ms.push(s.ms);
         self.fallbacks += (s.method == crate::masks::Method::EllipseFallback) as usize;
-        Ok(Detection::new(s.mask, 1.0))
+        Ok(match proposals {
+            Some(p) => {
+                let b = crate::masks::box_masks(image, bbox, crate::masks::BoxMask::Propose, p)?;
+                b.masks.into_iter().map(|mask| Detection { mask, score: 1.0, from_box: Some(b.bbox) }).collect()
+            }
+            None => vec![Detection::new(s.mask, 1.0)],
+        })
     }
 
     fn report(&mut self) {
@@ -368,16 +381,19 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         let mut overlay = scene.rgb.clone();
         // Every instance's detection first: each is estimated among the others, as in a
         // request that names every object in the picture.
-        let dets: Vec<Detection> = scene.instances.iter().map(|inst| if a.from_boxes { boxes.detection(&scene.rgb, &inst.mask_visib, if a.fill_boxes { crate::masks::BoxMask::Fill } else { crate::masks::BoxMask::Segment }) } else { Ok(Detection::new(inst.mask_visib.clone(), 1.0)) }).collect::<Result<_>>()?;
+        // Each instance's candidates: its one mask, or its box's proposals; the first stands
+        // for the instance where other instances are concerned.
+        let how = if a.fill_boxes { crate::masks::BoxMask::Fill } else { crate::masks::BoxMask::Segment };
+        let dets: Vec<Vec<Detection>> = scene.instances.iter().map(|inst| if a.from_boxes { boxes.detection(&scene.rgb, &inst.mask_visib, how, a.box_proposals.as_ref()) } else { Ok(vec![Detection::new(inst.mask_visib.clone(), 1.0)]) }).collect::<Result<_>>()?;
         for (n, inst) in scene.instances.iter().enumerate() {
             instances += 1;
             if let Some(dir) = &a.mask_diffs {
                 let path = dir.join(format!("{im:04}_{}.png", inst.obj_id));
-                mask_diff(&scene.rgb, &dets[n].mask, &inst.mask_visib).save(&path).with_context(|| format!("cannot write {}", path.display()))?;
+                mask_diff(&scene.rgb, &dets[n][0].mask, &inst.mask_visib).save(&path).with_context(|| format!("cannot write {}", path.display()))?;
             }
             let model = &models[inst.obj_id as usize - 1];
-            let det = [dets[n].clone()];
-            let others = if a.alone { None } else { crate::masks::union(dets.iter().enumerate().filter(|&(o, _)| o != n).map(|(_, d)| &d.mask), scene.rgb.width(), scene.rgb.height()) };
+            let det = dets[n].clone();
+            let others = if a.alone { None } else { crate::masks::union(dets.iter().enumerate().filter(|&(o, _)| o != n).map(|(_, d)| &d[0].mask), scene.rgb.width(), scene.rgb.height()) };
             let (symmetries, sample) = &scoring[inst.obj_id as usize - 1];
             let truth = |p: &Pose| crate::eval::pose_error::closest_symmetric(p, &inst.pose, symmetries, sample);
             for (t, (_, cfg)) in tallies.iter_mut().zip(&configs) {
@@ -390,7 +406,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                 let gt = r.pose.as_ref().map_or(inst.pose, &truth);
                 let error = r.pose.as_ref().map(|p| mssd(p, &gt, model.mesh.positions()) / model.diameter());
                 if a.stability && cfg.rrc {
-                    let less = [Detection { mask: super::bench_stability::less_one_pixel(&det[0].mask), ..det[0].clone() }];
+                    let less: Vec<Detection> = det.iter().map(|d| Detection { mask: super::bench_stability::less_one_pixel(&d.mask), ..d.clone() }).collect();
                     let again = estimator.estimate_hinted(model, &scene.rgb, &scene.cam, &less, others.as_ref(), &hints, cfg)?;
                     stability.push(error, again.pose.as_ref().map(|p| mssd(p, &truth(p), model.mesh.positions()) / model.diameter()));
                 }

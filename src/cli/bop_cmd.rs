@@ -71,7 +71,7 @@ pub struct RunArgs {
     pub box_mask: crate::masks::BoxMask,
     /// With `--box-mask propose`: the proposals' sources, comma-separated (cut,
     /// smooth-cut, wide-ring-cut, ellipse, fill).
-    #[arg(long, default_value = "cut,smooth-cut,wide-ring-cut,ellipse")]
+    #[arg(long, default_value = "cut,smooth-cut,wide-ring-cut")]
     pub box_proposals: crate::masks::ProposalConfig,
 }
 

@@ -62,23 +62,32 @@ fn parse_box(s: &str) -> Result<[f64; 4], String> {
     <[f64; 4]>::try_from(v).map_err(|v| format!("expected X,Y,W,H (4 numbers), got {}", v.len()))
 }
 
-/// The candidate detections: masks as given, boxes segmented on the image.
-fn detections(a: &EstimateArgs, image: &image::RgbImage) -> Result<Vec<Detection>> {
+/// The candidate detections: masks as given, each box as its mask proposals; with the
+/// index (masks first, then boxes) of the `--mask` or `--box` each candidate came from.
+fn detections(a: &EstimateArgs, image: &image::RgbImage) -> Result<(Vec<Detection>, Vec<usize>)> {
     let (width, height) = image.dimensions();
     let score = |i: usize| a.scores.get(i).copied().unwrap_or(1.0);
     let mut out = Vec::new();
+    let mut owner = Vec::new();
     for (i, p) in a.masks.iter().enumerate() {
         let mask = crate::masks::decode::check_size(load_mask(p)?, width, height)
             .and_then(crate::masks::require_nonempty)
             .with_context(|| format!("--mask {}", p.display()))?;
         out.push(Detection::new(mask, score(i)));
+        owner.push(i);
     }
     for (j, b) in a.boxes.iter().enumerate() {
-        let s = crate::masks::box_to_mask(image, *b, crate::masks::BoxMask::Segment).with_context(|| format!("--box {}", b.map(|v| v.to_string()).join(",")))?;
-        println!("box {j}: {:?}, {:.0} % of the box, {:.0} ms{}", s.method, s.fill * 100.0, s.ms, s.note.map(|n| format!(" ({n})")).unwrap_or_default());
-        out.push(Detection::new(s.mask, score(a.masks.len() + j)));
+        let t = std::time::Instant::now();
+        let named = || format!("--box {}", b.map(|v| v.to_string()).join(","));
+        let proposed = crate::masks::box_masks(image, *b, crate::masks::BoxMask::Propose, &Default::default()).with_context(named)?;
+        let area = proposed.bbox.area() as f64;
+        let fills: Vec<String> = proposed.masks.iter().map(|m| format!("{:.0} %", m.as_raw().iter().filter(|&&v| v > 0).count() as f64 / area * 100.0)).collect();
+        println!("box {j}: {} mask proposals filling {} of the box, {:.0} ms", fills.len(), fills.join(", "), t.elapsed().as_secs_f64() * 1e3);
+        let s = score(a.masks.len() + j);
+        owner.extend(std::iter::repeat_n(a.masks.len() + j, proposed.masks.len()));
+        out.extend(proposed.masks.into_iter().map(|mask| Detection { mask, score: s, from_box: Some(proposed.bbox) }));
     }
-    Ok(out)
+    Ok((out, owner))
 }
 
 /// The estimate from the detector's candidates: the best few instances (each a group of
@@ -133,7 +142,11 @@ pub fn run(a: EstimateArgs) -> Result<()> {
         let (r, c) = estimate_detected(&a, &model, &image, &k, &estimator, &renderer, &cfg)?;
         (r, Some(c))
     } else {
-        (estimator.estimate(&model, &image, &k, &detections(&a, &image)?, &cfg)?, None)
+        let (candidates, owner) = detections(&a, &image)?;
+        let mut r = estimator.estimate(&model, &image, &k, &candidates, &cfg)?;
+        // Answered as the caller's --mask / --box index, not the proposal's.
+        r.mask_index = r.mask_index.map(|m| owner[m]);
+        (r, None)
     };
     let mut doc = result_json(&model, &result);
     if let (Some(c), Some(pose)) = (confirmation, doc["poses"].get_mut(0)) {

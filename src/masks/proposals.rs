@@ -119,7 +119,10 @@ pub struct ProposalConfig {
 
 impl Default for ProposalConfig {
     fn default() -> Self {
-        Self { cut: true, smooth_cut: true, wide_ring_cut: true, ellipse: true, fill: false, same_iou: 0.9 }
+        // The three cuts: on real frames they gained over the one cut for about its time;
+        // the ellipse gained no more there and doubled the time on generated scenes
+        // (docs/estimation.md, "Several proposals per box").
+        Self { cut: true, smooth_cut: true, wide_ring_cut: true, ellipse: false, fill: false, same_iou: 0.9 }
     }
 }
 
@@ -211,7 +214,7 @@ mod tests {
     #[test]
     fn a_box_gets_several_distinct_proposals_inside_it() {
         let (image, b) = scene();
-        let ps = propose(&image, &b, &ProposalConfig::default());
+        let ps = propose(&image, &b, &ProposalConfig { ellipse: true, ..ProposalConfig::default() });
         assert!(ps.len() >= 2, "{:?}", ps.iter().map(|p| p.kind).collect::<Vec<_>>());
         assert_eq!(ps[0].kind, ProposalKind::Cut);
         assert!(ps.iter().any(|p| p.kind == ProposalKind::Ellipse));
@@ -245,6 +248,6 @@ mod tests {
         let ps = propose(&image, &b, &"fill".parse().unwrap());
         assert_eq!(ps[0].mask.as_raw().iter().filter(|&&v| v == OBJECT).count() as u64, b.area());
         assert_eq!("cut,grabcut".parse::<ProposalConfig>().unwrap_err(), "box proposal source \"grabcut\": expected cut, smooth-cut, wide-ring-cut, ellipse or fill");
-        assert_eq!(ProposalConfig::default().sources().len(), 4, "the default: three cuts and the ellipse");
+        assert_eq!(ProposalConfig::default().sources().iter().map(|s| s.kind()).collect::<Vec<_>>(), vec![ProposalKind::Cut, ProposalKind::SmoothCut, ProposalKind::WideRingCut]);
     }
 }

@@ -301,13 +301,13 @@ impl Core {
             // Candidates below the caller's threshold too: confirmation decides.
             let report = self.run_detector(&image, &k, &req.objects, &candidate_options(&req.detect), deadline)?;
             let outputs: Vec<DetectionOutput> = report.detections.iter().map(DetectionOutput::from).collect();
-            let masks = report.detections.into_iter().map(|d| (d.object_id, d.mask, d.score)).collect();
+            let masks = report.detections.into_iter().map(|d| (d.object_id, vec![Detection::new(d.mask, d.score)])).collect();
             (masks, Some((outputs, report.reason)))
         };
-        let ids: Vec<String> = masks.iter().map(|(id, _, _)| id.clone()).collect();
-        let mut by_object: BTreeMap<&str, Vec<(usize, image::GrayImage, f32)>> = BTreeMap::new();
-        for (i, ((_, mask, score), id)) in masks.into_iter().zip(&ids).enumerate() {
-            by_object.entry(id.as_str()).or_default().push((i, mask, score));
+        let ids: Vec<String> = masks.iter().map(|(id, _)| id.clone()).collect();
+        let mut by_object: BTreeMap<&str, Vec<(usize, Vec<Detection>)>> = BTreeMap::new();
+        for (i, ((_, candidates), id)) in masks.into_iter().zip(&ids).enumerate() {
+            by_object.entry(id.as_str()).or_default().push((i, candidates));
         }
         // Every object must exist before any work starts.
         let models: BTreeMap<&str, _> = by_object.keys().map(|&id| Ok((id, self.load_to_render(id)?))).collect::<Result<_, ServiceError>>()?;
@@ -325,13 +325,17 @@ impl Core {
         let mut unconfirmed = 0usize;
         for (object_id, dets) in &by_object {
             let model = &models[object_id];
-            let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, m, s)| (m, *s as f64)).collect();
+            // A detection is one mask, or a box's proposals; its first mask stands for it in
+            // grouping and as another detection's occluder.
+            let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, c)| (&c[0].mask, c[0].score as f64)).collect();
             let groups = crate::masks::group_instances(&refs, 0.5).into_iter().enumerate();
             let answered = estimate_instances(groups, o.instances_per_object, choice, |(instance, group)| {
                 if deadline.is_some_and(|d| Instant::now() >= d) {
                     return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", results.len() + instance)));
                 }
-                let candidates: Vec<Detection> = group.iter().map(|&g| Detection::new(dets[g].1.clone(), dets[g].2)).collect();
+                let candidates: Vec<Detection> = group.iter().flat_map(|&g| dets[g].1.iter().cloned()).collect();
+                // The caller's detection each candidate came from.
+                let owner: Vec<usize> = group.iter().flat_map(|&g| std::iter::repeat_n(dets[g].0, dets[g].1.len())).collect();
                 let others = others_mask(&by_object, object_id, &group, k.width, k.height);
                 let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
                 let r = span.in_scope(|| self.estimator.estimate_among(model, &image, &k, &candidates, others.as_ref(), &cfg))?;
@@ -349,7 +353,7 @@ impl Core {
                     pose: r.pose.as_ref().map(PoseOutput::from),
                     score: r.score,
                     confirmation_score: confirmation,
-                    detection_index: r.mask_index.map(|m| dets[group[m]].0),
+                    detection_index: r.mask_index.map(|m| owner[m]),
                     reason: r.reason.clone(),
                     diagnostics: serde_json::to_value(&r.hypotheses).unwrap_or_default(),
                     timings_ms: serde_json::to_value(r.timings).unwrap_or_default(),
@@ -386,9 +390,9 @@ fn draw_answer(image: &image::RgbImage, k: &crate::geometry::Intrinsics, results
     super::core_thumbnail::png(&out)
 }
 
-/// The request's detections as (object id, mask, score), boxes given without a mask
-/// segmented inside the box.
-fn decode_masks(req: &EstimateRequest, image: &image::RgbImage) -> Result<Vec<(String, image::GrayImage, f32)>, ServiceError> {
+/// The request's detections as (object id, candidates): a mask as it is, a box without a
+/// mask as the box's mask proposals (`masks::proposals`).
+fn decode_masks(req: &EstimateRequest, image: &image::RgbImage) -> Result<Vec<(String, Vec<Detection>)>, ServiceError> {
     let _span = tracing::info_span!("masks", detections = req.detections.len()).entered();
     req.detections
         .iter()
@@ -398,15 +402,15 @@ fn decode_masks(req: &EstimateRequest, image: &image::RgbImage) -> Result<Vec<(S
                 return Err(ServiceError::invalid(format!("detections[{i}].score is not a finite number")));
             }
             crate::store::validate_id(&d.object_id).map_err(|e| ServiceError::invalid(format!("detections[{i}].object_id: {e}")))?;
-            Ok((d.object_id.clone(), d.mask(i, image, crate::masks::BoxMask::Segment)?, d.score))
+            Ok((d.object_id.clone(), d.candidates(i, image)?))
         })
         .collect()
 }
 
 /// Union of every detection's mask except those of `object_id`'s instance `group`: where
 /// another detection is, this instance may be hidden. `None` when there is no other.
-fn others_mask(by_object: &BTreeMap<&str, Vec<(usize, image::GrayImage, f32)>>, object_id: &str, group: &[usize], width: u32, height: u32) -> Option<image::GrayImage> {
-    let others = by_object.iter().flat_map(|(&id, dets)| dets.iter().enumerate().filter(move |(g, _)| !(id == object_id && group.contains(g))).map(|(_, (_, mask, _))| mask));
+fn others_mask(by_object: &BTreeMap<&str, Vec<(usize, Vec<Detection>)>>, object_id: &str, group: &[usize], width: u32, height: u32) -> Option<image::GrayImage> {
+    let others = by_object.iter().flat_map(|(&id, dets)| dets.iter().enumerate().filter(move |(g, _)| !(id == object_id && group.contains(g))).map(|(_, (_, c))| &c[0].mask));
     crate::masks::union(others, width, height)
 }
 
@@ -447,14 +451,15 @@ mod tests {
 
     #[test]
     fn others_are_every_detection_but_the_instance_itself() {
-        let mut by_object: BTreeMap<&str, Vec<(usize, image::GrayImage, f32)>> = BTreeMap::new();
-        by_object.insert("a", vec![(0, dot(0), 1.0), (1, dot(1), 0.5)]);
-        by_object.insert("b", vec![(2, dot(2), 1.0)]);
+        let one = |x: u32| vec![Detection::new(dot(x), 1.0)];
+        let mut by_object: BTreeMap<&str, Vec<(usize, Vec<Detection>)>> = BTreeMap::new();
+        by_object.insert("a", vec![(0, one(0)), (1, one(1))]);
+        by_object.insert("b", vec![(2, one(2))]);
         let o = others_mask(&by_object, "a", &[0], 4, 1).unwrap();
         assert_eq!(o.as_raw(), &vec![0, 255, 255, 0]);
         let o = others_mask(&by_object, "b", &[0], 4, 1).unwrap();
         assert_eq!(o.as_raw(), &vec![255, 255, 0, 0]);
-        let alone: BTreeMap<&str, Vec<(usize, image::GrayImage, f32)>> = BTreeMap::from([("a", vec![(0, dot(0), 1.0)])]);
+        let alone: BTreeMap<&str, Vec<(usize, Vec<Detection>)>> = BTreeMap::from([("a", vec![(0, one(0))])]);
         assert!(others_mask(&alone, "a", &[0], 4, 1).is_none());
     }
 }

@@ -93,6 +93,19 @@ fn one() -> f32 {
 }
 
 impl DetectionInput {
+    /// The estimator's candidates for this detection: its mask, or for a box alone the
+    /// box's mask proposals (`masks::proposals`), each carrying the box; `index` names the
+    /// detection in errors.
+    pub fn candidates(&self, index: usize, image: &RgbImage) -> Result<Vec<crate::estimate::Detection>, ServiceError> {
+        match (self.bbox, self.mask_png.is_none() && self.mask_rle.is_none()) {
+            (Some(b), true) => {
+                let proposed = crate::masks::box_masks(image, b, BoxMask::Propose, &Default::default()).map_err(|e| ServiceError::invalid(format!("detections[{index}].bbox: {e}")))?;
+                Ok(proposed.masks.into_iter().map(|mask| crate::estimate::Detection { mask, score: self.score, from_box: Some(proposed.bbox) }).collect())
+            }
+            _ => Ok(vec![crate::estimate::Detection::new(self.mask(index, image, BoxMask::Segment)?, self.score)]),
+        }
+    }
+
     /// The mask on `image`; `index` names the detection in errors. A box alone is
     /// segmented inside the box (`how`), which is why the image is needed.
     pub fn mask(&self, index: usize, image: &RgbImage, how: BoxMask) -> Result<GrayImage, ServiceError> {

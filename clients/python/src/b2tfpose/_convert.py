@@ -27,8 +27,8 @@ BoxInput = Sequence[float]
 class Detection:
     """One detection of one object: a mask (numpy bool/uint8 HxW, PNG bytes or a PNG
     path), or an RLE (COCO dict, uncompressed or compressed counts), and/or a box
-    ``(x, y, width, height)`` in pixels — a box alone makes the server segment the object
-    inside it. ``score`` is the detector's confidence in [0, 1] (1 when unset)."""
+    ``(x, y, width, height)`` in pixels — a box alone makes the server propose several
+    masks inside it and keep the one whose pose fills the box best. ``score`` is the detector's confidence in [0, 1] (1 when unset)."""
 
     object_id: str
     mask: Optional[MaskInput] = None
