@@ -214,6 +214,11 @@ fn bop_commands_name_the_bad_file_and_entry() {
     std::fs::write(&dets, "[]").unwrap();
     let (ok, _, err) = b2tf(&["bop", "run", "--dataset", s(d), "--detections", s(&dets), "--out", s(&d.join("out.csv"))]);
     assert!(!ok && err.contains("test_targets_bop19.json"), "{err}");
+    // Box masks: an unknown way or proposal source is named before any work.
+    let (ok, _, err) = b2tf(&["bop", "run", "--dataset", s(d), "--detections", s(&dets), "--out", s(&d.join("out.csv")), "--box-proposals", "cut,grabcut"]);
+    assert!(!ok && err.contains("box proposal source \"grabcut\": expected cut, smooth-cut, wide-ring-cut, ellipse or fill"), "{err}");
+    let (ok, _, err) = b2tf(&["bop", "run", "--dataset", s(d), "--detections", s(&dets), "--out", s(&d.join("out.csv")), "--box-mask", "grabcut"]);
+    assert!(!ok && err.contains("expected propose, segment or fill"), "{err}");
 
     let (ok, _, err) = b2tf(&["bop", "synth", "--models", s(d), "--out", s(&d.join("ds"))]);
     assert!(!ok && err.contains("no BOP models"), "{err}");
