@@ -157,7 +157,7 @@ fn silhouette_depth_refiner_pulls_a_wrong_depth_back() {
     let s = scene(8);
     let inst = &s.instances[0];
     let refiner = SilhouetteDepthRefiner::new(f.pool.clone());
-    let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false };
+    let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false, from_box: None };
     for scale in [0.95, 1.06] {
         let off = b2tfpose::geometry::Pose::new(inst.pose.rotation, inst.pose.translation * scale);
         let refined = refiner.refine(&ctx, off).unwrap();

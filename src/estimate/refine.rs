@@ -52,6 +52,9 @@ pub struct RefineContext<'a> {
     /// The mask holds foreground probabilities (value / 255, e.g. from colour histograms
     /// while tracking) rather than object / not object (any non-zero value).
     pub mask_is_probability: bool,
+    /// The caller's box, where the mask is one of its proposals (`Detection::from_box`):
+    /// verification judges a pose by how well it fills the box as well as the mask.
+    pub from_box: Option<crate::masks::PixelBox>,
 }
 
 /// What a refiner did to one hypothesis.
