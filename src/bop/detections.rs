@@ -222,7 +222,7 @@ impl DetectionRecord {
         match (&self.segmentation, how) {
             (None, BoxMask::Propose) => {
                 let b = crate::masks::box_masks(image, self.bbox, how, proposals).map_err(|e| format!("bbox: {e}"))?;
-                Ok(b.masks.into_iter().map(|m| crate::estimate::Detection { mask: m, score, from_box: Some(b.bbox) }).collect())
+                Ok(crate::estimate::Detection::from_box_masks(b, score))
             }
             _ => Ok(vec![crate::estimate::Detection::new(self.mask(image, how)?, score)]),
         }

@@ -19,7 +19,8 @@ use super::format::{scene_dir, TargetRecord};
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
 use crate::detect::confirm::{candidate_options, confirm, estimate_instances, Choice};
 use crate::detect::{detect, DetectOptions, Target};
-use crate::estimate::{Detection, EstimateConfig, EstimateError, Estimator};
+use crate::estimate::candidates::representative;
+use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateError, Estimator};
 use crate::geometry::Pose;
 use crate::masks::{group_instances, BoxMask};
 use crate::onboard::ObjectModel;
@@ -125,8 +126,7 @@ pub fn run(
         };
         let mut rows = Vec::new();
         // Every target's candidates first: each instance's refiner learns where the other
-        // detections of the image are (it may be hidden there). A detection is one mask,
-        // or a box's proposals; its first mask stands for it in grouping and for others.
+        // detections of the image are (it may be hidden there).
         let mut decoded: Vec<Vec<Vec<Detection>>> = Vec::with_capacity(targets.len());
         for t in &targets {
             let mut found = Vec::new();
@@ -146,7 +146,7 @@ pub fn run(
                 continue;
             }
             let m = model(t.obj_id)?;
-            let refs: Vec<_> = masks.iter().map(|c| (&c[0].mask, c[0].score as f64)).collect();
+            let refs: Vec<_> = masks.iter().map(|c| representative(c)).collect();
             // The detector's own candidates are confirmed at their estimated poses, a few
             // more than wanted estimated so that confirmation can choose.
             let (choice, pool) = match &source {
@@ -155,9 +155,9 @@ pub fn run(
             };
             let wanted = t.inst_count as usize;
             let answered = estimate_instances(group_instances(&refs, opts.same_instance_iou), wanted, choice, |group| {
-                let candidates: Vec<Detection> = group.iter().flat_map(|&i| masks[i].iter().cloned()).collect();
+                let candidates = Candidates::gather(group.iter().map(|&i| (i, masks[i].as_slice()))).masks;
                 let group = &group;
-                let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, c)| &c[0].mask));
+                let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, c)| representative(c).0));
                 let others = crate::masks::union(others, camera.cam.width, camera.cam.height);
                 let r = match estimator.estimate_among(&m, &rgb, &camera.cam, &candidates, others.as_ref(), &opts.estimate) {
                     Ok(r) => r,

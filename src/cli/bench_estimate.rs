@@ -184,8 +184,7 @@ impl BoxTally {
         self.fallbacks += (s.method == crate::masks::Method::EllipseFallback) as usize;
         Ok(match proposals {
             Some(p) => {
-                let b = crate::masks::box_masks(image, bbox, crate::masks::BoxMask::Propose, p)?;
-                b.masks.into_iter().map(|mask| Detection { mask, score: 1.0, from_box: Some(b.bbox) }).collect()
+                Detection::from_box_masks(crate::masks::box_masks(image, bbox, crate::masks::BoxMask::Propose, p)?, 1.0)
             }
             None => vec![Detection::new(s.mask, 1.0)],
         })

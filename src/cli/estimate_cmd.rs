@@ -1,5 +1,5 @@
 use crate::detect::confirm::{answer_threshold, candidate_options, confirm, estimate_instances, Choice};
-use crate::estimate::{Detection, EstimateConfig, EstimateResult};
+use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateResult};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
 use anyhow::{bail, Context, Result};
@@ -64,17 +64,15 @@ fn parse_box(s: &str) -> Result<[f64; 4], String> {
 
 /// The candidate detections: masks as given, each box as its mask proposals; with the
 /// index (masks first, then boxes) of the `--mask` or `--box` each candidate came from.
-fn detections(a: &EstimateArgs, image: &image::RgbImage) -> Result<(Vec<Detection>, Vec<usize>)> {
+fn detections(a: &EstimateArgs, image: &image::RgbImage) -> Result<Candidates> {
     let (width, height) = image.dimensions();
     let score = |i: usize| a.scores.get(i).copied().unwrap_or(1.0);
-    let mut out = Vec::new();
-    let mut owner = Vec::new();
+    let mut out = Candidates::default();
     for (i, p) in a.masks.iter().enumerate() {
         let mask = crate::masks::decode::check_size(load_mask(p)?, width, height)
             .and_then(crate::masks::require_nonempty)
             .with_context(|| format!("--mask {}", p.display()))?;
-        out.push(Detection::new(mask, score(i)));
-        owner.push(i);
+        out.push(i, [Detection::new(mask, score(i))]);
     }
     for (j, b) in a.boxes.iter().enumerate() {
         let t = std::time::Instant::now();
@@ -83,11 +81,10 @@ fn detections(a: &EstimateArgs, image: &image::RgbImage) -> Result<(Vec<Detectio
         let area = proposed.bbox.area() as f64;
         let fills: Vec<String> = proposed.masks.iter().map(|m| format!("{:.0} %", m.as_raw().iter().filter(|&&v| v > 0).count() as f64 / area * 100.0)).collect();
         println!("box {j}: {} mask proposals filling {} of the box, {:.0} ms", fills.len(), fills.join(", "), t.elapsed().as_secs_f64() * 1e3);
-        let s = score(a.masks.len() + j);
-        owner.extend(std::iter::repeat_n(a.masks.len() + j, proposed.masks.len()));
-        out.extend(proposed.masks.into_iter().map(|mask| Detection { mask, score: s, from_box: Some(proposed.bbox) }));
+        let index = a.masks.len() + j;
+        out.push(index, Detection::from_box_masks(proposed, score(index)));
     }
-    Ok((out, owner))
+    Ok(out)
 }
 
 /// The estimate from the detector's candidates: the best few instances (each a group of
@@ -142,10 +139,10 @@ pub fn run(a: EstimateArgs) -> Result<()> {
         let (r, c) = estimate_detected(&a, &model, &image, &k, &estimator, &renderer, &cfg)?;
         (r, Some(c))
     } else {
-        let (candidates, owner) = detections(&a, &image)?;
-        let mut r = estimator.estimate(&model, &image, &k, &candidates, &cfg)?;
+        let candidates = detections(&a, &image)?;
+        let mut r = estimator.estimate(&model, &image, &k, &candidates.masks, &cfg)?;
         // Answered as the caller's --mask / --box index, not the proposal's.
-        r.mask_index = r.mask_index.map(|m| owner[m]);
+        r.mask_index = candidates.owner_of(r.mask_index);
         (r, None)
     };
     let mut doc = result_json(&model, &result);

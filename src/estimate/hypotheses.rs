@@ -158,7 +158,7 @@ pub fn place_in(model: &ObjectModel, t: usize, to_image: &ScaleShift, k: &Intrin
 /// An object turned by `rotation` whose `centre` (object frame) was seen along `from_ray`,
 /// moved so that centre is at depth `z` on the ray through pixel `(u, v)`, the rotation
 /// turned with the ray so the object is seen as it was.
-fn seen_at(rotation: &Rotation3<f64>, centre: &Vector3<f64>, from_ray: &Vector3<f64>, (u, v): (f64, f64), z: f64, k: &Intrinsics) -> Pose {
+pub(super) fn seen_at(rotation: &Rotation3<f64>, centre: &Vector3<f64>, from_ray: &Vector3<f64>, (u, v): (f64, f64), z: f64, k: &Intrinsics) -> Pose {
     let ray = Vector3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);
     let turn = Rotation3::rotation_between(from_ray, &ray).unwrap_or_else(Rotation3::identity);
     let rotation = turn * rotation;
@@ -170,7 +170,7 @@ fn seen_at(rotation: &Rotation3<f64>, centre: &Vector3<f64>, from_ray: &Vector3<
 /// spins are taken about it re-placed at the mask instead.
 const PLACEMENT_SLACK: f64 = 0.25;
 /// Mesh vertices projected to measure an outline's box (every n-th, at most this many).
-const OUTLINE_POINTS: usize = 2000;
+pub(super) const OUTLINE_POINTS: usize = 2000;
 
 /// `pose` moved where the mask is, where its projected outline's box and the mask's box
 /// (`mask_box`: min u, min v, max u, max v, inclusive pixels) disagree by more than
@@ -204,7 +204,7 @@ pub fn replaced_at_mask(mesh: &Mesh, pose: &Pose, mask_box: (u32, u32, u32, u32)
 
 /// The box (min, max pixel coordinates) of `mesh`'s vertices projected at `pose`, every
 /// n-th vertex so that at most `points` are; `None` where one is not in front of the camera.
-fn outline_box(mesh: &Mesh, pose: &Pose, k: &Intrinsics, points: usize) -> Option<([f64; 2], [f64; 2])> {
+pub(super) fn outline_box(mesh: &Mesh, pose: &Pose, k: &Intrinsics, points: usize) -> Option<([f64; 2], [f64; 2])> {
     let positions = mesh.positions();
     let stride = positions.len().div_ceil(points.max(1)).max(1);
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);

@@ -1,6 +1,8 @@
 //! Estimation: retrieval with geodesic NMS, mutual-NN matching, RANSAC-PnP, RRC, refinement
 //! and hypothesis selection across masks (DESIGN.md steps 4–10).
 
+pub mod box_prior;
+pub mod candidates;
 pub mod contour;
 pub mod correspond;
 pub mod hypotheses;
@@ -18,7 +20,8 @@ pub mod silhouette_refiner;
 pub mod turned;
 pub mod verify;
 
-pub use pipeline::{Detection, EstimateConfig, EstimateResult, Estimator, Hypothesis, StageTimings};
+pub use candidates::{Candidates, Detection};
+pub use pipeline::{EstimateConfig, EstimateResult, Estimator, Hypothesis, StageTimings};
 pub use runner_up::RunnerUp;
 pub use refine::{PassThrough, RefineContext, RefineReport, Refined, Refiner, RefinerKind};
 pub use verify::VerifyConfig;

@@ -13,11 +13,11 @@ use super::retrieve::{retrieve, RetrievalConfig};
 use super::rrc::rrc_pool;
 use super::select::{box_agreement, combined_scores, mask_window, render_window, window_iou, SelectionConfig};
 use super::EstimateError;
+use super::candidates::Detection;
 use crate::features::{crop_query, Backbone};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
 use crate::render::RenderPool;
-use crate::masks::PixelBox;
 use image::{GrayImage, RgbImage};
 use std::sync::Arc;
 use std::time::Instant;
@@ -78,24 +78,6 @@ fn default_rrc_render_scale() -> f64 {
 
 fn default_rrc_render_cap() -> u32 {
     256
-}
-
-/// A segmentation of the object in the image, with the detector's confidence.
-#[derive(Clone, Debug)]
-pub struct Detection {
-    pub mask: GrayImage,
-    pub score: f32,
-    /// The caller's box, where the mask is one of several proposed from a box
-    /// (`masks::proposals`): the proposals of one box count as one candidate, and their
-    /// poses are judged by how well they fill the box as well as by their own mask.
-    pub from_box: Option<PixelBox>,
-}
-
-impl Detection {
-    /// A mask the caller (or its detector) made.
-    pub fn new(mask: GrayImage, score: f32) -> Self {
-        Self { mask, score, from_box: None }
-    }
 }
 
 /// Milliseconds per stage, summed over the masks of one estimate.
@@ -334,7 +316,8 @@ impl Estimator {
                     }
                 } else {
                     match self.refiner(cfg.refiner).refine(&ctx, p) {
-                        Ok(r) => {
+                        Ok(mut r) => {
+                            held_to_box(&ctx, &mut r.pose);
                             h.pose = Some(r.pose);
                             h.refinement = Some(r.report);
                         }
@@ -365,9 +348,12 @@ impl Estimator {
         let window = mask_window(ctx.mask).expect("validated non-empty");
         match self.contour.refine_on_print(ctx, &pose, window, h.render.as_ref(), &cfg.print) {
             Ok(Some(r)) => {
-                h.pose = Some(r.pose);
+                let mut pose = r.pose;
+                // Moved off its render, the pose is rendered again by selection.
+                let held = held_to_box(ctx, &mut pose);
+                h.pose = Some(pose);
                 h.refinement = Some(r.report);
-                h.render = Some(r.render);
+                h.render = (!held).then_some(r.render);
             }
             Ok(None) => {}
             // Only a render can fail here; the pose stays as verification left it.
@@ -425,8 +411,9 @@ impl Estimator {
         candidates
             .par_iter()
             .filter_map(|&(source, p)| {
-                let r = refiner.refine(ctx, p).ok()?;
-                let contour = if cfg.refiner == RefinerKind::Contour { r.report.agreement } else { self.contour.agreement(ctx, &r.pose).ok()?.score };
+                let mut r = refiner.refine(ctx, p).ok()?;
+                let held = held_to_box(ctx, &mut r.pose);
+                let contour = if cfg.refiner == RefinerKind::Contour && !held { r.report.agreement } else { self.contour.agreement(ctx, &r.pose).ok()?.score };
                 Some(Verified { source, pose: r.pose, refinement: r.report, contour, iou: f64::NAN, appearance: f64::NAN, edges: f64::NAN, colour: f64::NAN, features: f64::NAN, score: f64::NAN, render: None })
             })
             .collect()
@@ -620,6 +607,18 @@ fn confidence(h: &Hypothesis, w: &[f32; 3]) -> f32 {
     ((w[0] * c + w[1] * h.iou + w[2] * h.detector_score.clamp(0.0, 1.0)) / total).clamp(0.0, 1.0)
 }
 
+/// A box proposal's pose brought back to cover the caller's box where the proposal pulled
+/// it too far (`box_prior`); true where it moved.
+fn held_to_box(ctx: &RefineContext<'_>, pose: &mut Pose) -> bool {
+    match ctx.from_box.and_then(|b| super::box_prior::covering_box(&ctx.model.mesh, pose, &b, ctx.intrinsics)) {
+        Some(p) => {
+            *pose = p;
+            true
+        }
+        None => false,
+    }
+}
+
 fn run_pnp(c: &Correspondences, k: &Intrinsics, cfg: &PnpConfig) -> Result<PnpResult, super::pnp::PnpError> {
     solve_pnp_ransac(&c.image_points, &c.object_points, k, cfg)
 }
@@ -627,6 +626,7 @@ fn run_pnp(c: &Correspondences, k: &Intrinsics, cfg: &PnpConfig) -> Result<PnpRe
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::masks::PixelBox;
 
     fn det(score: f32, from_box: Option<PixelBox>) -> Detection {
         Detection { mask: GrayImage::new(1, 1), score, from_box }

@@ -10,7 +10,8 @@ use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput, RunnerUpOutput};
 use crate::detect::confirm::{answer_threshold, candidate_options, confirm, estimate_instances, Choice};
-use crate::estimate::{Detection, EstimateConfig, Estimator};
+use crate::estimate::candidates::representative;
+use crate::estimate::{Candidates, Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
 use crate::geometry::ViewSampling;
 use crate::onboard::{onboard_cancellable, OnboardConfig, OnboardError};
@@ -325,17 +326,14 @@ impl Core {
         let mut unconfirmed = 0usize;
         for (object_id, dets) in &by_object {
             let model = &models[object_id];
-            // A detection is one mask, or a box's proposals; its first mask stands for it in
-            // grouping and as another detection's occluder.
-            let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, c)| (&c[0].mask, c[0].score as f64)).collect();
+            let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, c)| representative(c)).collect();
             let groups = crate::masks::group_instances(&refs, 0.5).into_iter().enumerate();
             let answered = estimate_instances(groups, o.instances_per_object, choice, |(instance, group)| {
                 if deadline.is_some_and(|d| Instant::now() >= d) {
                     return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", results.len() + instance)));
                 }
-                let candidates: Vec<Detection> = group.iter().flat_map(|&g| dets[g].1.iter().cloned()).collect();
-                // The caller's detection each candidate came from.
-                let owner: Vec<usize> = group.iter().flat_map(|&g| std::iter::repeat_n(dets[g].0, dets[g].1.len())).collect();
+                let gathered = Candidates::gather(group.iter().map(|&g| (dets[g].0, dets[g].1.as_slice())));
+                let candidates = &gathered.masks;
                 let others = others_mask(&by_object, object_id, &group, k.width, k.height);
                 let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
                 let r = span.in_scope(|| self.estimator.estimate_among(model, &image, &k, &candidates, others.as_ref(), &cfg))?;
@@ -353,7 +351,7 @@ impl Core {
                     pose: r.pose.as_ref().map(PoseOutput::from),
                     score: r.score,
                     confirmation_score: confirmation,
-                    detection_index: r.mask_index.map(|m| owner[m]),
+                    detection_index: gathered.owner_of(r.mask_index),
                     reason: r.reason.clone(),
                     diagnostics: serde_json::to_value(&r.hypotheses).unwrap_or_default(),
                     timings_ms: serde_json::to_value(r.timings).unwrap_or_default(),
@@ -410,7 +408,7 @@ fn decode_masks(req: &EstimateRequest, image: &image::RgbImage) -> Result<Vec<(S
 /// Union of every detection's mask except those of `object_id`'s instance `group`: where
 /// another detection is, this instance may be hidden. `None` when there is no other.
 fn others_mask(by_object: &BTreeMap<&str, Vec<(usize, Vec<Detection>)>>, object_id: &str, group: &[usize], width: u32, height: u32) -> Option<image::GrayImage> {
-    let others = by_object.iter().flat_map(|(&id, dets)| dets.iter().enumerate().filter(move |(g, _)| !(id == object_id && group.contains(g))).map(|(_, (_, c))| &c[0].mask));
+    let others = by_object.iter().flat_map(|(&id, dets)| dets.iter().enumerate().filter(move |(g, _)| !(id == object_id && group.contains(g))).map(|(_, (_, c))| representative(c).0));
     crate::masks::union(others, width, height)
 }
 

@@ -100,7 +100,7 @@ impl DetectionInput {
         match (self.bbox, self.mask_png.is_none() && self.mask_rle.is_none()) {
             (Some(b), true) => {
                 let proposed = crate::masks::box_masks(image, b, BoxMask::Propose, &Default::default()).map_err(|e| ServiceError::invalid(format!("detections[{index}].bbox: {e}")))?;
-                Ok(proposed.masks.into_iter().map(|mask| crate::estimate::Detection { mask, score: self.score, from_box: Some(proposed.bbox) }).collect())
+                Ok(crate::estimate::Detection::from_box_masks(proposed, self.score))
             }
             _ => Ok(vec![crate::estimate::Detection::new(self.mask(index, image, BoxMask::Segment)?, self.score)]),
         }
