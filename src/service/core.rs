@@ -336,7 +336,7 @@ impl Core {
                 let candidates = &gathered.masks;
                 let others = others_mask(&by_object, object_id, &group, k.width, k.height);
                 let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
-                let r = span.in_scope(|| self.estimator.estimate_among(model, &image, &k, &candidates, others.as_ref(), &cfg))?;
+                let r = span.in_scope(|| self.estimator.estimate_among(model, &image, &k, candidates, others.as_ref(), &cfg))?;
                 let confirmation = match (&r.pose, choice) {
                     (Some(pose), Choice::Confirmed { .. }) => {
                         let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
