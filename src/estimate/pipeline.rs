@@ -64,11 +64,19 @@ pub struct EstimateConfig {
     /// objects with colours): `contour::print_refine`.
     #[serde(default)]
     pub print: PrintRefineConfig,
+    /// A box proposal's refined poses moved back until their outline covers the box
+    /// (`box_prior`). Off for boxes drawn loose: they bring the object too near.
+    #[serde(default = "default_true")]
+    pub box_prior: bool,
+}
+
+fn default_true() -> bool {
+    true
 }
 
 impl Default for EstimateConfig {
     fn default() -> Self {
-        Self { retrieval: RetrievalConfig::default(), k_nn: 3, pnp: PnpConfig::default(), rrc: true, rrc_render_scale: default_rrc_render_scale(), rrc_render_cap: default_rrc_render_cap(), max_masks: 2, min_mask_score: 0.35, selection: SelectionConfig::default(), refiner: RefinerKind::default(), verify: VerifyConfig::default(), print: PrintRefineConfig::default() }
+        Self { retrieval: RetrievalConfig::default(), k_nn: 3, pnp: PnpConfig::default(), rrc: true, rrc_render_scale: default_rrc_render_scale(), rrc_render_cap: default_rrc_render_cap(), max_masks: 2, min_mask_score: 0.35, selection: SelectionConfig::default(), refiner: RefinerKind::default(), verify: VerifyConfig::default(), print: PrintRefineConfig::default(), box_prior: true }
     }
 }
 
@@ -317,7 +325,9 @@ impl Estimator {
                 } else {
                     match self.refiner(cfg.refiner).refine(&ctx, p) {
                         Ok(mut r) => {
-                            held_to_box(&ctx, &mut r.pose);
+                            if cfg.box_prior {
+                                held_to_box(&ctx, &mut r.pose);
+                            }
                             h.pose = Some(r.pose);
                             h.refinement = Some(r.report);
                         }
@@ -350,7 +360,7 @@ impl Estimator {
             Ok(Some(r)) => {
                 let mut pose = r.pose;
                 // Moved off its render, the pose is rendered again by selection.
-                let held = held_to_box(ctx, &mut pose);
+                let held = cfg.box_prior && held_to_box(ctx, &mut pose);
                 h.pose = Some(pose);
                 h.refinement = Some(r.report);
                 h.render = (!held).then_some(r.render);
@@ -412,7 +422,7 @@ impl Estimator {
             .par_iter()
             .filter_map(|&(source, p)| {
                 let mut r = refiner.refine(ctx, p).ok()?;
-                let held = held_to_box(ctx, &mut r.pose);
+                let held = cfg.box_prior && held_to_box(ctx, &mut r.pose);
                 let contour = if cfg.refiner == RefinerKind::Contour && !held { r.report.agreement } else { self.contour.agreement(ctx, &r.pose).ok()?.score };
                 Some(Verified { source, pose: r.pose, refinement: r.report, contour, iou: f64::NAN, appearance: f64::NAN, edges: f64::NAN, colour: f64::NAN, features: f64::NAN, score: f64::NAN, render: None })
             })
@@ -627,6 +637,14 @@ fn run_pnp(c: &Correspondences, k: &Intrinsics, cfg: &PnpConfig) -> Result<PnpRe
 mod tests {
     use super::*;
     use crate::masks::PixelBox;
+
+    #[test]
+    fn the_box_prior_is_on_by_default_and_for_configs_written_before_it() {
+        assert!(EstimateConfig::default().box_prior);
+        let mut older = serde_json::to_value(EstimateConfig { box_prior: false, ..Default::default() }).unwrap();
+        older.as_object_mut().unwrap().remove("box_prior");
+        assert!(serde_json::from_value::<EstimateConfig>(older).unwrap().box_prior);
+    }
 
     fn det(score: f32, from_box: Option<PixelBox>) -> Detection {
         Detection { mask: GrayImage::new(1, 1), score, from_box }
