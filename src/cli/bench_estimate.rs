@@ -106,10 +106,10 @@ pub struct BenchEstimateArgs {
     /// figures printed are the first proposal's (the cut's).
     #[arg(long, requires = "from_boxes", conflicts_with = "fill_boxes")]
     pub box_proposals: Option<crate::masks::ProposalConfig>,
-    /// With --box-proposals: leave the proposals' poses where refinement puts them rather
-    /// than moving them back until their outline covers the box (`estimate::box_prior`).
+    /// With --box-proposals: the proposals' poses moved back until their outline covers
+    /// the box (`estimate::box_prior`; the generated boxes are tight).
     #[arg(long, requires = "box_proposals")]
-    pub no_box_prior: bool,
+    pub box_prior: bool,
     /// With --from-boxes: keep the graph cut's outline as it is, without settling its
     /// pixels by coverage (`masks::outline_matte`), for comparison.
     #[arg(long, requires = "from_boxes")]
@@ -337,7 +337,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     contour.config.occlusion_model = !a.no_occlusion_model;
     contour.config.photo_edges = a.photo_edges;
     let estimator = crate::estimate::Estimator::new(backbone, pool.clone()).with_contour(Arc::new(contour));
-    let mut base = EstimateConfig { refiner: a.refiner, box_prior: !a.no_box_prior, ..Default::default() };
+    let mut base = EstimateConfig { refiner: a.refiner, box_prior: a.box_prior, ..Default::default() };
     if let Some(w) = a.silhouette_weight {
         base.retrieval.silhouette_weight = w;
     }

@@ -73,10 +73,10 @@ pub struct RunArgs {
     /// smooth-cut, wide-ring-cut, ellipse, fill).
     #[arg(long, default_value = "cut,smooth-cut,wide-ring-cut")]
     pub box_proposals: crate::masks::ProposalConfig,
-    /// Leave box proposals' poses where refinement puts them, rather than moving them
-    /// back until their outline covers the box (for boxes drawn loose).
+    /// Box-only detections drawn tight (a detector trained on tight boxes): each
+    /// proposal's poses moved back until their outline covers the box (`box_prior`).
     #[arg(long)]
-    pub no_box_prior: bool,
+    pub box_prior: bool,
 }
 
 #[derive(Args, Debug)]
@@ -154,7 +154,7 @@ fn run_cmd(a: RunArgs) -> Result<()> {
         }
         Ok(models.get(&id)?)
     };
-    let estimate = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), print: a.verify.print_config(), box_prior: !a.no_box_prior, ..Default::default() };
+    let estimate = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), print: a.verify.print_config(), box_prior: a.box_prior, ..Default::default() };
     let opts = RunOptions { split: a.split.clone(), estimate, box_mask: a.box_mask, proposals: a.box_proposals.clone(), ..Default::default() };
     let pb = super::progress::bar(0, "images");
     let progress = |done: usize, total: usize| {

@@ -26,6 +26,10 @@ pub struct EstimateArgs {
     /// segmented inside it. Repeatable, and can be mixed with --mask.
     #[arg(long = "box", value_parser = parse_box)]
     pub boxes: Vec<[f64; 4]>,
+    /// The --box values are tight (drawn by a detector trained on tight boxes): each
+    /// pose is moved back until its outline covers its box (`estimate::box_prior`).
+    #[arg(long, requires = "boxes")]
+    pub box_prior: bool,
     /// Detector score of each mask then each box, in the order of --mask then --box
     /// (default 1.0).
     #[arg(long = "score")]
@@ -133,7 +137,7 @@ pub fn run(a: EstimateArgs) -> Result<()> {
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
     let backbone = a.target.backbone.open()?;
     let estimator = crate::estimate::Estimator::new(backbone, renderer.clone());
-    let mut cfg = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), print: a.verify.print_config(), ..Default::default() };
+    let mut cfg = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), print: a.verify.print_config(), box_prior: a.box_prior, ..Default::default() };
     cfg.retrieval.k = a.k;
     let (result, confirmation) = if given == 0 {
         let (r, c) = estimate_detected(&a, &model, &image, &k, &estimator, &renderer, &cfg)?;

@@ -8,6 +8,9 @@
 //! Such a pose is moved back along its viewing ray until its outline covers the box. The
 //! converse does not hold (an occluder may hide much of the object), so a pose whose
 //! outline is larger than the box is left alone.
+//!
+//! It holds only for tight boxes, so callers ask for it (`EstimateConfig::box_prior`): a
+//! box drawn loose brings the object nearer by its looseness (docs/estimation.md).
 
 use super::hypotheses::{outline_box, seen_at};
 use crate::geometry::{Intrinsics, Pose};

@@ -5,7 +5,7 @@ use super::correspond::{correspond, Correspondences};
 use super::pnp::{solve_pnp_ransac, PnpConfig, PnpResult};
 use super::query::{crop_all, encode, QueryView};
 use super::contour::{ContourRefiner, PrintRefineConfig};
-use super::refine::{PassThrough, RefineContext, Refiner, RefinerKind};
+use super::refine::{PassThrough, RefineContext, RefineReport, Refiner, RefinerKind};
 use super::silhouette_refiner::SilhouetteDepthRefiner;
 use super::verify::{render_evidence, score as verification_score, Verified, VerifyConfig};
 use rayon::prelude::*;
@@ -65,18 +65,15 @@ pub struct EstimateConfig {
     #[serde(default)]
     pub print: PrintRefineConfig,
     /// A box proposal's refined poses moved back until their outline covers the box
-    /// (`box_prior`). Off for boxes drawn loose: they bring the object too near.
-    #[serde(default = "default_true")]
+    /// (`box_prior`): for tight boxes (a detector trained on tight boxes). Off by default:
+    /// a box drawn loose brings the object too near by its looseness.
+    #[serde(default)]
     pub box_prior: bool,
-}
-
-fn default_true() -> bool {
-    true
 }
 
 impl Default for EstimateConfig {
     fn default() -> Self {
-        Self { retrieval: RetrievalConfig::default(), k_nn: 3, pnp: PnpConfig::default(), rrc: true, rrc_render_scale: default_rrc_render_scale(), rrc_render_cap: default_rrc_render_cap(), max_masks: 2, min_mask_score: 0.35, selection: SelectionConfig::default(), refiner: RefinerKind::default(), verify: VerifyConfig::default(), print: PrintRefineConfig::default(), box_prior: true }
+        Self { retrieval: RetrievalConfig::default(), k_nn: 3, pnp: PnpConfig::default(), rrc: true, rrc_render_scale: default_rrc_render_scale(), rrc_render_cap: default_rrc_render_cap(), max_masks: 2, min_mask_score: 0.35, selection: SelectionConfig::default(), refiner: RefinerKind::default(), verify: VerifyConfig::default(), print: PrintRefineConfig::default(), box_prior: false }
     }
 }
 
@@ -325,9 +322,7 @@ impl Estimator {
                 } else {
                     match self.refiner(cfg.refiner).refine(&ctx, p) {
                         Ok(mut r) => {
-                            if cfg.box_prior {
-                                held_to_box(&ctx, &mut r.pose);
-                            }
+                            r.report.moved_to_box = cfg.box_prior && held_to_box(&ctx, &mut r.pose);
                             h.pose = Some(r.pose);
                             h.refinement = Some(r.report);
                         }
@@ -362,7 +357,7 @@ impl Estimator {
                 // Moved off its render, the pose is rendered again by selection.
                 let held = cfg.box_prior && held_to_box(ctx, &mut pose);
                 h.pose = Some(pose);
-                h.refinement = Some(r.report);
+                h.refinement = Some(RefineReport { moved_to_box: held, ..r.report });
                 h.render = (!held).then_some(r.render);
             }
             Ok(None) => {}
@@ -423,6 +418,7 @@ impl Estimator {
             .filter_map(|&(source, p)| {
                 let mut r = refiner.refine(ctx, p).ok()?;
                 let held = cfg.box_prior && held_to_box(ctx, &mut r.pose);
+                r.report.moved_to_box = held;
                 let contour = if cfg.refiner == RefinerKind::Contour && !held { r.report.agreement } else { self.contour.agreement(ctx, &r.pose).ok()?.score };
                 Some(Verified { source, pose: r.pose, refinement: r.report, contour, iou: f64::NAN, appearance: f64::NAN, edges: f64::NAN, colour: f64::NAN, features: f64::NAN, score: f64::NAN, render: None })
             })
@@ -639,11 +635,11 @@ mod tests {
     use crate::masks::PixelBox;
 
     #[test]
-    fn the_box_prior_is_on_by_default_and_for_configs_written_before_it() {
-        assert!(EstimateConfig::default().box_prior);
-        let mut older = serde_json::to_value(EstimateConfig { box_prior: false, ..Default::default() }).unwrap();
+    fn the_box_prior_is_off_by_default_and_for_configs_written_before_it() {
+        assert!(!EstimateConfig::default().box_prior);
+        let mut older = serde_json::to_value(EstimateConfig { box_prior: true, ..Default::default() }).unwrap();
         older.as_object_mut().unwrap().remove("box_prior");
-        assert!(serde_json::from_value::<EstimateConfig>(older).unwrap().box_prior);
+        assert!(!serde_json::from_value::<EstimateConfig>(older).unwrap().box_prior);
     }
 
     fn det(score: f32, from_box: Option<PixelBox>) -> Detection {

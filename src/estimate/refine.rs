@@ -94,11 +94,15 @@ pub struct RefineReport {
     /// refinement is kept only where the second is clearly the larger); absent otherwise.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub print_points: Option<[usize; 2]>,
+    /// The refined pose of a box proposal was then moved back until its outline covered
+    /// the caller's box (`estimate::box_prior`); absent otherwise.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub moved_to_box: bool,
 }
 
 impl Default for RefineReport {
     fn default() -> Self {
-        Self { moved: false, residual_px: 0.0, lines: 0, lines_with_edge: 0, agreement: 0.0, note: None, depth_sigma_m: f64::NAN, visible_fraction: f64::NAN, photo_edge_share: f64::NAN, print_points: None }
+        Self { moved: false, residual_px: 0.0, lines: 0, lines_with_edge: 0, agreement: 0.0, note: None, depth_sigma_m: f64::NAN, visible_fraction: f64::NAN, photo_edge_share: f64::NAN, print_points: None, moved_to_box: false }
     }
 }
 

@@ -319,6 +319,7 @@ impl Core {
         cfg.verify.spin_steps = o.spin_steps;
         cfg.verify.matched_templates = o.verify_matched;
         cfg.verify.nudge_degrees = o.nudge_degrees;
+        cfg.box_prior = o.box_prior;
         // The detector's candidates are confirmed at their estimated poses: a few more than
         // wanted are estimated, and the confirmed ones kept (`detect::confirm`).
         let choice = if detected.is_some() { Choice::Confirmed { min_score: req.detect.min_score } } else { Choice::Given };

@@ -71,6 +71,7 @@ pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, S
         spin_steps: o.spin_steps.map_or(defaults.spin_steps, |n| n as usize),
         verify_matched: o.verify_matched.map_or(defaults.verify_matched, |n| n as usize),
         nudge_degrees: o.nudge_degrees.unwrap_or(defaults.nudge_degrees),
+        box_prior: o.box_prior.unwrap_or(defaults.box_prior),
         overlay: o.overlay,
         refiner: if o.refiner.is_empty() { defaults.refiner } else { o.refiner.parse().map_err(|e: String| ServiceError::invalid(format!("options.refiner: {e}")))? },
     };
@@ -278,6 +279,17 @@ mod tests {
         assert_eq!(with(Some(0.0)).options.nudge_degrees, 0.0);
         let e = with(Some(f64::NAN)).check_limits().unwrap_err();
         assert!(e.message.contains("options.nudge_degrees: NaN is outside 0–45 degrees"), "{}", e.message);
+    }
+
+    #[test]
+    fn the_box_prior_is_off_unless_turned_on() {
+        let with = |box_prior| {
+            let options = Some(pb::EstimateOptions { box_prior, ..Default::default() });
+            estimate_request(pb::EstimateRequest { image: Some(pb::Image::default()), intrinsics: Some(pb::Intrinsics { width: 64, height: 48, ..Default::default() }), detections: vec![pb::Detection::default()], options, ..Default::default() }).unwrap().options.box_prior
+        };
+        assert!(!with(None));
+        assert!(with(Some(true)));
+        assert!(!with(Some(false)));
     }
 
     #[test]

@@ -114,6 +114,7 @@ def estimate_request(
     spin_steps: Optional[int] = None,
     verify_matched: Optional[int] = None,
     nudge_degrees: Optional[float] = None,
+    box_prior: Optional[bool] = None,
     overlay: bool = False,
 ) -> pb.EstimateRequest:
     ids = objects_list(objects)
@@ -141,6 +142,8 @@ def estimate_request(
         options.verify_matched = verify_matched
     if nudge_degrees is not None:
         options.nudge_degrees = nudge_degrees
+    if box_prior is not None:
+        options.box_prior = box_prior
     return pb.EstimateRequest(
         image=img,
         intrinsics=intrinsics_message(K, w, h),

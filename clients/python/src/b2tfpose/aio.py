@@ -230,6 +230,7 @@ class AsyncClient:
         spin_steps: Optional[int] = None,
         verify_matched: Optional[int] = None,
         nudge_degrees: Optional[float] = None,
+        box_prior: Optional[bool] = None,
         overlay: bool = False,
         max_detections: Optional[int] = None,
         min_score: Optional[float] = None,
@@ -242,7 +243,7 @@ class AsyncClient:
         request = _requests.estimate_request(
             image, K, detections, objects=objects, detect=_requests.detect_options(max_detections, min_score, min_distance, max_distance), bgr=bgr, rrc=rrc,
             refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify, verify_templates=verify_templates, spin_steps=spin_steps, verify_matched=verify_matched,
-            nudge_degrees=nudge_degrees, overlay=overlay,
+            nudge_degrees=nudge_degrees, box_prior=box_prior, overlay=overlay,
         )
         return Estimates.from_pb(await self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
 

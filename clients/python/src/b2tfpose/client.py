@@ -231,6 +231,7 @@ class Client:
         spin_steps: Optional[int] = None,
         verify_matched: Optional[int] = None,
         nudge_degrees: Optional[float] = None,
+        box_prior: Optional[bool] = None,
         overlay: bool = False,
         max_detections: Optional[int] = None,
         min_score: Optional[float] = None,
@@ -249,14 +250,15 @@ class Client:
         estimates (``.detections`` of the result lists what it found). ``rrc``,
         ``refiner`` ("contour", "silhouette-depth", "none"), ``k``, ``max_masks``,
         ``instances_per_object``, ``verify``, ``verify_templates``, ``spin_steps``, ``verify_matched``,
-        ``nudge_degrees`` (0: off): the server's options (None: its default). ``overlay=True``: the answer's
+        ``nudge_degrees`` (0: off), ``box_prior`` (True for tight boxes from a detector): the server's options
+        (None: its default). ``overlay=True``: the answer's
         ``.overlay_png`` is the photo with the poses drawn on it (PNG bytes).
         Returns a list of :class:`~b2tfpose.Result` (``.total_ms``: the server's time).
         """
         request = _requests.estimate_request(
             image, K, detections, objects=objects, detect=_requests.detect_options(max_detections, min_score, min_distance, max_distance), bgr=bgr, rrc=rrc,
             refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify, verify_templates=verify_templates, spin_steps=spin_steps, verify_matched=verify_matched,
-            nudge_degrees=nudge_degrees, overlay=overlay,
+            nudge_degrees=nudge_degrees, box_prior=box_prior, overlay=overlay,
         )
         return Estimates.from_pb(self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
 
