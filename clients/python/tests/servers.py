@@ -62,6 +62,7 @@ class Server:
         self.address = grpc.split("://", 1)[1]  # host:port
         self.tls = grpc.startswith("grpcs://")
         self._ssl = ssl.create_default_context(cafile=str(ca_cert)) if ca_cert else None
+        self._ca_cert = ca_cert
         self._wait_ready()
 
     def get(self, path: str) -> str:
@@ -75,10 +76,17 @@ class Server:
                 raise RuntimeError(f"b2tf serve exited with {self.proc.returncode}: {self.log_path.read_text()}")
             try:
                 self.get("/readyz")
-                return
+                break
             except OSError:
                 time.sleep(0.1)
-        raise RuntimeError(f"b2tf serve not ready within {timeout} s")
+        else:
+            raise RuntimeError(f"b2tf serve not ready within {timeout} s")
+        # The gRPC health check turns SERVING in its own task, a moment after /readyz:
+        # a test that asks at once must not see NOT_SERVING.
+        import b2tfpose
+
+        with b2tfpose.Client(self.address, ca_cert=self._ca_cert) as c:
+            c.wait_ready(timeout=max(1.0, end - time.monotonic()))
 
     def metric(self, needle: str) -> float:
         """Sum of the Prometheus samples whose line contains ``needle``."""
