@@ -61,7 +61,6 @@ pub fn covering_box(mesh: &Mesh, pose: &Pose, b: &PixelBox, k: &Intrinsics) -> O
 #[cfg(test)]
 mod tests {
     use super::*;
-    use super::super::hypotheses::OUTLINE_POINTS;
     use nalgebra::Rotation3;
 
     fn cube() -> Mesh {
