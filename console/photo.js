@@ -231,7 +231,8 @@ function settings() {
   const given = {};
   for (const input of $("photo-settings").querySelectorAll("[data-option]")) {
     if (input.value === "") continue;
-    given[input.dataset.option] = input.type === "number" ? Number(input.value) : input.value;
+    const kind = input.dataset.type ?? input.type;
+    given[input.dataset.option] = kind === "number" ? Number(input.value) : kind === "bool" ? input.value === "true" : input.value;
   }
   return given;
 }

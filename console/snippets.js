@@ -31,8 +31,8 @@ export function python(request, files, keyed) {
   else args.push(`[${request.detections.map((d) => detection(d, files)).join(", ")}]`);
   args.push(`rrc=${o.rrc ? "True" : "False"}`, `verify=${o.verify ? "True" : "False"}`);
   // The client's keyword arguments carry the API options' names.
-  for (const name of ["refiner", "verify_templates", "verify_matched", "spin_steps", "nudge_degrees"]) {
-    if (o[name] !== undefined) args.push(`${name}=${json(o[name])}`);
+  for (const name of ["refiner", "verify_templates", "verify_matched", "spin_steps", "nudge_degrees", "box_prior"]) {
+    if (o[name] !== undefined) args.push(`${name}=${pythonValue(o[name])}`);
   }
   return [
     "import os",
@@ -44,6 +44,11 @@ export function python(request, files, keyed) {
     `for r in client.estimate(${args.join(", ")}):`,
     "    print(r.object_id, r.score, r.pose.R if r.pose else r.reason, r.pose.t if r.pose else '')",
   ].join("\n");
+}
+
+// JSON's form is Python's too, but for true and false.
+function pythonValue(v) {
+  return typeof v === "boolean" ? (v ? "True" : "False") : json(v);
 }
 
 function detection(d, files) {
