@@ -2,6 +2,7 @@
 //! See DESIGN.md in the repository for the method, the conventions and the architecture.
 
 pub mod bop;
+pub mod depth;
 pub mod detect;
 pub mod masks;
 pub mod store;

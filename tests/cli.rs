@@ -165,6 +165,25 @@ fn estimate_writes_the_result_json_and_overlay() {
     let t: Vec<f64> = doc["poses"][0]["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
     assert!((t[2] - 0.6).abs() < 0.06, "depth from a box {t:?}");
 
+    // With the depth the render wrote (0.1 mm units): the pose is fitted to it, and the
+    // answer says how well the depth agrees.
+    let depth = d.join("r/depth.png");
+    let (ok, out, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--box", &bbox, "--depth", s(&depth), "--depth-scale", "0.1", "--no-rrc", "--out", s(&result)]);
+    assert!(ok, "{out}{err}");
+    let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&result).unwrap()).unwrap();
+    let t: Vec<f64> = doc["poses"][0]["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert!((t[0] - 0.01).abs() < 0.005 && (t[1] + 0.01).abs() < 0.005 && (t[2] - 0.6).abs() < 0.005, "with depth {t:?}");
+    let fit = doc["poses"][0]["diagnostics"]["hypotheses"].as_array().unwrap().iter().find_map(|h| h["refinement"].get("depth_fit")).unwrap_or_else(|| panic!("no depth_fit in {doc}"));
+    assert!(fit["inlier_share"].as_f64().unwrap() > 0.9, "{fit}");
+    // Bad depth: not 16-bit, of another size, a scale that is not positive, or one that
+    // makes the depth implausible (metres read as millimetres).
+    let small = d.join("small-depth.png");
+    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_pixel(32, 24, image::Luma([6000])).save(&small).unwrap();
+    for (file, scale, needle) in [(&mask, "0.1", "16-bit"), (&small, "0.1", "32×24 but the image is 320×240"), (&depth, "0", "depth scale must be finite and positive"), (&depth, "100", "--depth-scale 100")] {
+        let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--box", &bbox, "--depth", s(file), "--depth-scale", scale, "--out", s(&result)]);
+        assert!(!ok && err.contains(needle), "{file:?} × {scale}: {err}");
+    }
+
     // Bad inputs: boxes outside the image or of zero area, neither mask nor box, more
     // scores than masks, a missing mask file, a camera of another size.
     for (bad, needle) in [("400,10,20,20", "lies outside the 320×240 image"), ("10,10,0,5", "zero area"), ("1,2,3", "X,Y,W,H")] {

@@ -91,7 +91,7 @@ fn refiner_pulls_perturbed_poses_back_and_keeps_the_true_one() {
     for seed in 1..=4u64 {
         let s = scene(seed);
         let inst = &s.instances[0];
-        let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false, from_box: None };
+        let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false, from_box: None, depth: None };
         // The truth stays where it is, within what the outline of a partly hidden box pins
         // down (a face-on tilt of a few degrees barely changes it).
         let kept = refiner.refine(&ctx, inst.pose).unwrap();
@@ -141,7 +141,7 @@ fn occluders_edges_do_not_pull_the_true_pose() {
         let s = occluded_scene(seed, 0.5, 0.8);
         let inst = &s.instances[0];
         let z = inst.pose.translation.z;
-        let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false, from_box: None };
+        let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false, from_box: None, depth: None };
         let stays = |r: &b2tfpose::estimate::Refined| rotation_error_deg(&r.pose, &inst.pose) < 3.0 && translation_error_m(&r.pose, &inst.pose) < 0.01 * z;
         let (a, b) = (with.refine(&ctx, inst.pose).unwrap(), without.refine(&ctx, inst.pose).unwrap());
         eprintln!(
@@ -182,7 +182,7 @@ fn wrong_or_empty_masks_change_nothing() {
         }
     }
     for (name, mask) in [("empty", &empty), ("elsewhere", &elsewhere)] {
-        let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask, unknown: None, mask_is_probability: false, from_box: None };
+        let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask, unknown: None, mask_is_probability: false, from_box: None, depth: None };
         let r = refiner.refine(&ctx, start).unwrap();
         assert_eq!(r.pose, start, "{name} mask moved the pose");
         assert!(!r.report.moved && r.report.note.as_deref().unwrap_or("").contains("no improvement"), "{name}: {:?}", r.report);
@@ -238,7 +238,7 @@ fn photo_edges_keep_the_depth_under_a_mask_a_pixel_too_wide() {
             let (x, y) = (x as i64, y as i64);
             image::Luma([if on(x, y) || on(x - 1, y) || on(x + 1, y) || on(x, y - 1) || on(x, y + 1) { 255 } else { 0 }])
         });
-        let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &wide, unknown: None, mask_is_probability: false, from_box: None };
+        let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &wide, unknown: None, mask_is_probability: false, from_box: None, depth: None };
         let z = inst.pose.translation.z;
         let dz = |r: &ContourRefiner| {
             let refined = r.refine(&ctx, inst.pose).unwrap();
@@ -278,7 +278,7 @@ fn printed_objects_read_the_photo_where_their_print_is_plain() {
     let inst = &s.instances[0];
     let start = perturbed(&inst.pose, Vector3::new(0.3, 1.0, 0.2), 3.0, 1.03);
     let refine = |model: &ObjectModel, edges: PhotoEdges| {
-        let ctx = RefineContext { model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false, from_box: None };
+        let ctx = RefineContext { model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false, from_box: None, depth: None };
         let r = refiner(edges).refine(&ctx, start).unwrap();
         (r.pose.translation, r.report.photo_edge_share)
     };
@@ -307,7 +307,7 @@ fn printed_objects_turn_back_on_their_print() {
         let scenes = SceneConfig { images: 1, objects_per_image: 1, image_size: (320, 240), fill_range: (0.3, 0.35), max_occlusion: 0.05, occluders: false, supersampling: 3, seed, ..Default::default() };
         let s = generate_image(&[(1, mesh.clone())], &scenes, &f.pool, 0).unwrap();
         let inst = &s.instances[0];
-        let ctx = RefineContext { model: &model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false, from_box: None };
+        let ctx = RefineContext { model: &model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false, from_box: None, depth: None };
         let window = b2tfpose::estimate::select::mask_window(&inst.mask_visib).unwrap();
         if let Some(t) = refiner.refine_on_print(&ctx, &inst.pose, window, None, &cfg).unwrap() {
             assert!(rotation_error_deg(&t.pose, &inst.pose) < 0.5, "seed {seed}: the true pose turned {}°", rotation_error_deg(&t.pose, &inst.pose));
@@ -330,6 +330,6 @@ fn printed_objects_turn_back_on_their_print() {
     assert!(back * 4 >= trials * 3, "{back} of {trials} back within 1°");
     let plain = ObjectModel { mesh: mesh.without_appearance(), ..f.model.clone() };
     let s = scene(1);
-    let ctx = RefineContext { model: &plain, image: &s.rgb, intrinsics: &s.cam, mask: &s.instances[0].mask_visib, unknown: None, mask_is_probability: false, from_box: None };
+    let ctx = RefineContext { model: &plain, image: &s.rgb, intrinsics: &s.cam, mask: &s.instances[0].mask_visib, unknown: None, mask_is_probability: false, from_box: None, depth: None };
     assert!(refiner.refine_on_print(&ctx, &s.instances[0].pose, (0, 0, 320, 240), None, &cfg).unwrap().is_none());
 }

@@ -157,7 +157,7 @@ fn silhouette_depth_refiner_pulls_a_wrong_depth_back() {
     let s = scene(8);
     let inst = &s.instances[0];
     let refiner = SilhouetteDepthRefiner::new(f.pool.clone());
-    let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false, from_box: None };
+    let ctx = RefineContext { model: &f.model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false, from_box: None, depth: None };
     for scale in [0.95, 1.06] {
         let off = b2tfpose::geometry::Pose::new(inst.pose.rotation, inst.pose.translation * scale);
         let refined = refiner.refine(&ctx, off).unwrap();
@@ -276,7 +276,7 @@ fn hints_and_nudges_are_verified_with_the_other_hypotheses() {
     let det = true_detection(&s);
     let cfg = EstimateConfig::default();
     assert!(cfg.verify.nudge_degrees > 0.0, "nudged by default");
-    let r = f.estimator.estimate_hinted(&f.model, &s.rgb, &s.cam, &det, None, &[inst.pose], &cfg).unwrap();
+    let r = f.estimator.estimate_hinted(&f.model, (&s.rgb, None), &s.cam, &det, None, &[inst.pose], &cfg).unwrap();
     let verified = &r.hypotheses[0].verified;
     let nudges: Vec<_> = verified.iter().filter(|v| matches!(v.source, Source::Nudge(_))).collect();
     assert_eq!(nudges.len(), 4, "{:?}", verified.iter().map(|v| v.source.to_string()).collect::<Vec<_>>());

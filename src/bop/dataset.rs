@@ -215,6 +215,16 @@ pub fn load_rgb(path: &Path) -> Result<image::RgbImage, DatasetError> {
     Ok(image::open(path).map_err(|e| invalid(path, e.to_string()))?.to_rgb8())
 }
 
+/// An image's depth PNG as the estimator takes it (metres, checked against the colour
+/// image's `size` and for plausible values).
+pub fn load_depth(camera: &ImageCamera, size: (u32, u32)) -> Result<crate::depth::DepthImage, DatasetError> {
+    let path = &camera.depth_path;
+    let bytes = std::fs::read(path).map_err(|e| invalid(path, e.to_string()))?;
+    let depth = crate::depth::DepthImage::from_png(&bytes, camera.depth_scale).map_err(|e| invalid(path, e.to_string()))?;
+    depth.check_for(size.0, size.1, &format!("depth_scale {} from scene_camera.json", camera.depth_scale)).map_err(|e| invalid(path, e.to_string()))?;
+    Ok(depth)
+}
+
 /// A BOP depth PNG (16 bit) as depth in mm (value × `depth_scale`), 0 where unknown.
 pub fn load_depth_mm(path: &Path, depth_scale: f64) -> Result<(u32, u32, Vec<f32>), DatasetError> {
     let img = image::open(path).map_err(|e| invalid(path, e.to_string()))?;

@@ -41,11 +41,14 @@ pub struct RunOptions {
     /// How box-only detections become masks, and the proposals' sources.
     pub box_mask: BoxMask,
     pub proposals: crate::masks::ProposalConfig,
+    /// Each image's depth (`depth/` beside `rgb/`, with its camera's `depth_scale`) goes to
+    /// the estimator with it.
+    pub depth: bool,
 }
 
 impl Default for RunOptions {
     fn default() -> Self {
-        Self { split: "test".into(), estimate: EstimateConfig::default(), same_instance_iou: 0.5, box_mask: BoxMask::Propose, proposals: Default::default() }
+        Self { split: "test".into(), estimate: EstimateConfig::default(), same_instance_iou: 0.5, box_mask: BoxMask::Propose, proposals: Default::default(), depth: false }
     }
 }
 
@@ -114,6 +117,7 @@ pub fn run(
         let camera = scene_cameras.get(&im_id).with_context(|| format!("scene {scene_id}: no camera for image {im_id}, which {} lists", super::format::TEST_TARGETS))?;
         let started = Instant::now();
         let rgb = load_rgb(&camera.rgb_path)?;
+        let depth = if opts.depth { Some(super::dataset::load_depth(camera, rgb.dimensions())?) } else { None };
         let detected;
         let detections = match &mut source {
             DetectionSource::File(index) => *index,
@@ -159,7 +163,7 @@ pub fn run(
                 let group = &group;
                 let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, c)| representative(c).0));
                 let others = crate::masks::union(others, camera.cam.width, camera.cam.height);
-                let r = match estimator.estimate_among(&m, &rgb, &camera.cam, &candidates, others.as_ref(), &opts.estimate) {
+                let r = match estimator.estimate_rgbd(&m, &rgb, depth.as_ref(), &camera.cam, &candidates, others.as_ref(), &opts.estimate) {
                     Ok(r) => r,
                     Err(EstimateError::BadInput(msg)) => {
                         *summary.failures.entry(msg).or_default() += 1;

@@ -402,7 +402,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
             for (t, (_, cfg)) in tallies.iter_mut().zip(&configs) {
                 tracing::debug!(image = im, obj_id = inst.obj_id, setting = t.name, "bench instance");
                 let hints = truth_hints(&inst.pose, &model.mesh, &a.truth_hints, im as u64 * 1000 + n as u64);
-                let r: EstimateResult = estimator.estimate_hinted(model, &scene.rgb, &scene.cam, &det, others.as_ref(), &hints, cfg)?;
+                let r: EstimateResult = estimator.estimate_hinted(model, (&scene.rgb, None), &scene.cam, &det, others.as_ref(), &hints, cfg)?;
                 // The answer's error (MSSD over the diameter, against the truth turned by its
                 // nearest symmetry), one pass over the mesh for the row, the tallies and the
                 // stability check.
@@ -410,7 +410,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                 let error = r.pose.as_ref().map(|p| mssd(p, &gt, model.mesh.positions()) / model.diameter());
                 if a.stability && cfg.rrc {
                     let less: Vec<Detection> = det.iter().map(|d| Detection { mask: super::bench_stability::less_one_pixel(&d.mask), ..d.clone() }).collect();
-                    let again = estimator.estimate_hinted(model, &scene.rgb, &scene.cam, &less, others.as_ref(), &hints, cfg)?;
+                    let again = estimator.estimate_hinted(model, (&scene.rgb, None), &scene.cam, &less, others.as_ref(), &hints, cfg)?;
                     stability.push(error, again.pose.as_ref().map(|p| mssd(p, &truth(p), model.mesh.positions()) / model.diameter()));
                 }
                 let tm = &r.timings;

@@ -124,7 +124,7 @@ pub fn run(a: BenchRefineArgs) -> Result<()> {
             let side = crate::features::mask_bbox(&inst.mask).map_or(0, |b| (b.2 - b.0).max(b.3 - b.1) + 1);
             let bucket = size_class(side);
             let others = crate::masks::union(scene.instances.iter().filter(|o| !std::ptr::eq(*o, inst)).map(|o| &o.mask_visib), scene.rgb.width(), scene.rgb.height());
-            let ctx = RefineContext { model, image: &scene.rgb, intrinsics: &scene.cam, mask: &inst.mask_visib, unknown: others.as_ref(), mask_is_probability: false, from_box: None };
+            let ctx = RefineContext { model, image: &scene.rgb, intrinsics: &scene.cam, mask: &inst.mask_visib, unknown: others.as_ref(), mask_is_probability: false, from_box: None, depth: None };
             let centre = Vector3::from(model.mesh.bbox_center());
             let mut starts = vec![(0, inst.pose)];
             for (i, axis) in axes.iter().enumerate() {

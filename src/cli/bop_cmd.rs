@@ -77,6 +77,10 @@ pub struct RunArgs {
     /// proposal's poses moved back until their outline covers the box (`box_prior`).
     #[arg(long)]
     pub box_prior: bool,
+    /// RGB-D: each image's depth (`depth/`, with its camera's `depth_scale`) fits and
+    /// judges the hypotheses (`estimate::depth_fit`).
+    #[arg(long)]
+    pub depth: bool,
 }
 
 #[derive(Args, Debug)]
@@ -155,7 +159,7 @@ fn run_cmd(a: RunArgs) -> Result<()> {
         Ok(models.get(&id)?)
     };
     let estimate = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), print: a.verify.print_config(), box_prior: a.box_prior, ..Default::default() };
-    let opts = RunOptions { split: a.split.clone(), estimate, box_mask: a.box_mask, proposals: a.box_proposals.clone(), ..Default::default() };
+    let opts = RunOptions { split: a.split.clone(), estimate, box_mask: a.box_mask, proposals: a.box_proposals.clone(), depth: a.depth, ..Default::default() };
     let pb = super::progress::bar(0, "images");
     let progress = |done: usize, total: usize| {
         pb.set_length(total as u64);

@@ -18,6 +18,15 @@ pub struct EstimateArgs {
     /// scene_camera.json gives its first image's camera).
     #[arg(long)]
     pub camera: PathBuf,
+    /// Depth image registered to --image (same size and camera): a 16-bit PNG whose
+    /// values × --depth-scale are millimetres, 0 = no measurement. Each hypothesis is
+    /// then fitted to the measured surface and judged on it (`estimate::depth_fit`).
+    #[arg(long)]
+    pub depth: Option<PathBuf>,
+    /// Millimetres per --depth unit (BOP's depth_scale: 1 for millimetre PNGs, 0.1 for
+    /// tenth-millimetre ones).
+    #[arg(long, default_value_t = 1.0, requires = "depth")]
+    pub depth_scale: f64,
     /// Object mask PNG, image-sized, nonzero = object. Repeat for candidate masks. With
     /// no --mask and no --box the detector finds the object (settings below).
     #[arg(long = "mask")]
@@ -61,6 +70,14 @@ pub fn load_mask(path: &Path) -> Result<image::GrayImage> {
     Ok(crate::masks::decode::binarise(&img))
 }
 
+/// A depth PNG checked against the image it must be registered to.
+fn load_depth(path: &Path, scale_mm: f64, (width, height): (u32, u32)) -> Result<crate::depth::DepthImage> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read depth {}", path.display()))?;
+    let depth = crate::depth::DepthImage::from_png(&bytes, scale_mm).with_context(|| format!("--depth {}", path.display()))?;
+    depth.check_for(width, height, &format!("--depth-scale {scale_mm}")).with_context(|| format!("--depth {}", path.display()))?;
+    Ok(depth)
+}
+
 fn parse_box(s: &str) -> Result<[f64; 4], String> {
     let v: Vec<f64> = s.split(',').map(|x| x.trim().parse::<f64>().map_err(|e| format!("{x:?}: {e}"))).collect::<Result<_, _>>()?;
     <[f64; 4]>::try_from(v).map_err(|v| format!("expected X,Y,W,H (4 numbers), got {}", v.len()))
@@ -94,7 +111,7 @@ fn detections(a: &EstimateArgs, image: &image::RgbImage) -> Result<Candidates> {
 /// The estimate from the detector's candidates: the best few instances (each a group of
 /// overlapping detections, as the service groups them) estimated, and the one confirmed
 /// best at its estimated pose answered (`detect::confirm`), with its confirmation score.
-fn estimate_detected(a: &EstimateArgs, model: &ObjectModel, image: &image::RgbImage, k: &Intrinsics, estimator: &crate::estimate::Estimator, renderer: &crate::render::RenderPool, cfg: &EstimateConfig) -> Result<(EstimateResult, f32)> {
+fn estimate_detected(a: &EstimateArgs, model: &ObjectModel, (image, depth): (&image::RgbImage, Option<&crate::depth::DepthImage>), k: &Intrinsics, estimator: &crate::estimate::Estimator, renderer: &crate::render::RenderPool, cfg: &EstimateConfig) -> Result<(EstimateResult, f32)> {
     let min_score = a.search.min_score;
     let options = candidate_options(&a.search.options());
     let found = super::detect_cmd::detect_object(model, image, k, &options, renderer)?;
@@ -102,7 +119,7 @@ fn estimate_detected(a: &EstimateArgs, model: &ObjectModel, image: &image::RgbIm
     let mut count = 0;
     let answered = estimate_instances(crate::masks::group_instances(&refs, 0.5), 1, Choice::Confirmed { min_score }, |group| {
         let candidates: Vec<Detection> = group.iter().map(|&i| Detection::new(found[i].mask.clone(), found[i].score)).collect();
-        let r = estimator.estimate(model, image, k, &candidates, cfg)?;
+        let r = estimator.estimate_rgbd(model, image, depth, k, &candidates, None, cfg)?;
         count += 1;
         let confirmation = match &r.pose {
             Some(pose) => {
@@ -134,17 +151,18 @@ pub fn run(a: EstimateArgs) -> Result<()> {
     let model = a.target.load()?;
     let image = image::open(&a.image).with_context(|| format!("cannot read image {}", a.image.display()))?.to_rgb8();
     let k = super::camera_file::load_camera_for(&a.camera, Some(image.dimensions()))?;
+    let depth = a.depth.as_deref().map(|p| load_depth(p, a.depth_scale, image.dimensions())).transpose()?;
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
     let backbone = a.target.backbone.open()?;
     let estimator = crate::estimate::Estimator::new(backbone, renderer.clone());
     let mut cfg = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), print: a.verify.print_config(), box_prior: a.box_prior, ..Default::default() };
     cfg.retrieval.k = a.k;
     let (result, confirmation) = if given == 0 {
-        let (r, c) = estimate_detected(&a, &model, &image, &k, &estimator, &renderer, &cfg)?;
+        let (r, c) = estimate_detected(&a, &model, (&image, depth.as_ref()), &k, &estimator, &renderer, &cfg)?;
         (r, Some(c))
     } else {
         let candidates = detections(&a, &image)?;
-        let mut r = estimator.estimate(&model, &image, &k, &candidates.masks, &cfg)?;
+        let mut r = estimator.estimate_rgbd(&model, &image, depth.as_ref(), &k, &candidates.masks, None, &cfg)?;
         // Answered as the caller's --mask / --box index, not the proposal's.
         r.mask_index = candidates.owner_of(r.mask_index);
         (r, None)

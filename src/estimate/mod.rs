@@ -4,6 +4,7 @@
 pub mod box_prior;
 pub mod candidates;
 pub mod contour;
+pub mod depth_fit;
 pub mod correspond;
 pub mod hypotheses;
 pub mod matching;

@@ -14,6 +14,7 @@ use super::rrc::rrc_pool;
 use super::select::{box_agreement, combined_scores, mask_window, render_window, window_iou, SelectionConfig};
 use super::EstimateError;
 use super::candidates::Detection;
+use crate::depth::DepthImage;
 use crate::features::{crop_query, Backbone};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -22,6 +23,7 @@ use image::{GrayImage, RgbImage};
 use std::sync::Arc;
 use std::time::Instant;
 
+mod depth_judge;
 mod nudge;
 mod second_look;
 
@@ -267,7 +269,15 @@ impl Estimator {
     /// (image-sized, non-zero where another detection is) tells the refiner that the
     /// mask's outline says nothing there, so an occluder's edge does not pull the pose.
     pub fn estimate_among(&self, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, detections: &[Detection], others: Option<&GrayImage>, cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
-        self.estimate_hinted(model, image, k, detections, others, &[], cfg)
+        self.estimate_hinted(model, (image, None), k, detections, others, &[], cfg)
+    }
+
+    /// `estimate_among` with the depth camera's image registered to `image` (checked by
+    /// the caller: `DepthImage::check_for`): verification fits each rendered hypothesis to
+    /// it and weighs what it says (`pipeline::depth_judge`).
+    #[allow(clippy::too_many_arguments)]
+    pub fn estimate_rgbd(&self, model: &ObjectModel, image: &RgbImage, depth: Option<&DepthImage>, k: &Intrinsics, detections: &[Detection], others: Option<&GrayImage>, cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
+        self.estimate_hinted(model, (image, depth), k, detections, others, &[], cfg)
     }
 
     /// `estimate_among` with `hints`: poses the caller holds possible (a previous estimate,
@@ -275,7 +285,7 @@ impl Estimator {
     /// generated from one that loses the vote), verified with each mask's own hypotheses as
     /// source `hint` (ignored without verification).
     #[allow(clippy::too_many_arguments)]
-    pub fn estimate_hinted(&self, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, detections: &[Detection], others: Option<&GrayImage>, hints: &[Pose], cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
+    pub fn estimate_hinted(&self, model: &ObjectModel, (image, depth): (&RgbImage, Option<&DepthImage>), k: &Intrinsics, detections: &[Detection], others: Option<&GrayImage>, hints: &[Pose], cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
         let t_total = Instant::now();
         self.validate(model, image, k, detections)?;
         let mut timings = StageTimings::default();
@@ -305,7 +315,7 @@ impl Estimator {
                 None => None,
             };
             if let Some((source, p)) = start {
-                let ctx = RefineContext { model, image, intrinsics: k, mask: &detections[mi].mask, unknown: others, mask_is_probability: false, from_box: detections[mi].from_box };
+                let ctx = RefineContext { model, image, intrinsics: k, mask: &detections[mi].mask, unknown: others, mask_is_probability: false, from_box: detections[mi].from_box, depth };
                 let t = Instant::now();
                 let _span = tracing::info_span!("refine", refiner = cfg.refiner.name(), verify = cfg.verify.enabled).entered();
                 if cfg.verify.enabled {
@@ -329,7 +339,8 @@ impl Estimator {
                         Err(e) => h.failure = Some(format!("refiner {} failed: {e}", cfg.refiner.name())),
                     }
                 }
-                if cfg.refiner == RefinerKind::Contour {
+                // A pose fitted to the depth is not moved again along the image alone.
+                if cfg.refiner == RefinerKind::Contour && depth.is_none() {
                     self.refine_on_print(&ctx, &mut h, cfg);
                 }
                 timings.refine += ms(t);
@@ -401,6 +412,9 @@ impl Estimator {
         }
         if cfg.verify.nudge_degrees > 0.0 {
             self.nudge(ctx, &mut verified, window, query, cfg)?;
+        }
+        if ctx.depth.is_some() {
+            Self::judge_on_depth(ctx, &mut verified, window)?;
         }
         // Only the winner's render is reused (by selection); the others are dropped now.
         for v in verified.iter_mut().skip(1) {

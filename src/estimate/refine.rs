@@ -55,6 +55,9 @@ pub struct RefineContext<'a> {
     /// The caller's box, where the mask is one of its proposals (`Detection::from_box`):
     /// verification judges a pose by how well it fills the box as well as the mask.
     pub from_box: Option<crate::masks::PixelBox>,
+    /// The depth camera's image registered to `image`, where the caller sent one:
+    /// verification fits each rendered hypothesis to it (`estimate::depth_fit`).
+    pub depth: Option<&'a crate::depth::DepthImage>,
 }
 
 /// What a refiner did to one hypothesis.
@@ -98,11 +101,15 @@ pub struct RefineReport {
     /// the caller's box (`estimate::box_prior`); absent otherwise.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub moved_to_box: bool,
+    /// The pose fitted to the measured depth, and what the depth says of it
+    /// (`estimate::depth_fit`); absent without depth.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub depth_fit: Option<super::depth_fit::DepthFit>,
 }
 
 impl Default for RefineReport {
     fn default() -> Self {
-        Self { moved: false, residual_px: 0.0, lines: 0, lines_with_edge: 0, agreement: 0.0, note: None, depth_sigma_m: f64::NAN, visible_fraction: f64::NAN, photo_edge_share: f64::NAN, print_points: None, moved_to_box: false }
+        Self { moved: false, residual_px: 0.0, lines: 0, lines_with_edge: 0, agreement: 0.0, note: None, depth_sigma_m: f64::NAN, visible_fraction: f64::NAN, photo_edge_share: f64::NAN, print_points: None, moved_to_box: false, depth_fit: None }
     }
 }
 

@@ -176,7 +176,7 @@ impl Tracker {
             return Ok(TrackStep { pose: self.pose, quality: 0.0, lost: true, report: RefineReport { note: Some("the object left the image".into()), ..Default::default() }, silhouette_iou: None, appearance: None });
         };
         let probs = self.colours.probability_image(image, window);
-        let ctx = RefineContext { model: &self.model, image, intrinsics: k, mask: &probs, unknown: None, mask_is_probability: true, from_box: None };
+        let ctx = RefineContext { model: &self.model, image, intrinsics: k, mask: &probs, unknown: None, mask_is_probability: true, from_box: None, depth: None };
         let mut refined = self.refiner.refine(&ctx, predicted)?;
         let quality = refined.report.agreement;
         if quality < self.config.lost_below {
