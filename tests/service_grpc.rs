@@ -126,6 +126,16 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
     assert!(by_png.overlay_png.is_empty());
     let overlay = image::load_from_memory(&by_raw.overlay_png).expect("overlay PNG").to_rgb8();
     assert!(overlay.dimensions() == (320, 240) && overlay != sc.render.rgb);
+    // RGB-D: the render's depth as 16-bit tenths of a millimetre beside the mask: the pose
+    // is fitted to the measured surface.
+    let tenths: Vec<u8> = sc.render.depth.iter().flat_map(|z| ((z * 10_000.0).round() as u16).to_le_bytes()).collect();
+    let mut rgbd = estimate_request(pb::image::Data::Encoded(rgb.clone()), 0, 0, mask.clone(), "box");
+    rgbd.depth = Some(pb::Depth { data: Some(pb::depth::Data::RawU16(tenths.clone())), width: 320, height: 240, scale_mm: 0.1 });
+    let by_depth = c.estimate(rgbd).await.expect("RGB-D estimate").into_inner();
+    let fitted = by_depth.results[0].pose.as_ref().expect("a pose");
+    let (rot, trans) = pose_errors(&fitted.r, &fitted.t, &sc.truth);
+    assert!(rot < 5.0 && trans < 0.005, "RGB-D: rotation error {rot:.1}°, translation error {:.1} mm", trans * 1e3);
+    assert!(by_depth.results[0].diagnostics_json.contains("\"depth_fit\""), "{}", by_depth.results[0].diagnostics_json);
     let b64 = |b: &[u8]| base64::engine::general_purpose::STANDARD.encode(b);
     let http_body = serde_json::json!({
         "image": {"encoded": b64(&rgb)},
@@ -163,6 +173,10 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
         (with(&|r| r.intrinsics.as_mut().unwrap().fy = -500.0), Code::InvalidArgument, "intrinsics"),
         (with(&|r| r.intrinsics = None), Code::InvalidArgument, "intrinsics is required"),
         (with(&|r| r.intrinsics.as_mut().unwrap().width = 640), Code::InvalidArgument, "intrinsics say 640×240"),
+        (with(&|r| r.depth = Some(pb::Depth { data: Some(pb::depth::Data::RawU16(tenths.clone())), width: 320, height: 240, scale_mm: 0.0 })), Code::InvalidArgument, "depth.scale_mm is needed"),
+        (with(&|r| r.depth = Some(pb::Depth { data: Some(pb::depth::Data::RawU16(tenths.clone())), width: 320, height: 240, scale_mm: -1.0 })), Code::InvalidArgument, "depth scale must be finite and positive"),
+        (with(&|r| r.depth = Some(pb::Depth { data: Some(pb::depth::Data::RawU16(tenths[..1000].to_vec())), width: 320, height: 240, scale_mm: 0.1 })), Code::InvalidArgument, "depth.raw_u16 has 1000 bytes"),
+        (with(&|r| r.depth = Some(pb::Depth { data: None, width: 320, height: 240, scale_mm: 0.1 })), Code::InvalidArgument, "depth: give exactly one of"),
         // Over --max-body-mb 3.
         (with(&|r| r.image = Some(pb::Image { data: Some(pb::image::Data::RawRgb8(vec![7; 4_000_000])), width: 0, height: 0 })), Code::InvalidArgument, "too large"),
     ];

@@ -241,6 +241,34 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     assert_eq!(est_box["results"][0]["detection_index"], 0, "{est_box}");
     let hyps = est_box["results"][0]["diagnostics"].as_array().unwrap();
     assert!(!hyps.is_empty() && hyps.iter().all(|h| h["box_agreement"].as_f64().is_some_and(|b| (0.0..=1.0).contains(&b))), "{hyps:?}");
+    // RGB-D: the render's depth (float metres, 0 off the object) beside the box: the pose
+    // is fitted to it, and each judged hypothesis says how the depth agreed with it.
+    let f32_bytes = |v: &[f32]| b64(&v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>());
+    let mut rgbd = request(good_image.clone(), intrinsics.clone(), box_dets.clone());
+    rgbd["depth"] = json!({"raw_f32": f32_bytes(&r.depth), "width": 320, "height": 240});
+    let (s, est_d) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&rgbd));
+    assert_eq!(s, 200, "{est_d}");
+    let pose = &est_d["results"][0]["pose"];
+    let (rot, trans) = pose_errors(&floats(&pose["R"]), &floats(&pose["t"]), truth);
+    assert!(rot < 5.0 && trans < 0.005, "RGB-D from a box: rotation error {rot:.1}°, translation error {:.1} mm", trans * 1e3);
+    let fits: Vec<&Value> = est_d["results"][0]["diagnostics"].as_array().unwrap().iter().filter_map(|h| h["refinement"].get("depth_fit")).collect();
+    assert!(!fits.is_empty() && fits.iter().all(|f| f["inlier_share"].as_f64().unwrap() > 0.8), "{est_d}");
+    // Bad depth: 400 naming the field and what is wrong.
+    let mut nan_depth = r.depth.clone();
+    nan_depth[5] = f32::NAN;
+    for (depth, needle) in [
+        (json!({"raw_f32": f32_bytes(&r.depth[..320 * 120]), "width": 320, "height": 120}), "depth is 320×120 but the image is 320×240"),
+        (json!({"raw_f32": f32_bytes(&nan_depth), "width": 320, "height": 240}), "depth.raw_f32: depth value at pixel (5, 0) is NaN"),
+        (json!({"raw_u16": b64(&vec![0u8; 320 * 240 * 2]), "width": 320, "height": 240}), "depth.scale_mm is needed"),
+        (json!({"raw_u16": b64(&vec![0u8; 320 * 240 * 2]), "width": 320, "height": 240, "scale_mm": 1.0}), "depth holds no measurement"),
+        (json!({"raw_f32": f32_bytes(&r.depth.iter().map(|z| z * 1000.0).collect::<Vec<f32>>()), "width": 320, "height": 240}), "raw_f32 is metres"),
+        (json!({"png16": png(&r.mask), "scale_mm": 1.0}), "depth.png16: depth is not a 16-bit"),
+    ] {
+        let mut bad = request(good_image.clone(), intrinsics.clone(), box_dets.clone());
+        bad["depth"] = depth;
+        let (s, v) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&bad));
+        assert!(s == 400 && v.to_string().contains(needle), "{needle}: {s} {v}");
+    }
     // A box and a mask of the same instance: one instance, whose answer points at one of the
     // two detections, never at a proposal's place in the list.
     let (bx, mk) = (box_dets[0].clone(), json!({"object_id": "box", "mask_png": png(&r.mask), "score": 0.5}));

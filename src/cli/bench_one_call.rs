@@ -47,6 +47,7 @@ impl OneCall {
             objects: vec![object_id.to_string()],
             detect: self.detect.clone(),
             options: EstimateOptions { instances_per_object: instances, ..Default::default() },
+            depth: None,
         };
         let answer = self.core.estimate(&req, None).map_err(|e| anyhow::anyhow!("estimating {object_id}: {e}"))?;
         self.ms.push(answer.total_ms);

@@ -66,6 +66,15 @@ impl DepthImage {
             return Err(DepthError::BadScale(scale_mm));
         }
         let decoded = image::load_from_memory_with_format(bytes, ImageFormat::Png).map_err(|e| DepthError::NotSixteenBit(e.to_string()))?;
+        Self::from_decoded(decoded, scale_mm)
+    }
+
+    /// A decoded image (decoded under the caller's size limits), which must be 16-bit
+    /// greyscale; values × `scale_mm` = millimetres.
+    pub fn from_decoded(decoded: DynamicImage, scale_mm: f64) -> Result<Self, DepthError> {
+        if !(scale_mm.is_finite() && scale_mm > 0.0) {
+            return Err(DepthError::BadScale(scale_mm));
+        }
         match decoded {
             DynamicImage::ImageLuma16(img) => Self::from_u16(img.width(), img.height(), img.as_raw(), scale_mm),
             other => Err(DepthError::NotSixteenBit(format!("it is {:?}", other.color()))),

@@ -290,6 +290,7 @@ impl Core {
         let t0 = Instant::now();
         req.check_limits()?;
         let (image, k) = super::core_detect::decode_image(&req.image, &req.intrinsics)?;
+        let depth = req.depth.as_ref().map(|d| d.decode(k.width, k.height)).transpose()?;
         tracing::debug!(width = k.width, height = k.height, detections = req.detections.len(), objects = req.objects.len(), "estimate request");
         let o = &req.options;
         if o.k == 0 || o.max_masks == 0 || o.instances_per_object == 0 {
@@ -337,7 +338,7 @@ impl Core {
                 let candidates = &gathered.masks;
                 let others = others_mask(&by_object, object_id, &group, k.width, k.height);
                 let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
-                let r = span.in_scope(|| self.estimator.estimate_among(model, &image, &k, candidates, others.as_ref(), &cfg))?;
+                let r = span.in_scope(|| self.estimator.estimate_rgbd(model, &image, depth.as_ref(), &k, candidates, others.as_ref(), &cfg))?;
                 let confirmation = match (&r.pose, choice) {
                     (Some(pose), Choice::Confirmed { .. }) => {
                         let mask = &candidates[r.mask_index.unwrap_or(0)].mask;

@@ -34,6 +34,21 @@ pub fn image(image: pb::Image) -> rq::ImageInput {
     rq::ImageInput { encoded, raw_rgb8, width: size(image.width), height: size(image.height) }
 }
 
+pub fn depth(d: pb::Depth) -> crate::service::depth_input::DepthInput {
+    let mut out = crate::service::depth_input::DepthInput::default();
+    match d.data {
+        Some(pb::depth::Data::Png16(b)) => out.png16 = Some(b.into()),
+        Some(pb::depth::Data::RawU16(b)) => out.raw_u16 = Some(b.into()),
+        Some(pb::depth::Data::RawF32(b)) => out.raw_f32 = Some(b.into()),
+        None => {}
+    }
+    let size = |v: u32| (v > 0).then_some(v);
+    out.width = size(d.width);
+    out.height = size(d.height);
+    out.scale_mm = (d.scale_mm != 0.0).then_some(d.scale_mm);
+    out
+}
+
 pub fn intrinsics(k: pb::Intrinsics) -> rq::IntrinsicsInput {
     rq::IntrinsicsInput { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy, width: k.width, height: k.height }
 }
@@ -75,7 +90,7 @@ pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, S
         overlay: o.overlay,
         refiner: if o.refiner.is_empty() { defaults.refiner } else { o.refiner.parse().map_err(|e: String| ServiceError::invalid(format!("options.refiner: {e}")))? },
     };
-    Ok(rq::EstimateRequest { image, intrinsics, detections, objects: r.objects, detect: detect_options(r.detect), options })
+    Ok(rq::EstimateRequest { image, intrinsics, detections, objects: r.objects, detect: detect_options(r.detect), options, depth: r.depth.map(depth) })
 }
 
 /// Proto3 zero values and unset optionals are the detector's defaults.

@@ -17,6 +17,7 @@ pub mod core_detect;
 pub mod core_thumbnail;
 pub mod detect_requests;
 pub mod core_track;
+pub mod depth_input;
 pub mod error;
 pub mod estimate_queue;
 pub mod grpc;

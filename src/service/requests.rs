@@ -186,6 +186,10 @@ pub struct EstimateRequest {
     pub detect: crate::detect::DetectOptions,
     #[serde(default)]
     pub options: EstimateOptions,
+    /// The depth camera's image registered to `image` (RGB-D): each hypothesis is then
+    /// fitted to the measured surface and judged on it.
+    #[serde(default)]
+    pub depth: Option<super::depth_input::DepthInput>,
 }
 
 impl EstimateRequest {
