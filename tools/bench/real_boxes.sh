@@ -6,6 +6,8 @@
 #
 #   tools/bench/real_boxes.sh [DATASET] [OUT] [-- extra `bop run` flags for the box run]
 #
+# BOTH="--depth" adds flags to both runs (RGB-D: each image's depth/ with its depth_scale).
+#
 # Heavy (about 5 minutes on 2 cores with a release build, and 4 more the first time, to
 # onboard the objects into OUT/objects): a benchmark, not a test. B2TF_BIN names the binary
 # (default target/release/b2tf).
@@ -23,8 +25,8 @@ if [ ! -d "$OUT/objects" ]; then
   "$B2TF" bop run --dataset "$DS" --detections "$DS/detections.json" --out "$OUT/onboard.csv" --store "$STORE" >"$OUT/onboard.log" 2>&1
 fi
 for kind in masks boxes; do
-  det="$DS/detections.json"; extra=()
-  if [ "$kind" = boxes ]; then det="$DS/detections_box.json"; extra=("$@"); fi
+  det="$DS/detections.json"; extra=(${BOTH:-})
+  if [ "$kind" = boxes ]; then det="$DS/detections_box.json"; extra+=("$@"); fi
   rm -f "$OUT/$kind.csv"
   start=$(date +%s.%N)
   "$B2TF" bop run --dataset "$DS" --detections "$det" --out "$OUT/$kind.csv" --store "$STORE" "${extra[@]}" >"$OUT/$kind.log" 2>&1

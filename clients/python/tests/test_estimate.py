@@ -194,3 +194,33 @@ def test_bad_inputs_are_refused_before_sending(client: b2tfpose.Client, scene: S
         client.estimate(scene.rgb, scene.K, det, refiner="magic")
     with pytest.raises(ValueError, match="mask, an rle or a box"):
         b2tfpose.Detection(SAMPLE_ID)
+
+
+def test_depth_fits_the_pose_to_the_measured_surface(client: b2tfpose.Client, scene: Scene) -> None:
+    # The render's depth PNG: uint16 tenths of a millimetre, 0 off the object.
+    depth = cv2.imread(str(scene.dir / "depth.png"), cv2.IMREAD_ANYDEPTH)
+    assert depth is not None and depth.dtype == np.uint16
+    det = [b2tfpose.Detection(SAMPLE_ID, box=scene.box)]
+    [r] = client.estimate(scene.rgb, scene.K, det, rrc=False, depth=depth, depth_scale=0.1)
+    assert r.pose is not None and np.linalg.norm(np.asarray(r.pose.t) - scene.truth.t) < 0.005, r.pose.t
+    fits = [h["refinement"]["depth_fit"] for h in r.diagnostics if "depth_fit" in h.get("refinement", {})]
+    assert fits and fits[0]["inlier_share"] > 0.8, fits
+    # The same depth as float metres, and as the PNG file: the same answer.
+    [m] = client.estimate(scene.rgb, scene.K, det, rrc=False, depth=depth.astype(np.float32) / 10000.0)
+    [p] = client.estimate(scene.rgb, scene.K, det, rrc=False, depth=scene.dir / "depth.png", depth_scale=0.1)
+    assert m.pose is not None and p.pose is not None
+    np.testing.assert_allclose(m.pose.t, r.pose.t, atol=1e-3)
+    np.testing.assert_allclose(p.pose.t, r.pose.t, atol=1e-6)
+    # Bad depth: refused in the client where it can tell, by the server otherwise.
+    with pytest.raises(ValueError, match="depth_scale is needed with uint16 depth"):
+        client.estimate(scene.rgb, scene.K, det, depth=depth)
+    with pytest.raises(ValueError, match="must be registered to the colour image"):
+        client.estimate(scene.rgb, scene.K, det, depth=depth[:100], depth_scale=0.1)
+    with pytest.raises(ValueError, match="float depth is metres"):
+        client.estimate(scene.rgb, scene.K, det, depth=depth.astype(np.float32), depth_scale=0.1)
+    nan = depth.astype(np.float32) / 10000.0
+    nan[0, 3] = np.nan
+    with pytest.raises(b2tfpose.InvalidArgument, match=r"depth.raw_f32: depth value at pixel \(3, 0\) is NaN"):
+        client.estimate(scene.rgb, scene.K, det, depth=nan)
+    with pytest.raises(b2tfpose.InvalidArgument, match="outside 0.05–20 m"):
+        client.estimate(scene.rgb, scene.K, det, depth=depth, depth_scale=100.0)

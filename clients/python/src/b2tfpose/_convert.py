@@ -197,6 +197,46 @@ def image_message(image: ImageInput, bgr: bool = False) -> Tuple[pb.Image, int, 
     return pb.Image(raw_rgb8=np.ascontiguousarray(a).tobytes(), width=w, height=h), int(w), int(h)
 
 
+DepthInput = Union[npt.ArrayLike, bytes, str, "os.PathLike[str]"]
+
+
+def depth_message(depth: DepthInput, depth_scale: Optional[float], width: int, height: int) -> pb.Depth:
+    """The Depth message for a depth image registered to the colour image (``width`` x
+    ``height``), 0 = no measurement.
+
+    numpy HxW uint16 (OpenCV's ``IMREAD_ANYDEPTH``, pyrealsense2's z16, Kinect) is sent raw
+    with ``depth_scale`` millimetres per unit (1 for millimetres, 0.1 for tenths: BOP's
+    ``depth_scale``; a RealSense's depth unit in metres times 1000); float arrays are metres
+    (Open3D, pyrealsense2 after scaling) and take no scale. Bytes and paths are a 16-bit PNG
+    with ``depth_scale``."""
+    if isinstance(depth, (bytes, bytearray, memoryview)) or _is_path(depth):
+        data = bytes(depth) if isinstance(depth, (bytes, bytearray, memoryview)) else Path(depth).read_bytes()  # type: ignore[arg-type]
+        return pb.Depth(png16=data, scale_mm=_depth_scale(depth_scale, "a 16-bit PNG"))
+    a = np.asarray(depth)
+    if a.ndim == 3 and a.shape[2] == 1:
+        a = a[:, :, 0]
+    if a.ndim != 2:
+        raise ValueError(f"depth: expected an HxW array, got shape {a.shape}")
+    if a.shape != (height, width):
+        raise ValueError(f"depth is {a.shape[1]}x{a.shape[0]} but the image is {width}x{height}: it must be registered to the colour image")
+    if a.dtype == np.uint16:
+        raw = np.ascontiguousarray(a, dtype="<u2").tobytes()
+        return pb.Depth(raw_u16=raw, width=width, height=height, scale_mm=_depth_scale(depth_scale, "uint16 depth"))
+    if np.issubdtype(a.dtype, np.floating):
+        if depth_scale is not None:
+            raise ValueError("depth_scale is for uint16 depth and PNGs: float depth is metres")
+        return pb.Depth(raw_f32=np.ascontiguousarray(a, dtype="<f4").tobytes(), width=width, height=height)
+    raise ValueError(f"depth: expected uint16 (with depth_scale) or float metres, got {a.dtype}")
+
+
+def _depth_scale(scale: Optional[float], what: str) -> float:
+    if scale is None:
+        raise ValueError(f"depth_scale is needed with {what}: millimetres per unit (1 for millimetres, 0.1 for tenths)")
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not np.isfinite(scale) or scale <= 0:
+        raise ValueError(f"depth_scale must be a finite positive number of millimetres per unit, not {scale!r}")
+    return float(scale)
+
+
 def intrinsics_message(K: IntrinsicsInput, width: int, height: int) -> pb.Intrinsics:
     """K as a 3x3 matrix or (fx, fy, cx, cy), with the image's size."""
     a = np.asarray(K, dtype=np.float64)

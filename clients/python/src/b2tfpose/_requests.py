@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Any, Callable, Dict, List, Literal, Mapping, Optional, Sequence, Union
 
-from ._convert import DetectionInput, ImageInput, IntrinsicsInput, TrackFrame, detection_message, image_message, intrinsics_message
+from ._convert import DepthInput, DetectionInput, ImageInput, IntrinsicsInput, TrackFrame, depth_message, detection_message, image_message, intrinsics_message
 from ._mesh import MeshInput, mesh_message
 from ._types import CANCELLED, SUCCEEDED, ObjectInfo, OperationStatus
 from .errors import OperationCancelled, OperationFailed
@@ -116,6 +116,8 @@ def estimate_request(
     nudge_degrees: Optional[float] = None,
     box_prior: Optional[bool] = None,
     overlay: bool = False,
+    depth: Optional[DepthInput] = None,
+    depth_scale: Optional[float] = None,
 ) -> pb.EstimateRequest:
     ids = objects_list(objects)
     if detections is None:
@@ -144,6 +146,8 @@ def estimate_request(
         options.nudge_degrees = nudge_degrees
     if box_prior is not None:
         options.box_prior = box_prior
+    if depth is None and depth_scale is not None:
+        raise ValueError("depth_scale without depth")
     return pb.EstimateRequest(
         image=img,
         intrinsics=intrinsics_message(K, w, h),
@@ -151,6 +155,7 @@ def estimate_request(
         options=options,
         objects=ids,
         detect=detect if detect is not None else pb.DetectOptions(),
+        depth=depth_message(depth, depth_scale, w, h) if depth is not None else None,
     )
 
 

@@ -11,7 +11,7 @@ import grpc
 
 from . import _requests
 from ._channel import HEALTH_CHECK, SERVICE, CaCert, Settings, decode_health_response, encode_health_request, identity
-from ._convert import DetectionInput, FrameInput, ImageInput, IntrinsicsInput
+from ._convert import DepthInput, DetectionInput, FrameInput, ImageInput, IntrinsicsInput
 from ._mesh import MeshInput
 from ._requests import PcaSetting, ProgressCallback, ProgressFilter, finish, track_options
 from ._retry import Attempts, RetryArg, RetryPolicy, resolve
@@ -232,6 +232,8 @@ class AsyncClient:
         nudge_degrees: Optional[float] = None,
         box_prior: Optional[bool] = None,
         overlay: bool = False,
+        depth: Optional[DepthInput] = None,
+        depth_scale: Optional[float] = None,
         max_detections: Optional[int] = None,
         min_score: Optional[float] = None,
         min_distance: Optional[float] = None,
@@ -243,7 +245,7 @@ class AsyncClient:
         request = _requests.estimate_request(
             image, K, detections, objects=objects, detect=_requests.detect_options(max_detections, min_score, min_distance, max_distance), bgr=bgr, rrc=rrc,
             refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify, verify_templates=verify_templates, spin_steps=spin_steps, verify_matched=verify_matched,
-            nudge_degrees=nudge_degrees, box_prior=box_prior, overlay=overlay,
+            nudge_degrees=nudge_degrees, box_prior=box_prior, overlay=overlay, depth=depth, depth_scale=depth_scale,
         )
         return Estimates.from_pb(await self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
 

@@ -10,7 +10,7 @@ import grpc
 
 from . import _requests
 from ._channel import HEALTH_CHECK, SERVICE, CaCert, Settings, decode_health_response, encode_health_request, identity
-from ._convert import DetectionInput, FrameInput, ImageInput, IntrinsicsInput
+from ._convert import DepthInput, DetectionInput, FrameInput, ImageInput, IntrinsicsInput
 from ._mesh import MeshInput
 from ._requests import PcaSetting, ProgressCallback, ProgressFilter, finish, track_options
 from ._retry import Attempts, RetryArg, RetryPolicy, resolve
@@ -233,6 +233,8 @@ class Client:
         nudge_degrees: Optional[float] = None,
         box_prior: Optional[bool] = None,
         overlay: bool = False,
+        depth: Optional[DepthInput] = None,
+        depth_scale: Optional[float] = None,
         max_detections: Optional[int] = None,
         min_score: Optional[float] = None,
         min_distance: Optional[float] = None,
@@ -253,12 +255,17 @@ class Client:
         ``nudge_degrees`` (0: off), ``box_prior`` (True for tight boxes from a detector): the server's options
         (None: its default). ``overlay=True``: the answer's
         ``.overlay_png`` is the photo with the poses drawn on it (PNG bytes).
+        ``depth``: an RGB-D camera's depth registered to ``image`` (same size and K):
+        numpy HxW uint16 with ``depth_scale`` millimetres per unit (1 for millimetres, 0.1
+        for tenths), float metres, or a 16-bit PNG's bytes or path with ``depth_scale``; 0 =
+        no measurement. Each hypothesis is then fitted to the measured surface and judged
+        on it (``diagnostics[i]["refinement"]["depth_fit"]``).
         Returns a list of :class:`~b2tfpose.Result` (``.total_ms``: the server's time).
         """
         request = _requests.estimate_request(
             image, K, detections, objects=objects, detect=_requests.detect_options(max_detections, min_score, min_distance, max_distance), bgr=bgr, rrc=rrc,
             refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify, verify_templates=verify_templates, spin_steps=spin_steps, verify_matched=verify_matched,
-            nudge_degrees=nudge_degrees, box_prior=box_prior, overlay=overlay,
+            nudge_degrees=nudge_degrees, box_prior=box_prior, overlay=overlay, depth=depth, depth_scale=depth_scale,
         )
         return Estimates.from_pb(self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
 
