@@ -81,6 +81,10 @@ pub struct RunArgs {
     /// judges the hypotheses (`estimate::depth_fit`).
     #[arg(long)]
     pub depth: bool,
+    /// With --depth: each box also gets a mask proposal from the depth (surfaces split at
+    /// depth edges, the support plane removed; `masks::depth_proposal`).
+    #[arg(long, requires = "depth")]
+    pub depth_proposals: bool,
 }
 
 #[derive(Args, Debug)]
@@ -158,7 +162,7 @@ fn run_cmd(a: RunArgs) -> Result<()> {
         }
         Ok(models.get(&id)?)
     };
-    let estimate = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), print: a.verify.print_config(), box_prior: a.box_prior, ..Default::default() };
+    let estimate = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), print: a.verify.print_config(), box_prior: a.box_prior, depth_proposals: a.depth_proposals, ..Default::default() };
     let opts = RunOptions { split: a.split.clone(), estimate, box_mask: a.box_mask, proposals: a.box_proposals.clone(), depth: a.depth, ..Default::default() };
     let pb = super::progress::bar(0, "images");
     let progress = |done: usize, total: usize| {

@@ -29,6 +29,35 @@ impl Detection {
     }
 }
 
+/// `detections` and, with depth, one more proposal per box from the depth
+/// (`masks::depth_proposal`), scored and boxed like that box's others. The added ones come
+/// after the caller's; [`box_owner`] maps them back.
+pub fn with_depth_proposals(detections: &[Detection], depth: &crate::depth::DepthImage, k: &crate::geometry::Intrinsics) -> Vec<Detection> {
+    let mut out = detections.to_vec();
+    let mut boxes: Vec<(PixelBox, f32)> = Vec::new();
+    for d in detections {
+        if let Some(b) = d.from_box.filter(|b| !boxes.iter().any(|(seen, _)| seen == b)) {
+            boxes.push((b, d.score));
+        }
+    }
+    for (b, score) in boxes {
+        if let Some(mask) = crate::masks::depth_proposal::depth_proposal(depth, k, &b) {
+            out.push(Detection { mask, score, from_box: Some(b) });
+        }
+    }
+    out
+}
+
+/// The index among the first `given` of `detections` that `index` stands for: itself, or
+/// for an added proposal the first of the caller's proposals of the same box.
+pub fn box_owner(detections: &[Detection], given: usize, index: usize) -> usize {
+    if index < given {
+        return index;
+    }
+    let b = detections[index].from_box;
+    detections[..given].iter().position(|d| d.from_box.is_some() && d.from_box == b).unwrap_or(index)
+}
+
 /// The mask and score that stand for a detection's candidates (its first mask) where a
 /// detection needs one mask: grouping into instances, and as another instance's occluder.
 pub fn representative(candidates: &[Detection]) -> (&GrayImage, f64) {
@@ -72,6 +101,22 @@ mod tests {
 
     fn det(from_box: Option<PixelBox>) -> Detection {
         Detection { mask: GrayImage::new(1, 1), score: 0.5, from_box }
+    }
+
+    #[test]
+    fn a_depth_proposal_comes_after_the_callers_and_answers_as_its_box() {
+        let (a, b) = (PixelBox { x0: 2, y0: 2, x1: 8, y1: 8 }, PixelBox { x0: 10, y0: 2, x1: 16, y1: 8 });
+        // A flat patch at 0.5 m in box b, nothing measured elsewhere.
+        let values: Vec<f32> = (0..20 * 10).map(|i| if (10..16).contains(&(i % 20)) && (2..8).contains(&(i / 20)) { 0.5 } else { 0.0 }).collect();
+        let depth = crate::depth::DepthImage::from_metres(20, 10, values).unwrap();
+        let k = crate::geometry::Intrinsics::new(20.0, 20.0, 10.0, 5.0, 20, 10).unwrap();
+        let given = vec![det(None), det(Some(a)), det(Some(b)), det(Some(b))];
+        let given: Vec<Detection> = given.into_iter().map(|d| Detection { mask: GrayImage::new(20, 10), ..d }).collect();
+        let all = with_depth_proposals(&given, &depth, &k);
+        assert_eq!(all.len(), 5, "one proposal, for the box with depth");
+        assert_eq!(all[4].from_box, Some(b));
+        assert_eq!(all[4].mask.pixels().filter(|p| p[0] > 0).count(), 36);
+        assert_eq!((box_owner(&all, 4, 4), box_owner(&all, 4, 3), box_owner(&all, 4, 0)), (2, 3, 0));
     }
 
     #[test]

@@ -8,6 +8,7 @@
 
 pub mod components;
 pub mod decode;
+pub mod depth_proposal;
 pub mod gmm;
 pub mod instances;
 pub mod maxflow;
