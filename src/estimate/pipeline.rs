@@ -103,8 +103,16 @@ pub struct StageTimings {
     pub pnp: f64,
     pub rrc: f64,
     pub refine: f64,
+    /// The fits to the measured depth (`pipeline::depth_judge`), a part of `refine`;
+    /// absent without depth.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub depth: f64,
     pub selection: f64,
     pub total: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 /// What happened to one candidate mask.
@@ -329,7 +337,9 @@ impl Estimator {
                 let t = Instant::now();
                 let _span = tracing::info_span!("refine", refiner = cfg.refiner.name(), verify = cfg.verify.enabled).entered();
                 if cfg.verify.enabled {
-                    h.verified = self.verify(&ctx, (source, p), &retrieved, (&matched, hints), q, cfg)?;
+                    let (verified, depth_ms) = self.verify(&ctx, (source, p), &retrieved, (&matched, hints), q, cfg)?;
+                    h.verified = verified;
+                    timings.depth += depth_ms;
                     if let Some(best) = h.verified.first_mut() {
                         h.pose = Some(best.pose);
                         h.refinement = Some(best.refinement.clone());
@@ -397,7 +407,8 @@ impl Estimator {
     /// for all, then a render (IoU, appearance) for the best by contour and those the
     /// outline cannot tell from it (`verify::to_render`), then, where nothing the winner
     /// shows agrees with the photo's print, a second look (`second_look`). Best first.
-    fn verify(&self, ctx: &RefineContext<'_>, (start, pose): (Source, Pose), retrieved: &[usize], (matched, hints): (&[Pose], &[Pose]), query: &QueryView, cfg: &EstimateConfig) -> Result<Vec<Verified>, EstimateError> {
+    /// Also returns the milliseconds the depth fits took (0 without depth).
+    fn verify(&self, ctx: &RefineContext<'_>, (start, pose): (Source, Pose), retrieved: &[usize], (matched, hints): (&[Pose], &[Pose]), query: &QueryView, cfg: &EstimateConfig) -> Result<(Vec<Verified>, f64), EstimateError> {
         // A box's proposals are placed at the box, which the caller drew, not at the
         // proposal's own extent, which may have taken in clutter.
         let place = ctx.from_box.map(|b| (b.x0, b.y0, b.x1 - 1, b.y1 - 1)).or_else(|| crate::features::mask_bbox(ctx.mask));
@@ -428,14 +439,16 @@ impl Estimator {
         if cfg.verify.nudge_degrees > 0.0 {
             self.nudge(ctx, &mut verified, window, query, cfg)?;
         }
+        let t = Instant::now();
         if ctx.depth.is_some() {
             Self::judge_on_depth(ctx, &mut verified, window)?;
         }
+        let depth_ms = if ctx.depth.is_some() { ms(t) } else { 0.0 };
         // Only the winner's render is reused (by selection); the others are dropped now.
         for v in verified.iter_mut().skip(1) {
             v.render = None;
         }
-        Ok(verified)
+        Ok((verified, depth_ms))
     }
 
     /// Each candidate refined, with its contour agreement; those the refiner fails on are
