@@ -245,6 +245,13 @@ async function request() {
   if (!ids.length) throw new Error("Choose the object(s) to look for.");
   const options = { rrc: $("photo-rrc").checked, verify: $("photo-verify").checked, ...settings(), overlay: true };
   const req = { image: { encoded: await base64(photo.file) }, intrinsics: k, options };
+  // An RGB-D camera's depth: each hypothesis is fitted to the measured surface.
+  const depth = $("photo-depth").files[0];
+  if (depth) {
+    const scale = Number($("photo-depth-scale").value);
+    if (!(scale > 0)) throw new Error("Give the depth's scale: millimetres per unit (1 for millimetres, 0.1 for tenths).");
+    req.depth = { png16: await base64(depth), scale_mm: scale };
+  }
   if (mode() === "detect") return { ...req, objects: ids };
   if (ids.length > 1) throw new Error("A box or a mask is one object's: choose one object (or Detect to look for several).");
   if (mode() === "box") {
@@ -316,7 +323,7 @@ function show(req, resp) {
   if (downloadUrl) URL.revokeObjectURL(downloadUrl);
   downloadUrl = URL.createObjectURL(new Blob([JSON.stringify(answer, null, 2)], { type: "application/json" }));
   $("photo-download").href = downloadUrl;
-  const files = { photo: photo.file.name, mask: "mask.png" };
+  const files = { photo: photo.file.name, mask: "mask.png", depth: $("photo-depth").files[0]?.name };
   const keyed = Boolean(api.session.caller?.keys_required);
   $("photo-curl").textContent = snippets.curl(req, files, keyed);
   $("photo-python").textContent = snippets.python(req, files, keyed);
@@ -330,6 +337,14 @@ function note(r) {
   const notes = [];
   if (r.arbitrary_rotation_about_axis) notes.push("turns freely about an axis: any rotation about it is right");
   if (r.runner_up && r.runner_up.close_call) notes.push("a close call: another pose nearly won (look again, or from elsewhere)");
+  // With depth: how the kept pose's surface lies on the measured one (the selected mask's
+  // hypothesis is the best-scored).
+  const kept = (r.diagnostics ?? []).filter((h) => h.refinement?.depth_fit).sort((a, b) => b.score - a.score)[0];
+  const fit = kept?.refinement.depth_fit;
+  if (fit) {
+    const through = fit.free_space_share > 0.05 ? `, ${Math.round(fit.free_space_share * 100)} % seen through` : "";
+    notes.push(`depth: ${Math.round(fit.inlier_share * 100)} % of its surface on the measured one, ${fixed(fit.rms_mm, 1)} mm RMS${through}`);
+  }
   return notes.join("; ");
 }
 

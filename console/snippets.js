@@ -16,6 +16,10 @@ export function curl(request, files, keyed) {
       lines.push(`MASK=$(base64 -w0 ${quote(files.mask)})   # white: the object`);
     }
   }
+  if (body.depth) {
+    body.depth.png16 = "$DEPTH";
+    lines.push(`DEPTH=$(base64 -w0 ${quote(files.depth ?? "depth.png")})   # 16-bit, ${body.depth.scale_mm} mm per unit`);
+  }
   lines.push(`curl -sS ${location.origin}/v1/estimate \\`, `  -H 'Content-Type: application/json' \\`);
   if (keyed) lines.push(`  -H "Authorization: Bearer $B2TF_API_KEY" \\`);
   // An unquoted heredoc: the shell puts the files' base64 in, with no argument-length limit.
@@ -34,6 +38,7 @@ export function python(request, files, keyed) {
   for (const name of ["refiner", "verify_templates", "verify_matched", "spin_steps", "nudge_degrees", "box_prior"]) {
     if (o[name] !== undefined) args.push(`${name}=${pythonValue(o[name])}`);
   }
+  if (request.depth) args.push(`depth=${quote(files.depth ?? "depth.png", '"')}`, `depth_scale=${json(request.depth.scale_mm)}`);
   return [
     "import os",
     "import b2tfpose",

@@ -60,7 +60,7 @@ def make_inputs(work: Path) -> dict:
     pose = {"R": rotation(0.5, -0.4, 0.3), "t": [0.01, -0.005, 0.42]}
     (work / "pose.json").write_text(json.dumps(pose))
     run_cli("render", "--mesh", str(work / "sample/sample_box.obj"), "--units", "m", "--pose", str(work / "pose.json"), "--camera", str(work / "camera.json"), "--out", str(work / "photo"))
-    return {"mesh": work / "sample/sample_box.obj", "resources": [work / "sample/sample_box.mtl", work / "sample/sample_box_m0.png"], "photo": work / "photo/rgb.png", "camera": work / "camera.json", "mask": work / "photo/mask.png", "pose": pose}
+    return {"mesh": work / "sample/sample_box.obj", "resources": [work / "sample/sample_box.mtl", work / "sample/sample_box_m0.png"], "photo": work / "photo/rgb.png", "camera": work / "camera.json", "mask": work / "photo/mask.png", "depth": work / "photo/depth.png", "pose": pose}
 
 
 def mask_rows(mask_png: Path) -> list:
@@ -302,6 +302,25 @@ def run(page: Page, server: Server, inputs: dict, mask: list) -> None:
     assert noted == bool(up and up["close_call"]), (noted, up)
     err_mm = math.dist(api_t, [v * 1000 for v in inputs["pose"]["t"]])
     print(f"the page's pose equals the API's; its translation is {err_mm:.1f} mm from the truth")
+
+    # With the depth the photo was rendered with (16-bit, 0.1 mm units): the note says how
+    # the pose's surface lies on the measured one, and the curl and Python forms send it.
+    page.by("photo-depth").send_keys(str(inputs["depth"]))
+    page.by("photo-depth-scale").clear()
+    page.by("photo-depth-scale").send_keys("0.1")
+    page.by("photo-estimate").click()
+    page.wait(lambda: page.by("photo-estimate").is_enabled() and page.by("photo-result").is_displayed() or page.notice(), timeout=300, message="no answer with depth")
+    assert not page.notice(), page.notice()
+    row = d.find_element(By.CSS_SELECTOR, "#photo-results tbody tr")
+    note = row.find_element(By.CLASS_NAME, "note").text
+    assert "depth: " in note and "mm RMS" in note, note
+    depth_t = [float(v) for v in row.find_element(By.CLASS_NAME, "t").text.split(",")]
+    assert math.dist(depth_t, [v * 1000 for v in inputs["pose"]["t"]]) < 5, depth_t
+    curl, python = page.by("photo-curl").text, page.by("photo-python").text
+    assert "DEPTH=$(base64 -w0 'depth.png')" in curl and '"scale_mm":0.1' in curl, curl
+    assert 'depth="depth.png", depth_scale=0.1' in python, python
+    print(f"with depth: {note}")
+    d.execute_script("document.getElementById('photo-depth').value = ''")
 
     # A painted mask instead of the box: strokes across the object.
     page.by("photo-clear").click()
