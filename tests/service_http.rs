@@ -253,6 +253,15 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     assert!(rot < 5.0 && trans < 0.005, "RGB-D from a box: rotation error {rot:.1}°, translation error {:.1} mm", trans * 1e3);
     let fits: Vec<&Value> = est_d["results"][0]["diagnostics"].as_array().unwrap().iter().filter_map(|h| h["refinement"].get("depth_fit")).collect();
     assert!(!fits.is_empty() && fits.iter().all(|f| f["inlier_share"].as_f64().unwrap() > 0.8), "{est_d}");
+    // Without verification the kept pose is fitted all the same.
+    let mut unverified = rgbd.clone();
+    unverified["options"]["verify"] = json!(false);
+    let (s, est_u) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&unverified));
+    assert_eq!(s, 200, "{est_u}");
+    let pose = &est_u["results"][0]["pose"];
+    let (rot, trans) = pose_errors(&floats(&pose["R"]), &floats(&pose["t"]), truth);
+    assert!(rot < 5.0 && trans < 0.005, "RGB-D unverified: rotation error {rot:.1}°, translation error {:.1} mm", trans * 1e3);
+    assert!(est_u["results"][0]["diagnostics"].as_array().unwrap().iter().any(|h| h["refinement"].get("depth_fit").is_some()), "{est_u}");
     // Bad depth: 400 naming the field and what is wrong.
     let mut nan_depth = r.depth.clone();
     nan_depth[5] = f32::NAN;

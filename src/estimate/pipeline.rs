@@ -353,6 +353,11 @@ impl Estimator {
                     match self.refiner(cfg.refiner).refine(&ctx, p) {
                         Ok(mut r) => {
                             r.report.moved_to_box = cfg.box_prior && held_to_box(&ctx, &mut r.pose);
+                            let t = Instant::now();
+                            self.fit_to_depth(&ctx, &mut r.pose, &mut r.report, mask_window(ctx.mask).expect("validated non-empty"))?;
+                            if depth.is_some() {
+                                timings.depth += ms(t);
+                            }
                             h.pose = Some(r.pose);
                             h.refinement = Some(r.report);
                         }

@@ -18,6 +18,18 @@ use rayon::prelude::*;
 const DEPTH_WEIGHT: f64 = 1.0;
 
 impl Estimator {
+    /// `pose` (verification off) fitted to `ctx.depth` from its render over `window`; the
+    /// fit's report goes into `report`. Unchanged without depth.
+    pub(super) fn fit_to_depth(&self, ctx: &RefineContext<'_>, pose: &mut crate::geometry::Pose, report: &mut crate::estimate::RefineReport, window: (u32, u32, u32, u32)) -> Result<(), EstimateError> {
+        let Some(depth) = ctx.depth else { return Ok(()) };
+        let render = crate::estimate::select::render_window(&self.renderer, &ctx.model.mesh, pose, ctx.intrinsics, window)?;
+        let samples = visible_samples(&render, pose, &window_camera(ctx.intrinsics, window)?);
+        let (fitted, fit_report) = fit(&samples, pose, depth, ctx.intrinsics, ctx.model.diameter(), &DepthFitConfig::default());
+        *pose = fitted;
+        report.depth_fit = Some(fit_report);
+        Ok(())
+    }
+
     /// Fits every rendered hypothesis of `verified` to `ctx.depth`, adds its depth score
     /// to its own, and sorts best first again. Unrendered ones are left as they are (they
     /// rank below every rendered one).
