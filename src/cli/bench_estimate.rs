@@ -110,6 +110,10 @@ pub struct BenchEstimateArgs {
     /// the box (`estimate::box_prior`; the generated boxes are tight).
     #[arg(long, requires = "box_proposals")]
     pub box_prior: bool,
+    /// RGB-D: each scene's depth goes to the estimator (`estimate::depth_fit`). The
+    /// renderer's depth as it is: exact, no sensor noise or holes (flatters).
+    #[arg(long)]
+    pub depth: bool,
     /// With --from-boxes: keep the graph cut's outline as it is, without settling its
     /// pixels by coverage (`masks::outline_matte`), for comparison.
     #[arg(long, requires = "from_boxes")]
@@ -387,6 +391,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         // Each instance's candidates: its one mask, or its box's proposals; the first stands
         // for the instance where other instances are concerned.
         let how = if a.fill_boxes { crate::masks::BoxMask::Fill } else { crate::masks::BoxMask::Segment };
+        let depth = if a.depth { Some(crate::depth::DepthImage::from_metres(scene.rgb.width(), scene.rgb.height(), scene.depth.clone())?) } else { None };
         let dets: Vec<Vec<Detection>> = scene.instances.iter().map(|inst| if a.from_boxes { boxes.detection(&scene.rgb, &inst.mask_visib, how, a.box_proposals.as_ref()) } else { Ok(vec![Detection::new(inst.mask_visib.clone(), 1.0)]) }).collect::<Result<_>>()?;
         for (n, inst) in scene.instances.iter().enumerate() {
             instances += 1;
@@ -402,7 +407,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
             for (t, (_, cfg)) in tallies.iter_mut().zip(&configs) {
                 tracing::debug!(image = im, obj_id = inst.obj_id, setting = t.name, "bench instance");
                 let hints = truth_hints(&inst.pose, &model.mesh, &a.truth_hints, im as u64 * 1000 + n as u64);
-                let r: EstimateResult = estimator.estimate_hinted(model, (&scene.rgb, None), &scene.cam, &det, others.as_ref(), &hints, cfg)?;
+                let r: EstimateResult = estimator.estimate_hinted(model, (&scene.rgb, depth.as_ref()), &scene.cam, &det, others.as_ref(), &hints, cfg)?;
                 // The answer's error (MSSD over the diameter, against the truth turned by its
                 // nearest symmetry), one pass over the mesh for the row, the tallies and the
                 // stability check.
@@ -410,7 +415,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                 let error = r.pose.as_ref().map(|p| mssd(p, &gt, model.mesh.positions()) / model.diameter());
                 if a.stability && cfg.rrc {
                     let less: Vec<Detection> = det.iter().map(|d| Detection { mask: super::bench_stability::less_one_pixel(&d.mask), ..d.clone() }).collect();
-                    let again = estimator.estimate_hinted(model, (&scene.rgb, None), &scene.cam, &less, others.as_ref(), &hints, cfg)?;
+                    let again = estimator.estimate_hinted(model, (&scene.rgb, depth.as_ref()), &scene.cam, &less, others.as_ref(), &hints, cfg)?;
                     stability.push(error, again.pose.as_ref().map(|p| mssd(p, &truth(p), model.mesh.positions()) / model.diameter()));
                 }
                 let tm = &r.timings;
