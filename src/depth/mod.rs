@@ -62,9 +62,6 @@ impl DepthImage {
 
     /// A 16-bit greyscale PNG's bytes, values × `scale_mm` = millimetres.
     pub fn from_png(bytes: &[u8], scale_mm: f64) -> Result<Self, DepthError> {
-        if !(scale_mm.is_finite() && scale_mm > 0.0) {
-            return Err(DepthError::BadScale(scale_mm));
-        }
         let decoded = image::load_from_memory_with_format(bytes, ImageFormat::Png).map_err(|e| DepthError::NotSixteenBit(e.to_string()))?;
         Self::from_decoded(decoded, scale_mm)
     }

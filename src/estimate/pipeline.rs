@@ -354,7 +354,7 @@ impl Estimator {
                         Ok(mut r) => {
                             r.report.moved_to_box = cfg.box_prior && held_to_box(&ctx, &mut r.pose);
                             let t = Instant::now();
-                            self.fit_to_depth(&ctx, &mut r.pose, &mut r.report, mask_window(ctx.mask).expect("validated non-empty"))?;
+                            self.fit_to_depth(&ctx, &mut r.pose, &mut r.report)?;
                             if depth.is_some() {
                                 timings.depth += ms(t);
                             }
@@ -445,9 +445,7 @@ impl Estimator {
             self.nudge(ctx, &mut verified, window, query, cfg)?;
         }
         let t = Instant::now();
-        if ctx.depth.is_some() {
-            Self::judge_on_depth(ctx, &mut verified, window)?;
-        }
+        Self::judge_on_depth(ctx, &mut verified, window)?;
         let depth_ms = if ctx.depth.is_some() { ms(t) } else { 0.0 };
         // Only the winner's render is reused (by selection); the others are dropped now.
         for v in verified.iter_mut().skip(1) {

@@ -7,8 +7,11 @@
 //! so its render no longer shows it: selection renders the winner again.
 
 use super::{Estimator, EstimateError, RefineContext, Verified};
-use crate::estimate::depth_fit::{fit, visible_samples, DepthFitConfig};
+use crate::depth::DepthImage;
+use crate::estimate::depth_fit::{fit, visible_samples, DepthFit, DepthFitConfig};
 use crate::estimate::select::window_camera;
+use crate::geometry::{Intrinsics, Pose};
+use crate::render::RenderOutput;
 use rayon::prelude::*;
 
 /// Weight of the depth score ([-1, 1]: inlier share less free-space share) added to a
@@ -18,13 +21,13 @@ use rayon::prelude::*;
 const DEPTH_WEIGHT: f64 = 1.0;
 
 impl Estimator {
-    /// `pose` (verification off) fitted to `ctx.depth` from its render over `window`; the
-    /// fit's report goes into `report`. Unchanged without depth.
-    pub(super) fn fit_to_depth(&self, ctx: &RefineContext<'_>, pose: &mut crate::geometry::Pose, report: &mut crate::estimate::RefineReport, window: (u32, u32, u32, u32)) -> Result<(), EstimateError> {
+    /// `pose` (verification off) fitted to `ctx.depth` from its render over the mask's
+    /// window; the fit's report goes into `report`. Unchanged without depth.
+    pub(super) fn fit_to_depth(&self, ctx: &RefineContext<'_>, pose: &mut Pose, report: &mut crate::estimate::RefineReport) -> Result<(), EstimateError> {
         let Some(depth) = ctx.depth else { return Ok(()) };
+        let window = crate::estimate::select::mask_window(ctx.mask).expect("validated non-empty");
         let render = crate::estimate::select::render_window(&self.renderer, &ctx.model.mesh, pose, ctx.intrinsics, window)?;
-        let samples = visible_samples(&render, pose, &window_camera(ctx.intrinsics, window)?);
-        let (fitted, fit_report) = fit(&samples, pose, depth, ctx.intrinsics, ctx.model.diameter(), &DepthFitConfig::default());
+        let (fitted, fit_report) = fit_rendered(ctx, depth, &render, pose, &window_camera(ctx.intrinsics, window)?);
         *pose = fitted;
         report.depth_fit = Some(fit_report);
         Ok(())
@@ -36,12 +39,9 @@ impl Estimator {
     pub(super) fn judge_on_depth(ctx: &RefineContext<'_>, verified: &mut [Verified], window: (u32, u32, u32, u32)) -> Result<(), EstimateError> {
         let Some(depth) = ctx.depth else { return Ok(()) };
         let camera = window_camera(ctx.intrinsics, window)?;
-        let diameter = ctx.model.diameter();
-        let cfg = DepthFitConfig::default();
         verified.par_iter_mut().filter(|v| v.render.is_some()).for_each(|v| {
             let render = v.render.take().expect("filtered on a render");
-            let samples = visible_samples(&render, &v.pose, &camera);
-            let (pose, report) = fit(&samples, &v.pose, depth, ctx.intrinsics, diameter, &cfg);
+            let (pose, report) = fit_rendered(ctx, depth, &render, &v.pose, &camera);
             v.pose = pose;
             v.score += DEPTH_WEIGHT * report.score();
             v.refinement.depth_fit = Some(report);
@@ -49,4 +49,10 @@ impl Estimator {
         verified.sort_by(|a, b| b.score.total_cmp(&a.score));
         Ok(())
     }
+}
+
+/// `pose` fitted to `depth` over the surface its `render` (taken with `camera`) shows.
+fn fit_rendered(ctx: &RefineContext<'_>, depth: &DepthImage, render: &RenderOutput, pose: &Pose, camera: &Intrinsics) -> (Pose, DepthFit) {
+    let samples = visible_samples(render, pose, camera);
+    fit(&samples, pose, depth, ctx.intrinsics, ctx.model.diameter(), &DepthFitConfig::default())
 }
