@@ -33,7 +33,7 @@ fn follows_a_moving_object_and_reports_a_jump_lost() {
     let mut tracker = Tracker::new(model.clone(), pool.clone(), &seq[0].rgb, &k, seq[0].truth, TrackerConfig::default()).unwrap();
     let (mut rot, mut trans, mut lost) = (vec![], vec![], 0);
     for (i, f) in seq.iter().enumerate().skip(1) {
-        let step = tracker.track(&f.rgb, &k).unwrap();
+        let step = tracker.track(&f.rgb, None, &k).unwrap();
         eprintln!("{i}: quality {:.2}, lost {}, silhouette IoU {:?}, {:.2}°, {:.1} mm", step.quality, step.lost, step.silhouette_iou, rotation_error_deg(&step.pose, &f.truth), translation_error_m(&step.pose, &f.truth) * 1e3);
         if step.lost {
             // As a caller would: a full estimate (here the truth) starts the track again.
@@ -59,13 +59,55 @@ fn follows_a_moving_object_and_reports_a_jump_lost() {
     let last = tracker.pose();
     let jumped = Pose::new(last.rotation, last.translation + Vector3::new(0.25, 0.0, 0.0));
     let frame = pool.render(&model.mesh, &jumped, &k, &Default::default()).unwrap().rgb;
-    let step = tracker.track(&frame, &k).unwrap();
+    let step = tracker.track(&frame, None, &k).unwrap();
     assert!(step.lost, "a jump of 25 cm was tracked: quality {:.2}", step.quality);
     assert_eq!(tracker.pose().translation, last.translation);
 
     // A frame of another size than the intrinsics: refused, naming both.
-    let err = tracker.track(&image::RgbImage::new(64, 48), &k).unwrap_err();
+    let err = tracker.track(&image::RgbImage::new(64, 48), None, &k).unwrap_err();
     assert!(err.contains("64×48") && err.contains("320×240"), "{err}");
+}
+
+/// With depth frames (the Kinect-class sensor model's): the track is fitted to the measured
+/// surface and every tracked frame says how the pose lies on it; a frame whose depth shows
+/// only the wall where the colours still show the object is lost, naming the free space;
+/// a depth frame of another size is refused.
+#[test]
+fn depth_frames_fit_the_track_and_refute_what_they_see_through() {
+    let (model, pool, k) = setup();
+    let seq = generate(&model.mesh, &k, &SequenceConfig { frames: 25, seed: 3, ..Default::default() }, &pool).unwrap();
+    let depth = |f: &b2tfpose::track::sequence::Frame| b2tfpose::depth::DepthImage::from_metres(k.width, k.height, f.depth.clone()).unwrap();
+    let mut tracker = Tracker::new(model.clone(), pool.clone(), &seq[0].rgb, &k, seq[0].truth, TrackerConfig::default()).unwrap();
+    let (mut trans, mut lost) = (vec![], 0);
+    for (i, f) in seq.iter().enumerate().skip(1) {
+        let step = tracker.track(&f.rgb, Some(&depth(f)), &k).unwrap();
+        let fit = step.report.depth_fit.clone().expect("a depth fit on every frame");
+        eprintln!("{i}: lost {} {:?}, {:.2}°, {:.1} mm; inliers {:.2}, free {:.2}, rms {:.1} mm", step.lost, step.report.note, rotation_error_deg(&step.pose, &f.truth), translation_error_m(&step.pose, &f.truth) * 1e3, fit.inlier_share, fit.free_space_share, fit.rms_mm);
+        if step.lost {
+            lost += 1;
+            tracker.restart(&f.rgb, &k, f.truth).unwrap();
+            continue;
+        }
+        assert!(fit.inlier_share > 0.6 && fit.free_space_share < 0.2, "frame {i}: {fit:?}");
+        trans.push(translation_error_m(&step.pose, &f.truth));
+    }
+    trans.sort_by(f64::total_cmp);
+    let (median, worst) = (trans[trans.len() / 2], trans[trans.len() - 1]);
+    assert!(lost <= 1 && median < 0.005 && worst < 0.02, "{lost} lost; median {:.1} mm, worst {:.1} mm", median * 1e3, worst * 1e3);
+
+    // The colours show the object; the depth camera sees the wall through it.
+    let last = seq.last().unwrap();
+    let mut wall = vec![0f32; (k.width * k.height) as usize];
+    b2tfpose::depth::sensor::fill_with_plane(&mut wall, &k, 0.8, (0.0, 0.0));
+    let before = tracker.pose();
+    let step = tracker.track(&last.rgb, Some(&b2tfpose::depth::DepthImage::from_metres(k.width, k.height, wall).unwrap()), &k).unwrap();
+    let note = step.report.note.clone().unwrap_or_default();
+    assert!(step.lost && note.contains("sees through"), "{note}");
+    assert_eq!(tracker.pose().translation, before.translation, "a lost frame leaves the track where it was");
+
+    let small = b2tfpose::depth::DepthImage::from_metres(32, 24, vec![0.5; 32 * 24]).unwrap();
+    let err = tracker.track(&last.rgb, Some(&small), &k).unwrap_err();
+    assert!(err.contains("depth is 32×24") && err.contains("320×240"), "{err}");
 }
 
 /// A box turned half a turn about the axis it is seen along keeps its outline, so the
@@ -88,7 +130,7 @@ fn a_turn_the_outline_cannot_see_is_caught_by_the_appearance_check() {
     // The unturned box passes every check.
     let mut tracker = Tracker::new(model.clone(), pool.clone(), &seen_frame, &k, seen, config.clone()).unwrap();
     for _ in 0..config.relearn_every {
-        let step = tracker.track(&seen_frame, &k).unwrap();
+        let step = tracker.track(&seen_frame, None, &k).unwrap();
         assert!(!step.lost, "{:?}", step.report.note);
         if let Some(a) = step.appearance {
             assert!(a > 0.6, "appearance {a:.2} of the right pose");
@@ -98,7 +140,7 @@ fn a_turn_the_outline_cannot_see_is_caught_by_the_appearance_check() {
     let mut tracker = Tracker::new(model.clone(), pool.clone(), &seen_frame, &k, seen, config.clone()).unwrap();
     let mut caught = None;
     for i in 0..config.relearn_every {
-        let step = tracker.track(&turned_frame, &k).unwrap();
+        let step = tracker.track(&turned_frame, None, &k).unwrap();
         eprintln!("turned, frame {i}: quality {:.2} lost {} appearance {:?} {:?}", step.quality, step.lost, step.appearance, step.report.note);
         if step.lost {
             caught = Some(step);
@@ -164,7 +206,7 @@ fn a_lost_track_is_found_again_by_its_colours() {
     let mut modes = Vec::new();
     for (i, truth) in poses.iter().enumerate() {
         let detections = if i == 0 { vec![b2tfpose::track::FrameDetection::given("box".into(), first_mask.clone(), 1.0)] } else { vec![] };
-        let (_, outcomes) = session.frame(Some(i as u64), &frame(truth), &k, detections, &resolve, &estimator).unwrap();
+        let (_, outcomes) = session.frame(Some(i as u64), &frame(truth), None, &k, detections, &resolve, &estimator).unwrap();
         let o = &outcomes[0];
         let err = o.pose.map(|p| (rotation_error_deg(&p, truth), translation_error_m(&p, truth) * 1e3));
         eprintln!("frame {i}: {:?} {err:?} {:?} quality {:.2}", o.mode, o.reason, o.quality);
@@ -281,6 +323,32 @@ fn track_command_writes_a_pose_per_frame() {
     let e = fx.run_with(&frames, &["--lost-below", "1.5"]);
     let err = String::from_utf8_lossy(&e.stderr);
     assert!(!e.status.success() && err.contains("--lost-below") && err.contains("must be in [0, 1], not 1.5"), "{err}");
+
+    // RGB-D: the depth frames beside them (0.1 mm PNGs); each tracked line says how its
+    // pose lies on the measured surface. Too few depth frames, or one of another size, is
+    // an error naming the frame.
+    std::fs::remove_file(frames.join("0099.png")).unwrap();
+    let depths = fx.dir.path().join("depth");
+    std::fs::create_dir(&depths).unwrap();
+    for (i, f) in fx.seq.iter().enumerate() {
+        let tenths: Vec<u16> = f.depth.iter().map(|&z| (z * 1e4).round() as u16).collect();
+        image::ImageBuffer::<image::Luma<u16>, _>::from_raw(320, 240, tenths).unwrap().save(depths.join(format!("{i:04}.png"))).unwrap();
+    }
+    let done = fx.run_with(&frames, &["--depth", depths.to_str().unwrap(), "--depth-scale", "0.1"]);
+    assert!(done.status.success(), "{}", String::from_utf8_lossy(&done.stderr));
+    let lines = fx.check_lines(10.0, 0.02);
+    for l in lines.iter().filter(|l| l["mode"] == "tracked") {
+        assert!(l["depth_fit"]["inlier_share"].as_f64().is_some_and(|s| s > 0.5), "{l}");
+    }
+    std::fs::remove_file(depths.join("0011.png")).unwrap();
+    let e = fx.run_with(&frames, &["--depth", depths.to_str().unwrap(), "--depth-scale", "0.1"]);
+    let err = String::from_utf8_lossy(&e.stderr);
+    assert!(!e.status.success() && err.contains("frame 0011.png: no depth frame for it"), "{err}");
+    image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(32, 24, image::Luma([5000u16])).save(depths.join("0011.png")).unwrap();
+    let e = fx.run_with(&frames, &["--depth", depths.to_str().unwrap(), "--depth-scale", "0.1"]);
+    let err = String::from_utf8_lossy(&e.stderr);
+    assert!(!e.status.success() && err.contains("0011.png") && err.contains("32×24 but the image is 320×240"), "{err}");
+    image::RgbImage::new(64, 48).save(frames.join("0099.png")).unwrap();
 
     // No mask: the first of the detector's candidates confirmed at its estimated pose
     // starts the track, at the default threshold; a threshold no estimate reaches is an

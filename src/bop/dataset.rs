@@ -219,10 +219,7 @@ pub fn load_rgb(path: &Path) -> Result<image::RgbImage, DatasetError> {
 /// image's `size` and for plausible values).
 pub fn load_depth(camera: &ImageCamera, size: (u32, u32)) -> Result<crate::depth::DepthImage, DatasetError> {
     let path = &camera.depth_path;
-    let bytes = std::fs::read(path).map_err(|e| invalid(path, e.to_string()))?;
-    let depth = crate::depth::DepthImage::from_png(&bytes, camera.depth_scale).map_err(|e| invalid(path, e.to_string()))?;
-    depth.check_for(size.0, size.1, &format!("depth_scale {} from scene_camera.json", camera.depth_scale)).map_err(|e| invalid(path, e.to_string()))?;
-    Ok(depth)
+    crate::depth::DepthImage::read_png_for(path, camera.depth_scale, size, &format!("depth_scale {} from scene_camera.json", camera.depth_scale)).map_err(|e| invalid(path, e))
 }
 
 /// A BOP depth PNG (16 bit) as depth in mm (value × `depth_scale`), 0 where unknown.

@@ -111,7 +111,8 @@ pub struct BenchEstimateArgs {
     #[arg(long, requires = "box_proposals")]
     pub box_prior: bool,
     /// RGB-D: each scene's depth goes to the estimator (`estimate::depth_fit`). The
-    /// renderer's depth as it is: exact, no sensor noise or holes (flatters).
+    /// scenes' depth is what a Kinect-class camera measures (`depth::sensor`; the renderer's
+    /// exact depth with --exact-depth).
     #[arg(long)]
     pub depth: bool,
     /// With --from-boxes: keep the graph cut's outline as it is, without settling its

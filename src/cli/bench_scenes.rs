@@ -41,6 +41,10 @@ pub struct BenchSceneArgs {
     /// they move in whole-pixel steps, as the masks do.
     #[arg(long, default_value_t = 1)]
     pub supersample: u32,
+    /// The scenes' depth as the renderer gives it, exact, instead of what a Kinect-class
+    /// depth camera measures (noise, shadows, holes, steps: `depth::sensor`).
+    #[arg(long)]
+    pub exact_depth: bool,
     /// Object store that caches onboarded objects between runs.
     #[arg(long, default_value = "dir://out/bench-models")]
     pub store: String,
@@ -57,7 +61,7 @@ impl BenchSceneArgs {
     /// The scene generator's settings; `harsh`: the scene side of the render-to-real gap.
     /// Checked here, before any object is onboarded, so that a bad flag fails at once.
     pub fn scene_config(&self, harsh: bool) -> anyhow::Result<crate::eval::scenes::SceneConfig> {
-        let cfg = crate::eval::scenes::SceneConfig { images: self.images, objects_per_image: self.objects_per_image, max_occlusion: self.max_occlusion, min_occlusion: self.min_occlusion, fill_range: self.fill, render_to_real_gap: harsh, seed: self.seed, supersampling: self.supersample, ..Default::default() };
+        let cfg = crate::eval::scenes::SceneConfig { images: self.images, objects_per_image: self.objects_per_image, max_occlusion: self.max_occlusion, min_occlusion: self.min_occlusion, fill_range: self.fill, render_to_real_gap: harsh, seed: self.seed, supersampling: self.supersample, depth_sensor: super::depth_sensor(self.exact_depth), ..Default::default() };
         cfg.validate().map_err(|e| anyhow::anyhow!("scene config: {e}"))?;
         Ok(cfg)
     }

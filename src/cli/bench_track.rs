@@ -7,6 +7,7 @@
 
 use super::bench_track_grpc::{stream_sequence, StreamStats};
 use crate::eval::pose_error::{add, add_s, auc, mssd, sample_points};
+use crate::depth::DepthImage;
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Units;
 use crate::onboard::ObjectModel;
@@ -54,6 +55,13 @@ pub struct BenchTrackArgs {
     /// Also stream every sequence through a `b2tf serve` child's gRPC Track stream.
     #[arg(long)]
     pub grpc: bool,
+    /// Also track every sequence with its depth frames (RGB-D) and report both.
+    #[arg(long)]
+    pub depth: bool,
+    /// The renderer's exact depth instead of the Kinect-class sensor model's
+    /// (`depth::sensor`), for --depth and --save-bop.
+    #[arg(long)]
+    pub exact_depth: bool,
     /// Also write the sequences as a BOP dataset here (one scene per sequence; object ids
     /// from `obj_NNNNNN` mesh names, else 1, 2, … in the order given).
     #[arg(long, value_name = "DIR")]
@@ -95,6 +103,28 @@ impl Accuracy {
     }
 }
 
+/// Tracks one sequence from its true first pose, with its depth frames or without; a lost
+/// frame restarts at the truth. Adds to `run`'s accuracy, lost count and ms per tracked frame.
+fn track_in_process(model: &Arc<ObjectModel>, pool: &Arc<crate::render::RenderPool>, k: &Intrinsics, seq: &[Frame], with_depth: bool, sample: &[[f32; 3]], run: &mut (Accuracy, usize, Vec<f64>)) -> Result<()> {
+    let (acc, lost, ms) = run;
+    let mut tracker = Tracker::new(model.clone(), pool.clone(), &seq[0].rgb, k, seq[0].truth, TrackerConfig::default()).map_err(anyhow::Error::msg)?;
+    for f in &seq[1..] {
+        let depth = if with_depth { Some(DepthImage::from_metres(k.width, k.height, f.depth.clone())?) } else { None };
+        let t = Instant::now();
+        let step = tracker.track(&f.rgb, depth.as_ref(), k).map_err(anyhow::Error::msg)?;
+        if step.lost {
+            *lost += 1;
+            acc.push(None, f, model, sample);
+            // Out of view at the truth too: the track waits where it was.
+            let _ = tracker.restart(&f.rgb, k, f.truth);
+            continue;
+        }
+        ms.push(t.elapsed().as_secs_f64() * 1e3);
+        acc.push(Some(&step.pose), f, model, sample);
+    }
+    Ok(())
+}
+
 pub fn run(a: BenchTrackArgs) -> Result<()> {
     let backbone = crate::features::EmbeddedBackbone::new(Default::default()).map_err(anyhow::Error::msg)?;
     let pool = Arc::new(super::open_renderer(1)?);
@@ -106,7 +136,7 @@ pub fn run(a: BenchTrackArgs) -> Result<()> {
         models.push((name.clone(), Arc::new(super::cached_model(name, mesh, store.as_ref(), &backbone, &pool, crate::onboard::PcaSetting::Off, crate::onboard::DescriptorCoding::F16)?)));
     }
     drop(store); // the server below opens it
-    let config = |s: usize| SequenceConfig { frames: a.frames, max_degrees_per_frame: a.degrees, max_metres_per_frame: a.metres, seed: 1 + s as u64, occluder: a.occluder, blur_sigma: a.blur, noise_sigma: a.noise, ..Default::default() };
+    let config = |s: usize| SequenceConfig { frames: a.frames, max_degrees_per_frame: a.degrees, max_metres_per_frame: a.metres, seed: 1 + s as u64, occluder: a.occluder, blur_sigma: a.blur, noise_sigma: a.noise, depth_sensor: super::depth_sensor(a.exact_depth), ..Default::default() };
     if let Some(dir) = &a.save_bop {
         let specs: Vec<SequenceSpec> = meshes
             .iter()
@@ -122,25 +152,15 @@ pub fn run(a: BenchTrackArgs) -> Result<()> {
     println!("In process (a lost frame restarts at the truth):\n");
     println!("| object | frames | tracked | MSSD < 0.1·d | ADD AUC | ADD-S AUC | lost → re-initialised | ms per tracked frame, median | p95 |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let modes: &[bool] = if a.depth { &[false, true] } else { &[false] };
     for (name, model) in &models {
         let sample = sample_points(model.mesh.positions(), 500);
-        let (mut acc, mut lost, mut ms) = (Accuracy::default(), 0usize, Vec::new());
+        let mut runs: Vec<(Accuracy, usize, Vec<f64>)> = modes.iter().map(|_| (Accuracy::default(), 0, Vec::new())).collect();
         let (mut grpc_acc, mut grpc_stats) = (Accuracy::default(), StreamStats::default());
         for s in 0..a.sequences {
             let seq = generate(&model.mesh, &k, &config(s), &pool)?;
-            let mut tracker = Tracker::new(model.clone(), pool.clone(), &seq[0].rgb, &k, seq[0].truth, TrackerConfig::default()).map_err(anyhow::Error::msg)?;
-            for f in &seq[1..] {
-                let t = Instant::now();
-                let step = tracker.track(&f.rgb, &k).map_err(anyhow::Error::msg)?;
-                if step.lost {
-                    lost += 1;
-                    acc.push(None, f, model, &sample);
-                    // Out of view at the truth too: the track waits where it was.
-                    let _ = tracker.restart(&f.rgb, &k, f.truth);
-                    continue;
-                }
-                ms.push(t.elapsed().as_secs_f64() * 1e3);
-                acc.push(Some(&step.pose), f, model, &sample);
+            for (run, &with_depth) in runs.iter_mut().zip(modes) {
+                track_in_process(model, &pool, &k, &seq, with_depth, &sample, run)?;
             }
             if let Some(server) = &server {
                 let first_mask = pool.render(&model.mesh, &seq[0].truth, &k, &Default::default())?.mask;
@@ -150,9 +170,12 @@ pub fn run(a: BenchTrackArgs) -> Result<()> {
                 }
             }
         }
-        ms.sort_by(f64::total_cmp);
-        let pick = |q: f64| ms.get(((ms.len() as f64 - 1.0) * q).round() as usize).copied().unwrap_or(f64::NAN);
-        println!("| {name} | {} | {} | {} | {lost} | {:.1} | {:.1} |", acc.frames, ms.len(), acc.cells(), pick(0.5), pick(0.95));
+        for ((acc, lost, ms), &with_depth) in runs.iter_mut().zip(modes) {
+            ms.sort_by(f64::total_cmp);
+            let pick = |q: f64| ms.get(((ms.len() as f64 - 1.0) * q).round() as usize).copied().unwrap_or(f64::NAN);
+            let label = if a.depth { format!("{name} ({})", if with_depth { "RGB-D" } else { "RGB" }) } else { name.clone() };
+            println!("| {label} | {} | {} | {} | {lost} | {:.1} | {:.1} |", acc.frames, ms.len(), acc.cells(), pick(0.5), pick(0.95));
+        }
         if server.is_some() {
             grpc_rows.push(format!("| {name} | {} | {} | {} | {} | {} | {:.1} | {:.1} |", grpc_acc.frames, grpc_stats.tracked, grpc_stats.reinitialised, grpc_stats.lost, grpc_acc.cells(), grpc_stats.server_ms_median(), grpc_stats.frames_per_second()));
         }

@@ -112,6 +112,10 @@ pub struct SynthArgs {
     /// No wrongly labelled detections.
     #[arg(long)]
     pub no_distractors: bool,
+    /// Write the renderer's exact depth instead of what a Kinect-class depth camera
+    /// measures (noise growing with distance, shadows, holes, steps: `depth::sensor`).
+    #[arg(long)]
+    pub exact_depth: bool,
 }
 
 pub fn run(cmd: BopCommand) -> Result<()> {
@@ -203,7 +207,7 @@ fn run_cmd(a: RunArgs) -> Result<()> {
 
 fn synth_cmd(a: SynthArgs) -> Result<()> {
     let pool = super::open_renderer(RenderPool::DEFAULT_SIZE)?;
-    let scene = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, fill_range: a.fill, max_occlusion: a.max_occlusion, seed: a.seed, ..Default::default() };
+    let scene = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, fill_range: a.fill, max_occlusion: a.max_occlusion, seed: a.seed, depth_sensor: super::depth_sensor(a.exact_depth), ..Default::default() };
     let s = synth(&a.models, &a.out, &SynthOptions { scene, degraded: !a.no_degraded, distractors: !a.no_distractors }, &pool)?;
     println!(
         "wrote a BOP dataset to {}: objects {:?}, {} images, {} instances; {} detections in {}",

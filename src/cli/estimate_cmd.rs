@@ -71,11 +71,8 @@ pub fn load_mask(path: &Path) -> Result<image::GrayImage> {
 }
 
 /// A depth PNG checked against the image it must be registered to.
-fn load_depth(path: &Path, scale_mm: f64, (width, height): (u32, u32)) -> Result<crate::depth::DepthImage> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read depth {}", path.display()))?;
-    let depth = crate::depth::DepthImage::from_png(&bytes, scale_mm).with_context(|| format!("--depth {}", path.display()))?;
-    depth.check_for(width, height, &format!("--depth-scale {scale_mm}")).with_context(|| format!("--depth {}", path.display()))?;
-    Ok(depth)
+pub(super) fn load_depth(path: &Path, scale_mm: f64, size: (u32, u32)) -> Result<crate::depth::DepthImage> {
+    crate::depth::DepthImage::read_png_for(path, scale_mm, size, &format!("--depth-scale {scale_mm}")).map_err(|e| anyhow::anyhow!("--depth: {e}"))
 }
 
 fn parse_box(s: &str) -> Result<[f64; 4], String> {

@@ -123,6 +123,16 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 
 /// Renderer pool shared by the commands, with a message that says what to install when
 /// no adapter can be found.
+/// The depth camera generated scenes and sequences are measured with: Kinect-class, or
+/// the renderer's exact depth with `--exact-depth`.
+pub fn depth_sensor(exact: bool) -> crate::depth::sensor::SensorModel {
+    if exact {
+        crate::depth::sensor::SensorModel::exact()
+    } else {
+        crate::depth::sensor::SensorModel::default()
+    }
+}
+
 pub fn open_renderer(size: usize) -> anyhow::Result<crate::render::RenderPool> {
     open_renderer_with(size, crate::render::RendererConfig::default())
 }

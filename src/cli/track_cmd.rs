@@ -48,6 +48,15 @@ pub struct TrackArgs {
     /// again (the API's `lost_below`).
     #[arg(long, value_parser = unit_interval)]
     pub lost_below: Option<f64>,
+    /// RGB-D: a folder of 16-bit depth PNGs registered to the colour frames, the k-th in
+    /// name order with the k-th frame (a BOP scene's depth/ beside its rgb/). Tracks are
+    /// fitted to the measured surface and lost where it refutes them.
+    #[arg(long, value_name = "DIR")]
+    pub depth: Option<PathBuf>,
+    /// Millimetres per --depth unit (BOP's depth_scale: 1 for millimetre PNGs, 0.1 for
+    /// tenths).
+    #[arg(long, default_value_t = 1.0, requires = "depth")]
+    pub depth_scale: f64,
 }
 
 fn unit_interval(s: &str) -> std::result::Result<f64, String> {
@@ -77,7 +86,21 @@ fn pose_line(frame: &Frame, o: &TrackOutcome) -> serde_json::Value {
         "mode": o.mode.as_str(),
         "ms": o.ms,
         "reason": o.reason,
+        "depth_fit": o.depth_fit,
     })
+}
+
+/// The depth frames of `dir`: its PNGs in name order.
+fn depth_paths(dir: &std::path::Path) -> Result<Vec<PathBuf>> {
+    let files: Vec<PathBuf> = super::video_source::frame_paths(dir)
+        .with_context(|| "--depth")?
+        .into_iter()
+        .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")))
+        .collect();
+    if files.is_empty() {
+        bail!("--depth: no PNG depth frames in {}", dir.display());
+    }
+    Ok(files)
 }
 
 pub fn run(a: TrackArgs) -> Result<()> {
@@ -97,6 +120,7 @@ pub fn run(a: TrackArgs) -> Result<()> {
     if let Some(d) = &a.overlay_dir {
         std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
     }
+    let depth_files = a.depth.as_deref().map(depth_paths).transpose()?;
     let estimator = Estimator::new(a.target.backbone.open()?, renderer.clone());
     let mut out = std::io::BufWriter::new(std::fs::File::create(&a.out).with_context(|| format!("writing {}", a.out.display()))?);
     // One object, searched for around its last pose for as long as the video lasts.
@@ -115,8 +139,15 @@ pub fn run(a: TrackArgs) -> Result<()> {
         check_size(&frame, &k)?;
         let (i, image) = (frame.index, &frame.image);
         n += 1;
+        let depth = match &depth_files {
+            Some(files) => {
+                let path = files.get(n - 1).with_context(|| format!("frame {}: no depth frame for it ({} in {})", frame.name, files.len(), a.depth.as_deref().unwrap_or_else(|| std::path::Path::new("")).display()))?;
+                Some(super::estimate_cmd::load_depth(path, a.depth_scale, image.dimensions()).with_context(|| format!("frame {}", frame.name))?)
+            }
+            None => None,
+        };
         let detections = first_detections.take().unwrap_or_default();
-        let (_, outcomes) = session.frame(Some(i as u64), image, &k, detections, &resolve, &estimator).map_err(anyhow::Error::msg)?;
+        let (_, outcomes) = session.frame(Some(i as u64), image, depth.as_ref(), &k, detections, &resolve, &estimator).map_err(anyhow::Error::msg)?;
         // The first frame answers each candidate; the track is the one that started.
         let reasons: Vec<String> = outcomes.iter().filter_map(|o| o.reason.clone()).collect();
         let Some(o) = outcomes.into_iter().find(|o| o.track_id.is_some()) else {

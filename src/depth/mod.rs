@@ -7,6 +7,8 @@
 //! metres (what Open3D and pyrealsense2 give after scaling). Both are checked here, once,
 //! so that estimation can trust what it reads.
 
+pub mod sensor;
+
 use image::{DynamicImage, ImageFormat};
 
 /// Depth in metres, row-major, `width × height`; 0 = no measurement.
@@ -122,6 +124,16 @@ impl DepthImage {
             return Err(DepthError::Implausible { median_m: median, lo, hi, scale_hint: scale_hint.to_string() });
         }
         Ok(())
+    }
+
+    /// A 16-bit depth PNG file read and checked against the `size` of the image it is
+    /// registered to; the error names the file (and `scale_hint`, where the scale came from).
+    pub fn read_png_for(path: &std::path::Path, scale_mm: f64, size: (u32, u32), scale_hint: &str) -> Result<Self, String> {
+        let in_file = |e: &dyn std::fmt::Display| format!("depth {}: {e}", path.display());
+        let bytes = std::fs::read(path).map_err(|e| in_file(&e))?;
+        let depth = Self::from_png(&bytes, scale_mm).map_err(|e| in_file(&e))?;
+        depth.check_for(size.0, size.1, scale_hint).map_err(|e| in_file(&e))?;
+        Ok(depth)
     }
 }
 

@@ -100,11 +100,15 @@ pub struct DepthFitConfig {
     pub start_gate: f64,
     /// ... narrowed by this each iteration down to the inlier tolerance.
     pub gate_shrink: f64,
+    /// Set the depth first by the median depth difference, however large (a pose from a
+    /// box can be tens of centimetres off). Off for tracking, where a pose is close and a
+    /// surface far behind it must refute it rather than pull it there.
+    pub depth_first: bool,
 }
 
 impl Default for DepthFitConfig {
     fn default() -> Self {
-        Self { iterations: 15, start_gate: 0.25, gate_shrink: 0.75 }
+        Self { iterations: 15, start_gate: 0.25, gate_shrink: 0.75, depth_first: true }
     }
 }
 
@@ -121,7 +125,7 @@ pub fn fit(samples: &[SurfaceSample], pose: &Pose, depth: &DepthImage, k: &Intri
     let centre = samples.iter().fold(Vector3::zeros(), |a, s| a + s.point) / samples.len().max(1) as f64;
     let mut current = *pose;
     // The depth first: tens of centimetres off is common from a box.
-    for _ in 0..2 {
+    for _ in 0..if cfg.depth_first { 2 } else { 0 } {
         let diffs = depth_differences(samples, &current, depth, k);
         if diffs.len() < 10 {
             break;
@@ -205,6 +209,12 @@ fn gauss_newton_step(samples: &[SurfaceSample], pose: &Pose, depth: &DepthImage,
     let damping = 1e-6 * a.trace().max(1e-12);
     a += Matrix6::identity() * damping;
     let delta = a.cholesky()?.solve(&(-b));
+    // A trust region of the gate: a step moves no point further than the gate lets pairs
+    // be (directions the surface leaves free, such as sliding along a plane, would
+    // otherwise run with the noise).
+    let radius = (pairs.iter().map(|p| (p.0 - c).norm_squared()).sum::<f64>() / pairs.len() as f64).sqrt();
+    let reach = Vector3::new(delta[0], delta[1], delta[2]).norm() * radius + Vector3::new(delta[3], delta[4], delta[5]).norm();
+    let delta = if reach > gate { delta * (gate / reach) } else { delta };
     let turn = Rotation3::new(Vector3::new(delta[0], delta[1], delta[2]));
     let shift = Vector3::new(delta[3], delta[4], delta[5]);
     Some(Pose::new(turn * pose.rotation, turn * (pose.translation - c) + c + shift))

@@ -58,6 +58,7 @@ impl Core {
         if image.dimensions() != (k.width, k.height) {
             return Err(ServiceError::invalid(format!("image is {}×{} but intrinsics say {}×{}", image.width(), image.height(), k.width, k.height)));
         }
+        let depth = req.depth.as_ref().map(|d| d.decode(k.width, k.height)).transpose()?;
         // Order first: a late frame is refused before its masks are decoded or segmented.
         let mut session = turn.entry().session.lock().expect("session lock");
         let index = session.check_order(req.frame_index).map_err(|e| ServiceError::invalid(e.to_string()))?;
@@ -98,7 +99,7 @@ impl Core {
             }
         }
         let resolve = |object_id: &str| models.get(object_id).cloned().ok_or_else(|| format!("object {object_id:?} was not loaded"));
-        let (frame_index, outcomes) = session.frame(req.frame_index, &image, &k, detections, &resolve, &self.estimator).map_err(|e| match e {
+        let (frame_index, outcomes) = session.frame(req.frame_index, &image, depth.as_ref(), &k, detections, &resolve, &self.estimator).map_err(|e| match e {
             SessionError::OutOfOrder { .. } | SessionError::BadFrame(_) => ServiceError::invalid(e.to_string()),
             SessionError::Object { .. } | SessionError::Internal(_) => ServiceError::new(ErrorKind::Internal, e.to_string()),
         })?;

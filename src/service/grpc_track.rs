@@ -30,7 +30,7 @@ fn options(o: Option<pb::TrackOptions>) -> TrackSessionOptions {
 fn frame_request(f: pb::TrackFrame) -> Result<TrackFrameRequest, ServiceError> {
     let image = convert::image(convert::required(f.image, "image")?);
     let intrinsics = convert::intrinsics(convert::required(f.intrinsics, "intrinsics")?);
-    Ok(TrackFrameRequest { image, intrinsics, detections: convert::detections(f.detections), objects: f.objects, detect: convert::detect_options(f.detect), frame_index: f.frame_index })
+    Ok(TrackFrameRequest { image, intrinsics, detections: convert::detections(f.detections), objects: f.objects, detect: convert::detect_options(f.detect), frame_index: f.frame_index, depth: f.depth.map(convert::depth) })
 }
 
 fn tracked_object(o: TrackedObject) -> pb::TrackedObject {
@@ -53,6 +53,16 @@ fn tracked_object(o: TrackedObject) -> pb::TrackedObject {
         detection_index: o.detection_index.map_or(-1, |d| d as i32),
         ms: o.ms,
         reason: o.reason.unwrap_or_default(),
+        depth_fit: o.depth_fit.map(|f| pb::DepthFit {
+            points: f.points as u32,
+            measured_share: f.measured_share,
+            inlier_share: f.inlier_share,
+            free_space_share: f.free_space_share,
+            occluded_share: f.occluded_share,
+            rms_mm: f.rms_mm.unwrap_or(f64::NAN),
+            tolerance_mm: f.tolerance_mm,
+            moved_mm: f.moved_mm,
+        }),
     }
 }
 

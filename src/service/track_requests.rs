@@ -4,6 +4,7 @@
 
 use super::error::ServiceError;
 use super::requests::{DetectionInput, ImageInput, IntrinsicsInput, PoseOutput};
+use crate::estimate::depth_fit::DepthFit;
 use crate::track::{SessionConfig, TrackOutcome};
 
 /// Options of a new session; every field optional.
@@ -72,6 +73,10 @@ pub struct TrackFrameRequest {
     /// The frame's number; when given it must be above the last one (else the next).
     #[serde(default)]
     pub frame_index: Option<u64>,
+    /// The depth camera's frame registered to `image` (RGB-D, as in an estimate): tracks
+    /// are then fitted to the measured surface and lost where it refutes them.
+    #[serde(default)]
+    pub depth: Option<super::depth_input::DepthInput>,
 }
 
 /// One object in one frame.
@@ -88,11 +93,34 @@ pub struct TrackedObject {
     pub detection_index: Option<usize>,
     pub ms: f64,
     pub reason: Option<String>,
+    /// How the pose lies on the measured surface, on frames tracked with depth.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth_fit: Option<DepthFitOutput>,
+}
+
+/// `estimate::depth_fit::DepthFit` as answers carry it.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct DepthFitOutput {
+    pub points: usize,
+    pub measured_share: f64,
+    pub inlier_share: f64,
+    pub free_space_share: f64,
+    pub occluded_share: f64,
+    /// NaN (null) without inliers.
+    pub rms_mm: Option<f64>,
+    pub tolerance_mm: f64,
+    pub moved_mm: f64,
+}
+
+impl From<&DepthFit> for DepthFitOutput {
+    fn from(f: &DepthFit) -> Self {
+        Self { points: f.points, measured_share: f.measured_share, inlier_share: f.inlier_share, free_space_share: f.free_space_share, occluded_share: f.occluded_share, rms_mm: f.rms_mm.is_finite().then_some(f.rms_mm), tolerance_mm: f.tolerance_mm, moved_mm: f.moved_mm }
+    }
 }
 
 impl From<TrackOutcome> for TrackedObject {
     fn from(o: TrackOutcome) -> Self {
-        Self { track_id: o.track_id, object_id: o.object_id, pose: o.pose.as_ref().map(PoseOutput::from), quality: o.quality, mode: o.mode.as_str().to_string(), detection_index: o.detection_index, ms: o.ms, reason: o.reason }
+        Self { track_id: o.track_id, object_id: o.object_id, pose: o.pose.as_ref().map(PoseOutput::from), quality: o.quality, mode: o.mode.as_str().to_string(), detection_index: o.detection_index, ms: o.ms, reason: o.reason, depth_fit: o.depth_fit.as_ref().map(DepthFitOutput::from) }
     }
 }
 

@@ -1,7 +1,9 @@
 //! Generated video sequences for testing and measuring trackers: an object moving along a
 //! smooth random 6-DoF trajectory in front of a cluttered background, optionally with a
-//! passing occluder, blur and noise, with its true pose and visible mask per frame.
+//! passing occluder, blur and noise, with its true pose, visible mask and what a depth
+//! camera measures per frame (a wall behind, the occluder in front, `depth::sensor`).
 
+use crate::depth::sensor::{fill_with_plane, SensorModel};
 use crate::geometry::views::view_pose;
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::procedural::Rng;
@@ -25,19 +27,27 @@ pub struct SequenceConfig {
     /// Gaussian blur (pixels) and noise (grey levels) of every frame, after compositing.
     pub blur_sigma: f64,
     pub noise_sigma: f64,
+    /// What the depth camera measures (`SensorModel::exact()`: the renderer's depth).
+    pub depth_sensor: SensorModel,
 }
 
 impl Default for SequenceConfig {
     fn default() -> Self {
-        Self { frames: 60, distance: 0.5, max_degrees_per_frame: 3.0, max_metres_per_frame: 0.01, seed: 1, occluder: false, blur_sigma: 0.0, noise_sigma: 0.0 }
+        Self { frames: 60, distance: 0.5, max_degrees_per_frame: 3.0, max_metres_per_frame: 0.01, seed: 1, occluder: false, blur_sigma: 0.0, noise_sigma: 0.0, depth_sensor: SensorModel::default() }
     }
 }
+
+/// The wall behind the scene and the occluding bar, as multiples of the start distance.
+const WALL_DISTANCE: f64 = 1.6;
+const OCCLUDER_DISTANCE: f64 = 0.6;
 
 pub struct Frame {
     pub rgb: RgbImage,
     pub truth: Pose,
     /// The object's visible pixels (its silhouette less what the occluder hides).
     pub visible: GrayImage,
+    /// Metres as the depth camera measures them (0 = no measurement).
+    pub depth: Vec<f32>,
 }
 
 /// Coloured rectangles of many sizes on a gradient: edges and colours for the tracker to
@@ -135,12 +145,10 @@ pub struct Sequence<'a> {
     occluder_colour: image::Rgb<u8>,
 }
 
-/// A frame with what only a dataset on disk needs: the object's full silhouette and its
-/// depth where it is visible (m, 0 elsewhere; the occluder is a flat bar without depth).
-pub struct FrameWithDepth {
+/// A frame with what only a dataset on disk needs: the object's full silhouette.
+pub struct FrameWithSilhouette {
     pub frame: Frame,
     pub silhouette: GrayImage,
-    pub depth: Vec<f32>,
 }
 
 impl<'a> Sequence<'a> {
@@ -162,12 +170,14 @@ impl<'a> Sequence<'a> {
     /// Frame `i`: the object over the background, lit from a fixed direction, then the
     /// occluder, blur and noise as configured. Each frame's noise has its own seed, so
     /// frames can be made in any order.
-    pub fn frame(&self, i: usize, pool: &RenderPool) -> Result<FrameWithDepth, RenderError> {
+    pub fn frame(&self, i: usize, pool: &RenderPool) -> Result<FrameWithSilhouette, RenderError> {
         let (k, cfg) = (&self.k, &self.cfg);
         let truth = self.poses[i];
         let r = pool.render(self.mesh, &truth, k, &RenderOptions::default())?;
         let mut rgb = crate::eval::degrade::composite(&r.rgb, &r.mask, &self.background);
         let mut visible = r.mask.clone();
+        let mut depth = r.depth.clone();
+        fill_with_plane(&mut depth, k, WALL_DISTANCE * cfg.distance, (0.0, 0.0));
         if cfg.occluder {
             // From just off the left edge to just off the right one.
             let bar = (k.width / 10).max(1);
@@ -176,6 +186,7 @@ impl<'a> Sequence<'a> {
                 for y in 0..k.height {
                     rgb.put_pixel(x, y, self.occluder_colour);
                     visible.put_pixel(x, y, image::Luma([0]));
+                    depth[(y * k.width + x) as usize] = (OCCLUDER_DISTANCE * cfg.distance) as f32;
                 }
             }
         }
@@ -186,8 +197,8 @@ impl<'a> Sequence<'a> {
             let mut rng = Rng::new(cfg.seed ^ 0x5eed ^ (i as u64 + 1).wrapping_mul(0x9e37_79b9_7f4a_7c15));
             rgb = crate::eval::degrade::add_noise(&rgb, cfg.noise_sigma, &mut rng);
         }
-        let depth = r.depth.iter().zip(visible.as_raw()).map(|(&z, &v)| if v > 0 { z } else { 0.0 }).collect();
-        Ok(FrameWithDepth { frame: Frame { rgb, truth, visible }, silhouette: r.mask, depth })
+        let depth = cfg.depth_sensor.measure(&depth, Some(&rgb), k, cfg.seed ^ 0xde97_0000 ^ (i as u64 + 1).wrapping_mul(0x9e37_79b9_7f4a_7c15));
+        Ok(FrameWithSilhouette { frame: Frame { rgb, truth, visible, depth }, silhouette: r.mask })
     }
 }
 

@@ -48,7 +48,7 @@ pub fn write_sequences(dataset: &Path, k: &Intrinsics, specs: &[SequenceSpec<'_>
                 mask: made.silhouette,
                 mask_visib: made.frame.visible,
             };
-            writer.add(f as u32, &SceneImage { cam: *k, rgb: made.frame.rgb, depth: made.depth, instances: vec![instance] })?;
+            writer.add(f as u32, &SceneImage { cam: *k, rgb: made.frame.rgb, depth: made.frame.depth, instances: vec![instance] })?;
             frames += 1;
         }
         targets.extend(writer.finish()?);

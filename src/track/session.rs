@@ -9,6 +9,8 @@
 
 use super::colour::Window;
 use super::{Tracker, TrackerConfig};
+use crate::depth::DepthImage;
+use crate::estimate::depth_fit::DepthFit;
 use crate::detect::confirm::{answer_threshold, confirm};
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::geometry::{Intrinsics, Pose};
@@ -88,6 +90,9 @@ pub struct TrackOutcome {
     pub ms: f64,
     /// Why there is no pose, when there is none.
     pub reason: Option<String>,
+    /// How the pose lies on the measured surface, on frames tracked with depth (and lost
+    /// ones the depth refused).
+    pub depth_fit: Option<DepthFit>,
 }
 
 /// A detection of one object in a frame (a mask; boxes are segmented by the caller).
@@ -177,11 +182,14 @@ impl TrackSession {
 
     /// Tracks every object into this frame and starts tracks for the detections no track
     /// explains. `models` gives an object's model by id; every detection's object must
-    /// resolve before any work starts.
+    /// resolve before any work starts. With the frame's registered `depth`, tracking and
+    /// the full estimates use it too.
+    #[allow(clippy::too_many_arguments)]
     pub fn frame(
         &mut self,
         index: Option<u64>,
         image: &RgbImage,
+        depth: Option<&DepthImage>,
         k: &Intrinsics,
         detections: Vec<FrameDetection>,
         models: &dyn Fn(&str) -> Result<Arc<ObjectModel>, String>,
@@ -191,6 +199,10 @@ impl TrackSession {
         if image.dimensions() != (k.width, k.height) {
             return Err(SessionError::BadFrame(format!("image is {}×{} but intrinsics say {}×{}", image.width(), image.height(), k.width, k.height)));
         }
+        if let Some(d) = depth.filter(|d| (d.width(), d.height()) != (k.width, k.height)) {
+            return Err(SessionError::BadFrame(format!("depth is {}×{} but the frame is {}×{}", d.width(), d.height(), k.width, k.height)));
+        }
+        let frame = Frame { image, depth };
         if let Some(d) = detections.iter().find(|d| d.mask.dimensions() != (k.width, k.height)) {
             return Err(SessionError::BadFrame(format!("a mask of {} is {}×{}, not the frame's {}×{}", d.object_id, d.mask.width(), d.mask.height(), k.width, k.height)));
         }
@@ -207,14 +219,14 @@ impl TrackSession {
         for track in &mut self.tracks {
             let t = Instant::now();
             let _span = tracing::info_span!("track", track = track.id).entered();
-            steps.push((track.tracker.track(image, k).map_err(SessionError::Internal)?, t));
+            steps.push((track.tracker.track(image, depth, k).map_err(SessionError::Internal)?, t));
         }
         let lost: Vec<bool> = steps.iter().map(|(s, _)| s.lost).collect();
         let claimed = self.associate(k, &detections, &lost);
         let mut out = Vec::new();
         for (ti, (track, (step, t))) in self.tracks.iter_mut().zip(steps).enumerate() {
             let detection = claimed.iter().position(|c| *c == Some(ti)).map(|d| (d, &detections[d]));
-            out.push(finish_track(track, step, t, image, k, detection, estimator, &self.config)?);
+            out.push(finish_track(track, step, t, &frame, k, detection, estimator, &self.config)?);
         }
         let dropped: Vec<u32> = out.iter().filter(|o| o.mode == TrackMode::Dropped).filter_map(|o| o.track_id).collect();
         self.tracks.retain(|t| !dropped.contains(&t.id));
@@ -225,7 +237,7 @@ impl TrackSession {
             if candidate && started.contains(d.object_id.as_str()) {
                 continue;
             }
-            let outcome = self.start_track(di, d, new_models[d.object_id.as_str()].clone(), image, k, estimator)?;
+            let outcome = self.start_track(di, d, new_models[d.object_id.as_str()].clone(), &frame, k, estimator)?;
             if candidate && outcome.track_id.is_some() {
                 started.insert(d.object_id.as_str());
             }
@@ -277,13 +289,14 @@ impl TrackSession {
         claimed
     }
 
-    fn start_track(&mut self, di: usize, d: &FrameDetection, model: Arc<ObjectModel>, image: &RgbImage, k: &Intrinsics, estimator: &Estimator) -> Result<TrackOutcome, SessionError> {
+    fn start_track(&mut self, di: usize, d: &FrameDetection, model: Arc<ObjectModel>, frame: &Frame<'_>, k: &Intrinsics, estimator: &Estimator) -> Result<TrackOutcome, SessionError> {
         let t = Instant::now();
-        let refused = |reason: String, t: Instant| TrackOutcome { track_id: None, object_id: d.object_id.clone(), pose: None, quality: 0.0, mode: TrackMode::Refused, detection_index: Some(di), ms: ms(t), reason: Some(reason) };
+        let image = frame.image;
+        let refused = |reason: String, t: Instant| TrackOutcome { track_id: None, object_id: d.object_id.clone(), pose: None, quality: 0.0, mode: TrackMode::Refused, detection_index: Some(di), ms: ms(t), reason: Some(reason), depth_fit: None };
         if self.tracks.len() >= self.config.max_tracks {
             return Ok(refused(format!("this session already tracks {} objects (its limit)", self.tracks.len()), t));
         }
-        let pose = match full_estimate(estimator, &model, image, k, d.mask.clone(), d.score)? {
+        let pose = match full_estimate(estimator, &model, frame, k, d.mask.clone(), d.score)? {
             Ok((p, _)) => p,
             Err(reason) => return Ok(refused(reason, t)),
         };
@@ -300,15 +313,17 @@ impl TrackSession {
         let id = self.next_track;
         self.next_track += 1;
         self.tracks.push(Track { id, object_id: d.object_id.clone(), model, tracker, lost_frames: 0 });
-        Ok(TrackOutcome { track_id: Some(id), object_id: d.object_id.clone(), pose: Some(pose), quality: 1.0, mode: TrackMode::Estimated, detection_index: Some(di), ms: ms(t), reason: None })
+        Ok(TrackOutcome { track_id: Some(id), object_id: d.object_id.clone(), pose: Some(pose), quality: 1.0, mode: TrackMode::Estimated, detection_index: Some(di), ms: ms(t), reason: None, depth_fit: None })
     }
 }
 
 /// A track's frame after its tracking step: kept when tracked, else re-initialised from
 /// the detection it took (or the object found by its colours), else lost or dropped.
 #[allow(clippy::too_many_arguments)]
-fn finish_track(track: &mut Track, step: super::TrackStep, t: Instant, image: &RgbImage, k: &Intrinsics, detection: Option<(usize, &FrameDetection)>, estimator: &Estimator, config: &SessionConfig) -> Result<TrackOutcome, SessionError> {
-    let outcome = |pose: Option<Pose>, quality: f64, mode: TrackMode, detection_index: Option<usize>, reason: Option<String>| TrackOutcome { track_id: Some(track.id), object_id: track.object_id.clone(), pose, quality, mode, detection_index, ms: ms(t), reason };
+fn finish_track(track: &mut Track, step: super::TrackStep, t: Instant, frame: &Frame<'_>, k: &Intrinsics, detection: Option<(usize, &FrameDetection)>, estimator: &Estimator, config: &SessionConfig) -> Result<TrackOutcome, SessionError> {
+    let image = frame.image;
+    let depth_fit = step.report.depth_fit.clone();
+    let outcome = |pose: Option<Pose>, quality: f64, mode: TrackMode, detection_index: Option<usize>, reason: Option<String>| TrackOutcome { track_id: Some(track.id), object_id: track.object_id.clone(), pose, quality, mode, detection_index, ms: ms(t), reason, depth_fit: if mode == TrackMode::Reinitialised { None } else { depth_fit.clone() } };
     if !step.lost {
         track.lost_frames = 0;
         return Ok(outcome(Some(step.pose), step.quality, TrackMode::Tracked, None, None));
@@ -322,7 +337,7 @@ fn finish_track(track: &mut Track, step: super::TrackStep, t: Instant, image: &R
     };
     let mut why = step.report.note.clone().unwrap_or_else(|| format!("outline agreement {:.2} under {:.2}", step.quality, config.tracker.lost_below));
     if let Some(mask) = mask {
-        match full_estimate(estimator, &track.model, image, k, mask, score)? {
+        match full_estimate(estimator, &track.model, frame, k, mask, score)? {
             Ok((_, iou)) if iou < config.min_reinit_iou => why = format!("{why}; re-initialising: the estimate explains its mask poorly (silhouette IoU {iou:.2} under {:.2})", config.min_reinit_iou),
             // What was found inside the searched box must be an object there: an estimate
             // centred elsewhere explains a region that took in clutter too. (Its outline
@@ -355,10 +370,16 @@ fn frame_number(given: Option<u64>, last: Option<u64>) -> Result<u64, SessionErr
     }
 }
 
+/// One frame's images: the colour image and, from an RGB-D camera, its registered depth.
+struct Frame<'a> {
+    image: &'a RgbImage,
+    depth: Option<&'a DepthImage>,
+}
+
 /// A full estimate from one mask: the pose and its rendered silhouette's IoU with the
 /// mask, or why there is none.
-fn full_estimate(estimator: &Estimator, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, mask: GrayImage, score: f32) -> Result<Result<(Pose, f64), String>, SessionError> {
-    match estimator.estimate(model, image, k, &[Detection::new(mask, score)], &EstimateConfig::default()) {
+fn full_estimate(estimator: &Estimator, model: &ObjectModel, frame: &Frame<'_>, k: &Intrinsics, mask: GrayImage, score: f32) -> Result<Result<(Pose, f64), String>, SessionError> {
+    match estimator.estimate_rgbd(model, frame.image, frame.depth, k, &[Detection::new(mask, score)], None, &EstimateConfig::default()) {
         Ok(r) => {
             let iou = r.hypotheses.iter().find(|h| Some(h.mask_index) == r.mask_index).map_or(f64::NAN, |h| h.iou as f64);
             Ok(r.pose.map(|p| (p, iou)).ok_or_else(|| r.reason.unwrap_or_else(|| "no pose".into())))

@@ -4,12 +4,19 @@
 //! rendering in the loop. The colour model is relearnt from a rendered silhouette every
 //! few frames. A frame whose outline agreement falls below a threshold is reported lost
 //! and leaves the track where it was, for the caller to re-initialise (a full estimate).
+//!
+//! With a depth frame the pose is then fitted to the measured surface (`depth_fit`, the
+//! estimator's point-to-plane fit) over the model surface seen at the last render, kept as
+//! object-frame samples so that no frame renders for it (the ICG/M3T way); a pose the
+//! camera sees through (free space), or that no measured surface confirms, is lost.
 
 use super::check::{appearance, silhouette_iou};
 use super::colour::{ColourModel, Window};
 use super::photometric::{PhotometricConfig, PhotometricModel};
 use super::search::find_by_colour;
+use crate::depth::DepthImage;
 use crate::estimate::contour::ContourRefiner;
+use crate::estimate::depth_fit::{fit, visible_samples, DepthFit, DepthFitConfig, SurfaceSample};
 use crate::estimate::refine::{RefineContext, RefineReport, Refiner};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -40,11 +47,19 @@ pub struct TrackerConfig {
     pub min_appearance: f64,
     /// The texture term after each contour step (photometric.rs).
     pub photometric: PhotometricConfig,
+    /// With depth frames: Gauss-Newton steps of the depth fit after the contour step.
+    pub depth_iterations: usize,
+    /// With depth frames: above this share of the measured model surface seen through
+    /// (measured behind it) the frame is lost ...
+    pub max_free_space: f64,
+    /// ... and below this share within the fit's tolerance of it (none of the object is
+    /// where the pose says: drifted onto an occluder or the background in front).
+    pub min_depth_inliers: f64,
 }
 
 impl Default for TrackerConfig {
     fn default() -> Self {
-        Self { lost_below: 0.3, colour_rate: 0.2, relearn_every: 5, constant_velocity: true, window_radii: 1.6, min_silhouette_iou: 0.5, min_appearance: 0.3, photometric: PhotometricConfig::default() }
+        Self { lost_below: 0.3, colour_rate: 0.2, relearn_every: 5, constant_velocity: true, window_radii: 1.6, min_silhouette_iou: 0.5, min_appearance: 0.3, photometric: PhotometricConfig::default(), depth_iterations: 6, max_free_space: 0.35, min_depth_inliers: 0.2 }
     }
 }
 
@@ -79,6 +94,8 @@ pub struct Tracker {
     /// The mesh has colours (a texture or vertex colours) for the appearance check.
     coloured: bool,
     texture: PhotometricModel,
+    /// The model surface seen at the last render, object frame: what depth frames fit.
+    surface: Vec<SurfaceSample>,
 }
 
 impl Tracker {
@@ -87,7 +104,7 @@ impl Tracker {
     pub fn new(model: Arc<ObjectModel>, renderer: Arc<RenderPool>, image: &RgbImage, k: &Intrinsics, pose: Pose, config: TrackerConfig) -> Result<Self, String> {
         let refiner = ContourRefiner::new(renderer.clone());
         let coloured = model.mesh.has_colours();
-        let mut t = Self { model, renderer, refiner, colours: ColourModel::default(), config, pose, velocity: None, frames: 0, silhouette_area: 0.0, coloured, texture: PhotometricModel::default() };
+        let mut t = Self { model, renderer, refiner, colours: ColourModel::default(), config, pose, velocity: None, frames: 0, silhouette_area: 0.0, coloured, texture: PhotometricModel::default(), surface: Vec::new() };
         t.restart(image, k, pose)?;
         Ok(t)
     }
@@ -110,6 +127,7 @@ impl Tracker {
         self.colours = colours;
         self.silhouette_area = mask_area(&render.mask);
         self.learn_texture(image, &render, window, k, &pose);
+        self.learn_surface(&render, window, k, &pose);
         self.velocity = None;
         self.frames = 0;
         self.pose = pose;
@@ -154,6 +172,46 @@ impl Tracker {
         }
     }
 
+    /// The surface the render at `pose` shows, for the depth fits of the frames to come.
+    fn learn_surface(&mut self, render: &RenderOutput, window: Window, k: &Intrinsics, pose: &Pose) {
+        if let Some(wk) = window.intrinsics(k) {
+            self.surface = visible_samples(render, pose, &wk);
+        }
+    }
+
+    /// `pose` fitted to `depth` over the learnt surface points that face the camera there;
+    /// None when there are too few to fit.
+    fn fit_depth(&self, depth: &DepthImage, k: &Intrinsics, pose: &Pose) -> Option<(Pose, DepthFit)> {
+        let facing: Vec<SurfaceSample> = self
+            .surface
+            .iter()
+            .filter(|s| {
+                let x = pose.rotation * s.point + pose.translation;
+                (pose.rotation * s.normal).dot(&x) < 0.0
+            })
+            .copied()
+            .collect();
+        if facing.len() < 12 {
+            return None;
+        }
+        let cfg = DepthFitConfig { iterations: self.config.depth_iterations, start_gate: 0.1, depth_first: false, ..DepthFitConfig::default() };
+        Some(fit(&facing, pose, depth, k, self.model.diameter(), &cfg))
+    }
+
+    /// Why the depth does not confirm a fit, if it does not.
+    fn depth_verdict(&self, f: &DepthFit) -> Option<String> {
+        if f.measured_share == 0.0 {
+            return None; // nothing measured there: the colours decide alone
+        }
+        if f.free_space_share > self.config.max_free_space {
+            Some(format!("the depth camera sees through {:.0} % of the pose's surface (over {:.0} %)", 100.0 * f.free_space_share, 100.0 * self.config.max_free_space))
+        } else if f.inlier_share < self.config.min_depth_inliers {
+            Some(format!("only {:.0} % of the pose's surface lies on the measured one (under {:.0} %)", 100.0 * f.inlier_share, 100.0 * self.config.min_depth_inliers))
+        } else {
+            None
+        }
+    }
+
     /// The object rendered at `pose` through its colour window alone: a fraction of the
     /// frame's pixels. None when the window leaves the image.
     fn render_window(&self, k: &Intrinsics, pose: &Pose) -> Result<Option<(RenderOutput, Window)>, String> {
@@ -163,10 +221,14 @@ impl Tracker {
         Ok(Some((render, window)))
     }
 
-    /// Tracks the object into the next frame.
-    pub fn track(&mut self, image: &RgbImage, k: &Intrinsics) -> Result<TrackStep, String> {
+    /// Tracks the object into the next frame, with the frame's registered depth when the
+    /// camera gives one.
+    pub fn track(&mut self, image: &RgbImage, depth: Option<&DepthImage>, k: &Intrinsics) -> Result<TrackStep, String> {
         if (image.width(), image.height()) != (k.width, k.height) {
             return Err(format!("frame is {}×{} but the intrinsics say {}×{}", image.width(), image.height(), k.width, k.height));
+        }
+        if let Some(d) = depth.filter(|d| (d.width(), d.height()) != (k.width, k.height)) {
+            return Err(format!("depth is {}×{} but the frame is {}×{}", d.width(), d.height(), k.width, k.height));
         }
         let predicted = match (&self.velocity, self.config.constant_velocity) {
             (Some(v), true) => v.compose(&self.pose),
@@ -186,13 +248,27 @@ impl Tracker {
         if self.config.photometric.enabled {
             refined.pose = self.texture.align(image, window, k, &refined.pose, &self.config.photometric);
         }
+        if let Some((pose, f)) = depth.and_then(|d| self.fit_depth(d, k, &refined.pose)) {
+            let verdict = self.depth_verdict(&f);
+            refined.report.depth_fit = Some(f);
+            if let Some(note) = verdict {
+                self.velocity = None;
+                return Ok(TrackStep { pose: self.pose, quality, lost: true, report: RefineReport { note: Some(note), ..refined.report }, silhouette_iou: None, appearance: None });
+            }
+            refined.pose = pose;
+        }
         let (mut checked, mut looks) = (None, None);
         if (self.frames + 1).is_multiple_of(self.config.relearn_every.max(1)) {
             if let Some((render, window)) = self.render_window(k, &refined.pose)? {
                 let iou = silhouette_iou(&self.colours, image, &render.mask, window);
                 checked = Some(iou);
                 looks = self.coloured.then(|| appearance(&render, image, window));
-                let failed = if iou < self.config.min_silhouette_iou {
+                // Where the measured surface confirms the pose, the colours' silhouette has
+                // nothing to add (and a colour model gone stale under changing light or an
+                // occluder would lose a good track); a turn the surface cannot tell is still
+                // for the appearance check.
+                let surface_confirms = refined.report.depth_fit.as_ref().is_some_and(|f| f.measured_share >= 0.5 && f.inlier_share >= 0.8 && f.free_space_share <= 0.1);
+                let failed = if iou < self.config.min_silhouette_iou && !surface_confirms {
                     Some(format!("the pose's silhouette covers too little of the object's colours (IoU {iou:.2} under {:.2})", self.config.min_silhouette_iou))
                 } else if let Some(a) = looks.filter(|&a| a < self.config.min_appearance) {
                     Some(format!("the object rendered at the pose does not look like the frame (appearance {a:.2} under {:.2})", self.config.min_appearance))
@@ -206,6 +282,7 @@ impl Tracker {
                 self.colours.learn(image, &render.mask, window, self.config.colour_rate);
                 self.silhouette_area = mask_area(&render.mask);
                 self.learn_texture(image, &render, window, k, &refined.pose);
+                self.learn_surface(&render, window, k, &refined.pose);
             }
         }
         self.velocity = Some(refined.pose.compose(&self.pose.inverse()));

@@ -43,6 +43,11 @@ pub struct SceneConfig {
     /// centre sample, as BOP renders them. 1 or an odd number up to `MAX_SUPERSAMPLING`.
     #[serde(default = "one")]
     pub supersampling: u32,
+    /// What the depth camera measures of the scene (a Kinect-class sensor by default; see
+    /// `depth::sensor`), with a flat background behind the objects. `SensorModel::exact()`
+    /// keeps the renderer's depth.
+    #[serde(default)]
+    pub depth_sensor: crate::depth::sensor::SensorModel,
 }
 
 fn one() -> u32 {
@@ -68,6 +73,7 @@ impl Default for SceneConfig {
             render_to_real_gap: false,
             seed: 1,
             supersampling: 1,
+            depth_sensor: Default::default(),
         }
     }
 }

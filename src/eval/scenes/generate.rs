@@ -195,7 +195,27 @@ fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, i
             SceneInstance { obj_id: objects[obj].0, pose: p.pose, px_count_all: count(&mask), px_count_visib: count(&mask_visib), mask, mask_visib }
         })
         .collect();
-    Ok(Some(SceneImage { cam, rgb, depth: centre_depth(layers.depth(), fine.width, s), instances }))
+    let depth = measured_depth(centre_depth(layers.depth(), fine.width, s), &rgb, &cam, cfg, im_id);
+    Ok(Some(SceneImage { cam, rgb, depth, instances }))
+}
+
+/// Largest tilt of the background plane, as the tangent of its slope along each axis.
+const BACKGROUND_TILT: f64 = 0.25;
+
+/// The scene's exact depth with a flat background behind everything (a wall or bench
+/// 15–50 % beyond the farthest surface, tilted a little), as the depth camera measures it.
+/// Its randomness has its own seed, so the colour images are what they were before depth.
+fn measured_depth(mut depth: Vec<f32>, rgb: &RgbImage, cam: &Intrinsics, cfg: &SceneConfig, im_id: u32) -> Vec<f32> {
+    let seed = cfg.seed.wrapping_mul(0x0001_0000_0001).wrapping_add(im_id as u64) ^ 0xdec0_de0f_de97_4000;
+    let mut rng = Rng::new(seed);
+    let farthest = depth.iter().copied().fold(0f32, f32::max) as f64;
+    if farthest > 0.0 {
+        let tilt = (rng.range(-BACKGROUND_TILT, BACKGROUND_TILT), rng.range(-BACKGROUND_TILT, BACKGROUND_TILT));
+        // Behind the farthest surface at every pixel: at the image's corners (|u|, |v| <
+        // 0.6) the tilt brings the plane at most 1/1.3 as near.
+        crate::depth::sensor::fill_with_plane(&mut depth, cam, farthest * rng.range(1.4, 1.8), tilt);
+    }
+    cfg.depth_sensor.measure(&depth, Some(rgb), cam, rng.next_u64())
 }
 
 /// Which object fills each slot: a random order of all objects, repeated when there are

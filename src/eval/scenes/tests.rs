@@ -37,7 +37,9 @@ fn ones(m: &GrayImage) -> usize {
 #[test]
 fn dataset_files_agree_with_the_scene_they_describe() {
     let Some(pool) = pool() else { return };
-    let (objs, cfg) = (objects(), small_config(7));
+    // The renderer's depth, to compare with renders (`depth_sensor_measures_the_scene`
+    // checks the sensor's).
+    let (objs, cfg) = (objects(), SceneConfig { depth_sensor: crate::depth::sensor::SensorModel::exact(), ..small_config(7) });
     let dir = tempfile::tempdir().unwrap();
     let summary = generate_dataset(&objs, &cfg, &pool, dir.path()).unwrap();
     assert_eq!((summary.images, summary.instances), (3, 9));
@@ -61,6 +63,8 @@ fn dataset_files_agree_with_the_scene_they_describe() {
         assert_eq!(k, vec![img.cam.fx, 0.0, img.cam.cx, 0.0, img.cam.fy, img.cam.cy, 0.0, 0.0, 1.0]);
         let depth_scale = cam["depth_scale"].as_f64().unwrap();
         assert_eq!(depth_scale, 0.1);
+        // A background behind everything: every pixel has a depth.
+        assert!(depth.pixels().all(|p| p[0] > 0));
 
         for (i, inst) in img.instances.iter().enumerate() {
             let g = &gt[&key][i];
@@ -294,4 +298,26 @@ fn supersampled_scenes_blend_outlines_and_keep_centre_sample_masks() {
     }
     let (o, i) = (outline_changed as f64 / outline as f64, inside_changed as f64 / inside.max(1) as f64);
     assert!(o > 0.3 && o > 3.0 * i, "outline pixels changed: {o:.2}, inside: {i:.2}");
+}
+
+#[test]
+fn depth_sensor_measures_the_scene() {
+    let Some(pool) = pool() else { return };
+    let objs = objects();
+    let exact = generate_image(&objs, &SceneConfig { depth_sensor: crate::depth::sensor::SensorModel::exact(), ..small_config(3) }, &pool, 0).unwrap();
+    let sensed = generate_image(&objs, &small_config(3), &pool, 0).unwrap();
+    assert_eq!(exact.rgb, sensed.rgb, "the sensor has its own randomness");
+    let (mut holes, mut errors) = (0usize, Vec::new());
+    for (&e, &m) in exact.depth.iter().zip(&sensed.depth) {
+        if m == 0.0 {
+            holes += 1;
+        } else {
+            errors.push((m - e).abs() as f64);
+        }
+    }
+    errors.sort_by(f64::total_cmp);
+    let median = errors[errors.len() / 2];
+    // Some holes (shadows, grazing, speckle), millimetre noise, no wholesale change.
+    assert!(holes > 20 && holes < exact.depth.len() / 5, "{holes} holes");
+    assert!(median > 0.0002 && median < 0.005, "median error {median} m");
 }
