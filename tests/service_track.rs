@@ -1,7 +1,8 @@
 //! Tracking through the service, as clients see it: a real `b2tf serve` on loopback with
 //! the sample object onboarded. An HTTP session follows a generated sequence from one mask,
 //! re-initialises from a detection after a jump, refuses bad frames (out of order,
-//! malformed, unknown object, bad mask) without losing its state, and expires when idle;
+//! malformed, unknown object, bad mask, bad depth) without losing its state, fits frames
+//! sent with depth to the measured surface (RGB-D), and expires when idle;
 //! the session limit refuses both HTTP sessions and gRPC streams; a gRPC `Track` stream
 //! answers every frame in order, reports a bad frame in its answer and goes on, frees its
 //! session when it ends, and is ended by the server when idle.
@@ -54,6 +55,18 @@ fn pb_frame(rgb: &image::RgbImage, mask: Option<&image::GrayImage>, object: &str
         options: None,
         ..Default::default()
     }
+}
+
+/// A frame's depth (metres) as JSON raw float32.
+fn depth_json(depth: &[f32]) -> Value {
+    let bytes: Vec<u8> = depth.iter().flat_map(|v| v.to_le_bytes()).collect();
+    json!({"raw_f32": b64(&bytes), "width": 320, "height": 240})
+}
+
+/// A frame's depth (metres) as protobuf uint16 tenths of a millimetre.
+fn pb_depth(depth: &[f32]) -> pb::Depth {
+    let bytes: Vec<u8> = depth.iter().flat_map(|v| ((v * 1e4).round() as u16).to_le_bytes()).collect();
+    pb::Depth { data: Some(pb::depth::Data::RawU16(bytes)), width: 320, height: 240, scale_mm: 0.1 }
 }
 
 async fn call(c: &reqwest::Client, method: reqwest::Method, url: &str, body: Option<&Value>) -> (u16, Value) {
@@ -127,13 +140,21 @@ async fn sessions_and_streams_track_refuse_bad_frames_and_expire() {
     assert!(mode == "estimated" && v["objects"][0]["track_id"] == 0 && v["frame_index"] == 0, "{v}");
     assert!(er < 10.0 && et < 0.02, "first estimate {er:.1}° {:.1} mm", et * 1e3);
 
-    // Then tracked, without detections.
+    // Then tracked, without detections; the later frames with their depth (RGB-D), each
+    // answer saying how the pose lies on the measured surface.
     let mut errors = vec![];
-    for f in &seq[1..] {
-        let (s, v) = call(&c, M::POST, &frames, Some(&frame_json(&f.rgb, None, "box", None))).await;
+    for (i, f) in seq.iter().enumerate().skip(1) {
+        let mut frame = frame_json(&f.rgb, None, "box", None);
+        if i >= 5 {
+            frame["depth"] = depth_json(&f.depth);
+        }
+        let (s, v) = call(&c, M::POST, &frames, Some(&frame)).await;
         assert_eq!(s, 200, "{v}");
         let (mode, er, et) = only_object(&v, &f.truth);
         assert!(mode == "tracked" || mode == "reinitialised", "{v}");
+        if i >= 5 && mode == "tracked" {
+            assert!(v["objects"][0]["depth_fit"]["inlier_share"].as_f64().is_some_and(|s| s > 0.5), "{v}");
+        }
         errors.push((er, et));
     }
     errors.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -149,6 +170,10 @@ async fn sessions_and_streams_track_refuse_bad_frames_and_expire() {
     wrong_size["intrinsics"]["width"] = json!(640);
     let (s, v) = call(&c, M::POST, &frames, Some(&wrong_size)).await;
     assert!(s == 400 && v.to_string().contains("intrinsics"), "{s} {v}");
+    let mut small_depth = frame_json(&seq[9].rgb, None, "box", None);
+    small_depth["depth"] = json!({"raw_f32": b64(&[0u8; 4 * 32 * 24]), "width": 32, "height": 24});
+    let (s, v) = call(&c, M::POST, &frames, Some(&small_depth)).await;
+    assert!(s == 400 && v.to_string().contains("depth.raw_f32") && v.to_string().contains("320×240"), "{s} {v}");
     let (s, v) = call(&c, M::POST, &frames, Some(&frame_json(&seq[9].rgb, Some(&first_mask), "nope", None))).await;
     assert!(s == 404 && v.to_string().contains("nope"), "{s} {v}");
     let mut bad_mask = frame_json(&seq[9].rgb, None, "box", None);
@@ -206,11 +231,16 @@ async fn sessions_and_streams_track_refuse_bad_frames_and_expire() {
     let a = answers.message().await.unwrap().unwrap();
     let e = a.error.as_ref().expect("the bad frame is answered with an error");
     assert!(e.code == "INVALID_ARGUMENT" && e.message.contains("intrinsics"), "{e:?}");
+    tx.send(pb::TrackFrame { depth: Some(pb::Depth { scale_mm: 0.0, ..pb_depth(&seq[1].depth) }), ..pb_frame(&seq[1].rgb, None, "box") }).await.unwrap();
+    let a = answers.message().await.unwrap().unwrap();
+    let e = a.error.as_ref().expect("depth without its scale is answered with an error");
+    assert!(e.code == "INVALID_ARGUMENT" && e.message.contains("depth.scale_mm"), "{e:?}");
     for (i, f) in seq[1..4].iter().enumerate() {
-        tx.send(pb_frame(&f.rgb, None, "box")).await.unwrap();
+        tx.send(pb::TrackFrame { depth: Some(pb_depth(&f.depth)), ..pb_frame(&f.rgb, None, "box") }).await.unwrap();
         let a = answers.message().await.unwrap().unwrap();
         assert!(a.error.is_none() && a.frame_index == i as u64 + 1, "{a:?}");
         assert_eq!(a.objects[0].mode(), pb::tracked_object::Mode::Tracked, "{a:?}");
+        assert!(a.objects[0].depth_fit.as_ref().is_some_and(|d| d.inlier_share > 0.5 && d.rms_mm < 5.0), "{a:?}");
     }
     let stream_session = a.session_id.clone();
     let (_, v) = call(&c, M::GET, &tracks, None).await;

@@ -90,6 +90,35 @@ def test_bad_frames_are_answered_and_the_stream_goes_on(client: b2tfpose.Client,
     assert len({r.session_id for r in results}) == 1
 
 
+def test_depth_frames_fit_the_track_to_the_measured_surface(client: b2tfpose.Client, onboarded: Onboarded, video: List[Scene]) -> None:
+    import cv2
+
+    # Each frame's rendered depth PNG (uint16 tenths of a millimetre), as an array, as float
+    # metres (in a dict frame) and as the file.
+    depth = [cv2.imread(str(s.dir / "depth.png"), cv2.IMREAD_ANYDEPTH) for s in video]
+    frames: List[Any] = [b2tfpose.TrackFrame(video[0].rgb, detections=[b2tfpose.Detection(SAMPLE_ID, mask=video[0].mask)], depth=depth[0], depth_scale=0.1)]
+    frames.append({"image": video[1].rgb, "depth": depth[1].astype(np.float32) / 10000.0})
+    frames.append(b2tfpose.TrackFrame(video[2].rgb, depth=video[2].dir / "depth.png", depth_scale=0.1))
+    frames.extend(b2tfpose.TrackFrame(s.rgb, depth=d, depth_scale=0.1) for s, d in zip(video[3:], depth[3:]))
+    results = list(client.track(frames, K=video[0].K))
+    assert [r.objects[0].mode for r in results] == [b2tfpose.TrackMode.ESTIMATED] + [b2tfpose.TrackMode.TRACKED] * (len(video) - 1)
+    for r, s in zip(results[1:], video[1:]):
+        o = r.objects[0]
+        assert o.pose is not None and o.pose.translation_error_m(s.truth) < 0.005, (r.frame_index, o)
+        assert o.depth_fit is not None and o.depth_fit.inlier_share > 0.8 and o.depth_fit.rms_mm < 3.0, o.depth_fit
+    assert results[0].objects[0].depth_fit is None  # a full estimate, not a tracked frame
+    # Bad depth: refused in the client where it can tell, by the server otherwise (the
+    # stream goes on with raise_errors=False).
+    with pytest.raises(ValueError, match="depth_scale is needed with uint16 depth"):
+        next(client.track([b2tfpose.TrackFrame(video[0].rgb, depth=depth[0])], K=video[0].K))
+    with pytest.raises(ValueError, match="must be registered to the colour image"):
+        next(client.track([b2tfpose.TrackFrame(video[0].rgb, depth=depth[0][:100], depth_scale=0.1)], K=video[0].K))
+    with pytest.raises(ValueError, match="depth_scale without depth"):
+        next(client.track([b2tfpose.TrackFrame(video[0].rgb, depth_scale=0.1)], K=video[0].K))
+    [bad] = client.track([b2tfpose.TrackFrame(video[0].rgb, depth=depth[0], depth_scale=100.0)], K=video[0].K, raise_errors=False)
+    assert isinstance(bad.error, b2tfpose.InvalidArgument) and "outside 0.05–20 m" in bad.error.message, bad.error
+
+
 def test_a_bad_frame_raises_by_default(client: b2tfpose.Client, onboarded: Onboarded, scene: Scene) -> None:
     seen: List[b2tfpose.TrackResult] = []
     # No detection: nothing tracked, nothing estimated (cheap); then an unknown object.

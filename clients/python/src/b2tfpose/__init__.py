@@ -14,7 +14,7 @@ from ._convert import Detection, TrackFrame
 from ._pose import Pose
 from ._request_id import request_id
 from ._retry import NO_RETRY, RetryPolicy
-from ._types import ContinuousSymmetry, DetectedObject, Detections, Estimates, ObjectInfo, OperationStatus, Result, RunnerUp, Symmetries, TrackedObject, TrackMode, TrackResult
+from ._types import ContinuousSymmetry, DepthFit, DetectedObject, Detections, Estimates, ObjectInfo, OperationStatus, Result, RunnerUp, Symmetries, TrackedObject, TrackMode, TrackResult
 from .aio import AsyncClient, AsyncOperation
 from .client import Client, Operation
 from .errors import (
@@ -50,6 +50,7 @@ __all__ = [
     "TrackFrame",
     "TrackResult",
     "TrackedObject",
+    "DepthFit",
     "TrackMode",
     "ObjectInfo",
     "Symmetries",

@@ -82,18 +82,24 @@ class TrackFrame:
     ``frame_index``: the frame's number, above the last frame's (None: the next).
     ``objects``: instead of detections, ids the server's detector looks for in this frame,
     each only while no track of it was followed into the last frame (a new or lost object
-    is found, a tracked one costs no search)."""
+    is found, a tracked one costs no search). ``depth`` (RGB-D): the frame's depth image
+    registered to it, as :meth:`~b2tfpose.Client.estimate` takes it (uint16 with
+    ``depth_scale`` millimetres per unit, float metres, or a 16-bit PNG's bytes or path):
+    tracks are then fitted to the measured surface (``TrackedObject.depth_fit``) and lost
+    where it refutes them."""
 
     image: ImageInput
     K: Optional[IntrinsicsInput] = None
     detections: Sequence[DetectionInput] = ()
     frame_index: Optional[int] = None
     objects: Sequence[str] = ()
+    depth: Optional[DepthInput] = None
+    depth_scale: Optional[float] = None
 
 
 FrameInput = Union[TrackFrame, Mapping[str, Any], Tuple[Any, ...], ImageInput]
 
-_FRAME_KEYS = {"image": "image", "K": "K", "intrinsics": "K", "detections": "detections", "frame_index": "frame_index", "objects": "objects"}
+_FRAME_KEYS = {"image": "image", "K": "K", "intrinsics": "K", "detections": "detections", "frame_index": "frame_index", "objects": "objects", "depth": "depth", "depth_scale": "depth_scale"}
 
 
 def as_track_frame(f: FrameInput, K: Optional[IntrinsicsInput]) -> TrackFrame:
@@ -106,7 +112,7 @@ def as_track_frame(f: FrameInput, K: Optional[IntrinsicsInput]) -> TrackFrame:
         kw: Dict[str, Any] = {}
         for k, v in f.items():
             if k not in _FRAME_KEYS:
-                raise ValueError(f"frame key {k!r}: expected image, K (intrinsics), detections, frame_index or objects")
+                raise ValueError(f"frame key {k!r}: expected image, K (intrinsics), detections, frame_index, objects, depth or depth_scale")
             kw[_FRAME_KEYS[k]] = v
         if "image" not in kw:
             raise ValueError("a frame dict needs 'image'")

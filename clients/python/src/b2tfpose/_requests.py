@@ -181,6 +181,10 @@ def track_frame_message(frame: TrackFrame, *, bgr: bool, options: Optional[pb.Tr
     m = pb.TrackFrame(image=img, intrinsics=intrinsics_message(frame.K, w, h), detections=[detection_message(d, w, h) for d in frame.detections], objects=list(frame.objects))
     if frame.frame_index is not None:
         m.frame_index = int(frame.frame_index)
+    if frame.depth is not None:
+        m.depth.CopyFrom(depth_message(frame.depth, frame.depth_scale, w, h))
+    elif frame.depth_scale is not None:
+        raise ValueError("depth_scale without depth")
     if options is not None:
         m.options.CopyFrom(options)
     return m

@@ -376,6 +376,28 @@ _MODES: Dict[int, TrackMode] = {
 
 
 @dataclass(frozen=True)
+class DepthFit:
+    """How a pose's model surface lies on the measured depth (RGB-D): shares of the
+    measured points within ``tolerance_mm`` of it (``inlier_share``), measured behind it (the
+    camera sees through the pose: ``free_space_share``) and in front (occluders:
+    ``occluded_share``); the inliers' RMS point-to-plane residual (``rms_mm``, NaN without
+    inliers) and how far the fit moved the object (``moved_mm``)."""
+
+    points: int
+    measured_share: float
+    inlier_share: float
+    free_space_share: float
+    occluded_share: float
+    rms_mm: float
+    tolerance_mm: float
+    moved_mm: float
+
+    @classmethod
+    def from_pb(cls, m: pb.DepthFit) -> "DepthFit":
+        return cls(m.points, m.measured_share, m.inlier_share, m.free_space_share, m.occluded_share, m.rms_mm, m.tolerance_mm, m.moved_mm)
+
+
+@dataclass(frozen=True)
 class TrackedObject:
     """One tracked object in one frame, or a detection that started no track (``mode``
     REFUSED, ``track_id`` None). ``pose`` is None when lost, dropped or refused; then
@@ -393,6 +415,8 @@ class TrackedObject:
     ms: float
     """Time the server spent on this object in this frame, milliseconds."""
     reason: Optional[str]
+    depth_fit: Optional[DepthFit] = None
+    """How the pose lies on the frame's measured surface, on frames tracked with depth."""
 
     @property
     def ok(self) -> bool:
@@ -409,6 +433,7 @@ class TrackedObject:
             detection_index=m.detection_index if m.detection_index >= 0 else None,
             ms=m.ms,
             reason=m.reason or None,
+            depth_fit=DepthFit.from_pb(m.depth_fit) if m.HasField("depth_fit") else None,
         )
 
 
