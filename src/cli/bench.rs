@@ -51,6 +51,9 @@ pub enum BenchCommand {
     Matching(super::bench_matching::BenchMatchingArgs),
     /// The tracker on generated sequences: ms per frame, MSSD recall, losses.
     Track(super::bench_track::BenchTrackArgs),
+    /// The depth fit (RGB-D refinement) alone on generated cases: errors after it, time;
+    /// `--dump` writes the cases for a peer ICP (tools/bench/icp_peer.sh).
+    DepthFit(super::bench_depth_fit::BenchDepthFitArgs),
     /// The symmetry finder on meshes: what it finds, how long it takes, and whether it
     /// agrees with a BOP models_info.json.
     Symmetries(super::bench_symmetries::BenchSymmetriesArgs),
@@ -102,6 +105,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Catalogue(a) => super::bench_catalogue::run(a),
         BenchCommand::Matching(a) => super::bench_matching::run(a),
         BenchCommand::Track(a) => super::bench_track::run(a),
+        BenchCommand::DepthFit(a) => super::bench_depth_fit::run(a),
         BenchCommand::Symmetries(a) => super::bench_symmetries::run(a),
         BenchCommand::Serve(a) => super::bench_serve::run(a),
         BenchCommand::Render { mesh, units, size, count, two_sided, every_triangle } => {

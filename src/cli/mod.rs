@@ -3,6 +3,7 @@
 pub mod backbone_args;
 pub mod bench;
 pub mod bench_backbone;
+pub mod bench_depth_fit;
 pub mod bench_detect;
 pub mod bench_estimate;
 pub mod bench_matching;
