@@ -32,7 +32,7 @@ fn dataset(root: &Path, images: usize, pool: &RenderPool) -> SynthSummary {
     let models = root.join("source_models");
     write_bop_ply(&textured_box([0.10, 0.06, 0.16], 3), &models, "obj_000001").unwrap();
     let scene = SceneConfig { images, objects_per_image: 1, image_size: (320, 240), fill_range: (0.45, 0.6), max_occlusion: 0.1, seed: 5, ..Default::default() };
-    synth(&models, &root.join("ds"), &SynthOptions { scene, degraded: true, distractors: true }, pool).unwrap()
+    synth(&models, &root.join("ds"), &SynthOptions { scene, degraded: true, distractors: true, targets: None, untextured: false }, pool).unwrap()
 }
 
 fn no_progress(_: usize, _: usize) {}
@@ -147,6 +147,53 @@ fn run_estimates_every_target_resumes_and_is_scored() {
     assert_eq!(read(&csv).len(), detected.estimates_written);
 }
 
+/// `bop synth` as the RGB-D benchmark uses it: two objects, only the first a target (the
+/// second stands in the scenes as a distractor), bare meshes, 1–2 instances an image, and
+/// the detections as boxes too; a target that is not among the models is refused.
+#[test]
+fn synth_with_distractor_objects_bare_meshes_a_count_range_and_boxes() {
+    let dir = tempfile::tempdir().unwrap();
+    let pool = pool();
+    let models = dir.path().join("source_models");
+    write_bop_ply(&textured_box([0.10, 0.06, 0.16], 3), &models, "obj_000001").unwrap();
+    write_bop_ply(&textured_box([0.08, 0.08, 0.08], 4), &models, "obj_000002").unwrap();
+    assert!(models.join("obj_000001.png").exists());
+    let scene = SceneConfig { images: 6, objects_per_image: 1, objects_per_image_max: 2, image_size: (320, 240), fill_range: (0.3, 0.4), max_occlusion: 0.3, seed: 2, ..Default::default() };
+    let opts = SynthOptions { scene, degraded: false, distractors: true, targets: Some(vec![1]), untextured: true };
+    let ds = dir.path().join("ds");
+    let s = synth(&models, &ds, &opts, &pool).unwrap();
+    assert_eq!((s.objects.clone(), s.targets.clone()), (vec![1, 2], vec![1]));
+
+    // Bare meshes: no texture copied, none named, none loaded.
+    assert!(!ds.join("models/obj_000001.png").exists());
+    let ply = std::fs::read_to_string(ds.join("models/obj_000001.ply")).unwrap();
+    assert!(!ply.contains("TextureFile"), "{}", &ply[..200]);
+    let mesh = b2tfpose::mesh::load_mesh(&ds.join("models/obj_000001.ply"), Some(b2tfpose::mesh::Units::Mm)).unwrap();
+    assert!(mesh.materials().iter().all(|m| m.texture.is_none()));
+
+    // Between one and two instances an image, both counts drawn; both objects in the scenes.
+    let gt = load_split_gt(&ds, TEST_SPLIT, &mut Vec::new()).unwrap();
+    let counts: Vec<usize> = gt.iter().map(|im| im.instances.len()).collect();
+    assert!(counts.iter().all(|n| (1..=2).contains(n)) && counts.contains(&1) && counts.contains(&2), "{counts:?}");
+    assert_eq!(counts.iter().sum::<usize>(), s.instances);
+    assert!(gt.iter().any(|im| im.instances.iter().any(|g| g.obj_id == 2)));
+
+    // Only object 1 is a target and named by detections; the boxes are the masks' boxes.
+    let targets = load_targets(&ds).unwrap();
+    assert!(!targets.is_empty() && targets.iter().all(|t| t.obj_id == 1), "{targets:?}");
+    let masks = read_detections(&s.detections_path).unwrap();
+    let boxes = read_detections(&s.box_detections_path).unwrap();
+    assert!(masks.iter().all(|d| d.obj_id == 1 && d.segmentation.is_some()));
+    assert_eq!(masks.len(), boxes.len());
+    for (m, b) in masks.iter().zip(&boxes) {
+        assert!(b.segmentation.is_none());
+        assert_eq!((m.image_id, m.obj_id, m.bbox, m.score), (b.image_id, b.obj_id, b.bbox, b.score));
+    }
+
+    let refused = synth(&models, &dir.path().join("ds2"), &SynthOptions { targets: Some(vec![7]), ..opts }, &pool).unwrap_err();
+    assert!(format!("{refused:#}").contains("target object 7"), "{refused:#}");
+}
+
 /// The only scene folder of a generated dataset.
 fn scene_folder(ds: &Path) -> std::path::PathBuf {
     std::fs::read_dir(ds.join(TEST_SPLIT)).unwrap().next().unwrap().unwrap().path()
@@ -220,6 +267,10 @@ fn detection_ap_of_true_and_shifted_detections_through_the_cli() {
     let ds = d.join("ds");
     let (ok, out, err) = b2tf(&["bop", "synth", "--models", &s(&models), "--out", &s(&ds), "--images", "4", "--objects-per-image", "2", "--seed", "3"]);
     assert!(ok, "{out}{err}");
+    for bad in ["0", "3,2", "two"] {
+        let (ok, _, err) = b2tf(&["bop", "synth", "--models", &s(&models), "--out", &s(&d.join("bad")), "--objects-per-image", bad]);
+        assert!(!ok && err.contains("--objects-per-image"), "{bad}: {err}");
+    }
     let dets_path = ds.join("detections_synth.json");
     let eval = |dets: &Path, extra: &[&str]| {
         let mut args = vec!["bop".to_string(), "eval".into(), "--dataset".into(), s(&ds), "--detections".into(), s(dets), "--json".into()];

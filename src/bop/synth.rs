@@ -6,10 +6,17 @@
 //! one imperfect copy (eroded, dilated or shifted) scoring 0.4–0.8; with `distractors`, per
 //! image one detection that names an object wrongly (another instance's mask, or a blob
 //! where nothing is) scoring 0.1–0.5. The wrong ones are what mask selection must reject.
+//! The same detections as boxes only (no segmentation) go to `detections_box.json`: what a
+//! user's 2D detector hands over.
+//!
+//! With `targets`, only those objects are targets (in `test_targets_bop19.json` and the
+//! detections); the others still stand in the scenes, in the ground truth and in front of
+//! the targets, as distractors nobody searches for. With `untextured`, the models are
+//! copied without their textures, so the scenes and whatever onboards them see bare shape.
 
-use super::dataset::{load_split_gt, model_path};
+use super::dataset::{load_split_gt, load_targets, model_path};
 use super::detections::{write_detections, DetectionRecord};
-use super::format::{MODELS_INFO, TEST_SPLIT};
+use super::format::{MODELS_INFO, TEST_SPLIT, TEST_TARGETS};
 use crate::masks::rle::Rle;
 use super::synth_masks::{area, morph, shift};
 use crate::eval::scenes::{generate_dataset, SceneConfig, SCENE_ID};
@@ -22,12 +29,18 @@ use std::path::{Path, PathBuf};
 
 /// The detections file `synth` writes, relative to the dataset root.
 pub const DETECTIONS_FILE: &str = "detections_synth.json";
+/// The same detections as boxes alone, relative to the dataset root.
+pub const BOX_DETECTIONS_FILE: &str = "detections_box.json";
 
 #[derive(Clone, Debug)]
 pub struct SynthOptions {
     pub scene: SceneConfig,
     pub degraded: bool,
     pub distractors: bool,
+    /// The objects to estimate (`None`: all); the rest are distractors in the scenes.
+    pub targets: Option<Vec<u32>>,
+    /// Copy the models without their textures (the PLY's `TextureFile` line dropped).
+    pub untextured: bool,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -37,6 +50,9 @@ pub struct SynthSummary {
     pub instances: usize,
     pub detections: usize,
     pub detections_path: PathBuf,
+    pub box_detections_path: PathBuf,
+    /// The objects that are targets (all of `objects` unless `targets` was given).
+    pub targets: Vec<u32>,
 }
 
 /// BOP object ids of the `obj_<id:06>.ply` files in a models folder, ascending.
@@ -56,26 +72,83 @@ pub fn model_ids(models: &Path) -> Result<Vec<u32>> {
     Ok(ids)
 }
 
-/// Copies the models (PLY files, their textures: every `obj_*` file) and the models_info
-/// entries of those objects into `out/models/`, then generates the scenes and detections.
+/// Copies the models (PLY files, their textures: every `obj_*` file; only the PLY files,
+/// bare, when `untextured`) and the models_info entries of those objects into
+/// `out/models/`, then generates the scenes and detections.
 pub fn synth(models: &Path, out: &Path, opts: &SynthOptions, pool: &RenderPool) -> Result<SynthSummary> {
     let ids = model_ids(models)?;
+    let targets = match &opts.targets {
+        None => ids.clone(),
+        Some(t) => {
+            if t.is_empty() {
+                bail!("no target objects given");
+            }
+            if let Some(missing) = t.iter().find(|id| !ids.contains(id)) {
+                bail!("target object {missing} is not among the models in {} ({ids:?})", models.display());
+            }
+            t.clone()
+        }
+    };
     let out_models = out.join("models");
     std::fs::create_dir_all(&out_models).with_context(|| format!("creating {}", out_models.display()))?;
     for e in std::fs::read_dir(models)? {
         let e = e?;
-        if e.file_name().to_string_lossy().starts_with("obj_") && e.file_type()?.is_file() {
-            let to = out_models.join(e.file_name());
+        let name = e.file_name().to_string_lossy().into_owned();
+        if !name.starts_with("obj_") || !e.file_type()?.is_file() {
+            continue;
+        }
+        let to = out_models.join(&name);
+        if opts.untextured {
+            if name.ends_with(".ply") {
+                let bytes = std::fs::read(e.path()).with_context(|| format!("reading {}", e.path().display()))?;
+                std::fs::write(&to, without_texture(&bytes)).with_context(|| format!("writing {}", to.display()))?;
+            }
+        } else {
             std::fs::copy(e.path(), &to).with_context(|| format!("copying {} to {}", e.path().display(), to.display()))?;
         }
     }
     copy_models_info(models, out, &ids)?;
     let objects: Vec<(u32, Mesh)> = ids.iter().map(|&id| Ok((id, load_mesh(&model_path(out, id), Some(Units::Mm))?))).collect::<Result<_>>()?;
     let summary = generate_dataset(&objects, &opts.scene, pool, out)?;
-    let detections = make_detections(out, &ids, opts)?;
+    if opts.targets.is_some() {
+        keep_targets(out, &targets)?;
+    }
+    let detections = make_detections(out, &targets, opts)?;
     let detections_path = out.join(DETECTIONS_FILE);
     write_detections(&detections_path, &detections)?;
-    Ok(SynthSummary { objects: ids, images: summary.images, instances: summary.instances, detections: detections.len(), detections_path })
+    let boxes: Vec<DetectionRecord> = detections.into_iter().map(|d| DetectionRecord { segmentation: None, ..d }).collect();
+    let box_detections_path = out.join(BOX_DETECTIONS_FILE);
+    write_detections(&box_detections_path, &boxes)?;
+    Ok(SynthSummary { objects: ids, images: summary.images, instances: summary.instances, detections: boxes.len(), detections_path, box_detections_path, targets })
+}
+
+/// A PLY file's bytes without its header's `comment TextureFile` line (the rest, binary
+/// bodies included, unchanged).
+fn without_texture(ply: &[u8]) -> Vec<u8> {
+    let header_end = ply.windows(10).position(|w| w == b"end_header").unwrap_or(0);
+    let mut out = Vec::with_capacity(ply.len());
+    let mut start = 0;
+    while start < header_end {
+        let end = ply[start..].iter().position(|&b| b == b'\n').map_or(ply.len(), |i| start + i + 1);
+        let line = String::from_utf8_lossy(&ply[start..end]);
+        let mut words = line.split_whitespace();
+        if !(words.next() == Some("comment") && words.next().is_some_and(|w| w.eq_ignore_ascii_case("TextureFile"))) {
+            out.extend_from_slice(&ply[start..end]);
+        }
+        start = end;
+    }
+    out.extend_from_slice(&ply[start.min(ply.len())..]);
+    out
+}
+
+/// Rewrites the dataset's test targets keeping only `targets`' objects.
+fn keep_targets(dataset: &Path, targets: &[u32]) -> Result<()> {
+    let kept: Vec<_> = load_targets(dataset)?.into_iter().filter(|t| targets.contains(&t.obj_id)).collect();
+    if kept.is_empty() {
+        bail!("no image holds any of the target objects {targets:?}: more images or objects per image");
+    }
+    let path = dataset.join(TEST_TARGETS);
+    std::fs::write(&path, serde_json::to_string_pretty(&kept)?).with_context(|| format!("writing {}", path.display()))
 }
 
 /// The source's models_info entries of the copied objects (symmetries included); objects
@@ -98,6 +171,7 @@ fn record(im_id: u32, obj_id: u32, mask: &GrayImage, score: f64) -> DetectionRec
     DetectionRecord { scene_id: SCENE_ID, image_id: im_id, obj_id, bbox, score, time: 0.0, segmentation: Some(rle) }
 }
 
+/// Detections of the instances of `ids` (the targets); distractors in the scene get none.
 fn make_detections(dataset: &Path, ids: &[u32], opts: &SynthOptions) -> Result<Vec<DetectionRecord>> {
     // Ground truth just written from exact rotations: nothing to warn about.
     let images = load_split_gt(dataset, TEST_SPLIT, &mut Vec::new())?;
@@ -109,6 +183,12 @@ fn make_detections(dataset: &Path, ids: &[u32], opts: &SynthOptions) -> Result<V
             let mask = image::open(&inst.mask_visib_path).with_context(|| format!("reading {}", inst.mask_visib_path.display()))?.to_luma8();
             // BOP'19 targets are the instances at least 10 % visible; others get no detection.
             if inst.visib_fract.unwrap_or(1.0) < 0.1 || area(&mask) == 0 {
+                continue;
+            }
+            // A distractor object's mask may still be named as a target below, as a
+            // detector confusing the two would.
+            if !ids.contains(&inst.obj_id) {
+                masks.push((inst.obj_id, mask));
                 continue;
             }
             out.push(record(img.im_id, inst.obj_id, &mask, 1.0));

@@ -97,11 +97,20 @@ pub struct SynthArgs {
     pub out: PathBuf,
     #[arg(long, default_value_t = 20)]
     pub images: usize,
-    #[arg(long, default_value_t = 3)]
-    pub objects_per_image: usize,
+    /// Object instances per image: N, or MIN,MAX for a count drawn per image (at most 8).
+    #[arg(long, value_parser = parse_count_range, default_value = "3")]
+    pub objects_per_image: (usize, usize),
     /// Object diameter as a share of the image height: MIN,MAX.
     #[arg(long, value_parser = super::bench_estimate::parse_range, default_value = "0.10,0.40")]
     pub fill: (f64, f64),
+    /// The objects to estimate, as BOP ids (e.g. 1,2,8): only they are targets and get
+    /// detections; the folder's other models stand in the scenes as distractors.
+    #[arg(long, value_delimiter = ',')]
+    pub targets: Option<Vec<u32>>,
+    /// Copy the models without their textures: bare shape in the scenes and for whatever
+    /// onboards them from the dataset.
+    #[arg(long)]
+    pub untextured: bool,
     #[arg(long, default_value_t = 0.3)]
     pub max_occlusion: f64,
     #[arg(long, default_value_t = 1)]
@@ -205,18 +214,38 @@ fn run_cmd(a: RunArgs) -> Result<()> {
     Ok(())
 }
 
+/// `N` or `MIN,MAX` (1 ≤ MIN ≤ MAX): a count of instances per image.
+fn parse_count_range(s: &str) -> Result<(usize, usize), String> {
+    let parse = |x: &str| x.trim().parse::<usize>().map_err(|e| format!("{x:?}: {e}"));
+    let (lo, hi) = match s.split_once(',') {
+        Some((a, b)) => (parse(a)?, parse(b)?),
+        None => {
+            let n = parse(s)?;
+            (n, n)
+        }
+    };
+    if lo == 0 || lo > hi {
+        return Err(format!("need N or MIN,MAX with 1 ≤ MIN ≤ MAX, got {s:?}"));
+    }
+    Ok((lo, hi))
+}
+
 fn synth_cmd(a: SynthArgs) -> Result<()> {
     let pool = super::open_renderer(RenderPool::DEFAULT_SIZE)?;
-    let scene = SceneConfig { images: a.images, objects_per_image: a.objects_per_image, fill_range: a.fill, max_occlusion: a.max_occlusion, seed: a.seed, depth_sensor: super::depth_sensor(a.exact_depth), ..Default::default() };
-    let s = synth(&a.models, &a.out, &SynthOptions { scene, degraded: !a.no_degraded, distractors: !a.no_distractors }, &pool)?;
+    let (objects_per_image, most) = a.objects_per_image;
+    let objects_per_image_max = if most > objects_per_image { most } else { 0 };
+    let scene = SceneConfig { images: a.images, objects_per_image, objects_per_image_max, fill_range: a.fill, max_occlusion: a.max_occlusion, seed: a.seed, depth_sensor: super::depth_sensor(a.exact_depth), ..Default::default() };
+    let s = synth(&a.models, &a.out, &SynthOptions { scene, degraded: !a.no_degraded, distractors: !a.no_distractors, targets: a.targets, untextured: a.untextured }, &pool)?;
     println!(
-        "wrote a BOP dataset to {}: objects {:?}, {} images, {} instances; {} detections in {}",
+        "wrote a BOP dataset to {}: objects {:?} (targets {:?}), {} images, {} instances; {} detections in {} (as boxes in {})",
         a.out.display(),
         s.objects,
+        s.targets,
         s.images,
         s.instances,
         s.detections,
-        s.detections_path.display()
+        s.detections_path.display(),
+        s.box_detections_path.display()
     );
     Ok(())
 }

@@ -8,6 +8,12 @@ pub struct SceneConfig {
     /// Object instances per image (the caller's objects in turn, repeating when there are
     /// fewer objects than slots). 1–3 is the intended range; at most `MAX_OBJECTS_PER_IMAGE`.
     pub objects_per_image: usize,
+    /// With a value above `objects_per_image`, each image holds a count drawn uniformly from
+    /// `objects_per_image..=objects_per_image_max` (BOP's real test scenes vary, 2–6
+    /// objects a frame in the benchmarks); 0 keeps every image at `objects_per_image`
+    /// (and its images exactly as they were before this field).
+    #[serde(default)]
+    pub objects_per_image_max: usize,
     /// (width, height) in pixels.
     pub image_size: (u32, u32),
     /// Focal length as a multiple of the image width (fx = fy = f·width), drawn per image:
@@ -63,6 +69,7 @@ impl Default for SceneConfig {
         Self {
             images: 10,
             objects_per_image: 2,
+            objects_per_image_max: 0,
             image_size: (640, 480),
             focal_range: (0.85, 1.05),
             fill_range: (0.10, 0.40),
@@ -155,6 +162,18 @@ impl SceneConfig {
         }
     }
 
+    /// How many instances an image holds: `objects_per_image`, or a uniform draw up to
+    /// `objects_per_image_max` (drawing from `rng` only then, so fixed-count images keep
+    /// their random streams).
+    pub fn objects_in_image(&self, rng: &mut crate::mesh::procedural::Rng) -> usize {
+        if self.objects_per_image_max > self.objects_per_image {
+            let span = (self.objects_per_image_max - self.objects_per_image + 1) as u64;
+            self.objects_per_image + (rng.next_u64() % span) as usize
+        } else {
+            self.objects_per_image
+        }
+    }
+
     pub fn validate(&self) -> Result<(), String> {
         let range = |name: &str, (lo, hi): (f64, f64), min: f64, max: f64| {
             if lo.is_finite() && hi.is_finite() && min <= lo && lo <= hi && hi <= max {
@@ -165,6 +184,12 @@ impl SceneConfig {
         };
         if !(1..=MAX_OBJECTS_PER_IMAGE).contains(&self.objects_per_image) {
             return Err(format!("objects_per_image must be 1–{MAX_OBJECTS_PER_IMAGE}, got {}", self.objects_per_image));
+        }
+        if self.objects_per_image_max != 0 && !(self.objects_per_image..=MAX_OBJECTS_PER_IMAGE).contains(&self.objects_per_image_max) {
+            return Err(format!(
+                "objects_per_image_max must be 0 (fixed) or {}–{MAX_OBJECTS_PER_IMAGE} (at least objects_per_image), got {}",
+                self.objects_per_image, self.objects_per_image_max
+            ));
         }
         let (w, h) = self.image_size;
         if w < 16 || h < 16 {

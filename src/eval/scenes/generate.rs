@@ -104,7 +104,8 @@ fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, i
     let mut layers = Layers::new(fine.width, fine.height);
     let mut placed: Vec<(usize, Placement, RenderOutput)> = Vec::new();
     let mut full: Vec<usize> = Vec::new();
-    for &obj in &slot_objects(objects.len(), cfg.objects_per_image, rng) {
+    let count = cfg.objects_in_image(rng);
+    for &obj in &slot_objects(objects.len(), count, rng) {
         let (mut draws, mut renders) = (0, 0);
         loop {
             if draws == PLACEMENT_DRAWS || renders == RENDERS_PER_INSTANCE {

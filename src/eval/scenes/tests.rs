@@ -216,8 +216,11 @@ fn least_occlusion_is_reached() {
 #[test]
 fn config_is_validated_and_the_gap_is_harsher() {
     assert!(SceneConfig::default().validate().is_ok());
+    assert!(SceneConfig { objects_per_image: 2, objects_per_image_max: 6, ..Default::default() }.validate().is_ok());
     let bad = [
         SceneConfig { objects_per_image: 0, ..Default::default() },
+        SceneConfig { objects_per_image: 3, objects_per_image_max: 2, ..Default::default() },
+        SceneConfig { objects_per_image: 2, objects_per_image_max: 9, ..Default::default() },
         SceneConfig { max_occlusion: 0.95, ..Default::default() },
         SceneConfig { min_occlusion: 0.5, max_occlusion: 0.3, ..Default::default() },
         SceneConfig { min_occlusion: -0.1, ..Default::default() },
