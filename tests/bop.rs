@@ -79,6 +79,17 @@ fn ground_truth_scores_one_and_a_known_shift_scores_exactly() {
     let r = score(&ds, &read(&csv), &pool);
     assert_eq!(r.targets, 3);
     assert!((r.ar - 1.0).abs() < 1e-12 && r.ar_vsd == 1.0 && r.ar_mssd == 1.0 && r.ar_mspd == 1.0, "{r:?}");
+    assert_eq!(r.half_turns, 0);
+
+    // The truth turned half a turn about the object's own x axis, in place: every estimate
+    // is a half-turn (the box declares no symmetry), and the table says so.
+    let turned: Vec<ResultRow> = rows(0.0)
+        .into_iter()
+        .map(|r| ResultRow { pose: Pose::new(r.pose.rotation * nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI), r.pose.translation), ..r })
+        .collect();
+    let r = score(&ds, &turned, &pool);
+    assert_eq!((r.half_turns, r.per_object[&1].half_turns), (3, 3), "{r:?}");
+    assert!(r.to_string().contains("| all | 3 |") && r.to_string().contains("| 3 |\n"), "{r}");
 
     // Every vertex moves by the shift: MSSD = 0.12 d, correct at thresholds 0.15…0.50,
     // i.e. 8 of 10.

@@ -11,6 +11,9 @@
 //! are the files' matrices unchanged (`rotation.rs`), MSSD and MSPD use the PLY's vertices
 //! in f64 (`eval_models.rs`), and VSD's depth renders put pixel centres where OpenGL does
 //! (`vsd_render.rs`).
+//!
+//! Beside BOP's metrics it counts the half-turns ([`half_turn`]): the failure depth cannot
+//! see on objects whose shape is nearly symmetric, counted so that it can be followed.
 
 use super::dataset::{load_depth_mm, load_split_gt, load_targets, ImageGt};
 use super::eval_models::{load_models, mm};
@@ -36,6 +39,7 @@ pub fn evaluate(dataset: &Path, split: &str, results: &[ResultRow], pool: &Rende
         estimates.entry((r.scene_id, r.im_id, r.obj_id)).or_default().push(r);
     }
     let mut evals = Vec::with_capacity(targets.len());
+    let mut half_turns: HashMap<u32, usize> = HashMap::new();
     for (n, t) in targets.iter().enumerate() {
         progress(n, targets.len());
         let img = images.get(&(t.scene_id, t.im_id)).ok_or_else(|| anyhow!("target scene {} image {}: no ground truth for this image in {split}", t.scene_id, t.im_id))?;
@@ -57,6 +61,9 @@ pub fn evaluate(dataset: &Path, split: &str, results: &[ResultRow], pool: &Rende
         let gt_depths: Vec<DepthMap> = if test_depth.is_some() { gts.iter().map(|(p, _)| render_depth_mm(pool, &model.mesh, p, &img.cam)).collect::<Result<_>>()? } else { Vec::new() };
         for &e in &selected {
             let est = mm(&ests[e].pose);
+            if half_turn(&est, gts.iter().map(|(p, _)| mm(p)), &model.symmetries, model.diameter_mm) {
+                *half_turns.entry(t.obj_id).or_default() += 1;
+            }
             let est_depth = test_depth.as_ref().map(|_| render_depth_mm(pool, &model.mesh, &ests[e].pose, &img.cam)).transpose()?;
             for (g, (gt_pose, _)) in gts.iter().enumerate() {
                 let gt = mm(gt_pose);
@@ -88,5 +95,63 @@ pub fn evaluate(dataset: &Path, split: &str, results: &[ResultRow], pool: &Rende
         });
     }
     progress(targets.len(), targets.len());
-    Ok(evaluate_bop19(&evals, params)?)
+    let mut report = evaluate_bop19(&evals, params)?;
+    for (obj, o) in report.per_object.iter_mut() {
+        o.half_turns = half_turns.get(obj).copied().unwrap_or(0);
+    }
+    report.half_turns = report.per_object.values().map(|o| o.half_turns).sum();
+    Ok(report)
+}
+
+/// Largest rotation error of a placed estimate that is not counted a half-turn, degrees.
+pub const HALF_TURN_DEGREES: f64 = 90.0;
+
+/// Whether `est` (mm) is placed right but turned: its centre within 0.1·`diameter` of the
+/// nearest true instance's, and its rotation more than [`HALF_TURN_DEGREES`] from that
+/// instance's under every symmetry transform (identity first, as `EvalModel` holds them).
+/// A pose far from every instance is a miss, not a turn.
+pub fn half_turn(est: &Pose, gts: impl IntoIterator<Item = Pose>, symmetries: &[Pose], diameter: f64) -> bool {
+    let nearest = gts.into_iter().map(|g| ((g.translation - est.translation).norm(), g)).min_by(|a, b| a.0.total_cmp(&b.0));
+    let Some((distance, gt)) = nearest else {
+        return false;
+    };
+    if distance > 0.1 * diameter {
+        return false;
+    }
+    let least = std::iter::once(gt.rotation).chain(symmetries.iter().map(|s| gt.rotation * s.rotation)).map(|r| angle_deg(&r, &est.rotation)).fold(f64::INFINITY, f64::min);
+    least > HALF_TURN_DEGREES
+}
+
+/// The angle between two rotations, degrees; clamped, since the files' matrices are kept
+/// as given (`rotation.rs`) and a trace a hair above 3 would give no angle at all.
+fn angle_deg(a: &nalgebra::Rotation3<f64>, b: &nalgebra::Rotation3<f64>) -> f64 {
+    let m = a.matrix().transpose() * b.matrix();
+    ((m.trace() - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Rotation3, Vector3};
+
+    fn pose(axis: Vector3<f64>, degrees: f64, t: [f64; 3]) -> Pose {
+        Pose::new(Rotation3::from_scaled_axis(axis * degrees.to_radians()), Vector3::from(t))
+    }
+
+    #[test]
+    fn a_half_turn_is_placed_right_and_turned_past_ninety_degrees_up_to_the_symmetries() {
+        let gt = pose(Vector3::x(), 0.0, [0.0, 0.0, 500.0]);
+        let turned = pose(Vector3::z(), 180.0, [3.0, 0.0, 502.0]);
+        assert!(half_turn(&turned, [gt], &[], 100.0));
+        // Turned less, or placed wrong: not a half-turn.
+        assert!(!half_turn(&pose(Vector3::z(), 60.0, [3.0, 0.0, 502.0]), [gt], &[], 100.0));
+        assert!(!half_turn(&pose(Vector3::z(), 180.0, [40.0, 0.0, 500.0]), [gt], &[], 100.0));
+        // A declared half-turn symmetry about z forgives it; one about x does not.
+        assert!(!half_turn(&turned, [gt], &[pose(Vector3::z(), 180.0, [0.0; 3])], 100.0));
+        assert!(half_turn(&turned, [gt], &[pose(Vector3::x(), 180.0, [0.0; 3])], 100.0));
+        // The nearest of several instances is the one compared with; none: nothing to turn from.
+        let other = pose(Vector3::z(), 180.0, [200.0, 0.0, 500.0]);
+        assert!(half_turn(&turned, [other, gt], &[], 100.0));
+        assert!(!half_turn(&turned, std::iter::empty(), &[], 100.0));
+    }
 }

@@ -156,6 +156,9 @@ pub struct ObjectAr {
     pub ar_mspd: f64,
     /// Number of valid GT instances (targets) of this object.
     pub targets: usize,
+    /// Evaluated estimates of this object placed right but turned: not part of BOP's
+    /// metrics (`evaluate::half_turn`; 0 where the caller computes none).
+    pub half_turns: usize,
 }
 
 /// Pooled recall for every threshold, in evaluation order.
@@ -177,6 +180,8 @@ pub struct ArReport {
     pub per_object: BTreeMap<u32, ObjectAr>,
     /// Valid GT instances over all targets (the recall denominator).
     pub targets: usize,
+    /// The objects' `half_turns` summed.
+    pub half_turns: usize,
     /// Estimates actually evaluated (after the top-`n` selection).
     pub estimates: usize,
     pub recalls: RecallCurves,
@@ -338,6 +343,7 @@ pub fn evaluate_bop19(
                 ar_mssd: s,
                 ar_mspd: p,
                 targets: n,
+                half_turns: 0,
             },
         );
     }
@@ -349,6 +355,7 @@ pub fn evaluate_bop19(
         ar_mspd,
         per_object,
         targets: total_targets,
+        half_turns: 0,
         estimates,
         recalls,
     })
@@ -357,20 +364,21 @@ pub fn evaluate_bop19(
 /// Renders a report as a Markdown table (overall first, then one row per object).
 pub fn format_report(r: &ArReport) -> String {
     let mut s = String::new();
-    let _ = writeln!(s, "| scope | targets | AR | AR_VSD | AR_MSSD | AR_MSPD |");
-    let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|");
+    let _ = writeln!(s, "| scope | targets | AR | AR_VSD | AR_MSSD | AR_MSPD | half-turns |");
+    let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|");
     let _ = writeln!(
         s,
-        "| all | {} | {:.4} | {:.4} | {:.4} | {:.4} |",
-        r.targets, r.ar, r.ar_vsd, r.ar_mssd, r.ar_mspd
+        "| all | {} | {:.4} | {:.4} | {:.4} | {:.4} | {} |",
+        r.targets, r.ar, r.ar_vsd, r.ar_mssd, r.ar_mspd, r.half_turns
     );
     for (obj, o) in &r.per_object {
         let _ = writeln!(
             s,
-            "| obj {} | {} | {:.4} | {:.4} | {:.4} | {:.4} |",
-            obj, o.targets, o.ar, o.ar_vsd, o.ar_mssd, o.ar_mspd
+            "| obj {} | {} | {:.4} | {:.4} | {:.4} | {:.4} | {} |",
+            obj, o.targets, o.ar, o.ar_vsd, o.ar_mssd, o.ar_mspd, o.half_turns
         );
     }
+    let _ = writeln!(s, "\nhalf-turns: estimates whose centre is within 0.1·d of a true instance's and whose rotation is more than 90° from it, up to the declared symmetries (not a BOP metric)");
     let _ = writeln!(s, "\nestimates evaluated: {}", r.estimates);
     s
 }
