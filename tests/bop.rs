@@ -201,6 +201,21 @@ fn synth_with_distractor_objects_bare_meshes_a_count_range_and_boxes() {
         assert_eq!((m.image_id, m.obj_id, m.bbox, m.score), (b.image_id, b.obj_id, b.bbox, b.score));
     }
 
+    // The bare box turned half a turn about its x axis: BOP (no symmetry declared) counts
+    // each a half-turn; scored up to the symmetries found in the bare mesh, each is right.
+    let turned: Vec<ResultRow> = gt
+        .iter()
+        .flat_map(|im| im.instances.iter().filter(|g| g.obj_id == 1).map(move |g| (im, g)))
+        .map(|(im, g)| ResultRow { scene_id: im.scene_id, im_id: im.im_id, obj_id: 1, score: 1.0, pose: Pose::new(g.pose.rotation * nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI), g.pose.translation), time: 0.5 })
+        .collect();
+    let declared = score(&ds, &turned, &pool);
+    assert_eq!(declared.half_turns, turned.len(), "{declared}");
+    assert!(declared.ar_mssd < 0.5, "{declared}");
+    let params = Bop19Params { symmetries_from_mesh: true, ..Default::default() };
+    let shape = evaluate(&ds, TEST_SPLIT, &turned, &pool, &params, &no_progress, &mut Vec::new()).unwrap();
+    assert_eq!(shape.half_turns, 0, "{shape}");
+    assert!(shape.ar_mssd > 0.99 && shape.ar_mspd > 0.99, "{shape}");
+
     let refused = synth(&models, &dir.path().join("ds2"), &SynthOptions { targets: Some(vec![7]), ..opts }, &pool).unwrap_err();
     assert!(format!("{refused:#}").contains("target object 7"), "{refused:#}");
 }

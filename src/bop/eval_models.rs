@@ -7,6 +7,7 @@ use super::dataset::{load_models_info, model_path};
 use super::format::MODELS_INFO;
 use crate::geometry::symmetry::{parse_models_info, ObjectSymmetries};
 use crate::geometry::Pose;
+use crate::mesh::symmetry_finder::find_symmetries;
 use crate::mesh::{load_mesh, load_ply_points, Mesh, Units};
 use anyhow::{anyhow, Context, Result};
 use std::collections::BTreeMap;
@@ -35,18 +36,32 @@ pub fn declared_symmetries(dataset: &Path) -> Result<BTreeMap<u32, ObjectSymmetr
     parse_models_info(&text).with_context(|| path.display().to_string())
 }
 
+/// Where an evaluation's symmetries come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SymmetriesFrom {
+    /// `models_info.json`, as BOP scores.
+    Declared,
+    /// What `mesh::symmetry_finder` finds in each mesh (shape and colours).
+    Mesh,
+}
+
 /// The objects `ids` of a dataset; `step` is the toolkit's `max_sym_disc_step`.
-pub fn load_models(dataset: &Path, ids: impl IntoIterator<Item = u32>, step: f64) -> Result<BTreeMap<u32, EvalModel>> {
+pub fn load_models(dataset: &Path, ids: impl IntoIterator<Item = u32>, step: f64, from: SymmetriesFrom) -> Result<BTreeMap<u32, EvalModel>> {
     let info = load_models_info(dataset)?;
     let info_path = dataset.join(MODELS_INFO);
-    let symmetries = declared_symmetries(dataset)?;
+    let declared = declared_symmetries(dataset)?;
     let mut out = BTreeMap::new();
     for id in ids {
         let diameter_mm = info.get(&id).ok_or_else(|| anyhow!("{}: no entry for object {id}, which the targets list", info_path.display()))?.diameter;
         let path = model_path(dataset, id);
         let mesh = load_mesh(&path, Some(Units::Mm))?;
         let points = load_ply_points(&path)?;
-        let symmetries = symmetries.get(&id).cloned().unwrap_or_else(ObjectSymmetries::default).transformations(step).with_context(|| format!("object {id}"))?;
+        let symmetries = match from {
+            SymmetriesFrom::Declared => declared.get(&id).cloned().unwrap_or_else(ObjectSymmetries::default),
+            // Found in metres, as the mesh is held; scored in mm.
+            SymmetriesFrom::Mesh => find_symmetries(&mesh, &Default::default()).scaled(1000.0),
+        };
+        let symmetries = symmetries.transformations(step).with_context(|| format!("object {id}"))?;
         out.insert(id, EvalModel { mesh, points, symmetries, diameter_mm });
     }
     Ok(out)
@@ -87,7 +102,7 @@ mod tests {
     }
 
     fn model(dir: &tempfile::TempDir) -> EvalModel {
-        load_models(dir.path(), [1], 0.01).unwrap().remove(&1).unwrap()
+        load_models(dir.path(), [1], 0.01, SymmetriesFrom::Declared).unwrap().remove(&1).unwrap()
     }
 
     /// The vertices as a `Mesh` holds them (what `bop eval` used before), in mm.

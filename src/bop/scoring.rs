@@ -64,6 +64,11 @@ pub struct Bop19Params {
     pub n_top: i64,
     /// For [`crate::geometry::symmetry::symmetry_transformations`]: 0.01.
     pub max_sym_disc_step: f64,
+    /// Not BOP: score up to the symmetries the product finds in each mesh's shape and
+    /// colours (`mesh::symmetry_finder`) instead of those `models_info.json` declares. On
+    /// meshes without their textures it says how much of what is lost is turns the shape
+    /// cannot tell (a bare box's half-turns). BOP: false.
+    pub symmetries_from_mesh: bool,
 }
 
 impl Default for Bop19Params {
@@ -79,6 +84,7 @@ impl Default for Bop19Params {
             visib_gt_min: -1.0,
             n_top: -1,
             max_sym_disc_step: 0.01,
+            symmetries_from_mesh: false,
         }
     }
 }
@@ -378,7 +384,7 @@ pub fn format_report(r: &ArReport) -> String {
             obj, o.targets, o.ar, o.ar_vsd, o.ar_mssd, o.ar_mspd, o.half_turns
         );
     }
-    let _ = writeln!(s, "\nhalf-turns: estimates whose centre is within 0.1·d of a true instance's and whose rotation is more than 90° from it, up to the declared symmetries (not a BOP metric)");
+    let _ = writeln!(s, "\nhalf-turns: estimates whose centre is within 0.1·d of a true instance's and whose rotation is more than 90° from it, up to the symmetries scored with (not a BOP metric)");
     let _ = writeln!(s, "\nestimates evaluated: {}", r.estimates);
     s
 }

@@ -38,6 +38,11 @@ pub struct EvalArgs {
     /// VSD visibility tolerance in mm (BOP'19: 15; 5 for ITODD).
     #[arg(long, default_value_t = 15.0)]
     pub vsd_delta: f64,
+    /// Not BOP: score up to the symmetries found in each mesh's shape and colours instead
+    /// of those models_info.json declares: on meshes without their textures, how much of
+    /// what is lost are turns the shape cannot tell.
+    #[arg(long)]
+    pub mesh_symmetries: bool,
 }
 
 pub fn run(a: EvalArgs) -> Result<()> {
@@ -70,7 +75,7 @@ fn pose_ar(a: &EvalArgs, csv: &Path) -> Result<ArReport> {
     let mut warnings = Vec::new();
     let results = read_results(csv, &mut warnings)?;
     let pool = super::open_renderer(RenderPool::DEFAULT_SIZE)?;
-    let params = Bop19Params { vsd_delta: a.vsd_delta, ..Default::default() };
+    let params = Bop19Params { vsd_delta: a.vsd_delta, symmetries_from_mesh: a.mesh_symmetries, ..Default::default() };
     let pb = super::progress::bar(0, "targets");
     let progress = |done: usize, total: usize| {
         pb.set_length(total as u64);
