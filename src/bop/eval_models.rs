@@ -41,7 +41,7 @@ pub fn declared_symmetries(dataset: &Path) -> Result<BTreeMap<u32, ObjectSymmetr
 pub enum SymmetriesFrom {
     /// `models_info.json`, as BOP scores.
     Declared,
-    /// What `mesh::symmetry_finder` finds in each mesh (shape and colours).
+    /// Those and what `mesh::symmetry_finder` finds in each mesh (shape and colours).
     Mesh,
 }
 
@@ -56,12 +56,13 @@ pub fn load_models(dataset: &Path, ids: impl IntoIterator<Item = u32>, step: f64
         let path = model_path(dataset, id);
         let mesh = load_mesh(&path, Some(Units::Mm))?;
         let points = load_ply_points(&path)?;
-        let symmetries = match from {
-            SymmetriesFrom::Declared => declared.get(&id).cloned().unwrap_or_else(ObjectSymmetries::default),
-            // Found in metres, as the mesh is held; scored in mm.
-            SymmetriesFrom::Mesh => find_symmetries(&mesh, &Default::default()).scaled(1000.0),
-        };
-        let symmetries = symmetries.transformations(step).with_context(|| format!("object {id}"))?;
+        let mut symmetries = declared.get(&id).cloned().unwrap_or_else(ObjectSymmetries::default).transformations(step).with_context(|| format!("object {id}"))?;
+        if from == SymmetriesFrom::Mesh {
+            // Found in metres, as the mesh is held; scored in mm. Beside the declared ones
+            // (the scanned mesh may miss one within the finder's tolerance), identity aside.
+            let found = find_symmetries(&mesh, &Default::default()).scaled(1000.0).transformations(step).with_context(|| format!("object {id}: found symmetries"))?;
+            symmetries.extend(found.into_iter().skip(1));
+        }
         out.insert(id, EvalModel { mesh, points, symmetries, diameter_mm });
     }
     Ok(out)

@@ -65,7 +65,7 @@ pub struct Bop19Params {
     /// For [`crate::geometry::symmetry::symmetry_transformations`]: 0.01.
     pub max_sym_disc_step: f64,
     /// Not BOP: score up to the symmetries the product finds in each mesh's shape and
-    /// colours (`mesh::symmetry_finder`) instead of those `models_info.json` declares. On
+    /// colours (`mesh::symmetry_finder`) beside those `models_info.json` declares. On
     /// meshes without their textures it says how much of what is lost is turns the shape
     /// cannot tell (a bare box's half-turns). BOP: false.
     pub symmetries_from_mesh: bool,

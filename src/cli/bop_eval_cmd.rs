@@ -38,8 +38,8 @@ pub struct EvalArgs {
     /// VSD visibility tolerance in mm (BOP'19: 15; 5 for ITODD).
     #[arg(long, default_value_t = 15.0)]
     pub vsd_delta: f64,
-    /// Not BOP: score up to the symmetries found in each mesh's shape and colours instead
-    /// of those models_info.json declares: on meshes without their textures, how much of
+    /// Not BOP: score up to the symmetries found in each mesh's shape and colours beside
+    /// those models_info.json declares: on meshes without their textures, how much of
     /// what is lost are turns the shape cannot tell.
     #[arg(long)]
     pub mesh_symmetries: bool,
