@@ -211,7 +211,7 @@ fn synth_with_distractor_objects_bare_meshes_a_count_range_and_boxes() {
     let declared = score(&ds, &turned, &pool);
     assert_eq!(declared.half_turns, turned.len(), "{declared}");
     assert!(declared.ar_mssd < 0.5, "{declared}");
-    let params = Bop19Params { symmetries_from_mesh: true, ..Default::default() };
+    let params = Bop19Params { symmetries: b2tfpose::bop::eval_models::SymmetriesFrom::Mesh, ..Default::default() };
     let shape = evaluate(&ds, TEST_SPLIT, &turned, &pool, &params, &no_progress, &mut Vec::new()).unwrap();
     assert_eq!(shape.half_turns, 0, "{shape}");
     assert!(shape.ar_mssd > 0.99 && shape.ar_mspd > 0.99, "{shape}");

@@ -37,7 +37,7 @@ pub fn declared_symmetries(dataset: &Path) -> Result<BTreeMap<u32, ObjectSymmetr
 }
 
 /// Where an evaluation's symmetries come from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub enum SymmetriesFrom {
     /// `models_info.json`, as BOP scores.
     Declared,

@@ -16,7 +16,7 @@
 //! see on objects whose shape is nearly symmetric, counted so that it can be followed.
 
 use super::dataset::{load_depth_mm, load_split_gt, load_targets, ImageGt};
-use super::eval_models::{load_models, mm, SymmetriesFrom};
+use super::eval_models::{load_models, mm};
 use super::pose_errors::{mspd, mssd, sphere_projections_overlap, spheres_overlap, vsd, DepthMap, Intrinsics as K4, VsdCost};
 use super::results_csv::ResultRow;
 use super::scoring::{evaluate_bop19, select_estimates, ArReport, Bop19Params, GtInstance, TargetEval};
@@ -33,7 +33,7 @@ use std::path::Path;
 pub fn evaluate(dataset: &Path, split: &str, results: &[ResultRow], pool: &RenderPool, params: &Bop19Params, progress: &dyn Fn(usize, usize), warnings: &mut Vec<String>) -> Result<ArReport> {
     let targets = load_targets(dataset)?;
     let images: HashMap<(u32, u32), ImageGt> = load_split_gt(dataset, split, warnings)?.into_iter().map(|g| ((g.scene_id, g.im_id), g)).collect();
-    let models = load_models(dataset, targets.iter().map(|t| t.obj_id).collect::<std::collections::BTreeSet<_>>(), params.max_sym_disc_step, if params.symmetries_from_mesh { SymmetriesFrom::Mesh } else { SymmetriesFrom::Declared })?;
+    let models = load_models(dataset, targets.iter().map(|t| t.obj_id).collect::<std::collections::BTreeSet<_>>(), params.max_sym_disc_step, params.symmetries)?;
     let mut estimates: HashMap<(u32, u32, u32), Vec<&ResultRow>> = HashMap::new();
     for r in results {
         estimates.entry((r.scene_id, r.im_id, r.obj_id)).or_default().push(r);

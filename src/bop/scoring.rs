@@ -64,11 +64,12 @@ pub struct Bop19Params {
     pub n_top: i64,
     /// For [`crate::geometry::symmetry::symmetry_transformations`]: 0.01.
     pub max_sym_disc_step: f64,
-    /// Not BOP: score up to the symmetries the product finds in each mesh's shape and
-    /// colours (`mesh::symmetry_finder`) beside those `models_info.json` declares. On
+    /// Where the symmetries come from. Not BOP: `Mesh` scores up to the symmetries the
+    /// product finds in each mesh's shape and colours (`mesh::symmetry_finder`) beside
+    /// those `models_info.json` declares. On
     /// meshes without their textures it says how much of what is lost is turns the shape
-    /// cannot tell (a bare box's half-turns). BOP: false.
-    pub symmetries_from_mesh: bool,
+    /// cannot tell (a bare box's half-turns). BOP: `Declared`.
+    pub symmetries: crate::bop::eval_models::SymmetriesFrom,
 }
 
 impl Default for Bop19Params {
@@ -84,7 +85,7 @@ impl Default for Bop19Params {
             visib_gt_min: -1.0,
             n_top: -1,
             max_sym_disc_step: 0.01,
-            symmetries_from_mesh: false,
+            symmetries: crate::bop::eval_models::SymmetriesFrom::Declared,
         }
     }
 }

@@ -16,7 +16,7 @@
 
 use super::dataset::{load_split_gt, load_targets, model_path};
 use super::detections::{write_detections, DetectionRecord};
-use super::format::{MODELS_INFO, TEST_SPLIT, TEST_TARGETS};
+use super::format::{MODELS_INFO, TEST_SPLIT};
 use crate::masks::rle::Rle;
 use super::synth_masks::{area, morph, shift};
 use crate::eval::scenes::{generate_dataset, SceneConfig, SCENE_ID};
@@ -147,8 +147,7 @@ fn keep_targets(dataset: &Path, targets: &[u32]) -> Result<()> {
     if kept.is_empty() {
         bail!("no image holds any of the target objects {targets:?}: more images or objects per image");
     }
-    let path = dataset.join(TEST_TARGETS);
-    std::fs::write(&path, serde_json::to_string_pretty(&kept)?).with_context(|| format!("writing {}", path.display()))
+    crate::eval::scenes::bop_write::write_test_targets(dataset, &kept)
 }
 
 /// The source's models_info entries of the copied objects (symmetries included); objects

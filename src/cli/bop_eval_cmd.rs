@@ -75,7 +75,7 @@ fn pose_ar(a: &EvalArgs, csv: &Path) -> Result<ArReport> {
     let mut warnings = Vec::new();
     let results = read_results(csv, &mut warnings)?;
     let pool = super::open_renderer(RenderPool::DEFAULT_SIZE)?;
-    let params = Bop19Params { vsd_delta: a.vsd_delta, symmetries_from_mesh: a.mesh_symmetries, ..Default::default() };
+    let params = Bop19Params { vsd_delta: a.vsd_delta, symmetries: if a.mesh_symmetries { crate::bop::eval_models::SymmetriesFrom::Mesh } else { crate::bop::eval_models::SymmetriesFrom::Declared }, ..Default::default() };
     let pb = super::progress::bar(0, "targets");
     let progress = |done: usize, total: usize| {
         pb.set_length(total as u64);
