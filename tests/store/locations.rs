@@ -32,8 +32,12 @@ pub(crate) fn is_s3(url: &str) -> bool {
 pub(crate) static S3_ROOTS: std::sync::Mutex<Vec<(u16, PathBuf)>> = std::sync::Mutex::new(Vec::new());
 
 /// The folder of the S3 server an `s3://` URL's endpoint names.
+fn s3_port(url: &str) -> u16 {
+    url.split("127.0.0.1:").nth(1).and_then(|r| r.split('&').next()).and_then(|p| p.parse().ok()).unwrap_or_else(|| panic!("no test server port in {url}"))
+}
+
 pub(crate) fn s3_root(url: &str) -> PathBuf {
-    let port: u16 = url.split("127.0.0.1:").nth(1).and_then(|r| r.split('&').next()).and_then(|p| p.parse().ok()).unwrap_or_else(|| panic!("no test server port in {url}"));
+    let port = s3_port(url);
     S3_ROOTS.lock().unwrap().iter().find(|(p, _)| *p == port).map(|(_, r)| r.clone()).unwrap_or_else(|| panic!("no S3 test server on port {port}"))
 }
 
@@ -144,4 +148,15 @@ pub(crate) fn damage(url: &str, id: &str, how: Damage) {
         };
         std::fs::write(&file, bytes).expect("damaging the file");
     }
+}
+
+/// `url` (an S3 test server's) reached through a proxy that passes `pass_bytes` of the
+/// client's bytes and then stalls; the proxy's port is registered as the same server so
+/// the helpers above find its folder. Keep the proxy alive while the URL is in use.
+pub(crate) fn s3_through_stalling_proxy(url: &str, pass_bytes: u64) -> (String, stalling_proxy::StallingProxy) {
+    let port = s3_port(url);
+    let proxy = stalling_proxy::StallingProxy::start(port, pass_bytes);
+    let root = s3_root(url);
+    S3_ROOTS.lock().unwrap().push((proxy.port, root));
+    (url.replace(&format!("127.0.0.1:{port}"), &format!("127.0.0.1:{}", proxy.port)), proxy)
 }

@@ -25,6 +25,8 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 #[path = "../common/s3.rs"]
 mod s3_server;
+#[path = "../common/stalling_proxy.rs"]
+mod stalling_proxy;
 
 mod objects;
 mod locations;

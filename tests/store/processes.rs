@@ -27,7 +27,7 @@ pub(crate) fn partial_write_bytes(url: &str, id: &str, pid: u32, wal_before: u64
 /// The kill point is taken from what is on disk rather than from a clock: the child is
 /// killed once at least `KILL_AT` of the object's bytes are written but not yet committed
 /// (a time fraction alone could fall into the encoding, before anything touches the disk,
-/// and test nothing). The put is then repeated to completion and timed, and the kill's
+/// and test nothing); over S3 a stalling proxy holds the upload there. The put is then repeated to completion and timed, and the kill's
 /// share of that time is printed.
 pub(crate) fn check_killed_put(url: &str) {
     const KILL_AT: f64 = 0.5;
@@ -45,7 +45,10 @@ pub(crate) fn check_killed_put(url: &str) {
     drop(enc);
     let wal_before = std::fs::metadata(format!("{}-wal", store_path(url).display())).map(|m| m.len()).unwrap_or(0);
 
-    let mut child = ChildProcess::spawn("big-writer", "big-writer", url, &[(COUNT_VAR, copies.to_string())]);
+    // Over S3 the child's upload goes through a proxy that stalls it three quarters in: a
+    // loopback upload can otherwise finish between two looks at the server's folder.
+    let (child_url, mut stall) = if is_s3(url) { let (u, p) = s3_through_stalling_proxy(url, expected * 3 / 4); (u, Some(p)) } else { (url.to_string(), None) };
+    let mut child = ChildProcess::spawn("big-writer", "big-writer", &child_url, &[(COUNT_VAR, copies.to_string())]);
     let pid = child.child.id();
     child.expect_message("putting", CHILD_TIMEOUT);
     let put_began = Instant::now();
@@ -60,6 +63,10 @@ pub(crate) fn check_killed_put(url: &str) {
         std::thread::sleep(Duration::from_millis(1));
     };
     child.child.kill().expect("SIGKILL to the writer");
+    if let Some(proxy) = stall.as_mut() {
+        // A killed process's connections close; the stalled proxy would hold them open.
+        proxy.stop();
+    }
     let killed_after = put_began.elapsed();
     let out = child.finish(Duration::from_secs(30));
     assert_eq!(out.status.signal(), Some(9), "the writer must die of SIGKILL, not exit ({}); output:\n{}", out.status, out.output);

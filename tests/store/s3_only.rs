@@ -24,17 +24,22 @@ pub(crate) fn s3_server_that_disappears_mid_put_leaves_no_object() {
     store.put(&with_id(m, "obj-a"), false).expect("put");
     let big = enlarged(m, "obj-big", big_copies(m));
     let expected = codec::encode(&big).expect("encode").tensors.len() as u64;
+    // The put goes through a proxy that stalls it three quarters in, so it is surely
+    // half-way when the server dies; killing the server and then the proxy drops every
+    // connection of the put as a crashed server's host would.
+    let (stalled_url, mut proxy) = s3_through_stalling_proxy(&url, expected * 3 / 4);
     let writer = {
-        let (store, big) = (store.clone(), big.clone());
+        let (store, big) = (store::open(&stalled_url).expect("open through the proxy"), big.clone());
         std::thread::spawn(move || store.put(&big, false).map(|i| i.id))
     };
     let began = Instant::now();
     while partial_write_bytes(&url, "obj-big", 0, 0).is_none_or(|n| n < expected / 2) {
-        assert!(!writer.is_finished(), "the put finished before the server could be stopped: make the object bigger");
+        assert!(!writer.is_finished(), "the put finished before the server could be stopped: {:?}", writer.join());
         assert!(began.elapsed() < CHILD_TIMEOUT, "no upload of obj-big seen within {CHILD_TIMEOUT:?}");
         std::thread::sleep(Duration::from_millis(1));
     }
     server.kill();
+    proxy.stop();
     let killed = Instant::now();
     let outcome = writer.join().expect("the writer thread");
     eprintln!("the put answered {:.2?} after the server died: {outcome:?}", killed.elapsed());
