@@ -32,7 +32,7 @@ fn dataset(root: &Path, images: usize, pool: &RenderPool) -> SynthSummary {
     let models = root.join("source_models");
     write_bop_ply(&textured_box([0.10, 0.06, 0.16], 3), &models, "obj_000001").unwrap();
     let scene = SceneConfig { images, objects_per_image: 1, image_size: (320, 240), fill_range: (0.45, 0.6), max_occlusion: 0.1, seed: 5, ..Default::default() };
-    synth(&models, &root.join("ds"), &SynthOptions { scene, degraded: true, distractors: true, targets: None, untextured: false }, pool).unwrap()
+    synth(&models, &root.join("ds"), &SynthOptions { scene, degraded: true, distractors: true, targets: None, untextured: false, backgrounds: None }, pool).unwrap()
 }
 
 fn no_progress(_: usize, _: usize) {}
@@ -170,7 +170,7 @@ fn synth_with_distractor_objects_bare_meshes_a_count_range_and_boxes() {
     write_bop_ply(&textured_box([0.08, 0.08, 0.08], 4), &models, "obj_000002").unwrap();
     assert!(models.join("obj_000001.png").exists());
     let scene = SceneConfig { images: 6, objects_per_image: 1, objects_per_image_max: 2, image_size: (320, 240), fill_range: (0.3, 0.4), max_occlusion: 0.3, seed: 2, ..Default::default() };
-    let opts = SynthOptions { scene, degraded: false, distractors: true, targets: Some(vec![1]), untextured: true };
+    let opts = SynthOptions { scene, degraded: false, distractors: true, targets: Some(vec![1]), untextured: true, backgrounds: None };
     let ds = dir.path().join("ds");
     let s = synth(&models, &ds, &opts, &pool).unwrap();
     assert_eq!((s.objects.clone(), s.targets.clone()), (vec![1, 2], vec![1]));
@@ -218,6 +218,60 @@ fn synth_with_distractor_objects_bare_meshes_a_count_range_and_boxes() {
 
     let refused = synth(&models, &dir.path().join("ds2"), &SynthOptions { targets: Some(vec![7]), ..opts }, &pool).unwrap_err();
     assert!(format!("{refused:#}").contains("target object 7"), "{refused:#}");
+}
+
+/// `bop synth --backgrounds`: each image drawn over a real frame's photo, its depth behind
+/// the objects (scaled back where it would stand in front of them); a frame whose depth
+/// has another size than its photo is refused naming it.
+#[test]
+fn synth_over_real_frames_takes_their_photo_and_depth() {
+    let dir = tempfile::tempdir().unwrap();
+    let pool = pool();
+    let models = dir.path().join("source_models");
+    write_bop_ply(&textured_box([0.10, 0.06, 0.16], 3), &models, "obj_000001").unwrap();
+    // A "real" frame: a red photo, a flat surface 0.3 m away (in front of where the objects
+    // will stand), no depth in its top rows; depth in mm at scale 1, as empty-rgbd has it.
+    let frames = dir.path().join("frames");
+    let scene = frames.join("test/000001");
+    std::fs::create_dir_all(scene.join("rgb")).unwrap();
+    std::fs::create_dir_all(scene.join("depth")).unwrap();
+    image::RgbImage::from_pixel(320, 240, image::Rgb([200, 30, 30])).save(scene.join("rgb/000016.png")).unwrap();
+    image::ImageBuffer::<image::Luma<u16>, _>::from_fn(320, 240, |_, y| image::Luma([if y < 10 { 0 } else { 300 }])).save(scene.join("depth/000016.png")).unwrap();
+    std::fs::write(scene.join("scene_camera.json"), r#"{"16": {"cam_K": [290, 0, 160, 0, 290, 120, 0, 0, 1], "depth_scale": 1.0}}"#).unwrap();
+
+    let cfg = SceneConfig { images: 2, objects_per_image: 1, image_size: (320, 240), fill_range: (0.3, 0.4), min_occlusion: 0.1, seed: 4, depth_sensor: b2tfpose::depth::sensor::SensorModel::exact(), ..Default::default() };
+    let opts = SynthOptions { scene: cfg, degraded: false, distractors: false, targets: None, untextured: false, backgrounds: Some(frames.clone()) };
+    let ds = dir.path().join("ds");
+    synth(&models, &ds, &opts, &pool).unwrap();
+    for im in load_split_gt(&ds, TEST_SPLIT, &mut Vec::new()).unwrap() {
+        let rgb = image::open(scene_folder(&ds).join(format!("rgb/{:06}.png", im.im_id))).unwrap().to_rgb8();
+        let (w, _, depth) = b2tfpose::bop::load_depth_mm(&im.depth_path, im.depth_scale).unwrap();
+        let object_mm = im.instances[0].pose.translation.z * 1000.0;
+        // Away from the object: the red photo (through the sensor noise and colour shift),
+        // and the flat surface moved behind the object; the frame's holes stay holes.
+        let (x, y) = (5u32, 230u32);
+        let p = rgb.get_pixel(x, y);
+        assert!(p[0] > 150 && p[1] < 80 && p[2] < 80, "{p:?}");
+        let behind = depth[(y * w + x) as usize] as f64;
+        assert!(behind > object_mm, "{behind} mm behind an object at {object_mm} mm");
+        assert_eq!(depth[(3 * w + x) as usize], 0.0);
+        // The occluders are cut from the (red) real photo too, not flat random colours.
+        let name = format!("{:06}_000000.png", im.im_id);
+        let [all, visible] = [format!("mask/{name}"), format!("mask_visib/{name}")].map(|m| image::open(scene_folder(&ds).join(m)).unwrap().to_luma8());
+        let hidden: Vec<_> = all.enumerate_pixels().filter(|(x, y, p)| p[0] > 0 && visible.get_pixel(*x, *y)[0] == 0).map(|(x, y, _)| *rgb.get_pixel(x, y)).collect();
+        assert!(hidden.len() > 20, "min_occlusion 0.1 hides part of the object: {} pixels", hidden.len());
+        let red = hidden.iter().filter(|p| p[0] > 150 && p[1] < 80 && p[2] < 80).count();
+        assert!(red * 10 >= hidden.len() * 8, "{red} of {} hidden pixels show the photo", hidden.len());
+    }
+
+    // A frame whose depth does not match its photo is refused.
+    image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(160, 120, image::Luma([300])).save(scene.join("depth/000016.png")).unwrap();
+    let err = synth(&models, &dir.path().join("ds2"), &opts, &pool).unwrap_err();
+    assert!(format!("{err:#}").contains("depth is 160x120"), "{err:#}");
+    // A folder that is not a BOP dataset is named.
+    let nowhere = dir.path().join("no-frames");
+    let err = synth(&models, &dir.path().join("ds3"), &SynthOptions { backgrounds: Some(nowhere), ..opts }, &pool).unwrap_err();
+    assert!(format!("{err:#}").contains("backgrounds: reading") && format!("{err:#}").contains("no-frames"), "{err:#}");
 }
 
 /// The only scene folder of a generated dataset.

@@ -13,13 +13,15 @@
 //! detections); the others still stand in the scenes, in the ground truth and in front of
 //! the targets, as distractors nobody searches for. With `untextured`, the models are
 //! copied without their textures, so the scenes and whatever onboards them see bare shape.
+//! With `backgrounds` (a BOP dataset of real frames, e.g. `../shared/data/empty-rgbd`),
+//! each image is drawn over one of its photos, its measured depth behind the objects.
 
-use super::dataset::{load_split_gt, load_targets, model_path};
+use super::dataset::{load_depth_mm, load_scene_cameras, load_split_gt, load_targets, model_path};
 use super::detections::{write_detections, DetectionRecord};
 use super::format::{MODELS_INFO, TEST_SPLIT};
 use crate::masks::rle::Rle;
 use super::synth_masks::{area, morph, shift};
-use crate::eval::scenes::{generate_dataset, SceneConfig, SCENE_ID};
+use crate::eval::scenes::{generate_dataset_over, Background, SceneConfig, SCENE_ID};
 use crate::mesh::procedural::Rng;
 use crate::mesh::{load_mesh, Mesh, Units};
 use crate::render::RenderPool;
@@ -41,6 +43,9 @@ pub struct SynthOptions {
     pub targets: Option<Vec<u32>>,
     /// Copy the models without their textures (the PLY's `TextureFile` line dropped).
     pub untextured: bool,
+    /// A BOP dataset of real frames to draw the scenes over (its test split's photos and
+    /// depth); `None`: procedural clutter and a flat wall.
+    pub backgrounds: Option<PathBuf>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -109,7 +114,8 @@ pub fn synth(models: &Path, out: &Path, opts: &SynthOptions, pool: &RenderPool) 
     }
     copy_models_info(models, out, &ids)?;
     let objects: Vec<(u32, Mesh)> = ids.iter().map(|&id| Ok((id, load_mesh(&model_path(out, id), Some(Units::Mm))?))).collect::<Result<_>>()?;
-    let summary = generate_dataset(&objects, &opts.scene, pool, out)?;
+    let backgrounds = opts.backgrounds.as_deref().map(load_backgrounds).transpose()?.unwrap_or_default();
+    let summary = generate_dataset_over(&objects, &opts.scene, pool, out, &backgrounds)?;
     if opts.targets.is_some() {
         keep_targets(out, &targets)?;
     }
@@ -139,6 +145,34 @@ fn without_texture(ply: &[u8]) -> Vec<u8> {
     }
     out.extend_from_slice(&ply[start.min(ply.len())..]);
     out
+}
+
+/// Every frame of a BOP dataset's test split: its photo and, where its depth file exists,
+/// its depth in metres.
+fn load_backgrounds(root: &Path) -> Result<Vec<Background>> {
+    let split = root.join(TEST_SPLIT);
+    let mut scenes: Vec<PathBuf> = std::fs::read_dir(&split).with_context(|| format!("backgrounds: reading {}", split.display()))?.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.is_dir()).collect();
+    scenes.sort();
+    let mut out = Vec::new();
+    for scene in scenes {
+        for camera in load_scene_cameras(&scene)?.into_values() {
+            let rgb = image::open(&camera.rgb_path).with_context(|| format!("background {}", camera.rgb_path.display()))?.to_rgb8();
+            let depth = if camera.depth_path.exists() {
+                let (w, h, mm) = load_depth_mm(&camera.depth_path, camera.depth_scale)?;
+                if (w, h) != rgb.dimensions() {
+                    bail!("background {}: depth is {w}x{h}, the photo {}x{}", camera.depth_path.display(), rgb.width(), rgb.height());
+                }
+                Some(mm.into_iter().map(|v| v / 1000.0).collect())
+            } else {
+                None
+            };
+            out.push(Background::new(rgb, depth).with_context(|| format!("background {}", camera.rgb_path.display()))?);
+        }
+    }
+    if out.is_empty() {
+        bail!("backgrounds: no frames in {}", split.display());
+    }
+    Ok(out)
 }
 
 /// Rewrites the dataset's test targets keeping only `targets`' objects.

@@ -111,6 +111,11 @@ pub struct SynthArgs {
     /// onboards them from the dataset.
     #[arg(long)]
     pub untextured: bool,
+    /// A BOP dataset of real frames (e.g. ../shared/data/empty-rgbd) to draw each image
+    /// over: one of its photos in place of the procedural clutter, its depth behind the
+    /// objects in place of the flat wall.
+    #[arg(long)]
+    pub backgrounds: Option<PathBuf>,
     #[arg(long, default_value_t = 0.3)]
     pub max_occlusion: f64,
     #[arg(long, default_value_t = 1)]
@@ -235,7 +240,7 @@ fn synth_cmd(a: SynthArgs) -> Result<()> {
     let (objects_per_image, most) = a.objects_per_image;
     let objects_per_image_max = if most > objects_per_image { most } else { 0 };
     let scene = SceneConfig { images: a.images, objects_per_image, objects_per_image_max, fill_range: a.fill, max_occlusion: a.max_occlusion, seed: a.seed, depth_sensor: super::depth_sensor(a.exact_depth), ..Default::default() };
-    let s = synth(&a.models, &a.out, &SynthOptions { scene, degraded: !a.no_degraded, distractors: !a.no_distractors, targets: a.targets, untextured: a.untextured }, &pool)?;
+    let s = synth(&a.models, &a.out, &SynthOptions { scene, degraded: !a.no_degraded, distractors: !a.no_distractors, targets: a.targets, untextured: a.untextured, backgrounds: a.backgrounds }, &pool)?;
     println!(
         "wrote a BOP dataset to {}: objects {:?} (targets {:?}), {} images, {} instances; {} detections in {} (as boxes in {})",
         a.out.display(),

@@ -12,6 +12,10 @@
 #
 # MODELS: a BOP models folder (default ../shared/data/hope/models). TARGETS (default
 # 1,2,3,4,8,11) names the searched objects; IMAGES (default 12), SEED (default 1).
+# BACKGROUNDS (a BOP dataset of real frames, e.g. ../shared/data/empty-rgbd) draws every
+# image over one of its photos, its measured depth behind the objects (`bop synth
+# --backgrounds`): real clutter where procedural clutter flatters. MESHES (default
+# "textured untextured") and DEPTHS (default "rgb rgbd") choose the runs.
 # Heavy (about 25 minutes on 2 cores with a release build the first time, onboarding
 # included; the objects stay in OUT/objects-*): a benchmark, not a test. B2TF_BIN names
 # the binary (default target/release/b2tf).
@@ -23,17 +27,21 @@ TARGETS="${TARGETS:-1,2,3,4,8,11}"
 IMAGES="${IMAGES:-12}"
 SEED="${SEED:-1}"
 B2TF="${B2TF_BIN:-target/release/b2tf}"
+MESHES="${MESHES:-textured untextured}"
+DEPTHS="${DEPTHS:-rgb rgbd}"
+synth_extra=()
+[ -n "${BACKGROUNDS:-}" ] && synth_extra+=(--backgrounds "$BACKGROUNDS")
 mkdir -p "$OUT"
 summary="$OUT/summary.md"
 echo "| meshes | detections | depth | AR | AR_VSD | AR_MSSD | AR_MSPD | MSSD < 0.1·d | half-turns | AR up to the mesh's symmetries | s per instance |" >"$summary"
 echo "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|" >>"$summary"
-for tex in textured untextured; do
+for tex in $MESHES; do
   ds="$OUT/ds-$tex"
   flags=()
   [ "$tex" = untextured ] && flags+=(--untextured)
   if [ ! -f "$ds/test_targets_bop19.json" ]; then
     "$B2TF" bop synth --models "$MODELS" --out "$ds" --images "$IMAGES" --objects-per-image 2,6 --targets "$TARGETS" \
-      --seed "$SEED" --no-degraded --no-distractors "${flags[@]}"
+      --seed "$SEED" --no-degraded --no-distractors "${flags[@]}" "${synth_extra[@]}"
   fi
   store="dir://$OUT/objects-$tex"
   # Onboarding happens on an object's first use; a first pass keeps it out of the timed runs.
@@ -43,7 +51,7 @@ for tex in textured untextured; do
   for kind in masks boxes; do
     det="$ds/detections_synth.json"
     [ "$kind" = boxes ] && det="$ds/detections_box.json"
-    for depth in rgb rgbd; do
+    for depth in $DEPTHS; do
       extra=()
       [ "$depth" = rgbd ] && extra+=(--depth)
       csv="$OUT/$tex-$kind-$depth.csv"

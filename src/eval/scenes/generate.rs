@@ -2,10 +2,11 @@
 //! alone, composite by depth over clutter, add occluders, degrade (and store as JPEG).
 
 use super::appearance::{as_stored, degrade, drift_print, sample_lighting};
+use super::background::Background;
 use super::config::{Appearance, SceneConfig};
 use super::supersample::{average_down, centre_depth, centre_samples, repeat_up};
 use super::layers::Layers;
-use super::occluders::{sample_occluder, Occluder};
+use super::occluders::{sample_occluder, Occluder, OccluderPhoto};
 use super::placement::{sample_intrinsics, sample_placement, Extent, Placement};
 use crate::eval::degrade::clutter_background;
 use crate::geometry::{Intrinsics, Pose};
@@ -66,6 +67,12 @@ const OCCLUDER_DEPTH: f32 = 0.9;
 /// Image `im_id` of the dataset that `cfg` describes. Its randomness depends only on
 /// `cfg.seed` and `im_id`, so images can be made in any order or alone.
 pub fn generate_image(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, im_id: u32) -> Result<SceneImage> {
+    generate_image_over(objects, cfg, pool, im_id, &[])
+}
+
+/// [`generate_image`] drawn over one of `backgrounds` (a real frame, drawn from the image's
+/// seed), or over procedural clutter where there are none.
+pub fn generate_image_over(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, im_id: u32, backgrounds: &[Background]) -> Result<SceneImage> {
     if objects.is_empty() {
         bail!("no objects to place in the scene");
     }
@@ -75,7 +82,7 @@ pub fn generate_image(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderP
         // Attempt 0 draws from the image's own seed, so images without a least occlusion
         // are what they always were.
         let mut rng = Rng::new(base.wrapping_add((attempt as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)));
-        if let Some(image) = try_generate(objects, cfg, pool, im_id, &mut rng)? {
+        if let Some(image) = try_generate(objects, cfg, pool, im_id, backgrounds, &mut rng)? {
             return Ok(image);
         }
     }
@@ -89,7 +96,7 @@ pub fn generate_image(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderP
 
 /// One draw of the image; `None` when occluders could not hide `min_occlusion` of some
 /// instance.
-fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, im_id: u32, rng: &mut Rng) -> Result<Option<SceneImage>> {
+fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, im_id: u32, backgrounds: &[Background], rng: &mut Rng) -> Result<Option<SceneImage>> {
     let cam = sample_intrinsics(cfg, rng);
     // Everything up to the painted image happens on `fine`, the camera with `s`×`s` pixels
     // for each of the image's (placements are in metres and fill shares, so they do not
@@ -177,14 +184,25 @@ fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, i
         }
     }
 
-    let background = clutter_background(cam.width, cam.height, rng);
+    let (background, real_depth) = match backgrounds.len() {
+        0 => (clutter_background(cam.width, cam.height, rng), None),
+        n => backgrounds[(rng.next_u64() % n as u64) as usize].fitted(cam.width, cam.height),
+    };
+    // Over real frames the occluders are real clutter too: pieces of another real photo.
+    let occluder_photo = match backgrounds.len() {
+        0 => None,
+        n => {
+            let photo = backgrounds[(rng.next_u64() % n as u64) as usize].fitted(cam.width, cam.height).0;
+            Some(OccluderPhoto::new(repeat_up(&photo, s), occluders.len(), rng))
+        }
+    };
     let print = Appearance { print_shift_px: appearance.print_shift_px * s as f64, ..appearance.clone() };
     for (_, _, out) in placed.iter_mut() {
         drift_print(&mut out.rgb, &out.mask, &print, rng);
     }
     let renders: Vec<&RenderOutput> = placed.iter().map(|(_, _, out)| out).collect();
     // At s = 1 each helper below is a copy.
-    let clean = average_down(&layers.paint(&renders, &occluders, &repeat_up(&background, s)), s);
+    let clean = average_down(&layers.paint(&renders, &occluders, occluder_photo.as_ref(), &repeat_up(&background, s)), s);
     let rgb = as_stored(degrade(&clean, &appearance, rng), &appearance, rng)?;
     // The counts are the image-resolution masks' (a render's mask is its depth > 0).
     let count = |mask: &GrayImage| mask.pixels().filter(|p| p[0] > 0).count();
@@ -196,7 +214,7 @@ fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, i
             SceneInstance { obj_id: objects[obj].0, pose: p.pose, px_count_all: count(&mask), px_count_visib: count(&mask_visib), mask, mask_visib }
         })
         .collect();
-    let depth = measured_depth(centre_depth(layers.depth(), fine.width, s), &rgb, &cam, cfg, im_id);
+    let depth = measured_depth(centre_depth(layers.depth(), fine.width, s), &rgb, &cam, cfg, im_id, real_depth.as_deref());
     Ok(Some(SceneImage { cam, rgb, depth, instances }))
 }
 
@@ -204,13 +222,16 @@ fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, i
 const BACKGROUND_TILT: f64 = 0.25;
 
 /// The scene's exact depth with a flat background behind everything (a wall or bench
-/// 15–50 % beyond the farthest surface, tilted a little), as the depth camera measures it.
+/// 15–50 % beyond the farthest surface, tilted a little), or the real frame's depth behind
+/// it where the background is a real frame with depth, as the depth camera measures it.
 /// Its randomness has its own seed, so the colour images are what they were before depth.
-fn measured_depth(mut depth: Vec<f32>, rgb: &RgbImage, cam: &Intrinsics, cfg: &SceneConfig, im_id: u32) -> Vec<f32> {
+fn measured_depth(mut depth: Vec<f32>, rgb: &RgbImage, cam: &Intrinsics, cfg: &SceneConfig, im_id: u32, real: Option<&[f32]>) -> Vec<f32> {
     let seed = cfg.seed.wrapping_mul(0x0001_0000_0001).wrapping_add(im_id as u64) ^ 0xdec0_de0f_de97_4000;
     let mut rng = Rng::new(seed);
     let farthest = depth.iter().copied().fold(0f32, f32::max) as f64;
-    if farthest > 0.0 {
+    if let Some(real) = real {
+        super::background::fill_behind(&mut depth, real);
+    } else if farthest > 0.0 {
         let tilt = (rng.range(-BACKGROUND_TILT, BACKGROUND_TILT), rng.range(-BACKGROUND_TILT, BACKGROUND_TILT));
         // Behind the farthest surface at every pixel: at the image's corners (|u|, |v| <
         // 0.6) the tilt brings the plane at most 1/1.3 as near.

@@ -1,7 +1,7 @@
 //! Depth compositing of one image: per pixel, which surface is nearest (an object, an
 //! occluder or nothing) and at what depth. Visible masks and fractions follow from it.
 
-use super::occluders::Occluder;
+use super::occluders::{Occluder, OccluderPhoto};
 use crate::render::RenderOutput;
 use image::{GrayImage, RgbImage};
 
@@ -94,11 +94,14 @@ impl Layers {
     }
 
     /// Each pixel from its owner: the object's render, the occluder's colour, or `background`.
-    pub fn paint(&self, renders: &[&RenderOutput], occluders: &[Occluder], background: &RgbImage) -> RgbImage {
+    pub fn paint(&self, renders: &[&RenderOutput], occluders: &[Occluder], occluder_photo: Option<&OccluderPhoto>, background: &RgbImage) -> RgbImage {
         RgbImage::from_fn(self.width, self.height, |x, y| match self.owner[(y * self.width + x) as usize] {
             Owner::Background => *background.get_pixel(x, y),
             Owner::Object(i) => *renders[i as usize].rgb.get_pixel(x, y),
-            Owner::Occluder(j) => image::Rgb(occluders[j as usize].color),
+            Owner::Occluder(j) => match occluder_photo {
+                Some(photo) => photo.pixel(j as usize, x, y),
+                None => image::Rgb(occluders[j as usize].color),
+            },
         })
     }
 }

@@ -20,6 +20,7 @@
 //! The object models themselves are not written.
 
 mod appearance;
+mod background;
 pub(crate) mod bop_write;
 mod config;
 mod generate;
@@ -31,7 +32,8 @@ mod supersample;
 mod tests;
 
 pub use config::{Appearance, SceneConfig, MAX_OBJECTS_PER_IMAGE, MAX_SUPERSAMPLING};
-pub use generate::{generate_image, SceneImage, SceneInstance};
+pub use background::Background;
+pub use generate::{generate_image, generate_image_over, SceneImage, SceneInstance};
 
 use crate::mesh::Mesh;
 use crate::render::RenderPool;
@@ -53,6 +55,12 @@ pub struct DatasetSummary {
 /// Generates `cfg.images` images of `objects` (BOP object id, mesh) into `dataset` as
 /// scene `SCENE_ID` of the test split. Image ids run from 0.
 pub fn generate_dataset(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, dataset: &Path) -> Result<DatasetSummary> {
+    generate_dataset_over(objects, cfg, pool, dataset, &[])
+}
+
+/// [`generate_dataset`] with each image drawn over one of `backgrounds` (real frames, drawn
+/// per image), or over procedural clutter where there are none.
+pub fn generate_dataset_over(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, dataset: &Path, backgrounds: &[Background]) -> Result<DatasetSummary> {
     cfg.validate().map_err(|e| anyhow::anyhow!("scene config: {e}"))?;
     let mut ids: Vec<u32> = objects.iter().map(|(id, _)| *id).collect();
     ids.sort_unstable();
@@ -62,7 +70,7 @@ pub fn generate_dataset(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &Rende
     let mut writer = bop_write::SceneWriter::create(dataset, SCENE_ID)?;
     let mut instances = 0;
     for im_id in 0..cfg.images as u32 {
-        let img = generate_image(objects, cfg, pool, im_id)?;
+        let img = generate_image_over(objects, cfg, pool, im_id, backgrounds)?;
         instances += img.instances.len();
         writer.add(im_id, &img)?;
     }

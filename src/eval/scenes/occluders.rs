@@ -1,7 +1,9 @@
 //! Occluders: flat coloured ellipses and star-shaped polygons drawn in front of part of an
-//! object, standing in for the clutter that hides objects in real scenes.
+//! object, standing in for the clutter that hides objects in real scenes; over real
+//! backgrounds, cut from a real photo instead of flat colour.
 
 use crate::mesh::procedural::Rng;
+use image::{Rgb, RgbImage};
 
 #[derive(Clone, Debug)]
 pub(super) enum Shape {
@@ -80,6 +82,29 @@ pub(super) fn sample_occluder(anchor: (f64, f64), object_size: f64, rng: &mut Rn
     Occluder { shape, color }
 }
 
+/// Real photo for the occluders to be cut from: occluder `j` shows `photo` shifted by
+/// `offsets[j]` (wrapping), so each is a different piece of real clutter.
+pub(super) struct OccluderPhoto {
+    pub photo: RgbImage,
+    pub offsets: Vec<(u32, u32)>,
+}
+
+impl OccluderPhoto {
+    /// A piece of `photo` for each of `count` occluders, at offsets drawn from `rng`.
+    pub fn new(photo: RgbImage, count: usize, rng: &mut Rng) -> Self {
+        let (w, h) = photo.dimensions();
+        let offsets = (0..count).map(|_| ((rng.next_u64() % w as u64) as u32, (rng.next_u64() % h as u64) as u32)).collect();
+        Self { photo, offsets }
+    }
+
+    /// Occluder `j`'s colour at pixel (`x`, `y`).
+    pub fn pixel(&self, j: usize, x: u32, y: u32) -> Rgb<u8> {
+        let (w, h) = self.photo.dimensions();
+        let (dx, dy) = self.offsets[j];
+        *self.photo.get_pixel((x + dx) % w, (y + dy) % h)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -98,5 +123,17 @@ mod tests {
             let covered = (y0..y1).flat_map(|y| (x0..x1).map(move |x| (x, y))).filter(|&(x, y)| o.shape.contains(x as f64, y as f64)).count();
             assert!(covered > 0, "{o:?} covers nothing");
         }
+    }
+
+    #[test]
+    fn occluders_cut_from_a_photo_take_its_pixels_shifted() {
+        let photo = RgbImage::from_fn(4, 3, |x, y| Rgb([x as u8, y as u8, 0]));
+        let p = OccluderPhoto { photo, offsets: vec![(0, 0), (3, 2)] };
+        assert_eq!(p.pixel(0, 1, 2), Rgb([1, 2, 0]));
+        // Shifted and wrapped around the photo's edges.
+        assert_eq!(p.pixel(1, 1, 2), Rgb([0, 1, 0]));
+        let drawn = OccluderPhoto::new(RgbImage::new(640, 480), 3, &mut Rng::new(1));
+        assert_eq!(drawn.offsets.len(), 3);
+        assert!(drawn.offsets.iter().all(|&(x, y)| x < 640 && y < 480));
     }
 }
