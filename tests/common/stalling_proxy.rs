@@ -88,8 +88,7 @@ fn connect_pair(client: TcpStream, server: TcpStream, pass_bytes: u64, passed: &
     let (passed, stop) = (passed.clone(), stop.clone());
     std::thread::spawn(move || {
         let mut buf = vec![0u8; 64 << 10];
-        loop {
-            let Ok(n) = c_read.read(&mut buf) else { break };
+        while let Ok(n) = c_read.read(&mut buf) {
             if n == 0 {
                 let _ = s_write.shutdown(Shutdown::Write);
                 return;
