@@ -116,6 +116,10 @@ pub struct SynthArgs {
     /// objects in place of the flat wall.
     #[arg(long)]
     pub backgrounds: Option<PathBuf>,
+    /// Place each object beside one already placed (touching or overlapping a little), as
+    /// parts stand on a bench or in a bin: a box around one takes in its neighbours.
+    #[arg(long)]
+    pub clustered: bool,
     #[arg(long, default_value_t = 0.3)]
     pub max_occlusion: f64,
     #[arg(long, default_value_t = 1)]
@@ -239,7 +243,7 @@ fn synth_cmd(a: SynthArgs) -> Result<()> {
     let pool = super::open_renderer(RenderPool::DEFAULT_SIZE)?;
     let (objects_per_image, most) = a.objects_per_image;
     let objects_per_image_max = if most > objects_per_image { most } else { 0 };
-    let scene = SceneConfig { images: a.images, objects_per_image, objects_per_image_max, fill_range: a.fill, max_occlusion: a.max_occlusion, seed: a.seed, depth_sensor: super::depth_sensor(a.exact_depth), ..Default::default() };
+    let scene = SceneConfig { images: a.images, objects_per_image, objects_per_image_max, fill_range: a.fill, max_occlusion: a.max_occlusion, clustered: a.clustered, seed: a.seed, depth_sensor: super::depth_sensor(a.exact_depth), ..Default::default() };
     let s = synth(&a.models, &a.out, &SynthOptions { scene, degraded: !a.no_degraded, distractors: !a.no_distractors, targets: a.targets, untextured: a.untextured, backgrounds: a.backgrounds }, &pool)?;
     println!(
         "wrote a BOP dataset to {}: objects {:?} (targets {:?}), {} images, {} instances; {} detections in {} (as boxes in {})",

@@ -15,7 +15,8 @@
 # BACKGROUNDS (a BOP dataset of real frames, e.g. ../shared/data/empty-rgbd) draws every
 # image over one of its photos, its measured depth behind the objects (`bop synth
 # --backgrounds`): real clutter where procedural clutter flatters. MESHES (default
-# "textured untextured") and DEPTHS (default "rgb rgbd") choose the runs.
+# "textured untextured") and DEPTHS (default "rgb rgbd") choose the runs. CLUSTERED=1
+# places the objects beside each other (`bop synth --clustered`), as on a bench.
 # Heavy (about 25 minutes on 2 cores with a release build the first time, onboarding
 # included; the objects stay in OUT/objects-*): a benchmark, not a test. B2TF_BIN names
 # the binary (default target/release/b2tf).
@@ -31,6 +32,7 @@ MESHES="${MESHES:-textured untextured}"
 DEPTHS="${DEPTHS:-rgb rgbd}"
 synth_extra=()
 [ -n "${BACKGROUNDS:-}" ] && synth_extra+=(--backgrounds "$BACKGROUNDS")
+[ -n "${CLUSTERED:-}" ] && synth_extra+=(--clustered)
 mkdir -p "$OUT"
 summary="$OUT/summary.md"
 echo "| meshes | detections | depth | AR | AR_VSD | AR_MSSD | AR_MSPD | MSSD < 0.1·d | half-turns | AR up to the mesh's symmetries | s per instance |" >"$summary"

@@ -35,6 +35,12 @@ pub struct SceneConfig {
     pub min_occlusion: f64,
     /// Draw flat coloured discs and polygons in front of parts of the objects.
     pub occluders: bool,
+    /// Place each object after the first beside one already placed (their image
+    /// footprints touching or overlapping a little), as parts stand against each other on a
+    /// bench or in a bin, rather than anywhere in the frame: a box around one then takes in
+    /// its neighbours, as a detector's boxes do in real clutter.
+    #[serde(default)]
+    pub clustered: bool,
     pub appearance: Appearance,
     /// Simulate a stronger render-to-real gap: the templates are renders of the bare mesh
     /// made elsewhere, so here the gap can only widen by degrading the scene more. It
@@ -76,6 +82,7 @@ impl Default for SceneConfig {
             max_occlusion: 0.3,
             min_occlusion: 0.0,
             occluders: true,
+            clustered: false,
             appearance: Appearance::default(),
             render_to_real_gap: false,
             seed: 1,

@@ -126,7 +126,12 @@ fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, i
             }
             draws += 1;
             let fill = rng.range(cfg.fill_range.0, cfg.fill_range.1);
-            let Some(p) = sample_placement(&extents[obj], &cam, fill, rng) else {
+            // Drawn only when clustering, so unclustered scenes stay what they were.
+            let beside = match placed.len() {
+                n if cfg.clustered && n > 0 => Some(&placed[(rng.next_u64() % n as u64) as usize].1),
+                _ => None,
+            };
+            let Some(p) = sample_placement(&extents[obj], &cam, fill, beside, rng) else {
                 continue;
             };
             if placed.iter().any(|(_, q, _)| p.crowds(q, min_visible)) {

@@ -61,17 +61,35 @@ impl Placement {
     }
 }
 
+/// How far beside its neighbour a clustered object's image centre is drawn, as a share of
+/// the two bounding circles' summed radii: below 1 the circles overlap, and since a
+/// bounding circle is larger than the silhouette inside it, the objects then touch or
+/// hide a little of each other (placements that hide too much are drawn again).
+const BESIDE_DISTANCE: (f64, f64) = (0.55, 0.95);
+
 /// An object whose diameter spans `fill` of the image height, randomly rotated, at a random
-/// image position where its bounding sphere lies entirely inside the frame. `None` when
-/// the drawn position does not fit (the caller draws again).
-pub(super) fn sample_placement(ext: &Extent, k: &Intrinsics, fill: f64, rng: &mut Rng) -> Option<Placement> {
+/// image position where its bounding sphere lies entirely inside the frame, or, given
+/// `beside`, next to that placement in the image. `None` when the drawn position does not
+/// fit (the caller draws again).
+pub(super) fn sample_placement(ext: &Extent, k: &Intrinsics, fill: f64, beside: Option<&Placement>, rng: &mut Rng) -> Option<Placement> {
     let z = k.fy * ext.diameter / (fill * k.height as f64);
     let radius_px = k.fx.max(k.fy) * ext.radius / z;
     let (w, h) = (k.width as f64 - 1.0, k.height as f64 - 1.0);
     if 2.0 * radius_px >= w.min(h) {
         return None;
     }
-    let (u, v) = (rng.range(radius_px, w - radius_px), rng.range(radius_px, h - radius_px));
+    let (u, v) = match beside {
+        None => (rng.range(radius_px, w - radius_px), rng.range(radius_px, h - radius_px)),
+        Some(q) => {
+            let angle = rng.range(0.0, std::f64::consts::TAU);
+            let d = rng.range(BESIDE_DISTANCE.0, BESIDE_DISTANCE.1) * (q.radius_px + radius_px);
+            let (u, v) = (q.centre_px.0 + d * angle.cos(), q.centre_px.1 + d * angle.sin());
+            if u < radius_px || u > w - radius_px || v < radius_px || v > h - radius_px {
+                return None;
+            }
+            (u, v)
+        }
+    };
     let centre = k.back_project(u, v, z);
     if !sphere_in_frame(&centre, ext.radius, k) {
         return None;
@@ -120,7 +138,7 @@ mod tests {
         let k = sample_intrinsics(&SceneConfig::default(), &mut rng);
         let mut placed = 0;
         for _ in 0..200 {
-            let Some(p) = sample_placement(&ext, &k, 0.3, &mut rng) else { continue };
+            let Some(p) = sample_placement(&ext, &k, 0.3, None, &mut rng) else { continue };
             placed += 1;
             for v in mesh.positions() {
                 let q = p.pose.transform_point(&Point3::new(v[0] as f64, v[1] as f64, v[2] as f64));
@@ -132,6 +150,18 @@ mod tests {
             assert!((k.fy * ext.diameter / centre.z / 480.0 - 0.3).abs() < 1e-9);
         }
         assert!(placed > 100, "only {placed} of 200 placements fitted");
+        // Beside a placement: centres at 0.55–0.95 of the summed radii, still in the frame.
+        let first = (0..50).find_map(|_| sample_placement(&ext, &k, 0.2, None, &mut rng)).unwrap();
+        let mut beside = 0;
+        for _ in 0..200 {
+            let Some(p) = sample_placement(&ext, &k, 0.2, Some(&first), &mut rng) else { continue };
+            beside += 1;
+            let d = ((p.centre_px.0 - first.centre_px.0).powi(2) + (p.centre_px.1 - first.centre_px.1).powi(2)).sqrt();
+            let sum = p.radius_px + first.radius_px;
+            assert!(d >= 0.55 * sum - 1e-9 && d <= 0.95 * sum + 1e-9, "{d} px apart for radii summing to {sum}");
+            assert!(p.centre_px.0 >= p.radius_px && p.centre_px.0 <= 639.0 - p.radius_px);
+        }
+        assert!(beside > 20, "only {beside} of 200 placements beside the first fitted");
         // The silhouette bound is exact: points on the sphere reach it and never pass it.
         for c in [Point3::new(0.0, 0.0, 0.5), Point3::new(0.2, -0.15, 0.4), Point3::new(-0.3, 0.1, 0.35)] {
             let b = sphere_bounds(&c, 0.1, &k).unwrap();

@@ -324,3 +324,31 @@ fn depth_sensor_measures_the_scene() {
     assert!(holes > 20 && holes < exact.depth.len() / 5, "{holes} holes");
     assert!(median > 0.0002 && median < 0.005, "median error {median} m");
 }
+
+/// Clustered scenes put every instance beside another: the instances' visible boxes,
+/// grown by a few pixels, each meet another's (unclustered ones, as drawn with this seed,
+/// leave some instance standing alone, so the check can fail).
+#[test]
+fn clustered_objects_stand_beside_each_other() {
+    let Some(pool) = pool() else { return };
+    let boxes_meet = |cfg: &SceneConfig| {
+        (0..cfg.images as u32).all(|im| {
+            let img = generate_image(&objects(), cfg, &pool, im).unwrap();
+            let boxes: Vec<[i64; 4]> = img
+                .instances
+                .iter()
+                .map(|i| {
+                    let pts: Vec<(u32, u32)> = i.mask_visib.enumerate_pixels().filter(|p| p.2[0] > 0).map(|p| (p.0, p.1)).collect();
+                    let (x0, y0) = pts.iter().fold((u32::MAX, u32::MAX), |a, p| (a.0.min(p.0), a.1.min(p.1)));
+                    let (x1, y1) = pts.iter().fold((0, 0), |a, p| (a.0.max(p.0), a.1.max(p.1)));
+                    [x0 as i64 - 3, y0 as i64 - 3, x1 as i64 + 3, y1 as i64 + 3]
+                })
+                .collect();
+            let meet = |a: &[i64; 4], b: &[i64; 4]| a[0] <= b[2] && b[0] <= a[2] && a[1] <= b[3] && b[1] <= a[3];
+            boxes.iter().enumerate().all(|(i, a)| boxes.iter().enumerate().any(|(j, b)| i != j && meet(a, b)))
+        })
+    };
+    let cfg = SceneConfig { images: 4, objects_per_image: 3, image_size: (320, 240), fill_range: (0.15, 0.25), occluders: false, seed: 5, ..SceneConfig::default() };
+    assert!(boxes_meet(&SceneConfig { clustered: true, ..cfg.clone() }), "a clustered instance stands alone");
+    assert!(!boxes_meet(&cfg), "unclustered scenes happened to cluster: pick another seed for the check to mean something");
+}
