@@ -4,6 +4,7 @@
 use crate::bop::detection_eval::{evaluate_detections, format_detection_report, DetectionReport};
 use crate::bop::detection_gt::{dataset_objects, load_detection_gt, BoxType};
 use crate::bop::detections::read_detections;
+use crate::bop::eval_models::SymmetriesFrom;
 use crate::bop::evaluate::evaluate;
 use crate::bop::results_csv::read_results;
 use crate::bop::scoring::{format_report, ArReport, Bop19Params};
@@ -75,7 +76,7 @@ fn pose_ar(a: &EvalArgs, csv: &Path) -> Result<ArReport> {
     let mut warnings = Vec::new();
     let results = read_results(csv, &mut warnings)?;
     let pool = super::open_renderer(RenderPool::DEFAULT_SIZE)?;
-    let params = Bop19Params { vsd_delta: a.vsd_delta, symmetries: if a.mesh_symmetries { crate::bop::eval_models::SymmetriesFrom::Mesh } else { crate::bop::eval_models::SymmetriesFrom::Declared }, ..Default::default() };
+    let params = Bop19Params { vsd_delta: a.vsd_delta, symmetries: if a.mesh_symmetries { SymmetriesFrom::Mesh } else { SymmetriesFrom::Declared }, ..Default::default() };
     let pb = super::progress::bar(0, "targets");
     let progress = |done: usize, total: usize| {
         pb.set_length(total as u64);

@@ -38,23 +38,38 @@ impl Background {
     /// The photo and depth at `w`×`h` (stretched where the frame's size differs: smooth for
     /// the photo, nearest for the depth, which must not blend surfaces).
     pub(super) fn fitted(&self, w: u32, h: u32) -> (RgbImage, Option<Vec<f32>>) {
+        (self.photo_at(w, h), self.depth_at(w, h))
+    }
+
+    /// The photo alone at `w`×`h` (an occluder's texture needs no depth).
+    pub(super) fn photo_at(&self, w: u32, h: u32) -> RgbImage {
         if self.rgb.dimensions() == (w, h) {
-            return (self.rgb.clone(), self.depth.clone());
+            return self.rgb.clone();
         }
+        resize(&self.rgb, w, h, FilterType::Triangle)
+    }
+
+    fn depth_at(&self, w: u32, h: u32) -> Option<Vec<f32>> {
+        let d = self.depth.as_ref()?;
         let (sw, sh) = self.rgb.dimensions();
+        if (sw, sh) == (w, h) {
+            return Some(d.clone());
+        }
         // By hand: `image`'s resize clamps float pixels to [0, 1], which depth in metres is not.
-        let depth = self.depth.as_ref().map(|d| {
-            let near = |i: u32, n: u32, sn: u32| (((i as f64 + 0.5) * sn as f64 / n as f64) as u32).min(sn - 1);
-            (0..h).flat_map(|y| (0..w).map(move |x| (near(x, w, sw), near(y, h, sh)))).map(|(x, y)| d[(y * sw + x) as usize]).collect()
-        });
-        (resize(&self.rgb, w, h, FilterType::Triangle), depth)
+        let near = |i: u32, n: u32, sn: u32| (((i as f64 + 0.5) * sn as f64 / n as f64) as u32).min(sn - 1);
+        Some((0..h).flat_map(|y| (0..w).map(move |x| (near(x, w, sw), near(y, h, sh)))).map(|(x, y)| d[(y * sw + x) as usize]).collect())
     }
 }
 
+/// One of `backgrounds`, drawn from `rng` (which must not be empty).
+pub(super) fn pick<'a>(backgrounds: &'a [Background], rng: &mut crate::mesh::procedural::Rng) -> &'a Background {
+    &backgrounds[(rng.next_u64() % backgrounds.len() as u64) as usize]
+}
+
 /// Fills the pixels of `depth` that hold no generated surface with `real`, scaled so that
-/// it lies behind the farthest one (`BEHIND`); the real frame's holes stay holes.
-pub(super) fn fill_behind(depth: &mut [f32], real: &[f32]) {
-    let farthest = depth.iter().copied().fold(0f32, f32::max) as f64;
+/// it lies behind `farthest`, the farthest generated surface (`BEHIND`); the real frame's
+/// holes stay holes.
+pub(super) fn fill_behind(depth: &mut [f32], farthest: f64, real: &[f32]) {
     let mut measured: Vec<f32> = real.iter().copied().filter(|&z| z > 0.0).collect();
     if measured.is_empty() {
         return;
@@ -78,13 +93,13 @@ mod tests {
     fn the_real_depth_goes_behind_the_scene_and_keeps_its_holes() {
         let mut depth = vec![0.0, 0.8, 1.0, 0.0, 0.0];
         let real = [0.5, 0.5, 0.5, 0.0, 2.0];
-        fill_behind(&mut depth, &real);
+        fill_behind(&mut depth, 1.0, &real);
         // 5th percentile 0.5 m moved to 1.3 × 1.0 m: a scale of 2.6.
         assert_eq!(depth[1..3], [0.8, 1.0]);
         assert!((depth[0] - 1.3).abs() < 1e-6 && depth[3] == 0.0 && (depth[4] - 5.2).abs() < 1e-5, "{depth:?}");
         // A frame already behind is not moved nearer.
         let mut near = vec![0.0, 0.3];
-        fill_behind(&mut near, &[4.0, 4.0]);
+        fill_behind(&mut near, 0.3, &[4.0, 4.0]);
         assert_eq!(near, [4.0, 0.3]);
     }
 

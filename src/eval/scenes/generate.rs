@@ -2,7 +2,7 @@
 //! alone, composite by depth over clutter, add occluders, degrade (and store as JPEG).
 
 use super::appearance::{as_stored, degrade, drift_print, sample_lighting};
-use super::background::Background;
+use super::background::{fill_behind, pick, Background};
 use super::config::{Appearance, SceneConfig};
 use super::supersample::{average_down, centre_depth, centre_samples, repeat_up};
 use super::layers::Layers;
@@ -189,17 +189,13 @@ fn try_generate(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &RenderPool, i
         }
     }
 
-    let (background, real_depth) = match backgrounds.len() {
-        0 => (clutter_background(cam.width, cam.height, rng), None),
-        n => backgrounds[(rng.next_u64() % n as u64) as usize].fitted(cam.width, cam.height),
-    };
-    // Over real frames the occluders are real clutter too: pieces of another real photo.
-    let occluder_photo = match backgrounds.len() {
-        0 => None,
-        n => {
-            let photo = backgrounds[(rng.next_u64() % n as u64) as usize].fitted(cam.width, cam.height).0;
-            Some(OccluderPhoto::new(repeat_up(&photo, s), occluders.len(), rng))
-        }
+    let (background, real_depth, occluder_photo) = if backgrounds.is_empty() {
+        (clutter_background(cam.width, cam.height, rng), None, None)
+    } else {
+        let (photo, depth) = pick(backgrounds, rng).fitted(cam.width, cam.height);
+        // Over real frames the occluders are real clutter too: pieces of another real photo.
+        let pieces = repeat_up(&pick(backgrounds, rng).photo_at(cam.width, cam.height), s);
+        (photo, depth, Some(OccluderPhoto::new(pieces, occluders.len(), rng)))
     };
     let print = Appearance { print_shift_px: appearance.print_shift_px * s as f64, ..appearance.clone() };
     for (_, _, out) in placed.iter_mut() {
@@ -235,7 +231,7 @@ fn measured_depth(mut depth: Vec<f32>, rgb: &RgbImage, cam: &Intrinsics, cfg: &S
     let mut rng = Rng::new(seed);
     let farthest = depth.iter().copied().fold(0f32, f32::max) as f64;
     if let Some(real) = real {
-        super::background::fill_behind(&mut depth, real);
+        fill_behind(&mut depth, farthest, real);
     } else if farthest > 0.0 {
         let tilt = (rng.range(-BACKGROUND_TILT, BACKGROUND_TILT), rng.range(-BACKGROUND_TILT, BACKGROUND_TILT));
         // Behind the farthest surface at every pixel: at the image's corners (|u|, |v| <
