@@ -286,6 +286,10 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     assert!(both["results"].as_array().unwrap().len() == 1 && both["results"][0]["detection_index"].as_u64().is_some_and(|i| i <= 1), "{both}");
 
     // Bad inputs: each gets its status and names the problem; the server keeps serving.
+    let with_option = |mut body: Value, name: &str, value: Value| {
+        body["options"][name] = value;
+        body
+    };
     let small_mask = png(&image::GrayImage::new(10, 10));
     let empty_mask = png(&image::GrayImage::new(320, 240));
     let good_det = json!({"object_id": "box", "mask_png": png(&r.mask)});
@@ -301,6 +305,7 @@ fn onboard_estimate_and_bad_inputs_over_http() {
         (request(good_image.clone(), intrinsics.clone(), json!([{"object_id": "box", "bbox": [400.0, 10.0, 20.0, 20.0]}])), 400, "detections[0].bbox: box [400.0, 10.0, 20.0, 20.0] ([x, y, w, h]) lies outside the 320×240 image"),
         (request(good_image.clone(), intrinsics.clone(), json!([good_det, {"object_id": "box", "bbox": [10.0, 10.0, 0.0, 20.0]}])), 400, "detections[1].bbox: box [10.0, 10.0, 0.0, 20.0] ([x, y, w, h]) has zero area"),
         (request(good_image.clone(), intrinsics.clone(), json!([{"object_id": "box", "mask_png": empty_mask}])), 400, "detections[0].mask_png: the mask is empty"),
+        (with_option(request(good_image.clone(), intrinsics.clone(), good_dets.clone()), "box_prior", json!("loose")), 400, "box_prior: expected true, false"),
     ];
     for (body, want, needle) in cases {
         let (s, v) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&body));

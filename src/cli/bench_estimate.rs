@@ -106,10 +106,11 @@ pub struct BenchEstimateArgs {
     /// figures printed are the first proposal's (the cut's).
     #[arg(long, requires = "from_boxes", conflicts_with = "fill_boxes")]
     pub box_proposals: Option<crate::masks::ProposalConfig>,
-    /// With --box-proposals: the proposals' poses moved back until their outline covers
-    /// the box (`estimate::box_prior`; the generated boxes are tight).
-    #[arg(long, requires = "box_proposals")]
-    pub box_prior: bool,
+    /// Whether a box's poses are moved back until their outline covers the box
+    /// (`estimate::box_prior`): `auto`, for meshes without colours; `tight` (also the flag
+    /// alone), always, for boxes drawn tight; `off`, never, for boxes drawn loose.
+    #[arg(long, value_enum, default_value_t = crate::estimate::BoxPrior::default(), num_args = 0..=1, default_missing_value = "tight", requires = "box_proposals")]
+    pub box_prior: crate::estimate::BoxPrior,
     /// RGB-D: each scene's depth goes to the estimator (`estimate::depth_fit`). The
     /// scenes' depth is what a Kinect-class camera measures (`depth::sensor`; the renderer's
     /// exact depth with --exact-depth).

@@ -73,10 +73,11 @@ pub struct RunArgs {
     /// smooth-cut, wide-ring-cut, ellipse, fill).
     #[arg(long, default_value = "cut,smooth-cut,wide-ring-cut")]
     pub box_proposals: crate::masks::ProposalConfig,
-    /// Box-only detections drawn tight (a detector trained on tight boxes): each
-    /// proposal's poses moved back until their outline covers the box (`box_prior`).
-    #[arg(long)]
-    pub box_prior: bool,
+    /// Whether a box's poses are moved back until their outline covers the box
+    /// (`estimate::box_prior`): `auto`, for meshes without colours; `tight` (also the flag
+    /// alone), always, for boxes drawn tight; `off`, never, for boxes drawn loose.
+    #[arg(long, value_enum, default_value_t = crate::estimate::BoxPrior::default(), num_args = 0..=1, default_missing_value = "tight")]
+    pub box_prior: crate::estimate::BoxPrior,
     /// RGB-D: each image's depth (`depth/`, with its camera's `depth_scale`) fits and
     /// judges the hypotheses (`estimate::depth_fit`).
     #[arg(long)]

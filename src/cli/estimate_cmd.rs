@@ -35,10 +35,11 @@ pub struct EstimateArgs {
     /// segmented inside it. Repeatable, and can be mixed with --mask.
     #[arg(long = "box", value_parser = parse_box)]
     pub boxes: Vec<[f64; 4]>,
-    /// The --box values are tight (drawn by a detector trained on tight boxes): each
-    /// pose is moved back until its outline covers its box (`estimate::box_prior`).
-    #[arg(long, requires = "boxes")]
-    pub box_prior: bool,
+    /// Whether a box's poses are moved back until their outline covers the box
+    /// (`estimate::box_prior`): `auto`, for meshes without colours; `tight` (also the flag
+    /// alone), always, for boxes drawn tight; `off`, never, for boxes drawn loose.
+    #[arg(long, value_enum, default_value_t = crate::estimate::BoxPrior::default(), num_args = 0..=1, default_missing_value = "tight", requires = "boxes")]
+    pub box_prior: crate::estimate::BoxPrior,
     /// Detector score of each mask then each box, in the order of --mask then --box
     /// (default 1.0).
     #[arg(long = "score")]

@@ -21,6 +21,7 @@ pub mod silhouette_refiner;
 pub mod turned;
 pub mod verify;
 
+pub use box_prior::BoxPrior;
 pub use candidates::{Candidates, Detection};
 pub use pipeline::{EstimateConfig, EstimateResult, Estimator, Hypothesis, StageTimings};
 pub use runner_up::RunnerUp;

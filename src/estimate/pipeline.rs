@@ -14,6 +14,7 @@ use super::rrc::rrc_pool;
 use super::select::{box_agreement, combined_scores, mask_window, render_window, window_iou, SelectionConfig};
 use super::EstimateError;
 use super::candidates::Detection;
+use super::box_prior::BoxPrior;
 use crate::depth::DepthImage;
 use crate::features::{crop_query, Backbone};
 use crate::geometry::{Intrinsics, Pose};
@@ -66,11 +67,11 @@ pub struct EstimateConfig {
     /// objects with colours): `contour::print_refine`.
     #[serde(default)]
     pub print: PrintRefineConfig,
-    /// A box proposal's refined poses moved back until their outline covers the box
-    /// (`box_prior`): for tight boxes (a detector trained on tight boxes). Off by default:
-    /// a box drawn loose brings the object too near by its looseness.
-    #[serde(default)]
-    pub box_prior: bool,
+    /// Whether a box proposal's refined poses are moved back until their outline covers
+    /// the box (`box_prior`): for tight boxes; by default for meshes without colours.
+    /// Configs written before it said true (tight) or false (off).
+    #[serde(default, deserialize_with = "super::box_prior::deserialize")]
+    pub box_prior: BoxPrior,
     /// With depth, each box gains a mask proposal from the depth (`masks::depth_proposal`)
     /// beside its colour cuts. Off by default: on the real YCB-V frames it changed the AR
     /// from boxes with depth from 0.536 to 0.531 for a quarter more time
@@ -81,7 +82,7 @@ pub struct EstimateConfig {
 
 impl Default for EstimateConfig {
     fn default() -> Self {
-        Self { retrieval: RetrievalConfig::default(), k_nn: 3, pnp: PnpConfig::default(), rrc: true, rrc_render_scale: default_rrc_render_scale(), rrc_render_cap: default_rrc_render_cap(), max_masks: 2, min_mask_score: 0.35, selection: SelectionConfig::default(), refiner: RefinerKind::default(), verify: VerifyConfig::default(), print: PrintRefineConfig::default(), box_prior: false, depth_proposals: false }
+        Self { retrieval: RetrievalConfig::default(), k_nn: 3, pnp: PnpConfig::default(), rrc: true, rrc_render_scale: default_rrc_render_scale(), rrc_render_cap: default_rrc_render_cap(), max_masks: 2, min_mask_score: 0.35, selection: SelectionConfig::default(), refiner: RefinerKind::default(), verify: VerifyConfig::default(), print: PrintRefineConfig::default(), box_prior: BoxPrior::default(), depth_proposals: false }
     }
 }
 
@@ -352,7 +353,7 @@ impl Estimator {
                 } else {
                     match self.refiner(cfg.refiner).refine(&ctx, p) {
                         Ok(mut r) => {
-                            r.report.moved_to_box = cfg.box_prior && held_to_box(&ctx, &mut r.pose);
+                            r.report.moved_to_box = held_to_box(&ctx, cfg.box_prior, &mut r.pose);
                             let t = Instant::now();
                             self.fit_to_depth(&ctx, &mut r.pose, &mut r.report)?;
                             if depth.is_some() {
@@ -396,7 +397,7 @@ impl Estimator {
             Ok(Some(r)) => {
                 let mut pose = r.pose;
                 // Moved off its render, the pose is rendered again by selection.
-                let held = cfg.box_prior && held_to_box(ctx, &mut pose);
+                let held = held_to_box(ctx, cfg.box_prior, &mut pose);
                 h.pose = Some(pose);
                 h.refinement = Some(RefineReport { moved_to_box: held, ..r.report });
                 h.render = (!held).then_some(r.render);
@@ -462,7 +463,7 @@ impl Estimator {
             .par_iter()
             .filter_map(|&(source, p)| {
                 let mut r = refiner.refine(ctx, p).ok()?;
-                let held = cfg.box_prior && held_to_box(ctx, &mut r.pose);
+                let held = held_to_box(ctx, cfg.box_prior, &mut r.pose);
                 r.report.moved_to_box = held;
                 let contour = if cfg.refiner == RefinerKind::Contour && !held { r.report.agreement } else { self.contour.agreement(ctx, &r.pose).ok()?.score };
                 Some(Verified { source, pose: r.pose, refinement: r.report, contour, iou: f64::NAN, appearance: f64::NAN, edges: f64::NAN, colour: f64::NAN, features: f64::NAN, score: f64::NAN, render: None })
@@ -659,9 +660,9 @@ fn confidence(h: &Hypothesis, w: &[f32; 3]) -> f32 {
 }
 
 /// A box proposal's pose brought back to cover the caller's box where the proposal pulled
-/// it too far (`box_prior`); true where it moved.
-fn held_to_box(ctx: &RefineContext<'_>, pose: &mut Pose) -> bool {
-    match ctx.from_box.and_then(|b| super::box_prior::covering_box(&ctx.model.mesh, pose, &b, ctx.intrinsics)) {
+/// it too far and the prior holds for the object (`box_prior`); true where it moved.
+fn held_to_box(ctx: &RefineContext<'_>, prior: BoxPrior, pose: &mut Pose) -> bool {
+    match ctx.from_box.filter(|_| prior.holds(&ctx.model.mesh)).and_then(|b| super::box_prior::covering_box(&ctx.model.mesh, pose, &b, ctx.intrinsics)) {
         Some(p) => {
             *pose = p;
             true
@@ -680,11 +681,13 @@ mod tests {
     use crate::masks::PixelBox;
 
     #[test]
-    fn the_box_prior_is_off_by_default_and_for_configs_written_before_it() {
-        assert!(!EstimateConfig::default().box_prior);
-        let mut older = serde_json::to_value(EstimateConfig { box_prior: true, ..Default::default() }).unwrap();
+    fn configs_without_the_box_prior_take_the_default_and_its_old_flag_still_reads() {
+        let mut older = serde_json::to_value(EstimateConfig { box_prior: BoxPrior::Tight, ..Default::default() }).unwrap();
+        assert_eq!(serde_json::from_value::<EstimateConfig>(older.clone()).unwrap().box_prior, BoxPrior::Tight);
+        older["box_prior"] = serde_json::Value::Bool(false);
+        assert_eq!(serde_json::from_value::<EstimateConfig>(older.clone()).unwrap().box_prior, BoxPrior::Off);
         older.as_object_mut().unwrap().remove("box_prior");
-        assert!(!serde_json::from_value::<EstimateConfig>(older).unwrap().box_prior);
+        assert_eq!(serde_json::from_value::<EstimateConfig>(older).unwrap().box_prior, BoxPrior::Auto);
     }
 
     fn det(score: f32, from_box: Option<PixelBox>) -> Detection {

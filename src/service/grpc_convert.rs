@@ -86,7 +86,7 @@ pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, S
         spin_steps: o.spin_steps.map_or(defaults.spin_steps, |n| n as usize),
         verify_matched: o.verify_matched.map_or(defaults.verify_matched, |n| n as usize),
         nudge_degrees: o.nudge_degrees.unwrap_or(defaults.nudge_degrees),
-        box_prior: o.box_prior.unwrap_or(defaults.box_prior),
+        box_prior: o.box_prior.map_or(defaults.box_prior, |flag| crate::estimate::BoxPrior::from_flag(Some(flag))),
         overlay: o.overlay,
         refiner: if o.refiner.is_empty() { defaults.refiner } else { o.refiner.parse().map_err(|e: String| ServiceError::invalid(format!("options.refiner: {e}")))? },
     };
@@ -297,14 +297,13 @@ mod tests {
     }
 
     #[test]
-    fn the_box_prior_is_off_unless_turned_on() {
+    fn the_box_prior_is_the_default_unless_said() {
         let with = |box_prior| {
             let options = Some(pb::EstimateOptions { box_prior, ..Default::default() });
             estimate_request(pb::EstimateRequest { image: Some(pb::Image::default()), intrinsics: Some(pb::Intrinsics { width: 64, height: 48, ..Default::default() }), detections: vec![pb::Detection::default()], options, ..Default::default() }).unwrap().options.box_prior
         };
-        assert!(!with(None));
-        assert!(with(Some(true)));
-        assert!(!with(Some(false)));
+        use crate::estimate::BoxPrior;
+        assert_eq!([None, Some(true), Some(false)].map(with), [BoxPrior::Auto, BoxPrior::Tight, BoxPrior::Off]);
     }
 
     #[test]

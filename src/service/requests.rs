@@ -154,10 +154,12 @@ pub struct EstimateOptions {
     /// The winner tilted this many degrees each way across the line of sight, verified
     /// (0: off).
     pub nudge_degrees: f64,
-    /// A box-only detection's poses moved back until their outline covers the box
-    /// (`estimate::box_prior`): for tight boxes. Default off: a loose box brings the
-    /// object nearer by its looseness.
-    pub box_prior: bool,
+    /// Whether a box-only detection's poses are moved back until their outline covers the
+    /// box (`estimate::box_prior`): `"auto"` (the default), for meshes without colours;
+    /// `"tight"` or true, always; `"off"` or false, never (boxes drawn loose bring the
+    /// object nearer by their looseness).
+    #[serde(deserialize_with = "crate::estimate::box_prior::deserialize")]
+    pub box_prior: crate::estimate::BoxPrior,
     /// Also answer the photo with each pose drawn on it (`overlay_png`): tinted
     /// silhouette, outline and object axes, for people to check by eye. Default off.
     pub overlay: bool,
@@ -166,7 +168,7 @@ pub struct EstimateOptions {
 impl Default for EstimateOptions {
     fn default() -> Self {
         let v = crate::estimate::VerifyConfig::default();
-        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default(), verify: true, verify_templates: v.templates, spin_steps: v.spin_steps, verify_matched: v.matched_templates, nudge_degrees: v.nudge_degrees, box_prior: false, overlay: false }
+        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default(), verify: true, verify_templates: v.templates, spin_steps: v.spin_steps, verify_matched: v.matched_templates, nudge_degrees: v.nudge_degrees, box_prior: crate::estimate::BoxPrior::default(), overlay: false }
     }
 }
 

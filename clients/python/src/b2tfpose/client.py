@@ -252,7 +252,7 @@ class Client:
         estimates (``.detections`` of the result lists what it found). ``rrc``,
         ``refiner`` ("contour", "silhouette-depth", "none"), ``k``, ``max_masks``,
         ``instances_per_object``, ``verify``, ``verify_templates``, ``spin_steps``, ``verify_matched``,
-        ``nudge_degrees`` (0: off), ``box_prior`` (True for tight boxes from a detector): the server's options
+        ``nudge_degrees`` (0: off), ``box_prior`` (True: boxes drawn tight, always held; False: drawn loose, never; None: the server's default, held for meshes without colours): the server's options
         (None: its default). ``overlay=True``: the answer's
         ``.overlay_png`` is the photo with the poses drawn on it (PNG bytes).
         ``depth``: an RGB-D camera's depth registered to ``image`` (same size and K):
