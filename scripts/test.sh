@@ -1,13 +1,15 @@
 #!/usr/bin/env bash
 # Every test: unit and integration tests (renderer on lavapipe, onboarding, loaders, CLI,
 # the object stores, S3 against a real s3s-fs on loopback, the service over loopback:
-# HTTP, gRPC, TLS), clippy's lints, the OpenAPI document's validity, cargo-deny
+# HTTP, gRPC, TLS), formatting (scripts/fmt.sh), clippy's lints, the OpenAPI document's validity, cargo-deny
 # (scripts/deny.sh), the Python client's suite, the web console in a headless browser, the
 # short overload and crash tests, and the container checks.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 source scripts/env.sh
+# Formatting as written down (rustfmt.toml, ruff.toml): a file not formatted fails here.
+bash scripts/fmt.sh --check
 # The OpenAPI validator (PyPI; setup.sh installed pip); Debian's Python may refuse
 # system-wide installs.
 python3 -c "import openapi_spec_validator" 2>/dev/null \
