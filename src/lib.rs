@@ -2,12 +2,9 @@
 //! See DESIGN.md in the repository for the method, the conventions and the architecture.
 
 pub mod bop;
+pub mod cli;
 pub mod depth;
 pub mod detect;
-pub mod masks;
-pub mod store;
-pub mod track;
-pub mod cli;
 pub mod estimate;
 pub mod eval;
 pub mod features;
@@ -15,9 +12,12 @@ pub mod fuzzing;
 pub mod geometry;
 pub mod limits;
 pub mod linalg;
+pub mod masks;
 pub mod mesh;
 pub mod onboard;
 pub mod percent;
 pub mod render;
 pub mod service;
+pub mod store;
 pub mod telemetry;
+pub mod track;

@@ -218,5 +218,4 @@ pub(crate) mod tests {
         let e = serde_json::from_str::<serde_json::Value>(&deep(MAX_JSON_DEPTH + 1)).unwrap_err().to_string();
         assert!(e.contains("recursion limit exceeded"), "{e}");
     }
-
 }

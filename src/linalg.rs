@@ -9,27 +9,7 @@ pub fn mul_transposed(a: &[f32], b: &[f32], m: usize, n: usize, dim: usize, out:
     // a is read as m × dim (row stride dim), b as dim × n (element (k, j) = b[j·dim + k]),
     // out written as m × n (row stride n).
     unsafe {
-        gemm::gemm(
-            m,
-            n,
-            dim,
-            out.as_mut_ptr(),
-            1,
-            n as isize,
-            false,
-            a.as_ptr(),
-            1,
-            dim as isize,
-            b.as_ptr(),
-            dim as isize,
-            1,
-            0.0,
-            1.0,
-            false,
-            false,
-            false,
-            gemm::Parallelism::Rayon(0),
-        );
+        gemm::gemm(m, n, dim, out.as_mut_ptr(), 1, n as isize, false, a.as_ptr(), 1, dim as isize, b.as_ptr(), dim as isize, 1, 0.0, 1.0, false, false, false, gemm::Parallelism::Rayon(0));
     }
 }
 
@@ -38,27 +18,7 @@ pub fn add_gram(a: &[f32], n: usize, dim: usize, out: &mut [f32]) {
     assert!(a.len() >= n * dim && out.len() >= dim * dim, "add_gram: slices shorter than {n}×{dim}, {dim}×{dim}");
     // SAFETY: as above; aᵀ is a read with swapped strides (element (i, k) = a[k·dim + i]).
     unsafe {
-        gemm::gemm(
-            dim,
-            dim,
-            n,
-            out.as_mut_ptr(),
-            1,
-            dim as isize,
-            true,
-            a.as_ptr(),
-            dim as isize,
-            1,
-            a.as_ptr(),
-            1,
-            dim as isize,
-            1.0,
-            1.0,
-            false,
-            false,
-            false,
-            gemm::Parallelism::Rayon(0),
-        );
+        gemm::gemm(dim, dim, n, out.as_mut_ptr(), 1, dim as isize, true, a.as_ptr(), dim as isize, 1, a.as_ptr(), 1, dim as isize, 1.0, 1.0, false, false, false, gemm::Parallelism::Rayon(0));
     }
 }
 

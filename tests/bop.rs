@@ -3,21 +3,21 @@
 //! and the 2D detection AP of its detections through the CLI (AP 1, and a known shift).
 
 use b2tfpose::bop::detections::{read_detections, write_detections, DetectionIndex, DetectionRecord};
-use b2tfpose::bop::synth_masks::shift;
 use b2tfpose::bop::evaluate::evaluate;
 use b2tfpose::bop::results_csv::{read_results, write_results, ResultRow};
 use b2tfpose::bop::run::{run, DetectionSource, RunOptions};
 use b2tfpose::bop::scoring::{ArReport, Bop19Params};
 use b2tfpose::bop::synth::{synth, SynthOptions, SynthSummary};
+use b2tfpose::bop::synth_masks::shift;
 use b2tfpose::bop::{load_models_info, load_split_gt, load_targets, TEST_SPLIT};
 use b2tfpose::estimate::Estimator;
 use b2tfpose::eval::scenes::SceneConfig;
 use b2tfpose::features::{EmbeddedBackbone, EmbeddedConfig};
 use b2tfpose::geometry::{Pose, ViewSampling};
+use b2tfpose::masks::rle::Rle;
 use b2tfpose::mesh::procedural::textured_box;
 use b2tfpose::mesh::write_ply::write_bop_ply;
 use b2tfpose::onboard::{onboard, OnboardConfig};
-use b2tfpose::masks::rle::Rle;
 use b2tfpose::render::{RenderPool, RendererConfig};
 use nalgebra::Vector3;
 use std::path::Path;
@@ -71,7 +71,14 @@ fn ground_truth_scores_one_and_a_known_shift_scores_exactly() {
     let rows = |shift: f64| -> Vec<ResultRow> {
         gt.iter()
             .flat_map(|im| im.instances.iter().map(move |g| (im, g)))
-            .map(|(im, g)| ResultRow { scene_id: im.scene_id, im_id: im.im_id, obj_id: g.obj_id, score: 1.0, pose: Pose::new(g.pose.rotation, g.pose.translation + Vector3::new(shift, 0.0, 0.0)), time: 0.5 })
+            .map(|(im, g)| ResultRow {
+                scene_id: im.scene_id,
+                im_id: im.im_id,
+                obj_id: g.obj_id,
+                score: 1.0,
+                pose: Pose::new(g.pose.rotation, g.pose.translation + Vector3::new(shift, 0.0, 0.0)),
+                time: 0.5,
+            })
             .collect()
     };
     let csv = dir.path().join("truth.csv");
@@ -206,7 +213,14 @@ fn synth_with_distractor_objects_bare_meshes_a_count_range_and_boxes() {
     let turned: Vec<ResultRow> = gt
         .iter()
         .flat_map(|im| im.instances.iter().filter(|g| g.obj_id == 1).map(move |g| (im, g)))
-        .map(|(im, g)| ResultRow { scene_id: im.scene_id, im_id: im.im_id, obj_id: 1, score: 1.0, pose: Pose::new(g.pose.rotation * nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI), g.pose.translation), time: 0.5 })
+        .map(|(im, g)| ResultRow {
+            scene_id: im.scene_id,
+            im_id: im.im_id,
+            obj_id: 1,
+            score: 1.0,
+            pose: Pose::new(g.pose.rotation * nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI), g.pose.translation),
+            time: 0.5,
+        })
         .collect();
     let declared = score(&ds, &turned, &pool);
     assert_eq!(declared.half_turns, turned.len(), "{declared}");
@@ -239,7 +253,16 @@ fn synth_over_real_frames_takes_their_photo_and_depth() {
     image::ImageBuffer::<image::Luma<u16>, _>::from_fn(320, 240, |_, y| image::Luma([if y < 10 { 0 } else { 300 }])).save(scene.join("depth/000016.png")).unwrap();
     std::fs::write(scene.join("scene_camera.json"), r#"{"16": {"cam_K": [290, 0, 160, 0, 290, 120, 0, 0, 1], "depth_scale": 1.0}}"#).unwrap();
 
-    let cfg = SceneConfig { images: 2, objects_per_image: 1, image_size: (320, 240), fill_range: (0.3, 0.4), min_occlusion: 0.1, seed: 4, depth_sensor: b2tfpose::depth::sensor::SensorModel::exact(), ..Default::default() };
+    let cfg = SceneConfig {
+        images: 2,
+        objects_per_image: 1,
+        image_size: (320, 240),
+        fill_range: (0.3, 0.4),
+        min_occlusion: 0.1,
+        seed: 4,
+        depth_sensor: b2tfpose::depth::sensor::SensorModel::exact(),
+        ..Default::default()
+    };
     let opts = SynthOptions { scene: cfg, degraded: false, distractors: false, targets: None, untextured: false, backgrounds: Some(frames.clone()) };
     let ds = dir.path().join("ds");
     synth(&models, &ds, &opts, &pool).unwrap();
@@ -305,7 +328,8 @@ fn ground_truth_as_real_datasets_ship_it_is_scored_and_broken_files_are_refused(
 
     // Results made from that ground truth, as the toolkit's own test files are: perfect.
     let gt = load_split_gt(&ds, TEST_SPLIT, &mut Vec::new()).unwrap();
-    let rows: Vec<ResultRow> = gt.iter().flat_map(|im| im.instances.iter().map(move |g| ResultRow { scene_id: im.scene_id, im_id: im.im_id, obj_id: g.obj_id, score: 1.0, pose: g.pose, time: 0.5 })).collect();
+    let rows: Vec<ResultRow> =
+        gt.iter().flat_map(|im| im.instances.iter().map(move |g| ResultRow { scene_id: im.scene_id, im_id: im.im_id, obj_id: g.obj_id, score: 1.0, pose: g.pose, time: 0.5 })).collect();
     let csv = dir.path().join("rough.csv");
     write_results(&csv, &rows).unwrap();
     let mut read_warnings = Vec::new();
@@ -409,7 +433,8 @@ fn detection_ap_of_true_and_shifted_detections_through_the_cli() {
 
     // Both inputs: both reports. Neither: a clear error.
     let gt = load_split_gt(&ds, TEST_SPLIT, &mut Vec::new()).unwrap();
-    let rows: Vec<ResultRow> = gt.iter().flat_map(|im| im.instances.iter().map(move |g| ResultRow { scene_id: im.scene_id, im_id: im.im_id, obj_id: g.obj_id, score: 1.0, pose: g.pose, time: 0.5 })).collect();
+    let rows: Vec<ResultRow> =
+        gt.iter().flat_map(|im| im.instances.iter().map(move |g| ResultRow { scene_id: im.scene_id, im_id: im.im_id, obj_id: g.obj_id, score: 1.0, pose: g.pose, time: 0.5 })).collect();
     let csv = d.join("truth.csv");
     write_results(&csv, &rows).unwrap();
     let (ok, out, err) = b2tf(&["bop", "eval", "--dataset", &s(&ds), "--results", &s(&csv), "--detections", &s(&dets_path), "--json"]);

@@ -52,7 +52,8 @@ fn sample_render_and_onboard() {
     assert!(ok && out.contains("int8 with a scale each"), "{out}{err}");
     assert!(std::fs::metadata(d.join("models/box/tensors.safetensors")).unwrap().len() < f16_bytes);
     let i8_bytes = std::fs::metadata(d.join("models/box/tensors.safetensors")).unwrap().len();
-    let (ok, out, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--store", &dir_store, "--level", "0", "--in-plane", "2", "--replace", "--descriptors", "i8", "--patch-rows", "per-view"]);
+    let (ok, out, err) =
+        b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--store", &dir_store, "--level", "0", "--in-plane", "2", "--replace", "--descriptors", "i8", "--patch-rows", "per-view"]);
     assert!(ok && out.contains("patch rows: per view, shared by its 2 in-plane turns"), "{out}{err}");
     let (ok, out, err) = b2tf(&["objects", "show", "box", "--load", "--store", &dir_store]);
     assert!(ok && out.contains("\"patch_rows\": \"per-view\"") && out.contains("\"descriptors\": \"i8\""), "{out}{err}");
@@ -95,14 +96,44 @@ fn bad_inputs_give_clear_errors() {
         (vec!["onboard".into(), "--mesh".into(), s(&d.join("nope.ply")).into(), "--units".into(), "mm".into(), "--id".into(), "x".into(), "--store".into(), store.clone()], "nope.ply"),
         (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "../evil".into(), "--store".into(), store.clone()], "invalid"),
         (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--level".into(), "7".into()], "level"),
-        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--backbone".into(), "dinov3".into()], "unknown backbone \"dinov3\""),
-        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--backbone".into(), format!("onnx:{}", d.join("absent.onnx").display())], "absent.onnx"),
-        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--device".into(), "cuda:0".into()], "needs an ONNX backbone"),
-        (vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--device".into(), "gpu".into()], "unknown device \"gpu\""),
+        (
+            vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--backbone".into(), "dinov3".into()],
+            "unknown backbone \"dinov3\"",
+        ),
+        (
+            vec![
+                "onboard".into(),
+                "--mesh".into(),
+                s(&mesh).into(),
+                "--units".into(),
+                "m".into(),
+                "--id".into(),
+                "x".into(),
+                "--store".into(),
+                store.clone(),
+                "--backbone".into(),
+                format!("onnx:{}", d.join("absent.onnx").display()),
+            ],
+            "absent.onnx",
+        ),
+        (
+            vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--device".into(), "cuda:0".into()],
+            "needs an ONNX backbone",
+        ),
+        (
+            vec!["onboard".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--id".into(), "x".into(), "--store".into(), store.clone(), "--device".into(), "gpu".into()],
+            "unknown device \"gpu\"",
+        ),
         (vec!["render".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "m".into(), "--camera".into(), s(&d.join("missing.json")).into(), "--out".into(), s(d).into()], "missing.json"),
         // Scene flags are checked before anything is onboarded.
-        (vec!["bench".into(), "estimate".into(), "--images".into(), "1".into(), "--supersample".into(), "2".into(), "--store".into(), format!("dir://{}", d.join("bench").display())], "supersampling must be 1 or an odd number"),
-        (vec!["bench".into(), "refine".into(), "--images".into(), "1".into(), "--supersample".into(), "9".into(), "--store".into(), format!("dir://{}", d.join("bench").display())], "supersampling must be 1 or an odd number"),
+        (
+            vec!["bench".into(), "estimate".into(), "--images".into(), "1".into(), "--supersample".into(), "2".into(), "--store".into(), format!("dir://{}", d.join("bench").display())],
+            "supersampling must be 1 or an odd number",
+        ),
+        (
+            vec!["bench".into(), "refine".into(), "--images".into(), "1".into(), "--supersample".into(), "9".into(), "--store".into(), format!("dir://{}", d.join("bench").display())],
+            "supersampling must be 1 or an odd number",
+        ),
         (vec!["bench".into(), "estimate".into(), "--images".into(), "1".into(), "--photo-edges".into(), "textured".into()], "'textured'"),
         (vec!["render".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "furlongs".into(), "--camera".into(), "c.json".into(), "--out".into(), s(d).into()], "unknown length unit"),
     ];
@@ -133,8 +164,24 @@ fn estimate_writes_the_result_json_and_overlay() {
     let result = d.join("result.json");
     let overlay = d.join("overlay.png");
     let (ok, out, err) = b2tf(&[
-        "estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--mask", s(&mask), "--score", "0.9",
-        "--no-rrc", "--out", s(&result), "--overlay", s(&overlay),
+        "estimate",
+        "--store",
+        &store,
+        "--object",
+        "box",
+        "--image",
+        s(&img),
+        "--camera",
+        s(&cam),
+        "--mask",
+        s(&mask),
+        "--score",
+        "0.9",
+        "--no-rrc",
+        "--out",
+        s(&result),
+        "--overlay",
+        s(&overlay),
     ]);
     assert!(ok, "{out}{err}");
     let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&result).unwrap()).unwrap();
@@ -168,7 +215,26 @@ fn estimate_writes_the_result_json_and_overlay() {
     // With the depth the render wrote (0.1 mm units): the pose is fitted to it, and the
     // answer says how well the depth agrees.
     let depth = d.join("r/depth.png");
-    let (ok, out, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--box", &bbox, "--depth", s(&depth), "--depth-scale", "0.1", "--no-rrc", "--out", s(&result)]);
+    let (ok, out, err) = b2tf(&[
+        "estimate",
+        "--store",
+        &store,
+        "--object",
+        "box",
+        "--image",
+        s(&img),
+        "--camera",
+        s(&cam),
+        "--box",
+        &bbox,
+        "--depth",
+        s(&depth),
+        "--depth-scale",
+        "0.1",
+        "--no-rrc",
+        "--out",
+        s(&result),
+    ]);
     assert!(ok, "{out}{err}");
     let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&result).unwrap()).unwrap();
     let t: Vec<f64> = doc["poses"][0]["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
@@ -179,8 +245,11 @@ fn estimate_writes_the_result_json_and_overlay() {
     // makes the depth implausible (metres read as millimetres).
     let small = d.join("small-depth.png");
     image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_pixel(32, 24, image::Luma([6000])).save(&small).unwrap();
-    for (file, scale, needle) in [(&mask, "0.1", "16-bit"), (&small, "0.1", "32×24 but the image is 320×240"), (&depth, "0", "depth scale must be finite and positive"), (&depth, "100", "--depth-scale 100")] {
-        let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--box", &bbox, "--depth", s(file), "--depth-scale", scale, "--out", s(&result)]);
+    for (file, scale, needle) in
+        [(&mask, "0.1", "16-bit"), (&small, "0.1", "32×24 but the image is 320×240"), (&depth, "0", "depth scale must be finite and positive"), (&depth, "100", "--depth-scale 100")]
+    {
+        let (ok, _, err) =
+            b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--box", &bbox, "--depth", s(file), "--depth-scale", scale, "--out", s(&result)]);
         assert!(!ok && err.contains(needle), "{file:?} × {scale}: {err}");
     }
 
@@ -255,7 +324,19 @@ fn serve_and_demo_client_refuse_bad_settings_at_start() {
     let leaf = rcgen::generate_simple_self_signed(vec!["localhost".to_string()]).unwrap();
     std::fs::write(d.join("cert.pem"), leaf.cert.pem()).unwrap();
     std::fs::write(d.join("key.pem"), leaf.signing_key.serialize_pem()).unwrap();
-    let tls = |ca: &str| vec!["serve".to_string(), "--tls-cert".into(), s(&d.join("cert.pem")).into(), "--tls-key".into(), s(&d.join("key.pem")).into(), "--tls-client-ca".into(), s(&d.join(ca)).into(), "--store".into(), store.clone()];
+    let tls = |ca: &str| {
+        vec![
+            "serve".to_string(),
+            "--tls-cert".into(),
+            s(&d.join("cert.pem")).into(),
+            "--tls-key".into(),
+            s(&d.join("key.pem")).into(),
+            "--tls-client-ca".into(),
+            s(&d.join(ca)).into(),
+            "--store".into(),
+            store.clone(),
+        ]
+    };
     let cases: Vec<(Vec<String>, &str)> = vec![
         (vec!["serve".into(), "--config".into(), s(&config).into(), "--store".into(), store.clone()], "max_estimatez"),
         (vec!["serve".into(), "--config".into(), s(&d.join("absent.toml")).into()], "absent.toml"),

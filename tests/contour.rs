@@ -96,7 +96,13 @@ fn refiner_pulls_perturbed_poses_back_and_keeps_the_true_one() {
         // down (a face-on tilt of a few degrees barely changes it).
         let kept = refiner.refine(&ctx, inst.pose).unwrap();
         let z = inst.pose.translation.z;
-        eprintln!("seed {seed} truth: {:.2}°, {:.1} mm, visible {:.2}, {:?}", rotation_error_deg(&kept.pose, &inst.pose), translation_error_m(&kept.pose, &inst.pose) * 1e3, inst.visib_fract(), kept.report);
+        eprintln!(
+            "seed {seed} truth: {:.2}°, {:.1} mm, visible {:.2}, {:?}",
+            rotation_error_deg(&kept.pose, &inst.pose),
+            translation_error_m(&kept.pose, &inst.pose) * 1e3,
+            inst.visib_fract(),
+            kept.report
+        );
         assert!(rotation_error_deg(&kept.pose, &inst.pose) < 3.0, "seed {seed}: the true pose turned {}°", rotation_error_deg(&kept.pose, &inst.pose));
         assert!(translation_error_m(&kept.pose, &inst.pose) < 0.01 * z, "seed {seed}: the true pose moved {} m", translation_error_m(&kept.pose, &inst.pose));
         assert!(kept.report.lines_with_edge * 2 > kept.report.lines, "{:?}", kept.report);
@@ -304,7 +310,8 @@ fn printed_objects_turn_back_on_their_print() {
     let cfg = PrintRefineConfig::default();
     let (mut back, mut trials) = (0, 0);
     for seed in 1..=4u64 {
-        let scenes = SceneConfig { images: 1, objects_per_image: 1, image_size: (320, 240), fill_range: (0.3, 0.35), max_occlusion: 0.05, occluders: false, supersampling: 3, seed, ..Default::default() };
+        let scenes =
+            SceneConfig { images: 1, objects_per_image: 1, image_size: (320, 240), fill_range: (0.3, 0.35), max_occlusion: 0.05, occluders: false, supersampling: 3, seed, ..Default::default() };
         let s = generate_image(&[(1, mesh.clone())], &scenes, &f.pool, 0).unwrap();
         let inst = &s.instances[0];
         let ctx = RefineContext { model: &model, image: &s.rgb, intrinsics: &s.cam, mask: &inst.mask_visib, unknown: None, mask_is_probability: false, from_box: None, depth: None };

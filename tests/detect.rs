@@ -163,7 +163,12 @@ fn upgrade_and_detect_from_the_command_line() {
     model.patch_points.extend_range(0..model.patch_count(), &mut points);
     // The printed box's contour model as stored before plain runs were kept.
     let contour = b2tfpose::onboard::ContourModel { plain_share: vec![], ..(**model.contours.get().unwrap()).clone() };
-    let old = b2tfpose::onboard::ObjectModel { detector: OnceLock::new(), patch_points: b2tfpose::onboard::PatchPoints::Exact(points.into()), contours: OnceLock::from(std::sync::Arc::new(contour)), ..model };
+    let old = b2tfpose::onboard::ObjectModel {
+        detector: OnceLock::new(),
+        patch_points: b2tfpose::onboard::PatchPoints::Exact(points.into()),
+        contours: OnceLock::from(std::sync::Arc::new(contour)),
+        ..model
+    };
     let store = b2tfpose::store::open(&store_url).unwrap();
     store.put(&old, false).unwrap();
     assert!(store.get("box_7").unwrap().detector.get().is_none() && !store.get("box_7").unwrap().patch_points.is_grid());

@@ -4,8 +4,8 @@ use b2tfpose::features::{EmbeddedBackbone, EmbeddedConfig};
 use b2tfpose::geometry::{Pose, ViewSampling};
 use b2tfpose::mesh::procedural::textured_box;
 use b2tfpose::onboard::{onboard, ObjectModel, OnboardConfig};
-use b2tfpose::store::{dir::DirStore, ObjectStore};
 use b2tfpose::render::{RenderPool, RendererConfig};
+use b2tfpose::store::{dir::DirStore, ObjectStore};
 use nalgebra::Point3;
 use std::sync::Mutex;
 

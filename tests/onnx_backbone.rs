@@ -19,12 +19,8 @@ fn model_dir() -> &'static Path {
     static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
     DIR.get_or_init(|| {
         let dir = tempfile::tempdir().unwrap();
-        let out = std::process::Command::new("python3")
-            .args(["tools/make_test_vit.py", "--reference", "--out"])
-            .arg(dir.path())
-            .current_dir(env!("CARGO_MANIFEST_DIR"))
-            .output()
-            .expect("python3 runs");
+        let out =
+            std::process::Command::new("python3").args(["tools/make_test_vit.py", "--reference", "--out"]).arg(dir.path()).current_dir(env!("CARGO_MANIFEST_DIR")).output().expect("python3 runs");
         assert!(out.status.success(), "make_test_vit.py failed (run scripts/setup.sh; source scripts/env.sh): {}", String::from_utf8_lossy(&out.stderr));
         dir
     })

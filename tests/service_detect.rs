@@ -209,7 +209,14 @@ fn detect_and_estimate_by_object_id_over_http_and_grpc() {
         assert_eq!(e.code(), tonic::Code::NotFound, "{e:?}");
         let e = g.detect(pb::DetectRequest { options: Some(pb::DetectOptions { min_distance_m: Some(0.0), ..Default::default() }), ..req.clone() }).await.unwrap_err();
         assert!(e.code() == tonic::Code::InvalidArgument && e.message().contains("min_distance_m must be within"), "{e:?}");
-        let est = pb::EstimateRequest { image, intrinsics, objects: vec!["box".into()], detect: req.options, options: Some(pb::EstimateOptions { rrc: Some(false), ..Default::default() }), ..Default::default() };
+        let est = pb::EstimateRequest {
+            image,
+            intrinsics,
+            objects: vec!["box".into()],
+            detect: req.options,
+            options: Some(pb::EstimateOptions { rrc: Some(false), ..Default::default() }),
+            ..Default::default()
+        };
         let r = g.estimate(est).await.expect("Estimate by object id").into_inner();
         assert!(!r.detections.is_empty() && r.results[0].pose.is_some() && r.results[0].detection_index >= 0, "{r:?}");
         assert!(r.results[0].confirmation_score.is_some_and(|c| (0.0..=1.0).contains(&c)), "{r:?}");

@@ -6,10 +6,10 @@
 
 mod common;
 
+use b2tfpose::service::client::png_bytes;
 use b2tfpose::service::proto as pb;
 use b2tfpose::service::proto::pose_service_client::PoseServiceClient;
 use base64::Engine as _;
-use b2tfpose::service::client::png_bytes;
 use common::{pose_errors, sample_files, scene, start};
 use std::time::{Duration, Instant};
 use tonic::transport::Channel;
@@ -67,7 +67,9 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
 
     // Reflection lists the API and health.
     {
-        use tonic_reflection::pb::v1::{server_reflection_client::ServerReflectionClient, server_reflection_request::MessageRequest, server_reflection_response::MessageResponse, ServerReflectionRequest};
+        use tonic_reflection::pb::v1::{
+            server_reflection_client::ServerReflectionClient, server_reflection_request::MessageRequest, server_reflection_response::MessageResponse, ServerReflectionRequest,
+        };
         let req = ServerReflectionRequest { host: String::new(), message_request: Some(MessageRequest::ListServices(String::new())) };
         let mut stream = ServerReflectionClient::new(channel.clone()).server_reflection_info(tokio_stream::iter([req])).await.unwrap().into_inner();
         let Some(MessageResponse::ListServicesResponse(list)) = stream.message().await.unwrap().unwrap().message_response else { panic!("no service list") };
@@ -149,7 +151,11 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
     assert_eq!((nums(&http_pose["R"]), nums(&http_pose["t"]), nums(&http_pose["quaternion_wxyz"])), (pose.r.clone(), pose.t.clone(), pose.quaternion_wxyz.clone()), "HTTP and gRPC differ");
     assert_eq!(http["results"][0]["score"].as_f64().unwrap() as f32, res.score);
     let http_up = &http["results"][0]["runner_up"];
-    assert_eq!((http_up["margin"].as_f64().unwrap() as f32, nums(&http_up["pose"]["t"]), http_up["close_call"].as_bool()), (up.margin, up.pose.as_ref().unwrap().t.clone(), Some(up.close_call)), "HTTP and gRPC runner-ups differ");
+    assert_eq!(
+        (http_up["margin"].as_f64().unwrap() as f32, nums(&http_up["pose"]["t"]), http_up["close_call"].as_bool()),
+        (up.margin, up.pose.as_ref().unwrap().t.clone(), Some(up.close_call)),
+        "HTTP and gRPC runner-ups differ"
+    );
 
     // Bad inputs: each gets its code and a message naming the problem; the server stays up.
     let good = || estimate_request(pb::image::Data::Encoded(rgb.clone()), 0, 0, mask.clone(), "box");
@@ -174,8 +180,16 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
         (with(&|r| r.intrinsics = None), Code::InvalidArgument, "intrinsics is required"),
         (with(&|r| r.intrinsics.as_mut().unwrap().width = 640), Code::InvalidArgument, "intrinsics say 640×240"),
         (with(&|r| r.depth = Some(pb::Depth { data: Some(pb::depth::Data::RawU16(tenths.clone())), width: 320, height: 240, scale_mm: 0.0 })), Code::InvalidArgument, "depth.scale_mm is needed"),
-        (with(&|r| r.depth = Some(pb::Depth { data: Some(pb::depth::Data::RawU16(tenths.clone())), width: 320, height: 240, scale_mm: -1.0 })), Code::InvalidArgument, "depth scale must be finite and positive"),
-        (with(&|r| r.depth = Some(pb::Depth { data: Some(pb::depth::Data::RawU16(tenths[..1000].to_vec())), width: 320, height: 240, scale_mm: 0.1 })), Code::InvalidArgument, "depth.raw_u16 has 1000 bytes"),
+        (
+            with(&|r| r.depth = Some(pb::Depth { data: Some(pb::depth::Data::RawU16(tenths.clone())), width: 320, height: 240, scale_mm: -1.0 })),
+            Code::InvalidArgument,
+            "depth scale must be finite and positive",
+        ),
+        (
+            with(&|r| r.depth = Some(pb::Depth { data: Some(pb::depth::Data::RawU16(tenths[..1000].to_vec())), width: 320, height: 240, scale_mm: 0.1 })),
+            Code::InvalidArgument,
+            "depth.raw_u16 has 1000 bytes",
+        ),
         (with(&|r| r.depth = Some(pb::Depth { data: None, width: 320, height: 240, scale_mm: 0.1 })), Code::InvalidArgument, "depth: give exactly one of"),
         // Over --max-body-mb 3.
         (with(&|r| r.image = Some(pb::Image { data: Some(pb::image::Data::RawRgb8(vec![7; 4_000_000])), width: 0, height: 0 })), Code::InvalidArgument, "too large"),

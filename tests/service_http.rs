@@ -5,8 +5,8 @@
 
 mod common;
 
-use base64::Engine as _;
 use b2tfpose::service::client::png_bytes;
+use base64::Engine as _;
 use common::{pose_errors, sample_files, scene, start};
 use serde_json::{json, Value};
 use std::time::{Duration, Instant};
@@ -302,8 +302,16 @@ fn onboard_estimate_and_bad_inputs_over_http() {
         (request(good_image.clone(), intrinsics.clone(), json!([])), 400, "at least one"),
         (request(good_image.clone(), intrinsics.clone(), json!([{"object_id": "../x", "mask_png": png(&r.mask)}])), 400, "object_id"),
         (json!({"image": "wrong"}), 400, "request body"),
-        (request(good_image.clone(), intrinsics.clone(), json!([{"object_id": "box", "bbox": [400.0, 10.0, 20.0, 20.0]}])), 400, "detections[0].bbox: box [400.0, 10.0, 20.0, 20.0] ([x, y, w, h]) lies outside the 320×240 image"),
-        (request(good_image.clone(), intrinsics.clone(), json!([good_det, {"object_id": "box", "bbox": [10.0, 10.0, 0.0, 20.0]}])), 400, "detections[1].bbox: box [10.0, 10.0, 0.0, 20.0] ([x, y, w, h]) has zero area"),
+        (
+            request(good_image.clone(), intrinsics.clone(), json!([{"object_id": "box", "bbox": [400.0, 10.0, 20.0, 20.0]}])),
+            400,
+            "detections[0].bbox: box [400.0, 10.0, 20.0, 20.0] ([x, y, w, h]) lies outside the 320×240 image",
+        ),
+        (
+            request(good_image.clone(), intrinsics.clone(), json!([good_det, {"object_id": "box", "bbox": [10.0, 10.0, 0.0, 20.0]}])),
+            400,
+            "detections[1].bbox: box [10.0, 10.0, 0.0, 20.0] ([x, y, w, h]) has zero area",
+        ),
         (request(good_image.clone(), intrinsics.clone(), json!([{"object_id": "box", "mask_png": empty_mask}])), 400, "detections[0].mask_png: the mask is empty"),
         (with_option(request(good_image.clone(), intrinsics.clone(), good_dets.clone()), "box_prior", json!("loose")), 400, "box_prior: expected true, false"),
     ];
@@ -314,7 +322,8 @@ fn onboard_estimate_and_bad_inputs_over_http() {
         healthy(&c);
     }
     // NaN cannot be written in JSON; a string where a number belongs is refused as such.
-    let (s, _) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&request(good_image.clone(), json!({"fx": "NaN", "fy": 500.0, "cx": 1, "cy": 1, "width": 320, "height": 240}), good_dets.clone())));
+    let (s, _) =
+        call(&c, "POST", &format!("{base}/v1/estimate"), Some(&request(good_image.clone(), json!({"fx": "NaN", "fy": 500.0, "cx": 1, "cy": 1, "width": 320, "height": 240}), good_dets.clone())));
     assert_eq!(s, 400);
     // Larger than --max-body-mb 3: refused from its Content-Length, before the body is
     // read. Sent by hand: a client still writing the body may see the connection close
@@ -374,7 +383,19 @@ fn onboard_estimate_and_bad_inputs_over_http() {
 
     // Metrics count what happened; the OpenAPI document lists every route.
     let metrics = c.get(format!("{base}/metrics")).send().unwrap().text().unwrap();
-    for needle in ["b2tf_requests_total{method=\"POST\",route=\"/v1/estimate\",status=\"200\"}", "b2tf_estimate_queue_wait_seconds_count", "b2tf_estimate_queue_length 0", "b2tf_estimate_queue_refused_total{reason=\"full\"}", "b2tf_estimate_service_seconds", "status=\"429\"", "b2tf_request_seconds_bucket", "b2tf_stage_seconds_bucket{stage=\"pnp\"", "b2tf_objects_loaded 1", "b2tf_ready 1", "b2tf_thumbnails_drawn_total 1\n"] {
+    for needle in [
+        "b2tf_requests_total{method=\"POST\",route=\"/v1/estimate\",status=\"200\"}",
+        "b2tf_estimate_queue_wait_seconds_count",
+        "b2tf_estimate_queue_length 0",
+        "b2tf_estimate_queue_refused_total{reason=\"full\"}",
+        "b2tf_estimate_service_seconds",
+        "status=\"429\"",
+        "b2tf_request_seconds_bucket",
+        "b2tf_stage_seconds_bucket{stage=\"pnp\"",
+        "b2tf_objects_loaded 1",
+        "b2tf_ready 1",
+        "b2tf_thumbnails_drawn_total 1\n",
+    ] {
         assert!(metrics.contains(needle), "{needle} not in metrics:\n{metrics}");
     }
     let (s, doc) = call(&c, "GET", &format!("{base}/openapi.json"), None);

@@ -278,7 +278,11 @@ fn spans_reach_an_otlp_collector_with_the_request_id_and_stages() {
     let spans = collector.spans();
     assert!(spans.iter().all(|(service, _)| service == "b2tfpose"));
     let attr = |s: &opentelemetry_proto::tonic::trace::v1::Span, k: &str| collector::attr(&s.attributes, k);
-    let request = spans.iter().map(|(_, s)| s).find(|s| s.name == "request" && attr(s, "request_id").as_deref() == Some("otlp-est-1")).unwrap_or_else(|| panic!("no request span: {:?}", spans.iter().map(|(_, s)| &s.name).collect::<Vec<_>>()));
+    let request = spans
+        .iter()
+        .map(|(_, s)| s)
+        .find(|s| s.name == "request" && attr(s, "request_id").as_deref() == Some("otlp-est-1"))
+        .unwrap_or_else(|| panic!("no request span: {:?}", spans.iter().map(|(_, s)| &s.name).collect::<Vec<_>>()));
     assert_eq!((attr(request, "route").as_deref(), attr(request, "status").as_deref()), (Some("/v1/estimate"), Some("200")));
     let names: Vec<&str> = spans.iter().map(|(_, s)| s).filter(|s| s.trace_id == request.trace_id).map(|s| s.name.as_str()).collect();
     for stage in ["decode", "masks", "store.get", "instance", "crop", "features", "mask", "retrieval", "matching", "pnp", "refine", "selection"] {
@@ -295,7 +299,8 @@ fn spans_reach_an_otlp_collector_with_the_request_id_and_stages() {
 fn bad_telemetry_settings_are_refused_and_an_absent_collector_holds_nothing_up() {
     let dir = tempfile::tempdir().unwrap();
     let b2tf = |args: &[&str], env: &[(&str, &str)]| {
-        let out = Command::new(env!("CARGO_BIN_EXE_b2tf")).args(args).env_remove("B2TF_LOG").env_remove("RUST_LOG").env_remove("OTEL_EXPORTER_OTLP_ENDPOINT").envs(env.iter().copied()).output().unwrap();
+        let out =
+            Command::new(env!("CARGO_BIN_EXE_b2tf")).args(args).env_remove("B2TF_LOG").env_remove("RUST_LOG").env_remove("OTEL_EXPORTER_OTLP_ENDPOINT").envs(env.iter().copied()).output().unwrap();
         (out.status.code(), String::from_utf8_lossy(&out.stdout).into_owned(), String::from_utf8_lossy(&out.stderr).into_owned())
     };
     let out = dir.path().to_str().unwrap();

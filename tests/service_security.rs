@@ -78,7 +78,13 @@ async fn scopes_on_both_protocols() {
             let v: Value = serde_json::from_str(&body).unwrap();
             let msg = v["error"]["message"].as_str().unwrap();
             assert_eq!(v["error"]["kind"], "permission_denied");
-            let scope = if path == "/metrics" { "`admin`" } else if method == "POST" && path == "/v1/estimate" || path == "/v1/objects" && method == "GET" { "`read`" } else { "`write`" };
+            let scope = if path == "/metrics" {
+                "`admin`"
+            } else if method == "POST" && path == "/v1/estimate" || path == "/v1/objects" && method == "GET" {
+                "`read`"
+            } else {
+                "`write`"
+            };
             assert!(msg.contains(scope) && msg.contains(path.split("/nope").next().unwrap()) && !msg.contains("sk-"), "{method} {path}: {msg}");
         }
     }

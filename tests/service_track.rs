@@ -190,7 +190,8 @@ async fn sessions_and_streams_track_refuse_bad_frames_and_expire() {
     let towards_middle = if seq[9].truth.translation.x > 0.0 { -0.05 } else { 0.05 };
     let jumped = Pose::new(seq[9].truth.rotation, seq[9].truth.translation + nalgebra::Vector3::new(towards_middle, 0.0, 0.2));
     let jump = pool.render(&model.mesh, &jumped, &k, &Default::default()).unwrap();
-    let touches_border = (0..320).any(|x| jump.mask.get_pixel(x, 0)[0] > 0 || jump.mask.get_pixel(x, 239)[0] > 0) || (0..240).any(|y| jump.mask.get_pixel(0, y)[0] > 0 || jump.mask.get_pixel(319, y)[0] > 0);
+    let touches_border =
+        (0..320).any(|x| jump.mask.get_pixel(x, 0)[0] > 0 || jump.mask.get_pixel(x, 239)[0] > 0) || (0..240).any(|y| jump.mask.get_pixel(0, y)[0] > 0 || jump.mask.get_pixel(319, y)[0] > 0);
     assert!(!touches_border, "the jumped object should be whole in the frame");
     let (s, v) = call(&c, M::POST, &frames, Some(&frame_json(&jump.rgb, Some(&jump.mask), "box", Some(last + 5)))).await;
     assert_eq!(s, 200, "{v}");
@@ -225,7 +226,10 @@ async fn sessions_and_streams_track_refuse_bad_frames_and_expire() {
     let a = answers.message().await.unwrap().unwrap();
     assert!(a.error.is_none() && a.frame_index == 0 && a.objects.len() == 1, "{a:?}");
     assert_eq!(a.objects[0].mode(), pb::tracked_object::Mode::Estimated);
-    let (er, et) = { let p = a.objects[0].pose.as_ref().unwrap(); pose_errors(&p.r, &p.t, &seq[0].truth) };
+    let (er, et) = {
+        let p = a.objects[0].pose.as_ref().unwrap();
+        pose_errors(&p.r, &p.t, &seq[0].truth)
+    };
     assert!(er < 10.0 && et < 0.02, "{er:.1}° {:.1} mm", et * 1e3);
     tx.send(pb::TrackFrame { intrinsics: None, ..pb_frame(&seq[1].rgb, None, "box") }).await.unwrap();
     let a = answers.message().await.unwrap().unwrap();

@@ -127,7 +127,6 @@ fn bad_video_files_are_named() {
     assert!(decode(&at("header.h264")).is_empty());
 }
 
-
 /// Random bytes changed in an MP4 and a raw stream: every file ends in frames or errors,
 /// never a panic or a hang (the `mp4` crate looped forever on a child box under 8 bytes
 /// before its boxes were checked; 3000 files measured, 400 kept here).
@@ -157,7 +156,11 @@ fn corrupted_files_end_in_errors() {
         let path = dir.path().join(name);
         std::fs::write(&path, &data).unwrap();
         for r in FrameSource::open(&path).into_iter().flatten() {
-            if r.is_ok() { good += 1 } else { bad += 1 }
+            if r.is_ok() {
+                good += 1
+            } else {
+                bad += 1
+            }
         }
     }
     eprintln!("{good} frames, {bad} errors");

@@ -5,6 +5,7 @@ GrabCut seeded with the box. For trying `b2tf estimate` on photos that come with
     pip install opencv-python-headless numpy
     python3 tools/box_to_mask.py IMAGE X1 Y1 X2 Y2 OUT.png [--box-only]
 """
+
 import argparse
 import sys
 

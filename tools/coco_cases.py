@@ -12,19 +12,22 @@ the same way before running:
 Scores are rounded to 0.1 or 0.01 so that equal scores (and their tie-breaking) occur;
 every fifth seed puts 110 false positives in one image (maxDets 100).
 """
+
 import json, random, sys, io, contextlib
 import numpy as np
 from pycocotools.coco import COCO
 from pycocotools.cocoeval import COCOeval
 
+
 def rbox(rng, lo, hi):
     w, h = rng.uniform(lo, hi), rng.uniform(lo, hi)
     return [round(rng.uniform(0, 600), 2), round(rng.uniform(0, 400), 2), round(w, 2), round(h, 2)]
 
+
 def jitter(rng, b, f):
     x, y, w, h = b
-    return [round(x + rng.uniform(-f, f) * w, 2), round(y + rng.uniform(-f, f) * h, 2),
-            round(w * (1 + rng.uniform(-f, f)), 2), round(h * (1 + rng.uniform(-f, f)), 2)]
+    return [round(x + rng.uniform(-f, f) * w, 2), round(y + rng.uniform(-f, f) * h, 2), round(w * (1 + rng.uniform(-f, f)), 2), round(h * (1 + rng.uniform(-f, f)), 2)]
+
 
 def case(seed):
     rng = random.Random(seed)
@@ -44,6 +47,7 @@ def case(seed):
         images.append({"gts": gts, "dts": dts})
     return images
 
+
 def score(images):
     gt = {"images": [], "annotations": [], "categories": [{"id": c} for c in (1, 2, 3)]}
     res = []
@@ -56,19 +60,24 @@ def score(images):
         for d in im["dts"]:
             res.append({"image_id": i + 1, "category_id": d["cat"], "bbox": d["bbox"], "score": d["score"]})
     with contextlib.redirect_stdout(io.StringIO()):
-        cg = COCO(); cg.dataset = gt; cg.createIndex()
+        cg = COCO()
+        cg.dataset = gt
+        cg.createIndex()
         if not res:
             return None
         cd = cg.loadRes(res)
         e = COCOeval(cg, cd, "bbox")
         e.params.imgIds = sorted(cg.getImgIds())
-        e.evaluate(); e.accumulate(); e.summarize()
+        e.evaluate()
+        e.accumulate()
+        e.summarize()
     prec = e.eval["precision"]
     per_cat = {}
     for k, c in enumerate(e.params.catIds):
         p = prec[:, :, k, 0, 2]
         per_cat[str(c)] = float(np.mean(p[p > -1])) if (p > -1).any() else -1.0
     return [float(v) for v in e.stats], per_cat
+
 
 cases = []
 seed = 0

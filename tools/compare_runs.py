@@ -16,6 +16,7 @@ by themselves.
 
 `--self-test` checks the statistics and the pairing on built-in cases and exits.
 """
+
 import argparse
 import csv
 import math
@@ -87,6 +88,7 @@ def self_test():
     # Reading a file: only the asked setting, a row without a pose is wrong, and two
     # instances of one object in one image stay apart.
     import tempfile
+
     header = "image,obj_id,setting,size_px,visible,found,rot_err_deg,trans_err_mm,depth_err_mm,mssd_over_diameter\n"
     rows = ["0,3,with RRC,50,1,1,1,1,1,0.05", "0,3,with RRC,50,1,1,1,1,1,0.2", "0,3,without RRC,50,1,1,1,1,1,0.05", "1,4,with RRC,50,1,0,,,,"]
     with tempfile.NamedTemporaryFile("w", suffix=".csv") as f:

@@ -68,9 +68,12 @@ def main() -> int:
             url = f"dir://{store_dir}" if backend == "dir" else f"sqlite://{bwork / 'objects.db'}"
             rounds = crash.run_backend(url, store_dir if backend == "dir" else None, bwork, fx, a.kills, rng, a.in_plane)
             uploads = crash.uploads_left(bwork)
-            lines = [f"### {backend}:// ({len(rounds)} kills, {time.monotonic() - t0:.0f} s)", "",
-                     "| # | killed during | after (s) | under way at the kill | ready again (s) | objects | interrupted object | problems |",
-                     "|---:|---|---:|---|---:|---:|---|---|"]
+            lines = [
+                f"### {backend}:// ({len(rounds)} kills, {time.monotonic() - t0:.0f} s)",
+                "",
+                "| # | killed during | after (s) | under way at the kill | ready again (s) | objects | interrupted object | problems |",
+                "|---:|---|---:|---|---:|---:|---|---|",
+            ]
             for r in rounds:
                 lines.append(f"| {r.n} | {r.kind} | {r.killed_after_s:.2f} | {r.doing} | {r.ready_s:.2f} | {r.objects} | {r.interrupted} | {'; '.join(r.problems) or 'none'} |")
                 problems += [f"{backend} round {r.n} ({r.kind}): {p}" for p in r.problems]
@@ -79,17 +82,22 @@ def main() -> int:
             if len(rounds) < a.kills:
                 problems.append(f"{backend}: stopped after {len(rounds)} of {a.kills} kills")
         if not a.no_disk_full:
-            rows = ["### Full disk during a put", "",
-                    "| backend | file system | used after 1st object (MB) | large put | its error | used after (MB) | 2nd small object | used at the end, after deleting it (MB) | files | problems |",
-                    "|---|---|---:|---|---|---:|---|---:|---|---|"]
+            rows = [
+                "### Full disk during a put",
+                "",
+                "| backend | file system | used after 1st object (MB) | large put | its error | used after (MB) | 2nd small object | used at the end, after deleting it (MB) | files | problems |",
+                "|---|---|---:|---|---|---:|---|---:|---|---|",
+            ]
             for backend in a.backends.split(","):
                 try:
                     d = disk_full.run(backend, work, fx)
                 except disk_full.Skip as e:
                     rows.append(f"| {backend} | skipped: {e} | | | | | | | | |")
                     continue
-                rows.append(f"| {backend} | {d.fs} {disk_full.SIZE_MB} MiB | {d.used_after_small_mb:.1f} | {d.large_state} | {d.large_error[:120]} "
-                            f"| {d.used_after_failure_mb:.1f} | {d.second_small} | {d.used_end_mb:.1f} | {d.files} | {'; '.join(d.problems) or 'none'} |")
+                rows.append(
+                    f"| {backend} | {d.fs} {disk_full.SIZE_MB} MiB | {d.used_after_small_mb:.1f} | {d.large_state} | {d.large_error[:120]} "
+                    f"| {d.used_after_failure_mb:.1f} | {d.second_small} | {d.used_end_mb:.1f} | {d.files} | {'; '.join(d.problems) or 'none'} |"
+                )
                 problems += [f"full disk, {backend}: {p}" for p in d.problems]
             tables.append("\n".join(rows))
     finally:

@@ -16,6 +16,7 @@ query patch's own point (a right correspondence).
 
 Needs numpy (the Python client's venv has it). A few minutes per coding on 2 cores.
 """
+
 import json
 import struct
 import sys
@@ -52,7 +53,7 @@ def unit(x):
 def nearest(x, c):
     out = np.empty(len(x), dtype=np.int64)
     for s in range(0, len(x), 65536):
-        out[s:s + 65536] = (-2 * x[s:s + 65536] @ c.T + (c * c).sum(1)[None]).argmin(1)
+        out[s : s + 65536] = (-2 * x[s : s + 65536] @ c.T + (c * c).sum(1)[None]).argmin(1)
     return out
 
 
@@ -123,8 +124,8 @@ def main():
     for t in rng.choice(len(ranges), 12, replace=False):
         order = np.argsort(-(glob @ glob[t]))
         pool = np.concatenate([np.arange(*ranges[u]) for u in order if u != t][:125])
-        q = exact[ranges[t][0]:ranges[t][1]]
-        trials.append((q, points[ranges[t][0]:ranges[t][1]], pool, mutual(q, exact[pool])))
+        q = exact[ranges[t][0] : ranges[t][1]]
+        trials.append((q, points[ranges[t][0] : ranges[t][1]], pool, mutual(q, exact[pool])))
     print(f"{folder}: {len(d)} patches; 12 templates' patches against 125 templates each")
     print("| coding | cosine to exact, mean / 5th pct | exact mutual matches kept (Jaccard) | matches within 0.05·d / 0.1·d |")
     print("|---|---:|---:|---:|")

@@ -44,7 +44,9 @@ def random_model(kind):
         from transformers import DINOv3ViTConfig, DINOv3ViTModel
 
         width, depth, heads = dinov3_shapes[kind]
-        cfg = DINOv3ViTConfig(hidden_size=width, intermediate_size=(2 if kind == "dinov3-tiny" else 4) * width, num_hidden_layers=depth, num_attention_heads=heads, patch_size=16, image_size=512, num_register_tokens=4)
+        cfg = DINOv3ViTConfig(
+            hidden_size=width, intermediate_size=(2 if kind == "dinov3-tiny" else 4) * width, num_hidden_layers=depth, num_attention_heads=heads, patch_size=16, image_size=512, num_register_tokens=4
+        )
         return DINOv3ViTModel(cfg).eval(), f"random-init {kind}"
     if kind == "dinov2reg-tiny":
         from transformers import Dinov2WithRegistersConfig, Dinov2WithRegistersModel

@@ -14,6 +14,7 @@ bench's object ids, 1-based in `--mesh` order).
 
 Standard library only.
 """
+
 import argparse
 import csv
 import math

@@ -63,7 +63,12 @@ def parse_args() -> argparse.Namespace:
     p.add_argument("--refused-p99-ms", type=float, default=500, help="refusals' p99 may be at most this, ms (default 500)")
     p.add_argument("--max-body-mb", type=int, default=2, help="the server's --max-body-mb (default 2; a bad request exceeds it)")
     p.add_argument("--timeout", type=float, default=60, help="client timeout per request, s: longer is a hang (default 60)")
-    p.add_argument("--p99-factor", type=float, default=5.0, help="an estimate under overload may be this much slower than in the capacity run: accepted p99 at most this x (1 + queue depth / max estimates) x the capacity p99 (default 5)")
+    p.add_argument(
+        "--p99-factor",
+        type=float,
+        default=5.0,
+        help="an estimate under overload may be this much slower than in the capacity run: accepted p99 at most this x (1 + queue depth / max estimates) x the capacity p99 (default 5)",
+    )
     p.add_argument("--warmup-s", type=float, default=30, help="seconds of mixed load at the first multiplier before the measured phases (default 30)")
     p.add_argument("--rss-growth-mb", type=float, default=64, help="peak RSS of the last phase may exceed the peak before it by this (default 64)")
     p.add_argument("--rss-max-mb", type=float, default=2048, help="RSS may never exceed this (default 2048)")
@@ -162,8 +167,10 @@ def main() -> int:
         cap = stats.summarise("capacity", cap_out, time.monotonic() - t0)
         capacity = cap.accepted_per_s
         onboard_cap = 1.0 / onboard_s  # --max-onboardings 1
-        print(f"capacity with --max-estimates {a.max_estimates}: {capacity:.2f} estimates/s, p50 {cap.p50_ms:.0f} ms, p99 {cap.p99_ms:.0f} ms; "
-              f"onboardings: {onboard_s:.2f} s each, {onboard_cap:.2f}/s", flush=True)
+        print(
+            f"capacity with --max-estimates {a.max_estimates}: {capacity:.2f} estimates/s, p50 {cap.p50_ms:.0f} ms, p99 {cap.p99_ms:.0f} ms; onboardings: {onboard_s:.2f} s each, {onboard_cap:.2f}/s",
+            flush=True,
+        )
         rows, all_out = [cap], list(cap_out)
         base = sampler.now()
         if base is None:
@@ -183,8 +190,11 @@ def main() -> int:
             row = stats.summarise(phase, run.outcomes, run.seconds)
             rows.append(row)
             all_out += run.outcomes
-            print(f"{phase}: {run.sent} requests ({rate:.1f}/s + {m * onboard_cap:.2f} onboardings/s) -> {row.accepted_per_s:.2f} accepted/s, {row.refused_per_s:.2f} refused/s; "
-                  f"p50 {row.p50_ms:.0f} ms, p99 {row.p99_ms:.0f} ms; most in flight {run.max_in_flight}, worst send lag {run.max_lag_s * 1e3:.0f} ms", flush=True)
+            print(
+                f"{phase}: {run.sent} requests ({rate:.1f}/s + {m * onboard_cap:.2f} onboardings/s) -> {row.accepted_per_s:.2f} accepted/s, {row.refused_per_s:.2f} refused/s; "
+                f"p50 {row.p50_ms:.0f} ms, p99 {row.p99_ms:.0f} ms; most in flight {run.max_in_flight}, worst send lag {run.max_lag_s * 1e3:.0f} ms",
+                flush=True,
+            )
             if run.unfinished:
                 problems.append(f"{phase}: {run.unfinished} requests still unanswered {a.timeout * 5:.0f} s after the phase (hang)")
             if run.max_lag_s > 1.0:
@@ -216,8 +226,10 @@ def main() -> int:
 
         print(f"\n## Phases (--max-estimates {a.max_estimates}, --queue-depth {depth}; capacity {capacity:.2f}/s; {sent} requests sent in the open loop)\n\n{stats.phase_table(rows)}")
         print(f"\n## Statuses\n\n{stats.status_table(all_out)}")
-        print(f"\n## Server resources (before the load: RSS {base.rss_mb:.0f} MB, {base.threads} threads, {base.fds} fds; "
-              f"after: {after.rss_mb:.0f} MB, {after.threads} threads, {after.fds} fds)\n\n{stats.resource_table(sampler.samples, 24)}")
+        print(
+            f"\n## Server resources (before the load: RSS {base.rss_mb:.0f} MB, {base.threads} threads, {base.fds} fds; "
+            f"after: {after.rss_mb:.0f} MB, {after.threads} threads, {after.fds} fds)\n\n{stats.resource_table(sampler.samples, 24)}"
+        )
         print(f"\nEvery reading, by phase:\n\n{stats.range_table(sampler.samples)}")
         problems = stats.violations(all_out) + problems
     except Exception:

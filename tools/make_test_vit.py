@@ -58,7 +58,7 @@ class Graph:
         return self.op("LayerNormalization", [x, g, b], axis=-1, epsilon=1e-6)
 
     def linear(self, x, d_in, d_out):
-        y = self.op("MatMul", [x, self.weight("w", (d_in, d_out), std=d_in ** -0.5)])
+        y = self.op("MatMul", [x, self.weight("w", (d_in, d_out), std=d_in**-0.5)])
         return self.op("Add", [y, self.weight("b", (d_out,))])
 
     def heads(self, x, heads, dh):
@@ -71,20 +71,20 @@ class Graph:
         h = self.layer_norm(x, dim)
         q, k, v = (self.heads(self.linear(h, dim, dim), heads, dh) for _ in range(3))
         kt = self.op("Transpose", [k], perm=[0, 1, 3, 2])
-        scores = self.op("Mul", [self.op("MatMul", [q, kt]), self.const("scale", np.array(dh ** -0.5, dtype=np.float32))])
+        scores = self.op("Mul", [self.op("MatMul", [q, kt]), self.const("scale", np.array(dh**-0.5, dtype=np.float32))])
         att = self.op("MatMul", [self.op("Softmax", [scores], axis=-1), v])
         merged = self.op("Reshape", [self.op("Transpose", [att], perm=[0, 2, 1, 3]), self.const("shape", np.array([0, -1, dim], dtype=np.int64))])
         x = self.op("Add", [x, self.linear(merged, dim, dim)])
         h = self.layer_norm(x, dim)
         u = self.linear(h, dim, 4 * dim)
         # GELU, exact: 0.5·u·(1 + erf(u/√2))
-        erf = self.op("Erf", [self.op("Mul", [u, self.const("c", np.array(2 ** -0.5, dtype=np.float32))])])
+        erf = self.op("Erf", [self.op("Mul", [u, self.const("c", np.array(2**-0.5, dtype=np.float32))])])
         gelu = self.op("Mul", [self.op("Mul", [u, self.op("Add", [erf, self.const("one", np.array(1.0, dtype=np.float32))])]), self.const("half", np.array(0.5, dtype=np.float32))])
         return self.op("Add", [x, self.linear(gelu, 4 * dim, dim)])
 
     def patch_tokens(self, x, prefix):
         # Drop the class and register tokens: tokens [prefix:] along axis 1.
-        return self.op("Slice", [x, self.const("start", np.array([prefix], dtype=np.int64)), self.const("end", np.array([2 ** 62], dtype=np.int64)), self.const("axis", np.array([1], dtype=np.int64))])
+        return self.op("Slice", [x, self.const("start", np.array([prefix], dtype=np.int64)), self.const("end", np.array([2**62], dtype=np.int64)), self.const("axis", np.array([1], dtype=np.int64))])
 
 
 def build(dim, depth, heads, size, patch, local_layer, seed):
@@ -93,7 +93,9 @@ def build(dim, depth, heads, size, patch, local_layer, seed):
     n = size // patch
     tokens = n * n
     prefix = 1 + REGISTERS
-    conv = g.op("Conv", ["pixel_values", g.weight("patch_w", (dim, 3, patch, patch), std=(3 * patch * patch) ** -0.5), g.weight("patch_b", (dim,))], kernel_shape=[patch, patch], strides=[patch, patch])
+    conv = g.op(
+        "Conv", ["pixel_values", g.weight("patch_w", (dim, 3, patch, patch), std=(3 * patch * patch) ** -0.5), g.weight("patch_b", (dim,))], kernel_shape=[patch, patch], strides=[patch, patch]
+    )
     flat = g.op("Reshape", [conv, g.const("shape", np.array([0, dim, -1], dtype=np.int64))])
     patches = g.op("Transpose", [flat], perm=[0, 2, 1])
     # Class and register tokens, repeated over the batch.

@@ -19,6 +19,7 @@ generation, the vote, or the choice of what to render.
 
 `--self-test` checks the classes on built-in rows and exits. Standard library only.
 """
+
 import argparse
 import csv
 import math
@@ -75,7 +76,9 @@ def report(pairs: list, setting: str, listed: bool) -> Counter:
             counts[cls] += 1
             depth += d
             if listed:
-                print(f"  {per_instance}: image {r['image']} object {r['obj_id']}, {r['size_px']} px, visible {r['visible']}, rotation {r['rot_err_deg']}°, depth {r['depth_err_mm']} mm, {r['mssd_over_diameter']}·d: {cls}{' (depth)' if d else ''}")
+                print(
+                    f"  {per_instance}: image {r['image']} object {r['obj_id']}, {r['size_px']} px, visible {r['visible']}, rotation {r['rot_err_deg']}°, depth {r['depth_err_mm']} mm, {r['mssd_over_diameter']}·d: {cls}{' (depth)' if d else ''}"
+                )
     wrong = sum(counts.values())
     print(f"{total} instances ({setting}), {wrong} wrong:")
     for cls in CLASSES:
@@ -88,23 +91,29 @@ def report(pairs: list, setting: str, listed: bool) -> Counter:
 def self_test() -> None:
     inst_head = "image,obj_id,setting,size_px,visible,found,rot_err_deg,trans_err_mm,depth_err_mm,mssd_over_diameter\n"
     cand_head = "image,obj_id,size_px,mask,source,mssd_over_diameter,iou\n"
-    inst = inst_head + "".join([
-        "0,1,with RRC,50,1.0,1,1.0,1,1,0.02\n",     # right
-        "1,1,with RRC,50,1.0,1,2.0,20,20,0.15\n",   # depth miss, nothing right
-        "2,1,with RRC,50,1.0,1,90,5,5,0.8\n",       # turned, nothing right
-        "3,1,with RRC,50,1.0,1,170,5,5,0.9\n",      # a right one rendered and beaten
-        "4,1,with RRC,50,1.0,1,45,5,5,0.5\n",       # a right one never rendered
-        "4,1,with RRC,90,1.0,0,,,,\n",              # no pose; a second instance of object 1
-        "0,1,without RRC,50,1.0,1,90,5,5,0.8\n",    # another setting: not counted
-    ])
-    cand = cand_head + "".join([
-        "0,1,50,0,pipeline,0.02,0.9\n",
-        "1,1,50,0,pipeline,0.15,0.9\n",
-        "2,1,50,0,pipeline,0.8,0.9\n",
-        "3,1,50,0,pipeline,0.9,0.9\n", "3,1,50,0,flip-2,0.03,0.8\n",
-        "4,1,50,0,pipeline,0.5,0.9\n", "4,1,50,0,template-3,0.05,NaN\n",
-        "4,1,90,0,template-0,0.5,NaN\n",
-    ])
+    inst = inst_head + "".join(
+        [
+            "0,1,with RRC,50,1.0,1,1.0,1,1,0.02\n",  # right
+            "1,1,with RRC,50,1.0,1,2.0,20,20,0.15\n",  # depth miss, nothing right
+            "2,1,with RRC,50,1.0,1,90,5,5,0.8\n",  # turned, nothing right
+            "3,1,with RRC,50,1.0,1,170,5,5,0.9\n",  # a right one rendered and beaten
+            "4,1,with RRC,50,1.0,1,45,5,5,0.5\n",  # a right one never rendered
+            "4,1,with RRC,90,1.0,0,,,,\n",  # no pose; a second instance of object 1
+            "0,1,without RRC,50,1.0,1,90,5,5,0.8\n",  # another setting: not counted
+        ]
+    )
+    cand = cand_head + "".join(
+        [
+            "0,1,50,0,pipeline,0.02,0.9\n",
+            "1,1,50,0,pipeline,0.15,0.9\n",
+            "2,1,50,0,pipeline,0.8,0.9\n",
+            "3,1,50,0,pipeline,0.9,0.9\n",
+            "3,1,50,0,flip-2,0.03,0.8\n",
+            "4,1,50,0,pipeline,0.5,0.9\n",
+            "4,1,50,0,template-3,0.05,NaN\n",
+            "4,1,90,0,template-0,0.5,NaN\n",
+        ]
+    )
     with tempfile.TemporaryDirectory() as d:
         i, c = os.path.join(d, "i.csv"), os.path.join(d, "c.csv")
         open(i, "w").write(inst)

@@ -18,6 +18,7 @@ It also prints each term's separation of right from wrong hypotheses: the within
 AUC, the chance that a right hypothesis of an instance scores above a wrong one of the same
 instance (ties count half), over the rendered hypotheses of instances that have both.
 """
+
 import argparse
 import csv
 import math

@@ -1,5 +1,6 @@
 """Validates the served OpenAPI document (src/service/openapi.json) against the OpenAPI 3
 specification with openapi-spec-validator; exits non-zero naming the problem."""
+
 import json
 import sys
 

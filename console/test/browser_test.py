@@ -60,7 +60,15 @@ def make_inputs(work: Path) -> dict:
     pose = {"R": rotation(0.5, -0.4, 0.3), "t": [0.01, -0.005, 0.42]}
     (work / "pose.json").write_text(json.dumps(pose))
     run_cli("render", "--mesh", str(work / "sample/sample_box.obj"), "--units", "m", "--pose", str(work / "pose.json"), "--camera", str(work / "camera.json"), "--out", str(work / "photo"))
-    return {"mesh": work / "sample/sample_box.obj", "resources": [work / "sample/sample_box.mtl", work / "sample/sample_box_m0.png"], "photo": work / "photo/rgb.png", "camera": work / "camera.json", "mask": work / "photo/mask.png", "depth": work / "photo/depth.png", "pose": pose}
+    return {
+        "mesh": work / "sample/sample_box.obj",
+        "resources": [work / "sample/sample_box.mtl", work / "sample/sample_box_m0.png"],
+        "photo": work / "photo/rgb.png",
+        "camera": work / "camera.json",
+        "mask": work / "photo/mask.png",
+        "depth": work / "photo/depth.png",
+        "pose": pose,
+    }
 
 
 def mask_rows(mask_png: Path) -> list:
@@ -103,7 +111,9 @@ def mask_box(rows: list) -> list:
 
 
 def api(server: Server, method: str, path: str, key: str, body=None):
-    req = urllib.request.Request(server.http + path, method=method, data=None if body is None else json.dumps(body).encode(), headers={"Authorization": f"Bearer {key}", "Content-Type": "application/json"})
+    req = urllib.request.Request(
+        server.http + path, method=method, data=None if body is None else json.dumps(body).encode(), headers={"Authorization": f"Bearer {key}", "Content-Type": "application/json"}
+    )
     with urllib.request.urlopen(req, timeout=300) as r:
         return json.loads(r.read() or b"null")
 
@@ -249,7 +259,11 @@ def run(page: Page, server: Server, inputs: dict, mask: list) -> None:
     page.by("onboard-mesh").send_keys(str(inputs["mesh"]))
     Select(page.by("onboard-templates")).select_by_value("2:12")
     page.by("onboard-submit").click()
-    page.wait(lambda: page.by("onboard-progress").get_attribute("data-state") == "running" and float(page.by("onboard-bar").get_attribute("value")) > 0, timeout=120, message="the onboarding made no progress")
+    page.wait(
+        lambda: page.by("onboard-progress").get_attribute("data-state") == "running" and float(page.by("onboard-bar").get_attribute("value")) > 0,
+        timeout=120,
+        message="the onboarding made no progress",
+    )
     page.by("onboard-cancel").click()
     page.wait(lambda: page.by("onboard-progress").get_attribute("data-state") == "cancelled", timeout=120, message="not cancelled")
     assert [o["id"] for o in api(server, "GET", "/v1/objects", ADMIN_KEY)["objects"]] == ["sample-box"]
@@ -427,7 +441,9 @@ def drag_box(page: Page, box: list) -> None:
     canvas, to = canvas_offsets(page)
     x0, y0 = to(box[0], box[1])
     x1, y1 = to(box[0] + box[2], box[1] + box[3])
-    ActionChains(page.d).move_to_element_with_offset(canvas, x0, y0).click_and_hold().move_by_offset((x1 - x0) // 2, (y1 - y0) // 2).move_by_offset(x1 - x0 - (x1 - x0) // 2, y1 - y0 - (y1 - y0) // 2).release().perform()
+    ActionChains(page.d).move_to_element_with_offset(canvas, x0, y0).click_and_hold().move_by_offset((x1 - x0) // 2, (y1 - y0) // 2).move_by_offset(
+        x1 - x0 - (x1 - x0) // 2, y1 - y0 - (y1 - y0) // 2
+    ).release().perform()
 
 
 if __name__ == "__main__":

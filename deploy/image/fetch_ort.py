@@ -6,6 +6,7 @@ zip file.
 
 usage: fetch_ort.py URL SHA256 OUT_DIR
 """
+
 import hashlib
 import os
 import shutil

@@ -5,6 +5,7 @@ factory's empty panel.
 
 usage: dashboard_metrics.py DASHBOARD.json METRICS.txt
 """
+
 import json
 import re
 import sys

@@ -7,6 +7,7 @@ and the replicas and the Job both get the bucket's settings and credentials.
 
 usage: k8s_invariants.py RENDERED.yaml
 """
+
 import sys
 
 import yaml

@@ -5,6 +5,7 @@ scene.py camera DIR                  writes DIR/camera.json, prints the true pos
 scene.py estimate-body SCENE_DIR     prints the POST /v1/estimate body (rgb.png + mask.png)
 scene.py check RESPONSE_JSON         checks the pose against the truth, prints the errors
 """
+
 import base64
 import json
 import math
@@ -35,8 +36,7 @@ def main(cmd, arg):
         r, t = truth()
         print(",".join(f"{v:.9f}" for v in r + t))
     elif cmd == "estimate-body":
-        print(json.dumps({"image": {"encoded": b64(f"{arg}/rgb.png")}, "intrinsics": K,
-                          "detections": [{"object_id": "box", "mask_png": b64(f"{arg}/mask.png"), "score": 0.9}]}))
+        print(json.dumps({"image": {"encoded": b64(f"{arg}/rgb.png")}, "intrinsics": K, "detections": [{"object_id": "box", "mask_png": b64(f"{arg}/mask.png"), "score": 0.9}]}))
     elif cmd == "check":
         with open(arg) as f:
             pose = json.load(f)["results"][0]["pose"]

@@ -257,7 +257,11 @@ enum Stat {
 
 fn mean(values: impl Iterator<Item = f64>) -> f64 {
     let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
-    if n == 0 { ABSENT } else { sum / n as f64 }
+    if n == 0 {
+        ABSENT
+    } else {
+        sum / n as f64
+    }
 }
 
 fn category_value(c: &Curves, stat: Stat) -> f64 {

@@ -143,11 +143,7 @@ fn a_detection_takes_the_best_overlapping_ground_truth() {
 
 #[test]
 fn categories_are_averaged_and_one_without_ground_truth_is_left_out() {
-    let cats = BTreeMap::from([
-        (1, vec![image(vec![gt(BIG)], vec![dt(0.9)], &[&[1.0]])]),
-        (2, vec![image(vec![gt(BIG)], vec![dt(0.9)], &[&[0.6]])]),
-        (3, vec![image(vec![], vec![dt(0.9)], &[&[]])]),
-    ]);
+    let cats = BTreeMap::from([(1, vec![image(vec![gt(BIG)], vec![dt(0.9)], &[&[1.0]])]), (2, vec![image(vec![gt(BIG)], vec![dt(0.9)], &[&[0.6]])]), (3, vec![image(vec![], vec![dt(0.9)], &[&[]])])]);
     let s = summarize(&cats);
     assert!(close(s.ap, 0.65), "{s:?}");
     assert!(close(s.per_category[&1], 1.0));

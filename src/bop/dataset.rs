@@ -183,10 +183,7 @@ fn colour_image(scene: &Path, im_id: u32) -> Result<PathBuf, DatasetError> {
     let png = rgb_path(scene, im_id);
     let gray = scene.join("gray").join(format!("{im_id:06}.png"));
     let candidates = [png.clone(), png.with_extension("jpg"), gray.clone(), gray.with_extension("jpg")];
-    candidates
-        .into_iter()
-        .find(|p| p.is_file())
-        .ok_or_else(|| invalid(&png, format!("missing colour image of image {im_id} (nor .jpg, nor gray/{im_id:06}.png|jpg exists)")))
+    candidates.into_iter().find(|p| p.is_file()).ok_or_else(|| invalid(&png, format!("missing colour image of image {im_id} (nor .jpg, nor gray/{im_id:06}.png|jpg exists)")))
 }
 
 /// `test_targets_bop19.json`: which objects to estimate in which images, and how many

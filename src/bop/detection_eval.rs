@@ -58,7 +58,12 @@ pub fn evaluate_detections(images: &[DetectionImage], objects: &BTreeSet<u32>, d
     }
     if let Some(&first) = not_target.first() {
         let d = &dets[first];
-        warnings.push(format!("{} detections are for images that are not test targets (first: entry {first}, scene {} image {}); skipped, as the BOP toolkit does", not_target.len(), d.scene_id, d.image_id));
+        warnings.push(format!(
+            "{} detections are for images that are not test targets (first: entry {first}, scene {} image {}); skipped, as the BOP toolkit does",
+            not_target.len(),
+            d.scene_id,
+            d.image_id
+        ));
     }
     if let Some(&first) = unknown.first() {
         warnings.push(format!("{} detections name objects the dataset does not have (first: entry {first}, category_id {}); skipped, as the BOP toolkit does", unknown.len(), dets[first].obj_id));
@@ -127,11 +132,19 @@ fn mean_time(dets: &[DetectionRecord]) -> f64 {
     for d in dets {
         per_image.entry((d.scene_id, d.image_id)).or_insert(d.time);
     }
-    if per_image.is_empty() { ABSENT } else { per_image.values().sum::<f64>() / per_image.len() as f64 }
+    if per_image.is_empty() {
+        ABSENT
+    } else {
+        per_image.values().sum::<f64>() / per_image.len() as f64
+    }
 }
 
 fn cell(v: f64) -> String {
-    if v == ABSENT { "-".into() } else { format!("{v:.4}") }
+    if v == ABSENT {
+        "-".into()
+    } else {
+        format!("{v:.4}")
+    }
 }
 
 fn format_summary(s: &mut String, title: &str, c: &CocoSummary) {
@@ -182,11 +195,7 @@ mod tests {
     fn scores_boxes_and_masks_and_reports_what_it_skipped() {
         let objects = BTreeSet::from([5, 6]);
         // The box is exact; the mask covers 60 of the 100 pixels: segm IoU 0.6 → 3/10.
-        let dets = vec![
-            det(1, 2, 5, [0.0, 0.0, 10.0, 10.0], Some(rect(0, 0, 6, 10))),
-            det(1, 3, 5, [0.0, 0.0, 10.0, 10.0], None),
-            det(1, 2, 9, [0.0, 0.0, 10.0, 10.0], None),
-        ];
+        let dets = vec![det(1, 2, 5, [0.0, 0.0, 10.0, 10.0], Some(rect(0, 0, 6, 10))), det(1, 3, 5, [0.0, 0.0, 10.0, 10.0], None), det(1, 2, 9, [0.0, 0.0, 10.0, 10.0], None)];
         let mut warnings = Vec::new();
         let r = evaluate_detections(&images(), &objects, &dets, BoxType::Amodal, &mut warnings).unwrap();
         assert_eq!((r.detections, r.evaluated, r.images, r.average_time_per_image), (3, 1, 1, 0.25));

@@ -101,13 +101,7 @@ pub fn load_detection_gt(dataset: &Path, split: &str, box_type: BoxType, warning
                     None => continue,
                 },
             };
-            objects.push(GtObject {
-                obj_id: inst.obj_id,
-                bbox: bbox.map(f64::from),
-                area: visible.area() as f64,
-                mask: visible,
-                ignore: visib_fract < IGNORE_BELOW_VISIB_FRACT,
-            });
+            objects.push(GtObject { obj_id: inst.obj_id, bbox: bbox.map(f64::from), area: visible.area() as f64, mask: visible, ignore: visib_fract < IGNORE_BELOW_VISIB_FRACT });
         }
         out.push(DetectionImage { scene_id: img.scene_id, im_id: img.im_id, width, height, objects });
     }

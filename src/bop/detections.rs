@@ -68,26 +68,14 @@ pub fn parse_detections(path: &Path, text: &str) -> Result<Vec<DetectionRecord>,
         path: path.into(),
         source,
         // Python's json.dump writes NaN/Infinity, which are not JSON.
-        hint: if text.contains("NaN") || text.contains("Infinity") {
-            " (the file contains NaN or Infinity, which JSON does not allow)"
-        } else {
-            ""
-        },
+        hint: if text.contains("NaN") || text.contains("Infinity") { " (the file contains NaN or Infinity, which JSON does not allow)" } else { "" },
     })?;
     let entries = root.as_array().ok_or(DetectionsError::NotAList { path: path.into(), found: json_kind(&root) })?;
-    entries
-        .iter()
-        .enumerate()
-        .map(|(index, entry)| {
-            parse_entry(entry).map_err(|reason| DetectionsError::Entry { path: path.into(), index, reason })
-        })
-        .collect()
+    entries.iter().enumerate().map(|(index, entry)| parse_entry(entry).map_err(|reason| DetectionsError::Entry { path: path.into(), index, reason })).collect()
 }
 
 fn parse_entry(entry: &Value) -> Result<DetectionRecord, FieldError> {
-    let object = entry
-        .as_object()
-        .ok_or_else(|| format!("expected an object, got {}", json_kind(entry)))?;
+    let object = entry.as_object().ok_or_else(|| format!("expected an object, got {}", json_kind(entry)))?;
     let segmentation = match object.get("segmentation") {
         None | Some(Value::Null) => None,
         Some(v) => Some(Rle::from_json(v).map_err(|e| field_error("segmentation", e.to_string()))?),
@@ -114,32 +102,23 @@ fn required<'a>(object: &'a Map<String, Value>, field: &'static str) -> Result<&
 
 fn id(object: &Map<String, Value>, field: &'static str) -> Result<u32, FieldError> {
     let v = required(object, field)?;
-    v.as_u64()
-        .and_then(|n| u32::try_from(n).ok())
-        .ok_or_else(|| field_error(field, format!("expected an integer in 0..=4294967295, got {v}")))
+    v.as_u64().and_then(|n| u32::try_from(n).ok()).ok_or_else(|| field_error(field, format!("expected an integer in 0..=4294967295, got {v}")))
 }
 
 fn finite(object: &Map<String, Value>, field: &'static str) -> Result<f64, FieldError> {
     let v = required(object, field)?;
-    v.as_f64()
-        .filter(|x| x.is_finite())
-        .ok_or_else(|| field_error(field, format!("expected a finite number, got {v}")))
+    v.as_f64().filter(|x| x.is_finite()).ok_or_else(|| field_error(field, format!("expected a finite number, got {v}")))
 }
 
 fn bbox(object: &Map<String, Value>) -> Result<[f64; 4], FieldError> {
     let v = required(object, "bbox")?;
-    let items = v
-        .as_array()
-        .ok_or_else(|| field_error("bbox", format!("expected [x, y, w, h], got {}", json_kind(v))))?;
+    let items = v.as_array().ok_or_else(|| field_error("bbox", format!("expected [x, y, w, h], got {}", json_kind(v))))?;
     if items.len() != 4 {
         return Err(field_error("bbox", format!("expected 4 values [x, y, w, h], got {}", items.len())));
     }
     let mut out = [0.0; 4];
     for (slot, item) in out.iter_mut().zip(items) {
-        *slot = item
-            .as_f64()
-            .filter(|x| x.is_finite())
-            .ok_or_else(|| field_error("bbox", format!("expected finite numbers, got {v}")))?;
+        *slot = item.as_f64().filter(|x| x.is_finite()).ok_or_else(|| field_error("bbox", format!("expected finite numbers, got {v}")))?;
     }
     if out[2] < 0.0 || out[3] < 0.0 {
         return Err(field_error("bbox", format!("width and height must be non-negative, got {v}")));
@@ -276,15 +255,7 @@ mod tests {
     use serde_json::json;
 
     fn record(scene_id: u32, image_id: u32, obj_id: u32, score: f64) -> DetectionRecord {
-        DetectionRecord {
-            scene_id,
-            image_id,
-            obj_id,
-            bbox: [1.0, 2.0, 3.5, 4.25],
-            score,
-            time: 0.125,
-            segmentation: None,
-        }
+        DetectionRecord { scene_id, image_id, obj_id, bbox: [1.0, 2.0, 3.5, 4.25], score, time: 0.125, segmentation: None }
     }
 
     fn write_text(dir: &tempfile::TempDir, text: &str) -> PathBuf {
@@ -382,35 +353,126 @@ mod tests {
     fn entry_errors_name_entry_and_field() {
         type Modify = fn(&mut Map<String, Value>);
         let cases: Vec<(Modify, &str)> = vec![
-            (|e| { e.remove("scene_id"); }, "entry 1: scene_id: missing"),
-            (|e| { e.remove("category_id"); }, "entry 1: category_id: missing"),
-            (|e| { e.remove("bbox"); }, "entry 1: bbox: missing"),
-            (|e| { e.remove("score"); }, "entry 1: score: missing"),
-            (|e| { e.insert("image_id".into(), json!(-1)); }, "entry 1: image_id: expected an integer"),
-            (|e| { e.insert("scene_id".into(), json!(1.5)); }, "entry 1: scene_id: expected an integer"),
-            (|e| { e.insert("scene_id".into(), json!(5_000_000_000u64)); }, "entry 1: scene_id: expected an integer"),
-            (|e| { e.insert("category_id".into(), json!("2")); }, "entry 1: category_id: expected an integer"),
-            (|e| { e.insert("score".into(), json!(null)); }, "entry 1: score: expected a finite number, got null"),
-            (|e| { e.insert("score".into(), json!("NaN")); }, "entry 1: score: expected a finite number"),
-            (|e| { e.insert("time".into(), json!("fast")); }, "entry 1: time: expected a finite number"),
-            (|e| { e.insert("bbox".into(), json!([1, 2, 3])); }, "entry 1: bbox: expected 4 values [x, y, w, h], got 3"),
-            (|e| { e.insert("bbox".into(), json!([1, 2, 3, 4, 5])); }, "entry 1: bbox: expected 4 values"),
-            (|e| { e.insert("bbox".into(), json!([1, "2", 3, 4])); }, "entry 1: bbox: expected finite numbers"),
-            (|e| { e.insert("bbox".into(), json!([1, 2, -3, 4])); }, "entry 1: bbox: width and height"),
-            (|e| { e.insert("bbox".into(), json!({"x": 1})); }, "entry 1: bbox: expected [x, y, w, h], got an object"),
             (
-                |e| { e.insert("segmentation".into(), json!({"counts": [100, 200], "size": [20, 20]})); },
+                |e| {
+                    e.remove("scene_id");
+                },
+                "entry 1: scene_id: missing",
+            ),
+            (
+                |e| {
+                    e.remove("category_id");
+                },
+                "entry 1: category_id: missing",
+            ),
+            (
+                |e| {
+                    e.remove("bbox");
+                },
+                "entry 1: bbox: missing",
+            ),
+            (
+                |e| {
+                    e.remove("score");
+                },
+                "entry 1: score: missing",
+            ),
+            (
+                |e| {
+                    e.insert("image_id".into(), json!(-1));
+                },
+                "entry 1: image_id: expected an integer",
+            ),
+            (
+                |e| {
+                    e.insert("scene_id".into(), json!(1.5));
+                },
+                "entry 1: scene_id: expected an integer",
+            ),
+            (
+                |e| {
+                    e.insert("scene_id".into(), json!(5_000_000_000u64));
+                },
+                "entry 1: scene_id: expected an integer",
+            ),
+            (
+                |e| {
+                    e.insert("category_id".into(), json!("2"));
+                },
+                "entry 1: category_id: expected an integer",
+            ),
+            (
+                |e| {
+                    e.insert("score".into(), json!(null));
+                },
+                "entry 1: score: expected a finite number, got null",
+            ),
+            (
+                |e| {
+                    e.insert("score".into(), json!("NaN"));
+                },
+                "entry 1: score: expected a finite number",
+            ),
+            (
+                |e| {
+                    e.insert("time".into(), json!("fast"));
+                },
+                "entry 1: time: expected a finite number",
+            ),
+            (
+                |e| {
+                    e.insert("bbox".into(), json!([1, 2, 3]));
+                },
+                "entry 1: bbox: expected 4 values [x, y, w, h], got 3",
+            ),
+            (
+                |e| {
+                    e.insert("bbox".into(), json!([1, 2, 3, 4, 5]));
+                },
+                "entry 1: bbox: expected 4 values",
+            ),
+            (
+                |e| {
+                    e.insert("bbox".into(), json!([1, "2", 3, 4]));
+                },
+                "entry 1: bbox: expected finite numbers",
+            ),
+            (
+                |e| {
+                    e.insert("bbox".into(), json!([1, 2, -3, 4]));
+                },
+                "entry 1: bbox: width and height",
+            ),
+            (
+                |e| {
+                    e.insert("bbox".into(), json!({"x": 1}));
+                },
+                "entry 1: bbox: expected [x, y, w, h], got an object",
+            ),
+            (
+                |e| {
+                    e.insert("segmentation".into(), json!({"counts": [100, 200], "size": [20, 20]}));
+                },
                 "entry 1: segmentation: counts sum to 300 but size is 20×20",
             ),
             (
-                |e| { e.insert("segmentation".into(), json!({"counts": "b0 4", "size": [8, 8]})); },
+                |e| {
+                    e.insert("segmentation".into(), json!({"counts": "b0 4", "size": [8, 8]}));
+                },
                 "entry 1: segmentation: compressed counts: invalid character ' '",
             ),
             (
-                |e| { e.insert("segmentation".into(), json!({"counts": [4]})); },
+                |e| {
+                    e.insert("segmentation".into(), json!({"counts": [4]}));
+                },
                 "entry 1: segmentation: size: missing",
             ),
-            (|e| { e.insert("segmentation".into(), json!([1, 2])); }, "entry 1: segmentation: expected an object with \"counts\" and \"size\", got a list"),
+            (
+                |e| {
+                    e.insert("segmentation".into(), json!([1, 2]));
+                },
+                "entry 1: segmentation: expected an object with \"counts\" and \"size\", got a list",
+            ),
         ];
         for (modify, expected) in cases {
             let err = read_error(&with_bad_second_entry(modify));

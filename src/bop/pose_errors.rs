@@ -31,18 +31,9 @@ pub enum MetricError {
     #[error("intrinsics must be finite with non-zero focal lengths, got {0:?}")]
     BadIntrinsics(Intrinsics),
     #[error("depth map `{name}` holds {len} values, expected {width}x{height}")]
-    BadDepthLen {
-        name: &'static str,
-        len: usize,
-        width: usize,
-        height: usize,
-    },
+    BadDepthLen { name: &'static str, len: usize, width: usize, height: usize },
     #[error("depth maps differ in size: test {test:?}, gt {gt:?}, est {est:?}")]
-    SizeMismatch {
-        test: (usize, usize),
-        gt: (usize, usize),
-        est: (usize, usize),
-    },
+    SizeMismatch { test: (usize, usize), gt: (usize, usize), est: (usize, usize) },
     #[error("diameter must be finite and > 0 to normalise VSD distances, got {0}")]
     BadDiameter(f64),
 }
@@ -54,10 +45,7 @@ pub enum MetricError {
 /// includes the identity) with translations in the unit of `pts`.
 pub fn mssd(est: &Pose, gt: &Pose, pts: &[[f64; 3]], syms: &[Pose]) -> Result<f64, MetricError> {
     check_pts_syms(pts, syms)?;
-    let pts_est: Vec<Point3<f64>> = pts
-        .iter()
-        .map(|p| est.transform_point(&Point3::from(*p)))
-        .collect();
+    let pts_est: Vec<Point3<f64>> = pts.iter().map(|p| est.transform_point(&Point3::from(*p))).collect();
     let per_sym = syms.iter().map(|sym| {
         let gt_sym = gt.compose(sym); // R_gt·R_s, R_gt·t_s + t_gt
         nan_max(pts.iter().zip(&pts_est).map(|(p, pe)| {
@@ -70,13 +58,7 @@ pub fn mssd(est: &Pose, gt: &Pose, pts: &[[f64; 3]], syms: &[Pose]) -> Result<f6
 
 /// Maximum Symmetry-Aware Projection Distance (pixels):
 /// `min over syms S of max over points x of ‖π(T_est·x) − π((T_gt∘S)·x)‖`.
-pub fn mspd(
-    est: &Pose,
-    gt: &Pose,
-    pts: &[[f64; 3]],
-    k: Intrinsics,
-    syms: &[Pose],
-) -> Result<f64, MetricError> {
+pub fn mspd(est: &Pose, gt: &Pose, pts: &[[f64; 3]], k: Intrinsics, syms: &[Pose]) -> Result<f64, MetricError> {
     check_pts_syms(pts, syms)?;
     check_intrinsics(k)?;
     let proj_est = project_points(pts, k, est);
@@ -158,32 +140,19 @@ pub struct DepthMap {
 
 impl DepthMap {
     pub fn new(width: usize, height: usize, data: Vec<f32>) -> Result<Self, MetricError> {
-        let map = Self {
-            width,
-            height,
-            data,
-        };
+        let map = Self { width, height, data };
         map.check("depth")?;
         Ok(map)
     }
 
     /// An all-zero (nothing measured / nothing rendered) map.
     pub fn zeros(width: usize, height: usize) -> Self {
-        Self {
-            width,
-            height,
-            data: vec![0.0; width * height],
-        }
+        Self { width, height, data: vec![0.0; width * height] }
     }
 
     fn check(&self, name: &'static str) -> Result<(), MetricError> {
         if Some(self.data.len()) != self.width.checked_mul(self.height) {
-            return Err(MetricError::BadDepthLen {
-                name,
-                len: self.data.len(),
-                width: self.width,
-                height: self.height,
-            });
+            return Err(MetricError::BadDepthLen { name, len: self.data.len(), width: self.width, height: self.height });
         }
         Ok(())
     }
@@ -249,11 +218,7 @@ pub fn vsd(
     depth_test.check("depth_test")?;
     let dims = |d: &DepthMap| (d.width, d.height);
     if dims(depth_est) != dims(depth_test) || dims(depth_gt) != dims(depth_test) {
-        return Err(MetricError::SizeMismatch {
-            test: dims(depth_test),
-            gt: dims(depth_gt),
-            est: dims(depth_est),
-        });
+        return Err(MetricError::SizeMismatch { test: dims(depth_test), gt: dims(depth_gt), est: dims(depth_est) });
     }
     if normalized_by_diameter && !(diameter.is_finite() && diameter > 0.0) {
         return Err(MetricError::BadDiameter(diameter));
@@ -264,9 +229,7 @@ pub fn vsd(
 
     // The toolkit compares float32 differences with delta (float32 too).
     let delta32 = delta as f32;
-    let visible = |model: f64, test: f64| {
-        ((model as f32 - test as f32) <= delta32 || test == 0.0) && model > 0.0
-    };
+    let visible = |model: f64, test: f64| ((model as f32 - test as f32) <= delta32 || test == 0.0) && model > 0.0;
 
     let mut union = 0usize;
     let mut dists = Vec::new(); // over the intersection, row-major
@@ -278,11 +241,7 @@ pub fn vsd(
         }
         if vis_gt && vis_est {
             let d = (dg - de).abs();
-            dists.push(if normalized_by_diameter {
-                d / diameter
-            } else {
-                d
-            });
+            dists.push(if normalized_by_diameter { d / diameter } else { d });
         }
     }
     if union == 0 {
@@ -295,10 +254,7 @@ pub fn vsd(
             let cost_sum = match cost_type {
                 VsdCost::Step => dists.iter().filter(|&&d| d >= tau).count() as f64,
                 VsdCost::TLinear => {
-                    let costs: Vec<f64> = dists
-                        .iter()
-                        .map(|&d| if d / tau > 1.0 { 1.0 } else { d / tau })
-                        .collect();
+                    let costs: Vec<f64> = dists.iter().map(|&d| if d / tau > 1.0 { 1.0 } else { d / tau }).collect();
                     numpy_sum(&costs)
                 }
             };
@@ -404,10 +360,7 @@ mod tests {
     }
 
     fn gt_pose() -> Pose {
-        Pose::new(
-            Rotation3::from_euler_angles(0.3, -0.2, 0.1),
-            Vector3::new(10.0, -5.0, 1000.0),
-        )
+        Pose::new(Rotation3::from_euler_angles(0.3, -0.2, 0.1), Vector3::new(10.0, -5.0, 1000.0))
     }
 
     #[test]
@@ -445,9 +398,7 @@ mod tests {
                 }
             }
         }
-        let flip = DiscreteSymmetry::from_row_major_4x4(&[
-            -1.0, 0.0, 0.0, 20.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0,
-        ]);
+        let flip = DiscreteSymmetry::from_row_major_4x4(&[-1.0, 0.0, 0.0, 20.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]);
         let syms = symmetry_transformations(&[flip], &[], 0.01).unwrap();
         let gt = gt_pose();
         let flip_pose = syms[1];
@@ -457,10 +408,7 @@ mod tests {
         // Without the symmetry the flipped pose is far off (the far corners swap: 40 mm apart
         // in x and 20 in y → sqrt(40² + 20²)).
         let e = mssd(&est, &gt, &pts, &[Pose::identity()]).unwrap();
-        assert!(
-            (e - (40.0f64 * 40.0 + 20.0 * 20.0).sqrt()).abs() < 1e-9,
-            "{e}"
-        );
+        assert!((e - (40.0f64 * 40.0 + 20.0 * 20.0).sqrt()).abs() < 1e-9, "{e}");
     }
 
     #[test]
@@ -473,20 +421,14 @@ mod tests {
                 pts.push([50.0 * a.cos(), 50.0 * a.sin(), z]);
             }
         }
-        let c = ContinuousSymmetry {
-            axis: [0.0, 0.0, 1.0],
-            offset: [0.0, 0.0, 0.0],
-        };
+        let c = ContinuousSymmetry { axis: [0.0, 0.0, 1.0], offset: [0.0, 0.0, 0.0] };
         let syms = symmetry_transformations(&[], &[c], 0.01).unwrap();
         let gt = gt_pose();
         // Nearest discretised angle is at most π/315 away, so every point is off by at
         // most the chord 2·50·sin(π/630) ≈ 0.499 mm (< 0.01·diameter as the toolkit intends).
         let bound = 2.0 * 50.0 * (std::f64::consts::PI / 630.0).sin() + 1e-9;
         for angle in [0.123, 1.0, 2.5, -3.0, 5.9] {
-            let rz = Pose::new(
-                Rotation3::from_axis_angle(&Vector3::z_axis(), angle),
-                Vector3::zeros(),
-            );
+            let rz = Pose::new(Rotation3::from_axis_angle(&Vector3::z_axis(), angle), Vector3::zeros());
             let est = gt.compose(&rz);
             let e = mssd(&est, &gt, &pts, &syms).unwrap();
             assert!(e <= bound, "angle {angle}: mssd {e}");
@@ -501,30 +443,13 @@ mod tests {
     #[test]
     fn bad_inputs_are_errors() {
         let gt = gt_pose();
-        assert_eq!(
-            mssd(&gt, &gt, &[], &[Pose::identity()]),
-            Err(MetricError::EmptyPoints)
-        );
-        assert_eq!(
-            mssd(&gt, &gt, &cube(1.0), &[]),
-            Err(MetricError::EmptySymmetries)
-        );
-        assert!(mspd(
-            &gt,
-            &gt,
-            &cube(1.0),
-            [0.0, 1.0, 0.0, 0.0],
-            &[Pose::identity()]
-        )
-        .is_err());
+        assert_eq!(mssd(&gt, &gt, &[], &[Pose::identity()]), Err(MetricError::EmptyPoints));
+        assert_eq!(mssd(&gt, &gt, &cube(1.0), &[]), Err(MetricError::EmptySymmetries));
+        assert!(mspd(&gt, &gt, &cube(1.0), [0.0, 1.0, 0.0, 0.0], &[Pose::identity()]).is_err());
         let a = DepthMap::zeros(4, 4);
         let b = DepthMap::zeros(5, 4);
         assert!(vsd(&a, &a, &b, KS, 15.0, &[0.1], true, 100.0, VsdCost::Step).is_err());
-        let short = DepthMap {
-            width: 4,
-            height: 4,
-            data: vec![0.0; 3],
-        };
+        let short = DepthMap { width: 4, height: 4, data: vec![0.0; 3] };
         assert!(vsd(&a, &short, &a, KS, 15.0, &[0.1], true, 100.0, VsdCost::Step).is_err());
         assert!(vsd(&a, &a, &a, KS, 15.0, &[0.1], true, 0.0, VsdCost::Step).is_err());
         assert!(DepthMap::new(2, 2, vec![0.0; 5]).is_err());
@@ -536,21 +461,9 @@ mod tests {
         assert!(spheres_overlap(&a, &Vector3::new(0.0, 0.0, 1099.0), 100.0));
         assert!(!spheres_overlap(&a, &Vector3::new(0.0, 0.0, 1100.0), 100.0));
         // Threshold on the normalised image plane: 50·(1/1000 + 1/1000) = 0.1.
-        assert!(!sphere_projections_overlap(
-            50.0,
-            &a,
-            &Vector3::new(101.0, 0.0, 1000.0)
-        ));
-        assert!(sphere_projections_overlap(
-            50.0,
-            &a,
-            &Vector3::new(99.0, 0.0, 1000.0)
-        ));
-        assert!(!sphere_projections_overlap(
-            50.0,
-            &a,
-            &Vector3::new(0.0, 0.0, 0.0)
-        ));
+        assert!(!sphere_projections_overlap(50.0, &a, &Vector3::new(101.0, 0.0, 1000.0)));
+        assert!(sphere_projections_overlap(50.0, &a, &Vector3::new(99.0, 0.0, 1000.0)));
+        assert!(!sphere_projections_overlap(50.0, &a, &Vector3::new(0.0, 0.0, 0.0)));
     }
 
     // ---- VSD on 4×4 hand-made images --------------------------------------------
@@ -614,41 +527,14 @@ mod tests {
         // tau 0.05: all 6 cost 1 → e = 6/6 = 1; tau 0.2: none → e = 0.
         let gt = render(0..2, 100.0);
         let est = render(0..2, 110.0);
-        let test = map([
-            [50.0, 50.0, 50.0, 50.0],
-            [100.0, 100.0, 200.0, 200.0],
-            [100.0, 100.0, 200.0, 200.0],
-            [100.0, 0.0, 200.0, 200.0],
-        ]);
+        let test = map([[50.0, 50.0, 50.0, 50.0], [100.0, 100.0, 200.0, 200.0], [100.0, 100.0, 200.0, 200.0], [100.0, 0.0, 200.0, 200.0]]);
         let e = vsd_step(&est, &gt, &test, &[0.05, 0.2]);
         assert_eq!(e, vec![1.0, 0.0]);
         // Unnormalised taus in mm give the same decisions.
-        let e = vsd(
-            &est,
-            &gt,
-            &test,
-            KS,
-            15.0,
-            &[5.0, 20.0],
-            false,
-            100.0,
-            VsdCost::Step,
-        )
-        .unwrap();
+        let e = vsd(&est, &gt, &test, KS, 15.0, &[5.0, 20.0], false, 100.0, VsdCost::Step).unwrap();
         assert_eq!(e, vec![1.0, 0.0]);
         // tlinear: cost = min(d/tau, 1) ≈ 0.1/0.2 = 0.5 per pixel → e ≈ 0.5.
-        let e = vsd(
-            &est,
-            &gt,
-            &test,
-            KS,
-            15.0,
-            &[0.2],
-            true,
-            100.0,
-            VsdCost::TLinear,
-        )
-        .unwrap();
+        let e = vsd(&est, &gt, &test, KS, 15.0, &[0.2], true, 100.0, VsdCost::TLinear).unwrap();
         assert!((e[0] - 0.5).abs() < 1e-3, "{e:?}");
     }
 
@@ -665,12 +551,7 @@ mod tests {
         // tau 0.2: (3 + 6) / 9 = 1; tau 0.4: (0 + 6) / 9 = 2/3.
         let gt = render(0..2, 100.0);
         let est = render(1..3, 130.0);
-        let test = map([
-            [50.0, 50.0, 50.0, 50.0],
-            [100.0, 100.0, 200.0, 200.0],
-            [100.0, 100.0, 200.0, 200.0],
-            [100.0, 100.0, 200.0, 200.0],
-        ]);
+        let test = map([[50.0, 50.0, 50.0, 50.0], [100.0, 100.0, 200.0, 200.0], [100.0, 100.0, 200.0, 200.0], [100.0, 100.0, 200.0, 200.0]]);
         let e = vsd_step(&est, &gt, &test, &[0.2, 0.4]);
         assert_eq!(e, vec![1.0, 6.0 / 9.0]);
     }
@@ -691,12 +572,7 @@ mod tests {
 
     #[test]
     fn distance_image_matches_formula() {
-        let d = map([
-            [0.0, 0.0, 0.0, 0.0],
-            [0.0, 0.0, 0.0, 0.0],
-            [0.0, 0.0, 0.0, 0.0],
-            [0.0, 0.0, 0.0, 200.0],
-        ]);
+        let d = map([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 200.0]]);
         let dist = depth_to_distance(&d, KS).unwrap();
         // Pixel (3, 3): X = (3 − 1.5)/100·200 = 3, Y = 3, Z = 200.
         assert_eq!(dist[15], (9.0f64 + 9.0 + 40000.0).sqrt());

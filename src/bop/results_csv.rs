@@ -78,11 +78,7 @@ pub fn read_results(path: &Path, warnings: &mut Vec<String>) -> Result<Vec<Resul
 }
 
 /// Parses the text of a results file; `path` names it in errors and warnings.
-pub fn parse_results(
-    path: &Path,
-    text: &str,
-    warnings: &mut Vec<String>,
-) -> Result<Vec<ResultRow>, ResultsError> {
+pub fn parse_results(path: &Path, text: &str, warnings: &mut Vec<String>) -> Result<Vec<ResultRow>, ResultsError> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut lines: Vec<&str> = text.split('\n').collect();
     let unterminated_last = !text.ends_with('\n');
@@ -190,10 +186,7 @@ impl ResultsWriter {
             return Err(ResultsError::Row {
                 path: self.path.clone(),
                 index,
-                reason: format!(
-                    "image (scene {}, im {}) differs from row 0's (scene {}, im {}); append one image at a time",
-                    other.scene_id, other.im_id, first.scene_id, first.im_id
-                ),
+                reason: format!("image (scene {}, im {}) differs from row 0's (scene {}, im {}); append one image at a time", other.scene_id, other.im_id, first.scene_id, first.im_id),
             });
         }
         let text = format_rows(&self.path, rows)?;
@@ -255,16 +248,7 @@ fn format_rows(path: &Path, rows: &[ResultRow]) -> Result<String, ResultsError> 
 fn format_row(row: &ResultRow) -> String {
     let join = |values: &[f64]| values.iter().map(|v| v.to_string()).collect::<Vec<_>>().join(" ");
     let t_mm: Vec<f64> = row.pose.translation.iter().map(|v| v * MM_PER_M).collect();
-    format!(
-        "{},{},{},{},{},{},{}",
-        row.scene_id,
-        row.im_id,
-        row.obj_id,
-        row.score,
-        join(&row.pose.rotation_row_major()),
-        join(&t_mm),
-        row.time
-    )
+    format!("{},{},{},{},{},{},{}", row.scene_id, row.im_id, row.obj_id, row.score, join(&row.pose.rotation_row_major()), join(&t_mm), row.time)
 }
 
 /// Parses one data line, with how far its R is from a rotation; the error names
@@ -328,10 +312,7 @@ mod tests {
             im_id,
             obj_id,
             score: 0.123456789012345,
-            pose: Pose::new(
-                Rotation3::from_scaled_axis(axis * angle),
-                Vector3::new(0.0123456789, -0.987654321, 1.000000001 * angle),
-            ),
+            pose: Pose::new(Rotation3::from_scaled_axis(axis * angle), Vector3::new(0.0123456789, -0.987654321, 1.000000001 * angle)),
             time: 1.5,
         }
     }
@@ -386,14 +367,7 @@ mod tests {
     fn translation_is_written_in_millimetres() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("results.csv");
-        let r = ResultRow {
-            scene_id: 48,
-            im_id: 1,
-            obj_id: 2,
-            score: 0.5,
-            pose: Pose::new(Rotation3::identity(), Vector3::new(0.1, -0.25, 1.5)),
-            time: 0.25,
-        };
+        let r = ResultRow { scene_id: 48, im_id: 1, obj_id: 2, score: 0.5, pose: Pose::new(Rotation3::identity(), Vector3::new(0.1, -0.25, 1.5)), time: 0.25 };
         write_results(&path, &[r]).unwrap();
         let text = fs::read_to_string(&path).unwrap();
         assert_eq!(text, "scene_id,im_id,obj_id,score,R,t,time\n48,1,2,0.5,1 0 0 0 1 0 0 0 1,100 -250 1500,0.25\n");

@@ -98,9 +98,7 @@ pub fn np_arange(start: f64, stop: f64, step: f64) -> Vec<f64> {
         return Vec::new();
     }
     let delta = (start + step) - start;
-    (0..len as usize)
-        .map(|i| start + i as f64 * delta)
-        .collect()
+    (0..len as usize).map(|i| start + i as f64 * delta).collect()
 }
 
 /// One GT instance of the target object in the target image (in `scene_gt` order).
@@ -144,12 +142,7 @@ pub enum ScoringError {
     #[error("target scene {0} im {1} obj {2} is listed twice")]
     DuplicateTarget(u32, u32, u32),
     #[error("target scene {scene_id} im {im_id} obj {obj_id}: {message}")]
-    BadTarget {
-        scene_id: u32,
-        im_id: u32,
-        obj_id: u32,
-        message: String,
-    },
+    BadTarget { scene_id: u32, im_id: u32, obj_id: u32, message: String },
     #[error("invalid parameters: {0}")]
     BadParams(String),
 }
@@ -212,8 +205,7 @@ pub fn select_estimates(scores: &[f64], inst_count: usize, n_top: i64) -> Vec<us
 /// Descending order with NaN last — a total order, so the stable sort keeps
 /// equal keys in input order like Python's `sorted(..., reverse=True)`.
 fn desc_nan_last(a: f64, b: f64) -> std::cmp::Ordering {
-    b.partial_cmp(&a)
-        .unwrap_or_else(|| a.is_nan().cmp(&b.is_nan()))
+    b.partial_cmp(&a).unwrap_or_else(|| a.is_nan().cmp(&b.is_nan()))
 }
 
 /// Valid GT mask (see the module docs).
@@ -233,13 +225,7 @@ pub fn valid_gts(gts: &[GtInstance], inst_count: usize, visib_gt_min: f64) -> Ve
 /// `pose_matching.match_poses` for one target and one threshold: returns
 /// `(estimate, gt)` pairs. `est_order` is best-first; `normalize` maps a raw
 /// error to the thresholded quantity.
-pub fn greedy_match(
-    est_order: &[usize],
-    errors: &[Vec<f64>],
-    gt_valid: &[bool],
-    threshold: f64,
-    normalize: impl Fn(f64) -> f64,
-) -> Vec<(usize, usize)> {
+pub fn greedy_match(est_order: &[usize], errors: &[Vec<f64>], gt_valid: &[bool], threshold: f64, normalize: impl Fn(f64) -> f64) -> Vec<(usize, usize)> {
     let mut matched = vec![false; gt_valid.len()];
     let mut out = Vec::new();
     for &est in est_order {
@@ -263,10 +249,7 @@ pub fn greedy_match(
 }
 
 /// Runs the whole BOP'19 aggregation over `targets`.
-pub fn evaluate_bop19(
-    targets: &[TargetEval],
-    params: &Bop19Params,
-) -> Result<ArReport, ScoringError> {
+pub fn evaluate_bop19(targets: &[TargetEval], params: &Bop19Params) -> Result<ArReport, ScoringError> {
     check_params(params)?;
     let mut seen = HashSet::new();
     for t in targets {
@@ -289,39 +272,22 @@ pub fn evaluate_bop19(
     // One Tally per evaluated (table, threshold) pair, in the toolkit's order.
     let mut vsd_tallies = Vec::new();
     for (tau_idx, _) in params.vsd_taus.iter().enumerate() {
-        let row: Vec<Tally> = params
-            .vsd_correct_th
-            .iter()
-            .map(|&th| tally(targets, &prepared, th, |t| &t.vsd[tau_idx], |_, e| e))
-            .collect();
+        let row: Vec<Tally> = params.vsd_correct_th.iter().map(|&th| tally(targets, &prepared, th, |t| &t.vsd[tau_idx], |_, e| e)).collect();
         vsd_tallies.push(row);
     }
-    let mssd_tallies: Vec<Tally> = params
-        .mssd_correct_th
-        .iter()
-        .map(|&th| tally(targets, &prepared, th, |t| &t.mssd, |t, e| e / t.diameter))
-        .collect();
+    let mssd_tallies: Vec<Tally> = params.mssd_correct_th.iter().map(|&th| tally(targets, &prepared, th, |t| &t.mssd, |t, e| e / t.diameter)).collect();
     let mspd_tallies: Vec<Tally> = params
         .mspd_correct_th
         .iter()
         .map(|&th| {
             let w = params.mspd_reference_width;
-            tally(
-                targets,
-                &prepared,
-                th,
-                |t| &t.mspd,
-                move |t, e| w / f64::from(t.image_width) * e,
-            )
+            tally(targets, &prepared, th, |t| &t.mspd, move |t, e| w / f64::from(t.image_width) * e)
         })
         .collect();
 
     let pooled = |t: &Tally| recall(t.tps, total_targets);
     let recalls = RecallCurves {
-        vsd: vsd_tallies
-            .iter()
-            .map(|row| row.iter().map(pooled).collect())
-            .collect(),
+        vsd: vsd_tallies.iter().map(|row| row.iter().map(pooled).collect()).collect(),
         mssd: mssd_tallies.iter().map(pooled).collect(),
         mspd: mspd_tallies.iter().map(pooled).collect(),
     };
@@ -331,41 +297,16 @@ pub fn evaluate_bop19(
 
     let mut per_object = BTreeMap::new();
     for &obj in &obj_ids {
-        let n: usize = targets
-            .iter()
-            .zip(&prepared)
-            .filter(|(t, _)| t.obj_id == obj)
-            .map(|(_, p)| p.n_targets)
-            .sum();
+        let n: usize = targets.iter().zip(&prepared).filter(|(t, _)| t.obj_id == obj).map(|(_, p)| p.n_targets).sum();
         let obj_recall = |t: &Tally| recall(t.obj_tps.get(&obj).copied().unwrap_or(0), n);
         let vsd: Vec<f64> = vsd_tallies.iter().flatten().map(obj_recall).collect();
         let mssd: Vec<f64> = mssd_tallies.iter().map(obj_recall).collect();
         let mspd: Vec<f64> = mspd_tallies.iter().map(obj_recall).collect();
         let (v, s, p) = (numpy_mean(&vsd), numpy_mean(&mssd), numpy_mean(&mspd));
-        per_object.insert(
-            obj,
-            ObjectAr {
-                ar: numpy_mean(&[v, s, p]),
-                ar_vsd: v,
-                ar_mssd: s,
-                ar_mspd: p,
-                targets: n,
-                half_turns: 0,
-            },
-        );
+        per_object.insert(obj, ObjectAr { ar: numpy_mean(&[v, s, p]), ar_vsd: v, ar_mssd: s, ar_mspd: p, targets: n, half_turns: 0 });
     }
 
-    Ok(ArReport {
-        ar: numpy_mean(&[ar_vsd, ar_mssd, ar_mspd]),
-        ar_vsd,
-        ar_mssd,
-        ar_mspd,
-        per_object,
-        targets: total_targets,
-        half_turns: 0,
-        estimates,
-        recalls,
-    })
+    Ok(ArReport { ar: numpy_mean(&[ar_vsd, ar_mssd, ar_mspd]), ar_vsd, ar_mssd, ar_mspd, per_object, targets: total_targets, half_turns: 0, estimates, recalls })
 }
 
 /// Renders a report as a Markdown table (overall first, then one row per object).
@@ -373,17 +314,9 @@ pub fn format_report(r: &ArReport) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "| scope | targets | AR | AR_VSD | AR_MSSD | AR_MSPD | half-turns |");
     let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|");
-    let _ = writeln!(
-        s,
-        "| all | {} | {:.4} | {:.4} | {:.4} | {:.4} | {} |",
-        r.targets, r.ar, r.ar_vsd, r.ar_mssd, r.ar_mspd, r.half_turns
-    );
+    let _ = writeln!(s, "| all | {} | {:.4} | {:.4} | {:.4} | {:.4} | {} |", r.targets, r.ar, r.ar_vsd, r.ar_mssd, r.ar_mspd, r.half_turns);
     for (obj, o) in &r.per_object {
-        let _ = writeln!(
-            s,
-            "| obj {} | {} | {:.4} | {:.4} | {:.4} | {:.4} | {} |",
-            obj, o.targets, o.ar, o.ar_vsd, o.ar_mssd, o.ar_mspd, o.half_turns
-        );
+        let _ = writeln!(s, "| obj {} | {} | {:.4} | {:.4} | {:.4} | {:.4} | {} |", obj, o.targets, o.ar, o.ar_vsd, o.ar_mssd, o.ar_mspd, o.half_turns);
     }
     let _ = writeln!(s, "\nhalf-turns: estimates whose centre is within 0.1·d of a true instance's and whose rotation is more than 90° from it, up to the symmetries scored with (not a BOP metric)");
     let _ = writeln!(s, "\nestimates evaluated: {}", r.estimates);
@@ -411,11 +344,7 @@ impl Prepared {
             Ok(n) if n > 0 => n_valid.min(n),
             _ => n_valid,
         };
-        Self {
-            order: select_estimates(&t.est_scores, t.inst_count, p.n_top),
-            valid,
-            n_targets,
-        }
+        Self { order: select_estimates(&t.est_scores, t.inst_count, p.n_top), valid, n_targets }
     }
 }
 
@@ -425,17 +354,8 @@ struct Tally {
     obj_tps: BTreeMap<u32, usize>,
 }
 
-fn tally<'a>(
-    targets: &'a [TargetEval],
-    prepared: &[Prepared],
-    threshold: f64,
-    table: impl Fn(&'a TargetEval) -> &'a ErrorTable,
-    normalize: impl Fn(&TargetEval, f64) -> f64,
-) -> Tally {
-    let mut out = Tally {
-        tps: 0,
-        obj_tps: BTreeMap::new(),
-    };
+fn tally<'a>(targets: &'a [TargetEval], prepared: &[Prepared], threshold: f64, table: impl Fn(&'a TargetEval) -> &'a ErrorTable, normalize: impl Fn(&TargetEval, f64) -> f64) -> Tally {
+    let mut out = Tally { tps: 0, obj_tps: BTreeMap::new() };
     for (t, p) in targets.iter().zip(prepared) {
         let n = greedy_match(&p.order, table(t), &p.valid, threshold, |e| normalize(t, e)).len();
         out.tps += n;
@@ -462,23 +382,14 @@ fn numpy_mean(v: &[f64]) -> f64 {
 }
 
 fn check_params(p: &Bop19Params) -> Result<(), ScoringError> {
-    let lists = [
-        ("vsd_taus", &p.vsd_taus),
-        ("vsd_correct_th", &p.vsd_correct_th),
-        ("mssd_correct_th", &p.mssd_correct_th),
-        ("mspd_correct_th", &p.mspd_correct_th),
-    ];
+    let lists = [("vsd_taus", &p.vsd_taus), ("vsd_correct_th", &p.vsd_correct_th), ("mssd_correct_th", &p.mssd_correct_th), ("mspd_correct_th", &p.mspd_correct_th)];
     for (name, l) in lists {
         if l.is_empty() || l.iter().any(|v| v.is_nan()) {
-            return Err(ScoringError::BadParams(format!(
-                "{name} must be non-empty and free of NaN"
-            )));
+            return Err(ScoringError::BadParams(format!("{name} must be non-empty and free of NaN")));
         }
     }
     if !(p.mspd_reference_width.is_finite() && p.mspd_reference_width > 0.0) {
-        return Err(ScoringError::BadParams(
-            "mspd_reference_width must be finite and > 0".into(),
-        ));
+        return Err(ScoringError::BadParams("mspd_reference_width must be finite and > 0".into()));
     }
     if p.visib_gt_min.is_nan() {
         return Err(ScoringError::BadParams("visib_gt_min is NaN".into()));
@@ -487,12 +398,7 @@ fn check_params(p: &Bop19Params) -> Result<(), ScoringError> {
 }
 
 fn check_target(t: &TargetEval, p: &Bop19Params) -> Result<(), ScoringError> {
-    let bad = |message: String| ScoringError::BadTarget {
-        scene_id: t.scene_id,
-        im_id: t.im_id,
-        obj_id: t.obj_id,
-        message,
-    };
+    let bad = |message: String| ScoringError::BadTarget { scene_id: t.scene_id, im_id: t.im_id, obj_id: t.obj_id, message };
     if t.est_scores.iter().any(|s| s.is_nan()) {
         return Err(bad("an estimate score is NaN".into()));
     }
@@ -500,32 +406,19 @@ fn check_target(t: &TargetEval, p: &Bop19Params) -> Result<(), ScoringError> {
         return Err(bad("a GT visib_fract is NaN".into()));
     }
     if !(t.diameter.is_finite() && t.diameter > 0.0) {
-        return Err(bad(format!(
-            "diameter must be finite and > 0, got {}",
-            t.diameter
-        )));
+        return Err(bad(format!("diameter must be finite and > 0, got {}", t.diameter)));
     }
     if t.image_width == 0 {
         return Err(bad("image_width is 0".into()));
     }
     if t.vsd.len() != p.vsd_taus.len() {
-        return Err(bad(format!(
-            "{} VSD tables for {} taus",
-            t.vsd.len(),
-            p.vsd_taus.len()
-        )));
+        return Err(bad(format!("{} VSD tables for {} taus", t.vsd.len(), p.vsd_taus.len())));
     }
     let (rows, cols) = (t.est_scores.len(), t.gts.len());
-    let tables = t
-        .vsd
-        .iter()
-        .map(|v| ("vsd", v))
-        .chain([("mssd", &t.mssd), ("mspd", &t.mspd)]);
+    let tables = t.vsd.iter().map(|v| ("vsd", v)).chain([("mssd", &t.mssd), ("mspd", &t.mspd)]);
     for (name, table) in tables {
         if table.len() != rows || table.iter().any(|r| r.len() != cols) {
-            return Err(bad(format!(
-                "{name} table must be {rows} estimates x {cols} GTs"
-            )));
+            return Err(bad(format!("{name} table must be {rows} estimates x {cols} GTs")));
         }
     }
     Ok(())
@@ -536,23 +429,13 @@ mod tests {
     use super::*;
 
     /// A target whose every metric table is `err` (VSD: same table for every tau).
-    fn target(
-        obj_id: u32,
-        im_id: u32,
-        inst: usize,
-        visib: &[f64],
-        scores: &[f64],
-        err: ErrorTable,
-    ) -> TargetEval {
+    fn target(obj_id: u32, im_id: u32, inst: usize, visib: &[f64], scores: &[f64], err: ErrorTable) -> TargetEval {
         TargetEval {
             scene_id: 1,
             im_id,
             obj_id,
             inst_count: inst,
-            gts: visib
-                .iter()
-                .map(|&v| GtInstance { visib_fract: v })
-                .collect(),
+            gts: visib.iter().map(|&v| GtInstance { visib_fract: v }).collect(),
             est_scores: scores.to_vec(),
             vsd: vec![err.clone(); 10],
             mssd: err.clone(),
@@ -569,27 +452,14 @@ mod tests {
         assert_eq!(p.vsd_taus[0], 0.05);
         assert_eq!(p.vsd_taus[2], 0.15000000000000002); // numpy: 0.05 + 2*0.05
         assert_eq!(p.vsd_taus[9], 0.5);
-        assert_eq!(
-            p.mspd_correct_th,
-            vec![5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0, 45.0, 50.0]
-        );
+        assert_eq!(p.mspd_correct_th, vec![5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0, 45.0, 50.0]);
         assert_eq!(p.mssd_correct_th, p.vsd_correct_th);
     }
 
     #[test]
     fn true_poses_give_ar_one() {
         let p = Bop19Params::default();
-        let t = vec![
-            target(1, 0, 1, &[0.9], &[0.5], vec![vec![0.0]]),
-            target(
-                2,
-                0,
-                2,
-                &[0.9, 0.4],
-                &[0.5, 0.7],
-                vec![vec![0.0, 9.0], vec![9.0, 0.0]],
-            ),
-        ];
+        let t = vec![target(1, 0, 1, &[0.9], &[0.5], vec![vec![0.0]]), target(2, 0, 2, &[0.9, 0.4], &[0.5, 0.7], vec![vec![0.0, 9.0], vec![9.0, 0.0]])];
         let r = evaluate_bop19(&t, &p).unwrap();
         assert_eq!((r.ar, r.ar_vsd, r.ar_mssd, r.ar_mspd), (1.0, 1.0, 1.0, 1.0));
         assert_eq!(r.targets, 3);
@@ -643,10 +513,7 @@ mod tests {
         let t = target(1, 0, 1, &[0.9], &[0.9, 0.2], vec![vec![0.0], vec![1e9]]);
         assert_eq!(evaluate_bop19(&[t], &p).unwrap().ar, 1.0);
         // Ties keep submission order (stable sort).
-        assert_eq!(
-            select_estimates(&[0.5, 0.7, 0.5, 0.7], 3, -1),
-            vec![1, 3, 0]
-        );
+        assert_eq!(select_estimates(&[0.5, 0.7, 0.5, 0.7], 3, -1), vec![1, 3, 0]);
         assert_eq!(select_estimates(&[0.5, 0.7], 1, 0), vec![1, 0]);
         assert_eq!(select_estimates(&[0.5, 0.7, 0.9], 1, 2), vec![2, 1]);
     }
@@ -659,19 +526,13 @@ mod tests {
         // Recall: th 0.05..0.30 (6 values) → 1/2, th 0.35..0.50 (4) → 2/2 → AR = 0.7.
         let err = vec![vec![0.01, 0.20], vec![0.02, 0.30]];
         let mut t = target(1, 0, 2, &[0.9, 0.8], &[0.9, 0.8], err.clone());
-        t.mssd = err
-            .iter()
-            .map(|r| r.iter().map(|e| e * 100.0).collect())
-            .collect();
+        t.mssd = err.iter().map(|r| r.iter().map(|e| e * 100.0).collect()).collect();
         let r = evaluate_bop19(&[t], &p).unwrap();
         assert!((r.ar_vsd - 0.7).abs() < 1e-15, "{}", r.ar_vsd);
         assert!((r.ar_mssd - 0.7).abs() < 1e-15, "{}", r.ar_mssd);
         assert_eq!(r.recalls.mssd[0], 0.5);
         assert_eq!(r.recalls.mssd[9], 1.0);
-        assert_eq!(
-            greedy_match(&[0, 1], &err, &[true, true], 0.5, |e| e),
-            vec![(0, 0), (1, 1)]
-        );
+        assert_eq!(greedy_match(&[0, 1], &err, &[true, true], 0.5, |e| e), vec![(0, 0), (1, 1)]);
     }
 
     #[test]
@@ -683,10 +544,7 @@ mod tests {
         let r = evaluate_bop19(&[t], &p).unwrap();
         assert_eq!((r.ar, r.targets), (0.0, 1));
         // With visib_gt_min = 0.1 both GTs are valid (2 targets, 1 found).
-        let p2 = Bop19Params {
-            visib_gt_min: 0.1,
-            ..Bop19Params::default()
-        };
+        let p2 = Bop19Params { visib_gt_min: 0.1, ..Bop19Params::default() };
         let t = target(1, 0, 1, &[0.3, 0.8], &[1.0], vec![vec![0.0, 1e9]]);
         let r = evaluate_bop19(&[t], &p2).unwrap();
         assert_eq!((r.ar, r.targets), (0.5, 2));
@@ -696,9 +554,7 @@ mod tests {
     fn overall_recall_is_pooled_not_mean_of_objects() {
         let p = Bop19Params::default();
         // Object 1: three images, all correct. Object 2: one image, wrong.
-        let mut t: Vec<TargetEval> = (0..3)
-            .map(|im| target(1, im, 1, &[0.9], &[1.0], vec![vec![0.0]]))
-            .collect();
+        let mut t: Vec<TargetEval> = (0..3).map(|im| target(1, im, 1, &[0.9], &[1.0], vec![vec![0.0]])).collect();
         t.push(target(2, 0, 1, &[0.9], &[1.0], vec![vec![1e9]]));
         let r = evaluate_bop19(&t, &p).unwrap();
         assert_eq!(r.ar, 0.75); // 3 / 4, not (1 + 0) / 2
@@ -713,16 +569,10 @@ mod tests {
     fn bad_input_is_rejected() {
         let p = Bop19Params::default();
         let good = target(1, 0, 1, &[0.9], &[1.0], vec![vec![0.0]]);
-        assert!(matches!(
-            evaluate_bop19(&[good.clone(), good.clone()], &p),
-            Err(ScoringError::DuplicateTarget(1, 0, 1))
-        ));
+        assert!(matches!(evaluate_bop19(&[good.clone(), good.clone()], &p), Err(ScoringError::DuplicateTarget(1, 0, 1))));
         let mut bad = good.clone();
         bad.mssd = vec![vec![0.0, 1.0]];
-        assert!(evaluate_bop19(&[bad], &p)
-            .unwrap_err()
-            .to_string()
-            .contains("obj 1"));
+        assert!(evaluate_bop19(&[bad], &p).unwrap_err().to_string().contains("obj 1"));
         let mut bad = good.clone();
         bad.vsd.pop();
         assert!(evaluate_bop19(&[bad], &p).is_err());
@@ -732,10 +582,7 @@ mod tests {
         let mut bad = good;
         bad.image_width = 0;
         assert!(evaluate_bop19(&[bad], &p).is_err());
-        let p = Bop19Params {
-            mssd_correct_th: vec![],
-            ..Bop19Params::default()
-        };
+        let p = Bop19Params { mssd_correct_th: vec![], ..Bop19Params::default() };
         assert!(evaluate_bop19(&[], &p).is_err());
     }
 }

@@ -19,9 +19,9 @@
 use super::dataset::{load_depth_mm, load_scene_cameras, load_split_gt, load_targets, model_path};
 use super::detections::{write_detections, DetectionRecord};
 use super::format::{MODELS_INFO, TEST_SPLIT};
-use crate::masks::rle::Rle;
 use super::synth_masks::{area, morph, shift};
 use crate::eval::scenes::{generate_dataset_over, Background, SceneConfig, SCENE_ID};
+use crate::masks::rle::Rle;
 use crate::mesh::procedural::Rng;
 use crate::mesh::{load_mesh, Mesh, Units};
 use crate::render::RenderPool;
@@ -151,7 +151,8 @@ fn without_texture(ply: &[u8]) -> Vec<u8> {
 /// its depth in metres.
 fn load_backgrounds(root: &Path) -> Result<Vec<Background>> {
     let split = root.join(TEST_SPLIT);
-    let mut scenes: Vec<PathBuf> = std::fs::read_dir(&split).with_context(|| format!("backgrounds: reading {}", split.display()))?.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.is_dir()).collect();
+    let mut scenes: Vec<PathBuf> =
+        std::fs::read_dir(&split).with_context(|| format!("backgrounds: reading {}", split.display()))?.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.is_dir()).collect();
     scenes.sort();
     let mut out = Vec::new();
     for scene in scenes {

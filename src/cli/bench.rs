@@ -179,7 +179,13 @@ fn render(mesh: Mesh, size: u32, count: usize, config: crate::render::RendererCo
         mesh.name(),
         mesh.triangles().len(),
         drawn.triangles.len(),
-        if config.cull_closed_meshes && drawn.closed { "closed: one-sided" } else if drawn.closed { "closed, drawn two-sided" } else { "open: two-sided" },
+        if config.cull_closed_meshes && drawn.closed {
+            "closed: one-sided"
+        } else if drawn.closed {
+            "closed, drawn two-sided"
+        } else {
+            "open: two-sided"
+        },
         pool.describe(),
         count as f64 / s,
         1e3 * s / count as f64
@@ -235,7 +241,9 @@ fn onboard_rows(data: &Path, default_units: Units, meshes: &[PathBuf], store: &d
     let pool = super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?;
     let config = OnboardConfig::default();
     println!("{}", store.url());
-    println!("| mesh | units | vertices | faces | diameter (mm) | load (s) | onboarding (s) | of which contour model (s) | store put (s) | templates | patches | model (MB) | of which contour model (MB) |");
+    println!(
+        "| mesh | units | vertices | faces | diameter (mm) | load (s) | onboarding (s) | of which contour model (s) | store put (s) | templates | patches | model (MB) | of which contour model (MB) |"
+    );
     println!("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for path in meshes {
         let units = units_for(path, default_units);

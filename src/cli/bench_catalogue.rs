@@ -97,14 +97,30 @@ pub fn run(a: BenchCatalogueArgs) -> Result<()> {
     let extra_ms: Vec<f64> = cold.iter().zip(&warm).map(|(c, w)| c.ms - w.ms).collect();
     // The same difference between two warm estimates: what the noise alone gives.
     let noise_ms: Vec<f64> = again.iter().zip(&warm).map(|(a, w)| a.ms - w.ms).collect();
-    println!("catalogue: {} objects copied from {} ({} descriptors, patch rows {}) into {}; server --max-estimates 1{}, RRC {}",
-        ids.len(), a.from, a.descriptors, a.patch_rows, a.store, a.cache_mb.map_or(String::new(), |mb| format!(", --cache-mb {mb}")), if a.no_rrc { "off" } else { "on" });
+    println!(
+        "catalogue: {} objects copied from {} ({} descriptors, patch rows {}) into {}; server --max-estimates 1{}, RRC {}",
+        ids.len(),
+        a.from,
+        a.descriptors,
+        a.patch_rows,
+        a.store,
+        a.cache_mb.map_or(String::new(), |mb| format!(", --cache-mb {mb}")),
+        if a.no_rrc { "off" } else { "on" }
+    );
     println!("| store | MB on disk | MB per object | server RSS before (MB) | after: RSS / anon / file (MB) | per object (MB) | objects loaded | cache MB |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|");
     println!(
         "| {} | {:.0} | {:.1} | {:.0} | {:.0} / {:.0} / {:.0} | {:.1} | {} | {:.0} |",
-        a.store, bytes as f64 / 1e6, bytes as f64 / 1e6 / ids.len().max(1) as f64, before.rss, after.rss, after.anon, after.file,
-        (after.rss - before.rss) / ids.len().max(1) as f64, metric("b2tf_objects_loaded"), metric("b2tf_cache_bytes") / 1e6
+        a.store,
+        bytes as f64 / 1e6,
+        bytes as f64 / 1e6 / ids.len().max(1) as f64,
+        before.rss,
+        after.rss,
+        after.anon,
+        after.file,
+        (after.rss - before.rss) / ids.len().max(1) as f64,
+        metric("b2tf_objects_loaded"),
+        metric("b2tf_cache_bytes") / 1e6
     );
     println!("| estimate (ms) | median | p90 | max |");
     println!("|---|---:|---:|---:|");
@@ -200,4 +216,3 @@ fn sorted(v: &[f64]) -> Vec<f64> {
     s.sort_by(f64::total_cmp);
     s
 }
-

@@ -124,8 +124,18 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
         for d in &report.detections {
             let obj = names.iter().position(|n| *n == d.object_id).expect("a searched object");
             if a.oracle {
-                let best = scene.instances.iter().filter(|i| i.obj_id as usize - 1 == obj).filter_map(|i| crate::detect::detector::bbox_of(&i.mask_visib)).map(|b| box_iou(&b, &d.bbox)).fold(0.0, f64::max);
-                println!("image {im} {}: score {:.3}, box IoU {:.2}, shape {:.3}, outline {:.3}, colour {}, texture {}", d.object_id, d.score, best, d.shape_score, d.evidence.outline, d.evidence.colour.map_or("-".into(), |c| format!("{c:.3}")), d.evidence.texture.map_or("-".into(), |c| format!("{c:.3}")));
+                let best =
+                    scene.instances.iter().filter(|i| i.obj_id as usize - 1 == obj).filter_map(|i| crate::detect::detector::bbox_of(&i.mask_visib)).map(|b| box_iou(&b, &d.bbox)).fold(0.0, f64::max);
+                println!(
+                    "image {im} {}: score {:.3}, box IoU {:.2}, shape {:.3}, outline {:.3}, colour {}, texture {}",
+                    d.object_id,
+                    d.score,
+                    best,
+                    d.shape_score,
+                    d.evidence.outline,
+                    d.evidence.colour.map_or("-".into(), |c| format!("{c:.3}")),
+                    d.evidence.texture.map_or("-".into(), |c| format!("{c:.3}"))
+                );
             }
             found.entry(obj).or_default().push(Scored { image: im, bbox: d.bbox, score: d.score });
         }
@@ -195,7 +205,16 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
         let many: Vec<Target> = (0..n).map(|i| Target { id: &names[i % searched], shape: &shapes[i % searched], mesh: &meshes[i % searched] }).collect();
         let r = detect(&scene.rgb, &scene.cam, &many, &opts, &pool)?;
         let t = &r.timings;
-        println!("{n} objects: {:.0} ms (responses {:.0}, search {:.0}, verification {:.0}, masks {:.0}) on {}×{}", t.total_ms, t.responses_ms, t.search_ms, t.verify_ms, t.masks_ms, scene.rgb.width(), scene.rgb.height());
+        println!(
+            "{n} objects: {:.0} ms (responses {:.0}, search {:.0}, verification {:.0}, masks {:.0}) on {}×{}",
+            t.total_ms,
+            t.responses_ms,
+            t.search_ms,
+            t.verify_ms,
+            t.masks_ms,
+            scene.rgb.width(),
+            scene.rgb.height()
+        );
     }
     Ok(())
 }
@@ -223,7 +242,13 @@ fn table(names: &[String], truth: &BTreeMap<usize, Vec<Scored>>, found: &BTreeMa
         total += gt.len();
     }
     let s = summarize(&every);
-    println!("all: recall@0.5 {:.3} ({hits}/{total}), AP50 {:.3}, AP@[.5:.95] {:.3} (COCO, as bop eval --detections); median {:.0} ms per call", hits as f64 / total.max(1) as f64, s.ap50, s.ap, super::bench_estimate::median(ms));
+    println!(
+        "all: recall@0.5 {:.3} ({hits}/{total}), AP50 {:.3}, AP@[.5:.95] {:.3} (COCO, as bop eval --detections); median {:.0} ms per call",
+        hits as f64 / total.max(1) as f64,
+        s.ap50,
+        s.ap,
+        super::bench_estimate::median(ms)
+    );
 }
 
 /// Detections of one object matched greedily, best score first, to unmatched truths of
@@ -249,11 +274,9 @@ fn coco_images(gt: &[Scored], dets: &[Scored], images: usize) -> Vec<ImageCatego
             let g: Vec<&Scored> = gt.iter().filter(|s| s.image == im).collect();
             let d: Vec<&Scored> = dets.iter().filter(|s| s.image == im).collect();
             let area = |b: &[f64; 4]| b[2] * b[3];
-            ImageCategory::new(
-                g.iter().map(|s| Gt { area: area(&s.bbox), ignore: false }).collect(),
-                d.iter().map(|s| Dt { score: s.score as f64, area: area(&s.bbox) }).collect(),
-                |di, gi| box_iou(&d[di].bbox, &g[gi].bbox),
-            )
+            ImageCategory::new(g.iter().map(|s| Gt { area: area(&s.bbox), ignore: false }).collect(), d.iter().map(|s| Dt { score: s.score as f64, area: area(&s.bbox) }).collect(), |di, gi| {
+                box_iou(&d[di].bbox, &g[gi].bbox)
+            })
         })
         .collect()
 }
@@ -261,8 +284,8 @@ fn coco_images(gt: &[Scored], dets: &[Scored], images: usize) -> Vec<ImageCatego
 /// Each searched instance's best template score near its true centre (±3 px) at the rung
 /// nearest its true size: whether the search could have found it at all.
 fn oracle(scene: &crate::eval::scenes::SceneImage, targets: &[Target], searched: usize) {
-    use crate::detect::scales::{rung_scale, scale_for_distance, RUNGS};
     use crate::detect::detector::{SPREAD_PX, STRIDE_PX};
+    use crate::detect::scales::{rung_scale, scale_for_distance, RUNGS};
     use crate::detect::search::{score_at, specific_score_at};
     let k = &scene.cam;
     let f = (k.fx * k.fy).sqrt();

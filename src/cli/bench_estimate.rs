@@ -193,9 +193,7 @@ impl BoxTally {
         self.ms.push(s.ms);
         self.fallbacks += (s.method == crate::masks::Method::EllipseFallback) as usize;
         Ok(match proposals {
-            Some(p) => {
-                Detection::from_box_masks(crate::masks::box_masks(image, bbox, crate::masks::BoxMask::Propose, p)?, 1.0)
-            }
+            Some(p) => Detection::from_box_masks(crate::masks::box_masks(image, bbox, crate::masks::BoxMask::Propose, p)?, 1.0),
             None => vec![Detection::new(s.mask, 1.0)],
         })
     }
@@ -257,7 +255,11 @@ fn parse_weights(s: &str) -> Result<[f64; 3], String> {
 }
 
 pub(super) fn share((n, ok): (usize, usize)) -> String {
-    if n == 0 { "–".into() } else { format!("{:.0} % of {n}", 100.0 * ok as f64 / n as f64) }
+    if n == 0 {
+        "–".into()
+    } else {
+        format!("{:.0} % of {n}", 100.0 * ok as f64 / n as f64)
+    }
 }
 
 pub(super) fn median(v: &mut [f64]) -> f64 {
@@ -325,7 +327,15 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         let (t, before) = (std::time::Instant::now(), model.patch_descriptors.memory_bytes());
         crate::onboard::apply_coding(model, a.descriptors)?;
         if a.descriptors != crate::onboard::DescriptorCoding::F16 {
-            eprintln!("{}: {:?} descriptors of {} patches in {:.1} s: {:.1} → {:.1} MB", model.object_id, a.descriptors, model.patch_count(), t.elapsed().as_secs_f64(), before as f64 / 1e6, model.patch_descriptors.memory_bytes() as f64 / 1e6);
+            eprintln!(
+                "{}: {:?} descriptors of {} patches in {:.1} s: {:.1} → {:.1} MB",
+                model.object_id,
+                a.descriptors,
+                model.patch_count(),
+                t.elapsed().as_secs_f64(),
+                before as f64 / 1e6,
+                model.patch_descriptors.memory_bytes() as f64 / 1e6
+            );
         }
     }
     let objects: Vec<(u32, Mesh)> = meshes.iter().enumerate().map(|(i, (_, m))| (i as u32 + 1, m.clone())).collect();
@@ -394,7 +404,11 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         // for the instance where other instances are concerned.
         let how = if a.fill_boxes { crate::masks::BoxMask::Fill } else { crate::masks::BoxMask::Segment };
         let depth = if a.depth { Some(crate::depth::DepthImage::from_metres(scene.rgb.width(), scene.rgb.height(), scene.depth.clone())?) } else { None };
-        let dets: Vec<Vec<Detection>> = scene.instances.iter().map(|inst| if a.from_boxes { boxes.detection(&scene.rgb, &inst.mask_visib, how, a.box_proposals.as_ref()) } else { Ok(vec![Detection::new(inst.mask_visib.clone(), 1.0)]) }).collect::<Result<_>>()?;
+        let dets: Vec<Vec<Detection>> = scene
+            .instances
+            .iter()
+            .map(|inst| if a.from_boxes { boxes.detection(&scene.rgb, &inst.mask_visib, how, a.box_proposals.as_ref()) } else { Ok(vec![Detection::new(inst.mask_visib.clone(), 1.0)]) })
+            .collect::<Result<_>>()?;
         for (n, inst) in scene.instances.iter().enumerate() {
             instances += 1;
             if let Some(dir) = &a.mask_diffs {
@@ -430,7 +444,12 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                 // it: tells a candidate that never existed from one that lost the vote. MSSD
                 // to four decimals, as the candidates' rows: at three, 0.0996 read as 0.100
                 // and a count of `< 0.1` from the file missed it.
-                let oracle = r.hypotheses.iter().flat_map(|h| h.verified.iter().enumerate()).map(|(rank, v)| (mssd(&v.pose, &truth(&v.pose), model.mesh.positions()) / model.diameter(), rank)).min_by(|a, b| a.0.total_cmp(&b.0));
+                let oracle = r
+                    .hypotheses
+                    .iter()
+                    .flat_map(|h| h.verified.iter().enumerate())
+                    .map(|(rank, v)| (mssd(&v.pose, &truth(&v.pose), model.mesh.positions()) / model.diameter(), rank))
+                    .min_by(|a, b| a.0.total_cmp(&b.0));
                 let oracle = oracle.map_or(",".to_string(), |(m, rank)| format!("{m:.4},{rank}"));
                 // Every candidate's MSSD costs a pass over the mesh: only when asked for.
                 if a.per_candidate.is_some() && t.name == "with RRC" {
@@ -522,7 +541,18 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
         base.retrieval.silhouette_weight,
         base.pnp.reprojection_threshold_px,
         base.refiner.name(),
-        if base.verify.enabled { format!("{} templates, {} matched, {} rendered, weights {:?}, second look {}", base.verify.templates, base.verify.matched_templates, base.verify.rendered, base.verify.weights, if base.verify.second_look { "on" } else { "off" }) } else { "off".into() }
+        if base.verify.enabled {
+            format!(
+                "{} templates, {} matched, {} rendered, weights {:?}, second look {}",
+                base.verify.templates,
+                base.verify.matched_templates,
+                base.verify.rendered,
+                base.verify.weights,
+                if base.verify.second_look { "on" } else { "off" }
+            )
+        } else {
+            "off".into()
+        }
     );
     println!(
         "{} instances in {} generated images ({} objects/image, diameter {:.2}–{:.2} of the image height, {:.0}–{:.0} % occluded, seed {}){}; objects: {}",
@@ -560,7 +590,15 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
             median(&mut t.trans_mm),
             100.0 * median(&mut t.depth_rel),
             100.0 * quantile(&mut t.depth_rel, 0.9),
-            med[0], med[1], med[2], med[3], med[4], med[5], med[6], med[7], med[8],
+            med[0],
+            med[1],
+            med[2],
+            med[3],
+            med[4],
+            med[5],
+            med[6],
+            med[7],
+            med[8],
             quantile(&mut t.stages.iter().map(|x| x[8]).collect::<Vec<_>>(), 0.9)
         );
     }

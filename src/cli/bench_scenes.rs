@@ -61,7 +61,18 @@ impl BenchSceneArgs {
     /// The scene generator's settings; `harsh`: the scene side of the render-to-real gap.
     /// Checked here, before any object is onboarded, so that a bad flag fails at once.
     pub fn scene_config(&self, harsh: bool) -> anyhow::Result<crate::eval::scenes::SceneConfig> {
-        let cfg = crate::eval::scenes::SceneConfig { images: self.images, objects_per_image: self.objects_per_image, max_occlusion: self.max_occlusion, min_occlusion: self.min_occlusion, fill_range: self.fill, render_to_real_gap: harsh, seed: self.seed, supersampling: self.supersample, depth_sensor: super::depth_sensor(self.exact_depth), ..Default::default() };
+        let cfg = crate::eval::scenes::SceneConfig {
+            images: self.images,
+            objects_per_image: self.objects_per_image,
+            max_occlusion: self.max_occlusion,
+            min_occlusion: self.min_occlusion,
+            fill_range: self.fill,
+            render_to_real_gap: harsh,
+            seed: self.seed,
+            supersampling: self.supersample,
+            depth_sensor: super::depth_sensor(self.exact_depth),
+            ..Default::default()
+        };
         cfg.validate().map_err(|e| anyhow::anyhow!("scene config: {e}"))?;
         Ok(cfg)
     }

@@ -6,13 +6,13 @@
 use crate::geometry::views::view_pose;
 use crate::geometry::Intrinsics;
 use crate::render::{RenderOptions, RenderPool};
+use crate::service::client::{one_mask_request, png_bytes};
+use crate::service::proto as pb;
 use anyhow::{anyhow, bail, Result};
 use base64::Engine as _;
 use serde_json::{json, Value};
 use std::io::{Read, Write};
 use std::net::TcpStream;
-use crate::service::client::{one_mask_request, png_bytes};
-use crate::service::proto as pb;
 use std::time::{Duration, Instant};
 
 #[derive(clap::Args, Debug)]
@@ -97,7 +97,10 @@ fn object_id(a: &BenchServeArgs) -> Result<String> {
 pub fn run(a: BenchServeArgs) -> Result<()> {
     let max_clients = a.clients.iter().copied().max().unwrap_or(1);
     let object = object_id(&a)?;
-    let extra: Vec<String> = ["--max-estimates", &max_clients.to_string(), "--backbone-batch", &a.backbone_batch.to_string(), "--backbone", &a.backbone.backbone.to_string(), "--device", &a.backbone.device.to_string()].map(String::from).to_vec();
+    let extra: Vec<String> =
+        ["--max-estimates", &max_clients.to_string(), "--backbone-batch", &a.backbone_batch.to_string(), "--backbone", &a.backbone.backbone.to_string(), "--device", &a.backbone.device.to_string()]
+            .map(String::from)
+            .to_vec();
     let server = super::child_server::ChildServer::start(&a.store, &extra)?;
     measure(&a, &object, &server.http, &server.grpc, server.pid())?;
     server.stop()
@@ -121,7 +124,8 @@ fn measure(a: &BenchServeArgs, object: &str, addr: &str, grpc: &str, pid: u32) -
     let r = pool.render(&mesh, &truth, &k, &RenderOptions::default())?;
     let intrinsics = json!({"fx": 600.0, "fy": 600.0, "cx": 319.5, "cy": 239.5, "width": 640, "height": 480});
     let (rgb_png, mask_png) = (png_bytes(&r.rgb)?, png_bytes(&r.mask)?);
-    let request = json!({"image": {"encoded": b64(&rgb_png)}, "intrinsics": intrinsics, "detections": [{"object_id": object, "mask_png": b64(&mask_png), "score": 1.0}], "options": {"rrc": !a.no_rrc}});
+    let request =
+        json!({"image": {"encoded": b64(&rgb_png)}, "intrinsics": intrinsics, "detections": [{"object_id": object, "mask_png": b64(&mask_png), "score": 1.0}], "options": {"rrc": !a.no_rrc}});
     let grpc_request = one_mask_request(object, rgb_png, mask_png, &k, !a.no_rrc);
     let body = serde_json::to_vec(&request)?;
     // One request first, so every measurement starts with the object loaded.
@@ -170,12 +174,7 @@ fn measure(a: &BenchServeArgs, object: &str, addr: &str, grpc: &str, pid: u32) -
     }
     let (_, metrics) = http(addr, "GET", "/metrics", None)?;
     let loaded = String::from_utf8_lossy(&metrics).lines().find(|l| l.starts_with("b2tf_objects_loaded")).map(String::from).unwrap_or_default();
-    println!(
-        "server RSS: {:.0} MB with the sample box loaded; {:.0} MB after loading {} objects ({loaded})",
-        before,
-        memory_mb(pid).rss,
-        ids.len()
-    );
+    println!("server RSS: {:.0} MB with the sample box loaded; {:.0} MB after loading {} objects ({loaded})", before, memory_mb(pid).rss, ids.len());
     Ok(())
 }
 

@@ -6,8 +6,8 @@
 //! child's `Track` stream, which re-initialises by itself: frames per second end to end.
 
 use super::bench_track_grpc::{stream_sequence, StreamStats};
-use crate::eval::pose_error::{add, add_s, auc, mssd, sample_points};
 use crate::depth::DepthImage;
+use crate::eval::pose_error::{add, add_s, auc, mssd, sample_points};
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Units;
 use crate::onboard::ObjectModel;
@@ -105,7 +105,15 @@ impl Accuracy {
 
 /// Tracks one sequence from its true first pose, with its depth frames or without; a lost
 /// frame restarts at the truth. Adds to `run`'s accuracy, lost count and ms per tracked frame.
-fn track_in_process(model: &Arc<ObjectModel>, pool: &Arc<crate::render::RenderPool>, k: &Intrinsics, seq: &[Frame], with_depth: bool, sample: &[[f32; 3]], run: &mut (Accuracy, usize, Vec<f64>)) -> Result<()> {
+fn track_in_process(
+    model: &Arc<ObjectModel>,
+    pool: &Arc<crate::render::RenderPool>,
+    k: &Intrinsics,
+    seq: &[Frame],
+    with_depth: bool,
+    sample: &[[f32; 3]],
+    run: &mut (Accuracy, usize, Vec<f64>),
+) -> Result<()> {
     let (acc, lost, ms) = run;
     let mut tracker = Tracker::new(model.clone(), pool.clone(), &seq[0].rgb, k, seq[0].truth, TrackerConfig::default()).map_err(anyhow::Error::msg)?;
     for f in &seq[1..] {
@@ -136,7 +144,17 @@ pub fn run(a: BenchTrackArgs) -> Result<()> {
         models.push((name.clone(), Arc::new(super::cached_model(name, mesh, store.as_ref(), &backbone, &pool, crate::onboard::PcaSetting::Off, crate::onboard::DescriptorCoding::F16)?)));
     }
     drop(store); // the server below opens it
-    let config = |s: usize| SequenceConfig { frames: a.frames, max_degrees_per_frame: a.degrees, max_metres_per_frame: a.metres, seed: 1 + s as u64, occluder: a.occluder, blur_sigma: a.blur, noise_sigma: a.noise, depth_sensor: super::depth_sensor(a.exact_depth), ..Default::default() };
+    let config = |s: usize| SequenceConfig {
+        frames: a.frames,
+        max_degrees_per_frame: a.degrees,
+        max_metres_per_frame: a.metres,
+        seed: 1 + s as u64,
+        occluder: a.occluder,
+        blur_sigma: a.blur,
+        noise_sigma: a.noise,
+        depth_sensor: super::depth_sensor(a.exact_depth),
+        ..Default::default()
+    };
     if let Some(dir) = &a.save_bop {
         let specs: Vec<SequenceSpec> = meshes
             .iter()
@@ -177,7 +195,16 @@ pub fn run(a: BenchTrackArgs) -> Result<()> {
             println!("| {label} | {} | {} | {} | {lost} | {:.1} | {:.1} |", acc.frames, ms.len(), acc.cells(), pick(0.5), pick(0.95));
         }
         if server.is_some() {
-            grpc_rows.push(format!("| {name} | {} | {} | {} | {} | {} | {:.1} | {:.1} |", grpc_acc.frames, grpc_stats.tracked, grpc_stats.reinitialised, grpc_stats.lost, grpc_acc.cells(), grpc_stats.server_ms_median(), grpc_stats.frames_per_second()));
+            grpc_rows.push(format!(
+                "| {name} | {} | {} | {} | {} | {} | {:.1} | {:.1} |",
+                grpc_acc.frames,
+                grpc_stats.tracked,
+                grpc_stats.reinitialised,
+                grpc_stats.lost,
+                grpc_acc.cells(),
+                grpc_stats.server_ms_median(),
+                grpc_stats.frames_per_second()
+            ));
         }
     }
     if !grpc_rows.is_empty() {

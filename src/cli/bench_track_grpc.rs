@@ -57,7 +57,9 @@ pub fn stream_sequence(grpc: &str, object_id: &str, seq: &[Frame], first_mask: &
         if let Some(e) = first.error {
             bail!("first frame: {} {}", e.code, e.message);
         }
-        let pose_of = |a: &pb::TrackFrameResult| a.objects.first().and_then(|o| o.pose.as_ref()).map(|p| Pose::from_row_major(&[p.r[0], p.r[1], p.r[2], p.r[3], p.r[4], p.r[5], p.r[6], p.r[7], p.r[8]], [p.t[0], p.t[1], p.t[2]]));
+        let pose_of = |a: &pb::TrackFrameResult| {
+            a.objects.first().and_then(|o| o.pose.as_ref()).map(|p| Pose::from_row_major(&[p.r[0], p.r[1], p.r[2], p.r[3], p.r[4], p.r[5], p.r[6], p.r[7], p.r[8]], [p.t[0], p.t[1], p.t[2]]))
+        };
         let mut poses = vec![pose_of(&first)];
         let t = Instant::now();
         let frames: Vec<pb::TrackFrame> = seq[1..].iter().map(|f| frame(f, k, None)).collect();

@@ -1,13 +1,13 @@
 //! `b2tf bop run|eval|synth`: BOP datasets in, BOP results CSV and scores out.
 
 use crate::bop::detections::{read_detections, DetectionIndex};
+use crate::bop::model_path;
 use crate::bop::run::{run as run_targets, DetectionSource, RunOptions};
 use crate::bop::synth::{synth, SynthOptions};
-use crate::bop::model_path;
 use crate::estimate::EstimateConfig;
 use crate::eval::scenes::SceneConfig;
-use crate::mesh::{load_mesh, Units};
 use crate::geometry::symmetry::{KnownSymmetries, SymmetrySource, MM_TO_M};
+use crate::mesh::{load_mesh, Units};
 use crate::onboard::ObjectModel;
 use crate::render::RenderPool;
 use anyhow::{Context, Result};
@@ -185,7 +185,15 @@ fn run_cmd(a: RunArgs) -> Result<()> {
         }
         Ok(models.get(&id)?)
     };
-    let estimate = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), print: a.verify.print_config(), box_prior: a.box_prior, depth_proposals: a.depth_proposals, ..Default::default() };
+    let estimate = EstimateConfig {
+        rrc: !a.no_rrc,
+        refiner: a.refiner,
+        verify: a.verify.config(),
+        print: a.verify.print_config(),
+        box_prior: a.box_prior,
+        depth_proposals: a.depth_proposals,
+        ..Default::default()
+    };
     let opts = RunOptions { split: a.split.clone(), estimate, box_mask: a.box_mask, proposals: a.box_proposals.clone(), depth: a.depth, ..Default::default() };
     let pb = super::progress::bar(0, "images");
     let progress = |done: usize, total: usize| {
@@ -244,8 +252,19 @@ fn synth_cmd(a: SynthArgs) -> Result<()> {
     let pool = super::open_renderer(RenderPool::DEFAULT_SIZE)?;
     let (objects_per_image, most) = a.objects_per_image;
     let objects_per_image_max = if most > objects_per_image { most } else { 0 };
-    let scene = SceneConfig { images: a.images, objects_per_image, objects_per_image_max, fill_range: a.fill, max_occlusion: a.max_occlusion, clustered: a.clustered, seed: a.seed, depth_sensor: super::depth_sensor(a.exact_depth), ..Default::default() };
-    let s = synth(&a.models, &a.out, &SynthOptions { scene, degraded: !a.no_degraded, distractors: !a.no_distractors, targets: a.targets, untextured: a.untextured, backgrounds: a.backgrounds }, &pool)?;
+    let scene = SceneConfig {
+        images: a.images,
+        objects_per_image,
+        objects_per_image_max,
+        fill_range: a.fill,
+        max_occlusion: a.max_occlusion,
+        clustered: a.clustered,
+        seed: a.seed,
+        depth_sensor: super::depth_sensor(a.exact_depth),
+        ..Default::default()
+    };
+    let s =
+        synth(&a.models, &a.out, &SynthOptions { scene, degraded: !a.no_degraded, distractors: !a.no_distractors, targets: a.targets, untextured: a.untextured, backgrounds: a.backgrounds }, &pool)?;
     println!(
         "wrote a BOP dataset to {}: objects {:?} (targets {:?}), {} images, {} instances; {} detections in {} (as boxes in {})",
         a.out.display(),

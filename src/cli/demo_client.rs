@@ -94,7 +94,12 @@ async fn run_async(a: &DemoArgs) -> Result<()> {
 
 /// The same photo with the object id alone: what the server's detector finds.
 async fn detect_by_id(client: &mut Client, photo: &image::RgbImage, mask: &image::GrayImage, k: &crate::geometry::Intrinsics) -> Result<()> {
-    let request = pb::DetectRequest { image: Some(pb::Image { data: Some(pb::image::Data::Encoded(png_bytes(photo)?)), width: 0, height: 0 }), intrinsics: Some(k.into()), objects: vec![OBJECT_ID.into()], options: None };
+    let request = pb::DetectRequest {
+        image: Some(pb::Image { data: Some(pb::image::Data::Encoded(png_bytes(photo)?)), width: 0, height: 0 }),
+        intrinsics: Some(k.into()),
+        objects: vec![OBJECT_ID.into()],
+        options: None,
+    };
     let found = client.detect(request).await.map_err(|s| anyhow::anyhow!("Detect: {s}"))?.into_inner();
     let truth = crate::detect::detector::bbox_of(mask);
     match (found.detections.first(), truth) {
@@ -107,7 +112,6 @@ async fn detect_by_id(client: &mut Client, photo: &image::RgbImage, mask: &image
     }
     Ok(())
 }
-
 
 /// Uploads the sample (OBJ + MTL + PNG) and follows the operation to its end.
 async fn onboard(client: &mut Client, mesh: &crate::mesh::Mesh, out: &std::path::Path) -> Result<pb::ObjectInfo> {
@@ -195,7 +199,10 @@ mod tests {
     #[test]
     fn symmetries_in_the_result_read_back_as_the_objects() {
         let half_turn = DiscreteSymmetry::from_row_major_4x4(&[-1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.01, 0.0, 0.0, 0.0, 1.0]);
-        let known = KnownSymmetries { source: SymmetrySource::Mesh, symmetries: ObjectSymmetries { discrete: vec![half_turn], continuous: vec![ContinuousSymmetry { axis: [0.0, 0.0, 1.0], offset: [0.0, 0.0, 0.02] }] } };
+        let known = KnownSymmetries {
+            source: SymmetrySource::Mesh,
+            symmetries: ObjectSymmetries { discrete: vec![half_turn], continuous: vec![ContinuousSymmetry { axis: [0.0, 0.0, 1.0], offset: [0.0, 0.0, 0.02] }] },
+        };
         let json = symmetries_json(&crate::service::grpc_convert::symmetries(known.clone()));
         let back: KnownSymmetries = serde_json::from_value(json).unwrap();
         assert_eq!(back, known);

@@ -86,7 +86,13 @@ pub fn load_objects(store: &dyn crate::store::ObjectStore, ids: &[String]) -> Re
 
 /// One object's detections in an image (for the commands that detect when no mask is
 /// given); an error naming the object and the detector's reason when there is none.
-pub fn detect_object(model: &ObjectModel, image: &image::RgbImage, k: &crate::geometry::Intrinsics, options: &DetectOptions, renderer: &crate::render::RenderPool) -> Result<Vec<crate::detect::Detection>> {
+pub fn detect_object(
+    model: &ObjectModel,
+    image: &image::RgbImage,
+    k: &crate::geometry::Intrinsics,
+    options: &DetectOptions,
+    renderer: &crate::render::RenderPool,
+) -> Result<Vec<crate::detect::Detection>> {
     let shape = model.shape_model_or_build(renderer)?;
     let targets = [Target { id: &model.object_id, shape: &shape, mesh: &model.mesh }];
     let report = detect(image, k, &targets, options, renderer)?;
@@ -118,7 +124,16 @@ pub fn run(a: DetectArgs) -> Result<()> {
         println!("no detection: {r}");
     }
     let t = &report.timings;
-    println!("{} detections in {:.0} ms (responses {:.0}, search {:.0}, verification {:.0}, masks {:.0}); wrote {}", report.detections.len(), t.total_ms, t.responses_ms, t.search_ms, t.verify_ms, t.masks_ms, a.out.display());
+    println!(
+        "{} detections in {:.0} ms (responses {:.0}, search {:.0}, verification {:.0}, masks {:.0}); wrote {}",
+        report.detections.len(),
+        t.total_ms,
+        t.responses_ms,
+        t.search_ms,
+        t.verify_ms,
+        t.masks_ms,
+        a.out.display()
+    );
     if let Some(path) = &a.overlay {
         super::detect_overlay::draw(&image, &report).save(path).with_context(|| format!("writing {}", path.display()))?;
         println!("overlay: {}", path.display());

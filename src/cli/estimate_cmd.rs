@@ -88,9 +88,7 @@ fn detections(a: &EstimateArgs, image: &image::RgbImage) -> Result<Candidates> {
     let score = |i: usize| a.scores.get(i).copied().unwrap_or(1.0);
     let mut out = Candidates::default();
     for (i, p) in a.masks.iter().enumerate() {
-        let mask = crate::masks::decode::check_size(load_mask(p)?, width, height)
-            .and_then(crate::masks::require_nonempty)
-            .with_context(|| format!("--mask {}", p.display()))?;
+        let mask = crate::masks::decode::check_size(load_mask(p)?, width, height).and_then(crate::masks::require_nonempty).with_context(|| format!("--mask {}", p.display()))?;
         out.push(i, [Detection::new(mask, score(i))]);
     }
     for (j, b) in a.boxes.iter().enumerate() {
@@ -109,7 +107,15 @@ fn detections(a: &EstimateArgs, image: &image::RgbImage) -> Result<Candidates> {
 /// The estimate from the detector's candidates: the best few instances (each a group of
 /// overlapping detections, as the service groups them) estimated, and the one confirmed
 /// best at its estimated pose answered (`detect::confirm`), with its confirmation score.
-fn estimate_detected(a: &EstimateArgs, model: &ObjectModel, (image, depth): (&image::RgbImage, Option<&crate::depth::DepthImage>), k: &Intrinsics, estimator: &crate::estimate::Estimator, renderer: &crate::render::RenderPool, cfg: &EstimateConfig) -> Result<(EstimateResult, f32)> {
+fn estimate_detected(
+    a: &EstimateArgs,
+    model: &ObjectModel,
+    (image, depth): (&image::RgbImage, Option<&crate::depth::DepthImage>),
+    k: &Intrinsics,
+    estimator: &crate::estimate::Estimator,
+    renderer: &crate::render::RenderPool,
+    cfg: &EstimateConfig,
+) -> Result<(EstimateResult, f32)> {
     let min_score = a.search.min_score;
     let options = candidate_options(&a.search.options());
     let found = super::detect_cmd::detect_object(model, image, k, &options, renderer)?;

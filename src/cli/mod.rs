@@ -3,17 +3,17 @@
 pub mod backbone_args;
 pub mod bench;
 pub mod bench_backbone;
+pub mod bench_catalogue;
 pub mod bench_depth_fit;
 pub mod bench_detect;
 pub mod bench_estimate;
+pub mod bench_margin;
 pub mod bench_matching;
 pub mod bench_one_call;
 pub mod bench_refine;
 pub mod bench_scenes;
-pub mod bench_margin;
-pub mod bench_stability;
-pub mod bench_catalogue;
 pub mod bench_serve;
+pub mod bench_stability;
 pub mod bench_store;
 pub mod bench_symmetries;
 pub mod bench_track;
@@ -27,6 +27,8 @@ pub mod demo_cmd;
 pub mod detect_cmd;
 pub mod detect_overlay;
 pub mod estimate_cmd;
+#[cfg(feature = "video")]
+pub mod h264_video;
 pub mod object_args;
 pub mod objects_cmd;
 pub mod onboard_cmd;
@@ -39,8 +41,6 @@ pub mod thread_cpu;
 pub mod track_cmd;
 pub mod verify_args;
 pub mod video_source;
-#[cfg(feature = "video")]
-pub mod h264_video;
 
 use clap::{Parser, Subcommand};
 
@@ -146,7 +146,15 @@ pub fn open_renderer_with(size: usize, config: crate::render::RendererConfig) ->
 /// The object `id` from `store` when it was made from this mesh (geometry and appearance)
 /// by this backbone with the default settings; otherwise onboards it (with a progress bar)
 /// and puts it there. Benchmarks and the demo reuse models across runs this way.
-pub fn cached_model(id: &str, mesh: &crate::mesh::Mesh, store: &dyn crate::store::ObjectStore, backbone: &dyn crate::features::Backbone, pool: &crate::render::RenderPool, pca: crate::onboard::PcaSetting, descriptors: crate::onboard::DescriptorCoding) -> anyhow::Result<crate::onboard::ObjectModel> {
+pub fn cached_model(
+    id: &str,
+    mesh: &crate::mesh::Mesh,
+    store: &dyn crate::store::ObjectStore,
+    backbone: &dyn crate::features::Backbone,
+    pool: &crate::render::RenderPool,
+    pca: crate::onboard::PcaSetting,
+    descriptors: crate::onboard::DescriptorCoding,
+) -> anyhow::Result<crate::onboard::ObjectModel> {
     use crate::onboard::{onboard, OnboardConfig};
     let config = OnboardConfig { pca, descriptors, ..Default::default() };
     if let Ok(mut m) = store.get(id) {

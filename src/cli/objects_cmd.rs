@@ -71,7 +71,8 @@ pub fn run(a: ObjectsArgs) -> Result<()> {
                 let t = Instant::now();
                 let m = store.get(&id)?;
                 // How the object is held, which the store's listing does not record.
-                let stored = serde_json::json!({"descriptors": m.config.descriptors.to_string(), "pca_components": m.pca.as_ref().map(|p| p.output_dim), "patch_rows": m.config.patch_rows.to_string()});
+                let stored =
+                    serde_json::json!({"descriptors": m.config.descriptors.to_string(), "pca_components": m.pca.as_ref().map(|p| p.output_dim), "patch_rows": m.config.patch_rows.to_string()});
                 v["loaded"] = serde_json::json!({"seconds": t.elapsed().as_secs_f64(), "patches": m.patch_count(), "memory_bytes": m.memory_bytes(), "stored": stored});
             }
             println!("{}", serde_json::to_string_pretty(&v)?);
@@ -113,7 +114,17 @@ fn upgrade(store: &dyn crate::store::ObjectStore, ids: Vec<String>) -> Result<()
     let renderer = super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?;
     for id in ids {
         let mut m = store.get(&id)?;
-        let lacked: Vec<&str> = [("contour model", m.contours.get().is_none()), ("plain print runs", m.contour_lacks_plain_runs()), ("detector templates", m.detector.get().is_none()), ("symmetries", m.symmetries.is_none()), ("compact patch points", !m.patch_points.is_grid())].iter().filter(|(_, missing)| *missing).map(|(what, _)| *what).collect();
+        let lacked: Vec<&str> = [
+            ("contour model", m.contours.get().is_none()),
+            ("plain print runs", m.contour_lacks_plain_runs()),
+            ("detector templates", m.detector.get().is_none()),
+            ("symmetries", m.symmetries.is_none()),
+            ("compact patch points", !m.patch_points.is_grid()),
+        ]
+        .iter()
+        .filter(|(_, missing)| *missing)
+        .map(|(what, _)| *what)
+        .collect();
         if lacked.is_empty() {
             println!("{id}: up to date");
             continue;

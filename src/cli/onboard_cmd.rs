@@ -135,7 +135,12 @@ mod tests {
         assert_eq!(got.source, SymmetrySource::ModelsInfo);
         assert_eq!(got.symmetries.continuous[0].offset, [0.0, 0.0, 0.02], "millimetres become metres");
         assert!(symmetries_from_models_info(&format!("{f}:4"), Units::Mm).unwrap().symmetries.is_empty());
-        for (arg, needle) in [(format!("{f}"), "FILE:OBJ_ID"), (format!("{f}:x"), "not a number"), (format!("{f}:9"), "has no object 9 (it has 3, 4)"), ("/nonexistent/info.json:1".to_string(), "/nonexistent/info.json")] {
+        for (arg, needle) in [
+            (format!("{f}"), "FILE:OBJ_ID"),
+            (format!("{f}:x"), "not a number"),
+            (format!("{f}:9"), "has no object 9 (it has 3, 4)"),
+            ("/nonexistent/info.json:1".to_string(), "/nonexistent/info.json"),
+        ] {
             let e = format!("{:#}", symmetries_from_models_info(&arg, Units::Mm).unwrap_err());
             assert!(e.contains(needle), "{arg}: {e}");
         }

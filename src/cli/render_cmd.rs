@@ -48,9 +48,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     r.rgb.save(a.out.join("rgb.png")).context("writing rgb.png")?;
     r.mask.save(a.out.join("mask.png")).context("writing mask.png")?;
-    let depth = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(k.width, k.height, |x, y| {
-        image::Luma([(r.depth_at(x, y) as f64 / DEPTH_PNG_SCALE_M).round().min(65535.0) as u16])
-    });
+    let depth = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(k.width, k.height, |x, y| image::Luma([(r.depth_at(x, y) as f64 / DEPTH_PNG_SCALE_M).round().min(65535.0) as u16]));
     depth.save(a.out.join("depth.png")).context("writing depth.png")?;
     let visible = r.mask.pixels().filter(|p| p[0] > 0).count();
     println!(

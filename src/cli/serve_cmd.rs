@@ -36,10 +36,32 @@ pub fn run(a: ServeArgs) -> Result<()> {
         Some((cert, key)) => Some(crate::service::tls::TlsIdentity::load(cert, key, s.tls_client_ca.as_deref()).map_err(anyhow::Error::msg)?),
         None => None,
     };
-    let config = CoreConfig { store_url: s.store.clone(), render_pool: s.render_pool, cache_bytes: s.cache_bytes, max_estimates: s.max_estimates, queue_depth: s.queue_depth, queue_timeout: s.queue_timeout, max_onboardings: s.max_onboardings, backbone: s.backbone.clone(), device: s.device.clone(), backbone_batch: s.backbone_batch, backbone_max_wait: s.backbone_max_wait, read_only: s.read_only, max_track_sessions: s.max_track_sessions, track_idle_timeout: s.track_idle_timeout };
+    let config = CoreConfig {
+        store_url: s.store.clone(),
+        render_pool: s.render_pool,
+        cache_bytes: s.cache_bytes,
+        max_estimates: s.max_estimates,
+        queue_depth: s.queue_depth,
+        queue_timeout: s.queue_timeout,
+        max_onboardings: s.max_onboardings,
+        backbone: s.backbone.clone(),
+        device: s.device.clone(),
+        backbone_batch: s.backbone_batch,
+        backbone_max_wait: s.backbone_max_wait,
+        read_only: s.read_only,
+        max_track_sessions: s.max_track_sessions,
+        track_idle_timeout: s.track_idle_timeout,
+    };
     let core = Arc::new(Core::new(config).context("starting the service core")?);
     let runtime = tokio::runtime::Builder::new_multi_thread().max_blocking_threads(MAX_BLOCKING_THREADS).enable_all().build()?;
-    let api = Api { core: core.clone(), ready: Arc::new(AtomicBool::new(false)), metrics: Default::default(), keys: keys.clone(), rate: s.rate_limit.map(|r| Arc::new(crate::service::rate_limit::RateLimiter::new(r))), request_timeout: s.request_timeout };
+    let api = Api {
+        core: core.clone(),
+        ready: Arc::new(AtomicBool::new(false)),
+        metrics: Default::default(),
+        keys: keys.clone(),
+        rate: s.rate_limit.map(|r| Arc::new(crate::service::rate_limit::RateLimiter::new(r))),
+        request_timeout: s.request_timeout,
+    };
     let scheme = if tls.is_some() { ("https", "grpcs") } else { ("http", "grpc") };
     let mtls = tls.as_ref().is_some_and(|t| t.client_ca_pem.is_some());
     let rate = s.rate_limit;

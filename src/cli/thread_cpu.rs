@@ -41,7 +41,11 @@ fn stat_cpu(stat: &str) -> Option<(&str, f64)> {
 pub fn group_of(name: &str) -> &str {
     let stem = name.trim_end_matches(|c: char| c.is_ascii_digit());
     let stem = stem.trim_end_matches(['-', '_', ' ', ':', '#']);
-    if stem.is_empty() { name } else { stem }
+    if stem.is_empty() {
+        name
+    } else {
+        stem
+    }
 }
 
 /// The growth of each group between two readings, largest first, as "group N ms" for the

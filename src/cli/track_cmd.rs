@@ -92,11 +92,7 @@ fn pose_line(frame: &Frame, o: &TrackOutcome) -> serde_json::Value {
 
 /// The depth frames of `dir`: its PNGs in name order.
 fn depth_paths(dir: &std::path::Path) -> Result<Vec<PathBuf>> {
-    let files: Vec<PathBuf> = super::video_source::frame_paths(dir)
-        .with_context(|| "--depth")?
-        .into_iter()
-        .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")))
-        .collect();
+    let files: Vec<PathBuf> = super::video_source::frame_paths(dir).with_context(|| "--depth")?.into_iter().filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"))).collect();
     if files.is_empty() {
         bail!("--depth: no PNG depth frames in {}", dir.display());
     }
@@ -141,7 +137,9 @@ pub fn run(a: TrackArgs) -> Result<()> {
         n += 1;
         let depth = match &depth_files {
             Some(files) => {
-                let path = files.get(n - 1).with_context(|| format!("frame {}: no depth frame for it ({} in {})", frame.name, files.len(), a.depth.as_deref().unwrap_or_else(|| std::path::Path::new("")).display()))?;
+                let path = files
+                    .get(n - 1)
+                    .with_context(|| format!("frame {}: no depth frame for it ({} in {})", frame.name, files.len(), a.depth.as_deref().unwrap_or_else(|| std::path::Path::new("")).display()))?;
                 Some(super::estimate_cmd::load_depth(path, a.depth_scale, image.dimensions()).with_context(|| format!("frame {}", frame.name))?)
             }
             None => None,

@@ -69,7 +69,11 @@ pub struct VerifyArgs {
 /// A share from 0 to 1, or what is wrong with it.
 fn share(s: &str) -> Result<f64, String> {
     let v = number(s)?;
-    if (0.0..=1.0).contains(&v) { Ok(v) } else { Err(format!("{v} is outside 0–1")) }
+    if (0.0..=1.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{v} is outside 0–1"))
+    }
 }
 
 fn nudge_degrees(s: &str) -> Result<f64, String> {
@@ -83,7 +87,22 @@ fn number(s: &str) -> Result<f64, String> {
 impl VerifyArgs {
     pub fn config(&self) -> VerifyConfig {
         let d = VerifyConfig::default();
-        VerifyConfig { enabled: !self.no_verify, templates: self.verify_templates.unwrap_or(d.templates), matched_templates: self.verify_matched.unwrap_or(d.matched_templates), spin_steps: self.spin_steps.unwrap_or(d.spin_steps), skip_symmetric: self.skip_symmetric_hypotheses, feature_share: self.feature_share.unwrap_or(d.feature_share), refined: self.verify_refined.unwrap_or(d.refined), second_look: !self.no_second_look, rendered: self.verify_rendered.unwrap_or(d.rendered), max_rendered: self.verify_max_rendered.unwrap_or(d.max_rendered), occlusion_aware_iou: !self.iou_counts_occluded, replace_off_mask: !self.no_replace_at_mask, nudge_degrees: self.nudge.unwrap_or(d.nudge_degrees), ..d }
+        VerifyConfig {
+            enabled: !self.no_verify,
+            templates: self.verify_templates.unwrap_or(d.templates),
+            matched_templates: self.verify_matched.unwrap_or(d.matched_templates),
+            spin_steps: self.spin_steps.unwrap_or(d.spin_steps),
+            skip_symmetric: self.skip_symmetric_hypotheses,
+            feature_share: self.feature_share.unwrap_or(d.feature_share),
+            refined: self.verify_refined.unwrap_or(d.refined),
+            second_look: !self.no_second_look,
+            rendered: self.verify_rendered.unwrap_or(d.rendered),
+            max_rendered: self.verify_max_rendered.unwrap_or(d.max_rendered),
+            occlusion_aware_iou: !self.iou_counts_occluded,
+            replace_off_mask: !self.no_replace_at_mask,
+            nudge_degrees: self.nudge.unwrap_or(d.nudge_degrees),
+            ..d
+        }
     }
 
     /// The refinement on the print these options ask for.

@@ -24,7 +24,10 @@ enum Inner {
     Folder(std::vec::IntoIter<PathBuf>),
     #[cfg(feature = "video")]
     // Boxed: the decoder state is large and a folder source needs none of it.
-    Video { file_name: String, frames: Box<super::h264_video::H264Frames> },
+    Video {
+        file_name: String,
+        frames: Box<super::h264_video::H264Frames>,
+    },
 }
 
 /// The file names a video file may have.

@@ -29,10 +29,8 @@ pub fn outline_edgels(mask: &GrayImage) -> Vec<Edgel> {
         return Vec::new();
     }
     let w = g.width;
-    let all: Vec<Edgel> = (0..g.magnitude.len())
-        .filter(|&i| mask.as_raw()[i] > 0 && g.magnitude[i] >= 0.25 * peak)
-        .map(|i| Edgel { x: (i % w) as f32, y: (i / w) as f32, angle: g.angle[i] })
-        .collect();
+    let all: Vec<Edgel> =
+        (0..g.magnitude.len()).filter(|&i| mask.as_raw()[i] > 0 && g.magnitude[i] >= 0.25 * peak).map(|i| Edgel { x: (i % w) as f32, y: (i / w) as f32, angle: g.angle[i] }).collect();
     thin(all)
 }
 

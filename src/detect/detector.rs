@@ -9,8 +9,8 @@ use super::nms::{parts_of_larger, suppress};
 use super::responses::ResponseMaps;
 use super::scales::{distance_for_scale, rung_scale, rungs_between, scale_for_distance};
 use super::search::search;
-use super::verify::{Evidence, Window};
 use super::templates::ShapeModel;
+use super::verify::{Evidence, Window};
 use crate::geometry::{Intrinsics, Pose};
 use crate::masks::{mask_iou, segment_box, Method, PixelBox, SegmentConfig};
 use crate::mesh::Mesh;
@@ -298,11 +298,14 @@ pub fn detect(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &Detec
     // the print as well as with the outline.
     verified.sort_by(|a, b| b.3.total_cmp(&a.3));
     let mut looked_at = vec![0usize; targets.len()];
-    let second: Vec<bool> = verified.iter().map(|v| {
-        let seen = &mut looked_at[candidates[v.0].target];
-        *seen += 1;
-        *seen <= VIEW_REFINED_PER_OBJECT
-    }).collect();
+    let second: Vec<bool> = verified
+        .iter()
+        .map(|v| {
+            let seen = &mut looked_at[candidates[v.0].target];
+            *seen += 1;
+            *seen <= VIEW_REFINED_PER_OBJECT
+        })
+        .collect();
     verified.par_iter_mut().zip(second).filter(|(_, second)| *second).try_for_each(|(v, _)| {
         let c = &candidates[v.0];
         let t = &targets[c.target];
@@ -314,7 +317,12 @@ pub fn detect(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &Detec
     let verify_ms = t2.elapsed().as_secs_f64() * 1e3;
     // Parts again, now by the verified score: the render of a smaller view can agree with
     // the print a little better than the whole object's render does.
-    let parts = parts_of_larger(&verified.iter().map(|v| candidates[v.0].bbox).collect::<Vec<_>>(), &verified.iter().map(|v| v.3).collect::<Vec<_>>(), &verified.iter().map(|v| candidates[v.0].target).collect::<Vec<_>>(), PART_SCORE_RATIO);
+    let parts = parts_of_larger(
+        &verified.iter().map(|v| candidates[v.0].bbox).collect::<Vec<_>>(),
+        &verified.iter().map(|v| v.3).collect::<Vec<_>>(),
+        &verified.iter().map(|v| candidates[v.0].target).collect::<Vec<_>>(),
+        PART_SCORE_RATIO,
+    );
     let passed: Vec<&(usize, Pose, Evidence, f32)> = verified.iter().zip(&parts).filter(|(v, &part)| !part && v.3 >= opts.min_score).map(|(v, _)| v).collect();
     let order = suppress(&passed.iter().map(|v| candidates[v.0].bbox).collect::<Vec<_>>(), &passed.iter().map(|v| v.3).collect::<Vec<_>>(), NMS_IOU);
     let t3 = Instant::now();

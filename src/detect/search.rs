@@ -35,10 +35,13 @@ const CLEAN_EDGE: f32 = 4.0 - 6.0 / 8.0;
 /// still counts fully.
 pub fn specific_score_at(model: &ShapeModel, maps: &ResponseMaps, t: usize, x: i32, y: i32) -> f32 {
     let f = model.template(t);
-    let sum: f32 = f.iter().map(|f| {
-        let (px, py) = (x + f.dx as i32, y + f.dy as i32);
-        maps.at(px, py, f.orientation as u8) as f32 - maps.chance_at(px, py)
-    }).sum();
+    let sum: f32 = f
+        .iter()
+        .map(|f| {
+            let (px, py) = (x + f.dx as i32, y + f.dy as i32);
+            maps.at(px, py, f.orientation as u8) as f32 - maps.chance_at(px, py)
+        })
+        .sum();
     sum / (CLEAN_EDGE * f.len() as f32)
 }
 

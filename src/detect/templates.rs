@@ -290,10 +290,7 @@ fn view_features(rgb: &RgbImage, mask: &GrayImage, config: &DetectorConfig) -> V
         }
     }
     let have = picked.len().max(1);
-    (0..n)
-        .filter_map(|i| picked.get(i % have))
-        .map(|f| Feature { dx: f.x.round().clamp(-127.0, 127.0) as i8, dy: f.y.round().clamp(-127.0, 127.0) as i8, orientation: f.bin as i8 })
-        .collect()
+    (0..n).filter_map(|i| picked.get(i % have)).map(|f| Feature { dx: f.x.round().clamp(-127.0, 127.0) as i8, dy: f.y.round().clamp(-127.0, 127.0) as i8, orientation: f.bin as i8 }).collect()
 }
 
 /// `rgb` and `mask` turned by `angle` about the image centre (the principal point), both

@@ -152,5 +152,4 @@ mod tests {
         let green = RgbImage::from_pixel(48, 48, image::Rgb([40, 200, 40]));
         assert!(chroma_overlap(&stripes, &m, &green) < 0.05);
     }
-
 }

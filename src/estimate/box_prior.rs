@@ -107,7 +107,13 @@ pub fn covering_box(mesh: &Mesh, pose: &Pose, b: &PixelBox, k: &Intrinsics) -> O
     let (mut target, mut shift) = (Vector2::new(uv.x, uv.y), [0.0; 2]);
     for a in 0..2 {
         let (g_lo, g_hi) = (uv[a] + (lo[a] - uv[a]) * scale, uv[a] + (hi[a] - uv[a]) * scale);
-        shift[a] = if b_lo[a] < g_lo { b_lo[a] - g_lo } else if b_hi[a] > g_hi { b_hi[a] - g_hi } else { 0.0 };
+        shift[a] = if b_lo[a] < g_lo {
+            b_lo[a] - g_lo
+        } else if b_hi[a] > g_hi {
+            b_hi[a] - g_hi
+        } else {
+            0.0
+        };
     }
     target += Vector2::new(shift[0], shift[1]);
     let seen_from = Vector3::new((uv.x - k.cx) / k.fx, (uv.y - k.cy) / k.fy, 1.0);

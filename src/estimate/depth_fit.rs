@@ -298,7 +298,8 @@ mod tests {
 
     #[test]
     fn a_pose_too_near_sees_free_space_and_one_too_far_an_occluder() {
-        let samples: Vec<SurfaceSample> = (0..100).map(|i| SurfaceSample { point: Vector3::new((i % 10) as f64 * 0.005 - 0.025, (i / 10) as f64 * 0.005 - 0.025, 0.0), normal: -Vector3::z() }).collect();
+        let samples: Vec<SurfaceSample> =
+            (0..100).map(|i| SurfaceSample { point: Vector3::new((i % 10) as f64 * 0.005 - 0.025, (i / 10) as f64 * 0.005 - 0.025, 0.0), normal: -Vector3::z() }).collect();
         let k = Intrinsics::new(300.0, 300.0, 50.0, 50.0, 100, 100).unwrap();
         let depth = DepthImage::from_metres(100, 100, vec![0.5; 100 * 100]).unwrap();
         let cfg = DepthFitConfig { iterations: 0, ..Default::default() };

@@ -63,7 +63,15 @@ impl std::fmt::Display for Source {
 /// turns left out as the variants hold them; 0 or 4 adds none) of the re-placed pose if
 /// any, else of the start, and the first `templates` retrieved templates placed in the
 /// query crop (`templates` and `spin_steps` of `cfg`; the start not twice).
-pub fn candidates(model: &ObjectModel, (start, pose): (Source, &Pose), replaced: Option<&Pose>, retrieved: &[usize], cfg: &super::VerifyConfig, query_crop: &CropBox, k: &Intrinsics) -> Vec<(Source, Pose)> {
+pub fn candidates(
+    model: &ObjectModel,
+    (start, pose): (Source, &Pose),
+    replaced: Option<&Pose>,
+    retrieved: &[usize],
+    cfg: &super::VerifyConfig,
+    query_crop: &CropBox,
+    k: &Intrinsics,
+) -> Vec<(Source, Pose)> {
     let centre = Vector3::from(model.mesh.bbox_center());
     let mut out = vec![(start, *pose)];
     let base = match replaced {

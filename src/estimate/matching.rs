@@ -146,10 +146,12 @@ mod tests {
     use super::*;
 
     fn normalized(rows: &[[f32; 3]]) -> Vec<f32> {
-        rows.iter().flat_map(|r| {
-            let n = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
-            r.map(|x| x / n)
-        }).collect()
+        rows.iter()
+            .flat_map(|r| {
+                let n = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
+                r.map(|x| x / n)
+            })
+            .collect()
     }
 
     #[test]
@@ -214,10 +216,13 @@ mod tests {
         let query = normalized(&[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.9, 0.1, 0.0]]);
         let pool = normalized(&[[0.0, 1.0, 0.05], [1.0, 0.02, 0.0], [0.0, 0.0, 1.0]]);
         let one = [MatchGroup { query: &query, patches: &[0, 1, 2], pool: &pool }];
-        let grouped: Vec<Match> = grouped_mutual_matches(&one, 3, 2).into_iter().map(|(g, m)| {
-            assert_eq!(g, 0);
-            m
-        }).collect();
+        let grouped: Vec<Match> = grouped_mutual_matches(&one, 3, 2)
+            .into_iter()
+            .map(|(g, m)| {
+                assert_eq!(g, 0);
+                m
+            })
+            .collect();
         assert_eq!(grouped, mutual_matches(&query, &pool, 3, 2));
 
         // Patch 0 seen two ways: at 0.9 to group 0's pool, exactly to group 1's.

@@ -4,8 +4,8 @@
 pub mod box_prior;
 pub mod candidates;
 pub mod contour;
-pub mod depth_fit;
 pub mod correspond;
+pub mod depth_fit;
 pub mod hypotheses;
 pub mod matching;
 pub mod pipeline;
@@ -24,8 +24,8 @@ pub mod verify;
 pub use box_prior::BoxPrior;
 pub use candidates::{Candidates, Detection};
 pub use pipeline::{EstimateConfig, EstimateResult, Estimator, Hypothesis, StageTimings};
-pub use runner_up::RunnerUp;
 pub use refine::{PassThrough, RefineContext, RefineReport, Refined, Refiner, RefinerKind};
+pub use runner_up::RunnerUp;
 pub use verify::VerifyConfig;
 
 #[derive(Debug, thiserror::Error)]

@@ -1,26 +1,26 @@
 //! The online stage end to end (DESIGN.md steps 4–10) for one object in one image.
 
-use super::hypotheses::Source;
+use super::box_prior::BoxPrior;
+use super::candidates::Detection;
+use super::contour::{ContourRefiner, PrintRefineConfig};
 use super::correspond::{correspond, Correspondences};
+use super::hypotheses::Source;
 use super::pnp::{solve_pnp_ransac, PnpConfig, PnpResult};
 use super::query::{crop_all, encode, QueryView};
-use super::contour::{ContourRefiner, PrintRefineConfig};
 use super::refine::{PassThrough, RefineContext, RefineReport, Refiner, RefinerKind};
-use super::silhouette_refiner::SilhouetteDepthRefiner;
-use super::verify::{render_evidence, score as verification_score, Verified, VerifyConfig};
-use rayon::prelude::*;
 use super::retrieve::{retrieve, RetrievalConfig};
 use super::rrc::rrc_pool;
 use super::select::{box_agreement, combined_scores, mask_window, render_window, window_iou, SelectionConfig};
+use super::silhouette_refiner::SilhouetteDepthRefiner;
+use super::verify::{render_evidence, score as verification_score, Verified, VerifyConfig};
 use super::EstimateError;
-use super::candidates::Detection;
-use super::box_prior::BoxPrior;
 use crate::depth::DepthImage;
 use crate::features::{crop_query, Backbone};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
 use crate::render::RenderPool;
 use image::{GrayImage, RgbImage};
+use rayon::prelude::*;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -82,7 +82,22 @@ pub struct EstimateConfig {
 
 impl Default for EstimateConfig {
     fn default() -> Self {
-        Self { retrieval: RetrievalConfig::default(), k_nn: 3, pnp: PnpConfig::default(), rrc: true, rrc_render_scale: default_rrc_render_scale(), rrc_render_cap: default_rrc_render_cap(), max_masks: 2, min_mask_score: 0.35, selection: SelectionConfig::default(), refiner: RefinerKind::default(), verify: VerifyConfig::default(), print: PrintRefineConfig::default(), box_prior: BoxPrior::default(), depth_proposals: false }
+        Self {
+            retrieval: RetrievalConfig::default(),
+            k_nn: 3,
+            pnp: PnpConfig::default(),
+            rrc: true,
+            rrc_render_scale: default_rrc_render_scale(),
+            rrc_render_cap: default_rrc_render_cap(),
+            max_masks: 2,
+            min_mask_score: 0.35,
+            selection: SelectionConfig::default(),
+            refiner: RefinerKind::default(),
+            verify: VerifyConfig::default(),
+            print: PrintRefineConfig::default(),
+            box_prior: BoxPrior::default(),
+            depth_proposals: false,
+        }
     }
 }
 
@@ -233,7 +248,11 @@ impl Estimator {
     fn validate(&self, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, detections: &[Detection]) -> Result<(), EstimateError> {
         let ours = self.backbone.identity();
         if ours != model.backbone {
-            return Err(EstimateError::BackboneMismatch { object: model.object_id.clone(), model: format!("{} ({})", model.backbone.name, model.backbone.weights_hash), ours: format!("{} ({})", ours.name, ours.weights_hash) });
+            return Err(EstimateError::BackboneMismatch {
+                object: model.object_id.clone(),
+                model: format!("{} ({})", model.backbone.name, model.backbone.weights_hash),
+                ours: format!("{} ({})", ours.name, ours.weights_hash),
+            });
         }
         Intrinsics::new(k.fx, k.fy, k.cx, k.cy, k.width, k.height).map_err(|e| EstimateError::BadInput(e.to_string()))?;
         if (k.width, k.height) != image.dimensions() {
@@ -283,7 +302,15 @@ impl Estimator {
     /// `estimate` when other detections in the image may hide this object: `others`
     /// (image-sized, non-zero where another detection is) tells the refiner that the
     /// mask's outline says nothing there, so an occluder's edge does not pull the pose.
-    pub fn estimate_among(&self, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, detections: &[Detection], others: Option<&GrayImage>, cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
+    pub fn estimate_among(
+        &self,
+        model: &ObjectModel,
+        image: &RgbImage,
+        k: &Intrinsics,
+        detections: &[Detection],
+        others: Option<&GrayImage>,
+        cfg: &EstimateConfig,
+    ) -> Result<EstimateResult, EstimateError> {
         self.estimate_hinted(model, (image, None), k, detections, others, &[], cfg)
     }
 
@@ -291,7 +318,16 @@ impl Estimator {
     /// the caller: `DepthImage::check_for`): verification fits each rendered hypothesis to
     /// it and weighs what it says (`pipeline::depth_judge`).
     #[allow(clippy::too_many_arguments)]
-    pub fn estimate_rgbd(&self, model: &ObjectModel, image: &RgbImage, depth: Option<&DepthImage>, k: &Intrinsics, detections: &[Detection], others: Option<&GrayImage>, cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
+    pub fn estimate_rgbd(
+        &self,
+        model: &ObjectModel,
+        image: &RgbImage,
+        depth: Option<&DepthImage>,
+        k: &Intrinsics,
+        detections: &[Detection],
+        others: Option<&GrayImage>,
+        cfg: &EstimateConfig,
+    ) -> Result<EstimateResult, EstimateError> {
         self.estimate_hinted(model, (image, depth), k, detections, others, &[], cfg)
     }
 
@@ -300,7 +336,16 @@ impl Estimator {
     /// generated from one that loses the vote), verified with each mask's own hypotheses as
     /// source `hint` (ignored without verification).
     #[allow(clippy::too_many_arguments)]
-    pub fn estimate_hinted(&self, model: &ObjectModel, (image, depth): (&RgbImage, Option<&DepthImage>), k: &Intrinsics, detections: &[Detection], others: Option<&GrayImage>, hints: &[Pose], cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
+    pub fn estimate_hinted(
+        &self,
+        model: &ObjectModel,
+        (image, depth): (&RgbImage, Option<&DepthImage>),
+        k: &Intrinsics,
+        detections: &[Detection],
+        others: Option<&GrayImage>,
+        hints: &[Pose],
+        cfg: &EstimateConfig,
+    ) -> Result<EstimateResult, EstimateError> {
         let t_total = Instant::now();
         self.validate(model, image, k, detections)?;
         // With depth, each box may gain a proposal from the depth beside its colour cuts.
@@ -414,7 +459,15 @@ impl Estimator {
     /// outline cannot tell from it (`verify::to_render`), then, where nothing the winner
     /// shows agrees with the photo's print, a second look (`second_look`). Best first.
     /// Also returns the milliseconds the depth fits took (0 without depth).
-    fn verify(&self, ctx: &RefineContext<'_>, (start, pose): (Source, Pose), retrieved: &[usize], (matched, hints): (&[Pose], &[Pose]), query: &QueryView, cfg: &EstimateConfig) -> Result<(Vec<Verified>, f64), EstimateError> {
+    fn verify(
+        &self,
+        ctx: &RefineContext<'_>,
+        (start, pose): (Source, Pose),
+        retrieved: &[usize],
+        (matched, hints): (&[Pose], &[Pose]),
+        query: &QueryView,
+        cfg: &EstimateConfig,
+    ) -> Result<(Vec<Verified>, f64), EstimateError> {
         // A box's proposals are placed at the box, which the caller drew, not at the
         // proposal's own extent, which may have taken in clutter.
         let place = ctx.from_box.map(|b| (b.x0, b.y0, b.x1 - 1, b.y1 - 1)).or_else(|| crate::features::mask_bbox(ctx.mask));
@@ -466,7 +519,19 @@ impl Estimator {
                 let held = held_to_box(ctx, cfg.box_prior, &mut r.pose);
                 r.report.moved_to_box = held;
                 let contour = if cfg.refiner == RefinerKind::Contour && !held { r.report.agreement } else { self.contour.agreement(ctx, &r.pose).ok()?.score };
-                Some(Verified { source, pose: r.pose, refinement: r.report, contour, iou: f64::NAN, appearance: f64::NAN, edges: f64::NAN, colour: f64::NAN, features: f64::NAN, score: f64::NAN, render: None })
+                Some(Verified {
+                    source,
+                    pose: r.pose,
+                    refinement: r.report,
+                    contour,
+                    iou: f64::NAN,
+                    appearance: f64::NAN,
+                    edges: f64::NAN,
+                    colour: f64::NAN,
+                    features: f64::NAN,
+                    score: f64::NAN,
+                    render: None,
+                })
             })
             .collect()
     }
@@ -477,7 +542,11 @@ impl Estimator {
     fn judge(&self, ctx: &RefineContext<'_>, verified: &mut [Verified], which: &[usize], window: (u32, u32, u32, u32), query: &QueryView, cfg: &EstimateConfig) -> Result<(), EstimateError> {
         let poses: Vec<Pose> = which.iter().map(|&i| verified[i].pose).collect();
         // Nothing to render must not wait for a pooled renderer.
-        let evidence = if poses.is_empty() { vec![] } else { render_evidence(&self.renderer, &ctx.model.mesh, &poses, ctx.intrinsics, ctx.image, ctx.mask, ctx.unknown.filter(|_| cfg.verify.occlusion_aware_iou), window)? };
+        let evidence = if poses.is_empty() {
+            vec![]
+        } else {
+            render_evidence(&self.renderer, &ctx.model.mesh, &poses, ctx.intrinsics, ctx.image, ctx.mask, ctx.unknown.filter(|_| cfg.verify.occlusion_aware_iou), window)?
+        };
         for (&i, e) in which.iter().zip(evidence) {
             // A box's proposal: its pose must fill the box as well as overlap the proposal,
             // which may have taken in clutter or missed a face.
@@ -526,7 +595,16 @@ impl Estimator {
     /// `photo` is the image and the mask `q` was cropped from (turned again where the object
     /// shares its patch rows per view).
     #[allow(clippy::too_many_arguments)]
-    fn pose_for_mask(&self, model: &ObjectModel, q: &QueryView, photo: (&RgbImage, &GrayImage), k: &Intrinsics, cfg: &EstimateConfig, h: &mut Hypothesis, timings: &mut StageTimings) -> Result<(Vec<usize>, Vec<Pose>), EstimateError> {
+    fn pose_for_mask(
+        &self,
+        model: &ObjectModel,
+        q: &QueryView,
+        photo: (&RgbImage, &GrayImage),
+        k: &Intrinsics,
+        cfg: &EstimateConfig,
+        h: &mut Hypothesis,
+        timings: &mut StageTimings,
+    ) -> Result<(Vec<usize>, Vec<Pose>), EstimateError> {
         let t = Instant::now();
         let span = tracing::info_span!("retrieval").entered();
         let retrieved = retrieve(model, &q.features.global, &q.silhouette, &cfg.retrieval);
@@ -587,7 +665,16 @@ impl Estimator {
     /// Step 10: IoU gate and z-normalised scoring across hypotheses; `others` as for
     /// `estimate_among`.
     #[allow(clippy::too_many_arguments)]
-    fn select(&self, model: &ObjectModel, queries: &[QueryView], chosen: &[usize], k: &Intrinsics, (detections, others): (&[Detection], Option<&GrayImage>), mut hyps: Vec<Hypothesis>, cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
+    fn select(
+        &self,
+        model: &ObjectModel,
+        queries: &[QueryView],
+        chosen: &[usize],
+        k: &Intrinsics,
+        (detections, others): (&[Detection], Option<&GrayImage>),
+        mut hyps: Vec<Hypothesis>,
+        cfg: &EstimateConfig,
+    ) -> Result<EstimateResult, EstimateError> {
         let size = model.grid.n * model.grid.patch;
         let mut crops = Vec::new();
         let mut owners = Vec::new();

@@ -45,10 +45,12 @@ pub fn fit_scale_shift(from: &[[f64; 2]], to: &[[f64; 2]], tolerance: f64, scale
     let pairs = n * (n - 1) / 2;
     let stride = pairs.div_ceil(MAX_TRIALS).max(1);
     let inliers_of = |f: &ScaleShift| -> Vec<usize> {
-        (0..n).filter(|&i| {
-            let p = f.apply(from[i]);
-            (p[0] - to[i][0]).hypot(p[1] - to[i][1]) <= tolerance
-        }).collect()
+        (0..n)
+            .filter(|&i| {
+                let p = f.apply(from[i]);
+                (p[0] - to[i][0]).hypot(p[1] - to[i][1]) <= tolerance
+            })
+            .collect()
     };
     let mut best: Option<(ScaleShift, Vec<usize>)> = None;
     let mut k = 0usize;

@@ -109,7 +109,20 @@ pub struct RefineReport {
 
 impl Default for RefineReport {
     fn default() -> Self {
-        Self { moved: false, residual_px: 0.0, lines: 0, lines_with_edge: 0, agreement: 0.0, note: None, depth_sigma_m: f64::NAN, visible_fraction: f64::NAN, photo_edge_share: f64::NAN, print_points: None, moved_to_box: false, depth_fit: None }
+        Self {
+            moved: false,
+            residual_px: 0.0,
+            lines: 0,
+            lines_with_edge: 0,
+            agreement: 0.0,
+            note: None,
+            depth_sigma_m: f64::NAN,
+            visible_fraction: f64::NAN,
+            photo_edge_share: f64::NAN,
+            print_points: None,
+            moved_to_box: false,
+            depth_fit: None,
+        }
     }
 }
 

@@ -65,15 +65,7 @@ pub fn render_side(side: f64, scale: f64, cap: u32, crop: u32) -> u32 {
 /// The RRC patch pool around `pose`; empty if no variant rendered visibly. Each variant is
 /// rendered at `render_scale` pixels per image pixel of its window, at most `render_cap`
 /// pixels a side where the window is narrower than that (`render_side`).
-pub fn rrc_pool(
-    model: &ObjectModel,
-    pose: &Pose,
-    k: &Intrinsics,
-    backbone: &dyn Backbone,
-    renderer: &RenderPool,
-    render_scale: f64,
-    render_cap: u32,
-) -> Result<PatchPool, super::EstimateError> {
+pub fn rrc_pool(model: &ObjectModel, pose: &Pose, k: &Intrinsics, backbone: &dyn Backbone, renderer: &RenderPool, render_scale: f64, render_cap: u32) -> Result<PatchPool, super::EstimateError> {
     let (centre, radius) = bounding_sphere(model);
     let size = model.grid.n * model.grid.patch;
     let mut views = Vec::new();

@@ -86,7 +86,19 @@ mod tests {
     /// A hypothesis at `pose`, rendered (IoU known) or not, with `score`.
     fn judged(source: Source, pose: Pose, score: f64, rendered: bool) -> Verified {
         let nan = f64::NAN;
-        Verified { source, pose, refinement: RefineReport::default(), contour: 0.9, iou: if rendered { 0.8 } else { nan }, appearance: 0.5, edges: nan, colour: nan, features: nan, score, render: None }
+        Verified {
+            source,
+            pose,
+            refinement: RefineReport::default(),
+            contour: 0.9,
+            iou: if rendered { 0.8 } else { nan },
+            appearance: 0.5,
+            edges: nan,
+            colour: nan,
+            features: nan,
+            score,
+            render: None,
+        }
     }
 
     fn turned(by: Rotation3<f64>) -> Pose {

@@ -61,7 +61,11 @@ pub fn window_iou(render: &RenderOutput, mask: &GrayImage, hidden: Option<&GrayI
         }
     }
     // Mask pixels outside the window cannot exist: the window contains the whole mask box.
-    if union == 0 { 0.0 } else { inter as f32 / union as f32 }
+    if union == 0 {
+        0.0
+    } else {
+        inter as f32 / union as f32
+    }
 }
 
 /// How well a window render fills the caller's box `b`: the IoU of `b` with the box around
@@ -99,7 +103,11 @@ pub fn z_normalise(v: &[f32]) -> Vec<f32> {
     }
     let mean = v.iter().sum::<f32>() / n;
     let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f32>() / n).sqrt();
-    if sd < 1e-9 { vec![0.0; v.len()] } else { v.iter().map(|x| (x - mean) / sd).collect() }
+    if sd < 1e-9 {
+        vec![0.0; v.len()]
+    } else {
+        v.iter().map(|x| (x - mean) / sd).collect()
+    }
 }
 
 /// Combined scores of gated hypotheses given their (cosine, IoU, detector score).

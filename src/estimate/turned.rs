@@ -68,7 +68,13 @@ pub fn match_templates(model: &ObjectModel, backbone: &dyn Backbone, image: &Rgb
     let mut parts: Vec<Part<'_>> = Vec::with_capacity(by_turn.len());
     let mut unmatched = query.foreground.len();
     for (r, group) in &by_turn {
-        let q = if *r == 0 { query } else if let Some(q) = turned.get(r) { q } else { continue };
+        let q = if *r == 0 {
+            query
+        } else if let Some(q) = turned.get(r) {
+            q
+        } else {
+            continue;
+        };
         let patches = if *r == 0 { (0..q.foreground.len()).collect() } else { photo_patches(query, q, &mut unmatched) };
         parts.push(Part { query: q, descriptors: model.to_stored_space(&q.descriptors), patches, pool: PatchPool::from_templates(model, group.iter().copied()) });
     }

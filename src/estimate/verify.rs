@@ -95,7 +95,24 @@ impl Default for VerifyConfig {
         // placed at the mask, for the same time
         // (docs/benchmarks/estimation-occlusion-and-speed.md, "Templates placed by their
         // matches").
-        Self { enabled: true, templates: 5, matched_templates: 5, spin_steps: 8, rendered: 3, contour_tie: 0.05, max_rendered: 12, weights: [0.4, 0.3, 0.3], colour_share: 0.5, skip_symmetric: false, feature_share: 0.5, refined: 0, second_look: true, occlusion_aware_iou: true, replace_off_mask: true, nudge_degrees: 8.0 }
+        Self {
+            enabled: true,
+            templates: 5,
+            matched_templates: 5,
+            spin_steps: 8,
+            rendered: 3,
+            contour_tie: 0.05,
+            max_rendered: 12,
+            weights: [0.4, 0.3, 0.3],
+            colour_share: 0.5,
+            skip_symmetric: false,
+            feature_share: 0.5,
+            refined: 0,
+            second_look: true,
+            occlusion_aware_iou: true,
+            replace_off_mask: true,
+            nudge_degrees: 8.0,
+        }
     }
 }
 
@@ -105,7 +122,11 @@ pub const MAX_NUDGE_DEGREES: f64 = 45.0;
 /// `degrees` if it is a nudge (`VerifyConfig::nudge_degrees`): from 0 to
 /// [`MAX_NUDGE_DEGREES`]; what is wrong with it otherwise.
 pub fn nudge_in_range(degrees: f64) -> Result<f64, String> {
-    if (0.0..=MAX_NUDGE_DEGREES).contains(&degrees) { Ok(degrees) } else { Err(format!("{degrees} is outside 0–{MAX_NUDGE_DEGREES} degrees")) }
+    if (0.0..=MAX_NUDGE_DEGREES).contains(&degrees) {
+        Ok(degrees)
+    } else {
+        Err(format!("{degrees} is outside 0–{MAX_NUDGE_DEGREES} degrees"))
+    }
 }
 
 /// One verified hypothesis, as reported.
@@ -192,7 +213,11 @@ pub fn appearance_agreement_where(render: &RenderOutput, image: &RgbImage, windo
             }
         }
     }
-    if count == 0 { 0.0 } else { sum / count as f64 }
+    if count == 0 {
+        0.0
+    } else {
+        sum / count as f64
+    }
 }
 
 /// Colour agreement in [0, 1]: the correlation of the render's and the photo's colours
@@ -243,7 +268,11 @@ pub fn colour_agreement_where(render: &RenderOutput, image: &RgbImage, window: (
             sri += a * b;
         }
     }
-    if srr <= 0.0 || sii <= 0.0 { 0.0 } else { (sri / (srr * sii).sqrt()).max(0.0) }
+    if srr <= 0.0 || sii <= 0.0 {
+        0.0
+    } else {
+        (sri / (srr * sii).sqrt()).max(0.0)
+    }
 }
 
 /// Feature-metric render-and-compare, in [0, 1]: the render and the photo encoded by the
@@ -277,7 +306,11 @@ pub fn feature_agreement(photo: &crate::features::FeatureMap, render: &crate::fe
 /// The appearance term with the feature-metric agreement mixed in at `share` (where it
 /// was computed).
 pub fn with_features(appearance: f64, features: f64, share: f64) -> f64 {
-    if features.is_nan() || share <= 0.0 { appearance } else { (1.0 - share) * appearance + share * features }
+    if features.is_nan() || share <= 0.0 {
+        appearance
+    } else {
+        (1.0 - share) * appearance + share * features
+    }
 }
 
 /// What one render of a hypothesis says.
@@ -291,14 +324,27 @@ pub struct Evidence {
 
 /// Edge and colour agreement as one appearance term (edges alone without colours).
 pub fn appearance(edges: f64, colour: f64, colour_share: f64) -> f64 {
-    if colour.is_nan() { edges } else { (1.0 - colour_share) * edges + colour_share * colour }
+    if colour.is_nan() {
+        edges
+    } else {
+        (1.0 - colour_share) * edges + colour_share * colour
+    }
 }
 
 /// Renders each of `poses` over the mask's window (spread over the pool's renderers) and
 /// measures silhouette IoU (sparing what `hidden` may hide: `window_iou`) and appearance
 /// of each (on all cores), in order.
 #[allow(clippy::too_many_arguments)]
-pub fn render_evidence(renderer: &RenderPool, mesh: &crate::mesh::Mesh, poses: &[Pose], k: &Intrinsics, image: &RgbImage, mask: &GrayImage, hidden: Option<&GrayImage>, window: (u32, u32, u32, u32)) -> Result<Vec<Evidence>, crate::render::RenderError> {
+pub fn render_evidence(
+    renderer: &RenderPool,
+    mesh: &crate::mesh::Mesh,
+    poses: &[Pose],
+    k: &Intrinsics,
+    image: &RgbImage,
+    mask: &GrayImage,
+    hidden: Option<&GrayImage>,
+    window: (u32, u32, u32, u32),
+) -> Result<Vec<Evidence>, crate::render::RenderError> {
     let camera = window_camera(k, window)?;
     let views: Vec<(Pose, Intrinsics)> = poses.iter().map(|p| (*p, camera)).collect();
     let renders = renderer.render_batch(mesh, &views, &RenderOptions::default())?;
@@ -369,7 +415,11 @@ mod tests {
     fn striped(width: u32, vertical: bool) -> RgbImage {
         RgbImage::from_fn(width, width, |x, y| {
             let on = if vertical { (x / 4) % 2 == 0 } else { (y / 4) % 2 == 0 };
-            if on { image::Rgb([220, 220, 220]) } else { image::Rgb([30, 30, 30]) }
+            if on {
+                image::Rgb([220, 220, 220])
+            } else {
+                image::Rgb([30, 30, 30])
+            }
         })
     }
 
@@ -418,7 +468,13 @@ mod tests {
         use crate::features::FeatureMap;
         use crate::geometry::PatchGrid;
         let unit = |a: f32| [a.cos(), a.sin()];
-        let map = |rows: Vec<[f32; 2]>, coverage: Vec<f32>| FeatureMap { grid: PatchGrid { n: 3, patch: 8 }, local_dim: 2, local: rows.iter().flatten().copied().collect(), global: vec![1.0, 0.0], coverage };
+        let map = |rows: Vec<[f32; 2]>, coverage: Vec<f32>| FeatureMap {
+            grid: PatchGrid { n: 3, patch: 8 },
+            local_dim: 2,
+            local: rows.iter().flatten().copied().collect(),
+            global: vec![1.0, 0.0],
+            coverage,
+        };
         let photo = map((0..9).map(|k| unit(k as f32 * 0.35)).collect(), vec![1.0; 9]);
         let same = map((0..9).map(|k| unit(k as f32 * 0.35)).collect(), vec![1.0; 9]);
         assert!((feature_agreement(&photo, &same, 0.5) - 1.0).abs() < 1e-6);
@@ -438,7 +494,19 @@ mod tests {
 
     #[test]
     fn hypotheses_the_outline_cannot_separate_all_get_a_render() {
-        let v = |contour: f64| Verified { source: Source::Pipeline, pose: Pose::identity(), refinement: RefineReport::default(), contour, iou: f64::NAN, appearance: f64::NAN, edges: f64::NAN, colour: f64::NAN, features: f64::NAN, score: f64::NAN, render: None };
+        let v = |contour: f64| Verified {
+            source: Source::Pipeline,
+            pose: Pose::identity(),
+            refinement: RefineReport::default(),
+            contour,
+            iou: f64::NAN,
+            appearance: f64::NAN,
+            edges: f64::NAN,
+            colour: f64::NAN,
+            features: f64::NAN,
+            score: f64::NAN,
+            render: None,
+        };
         let sorted: Vec<Verified> = [0.95, 0.94, 0.93, 0.92, 0.91, 0.7, 0.6].into_iter().map(v).collect();
         let cfg = VerifyConfig { rendered: 2, contour_tie: 0.035, max_rendered: 8, ..Default::default() };
         assert_eq!(to_render(&sorted, None, &cfg), vec![0, 1, 2, 3]);

@@ -12,13 +12,13 @@ pub fn translation_error_m(est: &Pose, gt: &Pose) -> f64 {
     (est.translation - gt.translation).norm()
 }
 
-/// Maximum symmetry-free surface distance: the largest displacement of a model vertex
-/// between the two poses, metres (BOP's MSSD with the identity as the only symmetry).
-pub use crate::geometry::surface_distance::max_displacement as mssd;
 /// The truth turned by the symmetry (`symmetries`: model-frame transformations, identity
 /// included) that brings it closest to `est`, by MSSD over `vertices` (a sample will do):
 /// errors measured against it are BOP's symmetry-aware errors.
 pub use crate::geometry::surface_distance::closest_symmetric;
+/// Maximum symmetry-free surface distance: the largest displacement of a model vertex
+/// between the two poses, metres (BOP's MSSD with the identity as the only symmetry).
+pub use crate::geometry::surface_distance::max_displacement as mssd;
 pub use crate::geometry::surface_distance::sample_points;
 
 /// ADD: the mean displacement of the model's points between the two poses, metres.

@@ -60,11 +60,7 @@ impl ReidSet {
         let mut gap = Vec::new();
         let mut neighbour_gap = Vec::new();
         // Template look: what a CAD mesh gives — vertex colours if it has them, else grey.
-        let template_opts = if mesh.colors().is_some() {
-            RenderOptions { use_texture: false, ..RenderOptions::default() }
-        } else {
-            RenderOptions { use_texture: false, ..RenderOptions::grey() }
-        };
+        let template_opts = if mesh.colors().is_some() { RenderOptions { use_texture: false, ..RenderOptions::default() } } else { RenderOptions { use_texture: false, ..RenderOptions::grey() } };
         for _ in 0..pairs {
             let dir = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
             let roll = rng.range(0.0, std::f64::consts::TAU);
@@ -138,10 +134,7 @@ impl ReidSet {
             let (bu, bv) = b.bx.to_crop(uv.x, uv.y);
             let Some((ti, tj)) = grid.patch_at(bu, bv) else { continue };
             let da = fa.descriptor(pa);
-            let best = fg_b
-                .iter()
-                .map(|&pb| (pb, fb.descriptor(pb).iter().zip(da).map(|(x, y)| x * y).sum::<f32>()))
-                .max_by(|x, y| x.1.total_cmp(&y.1));
+            let best = fg_b.iter().map(|&pb| (pb, fb.descriptor(pb).iter().zip(da).map(|(x, y)| x * y).sum::<f32>())).max_by(|x, y| x.1.total_cmp(&y.1));
             let Some((pb, _)) = best else { continue };
             let (bi, bj) = (pb as u32 / grid.n, pb as u32 % grid.n);
             all += 1;

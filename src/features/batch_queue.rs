@@ -73,10 +73,8 @@ impl BatchingBackbone {
         let counters = Arc::new(Counters::default());
         let identity = inner.identity();
         let worker_counters = counters.clone();
-        let worker = std::thread::Builder::new()
-            .name("backbone-queue".into())
-            .spawn(move || worker(inner, rx, max_batch.max(1), max_wait, worker_counters))
-            .expect("spawning the backbone queue thread");
+        let worker =
+            std::thread::Builder::new().name("backbone-queue".into()).spawn(move || worker(inner, rx, max_batch.max(1), max_wait, worker_counters)).expect("spawning the backbone queue thread");
         Self { identity, jobs: Some(tx), counters, worker: Some(worker) }
     }
 

@@ -284,7 +284,15 @@ mod tests {
         // several bands of the separable path.
         let (w, h) = (97u32, 71u32);
         let rgb = RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 7 + y * 3) as u8, (x * y) as u8, (255 - x * 2) as u8]));
-        let mask = GrayImage::from_fn(w, h, |x, y| image::Luma([if (x as i64 - 40).pow(2) + (y as i64 - 30).pow(2) < 600 { 255 } else if x % 5 == 0 { 90 } else { 0 }]));
+        let mask = GrayImage::from_fn(w, h, |x, y| {
+            image::Luma([if (x as i64 - 40).pow(2) + (y as i64 - 30).pow(2) < 600 {
+                255
+            } else if x % 5 == 0 {
+                90
+            } else {
+                0
+            }])
+        });
         let rotate = |a: f64| move |u: f64, v: f64| (48.0 + (u - 48.0) * a.cos() - (v - 35.0) * a.sin(), 35.0 + (u - 48.0) * a.sin() + (v - 35.0) * a.cos());
         for (a, b, c, d, pad, size) in [(10, 5, 80, 60, 0.2, 24), (30, 20, 50, 40, 0.1, 64), (0, 0, 96, 70, 0.5, 16), (60, 40, 96, 70, 0.3, 20), (0, 0, 96, 70, 0.1, 40), (20, 10, 70, 60, 0.1, 100)] {
             let bx = CropBox::around(a, b, c, d, pad, size);

@@ -31,17 +31,7 @@ pub struct EmbeddedConfig {
 
 impl Default for EmbeddedConfig {
     fn default() -> Self {
-        Self {
-            input_size: 512,
-            patch_size: 16,
-            orientation_bins: 8,
-            signed_orientation: false,
-            hog_weight: 1.0,
-            color_weight: 0.5,
-            shape_weight: 2.0,
-            smoothing_passes: 2,
-            min_coverage: 0.5,
-        }
+        Self { input_size: 512, patch_size: 16, orientation_bins: 8, signed_orientation: false, hog_weight: 1.0, color_weight: 0.5, shape_weight: 2.0, smoothing_passes: 2, min_coverage: 0.5 }
     }
 }
 

@@ -9,9 +9,9 @@ pub mod crop;
 pub mod embedded;
 pub mod onnx;
 
-pub use batch_queue::BatchingBackbone;
 pub use backbone::{Backbone, BackboneIdentity, FeatureError, FeatureMap};
+pub use batch_queue::BatchingBackbone;
+pub use choice::{open_backbone, BackboneChoice};
 pub use crop::{crop_query, grey, mask_bbox, mask_row_ends, sample_crop, CropInput, ToSource};
 pub use embedded::{EmbeddedBackbone, EmbeddedConfig};
-pub use choice::{open_backbone, BackboneChoice};
 pub use onnx::{Device, OnnxBackbone};

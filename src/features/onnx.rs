@@ -11,8 +11,8 @@ use super::backbone::{check_sizes, l2_normalize, mean_descriptor, patch_coverage
 use super::crop::CropInput;
 use crate::geometry::PatchGrid;
 use ort::session::Session;
-use rayon::prelude::*;
 use ort::value::Tensor;
+use rayon::prelude::*;
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, OnceLock};

@@ -94,10 +94,7 @@ pub fn grpc_request(data: &[u8]) {
 pub fn multipart(data: &[u8]) {
     static RUNTIME: std::sync::OnceLock<tokio::runtime::Runtime> = std::sync::OnceLock::new();
     let runtime = RUNTIME.get_or_init(|| tokio::runtime::Builder::new_current_thread().build().expect("a tokio runtime"));
-    let request = axum::http::Request::builder()
-        .header("content-type", "multipart/form-data; boundary=BOUNDARY")
-        .body(axum::body::Body::from(data.to_vec()))
-        .expect("a valid request");
+    let request = axum::http::Request::builder().header("content-type", "multipart/form-data; boundary=BOUNDARY").body(axum::body::Body::from(data.to_vec())).expect("a valid request");
     runtime.block_on(async {
         let Ok(form) = axum::extract::Multipart::from_request(request, &()).await else { return };
         if let Ok(req) = crate::service::multipart::onboard_request(form).await {

@@ -53,14 +53,7 @@ impl CropBox {
     /// so that rendering with them draws exactly what `to_image` maps back to `k`'s image.
     pub fn intrinsics(&self, k: &super::Intrinsics) -> super::Intrinsics {
         let s = self.scale();
-        super::Intrinsics {
-            fx: k.fx / s,
-            fy: k.fy / s,
-            cx: (k.cx - self.origin_u) / s - 0.5,
-            cy: (k.cy - self.origin_v) / s - 0.5,
-            width: self.size,
-            height: self.size,
-        }
+        super::Intrinsics { fx: k.fx / s, fy: k.fy / s, cx: (k.cx - self.origin_u) / s - 0.5, cy: (k.cy - self.origin_v) / s - 0.5, width: self.size, height: self.size }
     }
 
     /// Image pixel coordinates → crop pixel coordinates.
@@ -157,7 +150,10 @@ mod tests {
         let b = CropBox::around(100, 80, 260, 200, 0.1, 512);
         let kw = b.intrinsics(&k);
         let p = nalgebra::Point3::new(0.03, -0.02, 0.5);
-        let (u, v) = { let q = k.project(&p).unwrap(); (q.x, q.y) };
+        let (u, v) = {
+            let q = k.project(&p).unwrap();
+            (q.x, q.y)
+        };
         let w = kw.project(&p).unwrap();
         let (cu, cv) = b.to_crop(u, v);
         assert!((w.x - cu).abs() < 1e-9 && (w.y - cv).abs() < 1e-9);

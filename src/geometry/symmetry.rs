@@ -38,11 +38,7 @@ pub enum SymmetryError {
     #[error("models_info: object {obj_id}: {message}")]
     Parse { obj_id: String, message: String },
     #[error("models_info: object {obj_id}: symmetries_discrete[{index}] has {len} values, expected 16 (row-major 4x4)")]
-    DiscreteLen {
-        obj_id: String,
-        index: usize,
-        len: usize,
-    },
+    DiscreteLen { obj_id: String, index: usize, len: usize },
     #[error("models_info: object {obj_id}: symmetries_continuous[{index}] has a zero-length axis")]
     ZeroAxisInFile { obj_id: String, index: usize },
     #[error("continuous symmetry {index} has a zero-length or non-finite axis")]
@@ -68,10 +64,7 @@ impl DiscreteSymmetry {
     /// From a flattened row-major 4×4 matrix (the bottom row is ignored, as in the toolkit).
     pub fn from_row_major_4x4(m: &[f64; 16]) -> Self {
         let rotation = Matrix3::new(m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10]);
-        Self {
-            rotation,
-            translation: Vector3::new(m[3], m[7], m[11]),
-        }
+        Self { rotation, translation: Vector3::new(m[3], m[7], m[11]) }
     }
 
     /// The flattened row-major 4×4 matrix (bottom row 0, 0, 0, 1).
@@ -217,44 +210,17 @@ struct RawEntry {
 }
 
 /// Parses the symmetries of one `models_info.json` entry (`obj_id` is only used in errors).
-pub fn parse_model_info(
-    obj_id: impl std::fmt::Display,
-    entry: &serde_json::Value,
-) -> Result<ObjectSymmetries, SymmetryError> {
+pub fn parse_model_info(obj_id: impl std::fmt::Display, entry: &serde_json::Value) -> Result<ObjectSymmetries, SymmetryError> {
     let obj = obj_id.to_string();
-    let raw: RawEntry =
-        serde_json::from_value(entry.clone()).map_err(|e| SymmetryError::Parse {
-            obj_id: obj.clone(),
-            message: e.to_string(),
-        })?;
+    let raw: RawEntry = serde_json::from_value(entry.clone()).map_err(|e| SymmetryError::Parse { obj_id: obj.clone(), message: e.to_string() })?;
     let mut out = ObjectSymmetries::default();
-    for (index, flat) in raw
-        .symmetries_discrete
-        .unwrap_or_default()
-        .iter()
-        .enumerate()
-    {
-        let m: &[f64; 16] = flat
-            .as_slice()
-            .try_into()
-            .map_err(|_| SymmetryError::DiscreteLen {
-                obj_id: obj.clone(),
-                index,
-                len: flat.len(),
-            })?;
+    for (index, flat) in raw.symmetries_discrete.unwrap_or_default().iter().enumerate() {
+        let m: &[f64; 16] = flat.as_slice().try_into().map_err(|_| SymmetryError::DiscreteLen { obj_id: obj.clone(), index, len: flat.len() })?;
         out.discrete.push(DiscreteSymmetry::from_row_major_4x4(m));
     }
-    for (index, sym) in raw
-        .symmetries_continuous
-        .unwrap_or_default()
-        .into_iter()
-        .enumerate()
-    {
+    for (index, sym) in raw.symmetries_continuous.unwrap_or_default().into_iter().enumerate() {
         if axis_norm(&sym.axis).is_none() {
-            return Err(SymmetryError::ZeroAxisInFile {
-                obj_id: obj.clone(),
-                index,
-            });
+            return Err(SymmetryError::ZeroAxisInFile { obj_id: obj.clone(), index });
         }
         out.continuous.push(sym);
     }
@@ -263,14 +229,10 @@ pub fn parse_model_info(
 
 /// Parses a whole `models_info.json` (`{"1": {...}, "2": {...}}`) into symmetries per object id.
 pub fn parse_models_info(json: &str) -> Result<BTreeMap<u32, ObjectSymmetries>, SymmetryError> {
-    let map: BTreeMap<String, serde_json::Value> =
-        serde_json::from_str(json).map_err(|e| SymmetryError::NotAnObject(e.to_string()))?;
+    let map: BTreeMap<String, serde_json::Value> = serde_json::from_str(json).map_err(|e| SymmetryError::NotAnObject(e.to_string()))?;
     let mut out = BTreeMap::new();
     for (key, entry) in &map {
-        let id: u32 = key.trim().parse().map_err(|_| SymmetryError::Parse {
-            obj_id: key.clone(),
-            message: "key is not an unsigned integer object id".into(),
-        })?;
+        let id: u32 = key.trim().parse().map_err(|_| SymmetryError::Parse { obj_id: key.clone(), message: "key is not an unsigned integer object id".into() })?;
         out.insert(id, parse_model_info(id, entry)?);
     }
     Ok(out)
@@ -280,11 +242,7 @@ pub fn parse_models_info(json: &str) -> Result<BTreeMap<u32, ObjectSymmetries>, 
 /// `ceil(π / max_sym_disc_step)` (315 for the BOP19 value 0.01).
 pub fn continuous_steps_count(max_sym_disc_step: f64) -> Result<usize, SymmetryError> {
     let n = (std::f64::consts::PI / max_sym_disc_step).ceil();
-    if max_sym_disc_step.is_nan()
-        || max_sym_disc_step <= 0.0
-        || !n.is_finite()
-        || n > MAX_CONTINUOUS_STEPS as f64
-    {
+    if max_sym_disc_step.is_nan() || max_sym_disc_step <= 0.0 || !n.is_finite() || n > MAX_CONTINUOUS_STEPS as f64 {
         return Err(SymmetryError::BadStep(max_sym_disc_step));
     }
     Ok(n as usize)
@@ -296,18 +254,10 @@ pub fn continuous_steps_count(max_sym_disc_step: f64) -> Result<usize, SymmetryE
 /// BOP19 uses `max_sym_disc_step = 0.01`. Translations are in the unit of the
 /// inputs (mm for BOP files). Each returned `Pose` maps model coordinates to
 /// model coordinates and is applied as `gt ∘ sym` by MSSD/MSPD.
-pub fn symmetry_transformations(
-    discrete: &[DiscreteSymmetry],
-    continuous: &[ContinuousSymmetry],
-    max_sym_disc_step: f64,
-) -> Result<Vec<Pose>, SymmetryError> {
+pub fn symmetry_transformations(discrete: &[DiscreteSymmetry], continuous: &[ContinuousSymmetry], max_sym_disc_step: f64) -> Result<Vec<Pose>, SymmetryError> {
     let mut trans_disc = Vec::with_capacity(discrete.len() + 1);
     trans_disc.push(Pose::identity());
-    trans_disc.extend(
-        discrete
-            .iter()
-            .map(|d| Pose::new(Rotation3::from_matrix_unchecked(d.rotation), d.translation)),
-    );
+    trans_disc.extend(discrete.iter().map(|d| Pose::new(Rotation3::from_matrix_unchecked(d.rotation), d.translation)));
 
     let mut trans_cont = Vec::new();
     if !continuous.is_empty() {
@@ -343,10 +293,7 @@ pub fn symmetry_transformations(
 /// Returns copies of `poses` with translations multiplied by `factor`
 /// (e.g. [`MM_TO_M`] to turn BOP millimetres into metres).
 pub fn scale_translations(poses: &[Pose], factor: f64) -> Vec<Pose> {
-    poses
-        .iter()
-        .map(|p| Pose::new(p.rotation, p.translation * factor))
-        .collect()
+    poses.iter().map(|p| Pose::new(p.rotation, p.translation * factor)).collect()
 }
 
 /// `sqrt(a·a)` when it is finite and non-zero (the toolkit divides by it).
@@ -388,9 +335,7 @@ mod tests {
 
     #[test]
     fn discrete_only_keeps_file_order_after_identity() {
-        let flip = DiscreteSymmetry::from_row_major_4x4(&[
-            -1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0,
-        ]);
+        let flip = DiscreteSymmetry::from_row_major_4x4(&[-1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]);
         let t = symmetry_transformations(&[flip], &[], 0.01).unwrap();
         assert_eq!(t.len(), 2);
         assert_eq!(t[0], Pose::identity());
@@ -410,10 +355,7 @@ mod tests {
     #[test]
     fn continuous_rotates_about_offset_axis() {
         // Axis z through (10, 0, 0), given unnormalised.
-        let c = ContinuousSymmetry {
-            axis: [0.0, 0.0, 2.0],
-            offset: [10.0, 0.0, 0.0],
-        };
+        let c = ContinuousSymmetry { axis: [0.0, 0.0, 2.0], offset: [10.0, 0.0, 0.0] };
         let t = symmetry_transformations(&[], &[c], 1.0).unwrap(); // 4 steps: 0, 90, 180, 270 deg
         assert_eq!(t.len(), 4);
         assert!((t[0].to_homogeneous() - Pose::identity().to_homogeneous()).norm() < 1e-15);
@@ -429,13 +371,8 @@ mod tests {
 
     #[test]
     fn combination_is_discrete_outer_continuous_inner() {
-        let flip_x = DiscreteSymmetry::from_row_major_4x4(&[
-            1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 5.0, 0.0, 0.0, 0.0, 1.0,
-        ]);
-        let c = ContinuousSymmetry {
-            axis: [0.0, 0.0, 1.0],
-            offset: [0.0, 0.0, 0.0],
-        };
+        let flip_x = DiscreteSymmetry::from_row_major_4x4(&[1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 5.0, 0.0, 0.0, 0.0, 1.0]);
+        let c = ContinuousSymmetry { axis: [0.0, 0.0, 1.0], offset: [0.0, 0.0, 0.0] };
         let t = symmetry_transformations(&[flip_x], &[c], 0.01).unwrap();
         assert_eq!(t.len(), 2 * 315);
         // First block: identity discrete × continuous; entry 315 is R_c(0)·flip = flip.
@@ -464,17 +401,10 @@ mod tests {
         let bad = r#"{"7": {"symmetries_discrete": [[1,0,0]]}}"#;
         let err = parse_models_info(bad).unwrap_err();
         assert!(err.to_string().contains("object 7"), "{err}");
-        let bad_axis =
-            r#"{"9": {"symmetries_continuous": [{"axis": [0,0,0], "offset": [0,0,0]}]}}"#;
-        assert!(parse_models_info(bad_axis)
-            .unwrap_err()
-            .to_string()
-            .contains("object 9"));
+        let bad_axis = r#"{"9": {"symmetries_continuous": [{"axis": [0,0,0], "offset": [0,0,0]}]}}"#;
+        assert!(parse_models_info(bad_axis).unwrap_err().to_string().contains("object 9"));
         let bad_type = r#"{"3": {"symmetries_continuous": [{"axis": [0,0], "offset": [0,0,0]}]}}"#;
-        assert!(parse_models_info(bad_type)
-            .unwrap_err()
-            .to_string()
-            .contains("object 3"));
+        assert!(parse_models_info(bad_type).unwrap_err().to_string().contains("object 3"));
     }
 
     #[test]

@@ -9,17 +9,43 @@ use std::collections::HashMap;
 pub fn icosphere(level: u32) -> Vec<Vector3<f64>> {
     let t = (1.0 + 5f64.sqrt()) / 2.0;
     let mut verts: Vec<Vector3<f64>> = [
-        [-1.0, t, 0.0], [1.0, t, 0.0], [-1.0, -t, 0.0], [1.0, -t, 0.0],
-        [0.0, -1.0, t], [0.0, 1.0, t], [0.0, -1.0, -t], [0.0, 1.0, -t],
-        [t, 0.0, -1.0], [t, 0.0, 1.0], [-t, 0.0, -1.0], [-t, 0.0, 1.0],
+        [-1.0, t, 0.0],
+        [1.0, t, 0.0],
+        [-1.0, -t, 0.0],
+        [1.0, -t, 0.0],
+        [0.0, -1.0, t],
+        [0.0, 1.0, t],
+        [0.0, -1.0, -t],
+        [0.0, 1.0, -t],
+        [t, 0.0, -1.0],
+        [t, 0.0, 1.0],
+        [-t, 0.0, -1.0],
+        [-t, 0.0, 1.0],
     ]
     .iter()
     .map(|v| Vector3::from(*v).normalize())
     .collect();
     let mut faces: Vec<[usize; 3]> = vec![
-        [0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
-        [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
-        [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1],
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
     ];
     for _ in 0..level {
         let mut midpoint: HashMap<(usize, usize), usize> = HashMap::new();
@@ -46,7 +72,7 @@ pub fn icosphere(level: u32) -> Vec<Vector3<f64>> {
 /// centre towards the camera) looking at the centre, with a stable choice of "up".
 pub fn look_at_rotation(dir: &Vector3<f64>) -> Rotation3<f64> {
     let z_cam = -dir.normalize(); // camera z axis (forward) expressed in the object frame
-    // Object +z is "up" unless the camera looks along it; then fall back to +y.
+                                  // Object +z is "up" unless the camera looks along it; then fall back to +y.
     let up = if z_cam.z.abs() > 0.99 { Vector3::y() } else { Vector3::z() };
     let x_cam = z_cam.cross(&up).normalize(); // right, so that image y points "down"
     let y_cam = z_cam.cross(&x_cam);
@@ -140,10 +166,7 @@ mod tests {
         // 1944 templates; every random rotation is within ~20° of some template.
         let dirs = icosphere(2);
         let s = ViewSampling::default();
-        let rots: Vec<Rotation3<f64>> = dirs
-            .iter()
-            .flat_map(|d| s.in_plane_angles().into_iter().map(move |a| in_plane_rotation(a) * look_at_rotation(d)))
-            .collect();
+        let rots: Vec<Rotation3<f64>> = dirs.iter().flat_map(|d| s.in_plane_angles().into_iter().map(move |a| in_plane_rotation(a) * look_at_rotation(d))).collect();
         assert_eq!(rots.len(), 1944);
         let mut worst: f64 = 0.0;
         for i in 0..50 {

@@ -3,8 +3,8 @@
 //! and answer 400, and the BOP runner can count the detection as unusable.
 
 use super::rle::{Rle, RleError};
-use crate::limits::{ImageRefused, REQUEST_IMAGE};
 use super::segment::{segment_box, Method, SegmentConfig, Segmentation};
+use crate::limits::{ImageRefused, REQUEST_IMAGE};
 use image::{DynamicImage, GrayImage, Luma, RgbImage};
 use std::time::Instant;
 
@@ -123,9 +123,7 @@ impl PixelBox {
 /// RGBA): a red-on-black mask has a nonzero luma but a blue one may not. Alpha is ignored.
 pub fn binarise(img: &DynamicImage) -> GrayImage {
     let rgb = img.to_rgb8();
-    GrayImage::from_fn(rgb.width(), rgb.height(), |x, y| {
-        Luma([if rgb.get_pixel(x, y).0.iter().any(|&c| c > 0) { OBJECT } else { 0 }])
-    })
+    GrayImage::from_fn(rgb.width(), rgb.height(), |x, y| Luma([if rgb.get_pixel(x, y).0.iter().any(|&c| c > 0) { OBJECT } else { 0 }]))
 }
 
 /// A `width × height` mask from PNG (or JPEG) bytes; a mask of another size is refused
@@ -211,8 +209,7 @@ mod tests {
     fn fractional_box_covers_partly_covered_pixels_and_is_clipped() {
         let b = PixelBox::from_xywh([1.5, 1.0, 2.0, 2.0], 10, 10).unwrap();
         assert_eq!(b, PixelBox { x0: 1, y0: 1, x1: 4, y1: 3 });
-        let on: Vec<(u32, u32)> =
-            b.filled(10, 10).enumerate_pixels().filter(|p| p.2[0] == OBJECT).map(|p| (p.0, p.1)).collect();
+        let on: Vec<(u32, u32)> = b.filled(10, 10).enumerate_pixels().filter(|p| p.2[0] == OBJECT).map(|p| (p.0, p.1)).collect();
         assert_eq!(on, vec![(1, 1), (2, 1), (3, 1), (1, 2), (2, 2), (3, 2)]);
         let clipped = PixelBox::from_xywh([-5.0, 8.0, 7.0, 100.0], 10, 10).unwrap();
         assert_eq!(ones(&clipped.filled(10, 10)), 2 * 2);

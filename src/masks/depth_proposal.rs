@@ -206,7 +206,11 @@ mod tests {
         // Table: the plane y = 0.08 (below the camera), seen up to 2 m.
         let table = |_x: u32, y: u32| {
             let ray_y = (y as f64 - k.cy) / k.fy;
-            if ray_y > 0.0 { (0.08 / ray_y).min(2.0) } else { 2.0 }
+            if ray_y > 0.0 {
+                (0.08 / ray_y).min(2.0)
+            } else {
+                2.0
+            }
         };
         let block = |x: u32, y: u32| {
             let (rx, ry) = ((x as f64 - k.cx) / k.fx, (y as f64 - k.cy) / k.fy);

@@ -12,7 +12,11 @@ pub fn mask_iou(a: &GrayImage, b: &GrayImage) -> f64 {
         inter += (x > 0 && y > 0) as u64;
         union += (x > 0 || y > 0) as u64;
     }
-    if union == 0 { 0.0 } else { inter as f64 / union as f64 }
+    if union == 0 {
+        0.0
+    } else {
+        inter as f64 / union as f64
+    }
 }
 
 /// Greedy grouping in descending score: each mask joins the first group whose leader (its

@@ -117,7 +117,11 @@ impl Graph {
     /// Residual capacity of arc `a` in the direction flow would take in `tree`: away from
     /// the source in the source tree, towards the sink in the sink tree.
     fn open(&self, tree: u8, a: usize) -> bool {
-        if tree == SOURCE { self.cap[a] > 0 } else { self.cap[a ^ 1] > 0 }
+        if tree == SOURCE {
+            self.cap[a] > 0
+        } else {
+            self.cap[a ^ 1] > 0
+        }
     }
 
     /// Grows `v`'s tree over free neighbours; returns the source→sink arc when a

@@ -18,9 +18,9 @@ pub mod rle;
 pub mod segment;
 pub mod union;
 
-pub use decode::{box_masks, box_to_mask, box_to_mask_with, BoxMasks, mask_from_png, mask_from_rle, require_nonempty, BoxMask, MaskError, PixelBox};
+pub use decode::{box_masks, box_to_mask, box_to_mask_with, mask_from_png, mask_from_rle, require_nonempty, BoxMask, BoxMasks, MaskError, PixelBox};
 pub use instances::{group_instances, mask_iou};
-pub use rle::{Rle, RleError};
-pub use union::union;
 pub use proposals::{propose, Proposal, ProposalConfig, ProposalKind};
+pub use rle::{Rle, RleError};
 pub use segment::{ellipse_in_box, segment_box, Method, SegmentConfig, Segmentation};
+pub use union::union;

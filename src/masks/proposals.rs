@@ -206,7 +206,11 @@ mod tests {
     fn scene() -> (RgbImage, PixelBox) {
         let image = RgbImage::from_fn(120, 80, |x, y| {
             let d = |cx: f64, cy: f64| ((x as f64 - cx).powi(2) + (y as f64 - cy).powi(2)).sqrt();
-            if d(50.0, 40.0) < 20.0 || d(85.0, 40.0) < 15.0 { Rgb([40, 40, 160]) } else { Rgb([220, 210, 200]) }
+            if d(50.0, 40.0) < 20.0 || d(85.0, 40.0) < 15.0 {
+                Rgb([40, 40, 160])
+            } else {
+                Rgb([220, 210, 200])
+            }
         });
         (image, PixelBox { x0: 28, y0: 18, x1: 74, y1: 63 })
     }

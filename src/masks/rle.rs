@@ -232,18 +232,14 @@ impl Rle {
                     .iter()
                     .enumerate()
                     .map(|(i, item)| {
-                        item.as_u64().and_then(|c| u32::try_from(c).ok()).ok_or_else(|| RleError::BadField {
-                            field: "counts",
-                            reason: format!("item {i} is {item}, expected an integer in 0..=4294967295"),
-                        })
+                        item.as_u64()
+                            .and_then(|c| u32::try_from(c).ok())
+                            .ok_or_else(|| RleError::BadField { field: "counts", reason: format!("item {i} is {item}, expected an integer in 0..=4294967295") })
                     })
                     .collect::<Result<Vec<u32>, RleError>>()?;
                 Rle::new(size, counts)
             }
-            Some(other) => Err(RleError::BadField {
-                field: "counts",
-                reason: format!("expected a list of integers or a string, got {}", json_kind(other)),
-            }),
+            Some(other) => Err(RleError::BadField { field: "counts", reason: format!("expected a list of integers or a string, got {}", json_kind(other)) }),
             None => Err(RleError::BadField { field: "counts", reason: "missing".into() }),
         }
     }
@@ -382,14 +378,11 @@ mod tests {
     }
 
     fn binarised(mask: &GrayImage) -> GrayImage {
-        GrayImage::from_fn(mask.width(), mask.height(), |x, y| {
-            Luma([if mask.get_pixel(x, y)[0] != 0 { OBJECT } else { 0 }])
-        })
+        GrayImage::from_fn(mask.width(), mask.height(), |x, y| Luma([if mask.get_pixel(x, y)[0] != 0 { OBJECT } else { 0 }]))
     }
 
     fn brute_force_bbox(mask: &GrayImage) -> Option<[u32; 4]> {
-        let on: Vec<(u32, u32)> =
-            mask.enumerate_pixels().filter(|(_, _, p)| p[0] != 0).map(|(x, y, _)| (x, y)).collect();
+        let on: Vec<(u32, u32)> = mask.enumerate_pixels().filter(|(_, _, p)| p[0] != 0).map(|(x, y, _)| (x, y)).collect();
         let x0 = on.iter().map(|p| p.0).min()?;
         let x1 = on.iter().map(|p| p.0).max()?;
         let y0 = on.iter().map(|p| p.1).min()?;
@@ -445,9 +438,7 @@ mod tests {
         //        (0) is not -1, so another chunk follows: 18|0x20 = 50 -> 'b',
         //        then chunk 0 -> '0'.                      => "b0"
         //   4 -> '4', 4 -> '4', 0 -> '0' (×5), 14 -> 48+14 = '>'.
-        let mask = GrayImage::from_fn(8, 8, |x, y| {
-            Luma([if (2..=5).contains(&x) && (2..=5).contains(&y) { 1 } else { 0 }])
-        });
+        let mask = GrayImage::from_fn(8, 8, |x, y| Luma([if (2..=5).contains(&x) && (2..=5).contains(&y) { 1 } else { 0 }]));
         let rle = Rle::encode(&mask);
         assert_eq!(rle.counts, vec![18, 4, 4, 4, 4, 4, 4, 4, 18]);
         assert_eq!(rle.to_coco_string(), "b04400000>");
@@ -566,15 +557,9 @@ mod tests {
         // 8 continuation chunks: longer than any u32 delta needs.
         assert_eq!(Rle::from_coco_string("PPPPPPPP0", [1, 1]).unwrap_err(), RleError::CountTooLong { index: 0 });
         // A lone negative first count: chunk 0x1f with the sign bit = -1.
-        assert_eq!(
-            Rle::from_coco_string("O", [1, 1]).unwrap_err(),
-            RleError::CountOutOfRange { index: 0, value: -1 }
-        );
+        assert_eq!(Rle::from_coco_string("O", [1, 1]).unwrap_err(), RleError::CountOutOfRange { index: 0, value: -1 });
         // A valid string whose counts do not match the size.
-        assert!(matches!(
-            Rle::from_coco_string("b04400000>", [8, 9]),
-            Err(RleError::CountSumMismatch { sum: 64, height: 8, width: 9 })
-        ));
+        assert!(matches!(Rle::from_coco_string("b04400000>", [8, 9]), Err(RleError::CountSumMismatch { sum: 64, height: 8, width: 9 })));
         assert!(matches!(Rle::from_coco_string("", [2, 2]), Err(RleError::CountSumMismatch { sum: 0, .. })));
     }
 

@@ -186,7 +186,16 @@ impl Grid {
         let mut fg = Gmm::fit(&colours(&|i| self.in_box[i]), cfg.components).ok_or_else(no_model)?;
         let mut bg = Gmm::fit(&colours(&|i| !self.in_box[i]), cfg.components).ok_or_else(no_model)?;
         let pairs = self.pairs(cfg.smoothness);
-        let node: Vec<Option<usize>> = self.in_box.iter().scan(0, |n, &b| Some(b.then(|| { *n += 1; *n - 1 }))).collect();
+        let node: Vec<Option<usize>> = self
+            .in_box
+            .iter()
+            .scan(0, |n, &b| {
+                Some(b.then(|| {
+                    *n += 1;
+                    *n - 1
+                }))
+            })
+            .collect();
         let cells: Vec<usize> = (0..self.in_box.len()).filter(|&i| self.in_box[i]).collect();
         let cap = |cost: f64| (cost.min(MAX_DATA_COST) * COST_SCALE).round() as i64;
         let mut labels = self.in_box.clone();

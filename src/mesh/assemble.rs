@@ -31,11 +31,7 @@ impl Assembler {
     /// piece it was).
     pub(super) fn push(&mut self, piece: Piece) -> Result<(), String> {
         let n = piece.positions.len();
-        for (what, len) in [
-            ("normals", piece.normals.as_ref().map(Vec::len)),
-            ("colours", piece.colors.as_ref().map(Vec::len)),
-            ("texture coordinates", piece.uvs.as_ref().map(Vec::len)),
-        ] {
+        for (what, len) in [("normals", piece.normals.as_ref().map(Vec::len)), ("colours", piece.colors.as_ref().map(Vec::len)), ("texture coordinates", piece.uvs.as_ref().map(Vec::len))] {
             if let Some(len) = len.filter(|&len| len != n) {
                 return Err(format!("{len} {what} for {n} vertices"));
             }

@@ -44,10 +44,7 @@ pub(super) fn gltf_from_bytes(path: &Path, bytes: &[u8], units: Option<Units>, f
         };
         let data = data.map_err(|e| MeshError::format(path, format!("buffer {} ({}): {e}", b.index(), describe(b.source()))))?;
         if data.len() < b.length() {
-            return Err(MeshError::format(
-                path,
-                format!("buffer {} has {} bytes, the file declares {}", b.index(), data.len(), b.length()),
-            ));
+            return Err(MeshError::format(path, format!("buffer {} has {} bytes, the file declares {}", b.index(), data.len(), b.length())));
         }
         buffers.push(data);
     }
@@ -138,7 +135,8 @@ fn read_uri(uri: &str, files: &dyn MeshFiles) -> Result<Vec<u8>, String> {
         if !header.ends_with(";base64") {
             return Err("only base64 data URIs are supported".into());
         }
-        let lenient = base64::engine::GeneralPurpose::new(&base64::alphabet::STANDARD, base64::engine::GeneralPurposeConfig::new().with_decode_padding_mode(base64::engine::DecodePaddingMode::Indifferent));
+        let lenient =
+            base64::engine::GeneralPurpose::new(&base64::alphabet::STANDARD, base64::engine::GeneralPurposeConfig::new().with_decode_padding_mode(base64::engine::DecodePaddingMode::Indifferent));
         return lenient.decode(data).map_err(|e| format!("data URI is not valid base64: {e}"));
     }
     let path = match uri.strip_prefix("file://").or_else(|| uri.strip_prefix("file:")) {
@@ -196,13 +194,7 @@ impl Loader<'_> {
         for prim in mesh.primitives() {
             let at = |e: String| MeshError::format(path, format!("mesh {} primitive {}: {e}", mesh.index(), prim.index()));
             if !matches!(prim.mode(), Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) {
-                tracing::warn!(
-                    "{}: mesh {} primitive {} skipped: {:?} has no surface",
-                    self.path.display(),
-                    mesh.index(),
-                    prim.index(),
-                    prim.mode()
-                );
+                tracing::warn!("{}: mesh {} primitive {} skipped: {:?} has no surface", self.path.display(), mesh.index(), prim.index(), prim.mode());
                 continue;
             }
             let material = self.material(prim.material())?;
@@ -351,9 +343,7 @@ fn triangulate(mode: Mode, idx: &[u32]) -> Vec<[u32; 3]> {
     match mode {
         Mode::Triangles => idx.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect(),
         // Every other strip triangle is reversed so that all keep the first one's winding.
-        Mode::TriangleStrip => (0..n.saturating_sub(2))
-            .map(|i| if i % 2 == 0 { [idx[i], idx[i + 1], idx[i + 2]] } else { [idx[i + 1], idx[i], idx[i + 2]] })
-            .collect(),
+        Mode::TriangleStrip => (0..n.saturating_sub(2)).map(|i| if i % 2 == 0 { [idx[i], idx[i + 1], idx[i + 2]] } else { [idx[i + 1], idx[i], idx[i + 2]] }).collect(),
         Mode::TriangleFan => (1..n.saturating_sub(1)).map(|i| [idx[0], idx[i], idx[i + 1]]).collect(),
         _ => Vec::new(),
     }
@@ -397,8 +387,7 @@ mod tests {
             // POSITION accessors must carry bounds; NaN is left out of them.
             let min: Vec<f32> = (0..N).map(|k| data.iter().map(|v| v[k]).fold(f32::INFINITY, f32::min)).collect();
             let max: Vec<f32> = (0..N).map(|k| data.iter().map(|v| v[k]).fold(f32::NEG_INFINITY, f32::max)).collect();
-            self.accessors
-                .push(json!({"bufferView": view, "componentType": 5126, "count": data.len(), "type": ty, "min": min, "max": max}));
+            self.accessors.push(json!({"bufferView": view, "componentType": 5126, "count": data.len(), "type": ty, "min": min, "max": max}));
             self.accessors.len() - 1
         }
         fn indices(&mut self, data: &[u16]) -> usize {

@@ -108,12 +108,8 @@ mod tests {
         }
         let hope = root.join("hope/models");
         let info: serde_json::Value = serde_json::from_slice(&std::fs::read(hope.join("models_info.json")).unwrap()).unwrap();
-        let mut files: Vec<(std::path::PathBuf, Option<Units>)> = std::fs::read_dir(&hope)
-            .unwrap()
-            .map(|e| e.unwrap().path())
-            .filter(|p| p.extension().is_some_and(|e| e == "ply"))
-            .map(|p| (p, Some(Units::Mm)))
-            .collect();
+        let mut files: Vec<(std::path::PathBuf, Option<Units>)> =
+            std::fs::read_dir(&hope).unwrap().map(|e| e.unwrap().path()).filter(|p| p.extension().is_some_and(|e| e == "ply")).map(|p| (p, Some(Units::Mm))).collect();
         files.sort_by(|a, b| a.0.cmp(&b.0));
         let meshes = root.join("meshes");
         files.push((meshes.join("fuze.obj"), Some(Units::M)));
@@ -121,10 +117,7 @@ mod tests {
         for glb in ["Duck.glb", "BoxTextured.glb", "cubevc.glb"] {
             files.push((meshes.join(glb), None));
         }
-        println!(
-            "{:<18} {:>8} {:>8} {:>12} {:>12} {:>8} {:>7} {:>8}",
-            "file", "vertices", "faces", "diameter mm", "BOP mm", "texture", "colours", "load ms"
-        );
+        println!("{:<18} {:>8} {:>8} {:>12} {:>12} {:>8} {:>7} {:>8}", "file", "vertices", "faces", "diameter mm", "BOP mm", "texture", "colours", "load ms");
         for (path, units) in files {
             let start = std::time::Instant::now();
             let mesh = load_mesh(&path, units).unwrap_or_else(|e| panic!("{e}"));

@@ -20,9 +20,9 @@ mod types;
 pub use self::gltf::load_gltf;
 pub use files::{Folder, InMemory, MeshFiles};
 pub use load::{load_mesh, load_mesh_bytes, load_mesh_with};
+pub use material_texture::Texture;
 pub use obj::load_obj;
 pub use ply::{load_ply, load_ply_points};
-pub use material_texture::Texture;
 pub use types::*;
 
 pub mod procedural;

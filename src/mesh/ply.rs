@@ -53,8 +53,7 @@ fn parse_raw(bytes: &[u8]) -> Result<(Raw, Option<String>), String> {
     let mut raw = Raw::default();
     match header.encoding {
         Encoding::Ascii => {
-            let text =
-                std::str::from_utf8(body).map_err(|e| format!("ascii data is not text (byte {})", header.body_offset + e.valid_up_to()))?;
+            let text = std::str::from_utf8(body).map_err(|e| format!("ascii data is not text (byte {})", header.body_offset + e.valid_up_to()))?;
             let mut src = Ascii { lines: text.lines(), line: header.lines, tokens: "".split_ascii_whitespace() };
             read_body(&mut src, &header, &plan, &mut raw)?;
         }
@@ -401,9 +400,8 @@ struct Binary<'a> {
 
 impl Binary<'_> {
     fn take<const N: usize>(&mut self) -> Result<[u8; N], String> {
-        let bytes = self.data.get(self.pos..self.pos + N).ok_or_else(|| {
-            format!("binary data ends early at byte {} (truncated, or the header's counts are too large)", self.start + self.data.len())
-        })?;
+        let bytes =
+            self.data.get(self.pos..self.pos + N).ok_or_else(|| format!("binary data ends early at byte {} (truncated, or the header's counts are too large)", self.start + self.data.len()))?;
         self.pos += N;
         Ok(bytes.try_into().expect("slice of length N"))
     }
@@ -479,9 +477,7 @@ fn read_body<S: Source>(src: &mut S, header: &Header, plan: &Plan, raw: &mut Raw
             for (prop, &role) in element.props.iter().zip(roles) {
                 let with_name = |e: String| format!("property {}: {e}", prop.name);
                 match (prop.kind, role) {
-                    (Kind::Scalar(ty), Role::Vertex(slot, scale)) => {
-                        slots[slot] = src.value(ty).map_err(|e| at(src, with_name(e)))? / scale
-                    }
+                    (Kind::Scalar(ty), Role::Vertex(slot, scale)) => slots[slot] = src.value(ty).map_err(|e| at(src, with_name(e)))? / scale,
                     (Kind::Scalar(ty), _) => {
                         src.value(ty).map_err(|e| at(src, with_name(e)))?;
                     }

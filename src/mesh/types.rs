@@ -232,12 +232,7 @@ impl Mesh {
     /// The same geometry with no texture, no vertex colours and one plain material: what
     /// an untextured CAD model gives (used to simulate the render-to-real gap).
     pub fn without_appearance(&self) -> Mesh {
-        let data = MeshData {
-            positions: self.data.positions.clone(),
-            normals: self.data.normals.clone(),
-            triangles: self.data.triangles.clone(),
-            ..Default::default()
-        };
+        let data = MeshData { positions: self.data.positions.clone(), normals: self.data.normals.clone(), triangles: self.data.triangles.clone(), ..Default::default() };
         Mesh::new(format!("{} (untextured)", self.name), self.source_units, data).expect("geometry was valid")
     }
 
@@ -252,11 +247,7 @@ impl Mesh {
     /// sphere about `bbox_center` that holds the whole mesh (views and placements fit it).
     pub fn bounding_radius(&self) -> f64 {
         let c = self.bbox_center();
-        self.data
-            .positions
-            .iter()
-            .map(|p| (0..3).map(|i| (p[i] as f64 - c[i]).powi(2)).sum::<f64>().sqrt())
-            .fold(0.0, f64::max)
+        self.data.positions.iter().map(|p| (0..3).map(|i| (p[i] as f64 - c[i]).powi(2)).sum::<f64>().sqrt()).fold(0.0, f64::max)
     }
 
     /// Largest distance between two vertices, in metres (the BOP definition).
@@ -360,11 +351,7 @@ mod tests {
     use super::*;
 
     fn tetra() -> MeshData {
-        MeshData {
-            positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-            triangles: vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
-            ..Default::default()
-        }
+        MeshData { positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], triangles: vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], ..Default::default() }
     }
 
     #[test]

@@ -6,8 +6,8 @@
 
 use super::pipeline::base_intrinsics;
 use super::point_grid::{i16_to_unit, unit_to_i16, PointGrid};
-use crate::geometry::views::{fitted_distance, icosphere, view_pose};
 use crate::features::grey;
+use crate::geometry::views::{fitted_distance, icosphere, view_pose};
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Mesh;
 use crate::render::{RenderError, RenderOptions, RenderOutput, RenderPool};
@@ -217,7 +217,11 @@ fn contour_normal(mask: &image::GrayImage, x: i64, y: i64) -> Option<(f64, f64)>
     }
     let n = (sx * sx + sy * sy).sqrt();
     // A balanced disc (a one-pixel-thin sliver) has no defined side.
-    if n < 1.0 { None } else { Some((-sx / n, -sy / n)) }
+    if n < 1.0 {
+        None
+    } else {
+        Some((-sx / n, -sy / n))
+    }
 }
 
 /// Pixels walked from (x, y) along (nx, ny) while the mask equals `inside`.

@@ -1,13 +1,13 @@
 //! An onboarded object: the templates (pose, global descriptor, silhouette) and, for each
 //! template, its foreground patches (descriptor, 3D object-frame point, patch index).
 
+use super::contour::ContourModel;
 use super::pca_setting::PcaSetting;
+use crate::detect::ShapeModel;
 use crate::features::BackboneIdentity;
 use crate::geometry::symmetry::KnownSymmetries;
 use crate::geometry::{CropBox, Intrinsics, PatchGrid, Pose, ViewSampling};
 use crate::mesh::Mesh;
-use super::contour::ContourModel;
-use crate::detect::ShapeModel;
 use std::sync::{Arc, OnceLock};
 
 /// Version of the model layout; bumped on any change of meaning or layout. 2: optional
@@ -87,7 +87,6 @@ impl DescriptorCoding {
     pub fn f16() -> Self {
         DescriptorCoding::F16
     }
-
 }
 
 // The names are clap's (`--descriptors pq4`), so the CLI, the API and the docs agree.
@@ -124,7 +123,16 @@ impl std::str::FromStr for PatchRows {
 
 impl Default for OnboardConfig {
     fn default() -> Self {
-        Self { views: ViewSampling::default(), render_size: 512, render_fill: 0.9, crop_padding: 0.1, min_coverage: 0.5, pca: PcaSetting::Auto, descriptors: DescriptorCoding::F16, patch_rows: PatchRows::PerTemplate }
+        Self {
+            views: ViewSampling::default(),
+            render_size: 512,
+            render_fill: 0.9,
+            crop_padding: 0.1,
+            min_coverage: 0.5,
+            pca: PcaSetting::Auto,
+            descriptors: DescriptorCoding::F16,
+            patch_rows: PatchRows::PerTemplate,
+        }
     }
 }
 
@@ -258,7 +266,16 @@ impl ObjectModel {
         let d = self.mesh.data();
         let mesh = d.positions.len() * 12 + d.normals.len() * 12 + d.colors.len() * 12 + d.uvs.len() * 8 + d.triangles.len() * 12;
         let textures: usize = self.mesh.materials().iter().filter_map(|m| m.texture.as_ref()).map(|t| t.heap_bytes()).sum();
-        self.global.len() * 4 + self.patch_descriptors.memory_bytes() + self.patch_points.heap_bytes() + self.patch_cells.heap_bytes() + self.silhouettes.heap_bytes() + self.templates.len() * std::mem::size_of::<Template>() + mesh + textures + self.contours.get().map_or(0, |c| c.memory_bytes()) + self.detector.get().map_or(0, |d| d.memory_bytes())
+        self.global.len() * 4
+            + self.patch_descriptors.memory_bytes()
+            + self.patch_points.heap_bytes()
+            + self.patch_cells.heap_bytes()
+            + self.silhouettes.heap_bytes()
+            + self.templates.len() * std::mem::size_of::<Template>()
+            + mesh
+            + textures
+            + self.contours.get().map_or(0, |c| c.memory_bytes())
+            + self.detector.get().map_or(0, |d| d.memory_bytes())
     }
 
     /// Whether the in-plane turns of a view share its first template's patch rows.
@@ -312,7 +329,10 @@ impl ObjectModel {
         // Estimation sizes its crops from the grid (`n · patch`): it must be the one the
         // backbone's input and patch sizes give, as onboarding made it.
         if PatchGrid::for_crop(self.backbone.input_size, self.backbone.patch_size).ok() != Some(self.grid) {
-            return Err(format!("object {:?}: its {}² grid of {} px patches is not the backbone's ({} px input, {} px patches)", self.object_id, self.grid.n, self.grid.patch, self.backbone.input_size, self.backbone.patch_size));
+            return Err(format!(
+                "object {:?}: its {}² grid of {} px patches is not the backbone's ({} px input, {} px patches)",
+                self.object_id, self.grid.n, self.grid.patch, self.backbone.input_size, self.backbone.patch_size
+            ));
         }
         for (i, tp) in self.templates.iter().enumerate() {
             if tp.patch_start as usize + tp.patch_count as usize > p {
@@ -348,7 +368,11 @@ pub fn silhouette_iou(a: &[u64], b: &[u64]) -> f32 {
         inter += (x & y).count_ones();
         union += (x | y).count_ones();
     }
-    if union == 0 { 0.0 } else { inter as f32 / union as f32 }
+    if union == 0 {
+        0.0
+    } else {
+        inter as f32 / union as f32
+    }
 }
 
 /// Packs a crop mask into `SILHOUETTE_SIZE²` bits: a cell is set when at least half of it is object.

@@ -3,8 +3,8 @@
 //! `pq2`: an eighth / a quarter of the bytes). Matching reads them only through
 //! `widen_into`, a few templates at a time.
 
-use super::stored_rows::{HalfRows, StoredRows};
 use super::pq::ProductQuantizer;
+use super::stored_rows::{HalfRows, StoredRows};
 use half::f16;
 use std::ops::Range;
 

@@ -1,8 +1,8 @@
 //! Mesh → base-view renders → in-plane rotated crops → features + 3D points → ObjectModel.
 
-use crate::geometry::symmetry::{KnownSymmetries, SymmetrySource};
 use super::model::{pack_silhouette, ObjectModel, OnboardConfig, PatchRows, Template};
 use crate::features::{sample_crop, Backbone, CropInput, ToSource};
+use crate::geometry::symmetry::{KnownSymmetries, SymmetrySource};
 use crate::geometry::views::{fitted_distance, icosphere, view_pose};
 use crate::geometry::{CropBox, Intrinsics, PatchGrid, Pose};
 use crate::mesh::Mesh;
@@ -36,11 +36,12 @@ pub enum OnboardError {
 
 /// Object ids become file and database names: keep them boring.
 pub fn validate_object_id(id: &str) -> Result<(), OnboardError> {
-    let ok = !id.is_empty()
-        && id.len() <= 64
-        && !id.starts_with('.')
-        && id.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'));
-    if ok { Ok(()) } else { Err(OnboardError::BadId(id.to_string())) }
+    let ok = !id.is_empty() && id.len() <= 64 && !id.starts_with('.') && id.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'));
+    if ok {
+        Ok(())
+    } else {
+        Err(OnboardError::BadId(id.to_string()))
+    }
 }
 
 /// Base-render intrinsics: square, fx = fy (so in-plane rotation of the image is exact),
@@ -53,14 +54,7 @@ pub fn base_intrinsics(size: u32) -> Intrinsics {
 /// Chunk of base views rendered at once: bounds memory (each 512² render is ~2 MB).
 const VIEW_CHUNK: usize = 16;
 
-pub fn onboard(
-    object_id: &str,
-    mesh: &Mesh,
-    config: &OnboardConfig,
-    backbone: &dyn Backbone,
-    renderer: &RenderPool,
-    progress: &(dyn Fn(Progress) + Sync),
-) -> Result<ObjectModel, OnboardError> {
+pub fn onboard(object_id: &str, mesh: &Mesh, config: &OnboardConfig, backbone: &dyn Backbone, renderer: &RenderPool, progress: &(dyn Fn(Progress) + Sync)) -> Result<ObjectModel, OnboardError> {
     onboard_cancellable(object_id, mesh, config, backbone, renderer, progress, &std::sync::atomic::AtomicBool::new(false))
 }
 
@@ -253,15 +247,7 @@ pub fn in_plane_turn(k: &Intrinsics, angle: f64) -> crate::geometry::Turn {
     crate::geometry::Turn::new(angle, [k.cx, k.cy])
 }
 
-fn assemble(
-    object_id: &str,
-    mesh: &Mesh,
-    config: &OnboardConfig,
-    backbone: crate::features::BackboneIdentity,
-    k: Intrinsics,
-    grid: PatchGrid,
-    parts: Vec<ViewTemplates>,
-) -> ObjectModel {
+fn assemble(object_id: &str, mesh: &Mesh, config: &OnboardConfig, backbone: crate::features::BackboneIdentity, k: Intrinsics, grid: PatchGrid, parts: Vec<ViewTemplates>) -> ObjectModel {
     let mut m = ObjectModel {
         object_id: object_id.to_string(),
         global_dim: backbone.global_dim as usize,

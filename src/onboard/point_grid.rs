@@ -79,10 +79,12 @@ mod tests {
 
     #[test]
     fn points_come_back_within_half_a_step() {
-        let points: Vec<[f32; 3]> = (0..500).map(|i| {
-            let t = i as f32 * 0.37;
-            [0.08 * t.sin() - 0.01, 0.05 * (1.3 * t).cos(), 0.002]
-        }).collect();
+        let points: Vec<[f32; 3]> = (0..500)
+            .map(|i| {
+                let t = i as f32 * 0.37;
+                [0.08 * t.sin() - 0.01, 0.05 * (1.3 * t).cos(), 0.002]
+            })
+            .collect();
         let grid = PointGrid::covering(&points);
         assert_eq!(grid.step[2], 0.0, "a flat side has no steps");
         for p in &points {

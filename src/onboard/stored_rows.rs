@@ -16,7 +16,12 @@ pub enum StoredRows<T: Pod> {
     /// `len` values at byte `offset` of a read-only mapping of a stored file. Stores never
     /// change a stored file in place (they write new files and rename), so the bytes stay
     /// as decoded for as long as the mapping lives.
-    Mapped { map: Arc<memmap2::Mmap>, offset: usize, len: usize, values: PhantomData<T> },
+    Mapped {
+        map: Arc<memmap2::Mmap>,
+        offset: usize,
+        len: usize,
+        values: PhantomData<T>,
+    },
 }
 
 /// f16 descriptor rows.

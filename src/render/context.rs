@@ -35,10 +35,7 @@ impl GpuContext {
             let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
             desc.backends = backends;
             let instance = wgpu::Instance::new(desc);
-            let options = wgpu::RequestAdapterOptions {
-                power_preference: wgpu::PowerPreference::HighPerformance,
-                ..Default::default()
-            };
+            let options = wgpu::RequestAdapterOptions { power_preference: wgpu::PowerPreference::HighPerformance, ..Default::default() };
             match pollster::block_on(instance.request_adapter(&options)) {
                 Ok(adapter) => return Self::with_adapter(instance, adapter),
                 Err(e) => tracing::debug!("no adapter on {backends:?}: {e}"),
@@ -57,9 +54,8 @@ impl GpuContext {
             required_limits: adapter.limits(),
             ..Default::default()
         };
-        let (device, queue) = pollster::block_on(adapter.request_device(&desc)).map_err(|e| {
-            RenderError::RequestDevice { adapter: format!("{} ({:?})", info.name, info.backend), message: e.to_string() }
-        })?;
+        let (device, queue) =
+            pollster::block_on(adapter.request_device(&desc)).map_err(|e| RenderError::RequestDevice { adapter: format!("{} ({:?})", info.name, info.backend), message: e.to_string() })?;
         tracing::info!("renderer on {} ({:?}, {})", info.name, info.backend, info.driver_info);
         Ok(Self { _instance: instance, info, device, queue })
     }
@@ -80,4 +76,3 @@ impl GpuContext {
         }
     }
 }
-

@@ -25,13 +25,9 @@ pub(crate) struct Vertex {
 }
 
 impl Vertex {
-    const ATTRIBUTES: [wgpu::VertexAttribute; 4] =
-        wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Float32x2];
-    pub const LAYOUT: wgpu::VertexBufferLayout<'static> = wgpu::VertexBufferLayout {
-        array_stride: std::mem::size_of::<Vertex>() as u64,
-        step_mode: wgpu::VertexStepMode::Vertex,
-        attributes: &Self::ATTRIBUTES,
-    };
+    const ATTRIBUTES: [wgpu::VertexAttribute; 4] = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Float32x2];
+    pub const LAYOUT: wgpu::VertexBufferLayout<'static> =
+        wgpu::VertexBufferLayout { array_stride: std::mem::size_of::<Vertex>() as u64, step_mode: wgpu::VertexStepMode::Vertex, attributes: &Self::ATTRIBUTES };
 }
 
 pub(crate) struct GpuMesh {
@@ -54,24 +50,19 @@ impl GpuMesh {
         let vertices = build_vertices(mesh);
         let t = std::time::Instant::now();
         let drawn = drawn_surface(mesh, config.drop_repeated_faces);
-        tracing::debug!(mesh = mesh.name(), triangles = mesh.triangles().len(), repeats = drawn.repeats, closed = drawn.closed, rewound = drawn.rewound, ms = t.elapsed().as_secs_f64() * 1e3, "uploading a mesh");
+        tracing::debug!(
+            mesh = mesh.name(),
+            triangles = mesh.triangles().len(),
+            repeats = drawn.repeats,
+            closed = drawn.closed,
+            rewound = drawn.rewound,
+            ms = t.elapsed().as_secs_f64() * 1e3,
+            "uploading a mesh"
+        );
         let culled = config.cull_closed_meshes && drawn.closed;
-        let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(mesh.name()),
-            contents: bytemuck::cast_slice(&vertices),
-            usage: wgpu::BufferUsages::VERTEX,
-        });
-        let indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(mesh.name()),
-            contents: bytemuck::cast_slice(&drawn.triangles),
-            usage: wgpu::BufferUsages::INDEX,
-        });
-        let draws = drawn
-            .parts
-            .iter()
-            .filter(|p| p.triangle_count > 0)
-            .map(|p| (p.first_triangle * 3..(p.first_triangle + p.triangle_count) * 3, p.material as usize))
-            .collect();
+        let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(mesh.name()), contents: bytemuck::cast_slice(&vertices), usage: wgpu::BufferUsages::VERTEX });
+        let indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(mesh.name()), contents: bytemuck::cast_slice(&drawn.triangles), usage: wgpu::BufferUsages::INDEX });
+        let draws = drawn.parts.iter().filter(|p| p.triangle_count > 0).map(|p| (p.first_triangle * 3..(p.first_triangle + p.triangle_count) * 3, p.material as usize)).collect();
         let max_side = device.limits().max_texture_dimension_2d;
         let materials = mesh
             .materials()
@@ -86,24 +77,14 @@ impl GpuMesh {
                     let t = fit_texture(&t, max_side);
                     upload_texture(device, queue, t.width(), t.height(), t.as_raw(), &m.name)
                 });
-                let uniform = MaterialUniform {
-                    base_color: m.base_color,
-                    flags: [if view.is_some() { 1.0 } else { 0.0 }, 0.0, 0.0, 0.0],
-                };
-                let buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some(&m.name),
-                    contents: bytemuck::bytes_of(&uniform),
-                    usage: wgpu::BufferUsages::UNIFORM,
-                });
+                let uniform = MaterialUniform { base_color: m.base_color, flags: [if view.is_some() { 1.0 } else { 0.0 }, 0.0, 0.0, 0.0] };
+                let buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(&m.name), contents: bytemuck::bytes_of(&uniform), usage: wgpu::BufferUsages::UNIFORM });
                 device.create_bind_group(&wgpu::BindGroupDescriptor {
                     label: Some(&m.name),
                     layout: &pipeline.material_layout,
                     entries: &[
                         wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() },
-                        wgpu::BindGroupEntry {
-                            binding: 1,
-                            resource: wgpu::BindingResource::TextureView(view.as_ref().unwrap_or(&pipeline.white)),
-                        },
+                        wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(view.as_ref().unwrap_or(&pipeline.white)) },
                         wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::Sampler(&pipeline.sampler) },
                     ],
                 })

@@ -94,11 +94,7 @@ pub(crate) fn assemble(width: u32, height: u32, pitch: usize, rgba: &[u8], depth
             mask.push(if covered { 255 } else { 0 });
         }
     }
-    RenderOutput {
-        rgb: RgbImage::from_raw(width, height, rgb).expect("sized above"),
-        depth,
-        mask: GrayImage::from_raw(width, height, mask).expect("sized above"),
-    }
+    RenderOutput { rgb: RgbImage::from_raw(width, height, rgb).expect("sized above"), depth, mask: GrayImage::from_raw(width, height, mask).expect("sized above") }
 }
 
 #[cfg(test)]

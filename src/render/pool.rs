@@ -26,9 +26,7 @@ impl RenderPool {
 
     /// A pool of `size` renderers (at least 1).
     pub fn new(size: usize, config: RendererConfig) -> Result<Self, RenderError> {
-        let renderers = (0..size.max(1))
-            .map(|_| Renderer::with_config(config.clone()).map(Mutex::new))
-            .collect::<Result<_, _>>()?;
+        let renderers = (0..size.max(1)).map(|_| Renderer::with_config(config.clone()).map(Mutex::new)).collect::<Result<_, _>>()?;
         Ok(Self { renderers, next: AtomicUsize::new(0), uploads: AtomicU64::new(0) })
     }
 

@@ -83,8 +83,7 @@ impl Renderer {
         let Self { ctx, pipeline, cache, config, targets } = self;
         let submitted = ctx.catching(|| {
             let gpu = cache.get_or_insert_with(mesh.id(), || GpuMesh::upload(&ctx.device, &ctx.queue, pipeline, mesh, config));
-            let (near, far) =
-                opts.clip_range.unwrap_or_else(|| clip_range_for_sphere(pose, gpu.sphere_center, gpu.sphere_radius));
+            let (near, far) = opts.clip_range.unwrap_or_else(|| clip_range_for_sphere(pose, gpu.sphere_center, gpu.sphere_radius));
             let frame = FrameUniform::new(pose, &clip_from_camera(k, near, far), opts);
             ctx.queue.write_buffer(&pipeline.frame_buffer, 0, bytemuck::bytes_of(&frame));
             let t = match targets {
@@ -134,10 +133,7 @@ impl Renderer {
         let readback = padded_row_bytes(k.width) as u64 * k.height as u64;
         let max_buffer = self.ctx.device.limits().max_buffer_size;
         if readback > max_buffer {
-            return Err(RenderError::InvalidIntrinsics(format!(
-                "{}x{} needs a {readback}-byte readback buffer; this device allows {max_buffer}",
-                k.width, k.height
-            )));
+            return Err(RenderError::InvalidIntrinsics(format!("{}x{} needs a {readback}-byte readback buffer; this device allows {max_buffer}", k.width, k.height)));
         }
         check_pose(pose)?;
         opts.validate()

@@ -93,14 +93,7 @@ impl Targets {
         for (texture, buffer) in [(&self.color, &self.color_readback), (&self.depth_out, &self.depth_readback)] {
             encoder.copy_texture_to_buffer(
                 texture.as_image_copy(),
-                wgpu::TexelCopyBufferInfo {
-                    buffer,
-                    layout: wgpu::TexelCopyBufferLayout {
-                        offset: 0,
-                        bytes_per_row: Some(padded_row_bytes(self.width)),
-                        rows_per_image: Some(self.height),
-                    },
-                },
+                wgpu::TexelCopyBufferInfo { buffer, layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(padded_row_bytes(self.width)), rows_per_image: Some(self.height) } },
                 size,
             );
         }

@@ -5,11 +5,11 @@
 
 use super::auth::ApiKeys;
 use super::core::Core;
+use super::detect_requests::{DetectRequest, DetectResponse};
 use super::error::{ErrorKind, ServiceError};
 use super::metrics::{Gauges, Metrics};
 use super::operations::OperationStatus;
 use super::rate_limit::RateLimiter;
-use super::detect_requests::{DetectRequest, DetectResponse};
 use super::requests::{EstimateRequest, EstimateResponse, OnboardRequest};
 use super::track_requests::{TrackFrameRequest, TrackFrameResponse, TrackSessionInfo, TrackSessionOptions};
 use crate::store::ObjectInfo;
@@ -45,7 +45,20 @@ impl Api {
     pub fn gauges(&self) -> Gauges {
         let c = self.core.cache_stats();
         let q = &self.core.estimates;
-        Gauges { estimates_running: q.running(), estimates_waiting: q.waiting(), estimate_service_seconds: q.service_time().map(|d| d.as_secs_f64()), onboardings_running: self.core.onboardings_running(), objects_loaded: c.objects, cache_bytes: c.bytes, cache_stale: c.stale, ready: self.is_ready(), queue: self.core.queue_stats(), track_sessions: self.core.track_sessions_open(), render_mesh_uploads: self.core.render_mesh_uploads(), thumbnails_drawn: self.core.thumbnails.drawn() }
+        Gauges {
+            estimates_running: q.running(),
+            estimates_waiting: q.waiting(),
+            estimate_service_seconds: q.service_time().map(|d| d.as_secs_f64()),
+            onboardings_running: self.core.onboardings_running(),
+            objects_loaded: c.objects,
+            cache_bytes: c.bytes,
+            cache_stale: c.stale,
+            ready: self.is_ready(),
+            queue: self.core.queue_stats(),
+            track_sessions: self.core.track_sessions_open(),
+            render_mesh_uploads: self.core.render_mesh_uploads(),
+            thumbnails_drawn: self.core.thumbnails.drawn(),
+        }
     }
 
     /// The time this request may take: the server's limit or the client's deadline,

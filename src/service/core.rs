@@ -54,7 +54,22 @@ pub struct CoreConfig {
 
 impl Default for CoreConfig {
     fn default() -> Self {
-        Self { store_url: crate::store::default_url(), render_pool: RenderPool::DEFAULT_SIZE, cache_bytes: 4_000_000_000, max_estimates: 2, queue_depth: 16, queue_timeout: std::time::Duration::from_secs(30), max_onboardings: 1, backbone_batch: 32, backbone_max_wait: std::time::Duration::ZERO, backbone: Default::default(), device: Default::default(), read_only: false, max_track_sessions: 8, track_idle_timeout: std::time::Duration::from_secs(60) }
+        Self {
+            store_url: crate::store::default_url(),
+            render_pool: RenderPool::DEFAULT_SIZE,
+            cache_bytes: 4_000_000_000,
+            max_estimates: 2,
+            queue_depth: 16,
+            queue_timeout: std::time::Duration::from_secs(30),
+            max_onboardings: 1,
+            backbone_batch: 32,
+            backbone_max_wait: std::time::Duration::ZERO,
+            backbone: Default::default(),
+            device: Default::default(),
+            read_only: false,
+            max_track_sessions: 8,
+            track_idle_timeout: std::time::Duration::from_secs(60),
+        }
     }
 }
 
@@ -101,8 +116,22 @@ impl Core {
         let estimator = Estimator::new(backbone.clone(), pool.clone());
         let cache = Arc::new(ModelCache::new(store.clone(), config.cache_bytes));
         let tracks = super::track_sessions::TrackSessions::new(config.max_track_sessions, config.track_idle_timeout);
-        let estimates = super::estimate_queue::EstimateQueue::new(super::estimate_queue::QueueConfig { running: config.max_estimates.max(1), depth: config.queue_depth, timeout: config.queue_timeout });
-        Ok(Self { config, store, cache, backbone, queue, pool, estimator, operations: Operations::default(), tracks, estimates, onboardings_running: Arc::new(AtomicUsize::new(0)), thumbnails: Default::default() })
+        let estimates =
+            super::estimate_queue::EstimateQueue::new(super::estimate_queue::QueueConfig { running: config.max_estimates.max(1), depth: config.queue_depth, timeout: config.queue_timeout });
+        Ok(Self {
+            config,
+            store,
+            cache,
+            backbone,
+            queue,
+            pool,
+            estimator,
+            operations: Operations::default(),
+            tracks,
+            estimates,
+            onboardings_running: Arc::new(AtomicUsize::new(0)),
+            thumbnails: Default::default(),
+        })
     }
 
     /// One render and one backbone pass, so the first request does not pay for shader
@@ -225,7 +254,8 @@ impl Core {
         let config = OnboardConfig { views, pca: req.options.pca, descriptors: req.options.descriptors, patch_rows: req.options.patch_rows, ..Default::default() };
         let total = (crate::geometry::icosphere(views.level).len() as u32 * views.in_plane_steps) as u64;
         // The slot is taken now (refusing at once) and held by the worker thread.
-        let slot = take_slot(&self.onboardings_running, self.config.max_onboardings).ok_or_else(|| ServiceError::new(ErrorKind::ResourceExhausted, format!("{} onboarding(s) already running; retry later", self.config.max_onboardings)))?;
+        let slot = take_slot(&self.onboardings_running, self.config.max_onboardings)
+            .ok_or_else(|| ServiceError::new(ErrorKind::ResourceExhausted, format!("{} onboarding(s) already running; retry later", self.config.max_onboardings)))?;
         let op = self.operations.start(&req.object_id, total);
         let (backbone, pool, store, cache) = (self.backbone.clone(), self.pool.clone(), self.store.clone(), self.cache.clone());
         let status = op.status();
@@ -369,7 +399,11 @@ impl Core {
         }
         let (detections, mut reason) = detected.unwrap_or_default();
         if choice != Choice::Given && results.is_empty() && reason.is_none() {
-            reason = Some(format!("none of the {unconfirmed} candidate(s) estimated was confirmed at its pose with a score of {:.3} or more (for min_score {})", answer_threshold(req.detect.min_score), req.detect.min_score));
+            reason = Some(format!(
+                "none of the {unconfirmed} candidate(s) estimated was confirmed at its pose with a score of {:.3} or more (for min_score {})",
+                answer_threshold(req.detect.min_score),
+                req.detect.min_score
+            ));
         }
         let overlay_png = if o.overlay { Some(draw_answer(&image, &k, &results, &models, &self.pool)?.into()) } else { None };
         Ok(EstimateResponse { results, detections, reason, overlay_png, total_ms: t0.elapsed().as_secs_f64() * 1e3 })
@@ -378,7 +412,13 @@ impl Core {
 
 /// The photo with every answered pose drawn on it (`render::overlay`), one colour per
 /// result, as PNG.
-fn draw_answer(image: &image::RgbImage, k: &crate::geometry::Intrinsics, results: &[InstanceResult], models: &BTreeMap<&str, Arc<crate::onboard::ObjectModel>>, pool: &RenderPool) -> Result<Vec<u8>, ServiceError> {
+fn draw_answer(
+    image: &image::RgbImage,
+    k: &crate::geometry::Intrinsics,
+    results: &[InstanceResult],
+    models: &BTreeMap<&str, Arc<crate::onboard::ObjectModel>>,
+    pool: &RenderPool,
+) -> Result<Vec<u8>, ServiceError> {
     const COLOURS: [[u8; 3]; 6] = [[0, 230, 118], [255, 196, 0], [0, 176, 255], [255, 64, 129], [178, 255, 89], [224, 64, 251]];
     let _span = tracing::info_span!("overlay", results = results.len()).entered();
     let mut out = image.clone();

@@ -29,7 +29,10 @@ impl Core {
         let models = ids.iter().map(|id| self.load(id)).collect::<Result<Vec<_>, _>>()?;
         // Objects stored before the detector existed get their templates now (about 2 s,
         // kept with the cached object; `b2tf objects upgrade` stores them).
-        let shapes = models.iter().map(|m| m.shape_model_or_build(&self.pool).map_err(|e| ServiceError::internal(format!("object {:?}: building its detector templates: {e}", m.object_id)))).collect::<Result<Vec<_>, _>>()?;
+        let shapes = models
+            .iter()
+            .map(|m| m.shape_model_or_build(&self.pool).map_err(|e| ServiceError::internal(format!("object {:?}: building its detector templates: {e}", m.object_id))))
+            .collect::<Result<Vec<_>, _>>()?;
         if deadline.is_some_and(|d| Instant::now() >= d) {
             return Err(ServiceError::new(super::error::ErrorKind::DeadlineExceeded, "deadline passed before the search started"));
         }
@@ -51,7 +54,11 @@ impl Core {
             return Err(ServiceError::invalid(format!("objects: none given and the store {} holds no object; onboard one first", self.store_url())));
         }
         if ids.len() > crate::limits::MAX_DETECT_OBJECTS {
-            return Err(ServiceError::invalid(format!("objects: none given and the store holds {} objects, over the limit of {} searched in one request; name the objects", ids.len(), crate::limits::MAX_DETECT_OBJECTS)));
+            return Err(ServiceError::invalid(format!(
+                "objects: none given and the store holds {} objects, over the limit of {} searched in one request; name the objects",
+                ids.len(),
+                crate::limits::MAX_DETECT_OBJECTS
+            )));
         }
         Ok(ids)
     }

@@ -43,7 +43,15 @@ impl Core {
 
     fn session_info(&self, e: &SessionEntry) -> TrackSessionInfo {
         let s = e.session.lock().expect("session lock");
-        TrackSessionInfo { id: e.id.clone(), frames: s.frames(), last_frame: s.last_frame(), tracks: s.tracks(), max_tracks: s.config.max_tracks, idle_s: e.idle().as_secs_f64(), idle_timeout_s: self.tracks.idle_timeout.as_secs_f64() }
+        TrackSessionInfo {
+            id: e.id.clone(),
+            frames: s.frames(),
+            last_frame: s.last_frame(),
+            tracks: s.tracks(),
+            max_tracks: s.config.max_tracks,
+            idle_s: e.idle().as_secs_f64(),
+            idle_timeout_s: self.tracks.idle_timeout.as_secs_f64(),
+        }
     }
 
     /// Runs one frame through session `id`. Refused while another frame of the session is

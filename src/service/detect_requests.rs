@@ -106,7 +106,13 @@ pub struct DetectResponse {
 
 impl DetectResponse {
     pub fn new(report: DetectReport, started: std::time::Instant) -> Self {
-        Self { detections: report.detections.iter().map(DetectionOutput::from).collect(), reason: report.reason, searched: report.searched, timings_ms: stage_times(&report.timings), total_ms: started.elapsed().as_secs_f64() * 1e3 }
+        Self {
+            detections: report.detections.iter().map(DetectionOutput::from).collect(),
+            reason: report.reason,
+            searched: report.searched,
+            timings_ms: stage_times(&report.timings),
+            total_ms: started.elapsed().as_secs_f64() * 1e3,
+        }
     }
 }
 

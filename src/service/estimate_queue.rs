@@ -129,13 +129,33 @@ impl EstimateQueue {
         let depth = self.config.depth;
         let Ok(ahead) = self.waiting.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| (n < depth).then_some(n + 1)) else {
             let wait = self.expected_wait(depth);
-            return Err((Refusal::Full, ServiceError::exhausted(format!("{} estimates or detections are running and {depth} waiting (the server's limits, --max-estimates and --queue-depth); retry in {} ms", self.config.running, wait.as_millis()), wait)));
+            return Err((
+                Refusal::Full,
+                ServiceError::exhausted(
+                    format!(
+                        "{} estimates or detections are running and {depth} waiting (the server's limits, --max-estimates and --queue-depth); retry in {} ms",
+                        self.config.running,
+                        wait.as_millis()
+                    ),
+                    wait,
+                ),
+            ));
         };
         let _waiting = Waiting(&self.waiting);
         let expected = self.expected_wait(ahead);
         if let (Some(b), Some(_)) = (budget, self.service_time()) {
             if expected > b {
-                return Err((Refusal::Deadline, ServiceError::exhausted(format!("the wait for a free slot, about {} ms with {ahead} request(s) ahead, would pass this request's deadline of {} ms; retry later or allow more time", expected.as_millis(), b.as_millis()), expected)));
+                return Err((
+                    Refusal::Deadline,
+                    ServiceError::exhausted(
+                        format!(
+                            "the wait for a free slot, about {} ms with {ahead} request(s) ahead, would pass this request's deadline of {} ms; retry later or allow more time",
+                            expected.as_millis(),
+                            b.as_millis()
+                        ),
+                        expected,
+                    ),
+                ));
             }
         }
         let limit = budget.map_or(self.config.timeout, |b| b.min(self.config.timeout));
@@ -145,7 +165,10 @@ impl EstimateQueue {
             Err(_) if budget.is_some_and(|b| b <= self.config.timeout) => Err((Refusal::Deadline, super::api::deadline_exceeded(budget.unwrap_or_default()))),
             Err(_) => {
                 let wait = self.expected_wait(self.waiting());
-                Err((Refusal::Timeout, ServiceError::exhausted(format!("waited {} ms for a free slot (the server's --queue-timeout-ms) without one; retry in {} ms", limit.as_millis(), wait.as_millis()), wait)))
+                Err((
+                    Refusal::Timeout,
+                    ServiceError::exhausted(format!("waited {} ms for a free slot (the server's --queue-timeout-ms) without one; retry in {} ms", limit.as_millis(), wait.as_millis()), wait),
+                ))
             }
         }
     }

@@ -2,10 +2,10 @@
 //! HTTP JSON bodies deserialize into), so both adapters feed the core identical inputs.
 //! Proto3 zero values stand for "default" where the proto says so.
 
+use super::detect_requests::{DetectRequest, DetectResponse, DetectionOutput};
 use super::error::ServiceError;
 use super::operations::{OperationState, OperationStatus};
 use super::proto as pb;
-use super::detect_requests::{DetectRequest, DetectResponse, DetectionOutput};
 use super::requests::{self as rq, EstimateOptions, OnboardOptions};
 use crate::detect::DetectOptions;
 use crate::geometry::symmetry::KnownSymmetries;
@@ -129,8 +129,18 @@ pub fn detected_object(d: DetectionOutput) -> pb::DetectedObject {
 }
 
 pub fn detect_response(r: DetectResponse) -> pb::DetectResponse {
-    let searched = r.searched.into_iter().map(|s| pb::SearchedObject { object_id: s.object_id, min_distance_m: s.distance_m[0], max_distance_m: s.distance_m[1], scales: s.scales as u32, candidates: s.candidates as u32 }).collect();
-    pb::DetectResponse { detections: r.detections.into_iter().map(detected_object).collect(), reason: r.reason.unwrap_or_default(), searched, timings_ms: r.timings_ms.into_iter().collect(), total_ms: r.total_ms }
+    let searched = r
+        .searched
+        .into_iter()
+        .map(|s| pb::SearchedObject { object_id: s.object_id, min_distance_m: s.distance_m[0], max_distance_m: s.distance_m[1], scales: s.scales as u32, candidates: s.candidates as u32 })
+        .collect();
+    pb::DetectResponse {
+        detections: r.detections.into_iter().map(detected_object).collect(),
+        reason: r.reason.unwrap_or_default(),
+        searched,
+        timings_ms: r.timings_ms.into_iter().collect(),
+        total_ms: r.total_ms,
+    }
 }
 
 /// A JSON object of stage → milliseconds as a proto map.
@@ -157,7 +167,13 @@ pub fn estimate_response(r: rq::EstimateResponse) -> pb::EstimateResponse {
             runner_up: i.runner_up.map(|u| pb::RunnerUp { pose: Some(pose(u.pose)), margin: u.margin, distance_over_diameter: u.distance_over_diameter, close_call: u.close_call }),
         })
         .collect();
-    pb::EstimateResponse { results, total_ms: r.total_ms, detections: r.detections.into_iter().map(detected_object).collect(), reason: r.reason.unwrap_or_default(), overlay_png: r.overlay_png.map(|b| b.0).unwrap_or_default() }
+    pb::EstimateResponse {
+        results,
+        total_ms: r.total_ms,
+        detections: r.detections.into_iter().map(detected_object).collect(),
+        reason: r.reason.unwrap_or_default(),
+        overlay_png: r.overlay_png.map(|b| b.0).unwrap_or_default(),
+    }
 }
 
 pub fn onboard_request(r: pb::OnboardRequest) -> Result<rq::OnboardRequest, ServiceError> {
@@ -183,7 +199,16 @@ pub fn onboard_request(r: pb::OnboardRequest) -> Result<rq::OnboardRequest, Serv
 }
 
 pub fn object_info(o: ObjectInfo) -> pb::ObjectInfo {
-    pb::ObjectInfo { id: o.id, templates: o.templates as u64, diameter_m: o.diameter_m, backbone: o.backbone.name, bytes: o.bytes, created_unix_s: o.created_at, mesh_units: o.units.as_str().to_string(), symmetries: o.symmetries.map(symmetries) }
+    pb::ObjectInfo {
+        id: o.id,
+        templates: o.templates as u64,
+        diameter_m: o.diameter_m,
+        backbone: o.backbone.name,
+        bytes: o.bytes,
+        created_unix_s: o.created_at,
+        mesh_units: o.units.as_str().to_string(),
+        symmetries: o.symmetries.map(symmetries),
+    }
 }
 
 /// An object's symmetries as the proto has them: the source by its JSON name ("mesh",
@@ -288,7 +313,14 @@ mod tests {
     fn the_nudge_defaults_when_unset_and_a_nan_is_refused() {
         let with = |nudge_degrees| {
             let options = Some(pb::EstimateOptions { nudge_degrees, ..Default::default() });
-            estimate_request(pb::EstimateRequest { image: Some(pb::Image::default()), intrinsics: Some(pb::Intrinsics { width: 64, height: 48, ..Default::default() }), detections: vec![pb::Detection::default()], options, ..Default::default() }).unwrap()
+            estimate_request(pb::EstimateRequest {
+                image: Some(pb::Image::default()),
+                intrinsics: Some(pb::Intrinsics { width: 64, height: 48, ..Default::default() }),
+                detections: vec![pb::Detection::default()],
+                options,
+                ..Default::default()
+            })
+            .unwrap()
         };
         assert_eq!(with(None).options.nudge_degrees, crate::estimate::VerifyConfig::default().nudge_degrees);
         assert_eq!(with(Some(0.0)).options.nudge_degrees, 0.0);
@@ -300,7 +332,16 @@ mod tests {
     fn the_box_prior_is_the_default_unless_said() {
         let with = |box_prior| {
             let options = Some(pb::EstimateOptions { box_prior, ..Default::default() });
-            estimate_request(pb::EstimateRequest { image: Some(pb::Image::default()), intrinsics: Some(pb::Intrinsics { width: 64, height: 48, ..Default::default() }), detections: vec![pb::Detection::default()], options, ..Default::default() }).unwrap().options.box_prior
+            estimate_request(pb::EstimateRequest {
+                image: Some(pb::Image::default()),
+                intrinsics: Some(pb::Intrinsics { width: 64, height: 48, ..Default::default() }),
+                detections: vec![pb::Detection::default()],
+                options,
+                ..Default::default()
+            })
+            .unwrap()
+            .options
+            .box_prior
         };
         use crate::estimate::BoxPrior;
         assert_eq!([None, Some(true), Some(false)].map(with), [BoxPrior::Auto, BoxPrior::Tight, BoxPrior::Off]);

@@ -30,7 +30,15 @@ fn options(o: Option<pb::TrackOptions>) -> TrackSessionOptions {
 fn frame_request(f: pb::TrackFrame) -> Result<TrackFrameRequest, ServiceError> {
     let image = convert::image(convert::required(f.image, "image")?);
     let intrinsics = convert::intrinsics(convert::required(f.intrinsics, "intrinsics")?);
-    Ok(TrackFrameRequest { image, intrinsics, detections: convert::detections(f.detections), objects: f.objects, detect: convert::detect_options(f.detect), frame_index: f.frame_index, depth: f.depth.map(convert::depth) })
+    Ok(TrackFrameRequest {
+        image,
+        intrinsics,
+        detections: convert::detections(f.detections),
+        objects: f.objects,
+        detect: convert::detect_options(f.detect),
+        frame_index: f.frame_index,
+        depth: f.depth.map(convert::depth),
+    })
 }
 
 fn tracked_object(o: TrackedObject) -> pb::TrackedObject {

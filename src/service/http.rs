@@ -4,8 +4,8 @@
 
 use super::access;
 use super::api::Api;
-use super::error::{ErrorKind, ServiceError};
 use super::detect_requests::DetectRequest;
+use super::error::{ErrorKind, ServiceError};
 use super::requests::{EstimateRequest, OnboardRequest};
 use super::scopes;
 use axum::extract::rejection::JsonRejection;

@@ -15,7 +15,8 @@ use axum::{Json, Router};
 
 async fn open(State(s): State<Api>, body: Bytes) -> Result<Response, ServiceError> {
     // An empty body is an empty set of options.
-    let req: OpenTrackRequest = if body.iter().all(u8::is_ascii_whitespace) { OpenTrackRequest::default() } else { serde_json::from_slice(&body).map_err(|e| ServiceError::invalid(format!("request body: {e}")))? };
+    let req: OpenTrackRequest =
+        if body.iter().all(u8::is_ascii_whitespace) { OpenTrackRequest::default() } else { serde_json::from_slice(&body).map_err(|e| ServiceError::invalid(format!("request body: {e}")))? };
     Ok((StatusCode::CREATED, Json(s.open_track(req.options).await?)).into_response())
 }
 

@@ -201,7 +201,11 @@ impl Metrics {
         gauge(&mut out, "b2tf_onboardings_running", "Onboardings in progress.", gauges.onboardings_running as f64);
         gauge(&mut out, "b2tf_objects_loaded", "Objects held in the model cache.", gauges.objects_loaded as f64);
         gauge(&mut out, "b2tf_cache_bytes", "Bytes held by the model cache.", gauges.cache_bytes as f64);
-        let _ = writeln!(out, "# HELP b2tf_cache_stale_total Cached objects dropped because another process replaced or deleted them in the store.\n# TYPE b2tf_cache_stale_total counter\nb2tf_cache_stale_total {}", gauges.cache_stale);
+        let _ = writeln!(
+            out,
+            "# HELP b2tf_cache_stale_total Cached objects dropped because another process replaced or deleted them in the store.\n# TYPE b2tf_cache_stale_total counter\nb2tf_cache_stale_total {}",
+            gauges.cache_stale
+        );
         let _ = writeln!(out, "# HELP b2tf_render_mesh_uploads_total Meshes uploaded to the render pool's renderers: one per object and renderer when each holds what it renders; more means renderers evict meshes (over 8 objects in use at once) and upload them again.\n# TYPE b2tf_render_mesh_uploads_total counter\nb2tf_render_mesh_uploads_total {}", gauges.render_mesh_uploads);
         let _ = writeln!(out, "# HELP b2tf_thumbnails_drawn_total Object thumbnails drawn (the console's pictures); requests answered from those kept, or that waited for the same drawing, add nothing.\n# TYPE b2tf_thumbnails_drawn_total counter\nb2tf_thumbnails_drawn_total {}", gauges.thumbnails_drawn);
         gauge(&mut out, "b2tf_ready", "1 once warmed up.", if gauges.ready { 1.0 } else { 0.0 });
@@ -239,7 +243,28 @@ mod tests {
         m.queue_wait(0.0);
         m.queue_wait(0.7);
         m.queue_refused("full");
-        let text = m.render(&Gauges { estimates_running: 1, estimates_waiting: 4, estimate_service_seconds: Some(0.6), onboardings_running: 0, objects_loaded: 3, cache_bytes: 42, cache_stale: 1, ready: true, queue: Some(crate::features::batch_queue::QueueStats { queued_crops: 3, passes: 2, crops: 11, batch_buckets: vec![0, 0, 0, 1, 2, 2, 2, 2], jobs: 5, wait_seconds: 0.25, pass_seconds: 0.5 }), track_sessions: 2, render_mesh_uploads: 7, thumbnails_drawn: 5 });
+        let text = m.render(&Gauges {
+            estimates_running: 1,
+            estimates_waiting: 4,
+            estimate_service_seconds: Some(0.6),
+            onboardings_running: 0,
+            objects_loaded: 3,
+            cache_bytes: 42,
+            cache_stale: 1,
+            ready: true,
+            queue: Some(crate::features::batch_queue::QueueStats {
+                queued_crops: 3,
+                passes: 2,
+                crops: 11,
+                batch_buckets: vec![0, 0, 0, 1, 2, 2, 2, 2],
+                jobs: 5,
+                wait_seconds: 0.25,
+                pass_seconds: 0.5,
+            }),
+            track_sessions: 2,
+            render_mesh_uploads: 7,
+            thumbnails_drawn: 5,
+        });
         assert!(text.contains("b2tf_requests_total{method=\"POST\",route=\"/v1/estimate\",status=\"200\"} 2"), "{text}");
         assert!(text.contains("b2tf_request_seconds_bucket{method=\"POST\",route=\"/v1/estimate\",le=\"0.05\"} 2"), "{text}");
         assert!(text.contains("b2tf_request_seconds_count{method=\"POST\",route=\"/v1/estimate\"} 3"), "{text}");

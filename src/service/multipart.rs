@@ -53,7 +53,11 @@ pub async fn onboard_request(mut form: Multipart) -> Result<OnboardRequest, Serv
                     _ => options.patch_rows = text.parse().map_err(|e: String| ServiceError::invalid(format!("patch_rows: {e}")))?,
                 }
             }
-            other => return Err(ServiceError::invalid(format!("unknown multipart part {other:?} (expected object_id, mesh, resource, format, units, replace, level, in_plane, pca, descriptors, patch_rows)"))),
+            other => {
+                return Err(ServiceError::invalid(format!(
+                    "unknown multipart part {other:?} (expected object_id, mesh, resource, format, units, replace, level, in_plane, pca, descriptors, patch_rows)"
+                )))
+            }
         }
     }
     let object_id = object_id.ok_or_else(|| ServiceError::invalid("multipart body: the object_id part is missing"))?;

@@ -168,7 +168,20 @@ pub struct EstimateOptions {
 impl Default for EstimateOptions {
     fn default() -> Self {
         let v = crate::estimate::VerifyConfig::default();
-        Self { rrc: true, k: 125, max_masks: 2, instances_per_object: 1, refiner: crate::estimate::RefinerKind::default(), verify: true, verify_templates: v.templates, spin_steps: v.spin_steps, verify_matched: v.matched_templates, nudge_degrees: v.nudge_degrees, box_prior: crate::estimate::BoxPrior::default(), overlay: false }
+        Self {
+            rrc: true,
+            k: 125,
+            max_masks: 2,
+            instances_per_object: 1,
+            refiner: crate::estimate::RefinerKind::default(),
+            verify: true,
+            verify_templates: v.templates,
+            spin_steps: v.spin_steps,
+            verify_matched: v.matched_templates,
+            nudge_degrees: v.nudge_degrees,
+            box_prior: crate::estimate::BoxPrior::default(),
+            overlay: false,
+        }
     }
 }
 
@@ -215,10 +228,21 @@ impl EstimateRequest {
         limits::REQUEST_IMAGE.check(w, h).map_err(|e| invalid(format!("intrinsics.width × intrinsics.height: {e}")))?;
         let mask_pixels = self.detections.len() as u64 * w as u64 * h as u64;
         if mask_pixels > limits::MAX_MASK_PIXELS_PER_REQUEST {
-            return Err(invalid(format!("detections: {} masks of {w}×{h} are {mask_pixels} mask pixels, over the limit of {} per request", self.detections.len(), limits::MAX_MASK_PIXELS_PER_REQUEST)));
+            return Err(invalid(format!(
+                "detections: {} masks of {w}×{h} are {mask_pixels} mask pixels, over the limit of {} per request",
+                self.detections.len(),
+                limits::MAX_MASK_PIXELS_PER_REQUEST
+            )));
         }
         let o = &self.options;
-        for (name, value, max) in [("options.k", o.k, limits::MAX_RETRIEVAL_K), ("options.max_masks", o.max_masks, limits::MAX_MASKS_PER_INSTANCE), ("options.instances_per_object", o.instances_per_object, limits::MAX_MASKS_PER_INSTANCE), ("options.verify_templates", o.verify_templates, limits::MAX_VERIFY_TEMPLATES), ("options.verify_matched", o.verify_matched, limits::MAX_VERIFY_TEMPLATES), ("options.spin_steps", o.spin_steps, limits::MAX_SPIN_STEPS)] {
+        for (name, value, max) in [
+            ("options.k", o.k, limits::MAX_RETRIEVAL_K),
+            ("options.max_masks", o.max_masks, limits::MAX_MASKS_PER_INSTANCE),
+            ("options.instances_per_object", o.instances_per_object, limits::MAX_MASKS_PER_INSTANCE),
+            ("options.verify_templates", o.verify_templates, limits::MAX_VERIFY_TEMPLATES),
+            ("options.verify_matched", o.verify_matched, limits::MAX_VERIFY_TEMPLATES),
+            ("options.spin_steps", o.spin_steps, limits::MAX_SPIN_STEPS),
+        ] {
             if value > max {
                 return Err(invalid(format!("{name} is {value}, over the limit of {max}")));
             }
@@ -390,9 +414,8 @@ impl MeshInput {
             Some(u) => Some(u.parse::<crate::mesh::Units>().map_err(|e| ServiceError::invalid(format!("mesh.units: {e}")))?),
         };
         limits::check_count("mesh.resources", self.resources.len(), limits::MAX_MESH_RESOURCES).map_err(ServiceError::invalid)?;
-        let write = |name: &str, data: &Base64Bytes| -> Result<(), ServiceError> {
-            std::fs::write(dir.join(name), data.as_slice()).map_err(|e| ServiceError::internal(format!("staging {name}: {e}")))
-        };
+        let write =
+            |name: &str, data: &Base64Bytes| -> Result<(), ServiceError> { std::fs::write(dir.join(name), data.as_slice()).map_err(|e| ServiceError::internal(format!("staging {name}: {e}"))) };
         for (i, r) in self.resources.iter().enumerate() {
             let ok = !r.name.is_empty() && !r.name.contains(['/', '\\']) && r.name != "." && r.name != ".." && !r.name.starts_with("mesh.");
             if !ok {
@@ -402,7 +425,8 @@ impl MeshInput {
         }
         let path = dir.join(format!("mesh.{ext}"));
         write(path.file_name().and_then(|n| n.to_str()).unwrap_or("mesh"), &self.data)?;
-        crate::mesh::load_mesh_with(&path, units, &crate::mesh::Folder::confined(dir)).map_err(|e| ServiceError::invalid(format!("mesh: {}", e.to_string().replace(&dir.display().to_string(), "<upload>"))))
+        crate::mesh::load_mesh_with(&path, units, &crate::mesh::Folder::confined(dir))
+            .map_err(|e| ServiceError::invalid(format!("mesh: {}", e.to_string().replace(&dir.display().to_string(), "<upload>"))))
     }
 }
 

@@ -64,9 +64,7 @@ impl TlsIdentity {
                 builder.with_client_cert_verifier(verifier)
             }
         };
-        let mut config = builder
-            .with_single_cert(certs, key)
-            .map_err(|e| format!("certificate and key do not make an identity: {e}"))?;
+        let mut config = builder.with_single_cert(certs, key).map_err(|e| format!("certificate and key do not make an identity: {e}"))?;
         config.alpn_protocols = alpn.iter().map(|p| p.to_vec()).collect();
         Ok(Arc::new(config))
     }

@@ -114,13 +114,32 @@ pub struct DepthFitOutput {
 
 impl From<&DepthFit> for DepthFitOutput {
     fn from(f: &DepthFit) -> Self {
-        Self { points: f.points, measured_share: f.measured_share, inlier_share: f.inlier_share, free_space_share: f.free_space_share, occluded_share: f.occluded_share, rms_mm: f.rms_mm.is_finite().then_some(f.rms_mm), tolerance_mm: f.tolerance_mm, moved_mm: f.moved_mm }
+        Self {
+            points: f.points,
+            measured_share: f.measured_share,
+            inlier_share: f.inlier_share,
+            free_space_share: f.free_space_share,
+            occluded_share: f.occluded_share,
+            rms_mm: f.rms_mm.is_finite().then_some(f.rms_mm),
+            tolerance_mm: f.tolerance_mm,
+            moved_mm: f.moved_mm,
+        }
     }
 }
 
 impl From<TrackOutcome> for TrackedObject {
     fn from(o: TrackOutcome) -> Self {
-        Self { track_id: o.track_id, object_id: o.object_id, pose: o.pose.as_ref().map(PoseOutput::from), quality: o.quality, mode: o.mode.as_str().to_string(), detection_index: o.detection_index, ms: o.ms, reason: o.reason, depth_fit: o.depth_fit.as_ref().map(DepthFitOutput::from) }
+        Self {
+            track_id: o.track_id,
+            object_id: o.object_id,
+            pose: o.pose.as_ref().map(PoseOutput::from),
+            quality: o.quality,
+            mode: o.mode.as_str().to_string(),
+            detection_index: o.detection_index,
+            ms: o.ms,
+            reason: o.reason,
+            depth_fit: o.depth_fit.as_ref().map(DepthFitOutput::from),
+        }
     }
 }
 

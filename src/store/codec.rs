@@ -4,11 +4,11 @@
 //! textures as PNG files named in the manifest.
 
 use crate::features::BackboneIdentity;
+use crate::geometry::symmetry::KnownSymmetries;
 use crate::geometry::{Intrinsics, PatchGrid};
 use crate::mesh::{Material, Mesh, MeshData, Part, Units};
-use crate::geometry::symmetry::KnownSymmetries;
-use crate::onboard::stored_rows::{HalfRows, StoredRows};
 use crate::onboard::point_grid::{i16_to_unit, unit_to_i16, PointGrid};
+use crate::onboard::stored_rows::{HalfRows, StoredRows};
 use crate::onboard::{ObjectModel, OnboardConfig, PatchDescriptors, PatchPoints, Template, MODEL_FORMAT_VERSION};
 use safetensors::{tensor::TensorView, Dtype, SafeTensors};
 use std::sync::Arc;
@@ -175,10 +175,9 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
     ];
     match &model.patch_points {
         PatchPoints::Exact(points) => tensors.push(("patch_points", Dtype::F32, vec![p, 3], bytemuck::cast_slice(points))),
-        PatchPoints::Grid { grid, steps } => tensors.extend([
-            ("patch_point_steps", Dtype::U16, vec![p, 3], bytemuck::cast_slice(steps)),
-            ("patch_point_grid", Dtype::F32, vec![2, 3], bytemuck::bytes_of(grid)),
-        ] as [(&str, Dtype, Vec<usize>, &[u8]); 2]),
+        PatchPoints::Grid { grid, steps } => tensors
+            .extend([("patch_point_steps", Dtype::U16, vec![p, 3], bytemuck::cast_slice(steps)), ("patch_point_grid", Dtype::F32, vec![2, 3], bytemuck::bytes_of(grid))]
+                as [(&str, Dtype, Vec<usize>, &[u8]); 2]),
     }
     match &model.patch_descriptors {
         PatchDescriptors::Half(v) => tensors.push(("patch_descriptors", Dtype::F16, vec![p, model.local_dim], bytemuck::cast_slice(v))),
@@ -186,10 +185,9 @@ pub fn encode(model: &ObjectModel) -> Result<Encoded, CodecError> {
             ("patch_codes", Dtype::U8, vec![p, quantizer.subspaces], &codes[..]),
             ("pq_centroids", Dtype::F32, vec![quantizer.subspaces * crate::onboard::pq::CENTROIDS, quantizer.sub_dim()], bytemuck::cast_slice(&quantizer.centroids)),
         ] as [(&str, Dtype, Vec<usize>, &[u8]); 2]),
-        PatchDescriptors::Int8 { codes, scales } => tensors.extend([
-            ("patch_codes_i8", Dtype::I8, vec![p, model.local_dim], bytemuck::cast_slice(&codes[..])),
-            ("patch_scales", Dtype::F32, vec![p], bytemuck::cast_slice(&scales[..])),
-        ] as [(&str, Dtype, Vec<usize>, &[u8]); 2]),
+        PatchDescriptors::Int8 { codes, scales } => tensors
+            .extend([("patch_codes_i8", Dtype::I8, vec![p, model.local_dim], bytemuck::cast_slice(&codes[..])), ("patch_scales", Dtype::F32, vec![p], bytemuck::cast_slice(&scales[..]))]
+                as [(&str, Dtype, Vec<usize>, &[u8]); 2]),
     }
     // Format 7: contour points as steps of a grid over the mesh's box (found again from
     // the stored mesh) and normals as 16-bit components.
@@ -357,7 +355,10 @@ fn decode_inner(manifest: &[u8], tensors: &[u8], map: Option<&Arc<memmap2::Mmap>
         quantizer.validate().map_err(|e| corrupt(format!("pq_centroids: {e}")))?;
         PatchDescriptors::Quantized { quantizer, codes: StoredRows::mapped_or_copied(map, codes.data()) }
     } else if st.names().contains(&"patch_codes_i8") {
-        PatchDescriptors::Int8 { codes: StoredRows::mapped_or_copied(map, get("patch_codes_i8", Dtype::I8, local_dim)?), scales: StoredRows::mapped_or_copied(map, get("patch_scales", Dtype::F32, 0)?) }
+        PatchDescriptors::Int8 {
+            codes: StoredRows::mapped_or_copied(map, get("patch_codes_i8", Dtype::I8, local_dim)?),
+            scales: StoredRows::mapped_or_copied(map, get("patch_scales", Dtype::F32, 0)?),
+        }
     } else {
         let bytes = get("patch_descriptors", Dtype::F16, 0)?;
         PatchDescriptors::Half(HalfRows::mapped_or_copied(map, bytes))
@@ -479,7 +480,8 @@ mod hostile_tests {
 
         // int8 values with a scale per row.
         let codes: [i8; 8] = [127, 0, 0, 0, 0, -127, 0, 0];
-        let int8 = with_tensor(&with_tensor(&tensors, "patch_codes_i8", Dtype::I8, vec![2, 4], bytemuck::cast_slice(&codes)), "patch_scales", Dtype::F32, vec![2], bytemuck::cast_slice(&[0.5f32, 2.0]));
+        let int8 =
+            with_tensor(&with_tensor(&tensors, "patch_codes_i8", Dtype::I8, vec![2, 4], bytemuck::cast_slice(&codes)), "patch_scales", Dtype::F32, vec![2], bytemuck::cast_slice(&[0.5f32, 2.0]));
         let m = load(&manifest, &int8, &texture).unwrap();
         let mut rows = Vec::new();
         m.patch_descriptors.widen_into(4, 0..2, &mut rows);

@@ -21,7 +21,6 @@ pub struct DirStore {
     root: PathBuf,
 }
 
-
 /// Whether the process that named a temporary folder `.<id>.tmp-<pid>-<n>` still runs.
 fn writer_alive(name: &str) -> bool {
     let pid = name.rsplit_once(".tmp-").or_else(|| name.rsplit_once(".old-")).and_then(|(_, s)| s.split('-').next()).and_then(|p| p.parse::<u32>().ok());
@@ -72,7 +71,10 @@ impl DirStore {
     pub fn open_read_only(root: impl Into<PathBuf>) -> Result<Self, StoreError> {
         let root = root.into();
         if !root.is_dir() {
-            return Err(StoreError::Io { context: format!("opening store folder {} read-only", root.display()), source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such folder (a read-only store is never created)") });
+            return Err(StoreError::Io {
+                context: format!("opening store folder {} read-only", root.display()),
+                source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such folder (a read-only store is never created)"),
+            });
         }
         Ok(Self { root })
     }
@@ -97,7 +99,9 @@ impl DirStore {
 
     /// One attempt at reading an object.
     fn read_once(&self, id: &str, dir: &Path) -> Result<ObjectModel, StoreError> {
-        let manifest = std::fs::read(dir.join(MANIFEST)).map_err(|e| if e.kind() == std::io::ErrorKind::NotFound { StoreError::NotFound(id.into()) } else { StoreError::io(format!("reading object {id:?}"))(e) })?;
+        let manifest =
+            std::fs::read(dir.join(MANIFEST))
+                .map_err(|e| if e.kind() == std::io::ErrorKind::NotFound { StoreError::NotFound(id.into()) } else { StoreError::io(format!("reading object {id:?}"))(e) })?;
         let tpath = dir.join(TENSORS);
         let file = std::fs::File::open(&tpath).map_err(|e| StoreError::Corrupt { object: id.into(), message: format!("{}: {e}", tpath.display()) })?;
         // SAFETY: stored files are never modified in place (puts write a new folder and
@@ -129,7 +133,13 @@ impl DirStore {
     }
 
     fn info_at(&self, id: &str, dir: &Path) -> Result<ObjectInfo, StoreError> {
-        let raw = std::fs::read(dir.join(MANIFEST)).map_err(|e| if e.kind() == std::io::ErrorKind::NotFound { StoreError::NotFound(id.into()) } else { StoreError::io(format!("reading {}", dir.display()))(e) })?;
+        let raw = std::fs::read(dir.join(MANIFEST)).map_err(|e| {
+            if e.kind() == std::io::ErrorKind::NotFound {
+                StoreError::NotFound(id.into())
+            } else {
+                StoreError::io(format!("reading {}", dir.display()))(e)
+            }
+        })?;
         let s = codec::summary(&raw).map_err(|e| StoreError::from_codec(id, e))?;
         Ok(info_of(&s, dir_bytes(dir)))
     }

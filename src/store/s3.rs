@@ -154,7 +154,11 @@ impl Bucket {
         if meta.size <= 2 * RANGE_BYTES {
             return self.get(&meta.location).await;
         }
-        let chunks = futures_util::stream::iter(ranges_of(meta.size)).map(|r| async move { self.client.get_range(&meta.location, r.clone()).await.map(|b| (r, b)) }).buffer_unordered(RANGE_READS).try_collect::<Vec<_>>().await;
+        let chunks = futures_util::stream::iter(ranges_of(meta.size))
+            .map(|r| async move { self.client.get_range(&meta.location, r.clone()).await.map(|b| (r, b)) })
+            .buffer_unordered(RANGE_READS)
+            .try_collect::<Vec<_>>()
+            .await;
         let chunks = match chunks {
             Ok(c) => c,
             Err(object_store::Error::NotFound { .. }) => return Ok(None),
@@ -213,7 +217,11 @@ impl Bucket {
                 async move {
                     let name = meta.location.prefix_match(folder).map(|segments| segments.map(|s| s.as_ref().to_string()).collect::<Vec<_>>().join("/")).unwrap_or_default();
                     // Gone since the listing: a replace removed it; the caller reads again.
-                    let bytes = self.get_part(&meta).await.map_err(remote(context()))?.ok_or_else(|| StoreError::Corrupt { object: id.into(), message: format!("its part {name} vanished while it was read") })?;
+                    let bytes = self
+                        .get_part(&meta)
+                        .await
+                        .map_err(remote(context()))?
+                        .ok_or_else(|| StoreError::Corrupt { object: id.into(), message: format!("its part {name} vanished while it was read") })?;
                     Ok::<_, StoreError>((name, bytes))
                 }
             })
@@ -260,7 +268,8 @@ impl Bucket {
             entry.0 |= m.location.filename() == Some(MANIFEST) && m.location.parts_count() == self.prefix.parts_count() + 2;
             entry.1 = entry.1.min(age(m));
         }
-        let abandoned: Vec<Path> = all.iter().filter(|m| id_of(m).and_then(|id| ids.get(&id)).is_some_and(|&(has_manifest, youngest)| !has_manifest && youngest >= min_age)).map(|m| m.location.clone()).collect();
+        let abandoned: Vec<Path> =
+            all.iter().filter(|m| id_of(m).and_then(|id| ids.get(&id)).is_some_and(|&(has_manifest, youngest)| !has_manifest && youngest >= min_age)).map(|m| m.location.clone()).collect();
         self.delete_all(abandoned).await
     }
 }

@@ -38,7 +38,9 @@ pub(super) fn parse_url(url: &str) -> Result<Settings, StoreError> {
         let v = crate::percent::decode(v, crate::percent::Malformed::Refuse).map_err(|_| bad(&format!("the value of {k} is not valid percent-encoding")))?;
         match k {
             "max_retries" => retry.max_retries = v.parse().map_err(|_| bad("max_retries must be a whole number"))?,
-            "retry_timeout_s" => retry.retry_timeout = v.parse::<f64>().ok().filter(|s| s.is_finite() && *s >= 0.0).map(Duration::from_secs_f64).ok_or_else(|| bad("retry_timeout_s must be a number of seconds"))?,
+            "retry_timeout_s" => {
+                retry.retry_timeout = v.parse::<f64>().ok().filter(|s| s.is_finite() && *s >= 0.0).map(Duration::from_secs_f64).ok_or_else(|| bad("retry_timeout_s must be a number of seconds"))?
+            }
             "bucket" => return Err(bad("the bucket is the URL's host, not an option")),
             _ => {
                 config_key(k).ok_or_else(|| bad(&format!("unknown option {k:?} (object_store's S3 keys without 'aws_', e.g. endpoint, region, allow_http; or max_retries, retry_timeout_s)")))?;

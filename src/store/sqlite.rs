@@ -728,7 +728,8 @@ mod tests {
             let c = Connection::open(&path).expect("create");
             c.execute_batch(MIGRATIONS[0].1).expect("schema 1");
             c.execute_batch("PRAGMA user_version = 1").expect("version 1");
-            let backbone = serde_json::to_string(&crate::features::Backbone::identity(&crate::features::EmbeddedBackbone::new(crate::features::EmbeddedConfig::default()).expect("embedded"))).expect("json");
+            let backbone =
+                serde_json::to_string(&crate::features::Backbone::identity(&crate::features::EmbeddedBackbone::new(crate::features::EmbeddedConfig::default()).expect("embedded"))).expect("json");
             c.execute("INSERT INTO objects (id, units, diameter_m, backbone, templates, bytes, created_at, manifest) VALUES ('old', 'mm', 0.2, ?1, 10, 100, 5, '{}')", [backbone]).expect("row");
         }
         let store = SqliteStore::open(path.to_str().expect("UTF-8")).expect("open migrates");

@@ -37,9 +37,7 @@ impl Otlp {
     pub fn start(endpoint: &str) -> anyhow::Result<Self> {
         check_endpoint(endpoint)?;
         let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).thread_name("otlp-export").enable_all().build()?;
-        let exporter = runtime.block_on(async {
-            opentelemetry_otlp::SpanExporter::builder().with_tonic().with_endpoint(endpoint).with_timeout(EXPORT_TIMEOUT).build()
-        });
+        let exporter = runtime.block_on(async { opentelemetry_otlp::SpanExporter::builder().with_tonic().with_endpoint(endpoint).with_timeout(EXPORT_TIMEOUT).build() });
         let exporter = exporter.map_err(|e| anyhow::anyhow!("--otlp-endpoint {endpoint}: {e}"))?;
         let resource = opentelemetry_sdk::Resource::builder().with_service_name("b2tfpose").build();
         let provider = SdkTracerProvider::builder().with_batch_exporter(exporter).with_resource(resource).build();

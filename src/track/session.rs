@@ -10,8 +10,8 @@
 use super::colour::Window;
 use super::{Tracker, TrackerConfig};
 use crate::depth::DepthImage;
-use crate::estimate::depth_fit::DepthFit;
 use crate::detect::confirm::{answer_threshold, confirm};
+use crate::estimate::depth_fit::DepthFit;
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -292,7 +292,17 @@ impl TrackSession {
     fn start_track(&mut self, di: usize, d: &FrameDetection, model: Arc<ObjectModel>, frame: &Frame<'_>, k: &Intrinsics, estimator: &Estimator) -> Result<TrackOutcome, SessionError> {
         let t = Instant::now();
         let image = frame.image;
-        let refused = |reason: String, t: Instant| TrackOutcome { track_id: None, object_id: d.object_id.clone(), pose: None, quality: 0.0, mode: TrackMode::Refused, detection_index: Some(di), ms: ms(t), reason: Some(reason), depth_fit: None };
+        let refused = |reason: String, t: Instant| TrackOutcome {
+            track_id: None,
+            object_id: d.object_id.clone(),
+            pose: None,
+            quality: 0.0,
+            mode: TrackMode::Refused,
+            detection_index: Some(di),
+            ms: ms(t),
+            reason: Some(reason),
+            depth_fit: None,
+        };
         if self.tracks.len() >= self.config.max_tracks {
             return Ok(refused(format!("this session already tracks {} objects (its limit)", self.tracks.len()), t));
         }
@@ -313,17 +323,46 @@ impl TrackSession {
         let id = self.next_track;
         self.next_track += 1;
         self.tracks.push(Track { id, object_id: d.object_id.clone(), model, tracker, lost_frames: 0 });
-        Ok(TrackOutcome { track_id: Some(id), object_id: d.object_id.clone(), pose: Some(pose), quality: 1.0, mode: TrackMode::Estimated, detection_index: Some(di), ms: ms(t), reason: None, depth_fit: None })
+        Ok(TrackOutcome {
+            track_id: Some(id),
+            object_id: d.object_id.clone(),
+            pose: Some(pose),
+            quality: 1.0,
+            mode: TrackMode::Estimated,
+            detection_index: Some(di),
+            ms: ms(t),
+            reason: None,
+            depth_fit: None,
+        })
     }
 }
 
 /// A track's frame after its tracking step: kept when tracked, else re-initialised from
 /// the detection it took (or the object found by its colours), else lost or dropped.
 #[allow(clippy::too_many_arguments)]
-fn finish_track(track: &mut Track, step: super::TrackStep, t: Instant, frame: &Frame<'_>, k: &Intrinsics, detection: Option<(usize, &FrameDetection)>, estimator: &Estimator, config: &SessionConfig) -> Result<TrackOutcome, SessionError> {
+fn finish_track(
+    track: &mut Track,
+    step: super::TrackStep,
+    t: Instant,
+    frame: &Frame<'_>,
+    k: &Intrinsics,
+    detection: Option<(usize, &FrameDetection)>,
+    estimator: &Estimator,
+    config: &SessionConfig,
+) -> Result<TrackOutcome, SessionError> {
     let image = frame.image;
     let depth_fit = step.report.depth_fit.clone();
-    let outcome = |pose: Option<Pose>, quality: f64, mode: TrackMode, detection_index: Option<usize>, reason: Option<String>| TrackOutcome { track_id: Some(track.id), object_id: track.object_id.clone(), pose, quality, mode, detection_index, ms: ms(t), reason, depth_fit: if mode == TrackMode::Reinitialised { None } else { depth_fit.clone() } };
+    let outcome = |pose: Option<Pose>, quality: f64, mode: TrackMode, detection_index: Option<usize>, reason: Option<String>| TrackOutcome {
+        track_id: Some(track.id),
+        object_id: track.object_id.clone(),
+        pose,
+        quality,
+        mode,
+        detection_index,
+        ms: ms(t),
+        reason,
+        depth_fit: if mode == TrackMode::Reinitialised { None } else { depth_fit.clone() },
+    };
     if !step.lost {
         track.lost_frames = 0;
         return Ok(outcome(Some(step.pose), step.quality, TrackMode::Tracked, None, None));
@@ -342,10 +381,14 @@ fn finish_track(track: &mut Track, step: super::TrackStep, t: Instant, frame: &F
             // What was found inside the searched box must be an object there: an estimate
             // centred elsewhere explains a region that took in clutter too. (Its outline
             // may reach beyond the box: the box was only where to look.)
-            Ok((pose, _)) if searched.is_some_and(|w| !centred_in(k, &track.model, &pose, w)) => why = format!("{why}; re-initialising: the estimate puts the object beyond the box searched around its last pose"),
+            Ok((pose, _)) if searched.is_some_and(|w| !centred_in(k, &track.model, &pose, w)) => {
+                why = format!("{why}; re-initialising: the estimate puts the object beyond the box searched around its last pose")
+            }
             // The estimate explains its mask, but a mask of clutter is explained by a pose
             // whose render looks nothing like the frame.
-            Ok((pose, _)) if track.tracker.appearance_at(image, k, &pose).map_err(SessionError::Internal)?.is_some_and(|a| a < config.tracker.min_appearance) => why = format!("{why}; re-initialising: the estimated pose does not look like the frame"),
+            Ok((pose, _)) if track.tracker.appearance_at(image, k, &pose).map_err(SessionError::Internal)?.is_some_and(|a| a < config.tracker.min_appearance) => {
+                why = format!("{why}; re-initialising: the estimated pose does not look like the frame")
+            }
             Ok((pose, _)) => match track.tracker.restart(image, k, pose) {
                 Ok(()) => {
                     track.lost_frames = 0;

@@ -59,7 +59,19 @@ pub struct TrackerConfig {
 
 impl Default for TrackerConfig {
     fn default() -> Self {
-        Self { lost_below: 0.3, colour_rate: 0.2, relearn_every: 5, constant_velocity: true, window_radii: 1.6, min_silhouette_iou: 0.5, min_appearance: 0.3, photometric: PhotometricConfig::default(), depth_iterations: 6, max_free_space: 0.35, min_depth_inliers: 0.2 }
+        Self {
+            lost_below: 0.3,
+            colour_rate: 0.2,
+            relearn_every: 5,
+            constant_velocity: true,
+            window_radii: 1.6,
+            min_silhouette_iou: 0.5,
+            min_appearance: 0.3,
+            photometric: PhotometricConfig::default(),
+            depth_iterations: 6,
+            max_free_space: 0.35,
+            min_depth_inliers: 0.2,
+        }
     }
 }
 
@@ -104,7 +116,20 @@ impl Tracker {
     pub fn new(model: Arc<ObjectModel>, renderer: Arc<RenderPool>, image: &RgbImage, k: &Intrinsics, pose: Pose, config: TrackerConfig) -> Result<Self, String> {
         let refiner = ContourRefiner::new(renderer.clone());
         let coloured = model.mesh.has_colours();
-        let mut t = Self { model, renderer, refiner, colours: ColourModel::default(), config, pose, velocity: None, frames: 0, silhouette_area: 0.0, coloured, texture: PhotometricModel::default(), surface: Vec::new() };
+        let mut t = Self {
+            model,
+            renderer,
+            refiner,
+            colours: ColourModel::default(),
+            config,
+            pose,
+            velocity: None,
+            frames: 0,
+            silhouette_area: 0.0,
+            coloured,
+            texture: PhotometricModel::default(),
+            surface: Vec::new(),
+        };
         t.restart(image, k, pose)?;
         Ok(t)
     }
@@ -235,7 +260,14 @@ impl Tracker {
             _ => self.pose,
         };
         let Some(window) = self.window(k, &predicted, self.config.window_radii) else {
-            return Ok(TrackStep { pose: self.pose, quality: 0.0, lost: true, report: RefineReport { note: Some("the object left the image".into()), ..Default::default() }, silhouette_iou: None, appearance: None });
+            return Ok(TrackStep {
+                pose: self.pose,
+                quality: 0.0,
+                lost: true,
+                report: RefineReport { note: Some("the object left the image".into()), ..Default::default() },
+                silhouette_iou: None,
+                appearance: None,
+            });
         };
         let probs = self.colours.probability_image(image, window);
         let ctx = RefineContext { model: &self.model, image, intrinsics: k, mask: &probs, unknown: None, mask_is_probability: true, from_box: None, depth: None };

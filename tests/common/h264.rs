@@ -22,7 +22,8 @@ pub fn encode(frames: &[image::RgbImage]) -> Clip {
     let (width, height) = frames[0].dimensions();
     // Every frame kept (no skipping), at a fine quantiser (QP 8–20) and a bitrate well above
     // what 320×240 needs.
-    let config = EncoderConfig::new().bitrate(BitRate::from_bps(8_000_000)).max_frame_rate(FrameRate::from_hz(30.0)).rate_control_mode(RateControlMode::Quality).qp(QpRange::new(8, 20)).skip_frames(false);
+    let config =
+        EncoderConfig::new().bitrate(BitRate::from_bps(8_000_000)).max_frame_rate(FrameRate::from_hz(30.0)).rate_control_mode(RateControlMode::Quality).qp(QpRange::new(8, 20)).skip_frames(false);
     let mut encoder = Encoder::with_api_config(OpenH264API::from_source(), config).unwrap();
     let mut clip = Clip { width, height, annex_b: Vec::new(), frames: Vec::new(), sps: Vec::new(), pps: Vec::new() };
     for f in frames {

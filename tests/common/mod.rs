@@ -103,7 +103,10 @@ fn spawn(mut cmd: Command) -> Server {
         None => line.split_whitespace().find(|w| w.starts_with(scheme)).map(str::to_string),
     };
     let http = word("http://").or_else(|| word("https://")).unwrap_or_else(|| panic!("no HTTP address in {line:?}"));
-    let grpc = word("grpc://").map(|g| g.replacen("grpc://", "http://", 1)).or_else(|| word("grpcs://").map(|g| g.replacen("grpcs://", "https://", 1))).unwrap_or_else(|| panic!("no gRPC address in {line:?}"));
+    let grpc = word("grpc://")
+        .map(|g| g.replacen("grpc://", "http://", 1))
+        .or_else(|| word("grpcs://").map(|g| g.replacen("grpcs://", "https://", 1)))
+        .unwrap_or_else(|| panic!("no gRPC address in {line:?}"));
     Server { child, http, grpc, banner: line }
 }
 

@@ -84,7 +84,10 @@ impl S3Server {
     /// The store URL of `prefix` in `bucket`: endpoint and credentials in the query (so
     /// that child processes get them too), few and quick retries.
     pub fn url_in(&self, bucket: &str, prefix: &str) -> String {
-        format!("s3://{bucket}/{prefix}?endpoint=http://127.0.0.1:{}&allow_http=true&region=us-east-1&access_key_id={ACCESS_KEY}&secret_access_key={SECRET_KEY}&max_retries=2&retry_timeout_s=10", self.port)
+        format!(
+            "s3://{bucket}/{prefix}?endpoint=http://127.0.0.1:{}&allow_http=true&region=us-east-1&access_key_id={ACCESS_KEY}&secret_access_key={SECRET_KEY}&max_retries=2&retry_timeout_s=10",
+            self.port
+        )
     }
 
     pub fn url(&self, prefix: &str) -> String {

@@ -53,7 +53,7 @@ pub(crate) fn check_cache(url: &str) {
     assert_eq!(stats(&cache), (2, 4, 5));
     assert_eq!((cache.revalidate(), cache.stats().stale), (0, 1));
     assert_same(&with_id(m, "obj-a"), &a); // the old version, still held
-    // This process' own replace: `invalidate` at once.
+                                           // This process' own replace: `invalidate` at once.
     store.put(&with_id(m, "obj-a"), true).expect("put a back");
     cache.invalidate("obj-a");
     assert_same(&with_id(m, "obj-a"), &cache.get("obj-a").expect("get after invalidate"));

@@ -212,12 +212,7 @@ pub(crate) fn check_bad_ids(url: &str) {
 pub(crate) fn check_damage(url: &str) {
     let Some(m) = model() else { return };
     let store = store::open(url).expect("open");
-    let damaged = [
-        ("obj-garbled", Damage::GarbledTensors),
-        ("obj-torn", Damage::TruncatedTensors),
-        ("obj-bad-json", Damage::GarbledManifest),
-        ("obj-torn-json", Damage::TruncatedManifest),
-    ];
+    let damaged = [("obj-garbled", Damage::GarbledTensors), ("obj-torn", Damage::TruncatedTensors), ("obj-bad-json", Damage::GarbledManifest), ("obj-torn-json", Damage::TruncatedManifest)];
     for id in damaged.iter().map(|(id, _)| *id).chain(["obj-intact"]) {
         store.put(&with_id(m, id), false).expect("put");
     }

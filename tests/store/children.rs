@@ -3,7 +3,6 @@
 
 use super::*;
 
-
 /// What a child process does: `big-writer`, `writer` or `reader`.
 pub(crate) const ROLE_VAR: &str = "B2TF_STORE_TEST_ROLE";
 pub(crate) const URL_VAR: &str = "B2TF_STORE_TEST_URL";

@@ -3,7 +3,6 @@
 
 use super::*;
 
-
 /// The file system path behind a store URL.
 pub(crate) fn store_path(url: &str) -> PathBuf {
     if let Some(rest) = url.strip_prefix("s3://") {

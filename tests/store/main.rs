@@ -11,6 +11,7 @@
 //! environment. A child reports through stdout lines that carry `MARK`.
 #![cfg(unix)]
 
+use b2tfpose::geometry::symmetry::{ContinuousSymmetry, DiscreteSymmetry, KnownSymmetries, ObjectSymmetries, SymmetrySource};
 use b2tfpose::onboard::{ObjectModel, PatchDescriptors, PatchPoints, Template};
 use b2tfpose::store::{self, codec, ModelCache, ObjectStore, StoreError};
 use std::collections::BTreeSet;
@@ -18,7 +19,6 @@ use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::process::ExitStatusExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
-use b2tfpose::geometry::symmetry::{ContinuousSymmetry, DiscreteSymmetry, KnownSymmetries, ObjectSymmetries, SymmetrySource};
 use std::sync::{mpsc, Arc, OnceLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -28,20 +28,20 @@ mod s3_server;
 #[path = "../common/stalling_proxy.rs"]
 mod stalling_proxy;
 
-mod objects;
-mod locations;
-mod children;
-mod checks;
-mod processes;
 mod cache;
+mod checks;
+mod children;
+mod locations;
+mod objects;
+mod processes;
 mod s3_only;
 
-use objects::*;
-use locations::*;
-use children::*;
-use checks::*;
-use processes::*;
 use cache::*;
+use checks::*;
+use children::*;
+use locations::*;
+use objects::*;
+use processes::*;
 
 /// The entry point of every child process; a no-op in a normal test run.
 #[test]
@@ -120,7 +120,6 @@ fn child_entry() {
         other => panic!("child: unknown role {other:?}"),
     }
 }
-
 
 /// Runs each check against every backend, each in a fresh temporary folder (S3: its own
 /// server).

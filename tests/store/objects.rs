@@ -3,7 +3,6 @@
 
 use super::*;
 
-
 /// The small real object every check uses, onboarded once per process (a textured box, 24
 /// templates at 128 px). `None` without a GPU adapter (the check then skips) unless
 /// `B2TF_REQUIRE_GPU` is set, as in the crate's other GPU tests.
@@ -63,9 +62,7 @@ pub(crate) fn big_copies(m: &ObjectModel) -> usize {
 pub(crate) fn enlarged(m: &ObjectModel, id: &str, copies: usize) -> ObjectModel {
     let patches = u32::try_from(m.patch_count()).expect("patch count");
     let mut big = with_id(m, id);
-    big.templates = (0..copies as u32)
-        .flat_map(|k| m.templates.iter().map(move |t| Template { patch_start: t.patch_start + k * patches, ..t.clone() }))
-        .collect();
+    big.templates = (0..copies as u32).flat_map(|k| m.templates.iter().map(move |t| Template { patch_start: t.patch_start + k * patches, ..t.clone() })).collect();
     big.global = m.global.repeat(copies);
     big.patch_descriptors = match &m.patch_descriptors {
         PatchDescriptors::Half(v) => PatchDescriptors::Half(v.repeat(copies).into()),

@@ -47,7 +47,12 @@ pub(crate) fn check_killed_put(url: &str) {
 
     // Over S3 the child's upload goes through a proxy that stalls it three quarters in: a
     // loopback upload can otherwise finish between two looks at the server's folder.
-    let (child_url, mut stall) = if is_s3(url) { let (u, p) = s3_through_stalling_proxy(url, expected * 3 / 4); (u, Some(p)) } else { (url.to_string(), None) };
+    let (child_url, mut stall) = if is_s3(url) {
+        let (u, p) = s3_through_stalling_proxy(url, expected * 3 / 4);
+        (u, Some(p))
+    } else {
+        (url.to_string(), None)
+    };
     let mut child = ChildProcess::spawn("big-writer", "big-writer", &child_url, &[(COUNT_VAR, copies.to_string())]);
     let pid = child.child.id();
     child.expect_message("putting", CHILD_TIMEOUT);

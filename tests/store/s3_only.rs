@@ -2,7 +2,6 @@
 
 use super::*;
 
-
 /// A server of this test's own (registered for the URL helpers), `None` when s3s-fs is
 /// not installed and not required.
 pub(crate) fn s3_test_server(dir: &Path) -> Option<s3_server::S3Server> {
@@ -70,7 +69,14 @@ pub(crate) fn s3_abandoned_and_replaced_writes_are_removed() {
     let url = server.url("objects");
     let store = store::open(&url).expect("open");
     // Write folders that still hold a part (S3 has no folders; s3s-fs leaves empty ones).
-    let writes = |id: &str| tree(&store_path(&url).join(id).join("parts")).iter().filter(|p| p.components().count() > 1 && store_path(&url).join(id).join("parts").join(p).is_file()).filter_map(|p| p.components().next()).collect::<BTreeSet<_>>().len();
+    let writes = |id: &str| {
+        tree(&store_path(&url).join(id).join("parts"))
+            .iter()
+            .filter(|p| p.components().count() > 1 && store_path(&url).join(id).join("parts").join(p).is_file())
+            .filter_map(|p| p.components().next())
+            .collect::<BTreeSet<_>>()
+            .len()
+    };
     store.put(&with_id(m, "obj-a"), false).expect("put");
     store.put(&generation(m, "obj-a", 2), true).expect("replace");
     assert_eq!(writes("obj-a"), 1, "a replace removes the old write");
@@ -98,10 +104,7 @@ pub(crate) fn s3_open_names_what_is_wrong() {
     let tmp = tempfile::tempdir().expect("temp dir");
     let Some(mut server) = s3_test_server(tmp.path()) else { return };
     let url = server.url("objects");
-    let cases = [
-        (url.replacen(s3_server::BUCKET, "no-such-bucket", 1), "NoSuchBucket"),
-        (url.replace("secret_access_key=b2tf-test-secret", "secret_access_key=wrong"), "SignatureDoesNotMatch"),
-    ];
+    let cases = [(url.replacen(s3_server::BUCKET, "no-such-bucket", 1), "NoSuchBucket"), (url.replace("secret_access_key=b2tf-test-secret", "secret_access_key=wrong"), "SignatureDoesNotMatch")];
     for (bad, says) in &cases {
         for (what, r) in [("open", store::open(bad).map(drop)), ("read-only open", store::open_read_only(bad).map(drop))] {
             match r {

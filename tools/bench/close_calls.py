@@ -18,6 +18,7 @@ onboards them into out/real-boxes/objects, the default). Answers are kept in OUT
 (default out/close-calls) and reused; delete them to rerun. A benchmark, not a test:
 about 2 minutes on 2 cores for the 35 real instances with a release build.
 """
+
 import argparse
 import glob
 import json
@@ -65,7 +66,11 @@ def main():
                     out = f"{a.out}/{sid}-{im}-{j}-{kind}.json"
                     if not os.path.exists(out):
                         given = ["--mask", f"{scene}mask_visib/{int(im):06d}_{j:06d}.png"] if kind == "mask" else ["--box", ",".join(str(v) for v in box)]
-                        subprocess.run([a.bin, "estimate", "--store", a.store, "--object", f"obj_{inst['obj_id']:06d}", "--image", f"{scene}rgb/{int(im):06d}.png", "--camera", camera, *given, "--out", out], capture_output=True, check=True)
+                        subprocess.run(
+                            [a.bin, "estimate", "--store", a.store, "--object", f"obj_{inst['obj_id']:06d}", "--image", f"{scene}rgb/{int(im):06d}.png", "--camera", camera, *given, "--out", out],
+                            capture_output=True,
+                            check=True,
+                        )
                     pose = json.load(open(out))["poses"][0]
                     truth_t = [v / 1000 for v in inst["cam_t_m2c"]]
                     placed = math.dist(pose["t"], truth_t) / (info[str(inst["obj_id"])]["diameter"] / 1000) < 0.1

@@ -154,8 +154,10 @@ def run_backend(store_url: str, store_dir: Optional[Path], work: Path, fx: Fixtu
                 rd.problems.append(f"the interrupted operation {op}: {g.status} {g.body!r} after the restart (expected 404)"[:300])
         if store_dir is not None and (hidden := store_check.hidden_folders(store_dir)):
             rd.problems.append(f"hidden temporary folders left after the restart: {hidden}")
-        log(f"  {n:2d} {kind:8s} killed after {killed_after:.2f} s ({doing}); ready in {rd.ready_s:.2f} s; {rd.objects} objects; "
-            f"interrupted: {rd.interrupted}; {'OK' if not rd.problems else 'PROBLEMS: ' + '; '.join(rd.problems)}")
+        log(
+            f"  {n:2d} {kind:8s} killed after {killed_after:.2f} s ({doing}); ready in {rd.ready_s:.2f} s; {rd.objects} objects; "
+            f"interrupted: {rd.interrupted}; {'OK' if not rd.problems else 'PROBLEMS: ' + '; '.join(rd.problems)}"
+        )
         rounds.append(rd)
 
     code = server.stop()
@@ -170,10 +172,10 @@ def wait_for_write(store_url: str, oid: str, http: str, op: str, timeout: float 
     """Returns once the store shows the put of `oid` under way (True), or the operation
     has ended or a new put could not be recognised in time (False)."""
     if store_url.startswith("dir://"):
-        root = Path(store_url[len("dir://"):])
+        root = Path(store_url[len("dir://") :])
         seen = lambda: any(n.startswith(f".{oid}.tmp-") for n in os.listdir(root))  # noqa: E731
     else:
-        wal = Path(store_url[len("sqlite://"):] + "-wal")
+        wal = Path(store_url[len("sqlite://") :] + "-wal")
         stamp = lambda: (wal.stat().st_size, wal.stat().st_mtime_ns) if wal.exists() else None  # noqa: E731
         before = stamp()
         seen = lambda: stamp() != before  # noqa: E731

@@ -57,25 +57,35 @@ class Fixtures:
 
     def estimate_json(self, object_id: str, **options: object) -> bytes:
         """POST /v1/estimate body: the photo as PNG, the mask as the detection."""
-        return json.dumps({
-            "image": {"encoded": b64(self.rgb_png)},
-            "intrinsics": INTRINSICS,
-            "detections": [{"object_id": object_id, "mask_png": b64(self.mask_png), "score": 0.9}],
-            "options": options,
-        }).encode()
+        return json.dumps(
+            {
+                "image": {"encoded": b64(self.rgb_png)},
+                "intrinsics": INTRINSICS,
+                "detections": [{"object_id": object_id, "mask_png": b64(self.mask_png), "score": 0.9}],
+                "options": options,
+            }
+        ).encode()
 
     def onboard_json(self, object_id: str, level: int, in_plane: int, replace: bool = False) -> bytes:
         """POST /v1/objects body, the files base64 in JSON."""
-        return json.dumps({
-            "object_id": object_id,
-            "mesh": {"data": b64(self.obj), "format": "obj", "units": "m", "resources": [{"name": n, "data": b64(d)} for n, d in self.resources.items()]},
-            "options": {"level": level, "in_plane": in_plane},
-            "replace": replace,
-        }).encode()
+        return json.dumps(
+            {
+                "object_id": object_id,
+                "mesh": {"data": b64(self.obj), "format": "obj", "units": "m", "resources": [{"name": n, "data": b64(d)} for n, d in self.resources.items()]},
+                "options": {"level": level, "in_plane": in_plane},
+                "replace": replace,
+            }
+        ).encode()
 
     def onboard_multipart(self, object_id: str, level: int, in_plane: int) -> Tuple[bytes, str]:
         """POST /v1/objects as multipart/form-data (the files as they are): (body, content type)."""
-        fields: List[Tuple[str, str, bytes]] = [("object_id", "", object_id.encode()), ("units", "", b"m"), ("level", "", str(level).encode()), ("in_plane", "", str(in_plane).encode()), ("mesh", "sample_box.obj", self.obj)]
+        fields: List[Tuple[str, str, bytes]] = [
+            ("object_id", "", object_id.encode()),
+            ("units", "", b"m"),
+            ("level", "", str(level).encode()),
+            ("in_plane", "", str(in_plane).encode()),
+            ("mesh", "sample_box.obj", self.obj),
+        ]
         fields += [("resource", n, d) for n, d in self.resources.items()]
         return multipart(fields)
 

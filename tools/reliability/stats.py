@@ -52,20 +52,34 @@ def summarise(phase: str, outcomes: List[Outcome], seconds: float) -> PhaseSumma
     ob = [o for o in outcomes if o.kind == "onboard"]
     done = [o.seconds for o in outcomes if o.kind == "onboard-done" and o.ok]
     return PhaseSummary(
-        phase, seconds, len(est) / seconds, len(acc), len(ref), len(acc) / seconds, len(ref) / seconds,
-        percentile(acc, 50), percentile(acc, 90), percentile(acc, 99), max(acc, default=math.nan), percentile(ref, 99),
-        sum(o.status in ("202", "OK") for o in ob), sum(o.status in REFUSED for o in ob), percentile(done, 50),
-        sum(o.kind == "bad" for o in outcomes), sum(not o.ok for o in outcomes),
+        phase,
+        seconds,
+        len(est) / seconds,
+        len(acc),
+        len(ref),
+        len(acc) / seconds,
+        len(ref) / seconds,
+        percentile(acc, 50),
+        percentile(acc, 90),
+        percentile(acc, 99),
+        max(acc, default=math.nan),
+        percentile(ref, 99),
+        sum(o.status in ("202", "OK") for o in ob),
+        sum(o.status in REFUSED for o in ob),
+        percentile(done, 50),
+        sum(o.kind == "bad" for o in outcomes),
+        sum(not o.ok for o in outcomes),
     )
 
 
 def phase_table(rows: Sequence[PhaseSummary]) -> str:
-    head = ("| phase | s | estimates offered/s | accepted/s | 429/s | accepted p50 ms | p90 | p99 | max | 429 p99 ms "
-            "| onboardings accepted / 429 | onboarding p50 s | bad requests | violations |")
+    head = "| phase | s | estimates offered/s | accepted/s | 429/s | accepted p50 ms | p90 | p99 | max | 429 p99 ms | onboardings accepted / 429 | onboarding p50 s | bad requests | violations |"
     lines = [head, "|" + "---|" * 14]
     for r in rows:
-        lines.append(f"| {r.phase} | {r.seconds:.0f} | {r.offered_per_s:.2f} | {r.accepted_per_s:.2f} | {r.refused_per_s:.2f} | {r.p50_ms:.0f} | {r.p90_ms:.0f} | {r.p99_ms:.0f} "
-                     f"| {r.max_ms:.0f} | {r.refused_p99_ms:.1f} | {r.onboards_accepted} / {r.onboards_refused} | {r.onboard_p50_s:.2f} | {r.bad} | {r.violations} |")
+        lines.append(
+            f"| {r.phase} | {r.seconds:.0f} | {r.offered_per_s:.2f} | {r.accepted_per_s:.2f} | {r.refused_per_s:.2f} | {r.p50_ms:.0f} | {r.p90_ms:.0f} | {r.p99_ms:.0f} "
+            f"| {r.max_ms:.0f} | {r.refused_p99_ms:.1f} | {r.onboards_accepted} / {r.onboards_refused} | {r.onboard_p50_s:.2f} | {r.bad} | {r.violations} |"
+        )
     return "\n".join(lines)
 
 

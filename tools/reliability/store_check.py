@@ -67,7 +67,7 @@ def check_offline(store_url: str) -> List[str]:
     except RuntimeError as e:
         problems.append(f"offline CLI check of {store_url}: {e}"[:600])
     if store_url.startswith("sqlite://"):
-        path = store_url[len("sqlite://"):]
+        path = store_url[len("sqlite://") :]
         con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
         try:
             verdict = con.execute("PRAGMA integrity_check").fetchall()

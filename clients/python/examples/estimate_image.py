@@ -53,7 +53,19 @@ def main() -> None:
     if best is None or best.pose is None:
         raise SystemExit(f"no pose: {results[0].reason if results else 'no result'}")
     pose = best.pose
-    print(json.dumps({"object": a.object, "score": best.score, "R": pose.R.reshape(-1).tolist(), "t": pose.t.tolist(), "rvec": pose.rvec.ravel().tolist(), "quaternion_wxyz": pose.quaternion_wxyz.tolist(), "server_ms": results.total_ms}))
+    print(
+        json.dumps(
+            {
+                "object": a.object,
+                "score": best.score,
+                "R": pose.R.reshape(-1).tolist(),
+                "t": pose.t.tolist(),
+                "rvec": pose.rvec.ravel().tolist(),
+                "quaternion_wxyz": pose.quaternion_wxyz.tolist(),
+                "server_ms": results.total_ms,
+            }
+        )
+    )
     if a.overlay:
         overlay = b2tfpose.cv.draw_pose(bgr, pose, K, a.mesh, units=a.units, bgr=True)
         cv2.imwrite(str(a.overlay), overlay)

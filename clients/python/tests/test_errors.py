@@ -180,7 +180,17 @@ def test_operation_failed(client: b2tfpose.Client) -> None:
 
 
 def test_hierarchy_and_mapping() -> None:
-    classes = [b2tfpose.InvalidArgument, b2tfpose.NotFound, b2tfpose.PermissionDenied, b2tfpose.AlreadyExists, b2tfpose.Unauthenticated, b2tfpose.ResourceExhausted, b2tfpose.DeadlineExceeded, b2tfpose.Unavailable, b2tfpose.Internal]
+    classes = [
+        b2tfpose.InvalidArgument,
+        b2tfpose.NotFound,
+        b2tfpose.PermissionDenied,
+        b2tfpose.AlreadyExists,
+        b2tfpose.Unauthenticated,
+        b2tfpose.ResourceExhausted,
+        b2tfpose.DeadlineExceeded,
+        b2tfpose.Unavailable,
+        b2tfpose.Internal,
+    ]
     for cls in classes:
         assert issubclass(cls, b2tfpose.RpcError) and issubclass(cls, b2tfpose.B2TFPoseError)
     assert issubclass(b2tfpose.OperationCancelled, b2tfpose.OperationFailed) and issubclass(b2tfpose.OperationFailed, b2tfpose.B2TFPoseError)

@@ -29,8 +29,23 @@ def run_example(name: str, *args: str, timeout: float = 180) -> List[Dict[str, A
 def test_estimate_image(server: Server, onboarded: Onboarded, scene: Scene, sample_obj: Path, cli_mask_pose: b2tfpose.Pose, tmp_path: Path) -> None:
     overlay = tmp_path / "overlay.png"
     [out] = run_example(
-        "estimate_image.py", "--server", server.address, "--object", SAMPLE_ID, "--image", str(scene.rgb_path), "--mask", str(scene.mask_path),
-        "--camera", str(scene.camera_path), "--mesh", str(sample_obj), "--units", "m", "--overlay", str(overlay),
+        "estimate_image.py",
+        "--server",
+        server.address,
+        "--object",
+        SAMPLE_ID,
+        "--image",
+        str(scene.rgb_path),
+        "--mask",
+        str(scene.mask_path),
+        "--camera",
+        str(scene.camera_path),
+        "--mesh",
+        str(sample_obj),
+        "--units",
+        "m",
+        "--overlay",
+        str(overlay),
     )
     assert_same_pose(b2tfpose.Pose(out["R"], out["t"]), cli_mask_pose)
     drawn = cv2.imread(str(overlay), cv2.IMREAD_COLOR)
@@ -49,8 +64,21 @@ def test_camera_loop_falls_back_to_a_folder(server: Server, onboarded: Onboarded
     x, y, w, h = scene.box
     box = f"{x - 30},{y},{w + 60},{h}"  # wide enough for every frame
     lines = run_example(
-        "camera_loop.py", "--server", server.address, "--object", SAMPLE_ID, "--camera", str(scene.camera_path), "--box", box,
-        "--device", "97", "--folder", str(frames), "--out", str(out_dir),
+        "camera_loop.py",
+        "--server",
+        server.address,
+        "--object",
+        SAMPLE_ID,
+        "--camera",
+        str(scene.camera_path),
+        "--box",
+        box,
+        "--device",
+        "97",
+        "--folder",
+        str(frames),
+        "--out",
+        str(out_dir),
     )
     assert [line["frame"] for line in lines] == ["frame0", "frame1", "frame2"]
     xs = [line["t"][0] for line in lines]
@@ -66,8 +94,21 @@ def test_track_video_matches_the_cli(server: Server, onboarded: Onboarded, video
     first = video[0]
     overlays = tmp_path / "overlays"
     lines = run_example(
-        "track_video.py", "--server", server.address, "--object", SAMPLE_ID, "--video", str(frames), "--camera", str(first.camera_path),
-        "--mask", str(first.mask_path), "--mesh", str(sample_obj), "--overlay-dir", str(overlays),
+        "track_video.py",
+        "--server",
+        server.address,
+        "--object",
+        SAMPLE_ID,
+        "--video",
+        str(frames),
+        "--camera",
+        str(first.camera_path),
+        "--mask",
+        str(first.mask_path),
+        "--mesh",
+        str(sample_obj),
+        "--overlay-dir",
+        str(overlays),
     )
     # `b2tf track` runs the same tracking session on the same frames.
     cli_out = tmp_path / "cli.jsonl"
@@ -105,8 +146,19 @@ def test_async_many(server: Server, onboarded: Onboarded, scene: Scene) -> None:
     waited = "b2tf_estimate_queue_wait_seconds_count"
     before, waited_before = server.metric(exhausted), server.metric(waited)
     summary, retries = run_example(
-        "async_many.py", "--server", server.address, "--object", SAMPLE_ID, "--image", str(scene.rgb_path), "--mask", str(scene.mask_path),
-        "--camera", str(scene.camera_path), "--count", "6",
+        "async_many.py",
+        "--server",
+        server.address,
+        "--object",
+        SAMPLE_ID,
+        "--image",
+        str(scene.rgb_path),
+        "--mask",
+        str(scene.mask_path),
+        "--camera",
+        str(scene.camera_path),
+        "--count",
+        "6",
     )
     assert summary["estimates"] == 6 and summary["with_pose"] == 6
     # The server (one estimate at a time) queues the burst; every retry the client made

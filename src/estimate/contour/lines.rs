@@ -187,7 +187,7 @@ pub fn outline_distribution(probs: &[f64], inner: usize, s: f64) -> (f64, f64) {
             // Segments with k < −REACH (far inside): r < (c − 1 − REACH)/2; k > REACH: r > (c − 1 + REACH)/2.
             let lo = ((c - 1 - STEP_REACH + 1).div_euclid(2)).clamp(0, n as i64) as usize; // first r with k ≥ −REACH
             let hi = ((c - 1 + STEP_REACH).div_euclid(2) + 1).clamp(lo as i64, n as i64) as usize; // first r with k > REACH
-            // Segment lo's step, then every second one (k grows by 2 with r).
+                                                                                                   // Segment lo's step, then every second one (k grows by 2 with r).
             let first_k = (2 * lo as i64 + 1 - c + STEP_REACH) as usize;
             let near_chance: f64 = terms[lo..hi].iter().zip(near[first_k..].iter().step_by(2)).map(|(&t, &h)| chance(t, h)).product();
             inside[lo] * outside[hi] * near_chance

@@ -76,7 +76,11 @@ impl Visibility {
 
     /// The share of own edges among the lines (1 without lines).
     pub fn visible_share(&self) -> f64 {
-        if self.own_edge.is_empty() { 1.0 } else { self.own_edges() / self.own_edge.len() as f64 }
+        if self.own_edge.is_empty() {
+            1.0
+        } else {
+            self.own_edges() / self.own_edge.len() as f64
+        }
     }
 }
 

@@ -198,7 +198,17 @@ mod tests {
         let faint = RgbImage::from_fn(32, 32, |x, _| image::Rgb([if x < 16 { 120 } else { 126 }; 3]));
         assert_eq!(edge_offset(&faint, &centre, &normal, 0.0, 1.0), None);
         // Two steps a pixel and a half apart: neither is the outline for sure.
-        let double = RgbImage::from_fn(32, 32, |x, _| image::Rgb([if x < 16 { 40 } else if x < 18 { 120 } else { 200 }; 3]));
+        let double = RgbImage::from_fn(32, 32, |x, _| {
+            image::Rgb(
+                [if x < 16 {
+                    40
+                } else if x < 18 {
+                    120
+                } else {
+                    200
+                }; 3],
+            )
+        });
         assert_eq!(edge_offset(&double, &centre, &normal, 1.0, 1.0), None);
         // Past the image border there is no profile.
         assert_eq!(edge_offset(&flat, &Vector2::new(1.0, 16.0), &normal, -1.0, 1.0), None);

@@ -280,7 +280,11 @@ fn best_match(template: &[f32], photo: &Grey, stats: &PatchStats, (ix, iy): (i64
     // A parabola through the peak and its neighbours, each way: the sub-pixel peak.
     let vertex = |m: f64, c: f64, p: f64| {
         let d = m - 2.0 * c + p;
-        if m.is_finite() && p.is_finite() && d < 0.0 { (0.5 * (m - p) / d).clamp(-0.5, 0.5) } else { 0.0 }
+        if m.is_finite() && p.is_finite() && d < 0.0 {
+            (0.5 * (m - p) / d).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        }
     };
     Some(Vector2::new(bx as f64 + vertex(at(bx - 1, by), best, at(bx + 1, by)), by as f64 + vertex(at(bx, by - 1), best, at(bx, by + 1))))
 }

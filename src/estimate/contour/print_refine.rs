@@ -64,7 +64,14 @@ impl ContourRefiner {
     ///
     /// `rendered`: `start` already rendered over `window` (verification's render of the
     /// winner), which saves one render.
-    pub fn refine_on_print(&self, ctx: &RefineContext<'_>, start: &Pose, window: (u32, u32, u32, u32), rendered: Option<&RenderOutput>, cfg: &PrintRefineConfig) -> Result<Option<PrintRefined>, String> {
+    pub fn refine_on_print(
+        &self,
+        ctx: &RefineContext<'_>,
+        start: &Pose,
+        window: (u32, u32, u32, u32),
+        rendered: Option<&RenderOutput>,
+        cfg: &PrintRefineConfig,
+    ) -> Result<Option<PrintRefined>, String> {
         if cfg.rounds == 0 || !ctx.model.mesh.has_colours() {
             return Ok(None);
         }
@@ -99,7 +106,11 @@ impl ContourRefiner {
             let scale = *self.scales(Self::apparent_diameter(ctx, &pose, &centre)).last().expect("at least one scale");
             let lines = super::lines::build_lines(&cm, &centre, &pose, k, &post, scale, photo);
             for _ in 0..cfg.updates_per_round {
-                let Some(s) = gauss_newton_update(&lines, PointTerm { points: &points, sigma_px: cfg.point_sigma_px }, &pose, start, k, &self.config.regularisation, radius, self.config.occlusion_model) else { break };
+                let Some(s) =
+                    gauss_newton_update(&lines, PointTerm { points: &points, sigma_px: cfg.point_sigma_px }, &pose, start, k, &self.config.regularisation, radius, self.config.occlusion_model)
+                else {
+                    break;
+                };
                 pose = apply_update(&pose, &s.omega, &s.v);
                 let n = lines.len().max(1) as f64;
                 last = Some((s.depth_sigma(&pose), s.own_edges / n, lines.iter().filter(|l| l.photo_edge).count() as f64 / n));
@@ -121,7 +132,17 @@ impl ContourRefiner {
         let before = self.agreement_at(ctx, &cm, &centre, &post, start);
         let after = self.agreement_at(ctx, &cm, &centre, &post, &pose);
         let taken = agreeing_after >= agreeing_before + cfg.min_gain && after.score >= before.score - cfg.contour_slack;
-        tracing::debug!(agreeing_before, agreeing_after, points = points.len(), contour_before = before.score, contour_after = after.score, turn_deg = start.rotation.rotation_to(&pose.rotation).angle().to_degrees(), dz_mm = (pose.translation.z - start.translation.z) * 1e3, taken, "refined on the print");
+        tracing::debug!(
+            agreeing_before,
+            agreeing_after,
+            points = points.len(),
+            contour_before = before.score,
+            contour_after = after.score,
+            turn_deg = start.rotation.rotation_to(&pose.rotation).angle().to_degrees(),
+            dz_mm = (pose.translation.z - start.translation.z) * 1e3,
+            taken,
+            "refined on the print"
+        );
         if !taken {
             return Ok(None);
         }

@@ -168,12 +168,7 @@ pub fn gauss_newton_update(lines: &[Line], points: PointTerm<'_>, pose: &Pose, s
     }
     let chol = h.cholesky()?;
     let step = chol.solve(&g);
-    Some(Step {
-        omega: Vector3::new(step[0], step[1], step[2]),
-        v: Vector3::new(step[3], step[4], step[5]),
-        covariance: chol.inverse(),
-        own_edges,
-    })
+    Some(Step { omega: Vector3::new(step[0], step[1], step[2]), v: Vector3::new(step[3], step[4], step[5]), covariance: chol.inverse(), own_edges })
 }
 
 /// How a point's image offset along `n` changes with the update (ω, v) at `pose`: the

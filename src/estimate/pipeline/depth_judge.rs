@@ -6,7 +6,7 @@
 //! (free space), the strongest evidence against it. The fit moves each pose to the depth,
 //! so its render no longer shows it: selection renders the winner again.
 
-use super::{Estimator, EstimateError, RefineContext, Verified};
+use super::{EstimateError, Estimator, RefineContext, Verified};
 use crate::depth::DepthImage;
 use crate::estimate::depth_fit::{fit, visible_samples, DepthFit, DepthFitConfig};
 use crate::estimate::select::window_camera;

@@ -8,7 +8,7 @@
 //! tells which way is right. Turns about the line of sight itself turn the outline in the
 //! image, which the refiner fits well already.
 
-use super::{Estimator, EstimateConfig, EstimateError, QueryView, RefineContext, Verified};
+use super::{EstimateConfig, EstimateError, Estimator, QueryView, RefineContext, Verified};
 use crate::estimate::hypotheses::Source;
 use crate::geometry::{geodesic_distance, Pose};
 use nalgebra::{Unit, Vector3};

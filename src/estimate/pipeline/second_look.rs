@@ -10,7 +10,7 @@
 //! is rendered, and the axis flips of the two whose print agrees best are refined and
 //! verified too (docs/benchmarks.md, "A real photo").
 
-use super::{Estimator, EstimateConfig, EstimateError, QueryView, RefineContext, Verified};
+use super::{EstimateConfig, EstimateError, Estimator, QueryView, RefineContext, Verified};
 use crate::estimate::hypotheses::{flips, Source};
 use crate::estimate::verify::appearance;
 
@@ -41,11 +41,8 @@ fn needed(sorted: &[Verified], colour_share: f64) -> bool {
 /// from the start.
 fn flip_sources(sorted: &[Verified], start: Source, colour_share: f64) -> Vec<usize> {
     let winner = sorted.first().and_then(|w| print(w, colour_share)).unwrap_or(0.0);
-    let mut printed: Vec<(usize, f64)> = (0..sorted.len())
-        .filter(|&i| sorted[i].source != start)
-        .filter_map(|i| print(&sorted[i], colour_share).map(|p| (i, p)))
-        .filter(|&(_, p)| p >= CONFIRMS && p > winner)
-        .collect();
+    let mut printed: Vec<(usize, f64)> =
+        (0..sorted.len()).filter(|&i| sorted[i].source != start).filter_map(|i| print(&sorted[i], colour_share).map(|p| (i, p))).filter(|&(_, p)| p >= CONFIRMS && p > winner).collect();
     printed.sort_by(|a, b| b.1.total_cmp(&a.1));
     printed.into_iter().take(FLIPPED).map(|(i, _)| i).collect()
 }
@@ -54,7 +51,15 @@ impl Estimator {
     /// Takes the second look where [`needed`]: renders the hypotheses not rendered yet,
     /// and adds the nine axis flips of the best prints ([`flip_sources`]), refined and
     /// rendered. `verified` is sorted best first before and after.
-    pub(super) fn second_look(&self, ctx: &RefineContext<'_>, verified: &mut Vec<Verified>, start: Source, window: (u32, u32, u32, u32), query: &QueryView, cfg: &EstimateConfig) -> Result<(), EstimateError> {
+    pub(super) fn second_look(
+        &self,
+        ctx: &RefineContext<'_>,
+        verified: &mut Vec<Verified>,
+        start: Source,
+        window: (u32, u32, u32, u32),
+        query: &QueryView,
+        cfg: &EstimateConfig,
+    ) -> Result<(), EstimateError> {
         let share = cfg.verify.colour_share;
         if !needed(verified, share) {
             return Ok(());
@@ -83,7 +88,19 @@ mod tests {
 
     fn rendered(edges: f64, colour: f64) -> Verified {
         let nan = f64::NAN;
-        Verified { source: Source::Pipeline, pose: Pose::identity(), refinement: RefineReport::default(), contour: 0.9, iou: 0.9, appearance: nan, edges, colour, features: nan, score: nan, render: None }
+        Verified {
+            source: Source::Pipeline,
+            pose: Pose::identity(),
+            refinement: RefineReport::default(),
+            contour: 0.9,
+            iou: 0.9,
+            appearance: nan,
+            edges,
+            colour,
+            features: nan,
+            score: nan,
+            render: None,
+        }
     }
 
     /// Only a rendered winner on a coloured mesh whose print agrees with nothing asks for

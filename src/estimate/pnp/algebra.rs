@@ -55,9 +55,7 @@ pub(crate) fn cubic_root(b: f64, c: f64, d: f64) -> f64 {
 pub(crate) fn eigen_known_zero(a: &Matrix3<f64>) -> Option<(f64, Vector3<f64>, f64, Vector3<f64>)> {
     // λ² − tr·λ + (sum of principal 2×2 minors) = 0.
     let tr = a.trace();
-    let minors = a[(0, 0)] * a[(1, 1)] - a[(0, 1)] * a[(1, 0)] + a[(0, 0)] * a[(2, 2)] - a[(0, 2)] * a[(2, 0)]
-        + a[(1, 1)] * a[(2, 2)]
-        - a[(1, 2)] * a[(2, 1)];
+    let minors = a[(0, 0)] * a[(1, 1)] - a[(0, 1)] * a[(1, 0)] + a[(0, 0)] * a[(2, 2)] - a[(0, 2)] * a[(2, 0)] + a[(1, 1)] * a[(2, 2)] - a[(1, 2)] * a[(2, 1)];
     let [e0, e1] = quadratic_roots(1.0, -tr, minors);
     let (mut e0, mut e1) = (e0?, e1?);
     if e0.abs() < e1.abs() {

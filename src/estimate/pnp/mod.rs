@@ -58,14 +58,7 @@ pub struct PnpConfig {
 
 impl Default for PnpConfig {
     fn default() -> Self {
-        Self {
-            reprojection_threshold_px: 4.0,
-            max_iterations: 10_000,
-            confidence: 0.999,
-            min_inliers: 6,
-            seed: 0,
-            refine: true,
-        }
+        Self { reprojection_threshold_px: 4.0, max_iterations: 10_000, confidence: 0.999, min_inliers: 6, seed: 0, refine: true }
     }
 }
 

@@ -132,11 +132,7 @@ struct Equations {
 
 impl Equations {
     fn residuals(&self, l: &Vector3<f64>) -> Vector3<f64> {
-        Vector3::new(
-            l.x * l.x + l.y * l.y + self.b12 * l.x * l.y - self.a12,
-            l.x * l.x + l.z * l.z + self.b13 * l.x * l.z - self.a13,
-            l.y * l.y + l.z * l.z + self.b23 * l.y * l.z - self.a23,
-        )
+        Vector3::new(l.x * l.x + l.y * l.y + self.b12 * l.x * l.y - self.a12, l.x * l.x + l.z * l.z + self.b13 * l.x * l.z - self.a13, l.y * l.y + l.z * l.z + self.b23 * l.y * l.z - self.a23)
     }
 
     fn residual(&self, l: &Vector3<f64>) -> f64 {
@@ -188,12 +184,7 @@ fn frame(e1: &Vector3<f64>, e2: &Vector3<f64>) -> Option<Matrix3<f64>> {
 
 /// The rigid motion taking the world triangle onto the camera one: orthonormal by
 /// construction (frame to frame), where the paper's `Y·X⁻¹` is only as orthogonal as λ is exact.
-fn pose_from_depths(
-    world: &[Vector3<f64>; 3],
-    bearings: &[Vector3<f64>; 3],
-    lambda: &Vector3<f64>,
-    world_frame: &Matrix3<f64>,
-) -> Pose {
+fn pose_from_depths(world: &[Vector3<f64>; 3], bearings: &[Vector3<f64>; 3], lambda: &Vector3<f64>, world_frame: &Matrix3<f64>) -> Pose {
     let p = [bearings[0] * lambda.x, bearings[1] * lambda.y, bearings[2] * lambda.z];
     let camera_frame = frame(&(p[0] - p[1]), &(p[0] - p[2])).unwrap_or_else(Matrix3::identity);
     let r = camera_frame * world_frame.transpose();

@@ -48,10 +48,7 @@ pub(crate) fn levenberg_marquardt(m: &Matches, idx: &[usize], init: &Pose, opt: 
         let mut improved = None;
         while damping <= DAMPING_MAX {
             if let Some(step) = damped_step(&h, &g, damping) {
-                let trial = State {
-                    rotation: Rotation3::new(step.fixed_rows::<3>(0).into_owned()) * state.rotation,
-                    centre_cam: state.centre_cam + step.fixed_rows::<3>(3),
-                };
+                let trial = State { rotation: Rotation3::new(step.fixed_rows::<3>(0).into_owned()) * state.rotation, centre_cam: state.centre_cam + step.fixed_rows::<3>(3) };
                 if let Some(c) = problem.cost(&trial).filter(|&c| c < cost) {
                     improved = Some((trial, c));
                     damping = (damping * 0.1).max(DAMPING_MIN);
@@ -128,10 +125,7 @@ impl Problem<'_, '_> {
     fn jacobian(&self, p: &Vector3<f64>, q: &Vector3<f64>) -> [Vector6<f64>; 2] {
         let iz = 1.0 / p.z;
         let (px, py) = (p.x * iz, p.y * iz);
-        [
-            Vector6::new(-px * q.y, q.z + px * q.x, -q.y, 1.0, 0.0, -px) * (self.m.fx * iz),
-            Vector6::new(-q.z - py * q.y, py * q.x, q.x, 0.0, 1.0, -py) * (self.m.fy * iz),
-        ]
+        [Vector6::new(-px * q.y, q.z + px * q.x, -q.y, 1.0, 0.0, -px) * (self.m.fx * iz), Vector6::new(-q.z - py * q.y, py * q.x, q.x, 0.0, 1.0, -py) * (self.m.fy * iz)]
     }
 
     /// Gauss–Newton H = Σ wJᵀJ and g = Σ wJᵀr, with Huber's IRLS weights.
@@ -176,10 +170,7 @@ mod tests {
         let image = [[350.0, 200.0]];
         let m = Matches::new(&image, &object, &k, 4.0);
         let problem = Problem { m: &m, idx: &[0], centroid: Vector3::new(0.01, 0.02, -0.01), huber: None };
-        let s = State {
-            rotation: Rotation3::from_euler_angles(0.3, -0.2, 0.5),
-            centre_cam: Vector3::new(0.05, -0.03, 0.6),
-        };
+        let s = State { rotation: Rotation3::from_euler_angles(0.3, -0.2, 0.5), centre_cam: Vector3::new(0.05, -0.03, 0.6) };
         let (p, q) = problem.camera_point(&s, 0);
         let [ju, jv] = problem.jacobian(&p, &q);
         let eps = 1e-6;
@@ -187,10 +178,7 @@ mod tests {
             let mut d = Vector6::zeros();
             d[j] = eps;
             let shift = |d: Vector6<f64>| {
-                let t = State {
-                    rotation: Rotation3::new(d.fixed_rows::<3>(0).into_owned()) * s.rotation,
-                    centre_cam: s.centre_cam + d.fixed_rows::<3>(3),
-                };
+                let t = State { rotation: Rotation3::new(d.fixed_rows::<3>(0).into_owned()) * s.rotation, centre_cam: s.centre_cam + d.fixed_rows::<3>(3) };
                 problem.residual(0, &problem.camera_point(&t, 0).0)
             };
             let (plus, minus) = (shift(d), shift(-d));

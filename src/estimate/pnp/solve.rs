@@ -13,12 +13,7 @@ const REESTIMATE: LmOptions = LmOptions { max_iterations: 10, huber_px: None };
 
 /// `T_cam_obj` from `image_points[i]` (pixels) ↔ `object_points[i]` (metres, object frame),
 /// robust to outliers. Deterministic for a given `cfg.seed`.
-pub fn solve_pnp_ransac(
-    image_points: &[[f64; 2]],
-    object_points: &[[f64; 3]],
-    k: &Intrinsics,
-    cfg: &PnpConfig,
-) -> Result<PnpResult, PnpError> {
+pub fn solve_pnp_ransac(image_points: &[[f64; 2]], object_points: &[[f64; 3]], k: &Intrinsics, cfg: &PnpConfig) -> Result<PnpResult, PnpError> {
     check_inputs(image_points, object_points, k, cfg)?;
     let need = min_support(cfg);
     let m = Matches::new(image_points, object_points, k, cfg.reprojection_threshold_px);
@@ -52,10 +47,5 @@ pub fn solve_pnp_ransac(
     if inliers.len() < need {
         return Err(PnpError::NoConsensus { best_inliers: inliers.len() });
     }
-    Ok(PnpResult {
-        mean_reprojection_error_px: m.mean_error_px(&pose, &inliers),
-        pose,
-        inliers,
-        iterations: consensus.iterations,
-    })
+    Ok(PnpResult { mean_reprojection_error_px: m.mean_error_px(&pose, &inliers), pose, inliers, iterations: consensus.iterations })
 }

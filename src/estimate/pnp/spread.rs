@@ -22,9 +22,5 @@ pub(crate) fn spread(points: impl Iterator<Item = Vector3<f64>> + Clone) -> Opti
     let eig = cov.symmetric_eigen();
     let mut order = [0, 1, 2];
     order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
-    Some(Spread {
-        mean,
-        variances: order.map(|i| eig.eigenvalues[i]),
-        axes: order.map(|i| eig.eigenvectors.column(i).into_owned()),
-    })
+    Some(Spread { mean, variances: order.map(|i| eig.eigenvalues[i]), axes: order.map(|i| eig.eigenvectors.column(i).into_owned()) })
 }

@@ -61,11 +61,7 @@ fn scene(seed: u64, n: usize, noise_px: f64, outlier_ratio: f64, shape: Shape) -
         ];
         let Some(uv) = k.project(&truth.transform_point(&Point3::from(x))) else { continue };
         let outlier = rng.unit() < outlier_ratio;
-        let uv = if outlier {
-            [k.width as f64 * rng.unit(), k.height as f64 * rng.unit()]
-        } else {
-            [uv.x + noise_px * gaussian(&mut rng), uv.y + noise_px * gaussian(&mut rng)]
-        };
+        let uv = if outlier { [k.width as f64 * rng.unit(), k.height as f64 * rng.unit()] } else { [uv.x + noise_px * gaussian(&mut rng), uv.y + noise_px * gaussian(&mut rng)] };
         object.push(x);
         image.push(uv);
         inlier.push(!outlier);
@@ -97,11 +93,7 @@ fn p3p_finds_the_true_pose_among_its_solutions() {
         let world = [0, 1, 2].map(|i| Vector3::from(s.object[i]));
         let bearings = [0, 1, 2].map(|i| s.k.back_project(s.image[i][0], s.image[i][1], 1.0).coords.normalize());
         let solutions = p3p(&world, &bearings);
-        let best = solutions
-            .as_slice()
-            .iter()
-            .map(|p| angle_between(&p.rotation, &s.truth.rotation) + (p.translation - s.truth.translation).norm())
-            .fold(f64::INFINITY, f64::min);
+        let best = solutions.as_slice().iter().map(|p| angle_between(&p.rotation, &s.truth.rotation) + (p.translation - s.truth.translation).norm()).fold(f64::INFINITY, f64::min);
         assert!(best < 1e-8, "seed {seed}: {} solutions, best off by {best:e}", solutions.as_slice().len());
         for p in solutions.as_slice() {
             for x in &world {
@@ -177,9 +169,7 @@ fn true_inlier_cost(s: &Scene, pose: &Pose) -> f64 {
 /// above the worst seen.
 #[test]
 fn noisy_matches_with_70_percent_outliers() {
-    for (shape, first_seed, max_rot_deg, max_trans) in
-        [(Shape::Cube, 1000, 1.0, 0.010), (Shape::Plane, 2000, 5.0, 0.020)]
-    {
+    for (shape, first_seed, max_rot_deg, max_trans) in [(Shape::Cube, 1000, 1.0, 0.010), (Shape::Plane, 2000, 5.0, 0.020)] {
         let (mut worst_rot, mut worst_trans) = (0.0f64, 0.0f64);
         for seed in first_seed..first_seed + 20 {
             let s = scene(seed, 300, 1.0, 0.7, shape);
@@ -187,25 +177,15 @@ fn noisy_matches_with_70_percent_outliers() {
             let (rot, trans) = errors(&s, &r.pose);
             worst_rot = worst_rot.max(rot.to_degrees());
             worst_trans = worst_trans.max(trans);
-            assert!(
-                rot.to_degrees() < max_rot_deg && trans < max_trans,
-                "seed {seed}: {:.3}°, {:.2} mm/m",
-                rot.to_degrees(),
-                trans * 1e3
-            );
+            assert!(rot.to_degrees() < max_rot_deg && trans < max_trans, "seed {seed}: {:.3}°, {:.2} mm/m", rot.to_degrees(), trans * 1e3);
 
             let m = Matches::new(&s.image, &s.object, &s.k, 4.0);
             let truth_in: Vec<usize> = (0..s.object.len()).filter(|&i| s.inlier[i]).collect();
-            let oracle =
-                levenberg_marquardt(&m, &truth_in, &s.truth, &LmOptions { max_iterations: 50, huber_px: None });
+            let oracle = levenberg_marquardt(&m, &truth_in, &s.truth, &LmOptions { max_iterations: 50, huber_px: None });
             let (ours, best) = (true_inlier_cost(&s, &r.pose), true_inlier_cost(&s, &oracle));
             assert!(ours <= 1.02 * best, "seed {seed}: squared error {ours:.1} px² vs oracle {best:.1} px²");
             let found = r.inliers.iter().filter(|&&i| s.inlier[i]).count();
-            assert!(
-                found as f64 >= 0.95 * truth_in.len() as f64,
-                "seed {seed}: {found} of {} true inliers",
-                truth_in.len()
-            );
+            assert!(found as f64 >= 0.95 * truth_in.len() as f64, "seed {seed}: {found} of {} true inliers", truth_in.len());
             assert!(r.inliers.len() - found <= 3, "seed {seed}: {} false inliers", r.inliers.len() - found);
             assert!(r.mean_reprojection_error_px < 2.0);
         }
@@ -359,11 +339,7 @@ fn time_per_call() {
         }
     }
     let calls = (rounds * scenes.len()) as f64;
-    println!(
-        "300 matches, 70 % outliers: {:.3} ms per call, {:.0} RANSAC samples per call",
-        start.elapsed().as_secs_f64() * 1e3 / calls,
-        iterations as f64 / calls
-    );
+    println!("300 matches, 70 % outliers: {:.3} ms per call, {:.0} RANSAC samples per call", start.elapsed().as_secs_f64() * 1e3 / calls, iterations as f64 / calls);
 }
 
 /// Wider than the gating test: how often each criterion of `noisy_matches_with_70_percent_outliers`
@@ -371,15 +347,8 @@ fn time_per_call() {
 #[test]
 #[ignore]
 fn survey() {
-    for (shape, n, outliers) in [
-        (Shape::Cube, 300, 0.7),
-        (Shape::Plane, 300, 0.7),
-        (Shape::Cube, 100, 0.7),
-        (Shape::Cube, 300, 0.8),
-        (Shape::Plane, 100, 0.8),
-    ] {
-        let (mut errors_, mut worse_than_oracle, mut lost_inliers, mut worst_rot, mut worst_trans) =
-            (0, 0, 0, 0.0f64, 0.0f64);
+    for (shape, n, outliers) in [(Shape::Cube, 300, 0.7), (Shape::Plane, 300, 0.7), (Shape::Cube, 100, 0.7), (Shape::Cube, 300, 0.8), (Shape::Plane, 100, 0.8)] {
+        let (mut errors_, mut worse_than_oracle, mut lost_inliers, mut worst_rot, mut worst_trans) = (0, 0, 0, 0.0f64, 0.0f64);
         let trials = 300;
         for seed in 0..trials {
             let s = scene(50_000 + seed, n, 1.0, outliers, shape);
@@ -392,8 +361,7 @@ fn survey() {
             worst_trans = worst_trans.max(trans);
             let m = Matches::new(&s.image, &s.object, &s.k, 4.0);
             let truth_in: Vec<usize> = (0..n).filter(|&i| s.inlier[i]).collect();
-            let oracle =
-                levenberg_marquardt(&m, &truth_in, &s.truth, &LmOptions { max_iterations: 50, huber_px: None });
+            let oracle = levenberg_marquardt(&m, &truth_in, &s.truth, &LmOptions { max_iterations: 50, huber_px: None });
             if true_inlier_cost(&s, &r.pose) > 1.02 * true_inlier_cost(&s, &oracle) {
                 worse_than_oracle += 1;
             }

@@ -19,12 +19,7 @@ pub(crate) fn min_support(cfg: &PnpConfig) -> usize {
     cfg.min_inliers.max(MIN_POINTS)
 }
 
-pub(crate) fn check_inputs(
-    image: &[[f64; 2]],
-    object: &[[f64; 3]],
-    k: &Intrinsics,
-    cfg: &PnpConfig,
-) -> Result<(), PnpError> {
+pub(crate) fn check_inputs(image: &[[f64; 2]], object: &[[f64; 3]], k: &Intrinsics, cfg: &PnpConfig) -> Result<(), PnpError> {
     if image.len() != object.len() {
         return Err(PnpError::LengthMismatch { image: image.len(), object: object.len() });
     }
@@ -64,23 +59,16 @@ fn check_config(cfg: &PnpConfig) -> Result<(), PnpError> {
 
 /// Whether the matches `idx` have their object points, or their image points, all on one
 /// line or at one place: then no pose (or a one-parameter family of them) explains them.
-pub(crate) fn degenerate_spread(
-    image: &[[f64; 2]],
-    object: &[[f64; 3]],
-    idx: impl Iterator<Item = usize> + Clone,
-) -> bool {
+pub(crate) fn degenerate_spread(image: &[[f64; 2]], object: &[[f64; 3]], idx: impl Iterator<Item = usize> + Clone) -> bool {
     let lifted = |i: usize| Vector3::new(image[i][0], image[i][1], 0.0);
-    collinear_or_coincident(idx.clone().map(|i| Vector3::from(object[i])), COINCIDENT_VAR_M2)
-        || collinear_or_coincident(idx.map(lifted), COINCIDENT_VAR_PX2)
+    collinear_or_coincident(idx.clone().map(|i| Vector3::from(object[i])), COINCIDENT_VAR_M2) || collinear_or_coincident(idx.map(lifted), COINCIDENT_VAR_PX2)
 }
 
 /// From the principal variances: the largest tells coincident, the middle one collinear
 /// (a planar set, 3D or the image lifted to z = 0, only has a zero smallest one).
 fn collinear_or_coincident(points: impl Iterator<Item = Vector3<f64>> + Clone, coincident_var: f64) -> bool {
     match spread(points) {
-        Some(Spread { variances: [largest, middle, _], .. }) => {
-            largest <= coincident_var || middle <= COLLINEAR_RATIO * largest
-        }
+        Some(Spread { variances: [largest, middle, _], .. }) => largest <= coincident_var || middle <= COLLINEAR_RATIO * largest,
         None => true,
     }
 }

@@ -1,8 +1,8 @@
 //! Writes generated images as one BOP scene: images, masks, depth and the three per-scene
 //! JSON files, plus the dataset's test targets and models info. Metres become mm here.
 
-use crate::bop::format::*;
 use super::generate::SceneImage;
+use crate::bop::format::*;
 use crate::mesh::Mesh;
 use anyhow::{bail, Context, Result};
 use image::{GrayImage, ImageBuffer, Luma};
@@ -40,8 +40,7 @@ impl SceneWriter {
         save(&img.rgb, &rgb_path(&self.dir, im_id))?;
         let max_mm = img.depth.iter().fold(0f32, |a, &z| a.max(z)) as f64 * 1000.0;
         let depth_scale = depth_scale_for(max_mm).with_context(|| format!("image {im_id}"))?;
-        let depth: ImageBuffer<Luma<u16>, Vec<u16>> =
-            ImageBuffer::from_raw(w, h, img.depth.iter().map(|&z| (z as f64 * 1000.0 / depth_scale).round() as u16).collect()).expect("depth is w × h");
+        let depth: ImageBuffer<Luma<u16>, Vec<u16>> = ImageBuffer::from_raw(w, h, img.depth.iter().map(|&z| (z as f64 * 1000.0 / depth_scale).round() as u16).collect()).expect("depth is w × h");
         save(&depth, &depth_path(&self.dir, im_id))?;
         let k = &img.cam;
         self.camera.insert(im_id, CameraRecord { cam_k: [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0], depth_scale });
@@ -107,15 +106,8 @@ pub(crate) fn write_models_info(dataset: &Path, objects: &[(u32, Mesh)]) -> Resu
         info.entry(*id).or_insert_with(|| {
             let (lo, hi) = m.bbox();
             let mm = |v: f32| v as f64 * 1000.0;
-            let measured = ModelInfo {
-                diameter: m.diameter() * 1000.0,
-                min_x: mm(lo[0]),
-                min_y: mm(lo[1]),
-                min_z: mm(lo[2]),
-                size_x: mm(hi[0] - lo[0]),
-                size_y: mm(hi[1] - lo[1]),
-                size_z: mm(hi[2] - lo[2]),
-            };
+            let measured =
+                ModelInfo { diameter: m.diameter() * 1000.0, min_x: mm(lo[0]), min_y: mm(lo[1]), min_z: mm(lo[2]), size_x: mm(hi[0] - lo[0]), size_y: mm(hi[1] - lo[1]), size_z: mm(hi[2] - lo[2]) };
             serde_json::to_value(measured).expect("serialisable")
         });
     }

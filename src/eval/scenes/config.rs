@@ -193,10 +193,7 @@ impl SceneConfig {
             return Err(format!("objects_per_image must be 1–{MAX_OBJECTS_PER_IMAGE}, got {}", self.objects_per_image));
         }
         if self.objects_per_image_max != 0 && !(self.objects_per_image..=MAX_OBJECTS_PER_IMAGE).contains(&self.objects_per_image_max) {
-            return Err(format!(
-                "objects_per_image_max must be 0 (fixed) or {}–{MAX_OBJECTS_PER_IMAGE} (at least objects_per_image), got {}",
-                self.objects_per_image, self.objects_per_image_max
-            ));
+            return Err(format!("objects_per_image_max must be 0 (fixed) or {}–{MAX_OBJECTS_PER_IMAGE} (at least objects_per_image), got {}", self.objects_per_image, self.objects_per_image_max));
         }
         let (w, h) = self.image_size;
         if w < 16 || h < 16 {

@@ -4,10 +4,10 @@
 use super::appearance::{as_stored, degrade, drift_print, sample_lighting};
 use super::background::{fill_behind, pick, Background};
 use super::config::{Appearance, SceneConfig};
-use super::supersample::{average_down, centre_depth, centre_samples, repeat_up};
 use super::layers::Layers;
 use super::occluders::{sample_occluder, Occluder, OccluderPhoto};
 use super::placement::{sample_intrinsics, sample_placement, Extent, Placement};
+use super::supersample::{average_down, centre_depth, centre_samples, repeat_up};
 use crate::eval::degrade::clutter_background;
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::procedural::Rng;

@@ -31,8 +31,8 @@ mod supersample;
 #[cfg(test)]
 mod tests;
 
-pub use config::{Appearance, SceneConfig, MAX_OBJECTS_PER_IMAGE, MAX_SUPERSAMPLING};
 pub use background::Background;
+pub use config::{Appearance, SceneConfig, MAX_OBJECTS_PER_IMAGE, MAX_SUPERSAMPLING};
 pub use generate::{generate_image, generate_image_over, SceneImage, SceneInstance};
 
 use crate::mesh::Mesh;

@@ -45,9 +45,7 @@ impl Shape {
     pub fn pixel_bounds(&self, w: u32, h: u32) -> [u32; 4] {
         let (lo, hi) = match self {
             Shape::Ellipse { cx, cy, rx, ry } => ((cx - rx, cy - ry), (cx + rx, cy + ry)),
-            Shape::Polygon(v) => {
-                v.iter().fold(((f64::MAX, f64::MAX), (f64::MIN, f64::MIN)), |((ax, ay), (bx, by)), &(x, y)| ((ax.min(x), ay.min(y)), (bx.max(x), by.max(y))))
-            }
+            Shape::Polygon(v) => v.iter().fold(((f64::MAX, f64::MAX), (f64::MIN, f64::MIN)), |((ax, ay), (bx, by)), &(x, y)| ((ax.min(x), ay.min(y)), (bx.max(x), by.max(y)))),
         };
         let clip = |v: f64, n: u32| v.clamp(0.0, n as f64) as u32;
         [clip(lo.0.floor(), w), clip(lo.1.floor(), h), clip(hi.0.ceil() + 1.0, w), clip(hi.1.ceil() + 1.0, h)]

@@ -219,14 +219,7 @@ fn float_colours_and_st_uvs() {
 #[test]
 fn polygons_are_fan_triangulated() {
     let dir = tempfile::tempdir().unwrap();
-    let header = [
-        "element vertex 5",
-        "property float x",
-        "property float y",
-        "property float z",
-        "element face 1",
-        "property list uchar int vertex_indices",
-    ];
+    let header = ["element vertex 5", "property float x", "property float y", "property float z", "element face 1", "property list uchar int vertex_indices"];
     let body = ["1 0 0", "0.3 0.95 0", "-0.8 0.6 0", "-0.8 -0.6 0", "0.3 -0.95 0", "5 0 1 2 3 4"].map(String::from);
     let mesh = load_ply(&write(dir.path(), "pentagon.ply", ascii(&header, &body)), Units::M).unwrap();
     assert_eq!(mesh.triangles(), &[[0, 1, 2], [0, 2, 3], [0, 3, 4]]);
@@ -237,17 +230,8 @@ fn polygons_are_fan_triangulated() {
 #[test]
 fn per_face_texcoords_become_per_vertex() {
     let dir = tempfile::tempdir().unwrap();
-    let header = [
-        "element vertex 5",
-        "property float x",
-        "property float y",
-        "property float z",
-        "element face 2",
-        "property list uchar int vertex_indices",
-        "property list uchar float texcoord",
-    ];
-    let body = ["0 0 0", "1 0 0", "1 1 0", "0 1 0", "2 0 0", "4 0 1 2 3 8 0 0 0.5 0 0.5 1 0 1", "3 1 4 2 6 0.5 0 1 0 0.9 0.9"]
-        .map(String::from);
+    let header = ["element vertex 5", "property float x", "property float y", "property float z", "element face 2", "property list uchar int vertex_indices", "property list uchar float texcoord"];
+    let body = ["0 0 0", "1 0 0", "1 1 0", "0 1 0", "2 0 0", "4 0 1 2 3 8 0 0 0.5 0 0.5 1 0 1", "3 1 4 2 6 0.5 0 1 0 0.9 0.9"].map(String::from);
     let mesh = load_ply(&write(dir.path(), "seam.ply", ascii(&header, &body)), Units::M).unwrap();
     assert_eq!(mesh.triangles().len(), 3);
     assert_eq!(mesh.positions().len(), 6);

@@ -15,8 +15,7 @@ fn bench_renders_per_second() {
     let mesh = uv_sphere(0.05, 50, 100); // 2·100·49 = 9800 triangles
     let k = Intrinsics::new(600.0, 600.0, 255.5, 255.5, 512, 512).unwrap();
     let o = RenderOptions::default();
-    let views: Vec<(Pose, Intrinsics)> =
-        (0..162).map(|i| (pose([i as f64 * 7.0, i as f64 * 13.0, 0.0], [0.0, 0.0, 0.25]), k)).collect();
+    let views: Vec<(Pose, Intrinsics)> = (0..162).map(|i| (pose([i as f64 * 7.0, i as f64 * 13.0, 0.0], [0.0, 0.0, 0.25]), k)).collect();
     r.render(&mesh, &views[0].0, &k, &o).unwrap(); // upload and target allocation
     let t = Instant::now();
     for (p, k) in &views {

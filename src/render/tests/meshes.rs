@@ -1,6 +1,5 @@
 //! Small meshes built in code for the renderer tests.
 
-
 use crate::mesh::{Material, Mesh, MeshData, Units};
 
 /// Axis-aligned cube of half-size `h` centred at the origin, 24 vertices (flat faces), with

@@ -281,8 +281,7 @@ fn pool_from_many_threads_matches_a_single_renderer() {
     let pool = RenderPool::new(2, RendererConfig::default()).unwrap();
     let (k, o) = (camera(), RenderOptions::default());
     let mesh = textured_sphere();
-    let views: Vec<(Pose, Intrinsics)> =
-        (0..6).map(|i| (pose([i as f64 * 25.0, i as f64 * 40.0, 0.0], [0.0, 0.01, 0.3 + 0.02 * i as f64]), k)).collect();
+    let views: Vec<(Pose, Intrinsics)> = (0..6).map(|i| (pose([i as f64 * 25.0, i as f64 * 40.0, 0.0], [0.0, 0.01, 0.3 + 0.02 * i as f64]), k)).collect();
     let expected = single.render_batch(&mesh, &views, &o).unwrap();
     std::thread::scope(|s| {
         for t in 0..4 {
@@ -304,11 +303,7 @@ fn textured_sphere() -> Mesh {
     let s = uv_sphere(0.05, 16, 32);
     let mut d = s.data().clone();
     d.colors = d.positions.iter().map(|p| [0.5 + 5.0 * p[0], 0.5 + 5.0 * p[1], 0.8]).collect();
-    d.materials = vec![Material {
-        name: "checker".into(),
-        base_color: [1.0, 0.9, 0.8, 1.0],
-        texture: Some(checkerboard(8, 8, [250, 200, 40], [30, 60, 200]).into()),
-    }];
+    d.materials = vec![Material { name: "checker".into(), base_color: [1.0, 0.9, 0.8, 1.0], texture: Some(checkerboard(8, 8, [250, 200, 40], [30, 60, 200]).into()) }];
     Mesh::new("textured sphere", Units::M, d).unwrap()
 }
 

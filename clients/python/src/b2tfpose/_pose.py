@@ -157,4 +157,3 @@ class Pose:
         q = ", ".join(f"{v:.4f}" for v in self.quaternion_wxyz)
         t = ", ".join(f"{v:.4f}" for v in self._t)
         return f"Pose(t=[{t}] m, quaternion_wxyz=[{q}])"
-

@@ -88,7 +88,6 @@ def log_retry(method: str, code: grpc.StatusCode, attempt: int, delay: float, hi
     log.info("b2tfpose: %s failed with %s (attempt %d); retrying in %.3f s%s", method, code.name, attempt, delay, asked)
 
 
-
 class Attempts:
     """The attempts of one call under one deadline: what timeout each attempt gets, and
     after a failure either the delay before the next attempt or the exception to raise.

@@ -291,7 +291,9 @@ class Detections(List[DetectedObject]):
     total_ms: float
     searched: List[Dict[str, Any]]
 
-    def __init__(self, found: List[DetectedObject], reason: Optional[str] = None, timings_ms: Optional[Dict[str, float]] = None, total_ms: float = 0.0, searched: Optional[List[Dict[str, Any]]] = None) -> None:
+    def __init__(
+        self, found: List[DetectedObject], reason: Optional[str] = None, timings_ms: Optional[Dict[str, float]] = None, total_ms: float = 0.0, searched: Optional[List[Dict[str, Any]]] = None
+    ) -> None:
         super().__init__(found)
         self.reason = reason
         self.timings_ms = timings_ms or {}

@@ -151,16 +151,44 @@ class AsyncClient:
 
     @overload
     async def onboard(
-        self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
-        pca: PcaSetting = ..., descriptors: Optional[str] = ..., patch_rows: Optional[str] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
-        progress: Optional[ProgressCallback] = ..., wait: Literal[True] = ..., timeout: Optional[float] = ..., retry: RetryArg = ...,
+        self,
+        object_id: str,
+        mesh: MeshInput,
+        *,
+        units: Optional[str] = ...,
+        level: Optional[int] = ...,
+        in_plane: Optional[int] = ...,
+        pca: PcaSetting = ...,
+        descriptors: Optional[str] = ...,
+        patch_rows: Optional[str] = ...,
+        replace: bool = ...,
+        format: Optional[str] = ...,
+        resources: Optional[Mapping[str, bytes]] = ...,
+        progress: Optional[ProgressCallback] = ...,
+        wait: Literal[True] = ...,
+        timeout: Optional[float] = ...,
+        retry: RetryArg = ...,
     ) -> ObjectInfo: ...
 
     @overload
     async def onboard(
-        self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
-        pca: PcaSetting = ..., descriptors: Optional[str] = ..., patch_rows: Optional[str] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
-        progress: Optional[ProgressCallback] = ..., wait: Literal[False], timeout: Optional[float] = ..., retry: RetryArg = ...,
+        self,
+        object_id: str,
+        mesh: MeshInput,
+        *,
+        units: Optional[str] = ...,
+        level: Optional[int] = ...,
+        in_plane: Optional[int] = ...,
+        pca: PcaSetting = ...,
+        descriptors: Optional[str] = ...,
+        patch_rows: Optional[str] = ...,
+        replace: bool = ...,
+        format: Optional[str] = ...,
+        resources: Optional[Mapping[str, bytes]] = ...,
+        progress: Optional[ProgressCallback] = ...,
+        wait: Literal[False],
+        timeout: Optional[float] = ...,
+        retry: RetryArg = ...,
     ) -> AsyncOperation: ...
 
     async def onboard(
@@ -183,7 +211,9 @@ class AsyncClient:
         retry: RetryArg = None,
     ) -> Union[ObjectInfo, AsyncOperation]:
         """As :meth:`b2tfpose.Client.onboard`."""
-        request = _requests.onboard_request(object_id, mesh, units=units, level=level, in_plane=in_plane, pca=pca, descriptors=descriptors, patch_rows=patch_rows, replace=replace, format=format, resources=resources)
+        request = _requests.onboard_request(
+            object_id, mesh, units=units, level=level, in_plane=in_plane, pca=pca, descriptors=descriptors, patch_rows=patch_rows, replace=replace, format=format, resources=resources
+        )
         status = OperationStatus.from_pb(await self._call("Onboard", self._stub.Onboard, request, None, retry, idempotent=False))
         op = AsyncOperation(self, status)
         if not wait:
@@ -243,9 +273,26 @@ class AsyncClient:
     ) -> Estimates:
         """As :meth:`b2tfpose.Client.estimate`."""
         request = _requests.estimate_request(
-            image, K, detections, objects=objects, detect=_requests.detect_options(max_detections, min_score, min_distance, max_distance), bgr=bgr, rrc=rrc,
-            refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify, verify_templates=verify_templates, spin_steps=spin_steps, verify_matched=verify_matched,
-            nudge_degrees=nudge_degrees, box_prior=box_prior, overlay=overlay, depth=depth, depth_scale=depth_scale,
+            image,
+            K,
+            detections,
+            objects=objects,
+            detect=_requests.detect_options(max_detections, min_score, min_distance, max_distance),
+            bgr=bgr,
+            rrc=rrc,
+            refiner=refiner,
+            k=k,
+            max_masks=max_masks,
+            instances_per_object=instances_per_object,
+            verify=verify,
+            verify_templates=verify_templates,
+            spin_steps=spin_steps,
+            verify_matched=verify_matched,
+            nudge_degrees=nudge_degrees,
+            box_prior=box_prior,
+            overlay=overlay,
+            depth=depth,
+            depth_scale=depth_scale,
         )
         return Estimates.from_pb(await self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
 

@@ -134,16 +134,44 @@ class Client:
 
     @overload
     def onboard(
-        self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
-        pca: PcaSetting = ..., descriptors: Optional[str] = ..., patch_rows: Optional[str] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
-        progress: Optional[ProgressCallback] = ..., wait: Literal[True] = ..., timeout: Optional[float] = ..., retry: RetryArg = ...,
+        self,
+        object_id: str,
+        mesh: MeshInput,
+        *,
+        units: Optional[str] = ...,
+        level: Optional[int] = ...,
+        in_plane: Optional[int] = ...,
+        pca: PcaSetting = ...,
+        descriptors: Optional[str] = ...,
+        patch_rows: Optional[str] = ...,
+        replace: bool = ...,
+        format: Optional[str] = ...,
+        resources: Optional[Mapping[str, bytes]] = ...,
+        progress: Optional[ProgressCallback] = ...,
+        wait: Literal[True] = ...,
+        timeout: Optional[float] = ...,
+        retry: RetryArg = ...,
     ) -> ObjectInfo: ...
 
     @overload
     def onboard(
-        self, object_id: str, mesh: MeshInput, *, units: Optional[str] = ..., level: Optional[int] = ..., in_plane: Optional[int] = ...,
-        pca: PcaSetting = ..., descriptors: Optional[str] = ..., patch_rows: Optional[str] = ..., replace: bool = ..., format: Optional[str] = ..., resources: Optional[Mapping[str, bytes]] = ...,
-        progress: Optional[ProgressCallback] = ..., wait: Literal[False], timeout: Optional[float] = ..., retry: RetryArg = ...,
+        self,
+        object_id: str,
+        mesh: MeshInput,
+        *,
+        units: Optional[str] = ...,
+        level: Optional[int] = ...,
+        in_plane: Optional[int] = ...,
+        pca: PcaSetting = ...,
+        descriptors: Optional[str] = ...,
+        patch_rows: Optional[str] = ...,
+        replace: bool = ...,
+        format: Optional[str] = ...,
+        resources: Optional[Mapping[str, bytes]] = ...,
+        progress: Optional[ProgressCallback] = ...,
+        wait: Literal[False],
+        timeout: Optional[float] = ...,
+        retry: RetryArg = ...,
     ) -> Operation: ...
 
     def onboard(
@@ -180,7 +208,9 @@ class Client:
         Waits for the object (``progress`` gets each state; ``timeout`` bounds the wait,
         None: no limit), or with ``wait=False`` returns the :class:`Operation` at once.
         """
-        request = _requests.onboard_request(object_id, mesh, units=units, level=level, in_plane=in_plane, pca=pca, descriptors=descriptors, patch_rows=patch_rows, replace=replace, format=format, resources=resources)
+        request = _requests.onboard_request(
+            object_id, mesh, units=units, level=level, in_plane=in_plane, pca=pca, descriptors=descriptors, patch_rows=patch_rows, replace=replace, format=format, resources=resources
+        )
         status = OperationStatus.from_pb(self._call("Onboard", self._stub.Onboard, request, None, retry, idempotent=False))
         op = Operation(self, status)
         if not wait:
@@ -263,9 +293,26 @@ class Client:
         Returns a list of :class:`~b2tfpose.Result` (``.total_ms``: the server's time).
         """
         request = _requests.estimate_request(
-            image, K, detections, objects=objects, detect=_requests.detect_options(max_detections, min_score, min_distance, max_distance), bgr=bgr, rrc=rrc,
-            refiner=refiner, k=k, max_masks=max_masks, instances_per_object=instances_per_object, verify=verify, verify_templates=verify_templates, spin_steps=spin_steps, verify_matched=verify_matched,
-            nudge_degrees=nudge_degrees, box_prior=box_prior, overlay=overlay, depth=depth, depth_scale=depth_scale,
+            image,
+            K,
+            detections,
+            objects=objects,
+            detect=_requests.detect_options(max_detections, min_score, min_distance, max_distance),
+            bgr=bgr,
+            rrc=rrc,
+            refiner=refiner,
+            k=k,
+            max_masks=max_masks,
+            instances_per_object=instances_per_object,
+            verify=verify,
+            verify_templates=verify_templates,
+            spin_steps=spin_steps,
+            verify_matched=verify_matched,
+            nudge_degrees=nudge_degrees,
+            box_prior=box_prior,
+            overlay=overlay,
+            depth=depth,
+            depth_scale=depth_scale,
         )
         return Estimates.from_pb(self._call("Estimate", self._stub.Estimate, request, timeout, retry, idempotent=True))
 
