@@ -6,7 +6,7 @@
 #[path = "common/h264.rs"]
 mod h264;
 
-use b2tfpose::cli::video_source::FrameSource;
+use b2tfpose::video::FrameSource;
 use std::path::Path;
 
 /// `n` frames of a smooth colour ramp with a checkered square moving across it. Its edges
@@ -28,7 +28,7 @@ fn synthetic(n: usize, w: u32, h: u32) -> Vec<image::RgbImage> {
         .collect()
 }
 
-fn decode(path: &Path) -> Vec<anyhow::Result<b2tfpose::cli::video_source::Frame>> {
+fn decode(path: &Path) -> Vec<anyhow::Result<b2tfpose::video::Frame>> {
     FrameSource::open(path).unwrap().collect()
 }
 

@@ -74,7 +74,7 @@ fn matrix(p: &Pose) -> [f64; 16] {
 
 pub fn run(a: BenchDepthFitArgs) -> Result<()> {
     let mesh = match &a.mesh {
-        Some(p) => super::bench_estimate::bench_meshes(std::slice::from_ref(p), a.units)?.remove(0).1,
+        Some(p) => super::bench_scenes::bench_meshes(std::slice::from_ref(p), a.units)?.remove(0).1,
         None => crate::mesh::procedural::textured_box([0.10, 0.06, 0.16], 3),
     };
     let pool = super::open_renderer(1)?;

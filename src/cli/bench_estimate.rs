@@ -4,7 +4,7 @@ use crate::estimate::{Detection, EstimateConfig, EstimateResult};
 use crate::eval::pose_error::{mssd, rotation_error_deg, translation_error_m};
 use crate::eval::scenes::generate_image;
 use crate::geometry::Pose;
-use crate::mesh::{load_mesh, Mesh, Units};
+use crate::mesh::Mesh;
 use crate::render::RenderPool;
 use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
@@ -237,15 +237,6 @@ pub(super) fn size_bucket(mask: &image::GrayImage) -> usize {
     }
 }
 
-pub(super) fn parse_range(s: &str) -> Result<(f64, f64), String> {
-    let (a, b) = s.split_once(',').ok_or_else(|| format!("expected MIN,MAX, got {s:?}"))?;
-    let (a, b) = (a.trim().parse::<f64>().map_err(|e| e.to_string())?, b.trim().parse::<f64>().map_err(|e| e.to_string())?);
-    if !(0.0 < a && a <= b && b <= 1.0) {
-        return Err(format!("need 0 < MIN ≤ MAX ≤ 1, got {a},{b}"));
-    }
-    Ok((a, b))
-}
-
 fn parse_weights(s: &str) -> Result<[f64; 3], String> {
     let v: Vec<f64> = s.split(',').map(|x| x.trim().parse::<f64>().map_err(|e| format!("{x:?}: {e}"))).collect::<Result<_, _>>()?;
     match v[..] {
@@ -273,14 +264,6 @@ pub(super) fn quantile(v: &mut [f64], q: f64) -> f64 {
     }
     v.sort_by(|a, b| a.total_cmp(b));
     v[((v.len() as f64 * q) as usize).min(v.len() - 1)]
-}
-
-/// The benchmark's meshes, named by file stem (the procedural sample box without any).
-pub(super) fn bench_meshes(paths: &[PathBuf], units: Option<Units>) -> Result<Vec<(String, Mesh)>> {
-    if paths.is_empty() {
-        return Ok(vec![("box".into(), crate::mesh::procedural::textured_box([0.10, 0.06, 0.16], 3))]);
-    }
-    paths.iter().map(|p| Ok((p.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh").replace(' ', "_"), load_mesh(p, units)?))).collect()
 }
 
 /// The id a benchmark caches object `name` under: objects of an ONNX backbone (whose

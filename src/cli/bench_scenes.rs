@@ -1,7 +1,6 @@
 //! What `bench estimate` and `bench refine` share: the backbone, the meshes and the
 //! generated scenes they are measured on, and the store that caches the onboarded models.
 
-use super::bench_estimate::parse_range;
 use crate::mesh::Units;
 use std::path::PathBuf;
 
@@ -54,7 +53,7 @@ impl BenchSceneArgs {
     /// The meshes to place, named by file stem; bare and named `…-untextured` with
     /// `--untextured` (the name the gap's untextured templates are cached under).
     pub fn load_meshes(&self) -> anyhow::Result<Vec<(String, crate::mesh::Mesh)>> {
-        let meshes = super::bench_estimate::bench_meshes(&self.meshes, self.units)?;
+        let meshes = bench_meshes(&self.meshes, self.units)?;
         Ok(if self.untextured { meshes.into_iter().map(|(n, m)| (format!("{n}-untextured"), m.without_appearance())).collect() } else { meshes })
     }
 
@@ -76,4 +75,22 @@ impl BenchSceneArgs {
         cfg.validate().map_err(|e| anyhow::anyhow!("scene config: {e}"))?;
         Ok(cfg)
     }
+}
+
+/// `MIN,MAX` shares, 0 < MIN ≤ MAX ≤ 1 (occlusion ranges).
+pub(super) fn parse_range(s: &str) -> Result<(f64, f64), String> {
+    let (a, b) = s.split_once(',').ok_or_else(|| format!("expected MIN,MAX, got {s:?}"))?;
+    let (a, b) = (a.trim().parse::<f64>().map_err(|e| e.to_string())?, b.trim().parse::<f64>().map_err(|e| e.to_string())?);
+    if !(0.0 < a && a <= b && b <= 1.0) {
+        return Err(format!("need 0 < MIN ≤ MAX ≤ 1, got {a},{b}"));
+    }
+    Ok((a, b))
+}
+
+/// The benchmark's meshes, named by file stem (the procedural sample box without any).
+pub(super) fn bench_meshes(paths: &[std::path::PathBuf], units: Option<crate::mesh::Units>) -> anyhow::Result<Vec<(String, crate::mesh::Mesh)>> {
+    if paths.is_empty() {
+        return Ok(vec![("box".into(), crate::mesh::procedural::textured_box([0.10, 0.06, 0.16], 3))]);
+    }
+    paths.iter().map(|p| Ok((p.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh").replace(' ', "_"), crate::mesh::load_mesh(p, units)?))).collect()
 }

@@ -136,7 +136,7 @@ fn track_in_process(
 pub fn run(a: BenchTrackArgs) -> Result<()> {
     let backbone = crate::features::EmbeddedBackbone::new(Default::default()).map_err(anyhow::Error::msg)?;
     let pool = Arc::new(super::open_renderer(1)?);
-    let meshes = super::bench_estimate::bench_meshes(&a.meshes, a.units)?;
+    let meshes = super::bench_scenes::bench_meshes(&a.meshes, a.units)?;
     let store = crate::store::open(&a.store)?;
     let k = Intrinsics::new(1.25 * a.width as f64, 1.25 * a.width as f64, (a.width as f64 - 1.0) / 2.0, (a.height as f64 - 1.0) / 2.0, a.width, a.height)?;
     let mut models = Vec::new();

@@ -102,7 +102,7 @@ pub struct SynthArgs {
     #[arg(long, value_parser = parse_count_range, default_value = "3")]
     pub objects_per_image: (usize, usize),
     /// Object diameter as a share of the image height: MIN,MAX.
-    #[arg(long, value_parser = super::bench_estimate::parse_range, default_value = "0.10,0.40")]
+    #[arg(long, value_parser = super::bench_scenes::parse_range, default_value = "0.10,0.40")]
     pub fill: (f64, f64),
     /// The objects to estimate, as BOP ids (e.g. 1,2,8): only they are targets and get
     /// detections; the folder's other models stand in the scenes as distractors.

@@ -4,7 +4,7 @@
 //! through the API, prints the pose and its error against the truth and writes the overlay;
 //! then asks the server's detector to find the object with no mask.
 
-use super::demo_cmd::{make_scene, report, sample_mesh, DemoArgs};
+use super::demo_scene::{make_scene, report, sample_mesh, DemoArgs};
 use crate::service::client::{one_mask_request, png_bytes, BearerKey, Client};
 use crate::service::proto as pb;
 use crate::service::proto::pose_service_client::PoseServiceClient;

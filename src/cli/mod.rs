@@ -24,11 +24,10 @@ pub mod camera_file;
 pub mod child_server;
 pub mod demo_client;
 pub mod demo_cmd;
+pub mod demo_scene;
 pub mod detect_cmd;
 pub mod detect_overlay;
 pub mod estimate_cmd;
-#[cfg(feature = "video")]
-pub mod h264_video;
 pub mod object_args;
 pub mod objects_cmd;
 pub mod onboard_cmd;
@@ -40,7 +39,6 @@ pub mod serve_config;
 pub mod thread_cpu;
 pub mod track_cmd;
 pub mod verify_args;
-pub mod video_source;
 
 use clap::{Parser, Subcommand};
 
@@ -58,7 +56,7 @@ pub enum Command {
     /// Onboard a mesh: render templates, extract features and 3D points, save the object model.
     Onboard(onboard_cmd::OnboardArgs),
     /// The whole method on a generated object and scene: onboard, estimate, compare with the truth.
-    Demo(demo_cmd::DemoArgs),
+    Demo(demo_scene::DemoArgs),
     /// Find onboarded objects in an image (no mask, no box): BOP default-detections JSON.
     Detect(detect_cmd::DetectArgs),
     /// Estimate an object's pose in an image from one or more candidate masks.

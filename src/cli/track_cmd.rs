@@ -1,5 +1,5 @@
 //! `b2tf track`: poses through a video given as a folder of frames or a video file
-//! (cli/video_source.rs). The first frame gets a full estimate from its mask (or, when no
+//! (src/video/). The first frame gets a full estimate from its mask (or, when no
 //! mask is given, from the first of the detector's candidates confirmed at its estimated
 //! pose); later frames
 //! are tracked (track::TrackSession, as the service's streams), and a lost frame is
@@ -8,12 +8,12 @@
 //! it is known.
 
 use super::estimate_cmd::{load_mask, write_overlay};
-use super::video_source::{Frame, FrameSource};
 use crate::detect::confirm::{candidate_options, candidates_tried};
 use crate::estimate::Estimator;
 use crate::geometry::Intrinsics;
 use crate::onboard::ObjectModel;
 use crate::track::{FrameDetection, SessionConfig, TrackMode, TrackOutcome, TrackSession};
+use crate::video::{Frame, FrameSource};
 use anyhow::{bail, Context, Result};
 use serde_json::json;
 use std::io::Write;
@@ -92,7 +92,7 @@ fn pose_line(frame: &Frame, o: &TrackOutcome) -> serde_json::Value {
 
 /// The depth frames of `dir`: its PNGs in name order.
 fn depth_paths(dir: &std::path::Path) -> Result<Vec<PathBuf>> {
-    let files: Vec<PathBuf> = super::video_source::frame_paths(dir).with_context(|| "--depth")?.into_iter().filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"))).collect();
+    let files: Vec<PathBuf> = crate::video::frame_paths(dir).with_context(|| "--depth")?.into_iter().filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"))).collect();
     if files.is_empty() {
         bail!("--depth: no PNG depth frames in {}", dir.display());
     }

@@ -2,45 +2,13 @@
 //! error says what is wrong with the input, so the service can put the field name in front
 //! and answer 400, and the BOP runner can count the detection as unusable.
 
-use super::rle::{Rle, RleError};
+use super::pixel_box::PixelBox;
+use super::rle::Rle;
 use super::segment::{segment_box, Method, SegmentConfig, Segmentation};
-use crate::limits::{ImageRefused, REQUEST_IMAGE};
+use super::{MaskError, OBJECT};
+use crate::limits::REQUEST_IMAGE;
 use image::{DynamicImage, GrayImage, Luma, RgbImage};
 use std::time::Instant;
-
-/// Value of an object pixel in every mask made here.
-pub const OBJECT: u8 = 255;
-
-/// Why a mask could not be made from the input.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum MaskError {
-    #[error("box {bbox:?} ([x, y, w, h]) has a non-finite value")]
-    NonFiniteBox { bbox: [f64; 4] },
-    #[error("box {bbox:?} ([x, y, w, h]) has zero area: width and height must be positive")]
-    ZeroAreaBox { bbox: [f64; 4] },
-    #[error("box {bbox:?} ([x, y, w, h]) lies outside the {width}×{height} image")]
-    BoxOutsideImage { bbox: [f64; 4], width: u32, height: u32 },
-    #[error("mask is {mask_width}×{mask_height} (w×h) but the image is {width}×{height}")]
-    SizeMismatch { mask_width: u32, mask_height: u32, width: u32, height: u32 },
-    #[error("the mask is empty (no nonzero pixel)")]
-    Empty,
-    #[error("not a readable PNG/JPEG image: {0}")]
-    Unreadable(String),
-    /// Over [`crate::limits::REQUEST_IMAGE`]: refused from the header, before decoding.
-    #[error("mask {0}")]
-    TooLarge(ImageRefused),
-    #[error(transparent)]
-    Rle(#[from] RleError),
-}
-
-impl From<ImageRefused> for MaskError {
-    fn from(e: ImageRefused) -> Self {
-        match e {
-            ImageRefused::Unreadable(m) => MaskError::Unreadable(m),
-            too_large => MaskError::TooLarge(too_large),
-        }
-    }
-}
 
 /// How a box-only detection becomes a mask.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -64,58 +32,6 @@ impl std::str::FromStr for BoxMask {
             "fill" => Ok(BoxMask::Fill),
             other => Err(format!("box mask {other:?}: expected propose, segment or fill")),
         }
-    }
-}
-
-/// A box clipped to the image, in whole pixels: columns `x0..x1`, rows `y0..y1`. Pixels
-/// partly covered by a fractional box count as inside.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct PixelBox {
-    pub x0: u32,
-    pub y0: u32,
-    pub x1: u32,
-    pub y1: u32,
-}
-
-impl PixelBox {
-    /// Checks `[x, y, w, h]` (pixels) and clips it to a `width × height` image.
-    pub fn from_xywh(bbox: [f64; 4], width: u32, height: u32) -> Result<PixelBox, MaskError> {
-        if bbox.iter().any(|v| !v.is_finite()) {
-            return Err(MaskError::NonFiniteBox { bbox });
-        }
-        let [x, y, w, h] = bbox;
-        if w <= 0.0 || h <= 0.0 {
-            return Err(MaskError::ZeroAreaBox { bbox });
-        }
-        // Saturating float→int casts keep huge boxes panic-free.
-        let clip = |v: f64, limit: u32| (v as i64).clamp(0, limit as i64) as u32;
-        let (x0, x1) = (clip(x.floor(), width), clip((x + w).ceil(), width));
-        let (y0, y1) = (clip(y.floor(), height), clip((y + h).ceil(), height));
-        if x0 >= x1 || y0 >= y1 {
-            return Err(MaskError::BoxOutsideImage { bbox, width, height });
-        }
-        Ok(PixelBox { x0, y0, x1, y1 })
-    }
-
-    pub fn width(&self) -> u32 {
-        self.x1 - self.x0
-    }
-
-    pub fn height(&self) -> u32 {
-        self.y1 - self.y0
-    }
-
-    pub fn area(&self) -> u64 {
-        self.width() as u64 * self.height() as u64
-    }
-
-    pub fn contains(&self, x: u32, y: u32) -> bool {
-        (self.x0..self.x1).contains(&x) && (self.y0..self.y1).contains(&y)
-    }
-
-    /// A `width × height` mask with this box filled.
-    pub fn filled(&self, width: u32, height: u32) -> GrayImage {
-        GrayImage::from_fn(width, height, |x, y| Luma([if self.contains(x, y) { OBJECT } else { 0 }]))
     }
 }
 

@@ -9,7 +9,8 @@
 //! the object covers at least half of it, which is where a mask of the true outline
 //! would put it.
 
-use super::decode::{PixelBox, OBJECT};
+use super::pixel_box::PixelBox;
+use super::OBJECT;
 use image::{GrayImage, Luma, RgbImage};
 
 /// Half-width of the window the clean colours are taken from, px.

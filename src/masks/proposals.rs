@@ -7,9 +7,10 @@
 //!
 //! Sources plug in through [`ProposalSource`]; depth proposals are the next to come.
 
-use super::decode::{PixelBox, OBJECT};
 use super::instances::mask_iou;
+use super::pixel_box::PixelBox;
 use super::segment::{ellipse_in_box, segment_box, Method, SegmentConfig};
+use super::OBJECT;
 use image::{GrayImage, RgbImage};
 
 /// Where a proposal came from (reported with the answer's diagnostics).

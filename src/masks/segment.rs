@@ -6,10 +6,11 @@
 //! long side is at most `max_side` cells, which bounds the time whatever the box size.
 
 use super::components::components;
-use super::decode::{PixelBox, OBJECT};
 use super::gmm::{Colour, Gmm};
 use super::maxflow::Graph;
 use super::outline_matte::settle_outline;
+use super::pixel_box::PixelBox;
+use super::OBJECT;
 use image::imageops::{self, FilterType};
 use image::{GrayImage, Luma, RgbImage};
 use std::time::Instant;

@@ -17,7 +17,7 @@ use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
-pub use super::video_source::Container;
+pub use super::Container;
 
 /// Access units (the NAL units of one picture, each after a 4-byte start code) in
 /// decoding order.

@@ -1,7 +1,7 @@
-//! The frames of `b2tf track --video`: a folder of PNG / JPEG frames in name order, or
-//! (feature `video`) an H.264 video file, `.mp4` / `.m4v` / `.mov` or a raw `.h264` /
-//! `.264` stream (cli/h264_video.rs). Either way one frame is read at a time.
+//! The frames of a video: a folder of PNG / JPEG frames in name order, or (feature
+//! `video`) an H.264 video file (`super::h264`). Either way one frame is read at a time.
 
+use super::container_of;
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 
@@ -26,29 +26,8 @@ enum Inner {
     // Boxed: the decoder state is large and a folder source needs none of it.
     Video {
         file_name: String,
-        frames: Box<super::h264_video::H264Frames>,
+        frames: Box<super::h264::H264Frames>,
     },
-}
-
-/// The file names a video file may have.
-pub const VIDEO_EXTENSIONS: &str = ".mp4, .m4v, .mov (H.264), .h264, .264 (Annex-B)";
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Container {
-    /// ISO base media file (MP4, M4V) or QuickTime (MOV) with an `avc1` track.
-    Mp4,
-    /// A raw H.264 elementary stream: NAL units after 00 00 01 start codes.
-    AnnexB,
-}
-
-/// The container of a video file, from its extension (whether or not this build reads
-/// it); None: not a video file's name.
-pub fn container_of(path: &Path) -> Option<Container> {
-    match path.extension()?.to_str()?.to_ascii_lowercase().as_str() {
-        "mp4" | "m4v" | "mov" => Some(Container::Mp4),
-        "h264" | "264" => Some(Container::AnnexB),
-        _ => None,
-    }
 }
 
 impl FrameSource {
@@ -66,10 +45,10 @@ impl FrameSource {
     #[cfg(feature = "video")]
     fn open_video(path: &Path) -> Result<Inner> {
         let Some(container) = container_of(path) else {
-            bail!("--video {}: neither a folder of frames nor a video file ({VIDEO_EXTENSIONS})", path.display());
+            bail!("--video {}: neither a folder of frames nor a video file ({})", path.display(), super::VIDEO_EXTENSIONS);
         };
         let file_name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        Ok(Inner::Video { file_name, frames: Box::new(super::h264_video::H264Frames::open(path, container)?) })
+        Ok(Inner::Video { file_name, frames: Box::new(super::h264::H264Frames::open(path, container)?) })
     }
 
     #[cfg(not(feature = "video"))]

@@ -1,0 +1,184 @@
+#!/usr/bin/env python3
+"""The import graph of the Rust crate's files, and its circles.
+
+Each file under src/ is a node (`mod.rs` stands for its folder, `lib.rs` / `main.rs` for
+the crate). An edge A → B says that A's code (outside its `#[cfg(test)]` module) names
+something of B through `crate::…`, `super::…` or `self::…`. A folder's face (its `mod.rs`)
+declaring and re-exporting its own files is the folder's shape, not an import, so edges
+from a folder's face to the files inside it are left out; everything else counts.
+
+    tools/import_circles.py [--src src] [--edges]
+
+Prints every circle (a strongly connected set of two or more files, with the edges that
+close it) and exits 1 if there is one; `--edges` prints the whole graph too.
+"""
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+IDENT = r"[A-Za-z_][A-Za-z0-9_]*"
+
+
+def module_of(path: Path, src: Path) -> tuple[str, ...]:
+    parts = list(path.relative_to(src).with_suffix("").parts)
+    if parts[-1] in ("mod", "lib", "main") and (parts[-1] == "mod" or len(parts) == 1):
+        parts = parts[:-1]
+    return tuple(parts)
+
+
+def strip_tests(text: str) -> str:
+    """The file without its test module (`#[cfg(test)] mod …` to the end of that block)."""
+    out, i = [], 0
+    for m in re.finditer(r"#\[cfg\(test\)\]\s*(pub(\([^)]*\))?\s+)?mod\s+" + IDENT + r"\s*\{", text):
+        if m.start() < i:
+            continue
+        depth, j = 1, m.end()
+        while j < len(text) and depth:
+            depth += {"{": 1, "}": -1}.get(text[j], 0)
+            j += 1
+        out.append(text[i : m.start()])
+        i = j
+    out.append(text[i:])
+    return "".join(out)
+
+
+def strip_comments(text: str) -> str:
+    text = re.sub(r"/\*.*?\*/", "", text, flags=re.S)
+    return re.sub(r"//[^\n]*", "", text)
+
+
+def expand_use(tree: str) -> list[str]:
+    """`a::{b, c::{d, e}}` → a::b, a::c::d, a::c::e (aliases and globs kept as paths)."""
+    tree = re.sub(r"\s+", "", tree)
+    m = re.match(r"^(.*?)\{(.*)\}$", tree)
+    if not m:
+        return [re.sub(r"as" + IDENT + "$", "", tree)]
+    prefix, inner = m.group(1), m.group(2)
+    items, depth, cur = [], 0, ""
+    for ch in inner:
+        if ch == "," and depth == 0:
+            items.append(cur)
+            cur = ""
+            continue
+        depth += {"{": 1, "}": -1}.get(ch, 0)
+        cur += ch
+    items.append(cur)
+    return [p for item in items if item for p in expand_use(prefix + item)]
+
+
+def paths_in(text: str) -> list[str]:
+    paths = []
+    for m in re.finditer(r"\buse\s+([^;]+);", text):
+        paths.extend(expand_use(m.group(1)))
+    body = re.sub(r"\buse\s+[^;]+;", "", text)
+    paths.extend(m.group(0) for m in re.finditer(r"\b(?:crate|super|self)(?:::" + IDENT + r")+", body))
+    return paths
+
+
+def resolve(path: str, here: tuple[str, ...], is_face: bool, modules: set[tuple[str, ...]]) -> tuple[str, ...] | None:
+    parts = path.split("::")
+    # The module the path starts from: a face's `self` is its folder; a file's `super`
+    # is its folder, a face's `super` the folder above.
+    folder = here if is_face else here[:-1]
+    base: tuple[str, ...]
+    if parts[0] == "crate":
+        base, rest = (), parts[1:]
+    elif parts[0] == "self":
+        base, rest = here, parts[1:]
+    elif parts[0] == "super":
+        base, rest = folder, parts[1:]
+        while rest and rest[0] == "super":
+            base, rest = base[:-1], rest[1:]
+    else:
+        return None
+    target = base
+    for p in rest:
+        if target + (p,) in modules:
+            target = target + (p,)
+        else:
+            break
+    return target
+
+
+def graph(src: Path) -> dict[tuple[str, ...], dict[tuple[str, ...], str]]:
+    files = [p for p in src.rglob("*.rs")]
+    modules = {module_of(p, src) for p in files}
+    edges: dict[tuple[str, ...], dict[tuple[str, ...], str]] = {}
+    for p in files:
+        here = module_of(p, src)
+        is_face = p.name in ("mod.rs", "lib.rs", "main.rs")
+        text = strip_tests(strip_comments(p.read_text()))
+        out = edges.setdefault(here, {})
+        for path in paths_in(text):
+            t = resolve(path, here, is_face, modules)
+            if t is None or t == here:
+                continue
+            # A face naming what lies inside its own folder is the folder's shape.
+            if is_face and t[: len(here)] == here:
+                continue
+            out.setdefault(t, path)
+    return edges
+
+
+def circles(edges):
+    index, low, stack, on, out, n = {}, {}, [], set(), [], [0]
+
+    def visit(v):
+        index[v] = low[v] = n[0]
+        n[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in edges.get(v, {}):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    sys.setrecursionlimit(10000)
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def name(m: tuple[str, ...]) -> str:
+    return "/".join(m) or "(crate)"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--src", default="src", type=Path)
+    ap.add_argument("--edges", action="store_true")
+    a = ap.parse_args()
+    edges = graph(a.src)
+    if a.edges:
+        for v in sorted(edges):
+            for w, via in sorted(edges[v].items()):
+                print(f"{name(v)} -> {name(w)}  ({via})")
+    found = circles(edges)
+    for comp in found:
+        members = set(comp)
+        print(f"circle of {len(comp)}: " + ", ".join(name(m) for m in comp))
+        for v in comp:
+            for w, via in sorted(edges[v].items()):
+                if w in members:
+                    print(f"    {name(v)} -> {name(w)}  ({via})")
+    print(f"{len(edges)} files, {sum(len(e) for e in edges.values())} edges, {len(found)} circles")
+    return 1 if found else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
