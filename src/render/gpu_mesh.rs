@@ -3,32 +3,14 @@
 
 use std::ops::Range;
 
-use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
 use super::color::srgb_to_linear3;
 use super::pipeline::{upload_texture, MaterialUniform, Pipeline};
+use super::vertex::Vertex;
 use super::RendererConfig;
 use crate::mesh::surface::drawn_surface;
 use crate::mesh::Mesh;
-
-/// Mirrors `VsIn` in shader.wgsl.
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-pub(crate) struct Vertex {
-    position: [f32; 3],
-    normal: [f32; 3],
-    /// Linear RGB.
-    color: [f32; 3],
-    /// Texture convention: (u, 1 − v), row 0 of the image at the top.
-    uv: [f32; 2],
-}
-
-impl Vertex {
-    const ATTRIBUTES: [wgpu::VertexAttribute; 4] = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Float32x2];
-    pub const LAYOUT: wgpu::VertexBufferLayout<'static> =
-        wgpu::VertexBufferLayout { array_stride: std::mem::size_of::<Vertex>() as u64, step_mode: wgpu::VertexStepMode::Vertex, attributes: &Self::ATTRIBUTES };
-}
 
 pub(crate) struct GpuMesh {
     vertices: wgpu::Buffer,

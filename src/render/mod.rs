@@ -23,6 +23,7 @@ mod pool;
 pub mod projection;
 mod renderer;
 mod targets;
+mod vertex;
 
 #[cfg(test)]
 pub(crate) mod tests;

@@ -5,7 +5,7 @@ use bytemuck::{Pod, Zeroable};
 use nalgebra::Matrix4;
 
 use super::color::srgb_to_linear3;
-use super::gpu_mesh::Vertex;
+use super::vertex::Vertex;
 use super::RenderOptions;
 use crate::geometry::Pose;
 

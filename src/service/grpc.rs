@@ -6,7 +6,8 @@
 
 use super::access;
 use super::api::Api;
-use super::error::{ErrorKind, ServiceError};
+use super::error::ServiceError;
+use super::grpc_codes::{code_name, code_of};
 use super::grpc_convert as convert;
 use super::proto::pose_service_server::{PoseService, PoseServiceServer};
 use super::proto::{self as pb};
@@ -14,31 +15,6 @@ use super::scopes;
 use std::time::{Duration, Instant};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Code, Request, Response, Status};
-
-pub fn code_of(kind: &ErrorKind) -> Code {
-    match kind {
-        ErrorKind::InvalidArgument | ErrorKind::TooLarge => Code::InvalidArgument,
-        ErrorKind::Unauthenticated => Code::Unauthenticated,
-        ErrorKind::PermissionDenied => Code::PermissionDenied,
-        ErrorKind::NotFound => Code::NotFound,
-        ErrorKind::AlreadyExists => Code::AlreadyExists,
-        ErrorKind::ResourceExhausted => Code::ResourceExhausted,
-        ErrorKind::Unavailable => Code::Unavailable,
-        ErrorKind::DeadlineExceeded => Code::DeadlineExceeded,
-        ErrorKind::Internal => Code::Internal,
-    }
-}
-
-impl From<ServiceError> for Status {
-    fn from(e: ServiceError) -> Self {
-        let mut meta = tonic::metadata::MetadataMap::new();
-        if let (Some(ms), Some(secs)) = (e.retry_after_ms, e.retry_after_secs()) {
-            meta.insert("retry-after", secs.into());
-            meta.insert("retry-after-ms", ms.into());
-        }
-        Status::with_metadata(code_of(&e.kind), e.message, meta)
-    }
-}
 
 /// The client's deadline from `grpc-timeout` ("<digits><H|M|S|m|u|n>"), less a margin
 /// so this server answers DEADLINE_EXCEEDED itself before the transport's own timer
@@ -79,18 +55,6 @@ impl GrpcService {
         self.api.metrics.request("grpc", &format!("/b2tfpose.v1.PoseService/{rpc}"), &code_name(code), started.elapsed().as_secs_f64());
         result.map_err(Status::from)
     }
-}
-
-/// The canonical upper-snake name of a code, as gRPC's documentation spells it.
-pub fn code_name(code: Code) -> String {
-    let mut out = String::new();
-    for (i, ch) in format!("{code:?}").chars().enumerate() {
-        if ch.is_uppercase() && i > 0 {
-            out.push('_');
-        }
-        out.push(ch.to_ascii_uppercase());
-    }
-    out
 }
 
 #[tonic::async_trait]
@@ -245,7 +209,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn deadline_header_and_code_names() {
+    fn deadline_header() {
         let mut r = Request::new(());
         assert_eq!(client_deadline(&r), None);
         r.metadata_mut().insert("grpc-timeout", "2S".parse().unwrap());
@@ -254,12 +218,6 @@ mod tests {
         assert_eq!(client_deadline(&r), Some(Duration::from_millis(190)));
         r.metadata_mut().insert("grpc-timeout", "x".parse().unwrap());
         assert_eq!(client_deadline(&r), None);
-        assert_eq!(code_name(Code::Ok), "OK");
-        assert_eq!(code_name(Code::InvalidArgument), "INVALID_ARGUMENT");
-        assert_eq!(code_name(Code::ResourceExhausted), "RESOURCE_EXHAUSTED");
-        let e: Status = ServiceError::new(ErrorKind::TooLarge, "big").into();
-        assert_eq!(e.code(), Code::InvalidArgument);
-        assert!(e.metadata().get("retry-after-ms").is_none());
     }
 
     #[test]

@@ -6,7 +6,7 @@
 //! headers of an immediate error, else in the trailers, so a stream's line comes at its end.
 
 use super::access_log::{request_span, Access};
-use super::grpc::code_name;
+use super::grpc_codes::code_name;
 use super::grpc_trailers::TrailersHook;
 use crate::telemetry::request_id::{RequestId, HEADER};
 use http::{HeaderMap, Request, Response};

@@ -7,7 +7,7 @@
 
 use super::api::{blocking, Api};
 use super::error::ServiceError;
-use super::grpc::{code_name, code_of};
+use super::grpc_codes::{code_name, code_of};
 use super::grpc_convert as convert;
 use super::proto as pb;
 use super::track_requests::{TrackFrameRequest, TrackFrameResponse, TrackSessionOptions, TrackedObject};

@@ -6,6 +6,7 @@ use super::access;
 use super::api::Api;
 use super::detect_requests::DetectRequest;
 use super::error::{ErrorKind, ServiceError};
+use super::http_json::body;
 use super::requests::{EstimateRequest, OnboardRequest};
 use super::scopes;
 use axum::extract::rejection::JsonRejection;
@@ -48,15 +49,6 @@ impl IntoResponse for ServiceError {
 
 /// The wait a refusal asks for in milliseconds: `Retry-After` has only whole seconds.
 const RETRY_AFTER_MS: header::HeaderName = header::HeaderName::from_static("retry-after-ms");
-
-/// A JSON body, or the reason it is not one (too large → 413, anything else → 400).
-pub(super) fn body<T>(b: Result<Json<T>, JsonRejection>) -> Result<T, ServiceError> {
-    match b {
-        Ok(Json(v)) => Ok(v),
-        Err(e) if e.status() == StatusCode::PAYLOAD_TOO_LARGE => Err(ServiceError::new(ErrorKind::TooLarge, format!("request body too large: {}", e.body_text()))),
-        Err(e) => Err(ServiceError::invalid(format!("request body: {}", e.body_text()))),
-    }
-}
 
 /// Admission (API key, scope, rate limit: access.rs) and request metrics, after routing so
 /// the route template (not the raw path with ids) picks the scope and labels the metrics.

@@ -36,7 +36,7 @@ async fn close(State(s): State<Api>, Path(id): Path<String>) -> Result<Response,
 }
 
 async fn frame(State(s): State<Api>, Path(id): Path<String>, b: Result<Json<TrackFrameRequest>, JsonRejection>) -> Result<Response, ServiceError> {
-    let req = super::http::body(b)?;
+    let req = super::http_json::body(b)?;
     Ok(Json(s.track_frame(id, req).await?).into_response())
 }
 
