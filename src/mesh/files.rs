@@ -3,6 +3,7 @@
 //! loaders read only through [`MeshFiles`], so they run on bytes alone (fuzzing, tests) and
 //! a hostile name cannot make them read a device or a file outside an upload.
 
+use super::MeshError;
 use crate::limits::MAX_MESH_RESOURCE_BYTES;
 use std::collections::HashMap;
 use std::io::Read;
@@ -74,6 +75,11 @@ impl MeshFiles for InMemory {
     fn read(&self, name: &str) -> Result<Vec<u8>, String> {
         self.0.get(name).cloned().ok_or_else(|| format!("{name:?}: not found"))
     }
+}
+
+/// The mesh file itself, named by the caller (not by a file), so read as it is.
+pub(super) fn read_mesh_file(path: &Path) -> Result<Vec<u8>, MeshError> {
+    std::fs::read(path).map_err(|source| MeshError::Io { path: path.to_path_buf(), source })
 }
 
 #[cfg(test)]

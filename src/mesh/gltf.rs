@@ -25,7 +25,7 @@ const MAX_NODE_DEPTH: usize = 256;
 /// Loads a .gltf or .glb file. `units` may only be `None` or metres: glTF fixes its unit, and
 /// silently ignoring a different request would hide a caller's mistake.
 pub fn load_gltf(path: &Path, units: Option<Units>) -> Result<Mesh, MeshError> {
-    gltf_from_bytes(path, &super::load::read_mesh_file(path)?, units, &Folder::beside(path))
+    gltf_from_bytes(path, &super::files::read_mesh_file(path)?, units, &Folder::beside(path))
 }
 
 /// A .gltf or .glb file's bytes, the buffers and images it names from `files`; `path`

@@ -1,7 +1,7 @@
 //! Picks the loader from the file extension and enforces the units rule: PLY and OBJ carry no
 //! unit, so the caller must give one; glTF is metres by specification.
 
-use super::files::{Folder, MeshFiles};
+use super::files::{read_mesh_file, Folder, MeshFiles};
 use super::{gltf, obj, ply, Mesh, MeshError, Units};
 use std::path::Path;
 
@@ -36,11 +36,6 @@ fn format_of(path: &Path) -> Result<&'static str, MeshError> {
         Some("gltf" | "glb") => Ok("gltf"),
         _ => Err(MeshError::UnsupportedFormat { path: path.to_path_buf() }),
     }
-}
-
-/// The mesh file itself, named by the caller (not by a file), so read as it is.
-pub(super) fn read_mesh_file(path: &Path) -> Result<Vec<u8>, MeshError> {
-    std::fs::read(path).map_err(|source| MeshError::Io { path: path.to_path_buf(), source })
 }
 
 #[cfg(test)]

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 /// Loads an OBJ file (and the MTL libraries and textures it names) whose lengths are in `units`.
 pub fn load_obj(path: &Path, units: Units) -> Result<Mesh, MeshError> {
-    obj_from_bytes(path, &super::load::read_mesh_file(path)?, units, &Folder::beside(path))
+    obj_from_bytes(path, &super::files::read_mesh_file(path)?, units, &Folder::beside(path))
 }
 
 /// An OBJ file's bytes, the files it names from `files`; `path` names it in errors.

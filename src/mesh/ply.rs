@@ -15,7 +15,7 @@ use std::path::Path;
 
 /// Loads a PLY file whose lengths are in `units`.
 pub fn load_ply(path: &Path, units: Units) -> Result<Mesh, MeshError> {
-    ply_from_bytes(path, &super::load::read_mesh_file(path)?, units, &Folder::beside(path))
+    ply_from_bytes(path, &super::files::read_mesh_file(path)?, units, &Folder::beside(path))
 }
 
 /// A PLY file's bytes, its texture from `files`; `path` names it in errors.

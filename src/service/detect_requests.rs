@@ -4,7 +4,7 @@
 //! may pass it back to Estimate as it is.
 
 use super::error::ServiceError;
-use super::requests::{ImageInput, IntrinsicsInput, PoseOutput, RleInput};
+use super::wire::{ImageInput, IntrinsicsInput, PoseOutput, RleInput};
 use crate::detect::detector::DetectTimings;
 use crate::detect::{DetectOptions, DetectReport, Detection, MaskSource, Searched};
 use crate::limits;

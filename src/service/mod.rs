@@ -42,6 +42,7 @@ pub mod server;
 pub mod tls;
 pub mod track_requests;
 pub mod track_sessions;
+pub mod wire;
 
 pub use self::core::{Core, CoreConfig};
 pub use api::Api;
