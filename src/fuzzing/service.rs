@@ -31,7 +31,7 @@ fn decode_detect(req: &DetectRequest) {
     if req.check_limits().is_err() || crate::detect::check_options(&req.options).is_err() {
         return;
     }
-    let _ = crate::service::core_detect::decode_image(&req.image, &req.intrinsics);
+    let _ = crate::service::wire::decode_image(&req.image, &req.intrinsics);
 }
 
 /// What `Core::start_onboard` checks before it stages the upload (the mesh itself has its

@@ -6,7 +6,7 @@
 use super::auth::ApiKeys;
 use super::core::Core;
 use super::detect_requests::{DetectRequest, DetectResponse};
-use super::error::{ErrorKind, ServiceError};
+use super::error::ServiceError;
 use super::metrics::{Gauges, Metrics};
 use super::operations::OperationStatus;
 use super::rate_limit::RateLimiter;
@@ -104,7 +104,7 @@ impl Api {
             work(&core, deadline)
         });
         match deadline {
-            Some(d) => tokio::time::timeout_at(d.into(), work).await.map_err(|_| deadline_exceeded(budget.unwrap_or_default()))?,
+            Some(d) => tokio::time::timeout_at(d.into(), work).await.map_err(|_| super::error::deadline_exceeded(budget.unwrap_or_default()))?,
             None => work.await,
         }
     }
@@ -145,8 +145,4 @@ impl Api {
         self.metrics.track_frame(resp.objects.iter().map(|o| o.mode.as_str()));
         Ok(resp)
     }
-}
-
-pub fn deadline_exceeded(budget: Duration) -> ServiceError {
-    ServiceError::new(ErrorKind::DeadlineExceeded, format!("the request did not finish within its deadline of {} ms", budget.as_millis()))
 }

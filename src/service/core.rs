@@ -99,7 +99,7 @@ pub struct Core {
     pub(super) tracks: super::track_sessions::TrackSessions,
     pub(super) estimates: Arc<super::estimate_queue::EstimateQueue>,
     onboardings_running: Arc<AtomicUsize>,
-    pub(super) thumbnails: super::core_thumbnail::Thumbnails,
+    pub(super) thumbnails: super::thumbnails::Thumbnails,
 }
 
 impl Core {
@@ -319,7 +319,7 @@ impl Core {
     pub fn estimate(&self, req: &EstimateRequest, deadline: Option<Instant>) -> Result<EstimateResponse, ServiceError> {
         let t0 = Instant::now();
         req.check_limits()?;
-        let (image, k) = super::core_detect::decode_image(&req.image, &req.intrinsics)?;
+        let (image, k) = super::wire::decode_image(&req.image, &req.intrinsics)?;
         let depth = req.depth.as_ref().map(|d| d.decode(k.width, k.height)).transpose()?;
         tracing::debug!(width = k.width, height = k.height, detections = req.detections.len(), objects = req.objects.len(), "estimate request");
         let o = &req.options;
@@ -427,7 +427,7 @@ fn draw_answer(
         let pose = crate::geometry::Pose::from_row_major(&p.r, p.t);
         out = crate::render::overlay::draw_overlay(&out, pool, &model.mesh, &pose, k, COLOURS[i % COLOURS.len()]).map_err(|e| ServiceError::internal(format!("drawing the overlay: {e}")))?;
     }
-    super::core_thumbnail::png(&out)
+    super::thumbnails::png(&out)
 }
 
 /// The request's detections as (object id, candidates): a mask as it is, a box without a

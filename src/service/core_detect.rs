@@ -5,7 +5,7 @@
 use super::core::Core;
 use super::detect_requests::{check_objects, DetectRequest, DetectResponse};
 use super::error::ServiceError;
-use super::requests::{ImageInput, IntrinsicsInput};
+use super::wire::decode_image;
 use crate::detect::{check_options, detect, DetectError, DetectOptions, DetectReport, Target};
 use crate::geometry::Intrinsics;
 use image::RgbImage;
@@ -62,16 +62,6 @@ impl Core {
         }
         Ok(ids)
     }
-}
-
-/// The image and its intrinsics, which must agree on the size.
-pub fn decode_image(image: &ImageInput, intrinsics: &IntrinsicsInput) -> Result<(RgbImage, Intrinsics), ServiceError> {
-    let k = intrinsics.decode()?;
-    let image = tracing::info_span!("decode").in_scope(|| image.decode())?;
-    if image.dimensions() != (k.width, k.height) {
-        return Err(ServiceError::invalid(format!("image is {}×{} but intrinsics say {}×{}", image.width(), image.height(), k.width, k.height)));
-    }
-    Ok((image, k))
 }
 
 /// The ids in their first order, each once.

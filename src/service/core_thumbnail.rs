@@ -5,48 +5,13 @@
 
 use super::core::Core;
 use super::error::{ErrorKind, ServiceError};
+use super::thumbnails::{png, Kept, KEPT, SIZES};
 use crate::geometry::{views, Intrinsics};
 use crate::mesh::Mesh;
 use crate::render::{RenderOptions, RenderPool};
 use nalgebra::Vector3;
-use std::collections::HashMap;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
-
-pub const DEFAULT_SIZE: u32 = 192;
-pub const SIZES: std::ops::RangeInclusive<u32> = 32..=512;
-/// Kept thumbnails; past this many, all are dropped and drawn again when asked for.
-const KEPT: usize = 1024;
-
-/// A drawn thumbnail and the object's generation (`ObjectStore::generation`) it shows.
-struct Kept {
-    generation: u64,
-    png: Arc<[u8]>,
-}
-
-/// Drawn thumbnails by (object id, size).
-#[derive(Default)]
-pub struct Thumbnails {
-    kept: Mutex<HashMap<(String, u32), Kept>>,
-    /// Held while one thumbnail is drawn. A console opening on a catalogue asks for every
-    /// card's picture at once; drawn one at a time, at most one object not in memory is
-    /// read for them (a whole object, on S3), and a request that waited finds its picture
-    /// kept rather than drawing it again.
-    drawing: Mutex<()>,
-    /// Thumbnails drawn since start (`b2tf_thumbnails_drawn_total`: what the lock saves
-    /// shows there).
-    drawn: AtomicU64,
-}
-
-impl Thumbnails {
-    fn kept(&self, key: &(String, u32), generation: u64) -> Option<Arc<[u8]>> {
-        self.kept.lock().expect("thumbnail lock").get(key).filter(|k| k.generation == generation).map(|k| k.png.clone())
-    }
-
-    pub fn drawn(&self) -> u64 {
-        self.drawn.load(Ordering::Relaxed)
-    }
-}
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
 
 impl Core {
     /// The PNG thumbnail of object `id`, `size` pixels square.
@@ -91,11 +56,6 @@ fn draw(pool: &RenderPool, mesh: &Mesh, size: u32) -> Result<Vec<u8>, ServiceErr
     let opts = RenderOptions { light_dir: [0.4, -0.6, -1.0], background: [238, 241, 245], ..Default::default() };
     let r = pool.render(mesh, &pose, &k, &opts).map_err(|e| ServiceError::new(ErrorKind::Internal, format!("drawing the thumbnail: {e}")))?;
     png(&r.rgb)
-}
-
-/// A picture for an answer (a thumbnail, an estimate's overlay) as PNG bytes.
-pub(super) fn png(img: &image::RgbImage) -> Result<Vec<u8>, ServiceError> {
-    super::client::png_bytes(img).map_err(|e| ServiceError::internal(format!("encoding a PNG: {e}")))
 }
 
 #[cfg(test)]

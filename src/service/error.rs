@@ -88,3 +88,8 @@ impl From<crate::estimate::EstimateError> for ServiceError {
         Self::new(kind, e.to_string())
     }
 }
+
+/// The answer to a request that ran past its deadline (`budget`).
+pub fn deadline_exceeded(budget: std::time::Duration) -> ServiceError {
+    ServiceError::new(ErrorKind::DeadlineExceeded, format!("the request did not finish within its deadline of {} ms", budget.as_millis()))
+}

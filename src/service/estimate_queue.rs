@@ -162,7 +162,7 @@ impl EstimateQueue {
         match tokio::time::timeout(limit, self.slots.clone().acquire_owned()).await {
             Ok(Ok(p)) => Ok(turn(p, self)),
             Ok(Err(_)) => Err((Refusal::Timeout, ServiceError::internal("the estimate queue was closed"))),
-            Err(_) if budget.is_some_and(|b| b <= self.config.timeout) => Err((Refusal::Deadline, super::api::deadline_exceeded(budget.unwrap_or_default()))),
+            Err(_) if budget.is_some_and(|b| b <= self.config.timeout) => Err((Refusal::Deadline, super::error::deadline_exceeded(budget.unwrap_or_default()))),
             Err(_) => {
                 let wait = self.expected_wait(self.waiting());
                 Err((

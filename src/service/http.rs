@@ -164,7 +164,7 @@ struct ThumbnailQuery {
 
 /// A PNG of the object drawn from a fixed three-quarter view (`?size=` pixels, square).
 async fn thumbnail(State(s): State<Api>, Path(id): Path<String>, q: Result<axum::extract::Query<ThumbnailQuery>, axum::extract::rejection::QueryRejection>) -> Result<Response, ServiceError> {
-    let size = q.map_err(|e| ServiceError::invalid(format!("query: {}", e.body_text())))?.size.unwrap_or(super::core_thumbnail::DEFAULT_SIZE);
+    let size = q.map_err(|e| ServiceError::invalid(format!("query: {}", e.body_text())))?.size.unwrap_or(super::thumbnails::DEFAULT_SIZE);
     let core = s.core.clone();
     let png = super::api::blocking(move || core.thumbnail(&id, size)).await?;
     Ok(([(header::CONTENT_TYPE, "image/png"), (header::CACHE_CONTROL, "private, max-age=300")], png.to_vec()).into_response())

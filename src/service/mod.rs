@@ -39,6 +39,7 @@ pub mod rate_limit;
 pub mod requests;
 pub mod scopes;
 pub mod server;
+pub mod thumbnails;
 pub mod tls;
 pub mod track_requests;
 pub mod track_sessions;

@@ -86,3 +86,13 @@ impl From<&crate::geometry::Pose> for PoseOutput {
         Self { r: p.rotation_row_major(), t: [p.translation.x, p.translation.y, p.translation.z], quaternion_wxyz: [q.w, q.i, q.j, q.k] }
     }
 }
+
+/// The image and its intrinsics, which must agree on the size.
+pub fn decode_image(image: &ImageInput, intrinsics: &IntrinsicsInput) -> Result<(RgbImage, Intrinsics), ServiceError> {
+    let k = intrinsics.decode()?;
+    let image = tracing::info_span!("decode").in_scope(|| image.decode())?;
+    if image.dimensions() != (k.width, k.height) {
+        return Err(ServiceError::invalid(format!("image is {}×{} but intrinsics say {}×{}", image.width(), image.height(), k.width, k.height)));
+    }
+    Ok((image, k))
+}
