@@ -4,8 +4,8 @@
 //! background (outwards) continue along each normal. At run time the contour refiner picks
 //! the nearest view and projects its points: no rendering inside the refinement loop.
 
-use super::pipeline::base_intrinsics;
 use super::point_grid::{i16_to_unit, unit_to_i16, PointGrid};
+use super::template_camera::base_intrinsics;
 use crate::features::grey;
 use crate::geometry::views::{fitted_distance, icosphere, view_pose};
 use crate::geometry::{Intrinsics, Pose};

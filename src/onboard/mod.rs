@@ -11,6 +11,7 @@ pub mod pipeline;
 pub mod point_grid;
 pub mod pq;
 pub mod stored_rows;
+pub mod template_camera;
 #[doc(hidden)]
 pub mod test_model;
 

@@ -299,7 +299,7 @@ impl ObjectModel {
         }
         let owner = &self.templates[t - tp.in_plane as usize];
         let (bu, bv) = owner.crop.to_image(cu, cv);
-        let (u, v) = super::pipeline::in_plane_turn(&self.render_intrinsics, self.in_plane_angle(t)).apply(bu, bv);
+        let (u, v) = super::template_camera::in_plane_turn(&self.render_intrinsics, self.in_plane_angle(t)).apply(bu, bv);
         tp.crop.to_crop(u, v)
     }
 

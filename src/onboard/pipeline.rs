@@ -1,6 +1,7 @@
 //! Mesh → base-view renders → in-plane rotated crops → features + 3D points → ObjectModel.
 
 use super::model::{pack_silhouette, ObjectModel, OnboardConfig, PatchRows, Template};
+use super::template_camera::{base_intrinsics, in_plane_turn};
 use crate::features::{sample_crop, Backbone, CropInput, ToSource};
 use crate::geometry::symmetry::{KnownSymmetries, SymmetrySource};
 use crate::geometry::views::{fitted_distance, icosphere, view_pose};
@@ -42,13 +43,6 @@ pub fn validate_object_id(id: &str) -> Result<(), OnboardError> {
     } else {
         Err(OnboardError::BadId(id.to_string()))
     }
-}
-
-/// Base-render intrinsics: square, fx = fy (so in-plane rotation of the image is exact),
-/// principal point at the image centre.
-pub fn base_intrinsics(size: u32) -> Intrinsics {
-    let c = (size as f64 - 1.0) * 0.5;
-    Intrinsics { fx: size as f64, fy: size as f64, cx: c, cy: c, width: size, height: size }
 }
 
 /// Chunk of base views rendered at once: bounds memory (each 512² render is ~2 MB).
@@ -239,12 +233,6 @@ fn templates_of_view(
         out.silhouettes.extend(pack_silhouette(&crop.mask));
     }
     Ok(out)
-}
-
-/// How the template of in-plane angle `angle` is made from its base render: turned about
-/// the principal point (exact for the square, fx = fy base camera).
-pub fn in_plane_turn(k: &Intrinsics, angle: f64) -> crate::geometry::Turn {
-    crate::geometry::Turn::new(angle, [k.cx, k.cy])
 }
 
 fn assemble(object_id: &str, mesh: &Mesh, config: &OnboardConfig, backbone: crate::features::BackboneIdentity, k: Intrinsics, grid: PatchGrid, parts: Vec<ViewTemplates>) -> ObjectModel {
