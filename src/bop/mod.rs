@@ -17,6 +17,8 @@ pub mod pose_errors;
 pub mod results_csv;
 pub mod rotation;
 pub mod run;
+pub mod scene_dataset;
+pub mod scene_write;
 pub mod scoring;
 pub mod synth;
 pub mod synth_masks;

@@ -19,8 +19,9 @@
 use super::dataset::{load_depth_mm, load_scene_cameras, load_split_gt, load_targets, model_path};
 use super::detections::{write_detections, DetectionRecord};
 use super::format::{MODELS_INFO, TEST_SPLIT};
+use super::scene_dataset::{generate_dataset_over, SCENE_ID};
 use super::synth_masks::{area, morph, shift};
-use crate::eval::scenes::{generate_dataset_over, Background, SceneConfig, SCENE_ID};
+use crate::eval::scenes::{Background, SceneConfig};
 use crate::masks::rle::Rle;
 use crate::mesh::procedural::Rng;
 use crate::mesh::{load_mesh, Mesh, Units};
@@ -182,7 +183,7 @@ fn keep_targets(dataset: &Path, targets: &[u32]) -> Result<()> {
     if kept.is_empty() {
         bail!("no image holds any of the target objects {targets:?}: more images or objects per image");
     }
-    crate::eval::scenes::bop_write::write_test_targets(dataset, &kept)
+    super::scene_write::write_test_targets(dataset, &kept)
 }
 
 /// The source's models_info entries of the copied objects (symmetries included); objects

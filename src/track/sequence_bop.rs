@@ -4,7 +4,7 @@
 //! video dataset. How each scene was made goes in `b2tf_sequences.json` at the root.
 
 use super::sequence::{Sequence, SequenceConfig};
-use crate::eval::scenes::bop_write::{write_models_info, write_test_targets, SceneWriter};
+use crate::bop::scene_write::{write_models_info, write_test_targets, SceneWriter};
 use crate::eval::scenes::{SceneImage, SceneInstance};
 use crate::geometry::Intrinsics;
 use crate::mesh::Mesh;

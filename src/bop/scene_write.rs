@@ -1,8 +1,8 @@
 //! Writes generated images as one BOP scene: images, masks, depth and the three per-scene
 //! JSON files, plus the dataset's test targets and models info. Metres become mm here.
 
-use super::generate::SceneImage;
-use crate::bop::format::*;
+use super::format::*;
+use crate::eval::scenes::SceneImage;
 use crate::mesh::Mesh;
 use anyhow::{bail, Context, Result};
 use image::{GrayImage, ImageBuffer, Luma};
