@@ -10,6 +10,8 @@ bash scripts/setup.sh
 source scripts/env.sh
 # Formatting as written down (rustfmt.toml, ruff.toml): a file not formatted fails here.
 bash scripts/fmt.sh --check
+# No import circles between the crate's files (tools/import_circles.py names any).
+python3 tools/import_circles.py
 # The OpenAPI validator (PyPI; setup.sh installed pip); Debian's Python may refuse
 # system-wide installs.
 python3 -c "import openapi_spec_validator" 2>/dev/null \

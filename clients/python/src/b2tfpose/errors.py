@@ -10,12 +10,23 @@ onboarding that failed or was cancelled raises :class:`OperationFailed`.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Dict, Optional, Type
+from typing import Dict, Optional, Protocol, Type
 
 import grpc
 
-if TYPE_CHECKING:
-    from ._types import OperationStatus
+
+class FinalState(Protocol):
+    """What an onboarding's final state tells of it (``OperationStatus`` has it); named
+    here so that the errors need nothing of the types that use them."""
+
+    @property
+    def id(self) -> str: ...
+    @property
+    def object_id(self) -> str: ...
+    @property
+    def state(self) -> str: ...
+    @property
+    def error(self) -> Optional[str]: ...
 
 
 class B2TFPoseError(Exception):
@@ -146,7 +157,7 @@ class OperationFailed(B2TFPoseError):
     """An onboarding ended without an object; ``status`` is its final state and
     ``status.error`` says why."""
 
-    def __init__(self, status: "OperationStatus") -> None:
+    def __init__(self, status: FinalState) -> None:
         self.status = status
         why = status.error or status.state
         super().__init__(f"onboarding {status.object_id!r} (operation {status.id}) ended {status.state}: {why}")
