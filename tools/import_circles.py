@@ -22,10 +22,11 @@ IDENT = r"[A-Za-z_][A-Za-z0-9_]*"
 
 
 def module_of(path: Path, src: Path) -> tuple[str, ...]:
-    parts = list(path.relative_to(src).with_suffix("").parts)
-    if parts[-1] in ("mod", "lib", "main") and (parts[-1] == "mod" or len(parts) == 1):
+    parts = path.relative_to(src).with_suffix("").parts
+    # A folder's mod.rs is the folder; lib.rs and main.rs are the crate.
+    if parts[-1] == "mod" or parts in (("lib",), ("main",)):
         parts = parts[:-1]
-    return tuple(parts)
+    return parts
 
 
 def strip_tests(text: str) -> str:
@@ -103,7 +104,7 @@ def resolve(path: str, here: tuple[str, ...], is_face: bool, modules: set[tuple[
 
 
 def graph(src: Path) -> dict[tuple[str, ...], dict[tuple[str, ...], str]]:
-    files = [p for p in src.rglob("*.rs")]
+    files = list(src.rglob("*.rs"))
     modules = {module_of(p, src) for p in files}
     edges: dict[tuple[str, ...], dict[tuple[str, ...], str]] = {}
     for p in files:

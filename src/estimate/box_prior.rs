@@ -48,13 +48,13 @@ impl BoxPrior {
         }
     }
 
-    /// The prior as a caller's yes / no / unsaid (the gRPC and HTTP `box_prior`): yes,
-    /// tight; no, off; unsaid, the default.
-    pub fn from_flag(flag: Option<bool>) -> Self {
-        match flag {
-            Some(true) => BoxPrior::Tight,
-            Some(false) => BoxPrior::Off,
-            None => BoxPrior::default(),
+    /// The prior as a caller's yes / no (gRPC's optional bool, HTTP's and older configs'
+    /// true / false): yes, tight; no, off. Unsaid is the caller's default.
+    pub fn from_flag(flag: bool) -> Self {
+        if flag {
+            BoxPrior::Tight
+        } else {
+            BoxPrior::Off
         }
     }
 }
@@ -69,7 +69,7 @@ pub fn deserialize<'de, D: serde::Deserializer<'de>>(d: D) -> Result<BoxPrior, D
         Name(BoxPrior),
     }
     Ok(match Said::deserialize(d).map_err(|_| serde::de::Error::custom("box_prior: expected true, false, \"auto\", \"tight\" or \"off\""))? {
-        Said::Flag(flag) => BoxPrior::from_flag(Some(flag)),
+        Said::Flag(flag) => BoxPrior::from_flag(flag),
         Said::Name(p) => p,
     })
 }
@@ -172,7 +172,8 @@ mod tests {
         assert!(printed.has_colours() && !bare.has_colours());
         assert!(BoxPrior::default().holds(&bare) && !BoxPrior::default().holds(&printed));
         assert!(BoxPrior::Tight.holds(&printed) && !BoxPrior::Off.holds(&bare));
-        assert_eq!([Some(true), Some(false), None].map(BoxPrior::from_flag), [BoxPrior::Tight, BoxPrior::Off, BoxPrior::Auto]);
+        assert_eq!([true, false].map(BoxPrior::from_flag), [BoxPrior::Tight, BoxPrior::Off]);
+        assert_eq!(BoxPrior::default(), BoxPrior::Auto);
     }
 
     #[test]

@@ -86,7 +86,7 @@ pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, S
         spin_steps: o.spin_steps.map_or(defaults.spin_steps, |n| n as usize),
         verify_matched: o.verify_matched.map_or(defaults.verify_matched, |n| n as usize),
         nudge_degrees: o.nudge_degrees.unwrap_or(defaults.nudge_degrees),
-        box_prior: o.box_prior.map_or(defaults.box_prior, |flag| crate::estimate::BoxPrior::from_flag(Some(flag))),
+        box_prior: o.box_prior.map_or(defaults.box_prior, crate::estimate::BoxPrior::from_flag),
         overlay: o.overlay,
         refiner: if o.refiner.is_empty() { defaults.refiner } else { o.refiner.parse().map_err(|e: String| ServiceError::invalid(format!("options.refiner: {e}")))? },
     };
