@@ -49,7 +49,7 @@ fn scene(objects: &[(u32, Mesh)], per_image: usize, seed: u64) -> SceneImage {
 fn finds_the_object_on_clutter_with_its_coarse_pose() {
     let f = fixture();
     let s = scene(&[(1, f.mesh.clone())], 1, 11);
-    let r = detect(&s.rgb, &s.cam, &target(f), &DetectOptions::default(), &f.pool).unwrap();
+    let r = detect(&s.rgb, None, &s.cam, &target(f), &DetectOptions::default(), &f.pool).unwrap();
     let truth = &s.instances[0];
     let d = r.detections.first().unwrap_or_else(|| panic!("nothing found: {:?}", r.reason));
     let iou = box_iou(&d.bbox, &bbox_of(&truth.mask_visib).unwrap());
@@ -68,7 +68,7 @@ fn finds_the_object_on_clutter_with_its_coarse_pose() {
 fn finds_every_instance_of_one_object() {
     let f = fixture();
     let s = scene(&[(1, f.mesh.clone())], 3, 5);
-    let r = detect(&s.rgb, &s.cam, &target(f), &DetectOptions::default(), &f.pool).unwrap();
+    let r = detect(&s.rgb, None, &s.cam, &target(f), &DetectOptions::default(), &f.pool).unwrap();
     for (i, inst) in s.instances.iter().enumerate() {
         let b = bbox_of(&inst.mask_visib).unwrap();
         assert!(r.detections.iter().any(|d| box_iou(&d.bbox, &b) >= 0.5), "instance {i} at {b:?} not found among {:?}", r.detections.iter().map(|d| d.bbox).collect::<Vec<_>>());
@@ -81,7 +81,7 @@ fn an_image_without_the_object_gives_no_detection_and_a_reason() {
     // A different shape (a flat disc-like box of other colours) on the same clutter.
     let other = textured_box([0.20, 0.20, 0.02], 9);
     let s = scene(&[(2, other)], 2, 21);
-    let r = detect(&s.rgb, &s.cam, &target(f), &DetectOptions::default(), &f.pool).unwrap();
+    let r = detect(&s.rgb, None, &s.cam, &target(f), &DetectOptions::default(), &f.pool).unwrap();
     assert!(r.detections.is_empty(), "{:?}", r.detections.iter().map(|d| (d.bbox, d.score)).collect::<Vec<_>>());
     assert!(r.reason.as_deref().unwrap_or("").contains("no candidate scored"), "{:?}", r.reason);
 }
@@ -90,17 +90,17 @@ fn an_image_without_the_object_gives_no_detection_and_a_reason() {
 fn bad_search_settings_are_refused_by_name() {
     let f = fixture();
     let s = scene(&[(1, f.mesh.clone())], 1, 11);
-    let run = |o: DetectOptions| detect(&s.rgb, &s.cam, &target(f), &o, &f.pool).err().map(|e| e.to_string()).unwrap_or_default();
+    let run = |o: DetectOptions| detect(&s.rgb, None, &s.cam, &target(f), &o, &f.pool).err().map(|e| e.to_string()).unwrap_or_default();
     assert!(run(DetectOptions { min_distance_m: Some(2.0), max_distance_m: Some(1.0), ..Default::default() }).contains("min_distance_m (2) must be below max_distance_m (1)"));
     assert!(run(DetectOptions { max_distance_m: Some(f64::NAN), ..Default::default() }).contains("max_distance_m must be within"));
     assert!(run(DetectOptions { max_detections: 0, ..Default::default() }).contains("max_detections must be 1–"));
     assert!(run(DetectOptions { min_score: 1.5, ..Default::default() }).contains("min_score must be within 0–1"));
     let mut wrong = s.cam;
     wrong.width += 2;
-    let e = detect(&s.rgb, &wrong, &target(f), &DetectOptions::default(), &f.pool).unwrap_err().to_string();
+    let e = detect(&s.rgb, None, &wrong, &target(f), &DetectOptions::default(), &f.pool).unwrap_err().to_string();
     assert!(e.contains("differs from the image's"), "{e}");
     // A range where the object cannot show at a searchable size is an answer, not an error.
-    let far = detect(&s.rgb, &s.cam, &target(f), &DetectOptions { min_distance_m: Some(500.0), max_distance_m: Some(900.0), ..Default::default() }, &f.pool).unwrap();
+    let far = detect(&s.rgb, None, &s.cam, &target(f), &DetectOptions { min_distance_m: Some(500.0), max_distance_m: Some(900.0), ..Default::default() }, &f.pool).unwrap();
     assert!(far.detections.is_empty() && far.reason.as_deref().unwrap_or("").contains("no scale to search"), "{:?}", far.reason);
 }
 
@@ -132,7 +132,7 @@ fn finds_the_object_on_a_plain_background() {
     let img = image::RgbImage::from_fn(640, 480, |x, y| if r.mask.get_pixel(x, y)[0] > 0 { *r.rgb.get_pixel(x, y) } else { image::Rgb([90, 100, 110]) });
     // The whole box ranks first, not a part of its print (at the coarse pose it scores
     // about 0.4, under the default threshold: docs/detection.md).
-    let rep = detect(&img, &k, &target(f), &DetectOptions { min_score: 0.0, ..Default::default() }, &f.pool).unwrap();
+    let rep = detect(&img, None, &k, &target(f), &DetectOptions { min_score: 0.0, ..Default::default() }, &f.pool).unwrap();
     let truth_box = bbox_of(&r.mask).unwrap();
     let found: Vec<_> = rep.detections.iter().take(5).map(|d| (d.bbox, d.score, box_iou(&d.bbox, &truth_box))).collect();
     assert!(found.first().is_some_and(|d| d.2 > 0.7), "truth {truth_box:?}, best five {found:?}");
@@ -223,4 +223,49 @@ fn upgrade_and_detect_from_the_command_line() {
     image::RgbImage::from_pixel(k.width, k.height, image::Rgb([90, 90, 90])).save(&img).unwrap();
     let (ok, out, err) = b2tf(&estimate);
     assert!(!ok && err.contains("the detector did not find box_7") && err.contains("give a --mask"), "{out}{err}");
+}
+
+/// The scene's depth (objects only, nothing behind them) as a depth camera's image.
+fn depth_of(s: &SceneImage) -> b2tfpose::depth::DepthImage {
+    b2tfpose::depth::DepthImage::from_metres(s.cam.width, s.cam.height, s.depth.clone()).unwrap()
+}
+
+#[test]
+fn with_depth_every_thing_of_the_objects_size_is_a_candidate_and_others_are_not() {
+    let f = fixture();
+    // The box (16 cm tall) and a 40 cm plate: only the box is of the box's size.
+    let plate = textured_box([0.40, 0.40, 0.02], 9);
+    let s = scene(&[(1, f.mesh.clone()), (2, plate)], 2, 7);
+    let depth = depth_of(&s);
+    let r = detect(&s.rgb, Some(&depth), &s.cam, &target(f), &DetectOptions::default(), &f.pool).unwrap();
+    let boxes: Vec<[f64; 4]> = s.instances.iter().filter(|i| i.obj_id == 1).filter_map(|i| bbox_of(&i.mask_visib)).collect();
+    let plates: Vec<[f64; 4]> = s.instances.iter().filter(|i| i.obj_id == 2).filter_map(|i| bbox_of(&i.mask_visib)).collect();
+    let found: Vec<[f64; 4]> = r.detections.iter().map(|d| d.bbox).collect();
+    for b in &boxes {
+        assert!(found.iter().any(|d| box_iou(d, b) >= 0.5), "box at {b:?} not among {found:?}");
+    }
+    for p in &plates {
+        assert!(found.iter().all(|d| box_iou(d, p) < 0.5), "the plate at {p:?} taken for the box: {found:?}");
+    }
+    assert!(r.detections.iter().all(|d| d.mask_source == b2tfpose::detect::MaskSource::DepthSegment));
+    // A distance range that holds none of it answers why, and a depth of another size is refused.
+    let far = detect(&s.rgb, Some(&depth), &s.cam, &target(f), &DetectOptions { min_distance_m: Some(50.0), ..Default::default() }, &f.pool).unwrap();
+    assert!(far.detections.is_empty() && far.reason.as_deref().unwrap_or("").contains("distance range"), "{:?}", far.reason);
+    let small = b2tfpose::depth::DepthImage::from_metres(4, 4, vec![1.0; 16]).unwrap();
+    let e = detect(&s.rgb, Some(&small), &s.cam, &target(f), &DetectOptions::default(), &f.pool).unwrap_err().to_string();
+    assert!(e.contains("depth is 4×4 but the image is"), "{e}");
+}
+
+#[test]
+fn the_depth_confirms_the_object_where_it_is_and_refutes_it_elsewhere() {
+    let f = fixture();
+    let s = scene(&[(1, f.mesh.clone())], 1, 11);
+    let depth = depth_of(&s);
+    let truth = &s.instances[0];
+    let at = |pose: &b2tfpose::geometry::Pose| b2tfpose::detect::confirm::confirm(&s.rgb, Some(&depth), &s.cam, &f.mesh, &truth.mask_visib, pose, &f.pool).unwrap();
+    let right = at(&truth.pose);
+    // 5 cm nearer: the camera sees the object's surface behind the pose everywhere.
+    let nearer = b2tfpose::geometry::Pose::new(truth.pose.rotation, truth.pose.translation * (1.0 - 0.05 / truth.pose.translation.norm()));
+    let wrong = at(&nearer);
+    assert!(right > 0.6 && wrong < 0.2, "right {right}, 5 cm nearer {wrong}");
 }

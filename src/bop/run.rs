@@ -17,7 +17,7 @@ use super::dataset::{load_rgb, load_scene_cameras, load_targets, ImageCamera};
 use super::detections::{DetectionIndex, DetectionRecord};
 use super::format::{scene_dir, TargetRecord};
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
-use crate::detect::confirm::{candidate_options, confirm, estimate_instances, Choice};
+use crate::detect::confirm::{candidate_options, confirm, estimate_instances, one_per_place, Choice, DEPTH_CANDIDATES_COMPARED};
 use crate::detect::{detect, DetectOptions, Target};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateError, Estimator};
@@ -122,7 +122,7 @@ pub fn run(
         let detections = match &mut source {
             DetectionSource::File(index) => *index,
             DetectionSource::Detector { pool, options, found } => {
-                let records = detect_targets(&rgb, &camera.cam, (scene_id, im_id), &targets, model, pool, options, started)?;
+                let records = detect_targets((&rgb, depth.as_ref()), &camera.cam, (scene_id, im_id), &targets, model, pool, options, started)?;
                 found.extend(records.iter().cloned());
                 detected = DetectionIndex::new(records);
                 &detected
@@ -142,6 +142,8 @@ pub fn run(
             }
             decoded.push(found);
         }
+        let compared = depth.is_some() && matches!(source, DetectionSource::Detector { .. });
+        let mut answers = Vec::new();
         for (ti, (t, masks)) in targets.iter().zip(&decoded).enumerate() {
             summary.targets += 1;
             summary.instances_requested += t.inst_count as usize;
@@ -158,11 +160,14 @@ pub fn run(
                 DetectionSource::File(_) => (Choice::Given, None),
             };
             let wanted = t.inst_count as usize;
-            let answered = estimate_instances(group_instances(&refs, opts.same_instance_iou), wanted, choice, |group| {
+            // The depth detector's candidates are all compared, and each segment answered
+            // once across objects after every object's are in (`one_per_place`).
+            let estimated = if compared { refs.len().min(DEPTH_CANDIDATES_COMPARED).max(wanted) } else { wanted };
+            let answered = estimate_instances(group_instances(&refs, opts.same_instance_iou), estimated, choice, |group| {
                 let candidates = Candidates::gather(group.iter().map(|&i| (i, masks[i].as_slice()))).masks;
                 let group = &group;
                 let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, c)| representative(c).0));
-                let others = crate::masks::union(others, camera.cam.width, camera.cam.height);
+                let others = crate::masks::occluders(refs[group[0]].0, others, camera.cam.width, camera.cam.height);
                 let r = match estimator.estimate_rgbd(&m, &rgb, depth.as_ref(), &camera.cam, &candidates, others.as_ref(), &opts.estimate) {
                     Ok(r) => r,
                     Err(EstimateError::BadInput(msg)) => {
@@ -177,16 +182,22 @@ pub fn run(
                 match pool {
                     Some(pool) => {
                         let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
-                        let c = confirm(&rgb, &camera.cam, &m.mesh, mask, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?;
-                        Ok((Some((pose, c)), Some(c)))
+                        let c = confirm(&rgb, depth.as_ref(), &camera.cam, &m.mesh, mask, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?;
+                        Ok((Some((pose, c, mask.clone())), Some(c)))
                     }
-                    None => Ok((Some((pose, r.score)), None)),
+                    None => Ok((Some((pose, r.score, candidates[r.mask_index.unwrap_or(0)].mask.clone())), None)),
                 }
             })?;
-            // A row's score: the confirmation with the detector's candidates, else the estimator's.
-            let poses: Vec<(Pose, f32)> = answered.kept.into_iter().filter_map(|(p, _)| p).collect();
+            answers.push((t.obj_id, wanted, answered.kept.into_iter().filter_map(|(p, _)| p).collect::<Vec<_>>()));
+        }
+        // A row's score: the confirmation with the detector's candidates, else the estimator's.
+        let wanted: Vec<usize> = answers.iter().map(|a| a.1).collect();
+        let obj_ids: Vec<u32> = answers.iter().map(|a| a.0).collect();
+        let per_object: Vec<Vec<(Pose, f32)>> =
+            if compared { one_per_place(answers.into_iter().map(|a| a.2).collect(), &wanted) } else { answers.into_iter().map(|a| a.2.into_iter().map(|(p, s, _)| (p, s)).collect()).collect() };
+        for ((obj_id, wanted), poses) in obj_ids.into_iter().zip(wanted).zip(per_object) {
             summary.instances_without_pose += wanted.saturating_sub(poses.len());
-            rows.extend(poses.into_iter().map(|(pose, score)| ResultRow { scene_id, im_id, obj_id: t.obj_id, score: score as f64, pose, time: 0.0 }));
+            rows.extend(poses.into_iter().map(|(pose, score)| ResultRow { scene_id, im_id, obj_id, score: score as f64, pose, time: 0.0 }));
         }
         let seconds = started.elapsed().as_secs_f64();
         for r in &mut rows {
@@ -203,7 +214,7 @@ pub fn run(
 /// The detector's findings of the targets' objects in one image, as detection records.
 #[allow(clippy::too_many_arguments)]
 fn detect_targets(
-    rgb: &image::RgbImage,
+    (rgb, depth): (&image::RgbImage, Option<&crate::depth::DepthImage>),
     cam: &crate::geometry::Intrinsics,
     (scene_id, image_id): (u32, u32),
     targets: &[TargetRecord],
@@ -219,7 +230,7 @@ fn detect_targets(
     let wanted: usize = targets.iter().map(|t| t.inst_count as usize).sum();
     // Candidates below the final threshold too: confirmation at the estimated pose decides.
     let options = DetectOptions { max_detections: options.max_detections.max(2 * wanted).min(crate::limits::MAX_DETECTIONS), ..candidate_options(options) };
-    let report = detect(rgb, cam, &detect_targets, &options, pool).with_context(|| format!("detecting in scene {scene_id}, image {image_id}"))?;
+    let report = detect(rgb, depth, cam, &detect_targets, &options, pool).with_context(|| format!("detecting in scene {scene_id}, image {image_id}"))?;
     let obj_of: BTreeMap<&str, u32> = models.iter().map(|(id, m)| (m.object_id.as_str(), *id)).collect();
     let time = started.elapsed().as_secs_f64();
     Ok(report

@@ -119,7 +119,7 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
         if a.oracle {
             oracle(&scene, &targets, searched);
         }
-        let report = detect(&scene.rgb, &scene.cam, &targets, &opts, &pool)?;
+        let report = detect(&scene.rgb, None, &scene.cam, &targets, &opts, &pool)?;
         ms.push(report.timings.total_ms);
         for d in &report.detections {
             let obj = names.iter().position(|n| *n == d.object_id).expect("a searched object");
@@ -167,7 +167,7 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
         for im in 0..a.empty_images {
             let cfg = SceneConfig { images: 1, objects_per_image: 2 + im % 3, max_occlusion: 0.5, seed: a.seed + 1000, ..Default::default() };
             let scene = generate_image(&distractors, &cfg, &pool, im as u32)?;
-            let report = detect(&scene.rgb, &scene.cam, &targets, &opts, &pool)?;
+            let report = detect(&scene.rgb, None, &scene.cam, &targets, &opts, &pool)?;
             false_dets += report.detections.len();
             if let Some(dir) = &a.overlays {
                 super::detect_overlay::draw(&scene.rgb, &report).save(dir.join(format!("empty-{im:04}.png")))?;
@@ -203,7 +203,7 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
     let scene = generate_image(&all, &cfg, &pool, 0)?;
     for &n in &a.time_objects {
         let many: Vec<Target> = (0..n).map(|i| Target { id: &names[i % searched], shape: &shapes[i % searched], mesh: &meshes[i % searched] }).collect();
-        let r = detect(&scene.rgb, &scene.cam, &many, &opts, &pool)?;
+        let r = detect(&scene.rgb, None, &scene.cam, &many, &opts, &pool)?;
         let t = &r.timings;
         println!(
             "{n} objects: {:.0} ms (responses {:.0}, search {:.0}, verification {:.0}, masks {:.0}) on {}×{}",

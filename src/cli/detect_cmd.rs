@@ -23,6 +23,14 @@ pub struct DetectArgs {
     /// Camera JSON ({"K", "resolution"} or BOP {"cam_K"[, "width", "height"]}).
     #[arg(long)]
     pub camera: PathBuf,
+    /// RGB-D: a 16-bit depth PNG registered to the image (same size and camera); values ×
+    /// --depth-scale are millimetres, 0 = no measurement. The objects are then looked for
+    /// in the surfaces the depth shows (docs/detection.md, "With depth").
+    #[arg(long)]
+    pub depth: Option<PathBuf>,
+    /// Millimetres per --depth unit (BOP's depth_scale).
+    #[arg(long, default_value_t = 1.0, requires = "depth")]
+    pub depth_scale: f64,
     /// Detections JSON to write (BOP default-detections format).
     #[arg(long)]
     pub out: PathBuf,
@@ -88,14 +96,14 @@ pub fn load_objects(store: &dyn crate::store::ObjectStore, ids: &[String]) -> Re
 /// given); an error naming the object and the detector's reason when there is none.
 pub fn detect_object(
     model: &ObjectModel,
-    image: &image::RgbImage,
+    (image, depth): (&image::RgbImage, Option<&crate::depth::DepthImage>),
     k: &crate::geometry::Intrinsics,
     options: &DetectOptions,
     renderer: &crate::render::RenderPool,
 ) -> Result<Vec<crate::detect::Detection>> {
     let shape = model.shape_model_or_build(renderer)?;
     let targets = [Target { id: &model.object_id, shape: &shape, mesh: &model.mesh }];
-    let report = detect(image, k, &targets, options, renderer)?;
+    let report = detect(image, depth, k, &targets, options, renderer)?;
     if report.detections.is_empty() {
         bail!("the detector did not find {} ({}); give a --mask (or a --box), or lower --min-score", model.object_id, report.reason.unwrap_or_default());
     }
@@ -113,7 +121,8 @@ pub fn run(a: DetectArgs) -> Result<()> {
     let renderer = super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?;
     let shapes = models.iter().map(|m| m.shape_model_or_build(&renderer)).collect::<Result<Vec<_>, _>>()?;
     let targets: Vec<Target> = models.iter().zip(&shapes).map(|(m, s)| Target { id: &m.object_id, shape: s, mesh: &m.mesh }).collect();
-    let report = detect(&image, &k, &targets, &a.search.options(), &renderer)?;
+    let depth = a.depth.as_deref().map(|p| super::estimate_cmd::load_depth(p, a.depth_scale, image.dimensions())).transpose()?;
+    let report = detect(&image, depth.as_ref(), &k, &targets, &a.search.options(), &renderer)?;
     let places: std::collections::HashMap<&str, usize> = models.iter().enumerate().map(|(i, m)| (m.object_id.as_str(), i)).collect();
     let doc = bop_json(&report, a.scene_id, a.image_id, &|id| category_id(id, places[id]));
     std::fs::write(&a.out, serde_json::to_vec_pretty(&doc)?).with_context(|| format!("writing {}", a.out.display()))?;

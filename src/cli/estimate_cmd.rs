@@ -118,7 +118,7 @@ fn estimate_detected(
 ) -> Result<(EstimateResult, f32)> {
     let min_score = a.search.min_score;
     let options = candidate_options(&a.search.options());
-    let found = super::detect_cmd::detect_object(model, image, k, &options, renderer)?;
+    let found = super::detect_cmd::detect_object(model, (image, depth), k, &options, renderer)?;
     let refs: Vec<(&image::GrayImage, f64)> = found.iter().map(|d| (&d.mask, d.score as f64)).collect();
     let mut count = 0;
     let answered = estimate_instances(crate::masks::group_instances(&refs, 0.5), 1, Choice::Confirmed { min_score }, |group| {
@@ -127,7 +127,7 @@ fn estimate_detected(
         count += 1;
         let confirmation = match &r.pose {
             Some(pose) => {
-                let c = confirm(image, k, &model.mesh, &candidates[r.mask_index.unwrap_or(0)].mask, pose, renderer)?;
+                let c = confirm(image, depth, k, &model.mesh, &candidates[r.mask_index.unwrap_or(0)].mask, pose, renderer)?;
                 println!("candidate {count} estimated, confirmed at its pose with {c:.3}");
                 Some(c)
             }

@@ -106,17 +106,20 @@ pub fn run(a: TrackArgs) -> Result<()> {
     let k = super::camera_file::load_camera_for(&a.camera, Some(first.image.dimensions()))?;
     check_size(&first, &k)?;
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
+    let depth_files = a.depth.as_deref().map(depth_paths).transpose()?;
     let first_detections = match &a.mask {
         Some(path) => {
             let mask = crate::masks::decode::check_size(load_mask(path)?, k.width, k.height).and_then(crate::masks::require_nonempty).with_context(|| format!("--mask {}", path.display()))?;
             vec![FrameDetection::given(model.object_id.clone(), mask, 1.0)]
         }
-        None => detect_first(&model, &first, &k, &a.search, &renderer)?,
+        None => {
+            let depth = depth_files.as_ref().and_then(|f| f.first()).map(|p| super::estimate_cmd::load_depth(p, a.depth_scale, first.image.dimensions())).transpose()?;
+            detect_first(&model, (&first, depth.as_ref()), &k, &a.search, &renderer)?
+        }
     };
     if let Some(d) = &a.overlay_dir {
         std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
     }
-    let depth_files = a.depth.as_deref().map(depth_paths).transpose()?;
     let estimator = Estimator::new(a.target.backbone.open()?, renderer.clone());
     let mut out = std::io::BufWriter::new(std::fs::File::create(&a.out).with_context(|| format!("writing {}", a.out.display()))?);
     // One object, searched for around its last pose for as long as the video lasts.
@@ -181,7 +184,13 @@ pub fn run(a: TrackArgs) -> Result<()> {
 
 /// The object's candidates in the first frame from the detector, below `--min-score`:
 /// the track starts from the first one confirmed at its estimated pose (`detect::confirm`).
-fn detect_first(model: &ObjectModel, first: &Frame, k: &Intrinsics, search: &super::detect_cmd::SearchArgs, renderer: &crate::render::RenderPool) -> Result<Vec<FrameDetection>> {
-    let found = super::detect_cmd::detect_object(model, &first.image, k, &candidate_options(&search.options()), renderer).with_context(|| format!("first frame {}", first.name))?;
+fn detect_first(
+    model: &ObjectModel,
+    (first, depth): (&Frame, Option<&crate::depth::DepthImage>),
+    k: &Intrinsics,
+    search: &super::detect_cmd::SearchArgs,
+    renderer: &crate::render::RenderPool,
+) -> Result<Vec<FrameDetection>> {
+    let found = super::detect_cmd::detect_object(model, (&first.image, depth), k, &candidate_options(&search.options()), renderer).with_context(|| format!("first frame {}", first.name))?;
     Ok(found.into_iter().take(candidates_tried(1)).map(|d| FrameDetection::candidate(d.object_id, d.mask, d.score, search.min_score)).collect())
 }

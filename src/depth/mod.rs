@@ -8,6 +8,7 @@
 //! so that estimation can trust what it reads.
 
 pub mod sensor;
+pub mod surfaces;
 
 use image::{DynamicImage, ImageFormat};
 
@@ -86,6 +87,11 @@ impl DepthImage {
 
     pub fn height(&self) -> u32 {
         self.height
+    }
+
+    /// (width, height), as `image`'s `dimensions()`.
+    pub fn dimensions(&self) -> (u32, u32) {
+        (self.width, self.height)
     }
 
     /// Metres at pixel (x, y); 0 = no measurement (and outside the image).

@@ -8,9 +8,11 @@
 //! candidates than wanted are estimated, in the detector's order until enough are surely
 //! confirmed, and the confirmed ones are kept, best first.
 
+use super::depth_check::depth_agreement;
 use super::detector::{bbox_of, combined_score};
 use super::verify::Window;
 use super::DetectOptions;
+use crate::depth::DepthImage;
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Mesh;
 use crate::render::{RenderError, RenderPool};
@@ -32,10 +34,17 @@ pub fn candidate_options(caller: &DetectOptions) -> DetectOptions {
 }
 const CANDIDATE_SHARE: f32 = 0.5;
 
-/// The detector's evidence for `mesh` at an estimated `pose`, in the window around the
-/// detection `mask` the estimate came from (image-sized), combined as `combined_score`
-/// combines a detection's: the confirmation score, 0–1 (0 for an empty mask).
-pub fn confirm(image: &RgbImage, k: &Intrinsics, mesh: &Mesh, mask: &GrayImage, pose: &Pose, renderer: &RenderPool) -> Result<f32, RenderError> {
+/// The confirmation score of `mesh` at an estimated `pose`, 0–1 (0 for an empty mask),
+/// from the detection `mask` (image-sized) the estimate came from. With the frame's
+/// registered `depth`, what the depth says (`depth_check`: the surface there and the
+/// segment covered); without, the detector's evidence in the window around the mask,
+/// combined as `combined_score` combines a detection's.
+pub fn confirm(image: &RgbImage, depth: Option<&DepthImage>, k: &Intrinsics, mesh: &Mesh, mask: &GrayImage, pose: &Pose, renderer: &RenderPool) -> Result<f32, RenderError> {
+    if let Some(depth) = depth {
+        let a = depth_agreement(depth, k, mesh, pose, mask, renderer)?;
+        tracing::debug!(agree = a.agree, seen_through = a.seen_through, occluded = a.occluded, covered = a.covered, score = a.score(), "depth confirmation");
+        return Ok(a.score());
+    }
     let Some(window) = bbox_of(mask).and_then(|bbox| Window::new(image, k, bbox)) else {
         return Ok(0.0);
     };
@@ -128,6 +137,30 @@ fn settled(scores: &[Option<f32>], wanted: usize, min_score: f32) -> bool {
     scores.iter().flatten().filter(|&&s| s >= min_score.max(SURE)).count() >= wanted
 }
 
+/// Candidates of one object compared at their estimated poses when the depth detector
+/// found them: each of its segments (up to this many) is estimated, since a segment's size
+/// ranks them too weakly to stop at the first confirmed (`one_per_place` then decides).
+pub const DEPTH_CANDIDATES_COMPARED: usize = 6;
+
+/// Each place answered once across objects: `answers[o]` are object o's confirmed answers
+/// (anything, its confirmation score, the detection mask it was estimated from), and at
+/// most `wanted[o]` are kept for it. Best score first over all objects, an answer whose
+/// mask overlaps (IoU ≥ 0.5) one already kept is dropped: the depth detector offers one
+/// segment to every object of its size, and the object that fits it best takes it.
+pub fn one_per_place<T>(answers: Vec<Vec<(T, f32, GrayImage)>>, wanted: &[usize]) -> Vec<Vec<(T, f32)>> {
+    let mut all: Vec<(usize, T, f32, GrayImage)> = answers.into_iter().enumerate().flat_map(|(o, a)| a.into_iter().map(move |(t, s, m)| (o, t, s, m))).collect();
+    all.sort_by(|a, b| b.2.total_cmp(&a.2));
+    let mut kept: Vec<Vec<(T, f32)>> = (0..wanted.len()).map(|_| Vec::new()).collect();
+    let mut places: Vec<GrayImage> = Vec::new();
+    for (o, t, s, m) in all {
+        if kept[o].len() < wanted[o] && places.iter().all(|p| crate::masks::mask_iou(p, &m) < 0.5) {
+            kept[o].push((t, s));
+            places.push(m);
+        }
+    }
+    kept
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -177,6 +210,22 @@ mod tests {
         assert_eq!(out.best, None);
         let err = estimate_instances(0..10, 3, Choice::Given, |i| if i == 1 { Err("broken") } else { Ok((i, None)) });
         assert_eq!(err.err(), Some("broken"));
+    }
+
+    #[test]
+    fn each_place_goes_to_the_object_confirmed_best_there() {
+        let place = |x: u32| {
+            let mut m = GrayImage::new(4, 1);
+            m.put_pixel(x, 0, image::Luma([255]));
+            m
+        };
+        // Object 0 fits place 0 at 0.8 and place 1 at 0.6; object 1 fits place 0 at 0.9.
+        let answers = vec![vec![("a0", 0.8, place(0)), ("a1", 0.6, place(1))], vec![("b0", 0.9, place(0))]];
+        let kept = one_per_place(answers, &[1, 1]);
+        assert_eq!(kept, vec![vec![("a1", 0.6)], vec![("b0", 0.9)]]);
+        // An object answers no more instances than wanted, even on free places.
+        let kept = one_per_place(vec![vec![("a0", 0.8, place(0)), ("a1", 0.6, place(1))]], &[1]);
+        assert_eq!(kept, vec![vec![("a0", 0.8)]]);
     }
 
     #[test]

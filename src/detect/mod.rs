@@ -9,6 +9,9 @@
 pub mod align;
 pub mod colour_prior;
 pub mod confirm;
+pub mod depth_check;
+pub mod depth_detector;
+pub mod depth_segments;
 pub mod detector;
 pub mod gradients;
 pub mod nms;

@@ -9,16 +9,13 @@
 //! where neighbouring depths jump. The part that fills the box's centre most is the object.
 
 use super::PixelBox;
+use crate::depth::surfaces::{dominant_plane, off_plane, point_at, surfaces, Plane};
 use crate::depth::DepthImage;
 use crate::geometry::Intrinsics;
 use image::{GrayImage, Luma};
-use nalgebra::{Point3, Vector3};
 
 /// Points off the plane by less than this (metres) lie on it.
 const ON_PLANE_M: f64 = 0.008;
-/// Neighbours whose depths differ by more than this share of their depth (and 5 mm) are
-/// on different surfaces.
-const JUMP_SHARE: f64 = 0.015;
 
 /// The object's mask inside `bbox` from `depth` (camera `k`), or None where the depth
 /// shows too little inside the box.
@@ -28,19 +25,13 @@ pub fn depth_proposal(depth: &DepthImage, k: &Intrinsics, bbox: &PixelBox) -> Op
     let (bw, bh) = ((bbox.x1 - bbox.x0) as usize, (bbox.y1 - bbox.y0) as usize);
     // Box pixels with a measurement that are not the support plane (or under it).
     let z_at = |x: usize, y: usize| depth.at(bbox.x0 + x as u32, bbox.y0 + y as u32) as f64;
-    let point = |x: i64, y: i64| -> Option<Point3<f64>> {
-        let z = depth.at(u32::try_from(x).ok()?, u32::try_from(y).ok()?) as f64;
-        (z > 0.0).then(|| k.back_project(x as f64, y as f64, z))
-    };
     let member: Vec<bool> = (0..bw * bh)
         .map(|i| {
             let (x, y) = ((bbox.x0 as usize + i % bw) as i64, (bbox.y0 as usize + i / bw) as i64);
-            let Some(p) = point(x, y) else { return false };
-            let Some(plane) = &plane else { return true };
-            let above = plane.above(&p);
-            // Near the plane: the table, unless the surface there faces elsewhere (the
-            // object's own side where it meets the table).
-            above > ON_PLANE_M || (above > -ON_PLANE_M && !faces_like(plane, [point(x - 2, y), point(x + 2, y), point(x, y - 2), point(x, y + 2)]))
+            match &plane {
+                Some(plane) => off_plane(depth, k, plane, (x, y), ON_PLANE_M, 2),
+                None => point_at(depth, k, x, y).is_some(),
+            }
         })
         .collect();
     let label = surfaces(bw, bh, &member, &z_at);
@@ -66,29 +57,6 @@ pub fn depth_proposal(depth: &DepthImage, k: &Intrinsics, bbox: &PixelBox) -> Op
     Some(close_holes(mask, bbox))
 }
 
-/// A plane `n · p = d` with `n` towards the camera.
-struct Plane {
-    normal: Vector3<f64>,
-    offset: f64,
-}
-
-impl Plane {
-    /// Signed distance of `p` from the plane, positive on the camera's side.
-    fn above(&self, p: &Point3<f64>) -> f64 {
-        self.normal.dot(&p.coords) - self.offset
-    }
-}
-
-/// Whether the surface through the four neighbours (left, right, up, down) is turned like
-/// the plane (normals within about 35°); a missing neighbour says it is.
-fn faces_like(plane: &Plane, [l, r, u, d]: [Option<Point3<f64>>; 4]) -> bool {
-    let (Some(l), Some(r), Some(u), Some(d)) = (l, r, u, d) else { return true };
-    match (r - l).cross(&(d - u)).try_normalize(1e-12) {
-        Some(n) => n.dot(&plane.normal).abs() > 0.8,
-        None => true,
-    }
-}
-
 /// The dominant plane of a ring around the box (a quarter of the box's larger side wide),
 /// where it holds at least a third of the ring's measured points: RANSAC with a fixed seed.
 fn support_plane(depth: &DepthImage, k: &Intrinsics, bbox: &PixelBox) -> Option<Plane> {
@@ -105,62 +73,13 @@ fn support_plane(depth: &DepthImage, k: &Intrinsics, bbox: &PixelBox) -> Option<
             }
         }
     }
-    if ring.len() < 30 {
-        return None;
-    }
-    let mut seed = 0x9E37_79B9_7F4A_7C15u64;
-    let mut pick = |n: usize| {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        (seed % n as u64) as usize
-    };
-    let mut best: Option<(usize, Plane)> = None;
-    for _ in 0..200 {
-        let (a, b, c) = (ring[pick(ring.len())], ring[pick(ring.len())], ring[pick(ring.len())]);
-        let Some(mut normal) = (b - a).cross(&(c - a)).try_normalize(1e-12) else { continue };
-        if normal.dot(&a.coords) > 0.0 {
-            normal = -normal;
-        }
-        let plane = Plane { offset: normal.dot(&a.coords), normal };
-        let inliers = ring.iter().filter(|p| plane.above(p).abs() < ON_PLANE_M).count();
-        if best.as_ref().is_none_or(|(n, _)| inliers > *n) {
-            best = Some((inliers, plane));
-        }
-    }
-    best.filter(|(n, _)| *n * 3 >= ring.len()).map(|(_, p)| p)
-}
-
-/// 4-connected surfaces of the `member` cells, split where neighbouring depths jump.
-fn surfaces(w: usize, h: usize, member: &[bool], z_at: &dyn Fn(usize, usize) -> f64) -> Vec<Option<usize>> {
-    let mut label = vec![None; w * h];
-    let mut stack = Vec::new();
-    let mut next = 0;
-    for start in 0..w * h {
-        if label[start].is_some() || !member[start] {
-            continue;
-        }
-        label[start] = Some(next);
-        stack.push(start);
-        while let Some(i) = stack.pop() {
-            let (x, y) = (i % w, i / w);
-            let z = z_at(x, y);
-            let neighbours = [(x > 0).then(|| i - 1), (x + 1 < w).then(|| i + 1), (y > 0).then(|| i - w), (y + 1 < h).then(|| i + w)];
-            for n in neighbours.into_iter().flatten() {
-                if label[n].is_none() && member[n] && (z_at(n % w, n / w) - z).abs() < (JUMP_SHARE * z).max(0.005) {
-                    label[n] = Some(next);
-                    stack.push(n);
-                }
-            }
-        }
-        next += 1;
-    }
-    label
+    let (plane, inliers) = dominant_plane(&ring, ON_PLANE_M)?;
+    (inliers * 3 >= ring.len()).then_some(plane)
 }
 
 /// The mask closed by two pixels inside the box: the depth's missing pixels (dark or
 /// shiny spots, edges) within the object do not leave holes in its mask.
-fn close_holes(mask: GrayImage, bbox: &PixelBox) -> GrayImage {
+pub fn close_holes(mask: GrayImage, bbox: &PixelBox) -> GrayImage {
     let grow = |m: &GrayImage, set: bool| {
         let mut out = m.clone();
         for y in bbox.y0..bbox.y1 {

@@ -331,7 +331,7 @@ impl Core {
             (decode_masks(req, &image)?, None)
         } else {
             // Candidates below the caller's threshold too: confirmation decides.
-            let report = self.run_detector(&image, &k, &req.objects, &candidate_options(&req.detect), deadline)?;
+            let report = self.run_detector((&image, depth.as_ref()), &k, &req.objects, &candidate_options(&req.detect), deadline)?;
             let outputs: Vec<DetectionOutput> = report.detections.iter().map(DetectionOutput::from).collect();
             let masks = report.detections.into_iter().map(|d| (d.object_id, vec![Detection::new(d.mask, d.score)])).collect();
             (masks, Some((outputs, report.reason)))
@@ -372,7 +372,10 @@ impl Core {
                 let confirmation = match (&r.pose, choice) {
                     (Some(pose), Choice::Confirmed { .. }) => {
                         let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
-                        Some(span.in_scope(|| confirm(&image, &k, &model.mesh, mask, pose, &self.pool)).map_err(|e| ServiceError::internal(format!("object {object_id:?}: confirming: {e}")))?)
+                        Some(
+                            span.in_scope(|| confirm(&image, depth.as_ref(), &k, &model.mesh, mask, pose, &self.pool))
+                                .map_err(|e| ServiceError::internal(format!("object {object_id:?}: confirming: {e}")))?,
+                        )
                     }
                     _ => None,
                 };
@@ -451,7 +454,8 @@ fn decode_masks(req: &EstimateRequest, image: &image::RgbImage) -> Result<Vec<(S
 /// another detection is, this instance may be hidden. `None` when there is no other.
 fn others_mask(by_object: &BTreeMap<&str, Vec<(usize, Vec<Detection>)>>, object_id: &str, group: &[usize], width: u32, height: u32) -> Option<image::GrayImage> {
     let others = by_object.iter().flat_map(|(&id, dets)| dets.iter().enumerate().filter(move |(g, _)| !(id == object_id && group.contains(g))).map(|(_, (_, c))| representative(c).0));
-    crate::masks::union(others, width, height)
+    let own = representative(&by_object[object_id][group[0]].1).0;
+    crate::masks::occluders(own, others, width, height)
 }
 
 #[cfg(test)]

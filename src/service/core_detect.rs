@@ -16,12 +16,19 @@ impl Core {
         let t0 = Instant::now();
         req.check_limits()?;
         let (image, k) = decode_image(&req.image, &req.intrinsics)?;
-        let report = self.run_detector(&image, &k, &req.objects, &req.options, deadline)?;
+        let report = self.run_detector((&image, None), &k, &req.objects, &req.options, deadline)?;
         Ok(DetectResponse::new(report, t0))
     }
 
     /// Detects `objects` (empty: every object in the store) in a decoded image.
-    pub(super) fn run_detector(&self, image: &RgbImage, k: &Intrinsics, objects: &[String], options: &DetectOptions, deadline: Option<Instant>) -> Result<DetectReport, ServiceError> {
+    pub(super) fn run_detector(
+        &self,
+        (image, depth): (&RgbImage, Option<&crate::depth::DepthImage>),
+        k: &Intrinsics,
+        objects: &[String],
+        options: &DetectOptions,
+        deadline: Option<Instant>,
+    ) -> Result<DetectReport, ServiceError> {
         check_options(options).map_err(|e| ServiceError::invalid(format!("options: {e}")))?;
         check_objects(objects)?;
         let ids = if objects.is_empty() { self.every_object()? } else { unique(objects) };
@@ -37,7 +44,7 @@ impl Core {
             return Err(ServiceError::new(super::error::ErrorKind::DeadlineExceeded, "deadline passed before the search started"));
         }
         let targets: Vec<Target> = models.iter().zip(&shapes).map(|(m, s)| Target { id: &m.object_id, shape: s, mesh: &m.mesh }).collect();
-        let report = tracing::info_span!("detect", objects = targets.len()).in_scope(|| detect(image, k, &targets, options, &self.pool));
+        let report = tracing::info_span!("detect", objects = targets.len()).in_scope(|| detect(image, depth, k, &targets, options, &self.pool));
         let report = report.map_err(|e| match e {
             DetectError::BadInput(m) => ServiceError::invalid(format!("options: {m}")),
             e @ DetectError::Render { .. } => ServiceError::internal(e.to_string()),

@@ -82,7 +82,7 @@ impl Core {
         if !wanted.is_empty() {
             // Candidates below the caller's threshold, a few per object: a track starts
             // from the first one confirmed at its estimated pose (`detect::confirm`).
-            let report = self.run_detector(&image, &k, &wanted, &candidate_options(&req.detect), None)?;
+            let report = self.run_detector((&image, depth.as_ref()), &k, &wanted, &candidate_options(&req.detect), None)?;
             let mut per_object = std::collections::BTreeMap::<String, usize>::new();
             for d in report.detections {
                 let n = per_object.entry(d.object_id.clone()).or_default();

@@ -311,7 +311,7 @@ impl TrackSession {
             Err(reason) => return Ok(refused(reason, t)),
         };
         if let Some(min) = d.min_confirmation {
-            let c = confirm(image, k, &model.mesh, &d.mask, &pose, &self.renderer).map_err(|e| SessionError::Internal(format!("{}: confirming: {e}", d.object_id)))?;
+            let c = confirm(image, frame.depth, k, &model.mesh, &d.mask, &pose, &self.renderer).map_err(|e| SessionError::Internal(format!("{}: confirming: {e}", d.object_id)))?;
             if c < min {
                 return Ok(refused(format!("the detector's candidate was not confirmed at its estimated pose (score {c:.3}, under {min:.3})"), t));
             }

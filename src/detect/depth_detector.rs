@@ -1,0 +1,120 @@
+//! Finds onboarded objects in an RGB-D frame: every surface standing off the table
+//! (`depth_segments`) whose size in metres fits an object is a candidate of that object,
+//! with the segment as its mask and a placement from the measured surface. Nothing is
+//! learned and nothing is painted: clutter in the photo makes no segment, and a thing of
+//! the wrong size is no candidate. Which object a segment is, and its turn, the estimator
+//! decides with the confirmation at the estimated pose (`confirm`, with the depth check of
+//! `depth_check`): the candidates' scores here rank by size alone.
+
+use super::depth_segments::{segment_frame, Segment};
+use super::detector::{check_options, DetectError, DetectOptions, DetectReport, DetectTimings, Detection, MaskSource, Searched, Target};
+use super::nms::suppress;
+use super::verify::Evidence;
+use crate::depth::DepthImage;
+use crate::geometry::{Intrinsics, Pose};
+use image::RgbImage;
+use nalgebra::{Rotation3, Vector3};
+use std::time::Instant;
+
+/// A segment fits an object when its extent is at most this share of the object's
+/// diameter (and `SIZE_NOISE_M` more, for the sensor's ragged edges) ...
+const MAX_EXTENT_SHARE: f64 = 1.15;
+const SIZE_NOISE_M: f64 = 0.01;
+/// ... and at least this share: less is too little of it in view to estimate from.
+const MIN_EXTENT_SHARE: f64 = 0.25;
+
+/// Looks for every target in the frame (`image` with its registered `depth`).
+pub fn detect_with_depth(image: &RgbImage, depth: &DepthImage, k: &Intrinsics, targets: &[Target], opts: &DetectOptions) -> Result<DetectReport, DetectError> {
+    let t0 = Instant::now();
+    check_options(opts)?;
+    if depth.dimensions() != image.dimensions() {
+        let (w, h) = depth.dimensions();
+        return Err(DetectError::BadInput(format!("depth is {w}×{h} but the image is {}×{}: it must be registered to the colour image", image.width(), image.height())));
+    }
+    let largest = targets.iter().map(|t| t.mesh.diameter()).fold(0.0, f64::max);
+    let segmentation = segment_frame(depth, k, largest);
+    let segments: Vec<&Segment> = segmentation.segments.iter().filter(|s| in_range(s, opts)).collect();
+    let search_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let mut detections = Vec::new();
+    let mut searched = Vec::new();
+    for t in targets {
+        let d = t.mesh.diameter().max(1e-6);
+        let mut own: Vec<Detection> = segments.iter().filter_map(|s| size_fit(s.extent_m, d).map(|score| candidate(t, s, score))).collect();
+        own.sort_by(|a, b| b.score.total_cmp(&a.score));
+        let nearest = segments.iter().map(|s| s.median_z).fold(f64::INFINITY, f64::min);
+        let farthest = segments.iter().map(|s| s.median_z).fold(0.0, f64::max);
+        searched.push(Searched { object_id: t.id.to_string(), distance_m: [nearest, farthest], scales: 1, candidates: own.len() });
+        detections.extend(own.into_iter().filter(|c| c.score >= opts.min_score));
+    }
+    // Across objects a segment stays a candidate of each object it fits (the size cannot
+    // tell them apart; the confirmation at the estimated pose does); within one object,
+    // overlapping segments are one.
+    detections.sort_by(|a, b| b.score.total_cmp(&a.score));
+    let mut kept = Vec::new();
+    for t in targets {
+        let own: Vec<&Detection> = detections.iter().filter(|d| d.object_id == t.id).collect();
+        let order = suppress(&own.iter().map(|d| d.bbox).collect::<Vec<_>>(), &own.iter().map(|d| d.score).collect::<Vec<_>>(), 0.5);
+        kept.extend(order.into_iter().map(|i| own[i].clone()));
+    }
+    kept.sort_by(|a, b| b.score.total_cmp(&a.score));
+    kept.truncate(opts.max_detections);
+    let reason = kept.is_empty().then(|| why_none(&segmentation.segments, &segments, targets, opts));
+    let total_ms = t0.elapsed().as_secs_f64() * 1e3;
+    Ok(DetectReport { detections: kept, searched, timings: DetectTimings { search_ms, total_ms, ..Default::default() }, reason })
+}
+
+/// Whether the segment lies within the caller's distance range.
+fn in_range(s: &Segment, opts: &DetectOptions) -> bool {
+    opts.min_distance_m.is_none_or(|m| s.median_z >= m) && opts.max_distance_m.is_none_or(|m| s.median_z <= m)
+}
+
+/// How well a segment `extent` (metres) fits an object of `diameter`: None when it cannot
+/// be the object; else 0–1, highest for a segment as large as the object (a whole view
+/// spans most of the diameter), lower for a small part of it in view.
+fn size_fit(extent: f64, diameter: f64) -> Option<f32> {
+    if extent > MAX_EXTENT_SHARE * diameter + SIZE_NOISE_M || extent < MIN_EXTENT_SHARE * diameter {
+        return None;
+    }
+    let share = extent / diameter;
+    Some(if share <= 0.8 { (share / 0.8).sqrt() } else { 1.0 } as f32)
+}
+
+/// The candidate of target `t` on segment `s`: its mask and box, and a placement (the
+/// object's centre behind the surface's centre by half its radius, its first template's
+/// turn facing the camera): where it is, not how it is turned.
+fn candidate(t: &Target, s: &Segment, score: f32) -> Detection {
+    let r = t.mesh.bounding_radius();
+    let ray = s.centre.coords.normalize();
+    let align = Rotation3::rotation_between(&Vector3::z(), &ray).unwrap_or_else(Rotation3::identity);
+    let rotation = align * t.shape.config.rotation(0);
+    let centre = s.centre.coords + ray * (0.5 * r);
+    let pose = Pose::new(rotation, centre - rotation * Vector3::from(t.mesh.bbox_center()));
+    Detection { object_id: t.id.to_string(), bbox: s.bbox, score, shape_score: 0.0, evidence: Evidence::default(), mask: s.mask.clone(), mask_source: MaskSource::DepthSegment, pose, template: 0 }
+}
+
+/// Why a frame gave no candidate, in the words a caller can act on.
+fn why_none(all: &[Segment], in_range: &[&Segment], targets: &[Target], opts: &DetectOptions) -> String {
+    if all.is_empty() {
+        return "the depth shows nothing standing off the table or the walls (no segment)".to_string();
+    }
+    if in_range.is_empty() {
+        return format!("no segment within the distance range ({} segments outside it)", all.len());
+    }
+    let sizes: Vec<String> = in_range.iter().take(5).map(|s| format!("{:.0} mm", s.extent_m * 1e3)).collect();
+    let wanted: Vec<String> = targets.iter().map(|t| format!("{} {:.0} mm", t.id, t.mesh.diameter() * 1e3)).collect();
+    format!("no segment of the objects' size ({} segments, largest first: {}; objects: {}) scored {} or more", in_range.len(), sizes.join(", "), wanted.join(", "), opts.min_score)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn segments_fit_objects_of_their_size_only() {
+        assert_eq!(size_fit(0.2, 0.2), Some(1.0));
+        assert!(size_fit(0.08, 0.2).unwrap() < 0.8);
+        assert_eq!(size_fit(0.3, 0.2), None, "larger than the object");
+        assert_eq!(size_fit(0.03, 0.2), None, "too little of it");
+        assert!(size_fit(0.225, 0.2).is_some(), "ragged edges allowed for");
+    }
+}

@@ -1,0 +1,198 @@
+//! A depth frame cut into the things that stand in it: the large planes (the table, the
+//! floor, a wall) removed, the rest grouped into surfaces that no depth jump separates,
+//! each with its size in metres. Clutter can paint an object's outline and colours into
+//! the photo but not a surface of the object's size standing off the table, so these
+//! segments are where the depth detector (`depth_detector`) looks.
+
+use crate::depth::surfaces::{dominant_plane, off_plane, point_at, surfaces, Plane};
+use crate::depth::DepthImage;
+use crate::geometry::Intrinsics;
+use crate::masks::depth_proposal::close_holes;
+use crate::masks::PixelBox;
+use image::{GrayImage, Luma};
+use nalgebra::{Matrix3, Point3, SymmetricEigen, Vector3};
+
+/// Points within this of a plane (metres) lie on it.
+const ON_PLANE_M: f64 = 0.01;
+/// A plane holding at least this share of the frame's measured points, and spreading
+/// wider than `PLANE_OVER_OBJECT` × the largest object looked for, is a support (or a
+/// wall), never an object's face; at most `MAX_PLANES` are taken away.
+const MIN_PLANE_SHARE: f64 = 0.12;
+const MAX_PLANES: usize = 3;
+const PLANE_OVER_OBJECT: f64 = 1.5;
+/// Planes are fitted to every `PLANE_STEP`-th pixel in x and y.
+const PLANE_STEP: usize = 4;
+/// Segments smaller than this (pixels) are noise at depth edges.
+const MIN_PIXELS: usize = 120;
+
+/// One surface standing in the frame.
+#[derive(Clone, Debug)]
+pub struct Segment {
+    /// Image-sized, 255 = the segment (small depth holes inside it closed).
+    pub mask: GrayImage,
+    /// [x, y, w, h] in pixels.
+    pub bbox: [f64; 4],
+    /// Measured pixels in it.
+    pub pixels: usize,
+    /// Its size, metres: the diagonal of its points' spread along their principal axes
+    /// (2nd to 98th percentile), so a few stray pixels at its edges do not count.
+    pub extent_m: f64,
+    /// Mean of its points, camera frame, metres.
+    pub centre: Point3<f64>,
+    /// Median depth of its pixels, metres.
+    pub median_z: f64,
+}
+
+/// What the segmentation found: the segments, largest first, and the planes taken away.
+pub struct Segmentation {
+    pub segments: Vec<Segment>,
+    pub planes: Vec<Plane>,
+}
+
+/// The frame's segments (camera `k`, registered to `depth`), for objects of at most
+/// `largest_m` across (a flat face of one is never taken for the table).
+pub fn segment_frame(depth: &DepthImage, k: &Intrinsics, largest_m: f64) -> Segmentation {
+    let (w, h) = (depth.width() as usize, depth.height() as usize);
+    let planes = support_planes(depth, k, PLANE_OVER_OBJECT * largest_m);
+    let member: Vec<bool> = (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as i64, (i / w) as i64);
+            point_at(depth, k, x, y).is_some() && planes.iter().all(|p| off_plane(depth, k, p, (x, y), ON_PLANE_M, 2))
+        })
+        .collect();
+    let label = surfaces(w, h, &member, &|x, y| depth.at(x as u32, y as u32) as f64);
+    let count = label.iter().flatten().max().map_or(0, |m| m + 1);
+    let mut members: Vec<Vec<usize>> = vec![Vec::new(); count];
+    for (i, l) in label.iter().enumerate() {
+        if let Some(l) = l {
+            members[*l].push(i);
+        }
+    }
+    let mut segments: Vec<Segment> = members.into_iter().filter(|m| m.len() >= MIN_PIXELS).filter_map(|m| describe(depth, k, &m)).collect();
+    segments.sort_by(|a, b| b.pixels.cmp(&a.pixels));
+    Segmentation { segments, planes }
+}
+
+/// Up to `MAX_PLANES` planes that each hold `MIN_PLANE_SHARE` of the measured points and
+/// spread wider than `wider_than_m`.
+fn support_planes(depth: &DepthImage, k: &Intrinsics, wider_than_m: f64) -> Vec<Plane> {
+    let mut points: Vec<Point3<f64>> = Vec::new();
+    for y in (0..depth.height() as i64).step_by(PLANE_STEP) {
+        for x in (0..depth.width() as i64).step_by(PLANE_STEP) {
+            points.extend(point_at(depth, k, x, y));
+        }
+    }
+    let total = points.len();
+    let mut planes = Vec::new();
+    while planes.len() < MAX_PLANES {
+        let Some((plane, inliers)) = dominant_plane(&points, ON_PLANE_M) else { break };
+        if (inliers as f64) < MIN_PLANE_SHARE * total as f64 {
+            break;
+        }
+        let (on, off): (Vec<Point3<f64>>, Vec<Point3<f64>>) = points.into_iter().partition(|p| plane.above(p).abs() < ON_PLANE_M);
+        points = off;
+        if spread(&on) > wider_than_m {
+            planes.push(plane);
+        }
+    }
+    planes
+}
+
+/// The diagonal of the points' axis-aligned bounds, metres (0 for none).
+fn spread(points: &[Point3<f64>]) -> f64 {
+    let lo = points.iter().fold(Vector3::repeat(f64::INFINITY), |a, p| a.inf(&p.coords));
+    let hi = points.iter().fold(Vector3::repeat(f64::NEG_INFINITY), |a, p| a.sup(&p.coords));
+    if points.is_empty() {
+        0.0
+    } else {
+        (hi - lo).norm()
+    }
+}
+
+/// A segment from its pixel indices (row-major); None when its points have no spread.
+fn describe(depth: &DepthImage, k: &Intrinsics, pixels: &[usize]) -> Option<Segment> {
+    let w = depth.width() as usize;
+    let points: Vec<Point3<f64>> = pixels.iter().filter_map(|&i| point_at(depth, k, (i % w) as i64, (i / w) as i64)).collect();
+    let n = points.len() as f64;
+    let centre = Point3::from(points.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / n);
+    let cov = points.iter().fold(Matrix3::zeros(), |a, p| {
+        let d = p - centre;
+        a + d * d.transpose()
+    }) / n;
+    let axes = SymmetricEigen::new(cov).eigenvectors;
+    let mut spread2 = 0.0;
+    for a in 0..3 {
+        let axis = axes.column(a);
+        let mut along: Vec<f64> = points.iter().map(|p| (p - centre).dot(&axis)).collect();
+        along.sort_by(f64::total_cmp);
+        let at = |q: f64| along[((along.len() - 1) as f64 * q).round() as usize];
+        spread2 += (at(0.98) - at(0.02)).powi(2);
+    }
+    let mut zs: Vec<f64> = points.iter().map(|p| p.z).collect();
+    let mid = zs.len() / 2;
+    let median_z = *zs.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+    let (width, height) = (depth.width(), depth.height());
+    let mut mask = GrayImage::new(width, height);
+    for &i in pixels {
+        let (x, y) = (i % w, i / w);
+        (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
+        mask.put_pixel(x as u32, y as u32, Luma([crate::masks::OBJECT]));
+    }
+    let region = PixelBox { x0: x0.saturating_sub(2) as u32, y0: y0.saturating_sub(2) as u32, x1: ((x1 + 3) as u32).min(width), y1: ((y1 + 3) as u32).min(height) };
+    let mask = close_holes(mask, &region);
+    (spread2 > 0.0).then(|| Segment { mask, bbox: [x0 as f64, y0 as f64, (x1 - x0 + 1) as f64, (y1 - y0 + 1) as f64], pixels: pixels.len(), extent_m: spread2.sqrt(), centre, median_z })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A table below the camera, a wall behind it, a 6 × 4 cm block and a 12 × 3 cm slab on
+    /// the table, a gap between them: two segments of about their sizes, table and wall gone.
+    #[test]
+    fn the_things_on_the_table_are_segments_of_their_size() {
+        let (w, h) = (320u32, 240u32);
+        let k = Intrinsics::new(300.0, 300.0, 160.0, 120.0, w, h).unwrap();
+        // The table: the plane y = 0.1 seen out to 2 m; the objects stand on it at z ≈ 0.7 m.
+        let table = |y: u32| {
+            let ray_y = (y as f64 - k.cy) / k.fy;
+            if ray_y > 0.0 {
+                (0.1 / ray_y).min(2.0)
+            } else {
+                2.0
+            }
+        };
+        // Boxes given by their x range, height above the table and front face z.
+        let things = [(-0.10, -0.04, 0.04, 0.7), (0.0, 0.12, 0.03, 0.75)];
+        let depth_at = |x: u32, y: u32| -> f64 {
+            let (rx, ry) = ((x as f64 - k.cx) / k.fx, (y as f64 - k.cy) / k.fy);
+            for (xa, xb, top, z) in things {
+                let (px, py) = (rx * z, ry * z);
+                if px >= xa && px <= xb && py >= 0.1 - top && py <= 0.1 {
+                    return z;
+                }
+            }
+            table(y)
+        };
+        let values: Vec<f32> = (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| depth_at(x, y) as f32).collect();
+        let depth = DepthImage::from_metres(w, h, values).unwrap();
+        let seg = segment_frame(&depth, &k, 0.15);
+        // The table and the wall 2 m away are planes (the objects' faces are too small to be).
+        assert_eq!(seg.planes.len(), 2);
+        assert_eq!(seg.segments.len(), 2, "{:?}", seg.segments.iter().map(|s| (s.bbox, s.extent_m)).collect::<Vec<_>>());
+        let mut extents: Vec<f64> = seg.segments.iter().map(|s| s.extent_m).collect();
+        extents.sort_by(f64::total_cmp);
+        // Front faces only: 6 × 4 cm (diagonal 7.2 cm) and 12 × 3 cm (12.4 cm).
+        assert!((extents[0] - 0.072).abs() < 0.012 && (extents[1] - 0.124).abs() < 0.015, "{extents:?}");
+        assert!(seg.segments.iter().all(|s| (s.median_z - 0.7).abs() < 0.06));
+    }
+
+    #[test]
+    fn a_frame_without_depth_has_no_segments() {
+        let k = Intrinsics::new(300.0, 300.0, 80.0, 60.0, 160, 120).unwrap();
+        let depth = DepthImage::from_metres(160, 120, vec![0.0; 160 * 120]).unwrap();
+        let seg = segment_frame(&depth, &k, 0.15);
+        assert!(seg.segments.is_empty() && seg.planes.is_empty());
+    }
+}
