@@ -9,7 +9,7 @@
 //! confirmed, and the confirmed ones are kept, best first.
 
 use super::depth_check::depth_agreement;
-use super::detector::{bbox_of, combined_score};
+use super::detector::{bbox_of, best_possible_score, combined_score};
 use super::verify::Window;
 use super::DetectOptions;
 use crate::depth::DepthImage;
@@ -35,20 +35,24 @@ pub fn candidate_options(caller: &DetectOptions) -> DetectOptions {
 const CANDIDATE_SHARE: f32 = 0.5;
 
 /// The confirmation score of `mesh` at an estimated `pose`, 0–1 (0 for an empty mask),
-/// from the detection `mask` (image-sized) the estimate came from. With the frame's
-/// registered `depth`, what the depth says (`depth_check`: the surface there and the
-/// segment covered); without, the detector's evidence in the window around the mask,
-/// combined as `combined_score` combines a detection's.
+/// from the detection `mask` (image-sized) the estimate came from: the detector's evidence
+/// in the window around the mask, combined as `combined_score` combines a detection's.
+/// With the frame's registered `depth`, that evidence as a share of the most it can be for
+/// this mesh (`best_possible_score`), times what the depth says (`depth_check`: the
+/// surface there and the segment covered). Both must agree: on real frames without the
+/// objects, furniture and crockery of an object's size fit its surface as well as the
+/// object does (docs/detection.md, "With depth"), and only the photo's outline tells them
+/// apart; the outline alone is what the colour-only path already had.
 pub fn confirm(image: &RgbImage, depth: Option<&DepthImage>, k: &Intrinsics, mesh: &Mesh, mask: &GrayImage, pose: &Pose, renderer: &RenderPool) -> Result<f32, RenderError> {
-    if let Some(depth) = depth {
-        let a = depth_agreement(depth, k, mesh, pose, mask, renderer)?;
-        tracing::debug!(agree = a.agree, seen_through = a.seen_through, occluded = a.occluded, covered = a.covered, score = a.score(), "depth confirmation");
-        return Ok(a.score());
-    }
-    let Some(window) = bbox_of(mask).and_then(|bbox| Window::new(image, k, bbox)) else {
-        return Ok(0.0);
+    let photo = match bbox_of(mask).and_then(|bbox| Window::new(image, k, bbox)) {
+        Some(window) => combined_score(&window.evidence(renderer, mesh, pose)?),
+        None => return Ok(0.0),
     };
-    Ok(combined_score(&window.evidence(renderer, mesh, pose)?))
+    let Some(depth) = depth else { return Ok(photo) };
+    let a = depth_agreement(depth, k, mesh, pose, mask, renderer)?;
+    let score = a.score() * (photo / best_possible_score(mesh)).min(1.0);
+    tracing::debug!(agree = a.agree, seen_through = a.seen_through, occluded = a.occluded, covered = a.covered, depth = a.score(), photo, score, "depth confirmation");
+    Ok(score)
 }
 
 /// The confirmation score an answer needs for the caller's `min_score`: more than the

@@ -415,6 +415,16 @@ pub fn combined_score(ev: &Evidence) -> f32 {
     ev.outline * ev.colour.map_or(0.5, |c| c.max(0.0)) * texture
 }
 
+/// The highest `combined_score` a render of `mesh` can reach: 1 for a mesh with colours,
+/// half for one without (its colour check cannot be made and counts half way).
+pub fn best_possible_score(mesh: &Mesh) -> f32 {
+    if mesh.has_colours() {
+        1.0
+    } else {
+        0.5
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 fn finish(image: &RgbImage, k: &Intrinsics, t: &Target, pose: Pose, c: &Candidate, evidence: Evidence, score: f32, refine: bool, renderer: &RenderPool) -> Result<Detection, DetectError> {
     let render = renderer.render(t.mesh, &pose, k, &RenderOptions::grey()).map_err(|e| render_error(t, e))?;
