@@ -121,7 +121,7 @@ pub fn run(a: DetectArgs) -> Result<()> {
     let renderer = super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?;
     let shapes = models.iter().map(|m| m.shape_model_or_build(&renderer)).collect::<Result<Vec<_>, _>>()?;
     let targets: Vec<Target> = models.iter().zip(&shapes).map(|(m, s)| Target { id: &m.object_id, shape: s, mesh: &m.mesh }).collect();
-    let depth = a.depth.as_deref().map(|p| super::estimate_cmd::load_depth(p, a.depth_scale, image.dimensions())).transpose()?;
+    let depth = a.depth.as_deref().map(|p| super::depth_file::load_depth(p, a.depth_scale, image.dimensions())).transpose()?;
     let report = detect(&image, depth.as_ref(), &k, &targets, &a.search.options(), &renderer)?;
     let places: std::collections::HashMap<&str, usize> = models.iter().enumerate().map(|(i, m)| (m.object_id.as_str(), i)).collect();
     let doc = bop_json(&report, a.scene_id, a.image_id, &|id| category_id(id, places[id]));

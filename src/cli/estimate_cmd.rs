@@ -71,11 +71,6 @@ pub fn load_mask(path: &Path) -> Result<image::GrayImage> {
     Ok(crate::masks::decode::binarise(&img))
 }
 
-/// A depth PNG checked against the image it must be registered to.
-pub(super) fn load_depth(path: &Path, scale_mm: f64, size: (u32, u32)) -> Result<crate::depth::DepthImage> {
-    crate::depth::DepthImage::read_png_for(path, scale_mm, size, &format!("--depth-scale {scale_mm}")).map_err(|e| anyhow::anyhow!("--depth: {e}"))
-}
-
 fn parse_box(s: &str) -> Result<[f64; 4], String> {
     let v: Vec<f64> = s.split(',').map(|x| x.trim().parse::<f64>().map_err(|e| format!("{x:?}: {e}"))).collect::<Result<_, _>>()?;
     <[f64; 4]>::try_from(v).map_err(|v| format!("expected X,Y,W,H (4 numbers), got {}", v.len()))
@@ -155,7 +150,7 @@ pub fn run(a: EstimateArgs) -> Result<()> {
     let model = a.target.load()?;
     let image = image::open(&a.image).with_context(|| format!("cannot read image {}", a.image.display()))?.to_rgb8();
     let k = super::camera_file::load_camera_for(&a.camera, Some(image.dimensions()))?;
-    let depth = a.depth.as_deref().map(|p| load_depth(p, a.depth_scale, image.dimensions())).transpose()?;
+    let depth = a.depth.as_deref().map(|p| super::depth_file::load_depth(p, a.depth_scale, image.dimensions())).transpose()?;
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
     let backbone = a.target.backbone.open()?;
     let estimator = crate::estimate::Estimator::new(backbone, renderer.clone());

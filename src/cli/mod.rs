@@ -25,6 +25,7 @@ pub mod child_server;
 pub mod demo_client;
 pub mod demo_cmd;
 pub mod demo_scene;
+pub mod depth_file;
 pub mod detect_cmd;
 pub mod detect_overlay;
 pub mod estimate_cmd;

@@ -113,7 +113,7 @@ pub fn run(a: TrackArgs) -> Result<()> {
             vec![FrameDetection::given(model.object_id.clone(), mask, 1.0)]
         }
         None => {
-            let depth = depth_files.as_ref().and_then(|f| f.first()).map(|p| super::estimate_cmd::load_depth(p, a.depth_scale, first.image.dimensions())).transpose()?;
+            let depth = depth_files.as_ref().and_then(|f| f.first()).map(|p| super::depth_file::load_depth(p, a.depth_scale, first.image.dimensions())).transpose()?;
             detect_first(&model, (&first, depth.as_ref()), &k, &a.search, &renderer)?
         }
     };
@@ -143,7 +143,7 @@ pub fn run(a: TrackArgs) -> Result<()> {
                 let path = files
                     .get(n - 1)
                     .with_context(|| format!("frame {}: no depth frame for it ({} in {})", frame.name, files.len(), a.depth.as_deref().unwrap_or_else(|| std::path::Path::new("")).display()))?;
-                Some(super::estimate_cmd::load_depth(path, a.depth_scale, image.dimensions()).with_context(|| format!("frame {}", frame.name))?)
+                Some(super::depth_file::load_depth(path, a.depth_scale, image.dimensions()).with_context(|| format!("frame {}", frame.name))?)
             }
             None => None,
         };

@@ -69,7 +69,7 @@ pub fn segment_frame(depth: &DepthImage, k: &Intrinsics, largest_m: f64) -> Segm
         }
     }
     let mut segments: Vec<Segment> = members.into_iter().filter(|m| m.len() >= MIN_PIXELS).filter_map(|m| describe(depth, k, &m)).collect();
-    segments.sort_by(|a, b| b.pixels.cmp(&a.pixels));
+    segments.sort_by_key(|s| std::cmp::Reverse(s.pixels));
     Segmentation { segments, planes }
 }
 

@@ -11,7 +11,6 @@ use super::scales::{distance_for_scale, rung_scale, rungs_between, scale_for_dis
 use super::search::search;
 use super::templates::ShapeModel;
 use super::verify::{Evidence, Window};
-use crate::depth::DepthImage;
 use crate::geometry::{Intrinsics, Pose};
 use crate::masks::{mask_iou, segment_box, Method, PixelBox, SegmentConfig};
 use crate::mesh::Mesh;
@@ -190,17 +189,8 @@ pub fn check_options(o: &DetectOptions) -> Result<(), DetectError> {
     Ok(())
 }
 
-/// Looks for every target in `image`: in the surfaces of its registered `depth` where
-/// the camera gives one (`depth_detector`), else by the shapes and colours of the photo.
-pub fn detect(image: &RgbImage, depth: Option<&DepthImage>, k: &Intrinsics, targets: &[Target], opts: &DetectOptions, renderer: &RenderPool) -> Result<DetectReport, DetectError> {
-    match depth {
-        Some(depth) => super::depth_detector::detect_with_depth(image, depth, k, targets, opts),
-        None => detect_in_colour(image, k, targets, opts, renderer),
-    }
-}
-
 /// Looks for every target in `image` by LINE-2D-style shape matching and renders.
-fn detect_in_colour(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &DetectOptions, renderer: &RenderPool) -> Result<DetectReport, DetectError> {
+pub fn detect_in_colour(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &DetectOptions, renderer: &RenderPool) -> Result<DetectReport, DetectError> {
     let t0 = Instant::now();
     check_options(opts)?;
     Intrinsics::new(k.fx, k.fy, k.cx, k.cy, k.width, k.height).map_err(|e| DetectError::BadInput(e.to_string()))?;
