@@ -112,6 +112,27 @@ fn detect_and_estimate_by_object_id_over_http_and_grpc() {
     // Confirmed at its estimated pose (detect::confirm), one instance as asked by default.
     assert!(result["confirmation_score"].as_f64().is_some_and(|c| (0.0..=1.0).contains(&c)), "{est}");
     assert_eq!(est["results"].as_array().unwrap().len(), 1, "{est}");
+    // With the camera's depth the object is found among the surfaces of its size (the
+    // depth detector: the segment is the object's silhouette), estimated and confirmed by
+    // the photo and the depth at its pose together.
+    let tenths: Vec<u16> = sc.render.depth.iter().map(|&z| (z * 10_000.0).round() as u16).collect();
+    let depth_png = png(&image::ImageBuffer::<image::Luma<u16>, _>::from_raw(k.width, k.height, tenths).unwrap());
+    let mut with_depth = by_id.clone();
+    with_depth["depth"] = json!({"png16": b64(&depth_png), "scale_mm": 0.1});
+    let (s, est) = post(&c, &format!("{base}/v1/estimate"), &with_depth);
+    assert_eq!(s, 200, "{est}");
+    let found = est["detections"].as_array().unwrap();
+    assert_eq!(found.len(), 1, "one thing stands in the depth: {est}");
+    assert_eq!(found[0]["mask_source"], "depth_segment");
+    assert!(box_iou(&bbox(&found[0]["bbox"]), &truth) > 0.9, "{:?} against {truth:?}", found[0]["bbox"]);
+    let result = &est["results"][0];
+    assert!(result["pose"]["t"].as_array().is_some() && result["confirmation_score"].as_f64().is_some_and(|c| (0.0..=1.0).contains(&c)), "{est}");
+    // A depth range that holds nothing: no result, and the detector's reason.
+    let mut far = with_depth.clone();
+    far["detect"] = json!({"min_distance_m": 5.0});
+    let (s, r) = post(&c, &format!("{base}/v1/estimate"), &far);
+    assert_eq!(s, 200, "{r}");
+    assert!(r["results"].as_array().unwrap().is_empty() && r["reason"].as_str().unwrap_or("").contains("distance range"), "{r}");
     // A threshold nothing reaches: no result, and a reason.
     let mut strict = by_id.clone();
     strict["detect"] = json!({"min_score": 0.99, "max_detections": 3});

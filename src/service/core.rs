@@ -9,7 +9,7 @@ use super::detect_requests::DetectionOutput;
 use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput, RunnerUpOutput};
-use crate::detect::confirm::{answer_threshold, candidate_options, confirm, estimate_instances, Choice};
+use crate::detect::confirm::{answer_threshold, candidate_options, confirm, estimate_instances, one_per_place, Choice, DEPTH_CANDIDATES_COMPARED};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
@@ -354,15 +354,19 @@ impl Core {
         // The detector's candidates are confirmed at their estimated poses: a few more than
         // wanted are estimated, and the confirmed ones kept (`detect::confirm`).
         let choice = if detected.is_some() { Choice::Confirmed { min_score: req.detect.min_score } } else { Choice::Given };
-        let mut results = Vec::new();
-        let mut unconfirmed = 0usize;
+        // The depth detector's candidates are all compared, and each segment answered once
+        // across objects after every object's are in (`detect::confirm::one_per_place`).
+        let compared = depth.is_some() && detected.is_some();
+        let mut answers = Vec::new();
+        let mut tried = 0usize;
         for (object_id, dets) in &by_object {
             let model = &models[object_id];
             let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, c)| representative(c)).collect();
-            let groups = crate::masks::group_instances(&refs, 0.5).into_iter().enumerate();
-            let answered = estimate_instances(groups, o.instances_per_object, choice, |(instance, group)| {
+            let groups = crate::masks::group_instances(&refs, 0.5);
+            let estimated = if compared { groups.len().min(DEPTH_CANDIDATES_COMPARED).max(o.instances_per_object) } else { o.instances_per_object };
+            let answered = estimate_instances(groups.into_iter().enumerate(), estimated, choice, |(instance, group)| {
                 if deadline.is_some_and(|d| Instant::now() >= d) {
-                    return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", results.len() + instance)));
+                    return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", tried + instance)));
                 }
                 let gathered = Candidates::gather(group.iter().map(|&g| (dets[g].0, dets[g].1.as_slice())));
                 let candidates = &gathered.masks;
@@ -394,12 +398,20 @@ impl Core {
                     arbitrary_rotation_about_axis: InstanceResult::arbitrary_rotation(model.symmetries.as_ref()),
                     runner_up: r.runner_up.as_ref().map(RunnerUpOutput::from),
                 };
-                Ok((result, confirmation))
+                let mask = candidates[r.mask_index.unwrap_or(0)].mask.clone();
+                Ok(((result, mask), confirmation))
             })?;
-            unconfirmed += answered.tried - answered.kept.len();
-            // Instances are numbered in the answer's order, best confirmed first.
-            results.extend(answered.kept.into_iter().enumerate().map(|(n, (r, _))| InstanceResult { instance: n, ..r }));
+            tried += answered.tried;
+            answers.push(answered.kept.into_iter().map(|((r, mask), c)| (r, c.unwrap_or(0.0), mask)).collect::<Vec<_>>());
         }
+        let per_object: Vec<Vec<(InstanceResult, f32)>> =
+            if compared { one_per_place(answers, &vec![o.instances_per_object; by_object.len()]) } else { answers.into_iter().map(|a| a.into_iter().map(|(r, c, _)| (r, c)).collect()).collect() };
+        let mut results = Vec::new();
+        for kept in per_object {
+            // Instances are numbered in the answer's order, best confirmed first.
+            results.extend(kept.into_iter().enumerate().map(|(n, (r, _))| InstanceResult { instance: n, ..r }));
+        }
+        let unconfirmed = tried - results.len();
         let (detections, mut reason) = detected.unwrap_or_default();
         if choice != Choice::Given && results.is_empty() && reason.is_none() {
             reason = Some(format!(
