@@ -125,6 +125,12 @@ fn detect_and_estimate_by_object_id_over_http_and_grpc() {
     assert_eq!(found.len(), 1, "one thing stands in the depth: {est}");
     assert_eq!(found[0]["mask_source"], "depth_segment");
     assert!(box_iou(&bbox(&found[0]["bbox"]), &truth) > 0.9, "{:?} against {truth:?}", found[0]["bbox"]);
+    // Detect alone takes the depth the same way.
+    let mut detect_depth = detect(json!(["box"]), json!({}));
+    detect_depth["depth"] = with_depth["depth"].clone();
+    let (s, r) = post(&c, &format!("{base}/v1/detect"), &detect_depth);
+    assert_eq!(s, 200, "{r}");
+    assert_eq!(r["detections"][0]["mask_source"], "depth_segment", "{r}");
     let result = &est["results"][0];
     assert!(result["pose"]["t"].as_array().is_some() && result["confirmation_score"].as_f64().is_some_and(|c| (0.0..=1.0).contains(&c)), "{est}");
     // A depth range that holds nothing: no result, and the detector's reason.
@@ -221,7 +227,7 @@ fn detect_and_estimate_by_object_id_over_http_and_grpc() {
         let image = Some(pb::Image { data: Some(pb::image::Data::Encoded(png(&sc.render.rgb))), width: 0, height: 0 });
         let intrinsics = Some(pb::Intrinsics { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy, width: k.width, height: k.height });
         let options = Some(pb::DetectOptions { min_score: Some(0.0), max_detections: 3, ..Default::default() });
-        let req = pb::DetectRequest { image: image.clone(), intrinsics, objects: vec!["box".into()], options };
+        let req = pb::DetectRequest { image: image.clone(), intrinsics, objects: vec!["box".into()], options, depth: None };
         let r = g.detect(req.clone()).await.expect("Detect").into_inner();
         let d = &r.detections[0];
         assert_eq!((d.object_id.as_str(), d.mask_rle.as_ref().map(|m| (m.height, m.width))), ("box", Some((k.height, k.width))));

@@ -99,6 +99,7 @@ async fn detect_by_id(client: &mut Client, photo: &image::RgbImage, mask: &image
         intrinsics: Some(k.into()),
         objects: vec![OBJECT_ID.into()],
         options: None,
+        depth: None,
     };
     let found = client.detect(request).await.map_err(|s| anyhow::anyhow!("Detect: {s}"))?.into_inner();
     let truth = crate::detect::detector::bbox_of(mask);

@@ -16,7 +16,8 @@ impl Core {
         let t0 = Instant::now();
         req.check_limits()?;
         let (image, k) = decode_image(&req.image, &req.intrinsics)?;
-        let report = self.run_detector((&image, None), &k, &req.objects, &req.options, deadline)?;
+        let depth = req.depth.as_ref().map(|d| d.decode(k.width, k.height)).transpose()?;
+        let report = self.run_detector((&image, depth.as_ref()), &k, &req.objects, &req.options, deadline)?;
         Ok(DetectResponse::new(report, t0))
     }
 

@@ -18,6 +18,10 @@ pub struct DetectRequest {
     pub objects: Vec<String>,
     #[serde(default)]
     pub options: DetectOptions,
+    /// The depth camera's image registered to `image` (RGB-D): the objects are then looked
+    /// for among the surfaces the depth shows (`detect::depth_detector`).
+    #[serde(default)]
+    pub depth: Option<super::depth_input::DepthInput>,
 }
 
 impl DetectRequest {

@@ -109,7 +109,7 @@ pub fn detect_options(o: Option<pb::DetectOptions>) -> DetectOptions {
 pub fn detect_request(r: pb::DetectRequest) -> Result<DetectRequest, ServiceError> {
     let image = image(required(r.image, "image")?);
     let intrinsics = intrinsics(required(r.intrinsics, "intrinsics")?);
-    Ok(DetectRequest { image, intrinsics, objects: r.objects, options: detect_options(r.options) })
+    Ok(DetectRequest { image, intrinsics, objects: r.objects, options: detect_options(r.options), depth: r.depth.map(depth) })
 }
 
 pub fn detected_object(d: DetectionOutput) -> pb::DetectedObject {

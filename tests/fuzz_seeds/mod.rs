@@ -91,7 +91,7 @@ fn grpc_detect() -> Vec<u8> {
     let image = pb::Image { data: Some(pb::image::Data::Encoded(png(image::DynamicImage::ImageRgb8(checker(4, 4))))), width: 0, height: 0 };
     let intrinsics = pb::Intrinsics { fx: 4.0, fy: 4.0, cx: 1.5, cy: 1.5, width: 4, height: 4 };
     let options = pb::DetectOptions { max_detections: 2, min_score: Some(0.3), min_distance_m: Some(0.1), max_distance_m: Some(1.0), refine_masks: Some(true) };
-    pb::DetectRequest { image: Some(image), intrinsics: Some(intrinsics), objects: vec!["a".into()], options: Some(options) }.encode_to_vec()
+    pb::DetectRequest { image: Some(image), intrinsics: Some(intrinsics), objects: vec!["a".into()], options: Some(options), depth: None }.encode_to_vec()
 }
 
 fn grpc_onboard() -> Vec<u8> {

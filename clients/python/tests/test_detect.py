@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 from typing import Sequence
 
+import cv2
 import numpy as np
 import pytest
 
@@ -42,6 +43,19 @@ def test_detect_finds_the_object_with_its_mask_and_coarse_pose(client: b2tfpose.
         t = 0.5 if d.texture_score is None else d.texture_score
         assert abs(d.score - d.outline_score * c * (0.5 + 0.5 * t)) < 1e-4
     assert max(box_iou(d.box, truth_box(scene)) for d in found if d.box is not None) >= 0.5
+
+
+def test_detect_with_depth_finds_the_surface_of_the_objects_size(client: b2tfpose.Client, onboarded: Onboarded, scene: Scene) -> None:
+    # The render's depth PNG: uint16 tenths of a millimetre, 0 off the object.
+    depth = cv2.imread(str(scene.dir / "depth.png"), cv2.IMREAD_ANYDEPTH)
+    found = client.detect(scene.rgb, scene.K, [SAMPLE_ID], depth=depth, depth_scale=0.1)
+    assert len(found) == 1 and found[0].mask_source == "depth_segment"
+    assert found[0].box is not None and box_iou(found[0].box, truth_box(scene)) > 0.9
+    # A distance range that holds nothing: an answer with the reason.
+    none = client.detect(scene.rgb, scene.K, [SAMPLE_ID], depth=depth, depth_scale=0.1, min_distance=5.0)
+    assert len(none) == 0 and "distance range" in (none.reason or "")
+    with pytest.raises(ValueError, match="depth_scale without depth"):
+        client.detect(scene.rgb, scene.K, [SAMPLE_ID], depth_scale=0.1)
 
 
 def test_detections_go_back_into_estimate_and_estimate_by_id(client: b2tfpose.Client, onboarded: Onboarded, scene: Scene) -> None:

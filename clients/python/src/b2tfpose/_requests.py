@@ -91,9 +91,21 @@ def detect_options(
     return options
 
 
-def detect_request(image: ImageInput, K: IntrinsicsInput, objects: Optional[Sequence[str]], *, bgr: bool, options: pb.DetectOptions) -> pb.DetectRequest:
+def detect_request(
+    image: ImageInput,
+    K: IntrinsicsInput,
+    objects: Optional[Sequence[str]],
+    *,
+    bgr: bool,
+    options: pb.DetectOptions,
+    depth: Optional[DepthInput] = None,
+    depth_scale: Optional[float] = None,
+) -> pb.DetectRequest:
     img, w, h = image_message(image, bgr=bgr)
-    return pb.DetectRequest(image=img, intrinsics=intrinsics_message(K, w, h), objects=objects_list(objects), options=options)
+    if depth is None and depth_scale is not None:
+        raise ValueError("depth_scale without depth")
+    depth_m = depth_message(depth, depth_scale, w, h) if depth is not None else None
+    return pb.DetectRequest(image=img, intrinsics=intrinsics_message(K, w, h), objects=objects_list(objects), options=options, depth=depth_m)
 
 
 def estimate_request(

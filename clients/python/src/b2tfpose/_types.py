@@ -249,8 +249,9 @@ class DetectedObject(Detection):
     """The matched template's pose where it was found: a coarse hypothesis (tens of
     degrees, a few per cent of depth)."""
     mask_source: str = ""
-    """"silhouette" (the mesh rendered at the coarse pose) or "graph_cut" (the photo
-    segmented inside the box, where it agreed with the render)."""
+    """"silhouette" (the mesh rendered at the coarse pose), "graph_cut" (the photo
+    segmented inside the box, where it agreed with the render) or "depth_segment" (a
+    surface of the depth image, of the object's size: detection with depth)."""
     shape_score: float = 0.0
     """The score's terms in [0, 1]: template match, outline agreement, colour agreement
     (None for meshes without colours), interior-edge agreement (None where the render

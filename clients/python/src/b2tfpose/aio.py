@@ -308,12 +308,14 @@ class AsyncClient:
         min_distance: Optional[float] = None,
         max_distance: Optional[float] = None,
         refine_masks: Optional[bool] = None,
+        depth: Optional[DepthInput] = None,
+        depth_scale: Optional[float] = None,
         timeout: Optional[float] = None,
         retry: RetryArg = None,
     ) -> Detections:
         """As :meth:`b2tfpose.Client.detect`."""
         options = _requests.detect_options(max_detections, min_score, min_distance, max_distance, refine_masks)
-        request = _requests.detect_request(image, K, objects, bgr=bgr, options=options)
+        request = _requests.detect_request(image, K, objects, bgr=bgr, options=options, depth=depth, depth_scale=depth_scale)
         return Detections.from_pb(await self._call("Detect", self._stub.Detect, request, timeout, retry, idempotent=True))
 
     def track(

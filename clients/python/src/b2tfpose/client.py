@@ -328,6 +328,8 @@ class Client:
         min_distance: Optional[float] = None,
         max_distance: Optional[float] = None,
         refine_masks: Optional[bool] = None,
+        depth: Optional[DepthInput] = None,
+        depth_scale: Optional[float] = None,
         timeout: Optional[float] = None,
         retry: RetryArg = None,
     ) -> Detections:
@@ -340,10 +342,13 @@ class Client:
         detector's settings (None: the server's defaults, 20, 0.75, from the object's size
         and the image, on). Returns :class:`~b2tfpose.Detections`, best first; each is a
         :class:`~b2tfpose.Detection` that :meth:`estimate` takes as it is. Finding nothing
-        is an empty list with ``.reason``, not an error.
+        is an empty list with ``.reason``, not an error. ``depth`` / ``depth_scale``: an
+        RGB-D camera's depth registered to ``image``, as :meth:`estimate` takes it; the
+        objects are then looked for among the surfaces standing off the table, of their size
+        (each detection's ``mask_source`` is ``"depth_segment"``).
         """
         options = _requests.detect_options(max_detections, min_score, min_distance, max_distance, refine_masks)
-        request = _requests.detect_request(image, K, objects, bgr=bgr, options=options)
+        request = _requests.detect_request(image, K, objects, bgr=bgr, options=options, depth=depth, depth_scale=depth_scale)
         return Detections.from_pb(self._call("Detect", self._stub.Detect, request, timeout, retry, idempotent=True))
 
     # ------------------------------------------------------------------ tracking
