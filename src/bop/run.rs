@@ -17,7 +17,7 @@ use super::dataset::{load_rgb, load_scene_cameras, load_targets, ImageCamera};
 use super::detections::{DetectionIndex, DetectionRecord};
 use super::format::{scene_dir, TargetRecord};
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
-use crate::detect::confirm::{candidate_options, confirm, estimate_instances, one_per_place, Choice, DEPTH_CANDIDATES_COMPARED};
+use crate::detect::confirm::{candidate_options, confirm, estimate_instances, instances_to_estimate, one_per_place, Choice};
 use crate::detect::{detect, DetectOptions, Target};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateError, Estimator};
@@ -162,7 +162,7 @@ pub fn run(
             let wanted = t.inst_count as usize;
             // The depth detector's candidates are all compared, and each segment answered
             // once across objects after every object's are in (`one_per_place`).
-            let estimated = if compared { refs.len().min(DEPTH_CANDIDATES_COMPARED).max(wanted) } else { wanted };
+            let estimated = instances_to_estimate(compared, refs.len(), wanted);
             let answered = estimate_instances(group_instances(&refs, opts.same_instance_iou), estimated, choice, |group| {
                 let candidates = Candidates::gather(group.iter().map(|&i| (i, masks[i].as_slice()))).masks;
                 let group = &group;

@@ -146,6 +146,18 @@ fn settled(scores: &[Option<f32>], wanted: usize, min_score: f32) -> bool {
 /// ranks them too weakly to stop at the first confirmed (`one_per_place` then decides).
 pub const DEPTH_CANDIDATES_COMPARED: usize = 6;
 
+/// The instances to ask `estimate_instances` for, of an object with `wanted` instances and
+/// `candidates` candidate groups: with the depth detector's candidates (`compared`), all of
+/// them up to `DEPTH_CANDIDATES_COMPARED`, to be chosen among once every object's are in;
+/// else those wanted (a few more are tried until they are surely confirmed).
+pub fn instances_to_estimate(compared: bool, candidates: usize, wanted: usize) -> usize {
+    if compared {
+        candidates.min(DEPTH_CANDIDATES_COMPARED).max(wanted)
+    } else {
+        wanted
+    }
+}
+
 /// Each place answered once across objects: `answers[o]` are object o's confirmed answers
 /// (anything, its confirmation score, the detection mask it was estimated from), and at
 /// most `wanted[o]` are kept for it. Best score first over all objects, an answer whose
@@ -227,6 +239,9 @@ mod tests {
         let answers = vec![vec![("a0", 0.8, place(0)), ("a1", 0.6, place(1))], vec![("b0", 0.9, place(0))]];
         let kept = one_per_place(answers, &[1, 1]);
         assert_eq!(kept, vec![vec![("a1", 0.6)], vec![("b0", 0.9)]]);
+        // With depth every candidate (up to the cap) is estimated; else those wanted.
+        assert_eq!((instances_to_estimate(true, 3, 1), instances_to_estimate(true, 40, 1), instances_to_estimate(true, 0, 2)), (3, DEPTH_CANDIDATES_COMPARED, 2));
+        assert_eq!(instances_to_estimate(false, 40, 1), 1);
         // An object answers no more instances than wanted, even on free places.
         let kept = one_per_place(vec![vec![("a0", 0.8, place(0)), ("a1", 0.6, place(1))]], &[1]);
         assert_eq!(kept, vec![vec![("a0", 0.8)]]);

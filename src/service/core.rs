@@ -9,7 +9,7 @@ use super::detect_requests::DetectionOutput;
 use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput, RunnerUpOutput};
-use crate::detect::confirm::{answer_threshold, candidate_options, confirm, estimate_instances, one_per_place, Choice, DEPTH_CANDIDATES_COMPARED};
+use crate::detect::confirm::{answer_threshold, candidate_options, confirm, estimate_instances, instances_to_estimate, one_per_place, Choice};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
@@ -363,7 +363,7 @@ impl Core {
             let model = &models[object_id];
             let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, c)| representative(c)).collect();
             let groups = crate::masks::group_instances(&refs, 0.5);
-            let estimated = if compared { groups.len().min(DEPTH_CANDIDATES_COMPARED).max(o.instances_per_object) } else { o.instances_per_object };
+            let estimated = instances_to_estimate(compared, groups.len(), o.instances_per_object);
             let answered = estimate_instances(groups.into_iter().enumerate(), estimated, choice, |(instance, group)| {
                 if deadline.is_some_and(|d| Instant::now() >= d) {
                     return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", tried + instance)));
