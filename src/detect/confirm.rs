@@ -142,8 +142,9 @@ fn settled(scores: &[Option<f32>], wanted: usize, min_score: f32) -> bool {
 }
 
 /// Candidates of one object compared at their estimated poses when the depth detector
-/// found them: each of its segments (up to this many) is estimated, since a segment's size
-/// ranks them too weakly to stop at the first confirmed (`one_per_place` then decides).
+/// found them: each of its segments (up to this many, and `EXTRA_CANDIDATES` more until
+/// this many are surely confirmed) is estimated, since a segment's size ranks them too
+/// weakly to stop at the first confirmed (`one_per_place` then decides).
 pub const DEPTH_CANDIDATES_COMPARED: usize = 6;
 
 /// The instances to ask `estimate_instances` for, of an object with `wanted` instances and
