@@ -8,7 +8,6 @@
 
 use super::depth_segments::{segment_frame, Segment};
 use super::detector::{check_options, DetectError, DetectOptions, DetectReport, DetectTimings, Detection, MaskSource, Searched, Target};
-use super::nms::suppress;
 use super::verify::Evidence;
 use crate::depth::DepthImage;
 use crate::geometry::{Intrinsics, Pose};
@@ -35,29 +34,23 @@ pub fn detect_with_depth(image: &RgbImage, depth: &DepthImage, k: &Intrinsics, t
     let segmentation = segment_frame(depth, k, largest);
     let segments: Vec<&Segment> = segmentation.segments.iter().filter(|s| in_range(s, opts)).collect();
     let search_ms = t0.elapsed().as_secs_f64() * 1e3;
-    let mut detections = Vec::new();
+    let nearest = segments.iter().map(|s| s.median_z).fold(f64::INFINITY, f64::min);
+    let farthest = segments.iter().map(|s| s.median_z).fold(0.0, f64::max);
+    // (score, target, segment) of every fit. Segments share no pixel, so no suppression is
+    // needed within an object; across objects a segment stays a candidate of each object it
+    // fits (the size cannot tell them apart; the confirmation at the estimated pose does).
+    let mut fits: Vec<(f32, usize, usize)> = Vec::new();
     let mut searched = Vec::new();
-    for t in targets {
+    for (ti, t) in targets.iter().enumerate() {
         let d = t.mesh.diameter().max(1e-6);
-        let mut own: Vec<Detection> = segments.iter().filter_map(|s| size_fit(s.extent_m, d).map(|score| candidate(t, s, score))).collect();
-        own.sort_by(|a, b| b.score.total_cmp(&a.score));
-        let nearest = segments.iter().map(|s| s.median_z).fold(f64::INFINITY, f64::min);
-        let farthest = segments.iter().map(|s| s.median_z).fold(0.0, f64::max);
+        let own: Vec<(f32, usize, usize)> = segments.iter().enumerate().filter_map(|(si, s)| size_fit(s.extent_m, d).map(|score| (score, ti, si))).collect();
         searched.push(Searched { object_id: t.id.to_string(), distance_m: [nearest, farthest], scales: 1, candidates: own.len() });
-        detections.extend(own.into_iter().filter(|c| c.score >= opts.min_score));
+        fits.extend(own.into_iter().filter(|f| f.0 >= opts.min_score));
     }
-    // Across objects a segment stays a candidate of each object it fits (the size cannot
-    // tell them apart; the confirmation at the estimated pose does); within one object,
-    // overlapping segments are one.
-    detections.sort_by(|a, b| b.score.total_cmp(&a.score));
-    let mut kept = Vec::new();
-    for t in targets {
-        let own: Vec<&Detection> = detections.iter().filter(|d| d.object_id == t.id).collect();
-        let order = suppress(&own.iter().map(|d| d.bbox).collect::<Vec<_>>(), &own.iter().map(|d| d.score).collect::<Vec<_>>(), 0.5);
-        kept.extend(order.into_iter().map(|i| own[i].clone()));
-    }
-    kept.sort_by(|a, b| b.score.total_cmp(&a.score));
-    kept.truncate(opts.max_detections);
+    fits.sort_by(|a, b| b.0.total_cmp(&a.0));
+    fits.truncate(opts.max_detections);
+    // Masks are copied only for the detections answered.
+    let kept: Vec<Detection> = fits.into_iter().map(|(score, ti, si)| candidate(&targets[ti], segments[si], score)).collect();
     let reason = kept.is_empty().then(|| why_none(&segmentation.segments, &segments, targets, opts));
     let total_ms = t0.elapsed().as_secs_f64() * 1e3;
     Ok(DetectReport { detections: kept, searched, timings: DetectTimings { search_ms, total_ms, ..Default::default() }, reason })
