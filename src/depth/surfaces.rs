@@ -73,14 +73,21 @@ pub fn point_at(depth: &DepthImage, k: &Intrinsics, x: i64, y: i64) -> Option<Po
     (z > 0.0).then(|| k.back_project(x as f64, y as f64, z))
 }
 
-/// Whether the point at pixel (x, y) belongs to something standing on `plane` rather than
-/// to the plane: off it by more than `tolerance_m` on the camera's side, or near it but
-/// facing elsewhere (checked `step` pixels around).
-pub fn off_plane(depth: &DepthImage, k: &Intrinsics, plane: &Plane, (x, y): (i64, i64), tolerance_m: f64, step: i64) -> bool {
+/// Whether the point at pixel (x, y) belongs to something other than `plane`: off it by
+/// more than `tolerance_m` on the camera's side or less than `behind_m` behind it, or near
+/// it but facing elsewhere (checked `step` pixels around). Behind a support means under the
+/// table (the floor past its edge), but a plane extended is not the surface itself: the
+/// plane of a raised shelf at the back of a desk passes through the things on the desk in
+/// front of it, a few centimetres below it, so a frame's segmentation lets `behind_m` be an
+/// object's size.
+pub fn off_plane(depth: &DepthImage, k: &Intrinsics, plane: &Plane, (x, y): (i64, i64), tolerance_m: f64, behind_m: f64, step: i64) -> bool {
     let Some(p) = point_at(depth, k, x, y) else { return false };
     let above = plane.above(&p);
-    let near = |dx: i64, dy: i64| point_at(depth, k, x + dx, y + dy);
-    above > tolerance_m || (above > -tolerance_m && !plane.faces_like([near(-step, 0), near(step, 0), near(0, -step), near(0, step)]))
+    if above.abs() <= tolerance_m {
+        let near = |dx: i64, dy: i64| point_at(depth, k, x + dx, y + dy);
+        return !plane.faces_like([near(-step, 0), near(step, 0), near(0, -step), near(0, step)]);
+    }
+    above > 0.0 || -above < behind_m
 }
 
 /// 4-connected surfaces of the `member` cells of a `w × h` grid, split where neighbouring
@@ -125,6 +132,20 @@ mod tests {
         assert!(plane.normal.z < 0.0, "normal {:?} must face the camera", plane.normal);
         assert!(plane.above(&Point3::new(0.1, 0.3, 0.6)) > 0.2);
         assert!(dominant_plane(&pts[..20], 0.005).is_none());
+    }
+
+    #[test]
+    fn a_point_below_a_planes_extension_belongs_to_something_unless_far_below() {
+        // A frontal plane at 1 m (offset -1 with the normal towards the camera) and a frame
+        // whose left column is 3 cm behind it, middle 30 cm behind, right on it.
+        let k = Intrinsics::new(100.0, 100.0, 1.5, 1.5, 3, 3).unwrap();
+        let depth = DepthImage::from_metres(3, 3, (0..9).map(|i| [1.03, 1.3, 1.0][i % 3]).collect()).unwrap();
+        let plane = Plane { normal: -Vector3::z(), offset: -1.0 };
+        let off = |x: i64, behind_m: f64| off_plane(&depth, &k, &plane, (x, 1), 0.01, behind_m, 1);
+        assert!(off(0, 0.2), "3 cm under a raised shelf's plane: a thing on the desk below it");
+        assert!(!off(1, 0.2), "30 cm under it: the floor");
+        assert!(!off(0, 0.01), "a box's proposal drops everything under its support");
+        assert!(!off(2, 0.2), "on the plane and facing like it");
     }
 
     #[test]

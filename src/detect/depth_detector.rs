@@ -4,7 +4,7 @@
 //! learned and nothing is painted: clutter in the photo makes no segment, and a thing of
 //! the wrong size is no candidate. Which object a segment is, and its turn, the estimator
 //! decides with the confirmation at the estimated pose (`confirm`, with the depth check of
-//! `depth_check`): the candidates' scores here rank by size alone.
+//! `depth_check`): the candidates' scores here rank by size and solidity only.
 
 use super::depth_segments::{segment_frame, Segment};
 use super::detector::{check_options, DetectError, DetectOptions, DetectReport, DetectTimings, Detection, MaskSource, Searched, Target};
@@ -21,6 +21,10 @@ const MAX_EXTENT_SHARE: f64 = 1.15;
 const SIZE_NOISE_M: f64 = 0.01;
 /// ... and at least this share: less is too little of it in view to estimate from.
 const MIN_EXTENT_SHARE: f64 = 0.25;
+/// A segment filling at least this much of its diagonal's square (`Segment::fill`) is as
+/// solid as an object's view (a 4 : 1 rectangle fills 0.24); thinner or sparser ones rank
+/// lower in proportion: the size alone ties a cable's run with an object.
+const SOLID_FILL: f64 = 0.2;
 
 /// Looks for every target in the frame (`image` with its registered `depth`).
 pub fn detect_with_depth(image: &RgbImage, depth: &DepthImage, k: &Intrinsics, targets: &[Target], opts: &DetectOptions) -> Result<DetectReport, DetectError> {
@@ -31,7 +35,7 @@ pub fn detect_with_depth(image: &RgbImage, depth: &DepthImage, k: &Intrinsics, t
         return Err(DetectError::BadInput(format!("depth is {w}×{h} but the image is {}×{}: it must be registered to the colour image", image.width(), image.height())));
     }
     let largest = targets.iter().map(|t| t.mesh.diameter()).fold(0.0, f64::max);
-    let segmentation = segment_frame(depth, k, largest);
+    let segmentation = segment_frame(depth, k, largest, largest_fit(largest));
     let segments: Vec<&Segment> = segmentation.segments.iter().filter(|s| in_range(s, opts)).collect();
     let search_ms = t0.elapsed().as_secs_f64() * 1e3;
     let nearest = segments.iter().map(|s| s.median_z).fold(f64::INFINITY, f64::min);
@@ -39,21 +43,32 @@ pub fn detect_with_depth(image: &RgbImage, depth: &DepthImage, k: &Intrinsics, t
     // (score, target, segment) of every fit. Segments share no pixel, so no suppression is
     // needed within an object; across objects a segment stays a candidate of each object it
     // fits (the size cannot tell them apart; the confirmation at the estimated pose does).
-    let mut fits: Vec<(f32, usize, usize)> = Vec::new();
+    let mut fits: Vec<Vec<(f32, (usize, usize))>> = Vec::new();
     let mut searched = Vec::new();
     for (ti, t) in targets.iter().enumerate() {
         let d = t.mesh.diameter().max(1e-6);
-        let own: Vec<(f32, usize, usize)> = segments.iter().enumerate().filter_map(|(si, s)| size_fit(s.extent_m, d).map(|score| (score, ti, si))).collect();
+        let mut own: Vec<(f32, (usize, usize))> = segments.iter().enumerate().filter_map(|(si, s)| size_fit(s.extent_m, d).map(|fit| (fit * solidity(s.fill), (ti, si)))).collect();
         searched.push(Searched { object_id: t.id.to_string(), distance_m: [nearest, farthest], scales: 1, candidates: own.len() });
-        fits.extend(own.into_iter().filter(|f| f.0 >= opts.min_score));
+        own.retain(|f| f.0 >= opts.min_score);
+        own.sort_by(|a, b| b.0.total_cmp(&a.0));
+        fits.push(own);
     }
-    fits.sort_by(|a, b| b.0.total_cmp(&a.0));
-    fits.truncate(opts.max_detections);
+    let fits = fairly_ranked(fits, opts.max_detections);
     // Masks are copied only for the detections answered.
-    let kept: Vec<Detection> = fits.into_iter().map(|(score, ti, si)| candidate(&targets[ti], segments[si], score)).collect();
+    let kept: Vec<Detection> = fits.into_iter().map(|(score, (ti, si))| candidate(&targets[ti], segments[si], score)).collect();
     let reason = kept.is_empty().then(|| why_none(&segmentation.segments, &segments, targets, opts));
     let total_ms = t0.elapsed().as_secs_f64() * 1e3;
     Ok(DetectReport { detections: kept, searched, timings: DetectTimings { search_ms, total_ms, ..Default::default() }, reason })
+}
+
+/// At most `max` fits over all objects (each object's best first), taken rank by rank: every
+/// object's best before any object's second, and within a rank the higher score first.
+/// Sizes tie often (a segment fits every object of about its size), so a plain sort by
+/// score would fill the budget with the first objects searched and leave the last none.
+fn fairly_ranked<T>(per_object: Vec<Vec<(f32, T)>>, max: usize) -> Vec<(f32, T)> {
+    let mut all: Vec<(usize, f32, T)> = per_object.into_iter().flat_map(|own| own.into_iter().enumerate().map(|(rank, (score, t))| (rank, score, t))).collect();
+    all.sort_by(|a, b| a.0.cmp(&b.0).then(b.1.total_cmp(&a.1)));
+    all.into_iter().take(max).map(|(_, score, t)| (score, t)).collect()
 }
 
 /// Whether the segment lies within the caller's distance range.
@@ -61,15 +76,25 @@ fn in_range(s: &Segment, opts: &DetectOptions) -> bool {
     opts.min_distance_m.is_none_or(|m| s.median_z >= m) && opts.max_distance_m.is_none_or(|m| s.median_z <= m)
 }
 
+/// The largest segment extent (metres) that can be an object of `diameter`.
+fn largest_fit(diameter: f64) -> f64 {
+    MAX_EXTENT_SHARE * diameter + SIZE_NOISE_M
+}
+
 /// How well a segment `extent` (metres) fits an object of `diameter`: None when it cannot
 /// be the object; else 0–1, highest for a segment as large as the object (a whole view
 /// spans most of the diameter), lower for a small part of it in view.
 fn size_fit(extent: f64, diameter: f64) -> Option<f32> {
-    if extent > MAX_EXTENT_SHARE * diameter + SIZE_NOISE_M || extent < MIN_EXTENT_SHARE * diameter {
+    if extent > largest_fit(diameter) || extent < MIN_EXTENT_SHARE * diameter {
         return None;
     }
     let share = extent / diameter;
     Some(if share <= 0.8 { (share / 0.8).sqrt() } else { 1.0 } as f32)
+}
+
+/// How solid a segment of `fill` is, 0–1 (`SOLID_FILL` and more: 1).
+fn solidity(fill: f64) -> f32 {
+    (fill / SOLID_FILL).min(1.0) as f32
 }
 
 /// The candidate of target `t` on segment `s`: its mask and box, and a placement (the
@@ -109,5 +134,14 @@ mod tests {
         assert_eq!(size_fit(0.3, 0.2), None, "larger than the object");
         assert_eq!(size_fit(0.03, 0.2), None, "too little of it");
         assert!(size_fit(0.225, 0.2).is_some(), "ragged edges allowed for");
+    }
+
+    #[test]
+    fn every_object_keeps_its_best_fits_within_the_budget() {
+        // Object 0 has three perfect fits, object 1 two weaker ones: a budget of 3 keeps
+        // each object's best before anyone's third.
+        let fits = vec![vec![(1.0, "a0"), (1.0, "a1"), (1.0, "a2")], vec![(0.7, "b0"), (0.6, "b1")]];
+        assert_eq!(fairly_ranked(fits.clone(), 3), vec![(1.0, "a0"), (0.7, "b0"), (1.0, "a1")]);
+        assert_eq!(fairly_ranked(fits, 10).len(), 5);
     }
 }

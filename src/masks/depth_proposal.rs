@@ -29,7 +29,7 @@ pub fn depth_proposal(depth: &DepthImage, k: &Intrinsics, bbox: &PixelBox) -> Op
         .map(|i| {
             let (x, y) = ((bbox.x0 as usize + i % bw) as i64, (bbox.y0 as usize + i / bw) as i64);
             match &plane {
-                Some(plane) => off_plane(depth, k, plane, (x, y), ON_PLANE_M, 2),
+                Some(plane) => off_plane(depth, k, plane, (x, y), ON_PLANE_M, ON_PLANE_M, 2),
                 None => point_at(depth, k, x, y).is_some(),
             }
         })
