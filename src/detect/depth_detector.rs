@@ -40,7 +40,7 @@ pub fn detect_with_depth(image: &RgbImage, depth: &DepthImage, k: &Intrinsics, t
     let search_ms = t0.elapsed().as_secs_f64() * 1e3;
     let nearest = segments.iter().map(|s| s.median_z).fold(f64::INFINITY, f64::min);
     let farthest = segments.iter().map(|s| s.median_z).fold(0.0, f64::max);
-    // (score, target, segment) of every fit. Segments share no pixel, so no suppression is
+    // Each object's fits, (score, (target, segment)). Segments share no pixel, so no suppression is
     // needed within an object; across objects a segment stays a candidate of each object it
     // fits (the size cannot tell them apart; the confirmation at the estimated pose does).
     let mut fits: Vec<Vec<(f32, (usize, usize))>> = Vec::new();

@@ -68,13 +68,7 @@ pub fn segment_frame(depth: &DepthImage, k: &Intrinsics, largest_m: f64, too_lar
         })
         .collect();
     let label = surfaces(w, h, &member, &|x, y| depth.at(x as u32, y as u32) as f64);
-    let count = label.iter().flatten().max().map_or(0, |m| m + 1);
-    let mut members: Vec<Vec<usize>> = vec![Vec::new(); count];
-    for (i, l) in label.iter().enumerate() {
-        if let Some(l) = l {
-            members[*l].push(i);
-        }
-    }
+    let members = group_by_surface(&label, 0..w * h);
     let mut segments: Vec<Segment> = Vec::new();
     for m in members.into_iter().filter(|m| m.len() >= MIN_PIXELS) {
         let Some(whole) = describe(depth, k, &m) else { continue };
@@ -105,15 +99,20 @@ fn split_by_depth(depth: &DepthImage, pixels: &[usize]) -> Vec<Vec<usize>> {
             member[i] = z > 0.0 && (z <= cut) == near;
         }
         let label = surfaces(w, h, &member, &|x, y| depth.at(x as u32, y as u32) as f64);
-        let mut by_label: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
-        for &i in pixels {
-            if let Some(l) = label[i] {
-                by_label.entry(l).or_default().push(i);
-            }
-        }
-        parts.extend(by_label.into_values().filter(|p| p.len() >= MIN_PIXELS));
+        parts.extend(group_by_surface(&label, pixels.iter().copied()).into_iter().filter(|p| p.len() >= MIN_PIXELS));
     }
     parts
+}
+
+/// The `cells` (row-major indices, kept in their order) of each surface `label`, by label.
+fn group_by_surface(label: &[Option<usize>], cells: impl IntoIterator<Item = usize>) -> Vec<Vec<usize>> {
+    let mut groups: Vec<Vec<usize>> = vec![Vec::new(); label.iter().flatten().max().map_or(0, |m| m + 1)];
+    for i in cells {
+        if let Some(l) = label[i] {
+            groups[l].push(i);
+        }
+    }
+    groups
 }
 
 /// The value that splits `values` into two groups of the largest between-group variance
