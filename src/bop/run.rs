@@ -183,6 +183,8 @@ pub fn run(
                     Some(pool) => {
                         let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
                         let c = confirm(&rgb, depth.as_ref(), &camera.cam, &m.mesh, mask, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?;
+                        let t_mm = pose.translation * 1e3;
+                        tracing::debug!(scene_id, im_id, obj_id = t.obj_id, x_mm = t_mm.x, y_mm = t_mm.y, z_mm = t_mm.z, rotation = ?pose.rotation_row_major(), confirmation = c, "candidate confirmed");
                         Ok((Some((pose, c, mask.clone())), Some(c)))
                     }
                     None => Ok((Some((pose, r.score, candidates[r.mask_index.unwrap_or(0)].mask.clone())), None)),

@@ -4,6 +4,7 @@
 //! the photo but not a surface of the object's size standing off the table, so these
 //! segments are where the depth detector (`depth_detector`) looks.
 
+use super::segment_cuts::{group_by_surface, neighbouring_pairs, split_at_necks, split_by_depth, MIN_PIXELS};
 use crate::depth::surfaces::{dominant_plane, off_plane, point_at, surfaces, Plane};
 use crate::depth::DepthImage;
 use crate::geometry::Intrinsics;
@@ -22,8 +23,6 @@ const MAX_PLANES: usize = 3;
 const PLANE_OVER_OBJECT: f64 = 1.5;
 /// Planes are fitted to every `PLANE_STEP`-th pixel in x and y.
 const PLANE_STEP: usize = 4;
-/// Segments smaller than this (pixels) are noise at depth edges.
-const MIN_PIXELS: usize = 120;
 
 /// One surface standing in the frame.
 #[derive(Clone, Debug)]
@@ -56,8 +55,8 @@ pub struct Segmentation {
 
 /// The frame's segments (camera `k`, registered to `depth`), for objects of at most
 /// `largest_m` across (a flat face of one is never taken for the table); a segment whose
-/// extent passes `too_large_m` (larger than any object can look) is also offered cut in
-/// two (`split_by_depth`).
+/// extent passes `too_large_m` (larger than any object can look) is also offered cut at
+/// its depths and at its necks, and neighbouring surfaces joined in pairs (`segment_cuts`).
 pub fn segment_frame(depth: &DepthImage, k: &Intrinsics, largest_m: f64, too_large_m: f64) -> Segmentation {
     let (w, h) = (depth.width() as usize, depth.height() as usize);
     let planes = support_planes(depth, k, PLANE_OVER_OBJECT * largest_m);
@@ -70,80 +69,27 @@ pub fn segment_frame(depth: &DepthImage, k: &Intrinsics, largest_m: f64, too_lar
     let label = surfaces(w, h, &member, &|x, y| depth.at(x as u32, y as u32) as f64);
     let members = group_by_surface(&label, 0..w * h);
     let mut segments: Vec<Segment> = Vec::new();
+    // The pieces that are joined in pairs: the surfaces that can be an object, and the
+    // parts cut at necks of those that cannot (they share no pixel).
+    let mut pieces: Vec<Vec<usize>> = Vec::new();
     for m in members.into_iter().filter(|m| m.len() >= MIN_PIXELS) {
         let Some(whole) = describe(depth, k, &m) else { continue };
         if whole.extent_m > too_large_m {
             segments.extend(split_by_depth(depth, &m).iter().filter_map(|part| describe(depth, k, part)));
+            let necks = split_at_necks(w, h, &m);
+            segments.extend(necks.iter().filter_map(|part| describe(depth, k, part)));
+            pieces.extend(necks);
+        } else {
+            pieces.push(m);
         }
         segments.push(whole);
     }
+    for (a, b) in neighbouring_pairs(w, h, &pieces) {
+        let joined: Vec<usize> = pieces[a].iter().chain(&pieces[b]).copied().collect();
+        segments.extend(describe(depth, k, &joined).filter(|s| s.extent_m <= too_large_m));
+    }
     segments.sort_by_key(|s| std::cmp::Reverse(s.pixels));
     Segmentation { segments, planes }
-}
-
-/// A segment larger than any object looked for may be two things touching, one in front
-/// of the other (a box leaning on a mug: no depth jump where they meet). Its pixels are cut
-/// at the depth that best separates them (Otsu's threshold over their depths) and each
-/// side's connected parts of `MIN_PIXELS` or more returned (none when one side is too
-/// small); the caller keeps the whole too, the confirmation at the estimated pose chooses.
-fn split_by_depth(depth: &DepthImage, pixels: &[usize]) -> Vec<Vec<usize>> {
-    let (w, h) = (depth.width() as usize, depth.height() as usize);
-    let z_of = |i: usize| depth.at((i % w) as u32, (i / w) as u32) as f64;
-    let zs: Vec<f64> = pixels.iter().map(|&i| z_of(i)).filter(|&z| z > 0.0).collect();
-    let Some(cut) = otsu_threshold(&zs) else { return Vec::new() };
-    let mut parts = Vec::new();
-    for near in [true, false] {
-        let mut member = vec![false; w * h];
-        for &i in pixels {
-            let z = z_of(i);
-            member[i] = z > 0.0 && (z <= cut) == near;
-        }
-        let label = surfaces(w, h, &member, &|x, y| depth.at(x as u32, y as u32) as f64);
-        parts.extend(group_by_surface(&label, pixels.iter().copied()).into_iter().filter(|p| p.len() >= MIN_PIXELS));
-    }
-    parts
-}
-
-/// The `cells` (row-major indices, kept in their order) of each surface `label`, by label.
-fn group_by_surface(label: &[Option<usize>], cells: impl IntoIterator<Item = usize>) -> Vec<Vec<usize>> {
-    let mut groups: Vec<Vec<usize>> = vec![Vec::new(); label.iter().flatten().max().map_or(0, |m| m + 1)];
-    for i in cells {
-        if let Some(l) = label[i] {
-            groups[l].push(i);
-        }
-    }
-    groups
-}
-
-/// The value that splits `values` into two groups of the largest between-group variance
-/// (Otsu, over 64 bins); None when they do not spread or one group would be empty.
-fn otsu_threshold(values: &[f64]) -> Option<f64> {
-    const BINS: usize = 64;
-    let lo = values.iter().copied().fold(f64::INFINITY, f64::min);
-    let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    if values.is_empty() || hi - lo <= 0.0 {
-        return None;
-    }
-    let bin = |v: f64| (((v - lo) / (hi - lo) * BINS as f64) as usize).min(BINS - 1);
-    let mut hist = [0usize; BINS];
-    for &v in values {
-        hist[bin(v)] += 1;
-    }
-    let (n, sum) = (values.len() as f64, hist.iter().enumerate().map(|(b, &c)| b as f64 * c as f64).sum::<f64>());
-    let (mut below, mut below_sum, mut best) = (0.0, 0.0, None::<(f64, usize)>);
-    for (b, &c) in hist.iter().enumerate().take(BINS - 1) {
-        below += c as f64;
-        below_sum += b as f64 * c as f64;
-        let above = n - below;
-        if below == 0.0 || above == 0.0 {
-            continue;
-        }
-        let between = below * above * (below_sum / below - (sum - below_sum) / above).powi(2);
-        if best.is_none_or(|(v, _)| between > v) {
-            best = Some((between, b));
-        }
-    }
-    best.map(|(_, b)| lo + (b + 1) as f64 * (hi - lo) / BINS as f64)
 }
 
 /// Up to `MAX_PLANES` planes that each hold `MIN_PLANE_SHARE` of the measured points and
@@ -265,15 +211,6 @@ mod tests {
         let mut fills: Vec<f64> = seg.segments.iter().map(|s| s.fill).collect();
         fills.sort_by(f64::total_cmp);
         assert!((fills[0] - 0.235).abs() < 0.05 && (fills[1] - 0.46).abs() < 0.08, "{fills:?}");
-    }
-
-    #[test]
-    fn otsu_cuts_between_two_depth_groups() {
-        let zs: Vec<f64> = (0..100).map(|i| if i < 60 { 0.50 + 0.0004 * i as f64 } else { 0.60 + 0.0004 * i as f64 }).collect();
-        let cut = otsu_threshold(&zs).unwrap();
-        assert!(cut > zs[59] && cut < zs[60], "{cut} between {} and {}", zs[59], zs[60]);
-        assert_eq!(otsu_threshold(&[0.5; 10]), None);
-        assert_eq!(otsu_threshold(&[]), None);
     }
 
     /// A 6 cm block standing in front of a 10 cm drum and touching it: one surface, larger

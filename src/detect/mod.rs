@@ -7,8 +7,9 @@
 //! its template and a mask (`detector`). The estimator takes the masks like any caller's.
 //!
 //! With a depth camera (`frame::detect` given the registered depth), the frame is cut into
-//! the surfaces standing off the large planes (`depth_segments`), and each of an object's
-//! size is its candidate (`depth_detector`); the estimate of each is confirmed by the
+//! the surfaces standing off the large planes (`depth_segments`, with the other readings of
+//! them in `segment_cuts`: cut at depths and necks, joined in pairs), and each of an
+//! object's size is its candidate (`depth_detector`); the estimate of each is confirmed by the
 //! photo's evidence and the depth at its pose together (`confirm`, `depth_check`).
 
 pub mod align;
@@ -24,6 +25,7 @@ pub mod nms;
 pub mod responses;
 pub mod scales;
 pub mod search;
+pub mod segment_cuts;
 pub mod templates;
 pub mod verify;
 
