@@ -17,7 +17,7 @@ use super::dataset::{load_rgb, load_scene_cameras, load_targets, ImageCamera};
 use super::detections::{DetectionIndex, DetectionRecord};
 use super::format::{scene_dir, TargetRecord};
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
-use crate::detect::confirm::{candidate_options, confirm, estimate_instances, instances_to_estimate, one_per_place, Choice};
+use crate::detect::confirm::{candidate_options, compared_choice, confirm, estimate_instances, one_per_place, Choice};
 use crate::detect::{detect, DetectOptions, Target};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateError, Estimator};
@@ -162,8 +162,9 @@ pub fn run(
             let wanted = t.inst_count as usize;
             // The depth detector's candidates are all compared, and each segment answered
             // once across objects after every object's are in (`one_per_place`).
-            let estimated = instances_to_estimate(compared, refs.len(), wanted);
-            let answered = estimate_instances(group_instances(&refs, opts.same_instance_iou), estimated, choice, |group| {
+            let groups = group_instances(&refs, opts.same_instance_iou);
+            let choice = compared_choice(compared, groups.len(), wanted, choice);
+            let answered = estimate_instances(groups, wanted, choice, |group| {
                 let candidates = Candidates::gather(group.iter().map(|&i| (i, masks[i].as_slice()))).masks;
                 let group = &group;
                 let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, c)| representative(c).0));
@@ -184,7 +185,8 @@ pub fn run(
                         let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
                         let c = confirm(&rgb, depth.as_ref(), &camera.cam, &m.mesh, mask, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?;
                         let t_mm = pose.translation * 1e3;
-                        tracing::debug!(scene_id, im_id, obj_id = t.obj_id, x_mm = t_mm.x, y_mm = t_mm.y, z_mm = t_mm.z, rotation = ?pose.rotation_row_major(), confirmation = c, "candidate confirmed");
+                        let cosine = r.hypotheses.iter().map(|h| h.top_template_cosine).fold(0.0f32, f32::max);
+                        tracing::debug!(scene_id, im_id, obj_id = t.obj_id, x_mm = t_mm.x, y_mm = t_mm.y, z_mm = t_mm.z, rotation = ?pose.rotation_row_major(), cosine, estimate_score = r.score, confirmation = c, "candidate confirmed");
                         Ok((Some((pose, c, mask.clone())), Some(c)))
                     }
                     None => Ok((Some((pose, r.score, candidates[r.mask_index.unwrap_or(0)].mask.clone())), None)),

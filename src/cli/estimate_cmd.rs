@@ -1,4 +1,4 @@
-use crate::detect::confirm::{answer_threshold, candidate_options, confirm, estimate_instances, instances_to_estimate, Choice};
+use crate::detect::confirm::{answer_threshold, candidate_options, compared_choice, confirm, estimate_instances, Choice};
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateResult};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -118,8 +118,8 @@ fn estimate_detected(
     let mut count = 0;
     // With depth, each of the object's segments is estimated and the best confirmed answered.
     let groups = crate::masks::group_instances(&refs, 0.5);
-    let estimated = instances_to_estimate(depth.is_some(), groups.len(), 1);
-    let answered = estimate_instances(groups, estimated, Choice::Confirmed { min_score }, |group| {
+    let choice = compared_choice(depth.is_some(), groups.len(), 1, Choice::Confirmed { min_score });
+    let answered = estimate_instances(groups, 1, choice, |group| {
         let candidates: Vec<Detection> = group.iter().map(|&i| Detection::new(found[i].mask.clone(), found[i].score)).collect();
         let r = estimator.estimate_rgbd(model, image, depth, k, &candidates, None, cfg)?;
         count += 1;

@@ -9,7 +9,7 @@ use super::detect_requests::DetectionOutput;
 use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput, RunnerUpOutput};
-use crate::detect::confirm::{answer_threshold, candidate_options, confirm, estimate_instances, instances_to_estimate, one_per_place, Choice};
+use crate::detect::confirm::{answer_threshold, candidate_options, compared_choice, confirm, estimate_instances, one_per_place, Choice};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
@@ -363,8 +363,8 @@ impl Core {
             let model = &models[object_id];
             let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, c)| representative(c)).collect();
             let groups = crate::masks::group_instances(&refs, 0.5);
-            let estimated = instances_to_estimate(compared, groups.len(), o.instances_per_object);
-            let answered = estimate_instances(groups.into_iter().enumerate(), estimated, choice, |(instance, group)| {
+            let object_choice = compared_choice(compared, groups.len(), o.instances_per_object, choice);
+            let answered = estimate_instances(groups.into_iter().enumerate(), o.instances_per_object, object_choice, |(instance, group)| {
                 if deadline.is_some_and(|d| Instant::now() >= d) {
                     return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", tried + instance)));
                 }
@@ -374,7 +374,7 @@ impl Core {
                 let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
                 let r = span.in_scope(|| self.estimator.estimate_rgbd(model, &image, depth.as_ref(), &k, candidates, others.as_ref(), &cfg))?;
                 let confirmation = match (&r.pose, choice) {
-                    (Some(pose), Choice::Confirmed { .. }) => {
+                    (Some(pose), Choice::Confirmed { .. } | Choice::Compared { .. }) => {
                         let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
                         Some(
                             span.in_scope(|| confirm(&image, depth.as_ref(), &k, &model.mesh, mask, pose, &self.pool))
