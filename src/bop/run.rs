@@ -168,7 +168,12 @@ pub fn run(
                 let candidates = Candidates::gather(group.iter().map(|&i| (i, masks[i].as_slice()))).masks;
                 let group = &group;
                 let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, c)| representative(c).0));
-                let others = crate::masks::occluders(refs[group[0]].0, others, camera.cam.width, camera.cam.height);
+                let own = refs[group[0]].0;
+                let others = if compared {
+                    crate::masks::occluders_among_segments(own, others, camera.cam.width, camera.cam.height)
+                } else {
+                    crate::masks::occluders(own, others, camera.cam.width, camera.cam.height)
+                };
                 let r = match estimator.estimate_rgbd(&m, &rgb, depth.as_ref(), &camera.cam, &candidates, others.as_ref(), &opts.estimate) {
                     Ok(r) => r,
                     Err(EstimateError::BadInput(msg)) => {

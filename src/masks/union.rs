@@ -27,6 +27,35 @@ pub fn occluders<'a>(own: &GrayImage, others: impl IntoIterator<Item = &'a GrayI
     union(others.into_iter().filter(|m| super::mask_iou(own, m) < SAME_THING_IOU), width, height)
 }
 
+/// A segment sharing more than this share of the smaller one's pixels with another is a
+/// reading of the same pixels, not a thing beside it (a sliver is left for closed holes).
+const SAME_PIXELS_SHARE: f64 = 0.05;
+
+/// As `occluders`, when all the masks are segments of one depth frame (the depth
+/// detector's): two things' segments share no pixel there, and one overlapping `own` is
+/// another reading of the same pixels (a part of it cut at a neck or at a depth, or it
+/// joined with a neighbour), however small its IoU: the inside of a mug is no occluder of
+/// the whole mug.
+pub fn occluders_among_segments<'a>(own: &GrayImage, others: impl IntoIterator<Item = &'a GrayImage>, width: u32, height: u32) -> Option<GrayImage> {
+    union(others.into_iter().filter(|m| shared_share(own, m) <= SAME_PIXELS_SHARE), width, height)
+}
+
+/// The pixels two masks share, as a share of the smaller's (0 when either is empty).
+fn shared_share(a: &GrayImage, b: &GrayImage) -> f64 {
+    let (mut both, mut in_a, mut in_b) = (0u64, 0u64, 0u64);
+    for (&x, &y) in a.as_raw().iter().zip(b.as_raw()) {
+        both += (x > 0 && y > 0) as u64;
+        in_a += (x > 0) as u64;
+        in_b += (y > 0) as u64;
+    }
+    let smaller = in_a.min(in_b);
+    if smaller == 0 {
+        0.0
+    } else {
+        both as f64 / smaller as f64
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -46,5 +75,17 @@ mod tests {
         let beside = GrayImage::from_raw(4, 1, vec![0, 0, 0, 255]).unwrap();
         assert_eq!(occluders(&own, [&same, &beside], 4, 1).unwrap().as_raw(), &vec![0, 0, 0, 255]);
         assert!(occluders(&own, [&same], 4, 1).is_none());
+    }
+
+    #[test]
+    fn a_segment_sharing_pixels_with_another_is_another_reading_of_them() {
+        // The whole (8 px), a part of it (3 px: IoU 0.375), a thing beside it.
+        let whole = GrayImage::from_raw(10, 1, vec![255, 255, 255, 255, 255, 255, 255, 255, 0, 0]).unwrap();
+        let part = GrayImage::from_raw(10, 1, vec![255, 255, 255, 0, 0, 0, 0, 0, 0, 0]).unwrap();
+        let beside = GrayImage::from_raw(10, 1, vec![0, 0, 0, 0, 0, 0, 0, 0, 0, 255]).unwrap();
+        assert_eq!(occluders_among_segments(&whole, [&part, &beside], 10, 1).unwrap().as_raw(), beside.as_raw());
+        assert_eq!(occluders_among_segments(&part, [&whole], 10, 1), None);
+        // Among a caller's detections the part would hide the whole.
+        assert_eq!(occluders(&whole, [&part], 10, 1).unwrap().as_raw(), part.as_raw());
     }
 }

@@ -370,7 +370,7 @@ impl Core {
                 }
                 let gathered = Candidates::gather(group.iter().map(|&g| (dets[g].0, dets[g].1.as_slice())));
                 let candidates = &gathered.masks;
-                let others = others_mask(&by_object, object_id, &group, k.width, k.height);
+                let others = others_mask(&by_object, object_id, &group, compared, k.width, k.height);
                 let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
                 let r = span.in_scope(|| self.estimator.estimate_rgbd(model, &image, depth.as_ref(), &k, candidates, others.as_ref(), &cfg))?;
                 let confirmation = match (&r.pose, choice) {
@@ -464,10 +464,16 @@ fn decode_masks(req: &EstimateRequest, image: &image::RgbImage) -> Result<Vec<(S
 
 /// Union of every detection's mask except those of `object_id`'s instance `group`: where
 /// another detection is, this instance may be hidden. `None` when there is no other.
-fn others_mask(by_object: &BTreeMap<&str, Vec<(usize, Vec<Detection>)>>, object_id: &str, group: &[usize], width: u32, height: u32) -> Option<image::GrayImage> {
+/// The masks that may hide instance `group` of `object_id`: the other detections', read as
+/// segments of one depth frame when they are the depth detector's (`segments`).
+fn others_mask(by_object: &BTreeMap<&str, Vec<(usize, Vec<Detection>)>>, object_id: &str, group: &[usize], segments: bool, width: u32, height: u32) -> Option<image::GrayImage> {
     let others = by_object.iter().flat_map(|(&id, dets)| dets.iter().enumerate().filter(move |(g, _)| !(id == object_id && group.contains(g))).map(|(_, (_, c))| representative(c).0));
     let own = representative(&by_object[object_id][group[0]].1).0;
-    crate::masks::occluders(own, others, width, height)
+    if segments {
+        crate::masks::occluders_among_segments(own, others, width, height)
+    } else {
+        crate::masks::occluders(own, others, width, height)
+    }
 }
 
 #[cfg(test)]
@@ -511,11 +517,11 @@ mod tests {
         let mut by_object: BTreeMap<&str, Vec<(usize, Vec<Detection>)>> = BTreeMap::new();
         by_object.insert("a", vec![(0, one(0)), (1, one(1))]);
         by_object.insert("b", vec![(2, one(2))]);
-        let o = others_mask(&by_object, "a", &[0], 4, 1).unwrap();
+        let o = others_mask(&by_object, "a", &[0], false, 4, 1).unwrap();
         assert_eq!(o.as_raw(), &vec![0, 255, 255, 0]);
-        let o = others_mask(&by_object, "b", &[0], 4, 1).unwrap();
+        let o = others_mask(&by_object, "b", &[0], false, 4, 1).unwrap();
         assert_eq!(o.as_raw(), &vec![255, 255, 0, 0]);
         let alone: BTreeMap<&str, Vec<(usize, Vec<Detection>)>> = BTreeMap::from([("a", vec![(0, one(0))])]);
-        assert!(others_mask(&alone, "a", &[0], 4, 1).is_none());
+        assert!(others_mask(&alone, "a", &[0], false, 4, 1).is_none());
     }
 }

@@ -13,6 +13,7 @@ and of the wrong candidates, and how many candidates an object would estimate if
 stopped at its first confirmation of 0.7 or more (the order of the log is the order of
 estimation). docs/detection.md "With depth" quotes its figures.
 """
+
 import json, re, sys
 from collections import defaultdict
 
@@ -29,7 +30,9 @@ for line in open(log):
         continue
     f = dict(re.findall(r"(\w+)=([-0-9.e]+)", line.split("candidate confirmed")[1]))
     key = (int(f["scene_id"]), int(f["im_id"]), int(f["obj_id"]))
-    cands[key].append({"t": np.array([float(f["x_mm"]), float(f["y_mm"]), float(f["z_mm"])]), "cosine": float(f["cosine"]), "estimate_score": float(f["estimate_score"]), "confirmation": float(f["confirmation"])})
+    cands[key].append(
+        {"t": np.array([float(f["x_mm"]), float(f["y_mm"]), float(f["z_mm"])]), "cosine": float(f["cosine"]), "estimate_score": float(f["estimate_score"]), "confirmation": float(f["confirmation"])}
+    )
 
 ranks = {k: defaultdict(int) for k in ("cosine", "estimate_score", "confirmation")}
 right_c, wrong_c, none_right = [], [], 0
