@@ -16,8 +16,7 @@ fn main() {
     };
     if let Err(e) = b2tfpose::cli::run(cli) {
         b2tfpose::telemetry::fatal(&format!("{e:#}"));
-        // `exit` runs no destructors: flush the exported spans first.
-        drop(telemetry);
+        telemetry.flush();
         std::process::exit(1);
     }
 }

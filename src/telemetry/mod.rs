@@ -31,6 +31,12 @@ pub struct Guard {
     _otlp: Option<otlp::Otlp>,
 }
 
+impl Guard {
+    /// Flushes the spans still queued, as dropping the guard does: for a caller about to
+    /// `std::process::exit`, which runs no destructors.
+    pub fn flush(self) {}
+}
+
 static FORMAT: std::sync::OnceLock<LogFormat> = std::sync::OnceLock::new();
 
 /// The format `init` set up (human before it ran): what a command's own lines outside the
