@@ -22,6 +22,7 @@ use crate::detect::{detect, DetectOptions, Target};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateError, Estimator};
 use crate::geometry::Pose;
+use crate::masks::OtherMasks;
 use crate::masks::{group_instances, BoxMask};
 use crate::onboard::ObjectModel;
 use crate::render::RenderPool;
@@ -160,20 +161,17 @@ pub fn run(
                 DetectionSource::File(_) => (Choice::Given, None),
             };
             let wanted = t.inst_count as usize;
-            // The depth detector's candidates are all compared, and each segment answered
-            // once across objects after every object's are in (`one_per_place`).
+            // The depth detector's candidates are compared (in turn until one is sure), and
+            // each segment answered once across objects after every object's are in
+            // (`one_per_place`).
             let groups = group_instances(&refs, opts.same_instance_iou);
             let choice = compared_choice(compared, groups.len(), wanted, choice);
             let answered = estimate_instances(groups, wanted, choice, |group| {
                 let candidates = Candidates::gather(group.iter().map(|&i| (i, masks[i].as_slice()))).masks;
                 let group = &group;
                 let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, c)| representative(c).0));
-                let own = refs[group[0]].0;
-                let others = if compared {
-                    crate::masks::occluders_among_segments(own, others, camera.cam.width, camera.cam.height)
-                } else {
-                    crate::masks::occluders(own, others, camera.cam.width, camera.cam.height)
-                };
+                let kind = if compared { OtherMasks::DepthSegments } else { OtherMasks::Detections };
+                let others = crate::masks::occluders(refs[group[0]].0, others, kind, camera.cam.width, camera.cam.height);
                 let r = match estimator.estimate_rgbd(&m, &rgb, depth.as_ref(), &camera.cam, &candidates, others.as_ref(), &opts.estimate) {
                     Ok(r) => r,
                     Err(EstimateError::BadInput(msg)) => {
@@ -189,9 +187,20 @@ pub fn run(
                     Some(pool) => {
                         let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
                         let c = confirm(&rgb, depth.as_ref(), &camera.cam, &m.mesh, mask, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?;
-                        let t_mm = pose.translation * 1e3;
-                        let cosine = r.hypotheses.iter().map(|h| h.top_template_cosine).fold(0.0f32, f32::max);
-                        tracing::debug!(scene_id, im_id, obj_id = t.obj_id, x_mm = t_mm.x, y_mm = t_mm.y, z_mm = t_mm.z, rotation = ?pose.rotation_row_major(), cosine, estimate_score = r.score, confirmation = c, "candidate confirmed");
+                        // For `tools/bench/candidate_ranks.py`.
+                        tracing::debug!(
+                            scene_id,
+                            im_id,
+                            obj_id = t.obj_id,
+                            x_mm = pose.translation.x * 1e3,
+                            y_mm = pose.translation.y * 1e3,
+                            z_mm = pose.translation.z * 1e3,
+                            rotation = ?pose.rotation_row_major(),
+                            cosine = r.hypotheses.iter().map(|h| h.top_template_cosine).fold(0.0f32, f32::max),
+                            estimate_score = r.score,
+                            confirmation = c,
+                            "candidate confirmed"
+                        );
                         Ok((Some((pose, c, mask.clone())), Some(c)))
                     }
                     None => Ok((Some((pose, r.score, candidates[r.mask_index.unwrap_or(0)].mask.clone())), None)),

@@ -116,7 +116,8 @@ fn estimate_detected(
     let found = super::detect_cmd::detect_object(model, (image, depth), k, &options, renderer)?;
     let refs: Vec<(&image::GrayImage, f64)> = found.iter().map(|d| (&d.mask, d.score as f64)).collect();
     let mut count = 0;
-    // With depth, each of the object's segments is estimated and the best confirmed answered.
+    // With depth, the object's segments are estimated in turn until one is sure, and the best
+    // confirmed answered.
     let groups = crate::masks::group_instances(&refs, 0.5);
     let choice = compared_choice(depth.is_some(), groups.len(), 1, Choice::Confirmed { min_score });
     let answered = estimate_instances(groups, 1, choice, |group| {

@@ -4,7 +4,7 @@
 //! one thing is often two (a mug's inside and outside, split at its rim). So a surface
 //! larger than any object looked for is also offered cut at its depths (`split_by_depth`)
 //! and at its necks (`split_at_necks`), and neighbouring surfaces also joined in pairs
-//! (`joined_neighbours`). The segmentation keeps every reading; the estimate's confirmation
+//! (`neighbouring_pairs`). The segmentation keeps every reading; the estimate's confirmation
 //! at its pose chooses among them.
 
 use crate::depth::surfaces::surfaces;
@@ -57,8 +57,7 @@ pub(super) fn split_by_depth(depth: &DepthImage, pixels: &[usize]) -> Vec<Vec<us
 /// A surface of a `w × h` frame made of parts joined by thin bridges (two things side by
 /// side at one distance, bridged by noisy pixels along the table): its pixels eroded by
 /// `NECK_PX`, and when that leaves two or more cores of `MIN_PIXELS`, every pixel given to
-/// the core nearest it within the surface. The parts, each sorted; none when it holds no
-/// neck.
+/// the core nearest it within the surface. The parts; none when it holds no neck.
 pub(super) fn split_at_necks(w: usize, h: usize, pixels: &[usize]) -> Vec<Vec<usize>> {
     let mut inside = vec![false; w * h];
     for &i in pixels {
@@ -68,8 +67,7 @@ pub(super) fn split_at_necks(w: usize, h: usize, pixels: &[usize]) -> Vec<Vec<us
     for _ in 0..NECK_PX {
         let before = core.clone();
         for &i in pixels {
-            let around = neighbours(w, h, i);
-            core[i] = before[i] && around.len() == 4 && around.iter().all(|&n| before[n]);
+            core[i] = before[i] && neighbours(w, h, i).iter().all(|n| n.is_some_and(|n| before[n]));
         }
     }
     let label = surfaces(w, h, &core, &|_, _| 0.0);
@@ -87,16 +85,14 @@ pub(super) fn split_at_necks(w: usize, h: usize, pixels: &[usize]) -> Vec<Vec<us
         }
     }
     while let Some(i) = queue.pop_front() {
-        for n in neighbours(w, h, i) {
+        for n in neighbours(w, h, i).into_iter().flatten() {
             if inside[n] && owner[n].is_none() {
                 owner[n] = owner[i];
                 queue.push_back(n);
             }
         }
     }
-    let mut parts = group_by_surface(&owner, pixels.iter().copied());
-    parts.iter_mut().for_each(|p| p.sort_unstable());
-    parts
+    group_by_surface(&owner, pixels.iter().copied())
 }
 
 /// Pairs of `parts` (pixel lists of a `w × h` frame, sharing no pixel) that touch along an
@@ -111,10 +107,11 @@ pub(super) fn neighbouring_pairs(w: usize, h: usize, parts: &[Vec<usize>]) -> Ve
     }
     let r = CONTACT_PX as i64;
     let mut contacts: HashMap<(usize, usize), usize> = HashMap::new();
+    let mut touched: Vec<usize> = Vec::new();
     for (p, cells) in parts.iter().enumerate() {
         for &i in cells {
             let (x, y) = ((i % w) as i64, (i / w) as i64);
-            let mut touched: Vec<usize> = Vec::new();
+            touched.clear();
             for dy in -r..=r {
                 for dx in -r..=r {
                     let (xx, yy) = (x + dx, y + dy);
@@ -128,7 +125,7 @@ pub(super) fn neighbouring_pairs(w: usize, h: usize, parts: &[Vec<usize>]) -> Ve
                     }
                 }
             }
-            for q in touched {
+            for &q in &touched {
                 *contacts.entry((p, q)).or_default() += 1;
             }
         }
@@ -138,10 +135,10 @@ pub(super) fn neighbouring_pairs(w: usize, h: usize, parts: &[Vec<usize>]) -> Ve
     pairs
 }
 
-/// The 4-neighbours of cell `i` in a `w × h` grid.
-fn neighbours(w: usize, h: usize, i: usize) -> Vec<usize> {
+/// The 4-neighbours of cell `i` in a `w × h` grid (None past its edges).
+fn neighbours(w: usize, h: usize, i: usize) -> [Option<usize>; 4] {
     let (x, y) = (i % w, i / w);
-    [(x > 0).then(|| i - 1), (x + 1 < w).then(|| i + 1), (y > 0).then(|| i - w), (y + 1 < h).then(|| i + w)].into_iter().flatten().collect()
+    [(x > 0).then(|| i - 1), (x + 1 < w).then(|| i + 1), (y > 0).then(|| i - w), (y + 1 < h).then(|| i + w)]
 }
 
 /// The value that splits `values` into two groups of the largest between-group variance

@@ -7,16 +7,24 @@ use image::GrayImage;
 
 /// Intersection over union of two same-sized masks (non-zero = inside).
 pub fn mask_iou(a: &GrayImage, b: &GrayImage) -> f64 {
-    let (mut inter, mut union) = (0u64, 0u64);
-    for (&x, &y) in a.as_raw().iter().zip(b.as_raw()) {
-        inter += (x > 0 && y > 0) as u64;
-        union += (x > 0 || y > 0) as u64;
-    }
+    let (both, in_a, in_b) = overlap_counts(a, b);
+    let union = in_a + in_b - both;
     if union == 0 {
         0.0
     } else {
-        inter as f64 / union as f64
+        both as f64 / union as f64
     }
+}
+
+/// Pixels inside both of two same-sized masks, inside `a`, inside `b`.
+pub(super) fn overlap_counts(a: &GrayImage, b: &GrayImage) -> (u64, u64, u64) {
+    let (mut both, mut in_a, mut in_b) = (0u64, 0u64, 0u64);
+    for (&x, &y) in a.as_raw().iter().zip(b.as_raw()) {
+        both += (x > 0 && y > 0) as u64;
+        in_a += (x > 0) as u64;
+        in_b += (y > 0) as u64;
+    }
+    (both, in_a, in_b)
 }
 
 /// Greedy grouping in descending score: each mask joins the first group whose leader (its

@@ -25,7 +25,7 @@ pub use pixel_box::PixelBox;
 pub use proposals::{propose, Proposal, ProposalConfig, ProposalKind};
 pub use rle::{Rle, RleError};
 pub use segment::{ellipse_in_box, segment_box, Method, SegmentConfig, Segmentation};
-pub use union::{occluders, occluders_among_segments, union};
+pub use union::{occluders, union, OtherMasks};
 
 use crate::limits::ImageRefused;
 

@@ -19,41 +19,41 @@ pub fn union<'a>(masks: impl IntoIterator<Item = &'a GrayImage>, width: u32, hei
 /// of the other.
 const SAME_THING_IOU: f64 = 0.5;
 
-/// The union of the `others` detections of an image that may hide the one whose mask is
-/// `own`: all but those on the same place (IoU ≥ `SAME_THING_IOU`), which are alternatives
-/// to it (the depth detector offers one segment to every object of its size), not
-/// occluders of it.
-pub fn occluders<'a>(own: &GrayImage, others: impl IntoIterator<Item = &'a GrayImage>, width: u32, height: u32) -> Option<GrayImage> {
-    union(others.into_iter().filter(|m| super::mask_iou(own, m) < SAME_THING_IOU), width, height)
-}
-
 /// A segment sharing more than this share of the smaller one's pixels with another is a
 /// reading of the same pixels, not a thing beside it (a sliver is left for closed holes).
 const SAME_PIXELS_SHARE: f64 = 0.05;
 
-/// As `occluders`, when all the masks are segments of one depth frame (the depth
-/// detector's): two things' segments share no pixel there, and one overlapping `own` is
-/// another reading of the same pixels (a part of it cut at a neck or at a depth, or it
-/// joined with a neighbour), however small its IoU: the inside of a mug is no occluder of
-/// the whole mug.
-pub fn occluders_among_segments<'a>(own: &GrayImage, others: impl IntoIterator<Item = &'a GrayImage>, width: u32, height: u32) -> Option<GrayImage> {
-    union(others.into_iter().filter(|m| shared_share(own, m) <= SAME_PIXELS_SHARE), width, height)
+/// What the other masks of an image are, which decides which of them are the same thing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum OtherMasks {
+    /// A caller's (or the colour detector's) detections: one on the same place (IoU ≥
+    /// `SAME_THING_IOU`) is the same thing named again.
+    Detections,
+    /// Segments of one depth frame (the depth detector's): two things' segments share no
+    /// pixel there, so one overlapping by more than a sliver is another reading of the same
+    /// pixels (a part cut at a neck or at a depth, or it joined with a neighbour), however
+    /// small its IoU: the inside of a mug is no occluder of the whole mug.
+    DepthSegments,
 }
 
-/// The pixels two masks share, as a share of the smaller's (0 when either is empty).
-fn shared_share(a: &GrayImage, b: &GrayImage) -> f64 {
-    let (mut both, mut in_a, mut in_b) = (0u64, 0u64, 0u64);
-    for (&x, &y) in a.as_raw().iter().zip(b.as_raw()) {
-        both += (x > 0 && y > 0) as u64;
-        in_a += (x > 0) as u64;
-        in_b += (y > 0) as u64;
-    }
-    let smaller = in_a.min(in_b);
-    if smaller == 0 {
-        0.0
-    } else {
-        both as f64 / smaller as f64
-    }
+/// The union of the `others` masks of an image that may hide the one whose mask is `own`:
+/// all but those that are the same thing (`OtherMasks` says which), alternatives to it
+/// (the depth detector offers one segment to every object of its size), not occluders.
+pub fn occluders<'a>(own: &GrayImage, others: impl IntoIterator<Item = &'a GrayImage>, kind: OtherMasks, width: u32, height: u32) -> Option<GrayImage> {
+    let same_thing = |m: &GrayImage| {
+        let (both, in_own, in_m) = super::instances::overlap_counts(own, m);
+        match kind {
+            OtherMasks::Detections => {
+                let union = in_own + in_m - both;
+                union > 0 && both as f64 / union as f64 >= SAME_THING_IOU
+            }
+            OtherMasks::DepthSegments => {
+                let smaller = in_own.min(in_m);
+                smaller > 0 && both as f64 / smaller as f64 > SAME_PIXELS_SHARE
+            }
+        }
+    };
+    union(others.into_iter().filter(|m| !same_thing(m)), width, height)
 }
 
 #[cfg(test)]
@@ -73,8 +73,8 @@ mod tests {
         let own = GrayImage::from_raw(4, 1, vec![255, 255, 0, 0]).unwrap();
         let same = GrayImage::from_raw(4, 1, vec![255, 255, 255, 0]).unwrap();
         let beside = GrayImage::from_raw(4, 1, vec![0, 0, 0, 255]).unwrap();
-        assert_eq!(occluders(&own, [&same, &beside], 4, 1).unwrap().as_raw(), &vec![0, 0, 0, 255]);
-        assert!(occluders(&own, [&same], 4, 1).is_none());
+        assert_eq!(occluders(&own, [&same, &beside], OtherMasks::Detections, 4, 1).unwrap().as_raw(), &vec![0, 0, 0, 255]);
+        assert!(occluders(&own, [&same], OtherMasks::Detections, 4, 1).is_none());
     }
 
     #[test]
@@ -83,9 +83,9 @@ mod tests {
         let whole = GrayImage::from_raw(10, 1, vec![255, 255, 255, 255, 255, 255, 255, 255, 0, 0]).unwrap();
         let part = GrayImage::from_raw(10, 1, vec![255, 255, 255, 0, 0, 0, 0, 0, 0, 0]).unwrap();
         let beside = GrayImage::from_raw(10, 1, vec![0, 0, 0, 0, 0, 0, 0, 0, 0, 255]).unwrap();
-        assert_eq!(occluders_among_segments(&whole, [&part, &beside], 10, 1).unwrap().as_raw(), beside.as_raw());
-        assert_eq!(occluders_among_segments(&part, [&whole], 10, 1), None);
+        assert_eq!(occluders(&whole, [&part, &beside], OtherMasks::DepthSegments, 10, 1).unwrap().as_raw(), beside.as_raw());
+        assert_eq!(occluders(&part, [&whole], OtherMasks::DepthSegments, 10, 1), None);
         // Among a caller's detections the part would hide the whole.
-        assert_eq!(occluders(&whole, [&part], 10, 1).unwrap().as_raw(), part.as_raw());
+        assert_eq!(occluders(&whole, [&part], OtherMasks::Detections, 10, 1).unwrap().as_raw(), part.as_raw());
     }
 }

@@ -14,6 +14,7 @@ use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
 use crate::geometry::ViewSampling;
+use crate::masks::OtherMasks;
 use crate::onboard::{onboard_cancellable, OnboardConfig, OnboardError};
 use crate::render::{RenderPool, RendererConfig};
 use crate::store::{ModelCache, ObjectInfo, ObjectStore};
@@ -354,8 +355,9 @@ impl Core {
         // The detector's candidates are confirmed at their estimated poses: a few more than
         // wanted are estimated, and the confirmed ones kept (`detect::confirm`).
         let choice = if detected.is_some() { Choice::Confirmed { min_score: req.detect.min_score } } else { Choice::Given };
-        // The depth detector's candidates are all compared, and each segment answered once
-        // across objects after every object's are in (`detect::confirm::one_per_place`).
+        // The depth detector's candidates are compared (in turn until one is sure), and each
+        // segment answered once across objects after every object's are in
+        // (`detect::confirm::one_per_place`).
         let compared = depth.is_some() && detected.is_some();
         let mut answers = Vec::new();
         let mut tried = 0usize;
@@ -370,7 +372,8 @@ impl Core {
                 }
                 let gathered = Candidates::gather(group.iter().map(|&g| (dets[g].0, dets[g].1.as_slice())));
                 let candidates = &gathered.masks;
-                let others = others_mask(&by_object, object_id, &group, compared, k.width, k.height);
+                let kind = if compared { OtherMasks::DepthSegments } else { OtherMasks::Detections };
+                let others = others_mask(&by_object, object_id, &group, kind, k.width, k.height);
                 let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
                 let r = span.in_scope(|| self.estimator.estimate_rgbd(model, &image, depth.as_ref(), &k, candidates, others.as_ref(), &cfg))?;
                 let confirmation = match (&r.pose, choice) {
@@ -462,18 +465,13 @@ fn decode_masks(req: &EstimateRequest, image: &image::RgbImage) -> Result<Vec<(S
         .collect()
 }
 
-/// Union of every detection's mask except those of `object_id`'s instance `group`: where
-/// another detection is, this instance may be hidden. `None` when there is no other.
-/// The masks that may hide instance `group` of `object_id`: the other detections', read as
-/// segments of one depth frame when they are the depth detector's (`segments`).
-fn others_mask(by_object: &BTreeMap<&str, Vec<(usize, Vec<Detection>)>>, object_id: &str, group: &[usize], segments: bool, width: u32, height: u32) -> Option<image::GrayImage> {
+/// Union of every detection's mask except those of `object_id`'s instance `group` (and
+/// those that are the same thing, `masks::OtherMasks` of `kind`): where another detection
+/// is, this instance may be hidden. `None` when there is no other.
+fn others_mask(by_object: &BTreeMap<&str, Vec<(usize, Vec<Detection>)>>, object_id: &str, group: &[usize], kind: OtherMasks, width: u32, height: u32) -> Option<image::GrayImage> {
     let others = by_object.iter().flat_map(|(&id, dets)| dets.iter().enumerate().filter(move |(g, _)| !(id == object_id && group.contains(g))).map(|(_, (_, c))| representative(c).0));
     let own = representative(&by_object[object_id][group[0]].1).0;
-    if segments {
-        crate::masks::occluders_among_segments(own, others, width, height)
-    } else {
-        crate::masks::occluders(own, others, width, height)
-    }
+    crate::masks::occluders(own, others, kind, width, height)
 }
 
 #[cfg(test)]
@@ -517,11 +515,11 @@ mod tests {
         let mut by_object: BTreeMap<&str, Vec<(usize, Vec<Detection>)>> = BTreeMap::new();
         by_object.insert("a", vec![(0, one(0)), (1, one(1))]);
         by_object.insert("b", vec![(2, one(2))]);
-        let o = others_mask(&by_object, "a", &[0], false, 4, 1).unwrap();
+        let o = others_mask(&by_object, "a", &[0], OtherMasks::Detections, 4, 1).unwrap();
         assert_eq!(o.as_raw(), &vec![0, 255, 255, 0]);
-        let o = others_mask(&by_object, "b", &[0], false, 4, 1).unwrap();
+        let o = others_mask(&by_object, "b", &[0], OtherMasks::Detections, 4, 1).unwrap();
         assert_eq!(o.as_raw(), &vec![255, 255, 0, 0]);
         let alone: BTreeMap<&str, Vec<(usize, Vec<Detection>)>> = BTreeMap::from([("a", vec![(0, one(0))])]);
-        assert!(others_mask(&alone, "a", &[0], false, 4, 1).is_none());
+        assert!(others_mask(&alone, "a", &[0], OtherMasks::Detections, 4, 1).is_none());
     }
 }
