@@ -1,4 +1,4 @@
-use crate::detect::confirm::{answer_threshold, candidate_options, compared_choice, confirm, estimate_instances, Choice};
+use crate::detect::confirm::{candidate_options, compared_choice, confirm, confirmation_needed, estimate_instances, Choice};
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateResult};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -141,7 +141,7 @@ fn estimate_detected(
             answered.tried,
             model.object_id,
             answered.best.unwrap_or(0.0),
-            answer_threshold(min_score)
+            confirmation_needed(min_score, depth.is_some())
         ),
     }
 }

@@ -47,7 +47,7 @@ pub fn detect_with_depth(image: &RgbImage, depth: &DepthImage, k: &Intrinsics, t
     let mut searched = Vec::new();
     for (ti, t) in targets.iter().enumerate() {
         let d = t.mesh.diameter().max(1e-6);
-        let mut own: Vec<(f32, (usize, usize))> = segments.iter().enumerate().filter_map(|(si, s)| size_fit(s.extent_m, d).map(|fit| (fit * solidity(s.fill), (ti, si)))).collect();
+        let mut own: Vec<(f32, (usize, usize))> = segments.iter().enumerate().filter_map(|(si, s)| size_fit(s.span_m, d).map(|fit| (fit * solidity(s.fill), (ti, si)))).collect();
         searched.push(Searched { object_id: t.id.to_string(), distance_m: [nearest, farthest], scales: 1, candidates: own.len() });
         own.retain(|f| f.0 >= opts.min_score);
         own.sort_by(|a, b| b.0.total_cmp(&a.0));

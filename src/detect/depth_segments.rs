@@ -36,6 +36,11 @@ pub struct Segment {
     /// Its size, metres: the diagonal of its points' spread along their principal axes
     /// (2nd to 98th percentile), so a few stray pixels at its edges do not count.
     pub extent_m: f64,
+    /// Its span, metres: the largest distance between two of its points, once those
+    /// outside the 2nd to 98th percentile along any principal axis are set aside. What an
+    /// object's diameter bounds: the box diagonal (`extent_m`) of a rounded thing's view
+    /// runs past its diameter (a whole mug's view: about 170 mm against 125 mm).
+    pub span_m: f64,
     /// Mean of its points, camera frame, metres.
     pub centre: Point3<f64>,
     /// Median depth of its pixels, metres.
@@ -69,24 +74,31 @@ pub fn segment_frame(depth: &DepthImage, k: &Intrinsics, largest_m: f64, too_lar
     let label = surfaces(w, h, &member, &|x, y| depth.at(x as u32, y as u32) as f64);
     let members = group_by_surface(&label, 0..w * h);
     let mut segments: Vec<Segment> = Vec::new();
-    // The pieces that are joined in pairs: the surfaces that can be an object, and the
-    // parts cut at necks of those that cannot (they share no pixel).
-    let mut pieces: Vec<Vec<usize>> = Vec::new();
+    // The pieces joined in pairs: the surfaces that can be an object, with the parts cut
+    // from those that cannot, once at their depths and once at their necks (the two cuts
+    // overlap; the parts of one cut share no pixel, as `neighbouring_pairs` needs).
+    let mut primaries: Vec<Vec<usize>> = Vec::new();
+    let (mut depth_parts, mut neck_parts): (Vec<Vec<usize>>, Vec<Vec<usize>>) = (Vec::new(), Vec::new());
     for m in members.into_iter().filter(|m| m.len() >= MIN_PIXELS) {
         let Some(whole) = describe(depth, k, &m) else { continue };
         if whole.extent_m > too_large_m {
-            segments.extend(split_by_depth(depth, &m).iter().filter_map(|part| describe(depth, k, part)));
-            let necks = split_at_necks(w, h, &m);
-            segments.extend(necks.iter().filter_map(|part| describe(depth, k, part)));
-            pieces.extend(necks);
+            let (by_depth, at_necks) = (split_by_depth(depth, &m), split_at_necks(w, h, &m));
+            segments.extend(by_depth.iter().chain(&at_necks).filter_map(|part| describe(depth, k, part)));
+            depth_parts.extend(by_depth);
+            neck_parts.extend(at_necks);
         } else {
-            pieces.push(m);
+            primaries.push(m);
         }
         segments.push(whole);
     }
-    for (a, b) in neighbouring_pairs(w, h, &pieces) {
-        let joined: Vec<usize> = pieces[a].iter().chain(&pieces[b]).copied().collect();
-        segments.extend(describe(depth, k, &joined).filter(|s| s.extent_m <= too_large_m));
+    let first_part = primaries.len();
+    for (round, parts) in [depth_parts, neck_parts].into_iter().enumerate() {
+        let pieces: Vec<Vec<usize>> = primaries.iter().cloned().chain(parts).collect();
+        // Pairs of two primaries are the same in both rounds: joined in the first only.
+        for (a, b) in neighbouring_pairs(w, h, &pieces).into_iter().filter(|&(_, b)| round == 0 || b >= first_part) {
+            let joined: Vec<usize> = pieces[a].iter().chain(&pieces[b]).copied().collect();
+            segments.extend(describe(depth, k, &joined).filter(|s| s.span_m <= too_large_m));
+        }
     }
     segments.sort_by_key(|s| std::cmp::Reverse(s.pixels));
     Segmentation { segments, planes }
@@ -128,6 +140,17 @@ fn spread(points: &[Point3<f64>]) -> f64 {
     }
 }
 
+/// Points sampled for a segment's span: every pair of them is measured.
+const SPAN_SAMPLES: usize = 400;
+
+/// The largest distance between two of `points` (an evenly strided sample of at most
+/// `SPAN_SAMPLES` of them), metres.
+fn span(points: &[&Point3<f64>]) -> f64 {
+    let step = points.len().div_ceil(SPAN_SAMPLES).max(1);
+    let sample: Vec<&Point3<f64>> = points.iter().step_by(step).copied().collect();
+    sample.iter().enumerate().flat_map(|(i, a)| sample[i + 1..].iter().map(move |b| (*a - *b).norm_squared())).fold(0.0, f64::max).sqrt()
+}
+
 /// A segment from its pixel indices (row-major); None when its points have no spread.
 fn describe(depth: &DepthImage, k: &Intrinsics, pixels: &[usize]) -> Option<Segment> {
     let w = depth.width() as usize;
@@ -140,13 +163,17 @@ fn describe(depth: &DepthImage, k: &Intrinsics, pixels: &[usize]) -> Option<Segm
     }) / n;
     let axes = SymmetricEigen::new(cov).eigenvectors;
     let mut spread2 = 0.0;
-    for a in 0..3 {
+    let mut bounds = [(0.0, 0.0); 3];
+    for (a, bound) in bounds.iter_mut().enumerate() {
         let axis = axes.column(a);
         let mut along: Vec<f64> = points.iter().map(|p| (p - centre).dot(&axis)).collect();
         along.sort_by(f64::total_cmp);
         let at = |q: f64| along[((along.len() - 1) as f64 * q).round() as usize];
+        *bound = (at(0.02), at(0.98));
         spread2 += (at(0.98) - at(0.02)).powi(2);
     }
+    let kept: Vec<&Point3<f64>> = points.iter().filter(|p| (0..3).all(|a| (bounds[a].0..=bounds[a].1).contains(&(*p - centre).dot(&axes.column(a))))).collect();
+    let span_m = span(&kept);
     let mut zs: Vec<f64> = points.iter().map(|p| p.z).collect();
     let mid = zs.len() / 2;
     let median_z = *zs.select_nth_unstable_by(mid, f64::total_cmp).1;
@@ -162,7 +189,7 @@ fn describe(depth: &DepthImage, k: &Intrinsics, pixels: &[usize]) -> Option<Segm
     let mask = close_holes(mask, &region);
     let extent_px = 0.5 * (k.fx + k.fy) * spread2.sqrt() / median_z;
     let fill = points.len() as f64 / (extent_px * extent_px).max(1.0);
-    (spread2 > 0.0).then(|| Segment { mask, bbox: [x0 as f64, y0 as f64, (x1 - x0 + 1) as f64, (y1 - y0 + 1) as f64], pixels: pixels.len(), extent_m: spread2.sqrt(), centre, median_z, fill })
+    (spread2 > 0.0).then(|| Segment { mask, bbox: [x0 as f64, y0 as f64, (x1 - x0 + 1) as f64, (y1 - y0 + 1) as f64], pixels: pixels.len(), extent_m: spread2.sqrt(), span_m, centre, median_z, fill })
 }
 
 #[cfg(test)]
@@ -237,6 +264,42 @@ mod tests {
         assert!(seg.segments.iter().any(|s| s.extent_m > 0.1), "the whole stays: {boxes:?}");
         assert!(boxes.iter().any(|b| b[0] == 40.0 && b[2] < 70.0), "the block alone: {boxes:?}");
         assert!(boxes.iter().any(|b| b[0] > 90.0 && b[0] + b[2] == 161.0), "the drum alone: {boxes:?}");
+    }
+
+    /// The block in front of the drum as above but with a gentler ramp between them (5 mm a
+    /// pixel, under the jump that splits surfaces), and above the drum its inside (a mug's
+    /// inside seen over its rim), a separate surface 6 cm farther: the drum cut from the
+    /// block at their depths is also offered joined with its inside, as one thing.
+    #[test]
+    fn a_part_cut_at_its_depth_is_joined_with_its_neighbour() {
+        let (w, h) = (200u32, 150u32);
+        let k = Intrinsics::new(300.0, 300.0, 100.0, 75.0, w, h).unwrap();
+        let values: Vec<f32> = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| {
+                if (35..50).contains(&y) && (110..=150).contains(&x) {
+                    return 0.62;
+                }
+                if !(50..=100).contains(&y) || !(40..=160).contains(&x) {
+                    return 0.9;
+                }
+                let t = ((x as f64 - 94.0) / 12.0).clamp(0.0, 1.0);
+                (0.5 + 0.06 * t) as f32
+            })
+            .collect();
+        let depth = DepthImage::from_metres(w, h, values).unwrap();
+        let seg = segment_frame(&depth, &k, 0.1, 0.2);
+        let boxes: Vec<[f64; 4]> = seg.segments.iter().map(|s| s.bbox).collect();
+        assert!(boxes.iter().any(|b| b[0] == 40.0 && b[2] == 121.0 && b[1] == 50.0), "the block and the drum, one surface: {boxes:?}");
+        assert!(boxes.iter().any(|b| b[1] == 35.0 && b[1] + b[3] == 101.0 && b[0] > 90.0), "the drum with its inside: {boxes:?}");
+        assert!(!boxes.iter().any(|b| b[1] == 35.0 && b[0] == 40.0 && b[3] > 20.0), "the block is not joined to the inside it does not touch: {boxes:?}");
+    }
+
+    #[test]
+    fn a_round_things_span_is_its_diameter_not_its_box_diagonal() {
+        let rim: Vec<Point3<f64>> = (0..360).map(|d| (d as f64).to_radians()).map(|a| Point3::new(0.05 * a.cos(), 0.05 * a.sin(), 0.6)).collect();
+        let refs: Vec<&Point3<f64>> = rim.iter().collect();
+        assert!((span(&refs) - 0.1).abs() < 1e-3, "{}", span(&refs));
     }
 
     #[test]

@@ -9,7 +9,7 @@ use super::detect_requests::DetectionOutput;
 use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput, RunnerUpOutput};
-use crate::detect::confirm::{answer_threshold, candidate_options, compared_choice, confirm, estimate_instances, one_per_place, Choice};
+use crate::detect::confirm::{candidate_options, compared_choice, confirm, confirmation_needed, estimate_instances, one_per_place, Choice};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
@@ -419,7 +419,7 @@ impl Core {
         if choice != Choice::Given && results.is_empty() && reason.is_none() {
             reason = Some(format!(
                 "none of the {unconfirmed} candidate(s) estimated was confirmed at its pose with a score of {:.3} or more (for min_score {})",
-                answer_threshold(req.detect.min_score),
+                confirmation_needed(req.detect.min_score, compared),
                 req.detect.min_score
             ));
         }
