@@ -17,7 +17,7 @@ use super::dataset::{load_rgb, load_scene_cameras, load_targets, ImageCamera};
 use super::detections::{DetectionIndex, DetectionRecord};
 use super::format::{scene_dir, TargetRecord};
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
-use crate::detect::confirm::{candidate_options, compared_choice, confirm, estimate_instances, one_per_place, Choice};
+use crate::detect::confirm::{candidate_options, compared_choice, confirm, estimate_instances, on_taken_place, one_per_place, sure_places, Choice};
 use crate::detect::{detect, DetectOptions, Target};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateError, Estimator};
@@ -145,6 +145,8 @@ pub fn run(
         }
         let compared = depth.is_some() && matches!(source, DetectionSource::Detector { .. });
         let mut answers = Vec::new();
+        // Places another object's answer surely took: not estimated again (`on_taken_place`).
+        let mut taken: Vec<image::GrayImage> = Vec::new();
         for (ti, (t, masks)) in targets.iter().zip(&decoded).enumerate() {
             summary.targets += 1;
             summary.instances_requested += t.inst_count as usize;
@@ -164,7 +166,10 @@ pub fn run(
             // The depth detector's candidates are compared (in turn until one is sure), and
             // each segment answered once across objects after every object's are in
             // (`one_per_place`).
-            let groups = group_instances(&refs, opts.same_instance_iou);
+            let mut groups = group_instances(&refs, opts.same_instance_iou);
+            if compared {
+                groups.retain(|g| !on_taken_place(refs[g[0]].0, &taken));
+            }
             let choice = compared_choice(compared, groups.len(), wanted, choice);
             let answered = estimate_instances(groups, wanted, choice, |group| {
                 let candidates = Candidates::gather(group.iter().map(|&i| (i, masks[i].as_slice()))).masks;
@@ -206,7 +211,9 @@ pub fn run(
                     None => Ok((Some((pose, r.score, candidates[r.mask_index.unwrap_or(0)].mask.clone())), None)),
                 }
             })?;
-            answers.push((t.obj_id, wanted, answered.kept.into_iter().filter_map(|(p, _)| p).collect::<Vec<_>>()));
+            let kept: Vec<_> = answered.kept.into_iter().filter_map(|(p, _)| p).collect();
+            taken.extend(sure_places(&kept));
+            answers.push((t.obj_id, wanted, kept));
         }
         // A row's score: the confirmation with the detector's candidates, else the estimator's.
         let wanted: Vec<usize> = answers.iter().map(|a| a.1).collect();

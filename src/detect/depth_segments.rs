@@ -240,44 +240,19 @@ mod tests {
         assert!((fills[0] - 0.235).abs() < 0.05 && (fills[1] - 0.46).abs() < 0.08, "{fills:?}");
     }
 
-    /// A 6 cm block standing in front of a 10 cm drum and touching it: one surface, larger
-    /// than either object looked for, is also offered cut at its depths, as the two things.
-    #[test]
-    fn touching_things_one_in_front_are_also_offered_apart() {
-        let (w, h) = (200u32, 150u32);
-        let k = Intrinsics::new(300.0, 300.0, 100.0, 75.0, w, h).unwrap();
-        // Depth ramps smoothly from the block's face (0.5 m, left) to the drum (0.56 m, right)
-        // over 6 px, with no step the surfaces would split at: all one segment; a wall behind.
-        let values: Vec<f32> = (0..h)
-            .flat_map(|y| (0..w).map(move |x| (x, y)))
-            .map(|(x, y)| {
-                if !(50..=100).contains(&y) || !(40..=160).contains(&x) {
-                    return 0.9;
-                }
-                let t = ((x as f64 - 97.0) / 6.0).clamp(0.0, 1.0);
-                (0.5 + 0.06 * t) as f32
-            })
-            .collect();
-        let depth = DepthImage::from_metres(w, h, values).unwrap();
-        let seg = segment_frame(&depth, &k, 0.1, 0.12);
-        let boxes: Vec<[f64; 4]> = seg.segments.iter().map(|s| s.bbox).collect();
-        assert!(seg.segments.iter().any(|s| s.extent_m > 0.1), "the whole stays: {boxes:?}");
-        assert!(boxes.iter().any(|b| b[0] == 40.0 && b[2] < 70.0), "the block alone: {boxes:?}");
-        assert!(boxes.iter().any(|b| b[0] > 90.0 && b[0] + b[2] == 161.0), "the drum alone: {boxes:?}");
-    }
-
-    /// The block in front of the drum as above but with a gentler ramp between them (5 mm a
-    /// pixel, under the jump that splits surfaces), and above the drum its inside (a mug's
-    /// inside seen over its rim), a separate surface 6 cm farther: the drum cut from the
-    /// block at their depths is also offered joined with its inside, as one thing.
-    #[test]
-    fn a_part_cut_at_its_depth_is_joined_with_its_neighbour() {
+    /// A 6 cm block's face (0.5 m, left) touching a 10 cm drum (0.56 m, right), the depth
+    /// ramping from one to the other over 12 px (5 mm a pixel, under the jump that splits
+    /// surfaces: all one surface), a wall behind; with `inside`, above the drum its inside
+    /// (a mug's inside seen over its rim), a surface of its own 6 cm farther. The whole is
+    /// always a segment; returns the boxes of the segments, for objects of 10 cm and
+    /// segments cut past `too_large_m`.
+    fn block_and_drum(inside: bool, too_large_m: f64) -> Vec<[f64; 4]> {
         let (w, h) = (200u32, 150u32);
         let k = Intrinsics::new(300.0, 300.0, 100.0, 75.0, w, h).unwrap();
         let values: Vec<f32> = (0..h)
             .flat_map(|y| (0..w).map(move |x| (x, y)))
             .map(|(x, y)| {
-                if (35..50).contains(&y) && (110..=150).contains(&x) {
+                if inside && (35..50).contains(&y) && (110..=150).contains(&x) {
                     return 0.62;
                 }
                 if !(50..=100).contains(&y) || !(40..=160).contains(&x) {
@@ -288,9 +263,25 @@ mod tests {
             })
             .collect();
         let depth = DepthImage::from_metres(w, h, values).unwrap();
-        let seg = segment_frame(&depth, &k, 0.1, 0.2);
-        let boxes: Vec<[f64; 4]> = seg.segments.iter().map(|s| s.bbox).collect();
+        let boxes: Vec<[f64; 4]> = segment_frame(&depth, &k, 0.1, too_large_m).segments.iter().map(|s| s.bbox).collect();
         assert!(boxes.iter().any(|b| b[0] == 40.0 && b[2] == 121.0 && b[1] == 50.0), "the block and the drum, one surface: {boxes:?}");
+        boxes
+    }
+
+    /// The block and the drum: one surface, larger than either object looked for, also
+    /// offered cut at its depths, as the two things.
+    #[test]
+    fn touching_things_one_in_front_are_also_offered_apart() {
+        let boxes = block_and_drum(false, 0.12);
+        assert!(boxes.iter().any(|b| b[0] == 40.0 && b[2] < 70.0), "the block alone: {boxes:?}");
+        assert!(boxes.iter().any(|b| b[0] > 90.0 && b[0] + b[2] == 161.0), "the drum alone: {boxes:?}");
+    }
+
+    /// With the drum's inside above it: the drum cut from the block at their depths is also
+    /// offered joined with its inside, as one thing.
+    #[test]
+    fn a_part_cut_at_its_depth_is_joined_with_its_neighbour() {
+        let boxes = block_and_drum(true, 0.2);
         assert!(boxes.iter().any(|b| b[1] == 35.0 && b[1] + b[3] == 101.0 && b[0] > 90.0), "the drum with its inside: {boxes:?}");
         assert!(!boxes.iter().any(|b| b[1] == 35.0 && b[0] == 40.0 && b[3] > 20.0), "the block is not joined to the inside it does not touch: {boxes:?}");
     }

@@ -9,7 +9,7 @@ use super::detect_requests::DetectionOutput;
 use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput, RunnerUpOutput};
-use crate::detect::confirm::{candidate_options, compared_choice, confirm, confirmation_needed, estimate_instances, one_per_place, Choice};
+use crate::detect::confirm::{candidate_options, compared_choice, confirm, confirmation_needed, estimate_instances, on_taken_place, one_per_place, sure_places, Choice};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
@@ -361,10 +361,15 @@ impl Core {
         let compared = depth.is_some() && detected.is_some();
         let mut answers = Vec::new();
         let mut tried = 0usize;
+        // Places another object's answer surely took: not estimated again (`on_taken_place`).
+        let mut taken: Vec<image::GrayImage> = Vec::new();
         for (object_id, dets) in &by_object {
             let model = &models[object_id];
             let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, c)| representative(c)).collect();
-            let groups = crate::masks::group_instances(&refs, 0.5);
+            let mut groups = crate::masks::group_instances(&refs, 0.5);
+            if compared {
+                groups.retain(|g| !on_taken_place(refs[g[0]].0, &taken));
+            }
             let object_choice = compared_choice(compared, groups.len(), o.instances_per_object, choice);
             let answered = estimate_instances(groups.into_iter().enumerate(), o.instances_per_object, object_choice, |(instance, group)| {
                 if deadline.is_some_and(|d| Instant::now() >= d) {
@@ -405,7 +410,9 @@ impl Core {
                 Ok(((result, mask), confirmation))
             })?;
             tried += answered.tried;
-            answers.push(answered.kept.into_iter().map(|((r, mask), c)| (r, c.unwrap_or(0.0), mask)).collect::<Vec<_>>());
+            let kept: Vec<_> = answered.kept.into_iter().map(|((r, mask), c)| (r, c.unwrap_or(0.0), mask)).collect();
+            taken.extend(sure_places(&kept));
+            answers.push(kept);
         }
         let per_object: Vec<Vec<(InstanceResult, f32)>> =
             if compared { one_per_place(answers, &vec![o.instances_per_object; by_object.len()]) } else { answers.into_iter().map(|a| a.into_iter().map(|(r, c, _)| (r, c)).collect()).collect() };
