@@ -192,5 +192,5 @@ fn detect_first(
     renderer: &crate::render::RenderPool,
 ) -> Result<Vec<FrameDetection>> {
     let found = super::detect_cmd::detect_object(model, (&first.image, depth), k, &candidate_options(&search.options()), renderer).with_context(|| format!("first frame {}", first.name))?;
-    Ok(found.into_iter().take(candidates_tried(1)).map(|d| FrameDetection::candidate(d.object_id, d.mask, d.score, search.min_score)).collect())
+    Ok(found.into_iter().take(candidates_tried(1)).map(|d| FrameDetection::candidate(d.object_id, d.mask, d.score, search.min_score, depth.is_some())).collect())
 }

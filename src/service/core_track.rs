@@ -88,7 +88,7 @@ impl Core {
                 let n = per_object.entry(d.object_id.clone()).or_default();
                 *n += 1;
                 if *n <= candidates_tried(1) {
-                    detections.push(FrameDetection::candidate(d.object_id, d.mask, d.score, req.detect.min_score));
+                    detections.push(FrameDetection::candidate(d.object_id, d.mask, d.score, req.detect.min_score, depth.is_some()));
                 }
             }
         }

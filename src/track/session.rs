@@ -10,7 +10,7 @@
 use super::colour::Window;
 use super::{Tracker, TrackerConfig};
 use crate::depth::DepthImage;
-use crate::detect::confirm::{answer_threshold, confirm};
+use crate::detect::confirm::{confirm, confirmation_needed};
 use crate::estimate::depth_fit::DepthFit;
 use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::geometry::{Intrinsics, Pose};
@@ -113,9 +113,10 @@ impl FrameDetection {
     }
 
     /// A candidate of the detector, for a caller whose threshold is `min_score`: its
-    /// estimate must be confirmed at `answer_threshold(min_score)`, as answers are.
-    pub fn candidate(object_id: String, mask: GrayImage, score: f32, min_score: f32) -> Self {
-        Self { object_id, mask, score, min_confirmation: Some(answer_threshold(min_score)) }
+    /// estimate must be confirmed at `confirmation_needed(min_score, with_depth)`, as
+    /// answers are (less with the depth detector's candidates, confirmed with depth).
+    pub fn candidate(object_id: String, mask: GrayImage, score: f32, min_score: f32, with_depth: bool) -> Self {
+        Self { object_id, mask, score, min_confirmation: Some(confirmation_needed(min_score, with_depth)) }
     }
 }
 
@@ -485,6 +486,15 @@ mod tests {
         assert!(projects_inside(&k, &at(-0.5, 0.49, 1.0), searched), "(100, 199)");
         assert!(!projects_inside(&k, &at(0.6, 0.0, 1.0), searched), "(210, 150)");
         assert!(!projects_inside(&k, &at(0.0, 0.0, -1.0), searched), "behind the camera");
+    }
+
+    #[test]
+    fn detector_candidates_need_the_answers_confirmation_given_ones_none() {
+        let m = GrayImage::new(4, 4);
+        assert_eq!(FrameDetection::given("a".into(), m.clone(), 1.0).min_confirmation, None);
+        assert_eq!(FrameDetection::candidate("a".into(), m.clone(), 0.5, 0.45, false).min_confirmation, Some(confirmation_needed(0.45, false)));
+        let with_depth = FrameDetection::candidate("a".into(), m, 0.5, 0.45, true).min_confirmation.unwrap();
+        assert!((with_depth - confirmation_needed(0.45, true)).abs() < 1e-6 && with_depth < confirmation_needed(0.45, false));
     }
 
     #[test]
