@@ -199,7 +199,7 @@ pub fn on_taken_place(mask: &GrayImage, taken: &[GrayImage]) -> bool {
 }
 
 /// The masks of an object's `answers` (anything, confirmation, mask) confirmed at
-/// `SURE_COMPARED` or more, for `on_taken_place`.
+/// `SURELY_TAKEN` or more, for `on_taken_place`.
 pub fn sure_places<'a, T>(answers: &'a [(T, f32, GrayImage)]) -> impl Iterator<Item = GrayImage> + 'a {
     answers.iter().filter(|a| a.1 >= SURELY_TAKEN).map(|a| a.2.clone())
 }
