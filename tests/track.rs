@@ -344,7 +344,7 @@ fn track_command_writes_a_pose_per_frame() {
     // A loss threshold outside [0, 1] is refused by name.
     let e = fx.run_with(&frames, &["--lost-below", "1.5"]);
     let err = String::from_utf8_lossy(&e.stderr);
-    assert!(!e.status.success() && err.contains("--lost-below") && err.contains("must be in [0, 1], not 1.5"), "{err}");
+    assert!(!e.status.success() && err.contains("--lost-below") && err.contains("1.5 is outside 0–1"), "{err}");
 
     // RGB-D: the depth frames beside them (0.1 mm PNGs); each tracked line says how its
     // pose lies on the measured surface. Too few depth frames, or one of another size, is

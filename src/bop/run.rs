@@ -185,6 +185,8 @@ pub fn run(
                     }
                     Err(e) => return Err(anyhow::Error::new(e).context(format!("scene {scene_id}, image {im_id}, object {}", t.obj_id))),
                 };
+                // Where an estimate's time goes, per stage (box proposals against masks).
+                tracing::debug!(scene_id, im_id, obj_id = t.obj_id, masks = candidates.len(), timings = ?r.timings, "estimated");
                 let Some(pose) = r.pose else {
                     return Ok((None, None));
                 };

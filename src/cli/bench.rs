@@ -57,6 +57,9 @@ pub enum BenchCommand {
     /// The symmetry finder on meshes: what it finds, how long it takes, and whether it
     /// agrees with a BOP models_info.json.
     Symmetries(super::bench_symmetries::BenchSymmetriesArgs),
+    /// A box's mask proposals on a BOP dataset's boxes: ms per source and IoU with the
+    /// true masks, the wall time of all of them per box.
+    Proposals(super::bench_proposals::BenchProposalsArgs),
     /// Renders per second.
     Render {
         #[arg(long)]
@@ -107,6 +110,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Track(a) => super::bench_track::run(a),
         BenchCommand::DepthFit(a) => super::bench_depth_fit::run(a),
         BenchCommand::Symmetries(a) => super::bench_symmetries::run(a),
+        BenchCommand::Proposals(a) => super::bench_proposals::run(a),
         BenchCommand::Serve(a) => super::bench_serve::run(a),
         BenchCommand::Render { mesh, units, size, count, two_sided, every_triangle } => {
             let config = crate::render::RendererConfig { cull_closed_meshes: !(two_sided || every_triangle), drop_repeated_faces: !every_triangle, ..Default::default() };

@@ -46,7 +46,7 @@ pub struct TrackArgs {
     pub overlay_dir: Option<PathBuf>,
     /// Below this outline agreement (0–1) a frame is lost and the object searched for
     /// again (the API's `lost_below`).
-    #[arg(long, value_parser = unit_interval)]
+    #[arg(long, value_parser = super::verify_args::share)]
     pub lost_below: Option<f64>,
     /// RGB-D: a folder of 16-bit depth PNGs registered to the colour frames, the k-th in
     /// name order with the k-th frame (a BOP scene's depth/ beside its rgb/). Tracks are
@@ -57,15 +57,6 @@ pub struct TrackArgs {
     /// tenths).
     #[arg(long, default_value_t = 1.0, requires = "depth")]
     pub depth_scale: f64,
-}
-
-fn unit_interval(s: &str) -> std::result::Result<f64, String> {
-    let v: f64 = s.parse().map_err(|e| format!("{e}"))?;
-    if (0.0..=1.0).contains(&v) {
-        Ok(v)
-    } else {
-        Err(format!("must be in [0, 1], not {v}"))
-    }
 }
 
 fn check_size(frame: &Frame, k: &Intrinsics) -> Result<()> {

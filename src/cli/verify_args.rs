@@ -67,7 +67,8 @@ pub struct VerifyArgs {
 }
 
 /// A share from 0 to 1, or what is wrong with it.
-fn share(s: &str) -> Result<f64, String> {
+/// A number in [0, 1] (a share, a score).
+pub(crate) fn share(s: &str) -> Result<f64, String> {
     let v = number(s)?;
     if (0.0..=1.0).contains(&v) {
         Ok(v)

@@ -149,27 +149,29 @@ impl Grid {
         Grid { w: gw as usize, h: gh as usize, colour, in_box, origin: (rx0, ry0), scale }
     }
 
-    /// Each unordered 8-neighbour pair once, with its contrast-sensitive weight
-    /// γ/dist · exp(−β‖Δz‖²), β = 1 / (2⟨‖Δz‖²⟩) over the grid.
-    fn pairs(&self, gamma: f64) -> Vec<(usize, usize, f64)> {
-        let mut pairs = Vec::with_capacity(4 * self.w * self.h);
-        for y in 0..self.h {
-            for x in 0..self.w {
-                let p = y * self.w + x;
-                let steps = [(1, 0), (0, 1), (1, 1), (-1, 1)];
-                for (dx, dy) in steps {
+    /// Each unordered 8-neighbour pair once, as (cell, cell, distance between centres).
+    fn neighbour_pairs(&self) -> impl Iterator<Item = (usize, usize, f64)> + '_ {
+        const STEPS: [(isize, isize); 4] = [(1, 0), (0, 1), (1, 1), (-1, 1)];
+        (0..self.h).flat_map(move |y| {
+            (0..self.w).flat_map(move |x| {
+                STEPS.iter().filter_map(move |&(dx, dy)| {
                     let (nx, ny) = (x as isize + dx, y as isize + dy);
-                    if nx < 0 || nx >= self.w as isize || ny >= self.h as isize {
-                        continue;
-                    }
-                    pairs.push((p, ny as usize * self.w + nx as usize, if dx != 0 && dy != 0 { std::f64::consts::SQRT_2 } else { 1.0 }));
-                }
-            }
-        }
+                    (nx >= 0 && nx < self.w as isize && ny < self.h as isize)
+                        .then(|| (y * self.w + x, ny as usize * self.w + nx as usize, if dx != 0 && dy != 0 { std::f64::consts::SQRT_2 } else { 1.0 }))
+                })
+            })
+        })
+    }
+
+    /// The pairs with a cell in the box (the ring is background whatever the cut), with
+    /// their contrast-sensitive weight γ/dist · exp(−β‖Δz‖²), β = 1 / (2⟨‖Δz‖²⟩) over the
+    /// whole grid.
+    fn pairs(&self, gamma: f64) -> Vec<(usize, usize, f64)> {
         let d2 = |p: usize, q: usize| (0..3).map(|c| (self.colour[p][c] - self.colour[q][c]).powi(2)).sum::<f64>();
-        let mean = pairs.iter().map(|&(p, q, _)| d2(p, q)).sum::<f64>() / pairs.len().max(1) as f64;
+        let (sum, count) = self.neighbour_pairs().fold((0.0, 0usize), |(s, n), (p, q, _)| (s + d2(p, q), n + 1));
+        let mean = sum / count.max(1) as f64;
         let beta = if mean > 0.0 { 0.5 / mean } else { 0.0 };
-        pairs.into_iter().map(|(p, q, dist)| (p, q, gamma / dist * (-beta * d2(p, q)).exp())).collect()
+        self.neighbour_pairs().filter(|&(p, q, _)| self.in_box[p] || self.in_box[q]).map(|(p, q, dist)| (p, q, gamma / dist * (-beta * d2(p, q)).exp())).collect()
     }
 
     /// Object labels per cell after the iterated cuts; an error says why there is no cut.
@@ -199,22 +201,26 @@ impl Grid {
             .collect();
         let cells: Vec<usize> = (0..self.in_box.len()).filter(|&i| self.in_box[i]).collect();
         let cap = |cost: f64| (cost.min(MAX_DATA_COST) * COST_SCALE).round() as i64;
+        // The smoothness terms do not change between rounds: the graph is built once, and
+        // each round changes only the data terms on the flow the last one left.
+        let mut g = Graph::new(inside);
+        // Next to a ring cell, which is background: being object costs the pair.
+        let mut ring_cost = vec![0i64; inside];
+        for &(p, q, w) in &pairs {
+            match (node[p], node[q]) {
+                (Some(a), Some(b)) => g.add_edge(a, b, cap(w), cap(w)),
+                (Some(a), None) | (None, Some(a)) => ring_cost[a] += cap(w),
+                (None, None) => {}
+            }
+        }
         let mut labels = self.in_box.clone();
         for _ in 0..cfg.iterations {
-            let mut g = Graph::new(inside);
             for &c in &cells {
                 // Cutting s→v labels v background; cutting v→t labels it object.
                 let (bg_cost, fg_cost) = (bg.neg_log_likelihood(&self.colour[c]), fg.neg_log_likelihood(&self.colour[c]));
                 let base = bg_cost.min(fg_cost);
-                g.add_terminal(node[c].unwrap_or_default(), cap(bg_cost - base), cap(fg_cost - base));
-            }
-            for &(p, q, w) in &pairs {
-                match (node[p], node[q]) {
-                    (Some(a), Some(b)) => g.add_edge(a, b, cap(w), cap(w)),
-                    // Next to a ring cell, which is background: being object costs the pair.
-                    (Some(a), None) | (None, Some(a)) => g.add_terminal(a, 0, cap(w)),
-                    (None, None) => {}
-                }
+                let v = node[c].unwrap_or_default();
+                g.set_terminal(v, cap(bg_cost - base), cap(fg_cost - base) + ring_cost[v]);
             }
             g.max_flow();
             let next: Vec<bool> = node.iter().map(|n| n.is_some_and(|v| g.is_source_side(v))).collect();
