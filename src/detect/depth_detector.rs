@@ -47,7 +47,7 @@ pub fn detect_with_depth(image: &RgbImage, depth: &DepthImage, k: &Intrinsics, t
     let mut searched = Vec::new();
     for (ti, t) in targets.iter().enumerate() {
         let d = t.mesh.diameter().max(1e-6);
-        let mut own: Vec<(f32, (usize, usize))> = segments.iter().enumerate().filter_map(|(si, s)| size_fit(s.span_m, d).map(|fit| (fit * solidity(s.fill), (ti, si)))).collect();
+        let mut own: Vec<(f32, (usize, usize))> = segments.iter().enumerate().filter_map(|(si, s)| fit(s, d).map(|fit| (fit, (ti, si)))).collect();
         searched.push(Searched { object_id: t.id.to_string(), distance_m: [nearest, farthest], scales: 1, candidates: own.len() });
         own.retain(|f| f.0 >= opts.min_score);
         own.sort_by(|a, b| b.0.total_cmp(&a.0));
@@ -92,6 +92,13 @@ fn size_fit(extent: f64, diameter: f64) -> Option<f32> {
     Some(if share <= 0.8 { (share / 0.8).sqrt() } else { 1.0 } as f32)
 }
 
+/// How well segment `s` can be a view of an object of `diameter`: its span against the
+/// diameter (not its box diagonal, which a round thing's view runs past), times its
+/// solidity; None when its size rules the object out.
+fn fit(s: &Segment, diameter: f64) -> Option<f32> {
+    size_fit(s.span_m, diameter).map(|f| f * solidity(s.fill))
+}
+
 /// How solid a segment of `fill` is, 0–1 (`SOLID_FILL` and more: 1).
 fn solidity(fill: f64) -> f32 {
     (fill / SOLID_FILL).min(1.0) as f32
@@ -134,6 +141,19 @@ mod tests {
         assert_eq!(size_fit(0.3, 0.2), None, "larger than the object");
         assert_eq!(size_fit(0.03, 0.2), None, "too little of it");
         assert!(size_fit(0.225, 0.2).is_some(), "ragged edges allowed for");
+    }
+
+    #[test]
+    fn a_round_things_view_fits_by_its_span_not_its_box_diagonal() {
+        // A whole mug's view (diameter 125 mm): its box diagonal 170 mm is past what the mug
+        // can be, its span is the mug's size.
+        let mug = Segment { mask: image::GrayImage::new(1, 1), bbox: [0.0; 4], pixels: 1, extent_m: 0.170, span_m: 0.125, centre: nalgebra::Point3::origin(), median_z: 0.7, fill: 0.4 };
+        assert_eq!(size_fit(mug.extent_m, 0.125), None);
+        assert_eq!(fit(&mug, 0.125), Some(1.0));
+        // A cable's run as long: the same size, a fifth as solid.
+        let cable = Segment { fill: 0.04, ..mug.clone() };
+        assert!((fit(&cable, 0.125).unwrap() - 0.2).abs() < 1e-6);
+        assert_eq!(fit(&mug, 0.05), None, "larger than a small part");
     }
 
     #[test]

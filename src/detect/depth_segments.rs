@@ -93,10 +93,10 @@ pub fn segment_frame(depth: &DepthImage, k: &Intrinsics, largest_m: f64, too_lar
     }
     let first_part = primaries.len();
     for (round, parts) in [depth_parts, neck_parts].into_iter().enumerate() {
-        let pieces: Vec<Vec<usize>> = primaries.iter().cloned().chain(parts).collect();
+        let pieces: Vec<&[usize]> = primaries.iter().chain(&parts).map(Vec::as_slice).collect();
         // Pairs of two primaries are the same in both rounds: joined in the first only.
         for (a, b) in neighbouring_pairs(w, h, &pieces).into_iter().filter(|&(_, b)| round == 0 || b >= first_part) {
-            let joined: Vec<usize> = pieces[a].iter().chain(&pieces[b]).copied().collect();
+            let joined: Vec<usize> = pieces[a].iter().chain(pieces[b]).copied().collect();
             segments.extend(describe(depth, k, &joined).filter(|s| s.span_m <= too_large_m));
         }
     }
@@ -162,17 +162,19 @@ fn describe(depth: &DepthImage, k: &Intrinsics, pixels: &[usize]) -> Option<Segm
         a + d * d.transpose()
     }) / n;
     let axes = SymmetricEigen::new(cov).eigenvectors;
+    // Each point along the three principal axes, once: for the percentiles and for the
+    // points kept inside them.
+    let along_axes: Vec<[f64; 3]> = points.iter().map(|p| [0, 1, 2].map(|a| (p - centre).dot(&axes.column(a)))).collect();
     let mut spread2 = 0.0;
     let mut bounds = [(0.0, 0.0); 3];
     for (a, bound) in bounds.iter_mut().enumerate() {
-        let axis = axes.column(a);
-        let mut along: Vec<f64> = points.iter().map(|p| (p - centre).dot(&axis)).collect();
+        let mut along: Vec<f64> = along_axes.iter().map(|q| q[a]).collect();
         along.sort_by(f64::total_cmp);
         let at = |q: f64| along[((along.len() - 1) as f64 * q).round() as usize];
         *bound = (at(0.02), at(0.98));
         spread2 += (at(0.98) - at(0.02)).powi(2);
     }
-    let kept: Vec<&Point3<f64>> = points.iter().filter(|p| (0..3).all(|a| (bounds[a].0..=bounds[a].1).contains(&(*p - centre).dot(&axes.column(a))))).collect();
+    let kept: Vec<&Point3<f64>> = points.iter().zip(&along_axes).filter(|(_, q)| (0..3).all(|a| (bounds[a].0..=bounds[a].1).contains(&q[a]))).map(|(p, _)| p).collect();
     let span_m = span(&kept);
     let mut zs: Vec<f64> = points.iter().map(|p| p.z).collect();
     let mid = zs.len() / 2;

@@ -98,10 +98,10 @@ pub(super) fn split_at_necks(w: usize, h: usize, pixels: &[usize]) -> Vec<Vec<us
 /// Pairs of `parts` (pixel lists of a `w × h` frame, sharing no pixel) that touch along an
 /// edge: at least `MIN_CONTACT` pixels of one within `CONTACT_PX` of the other. The
 /// caller offers each pair joined, as one thing seen as two surfaces.
-pub(super) fn neighbouring_pairs(w: usize, h: usize, parts: &[Vec<usize>]) -> Vec<(usize, usize)> {
+pub(super) fn neighbouring_pairs(w: usize, h: usize, parts: &[&[usize]]) -> Vec<(usize, usize)> {
     let mut label: Vec<Option<usize>> = vec![None; w * h];
     for (p, cells) in parts.iter().enumerate() {
-        for &i in cells {
+        for &i in cells.iter() {
             label[i] = Some(p);
         }
     }
@@ -109,7 +109,7 @@ pub(super) fn neighbouring_pairs(w: usize, h: usize, parts: &[Vec<usize>]) -> Ve
     let mut contacts: HashMap<(usize, usize), usize> = HashMap::new();
     let mut touched: Vec<usize> = Vec::new();
     for (p, cells) in parts.iter().enumerate() {
-        for &i in cells {
+        for &i in cells.iter() {
             let (x, y) = ((i % w) as i64, (i / w) as i64);
             touched.clear();
             for dy in -r..=r {
@@ -214,6 +214,6 @@ mod tests {
     fn surfaces_touching_along_an_edge_are_neighbours() {
         let w = 100;
         let parts = vec![rect(w, 10, 30, 10, 30), rect(w, 31, 50, 10, 30), rect(w, 55, 70, 10, 30), rect(w, 71, 90, 31, 50)];
-        assert_eq!(neighbouring_pairs(w, 60, &parts), vec![(0, 1)]);
+        assert_eq!(neighbouring_pairs(w, 60, &parts.iter().map(Vec::as_slice).collect::<Vec<_>>()), vec![(0, 1)]);
     }
 }
