@@ -213,7 +213,7 @@ mod tests {
     #[test]
     fn surfaces_touching_along_an_edge_are_neighbours() {
         let w = 100;
-        let parts = vec![rect(w, 10, 30, 10, 30), rect(w, 31, 50, 10, 30), rect(w, 55, 70, 10, 30), rect(w, 71, 90, 31, 50)];
+        let parts = [rect(w, 10, 30, 10, 30), rect(w, 31, 50, 10, 30), rect(w, 55, 70, 10, 30), rect(w, 71, 90, 31, 50)];
         assert_eq!(neighbouring_pairs(w, 60, &parts.iter().map(Vec::as_slice).collect::<Vec<_>>()), vec![(0, 1)]);
     }
 }
