@@ -1,7 +1,7 @@
 """The two halves of tools/bench/objects_searched.sh.
 
-  objects_searched.py views YCBV HOPE OUT        one models folder and a dataset view per number of objects searched
-  objects_searched.py report CSV YCBV NAME SECONDS   seconds per frame, poses answered, false ones
+objects_searched.py views YCBV HOPE OUT        one models folder and a dataset view per number of objects searched
+objects_searched.py report CSV YCBV NAME SECONDS   seconds per frame, poses answered, false ones
 """
 
 import csv
