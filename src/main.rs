@@ -10,12 +10,12 @@ fn main() {
     let telemetry = match b2tfpose::telemetry::init(&cli.telemetry, cli.command.default_log_filter()) {
         Ok(g) => g,
         Err(e) => {
-            b2tfpose::telemetry::fatal(&format!("{e:#}"));
+            b2tfpose::telemetry::fatal(&b2tfpose::telemetry::error_text(&e));
             std::process::exit(2);
         }
     };
     if let Err(e) = b2tfpose::cli::run(cli) {
-        b2tfpose::telemetry::fatal(&format!("{e:#}"));
+        b2tfpose::telemetry::fatal(&b2tfpose::telemetry::error_text(&e));
         telemetry.flush();
         std::process::exit(1);
     }

@@ -3,12 +3,14 @@
 //! spans exported over OTLP. Stdout stays the commands' own output (results, the server's
 //! "listening on" line), so scripts that parse it are not disturbed by logs.
 
+pub mod error_text;
 pub mod json_lines;
 pub mod logging;
 #[cfg(feature = "otlp")]
 pub mod otlp;
 pub mod request_id;
 
+pub use error_text::error_text;
 pub use logging::LogFormat;
 pub use request_id::RequestId;
 
