@@ -5,6 +5,7 @@
 //! the loop for the cuts' speed and quality, before a `bop run` measures what reaches the
 //! pose (tools/bench/real_boxes.sh).
 
+use super::bench_estimate::median;
 use crate::bop::dataset::{load_rgb, load_scene_cameras};
 use crate::bop::detections::{read_detections, DetectionRecord};
 use crate::bop::format::scene_dir;
@@ -113,12 +114,4 @@ fn reference<'a>(d: &DetectionRecord, masks: &'a [DetectionRecord]) -> Option<&'
 
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len().max(1) as f64
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }

@@ -66,8 +66,7 @@ pub struct VerifyArgs {
     pub print_rounds: Option<usize>,
 }
 
-/// A share from 0 to 1, or what is wrong with it.
-/// A number in [0, 1] (a share, a score).
+/// A number from 0 to 1 (a share, a score), or what is wrong with it.
 pub(crate) fn share(s: &str) -> Result<f64, String> {
     let v = number(s)?;
     if (0.0..=1.0).contains(&v) {

@@ -3,6 +3,7 @@
 //! both several colours, which one Gaussian or a coarse histogram blurs together.
 
 use nalgebra::{Matrix3, Vector3};
+use std::borrow::Cow;
 
 pub type Colour = [f64; 3];
 
@@ -18,13 +19,15 @@ const KMEANS_ROUNDS: usize = 8;
 /// third less of that cut's time (docs/estimation.md, "Where a box's time goes").
 const MAX_FIT_SAMPLES: usize = 32_768;
 
-/// About `MAX_FIT_SAMPLES` of the samples (all of them when fewer), chosen by a hash of
-/// their index rather than every n-th: a grid's cells taken at a stride keep whole columns
-/// and miss a pattern of the same period.
-fn thinned(samples: &[Colour]) -> impl Iterator<Item = &Colour> {
-    let keep = (MAX_FIT_SAMPLES as f64 / samples.len().max(1) as f64).min(1.0);
-    let threshold = (keep * u32::MAX as f64) as u32;
-    samples.iter().enumerate().filter(move |(i, _)| keep >= 1.0 || (*i as u32).wrapping_mul(2_654_435_761) <= threshold).map(|(_, z)| z)
+/// About `MAX_FIT_SAMPLES` of the samples (all of them, borrowed, when fewer), chosen by a
+/// hash of their index rather than every n-th: a grid's cells taken at a stride keep whole
+/// columns and miss a pattern of the same period.
+fn thinned(samples: &[Colour]) -> Cow<'_, [Colour]> {
+    if samples.len() <= MAX_FIT_SAMPLES {
+        return Cow::Borrowed(samples);
+    }
+    let threshold = (MAX_FIT_SAMPLES as f64 / samples.len() as f64 * u32::MAX as f64) as u32;
+    Cow::Owned(samples.iter().enumerate().filter(|(i, _)| (*i as u32).wrapping_mul(2_654_435_761) <= threshold).map(|(_, z)| *z).collect())
 }
 
 struct Component {
@@ -42,7 +45,7 @@ impl Gmm {
     /// k-means (seeded by luminance quantiles, so deterministic) then one estimate of
     /// each cluster's Gaussian. `None` when there are too few samples.
     pub fn fit(samples: &[Colour], k: usize) -> Option<Gmm> {
-        let samples: Vec<Colour> = thinned(samples).copied().collect();
+        let samples = thinned(samples);
         let assign = kmeans(&samples, k.max(1));
         Gmm::from_assignment(&samples, &assign)
     }
@@ -50,16 +53,26 @@ impl Gmm {
     /// GrabCut's re-estimation: each sample joins its most likely component, then every
     /// component is estimated again from its samples.
     pub fn refit(&self, samples: &[Colour]) -> Option<Gmm> {
-        let samples: Vec<Colour> = thinned(samples).copied().collect();
+        let samples = thinned(samples);
         let assign: Vec<usize> = samples.iter().map(|z| self.most_likely(z)).collect();
         Gmm::from_assignment(&samples, &assign)
     }
 
     /// −ln p(z), the data cost of giving colour `z` this model's label.
     pub fn neg_log_likelihood(&self, z: &Colour) -> f64 {
-        // Called for every cell and round: the log-sum-exp without a buffer.
-        let max = (0..self.components.len()).map(|j| self.log_density(j, z)).fold(f64::NEG_INFINITY, f64::max);
-        -(max + (0..self.components.len()).map(|j| (self.log_density(j, z) - max).exp()).sum::<f64>().ln())
+        // Called for every cell and round: the log-sum-exp in one pass, without a buffer
+        // (the sum is rescaled whenever a larger term comes).
+        let (mut max, mut sum) = (f64::NEG_INFINITY, 0.0);
+        for j in 0..self.components.len() {
+            let l = self.log_density(j, z);
+            if l > max {
+                sum = sum * (max - l).exp() + 1.0;
+                max = l;
+            } else {
+                sum += (l - max).exp();
+            }
+        }
+        -(max + sum.ln())
     }
 
     fn log_density(&self, j: usize, z: &Colour) -> f64 {
@@ -155,7 +168,7 @@ mod tests {
         // 100 000 samples, one in ten blue: thinned to a third, the mixture still holds both
         // colours at about their shares.
         let many: Vec<Colour> = (0..100_000).map(|i| if i % 10 == 3 { [10.0, 40.0 + (i % 4) as f64, 220.0] } else { [200.0 + (i % 5) as f64, 20.0, 30.0] }).collect();
-        assert!(thinned(&many).count() < MAX_FIT_SAMPLES * 11 / 10);
+        assert!(thinned(&many).len() < MAX_FIT_SAMPLES * 11 / 10);
         let g = Gmm::fit(&many, 2).unwrap();
         let p = |z: &Colour| (-g.neg_log_likelihood(z)).exp();
         assert!(p(&[10.0, 41.0, 220.0]) > 0.0 && p(&[202.0, 20.0, 30.0]) > 3.0 * p(&[10.0, 41.0, 220.0]));
