@@ -7,10 +7,14 @@ something of B through `crate::…`, `super::…` or `self::…`. A folder's fac
 declaring and re-exporting its own files is the folder's shape, not an import, so edges
 from a folder's face to the files inside it are left out; everything else counts.
 
-    tools/import_circles.py [--src src] [--edges]
+    tools/import_circles.py [--src src] [--edges] [--house]
 
 Prints every circle (a strongly connected set of two or more files, with the edges that
-close it) and exits 1 if there is one; `--edges` prints the whole graph too.
+close it) and exits 1 if there is one. The same for the top-level parts (a folder under
+src/ or a file beside lib.rs): two parts that import each other, even through test files,
+are a circle of the house, and an arrow between them runs up a floor. `--edges` prints
+the file graph too; `--house` prints the parts floor by floor (a part's floor is one
+above the highest part it imports), the drawing in docs/development.md.
 """
 
 import argparse
@@ -155,6 +159,37 @@ def circles(edges):
     return out
 
 
+def parts_graph(edges):
+    """The edges between top-level parts, each with one file edge that makes it."""
+    out: dict[tuple[str, ...], dict[tuple[str, ...], str]] = {}
+    for v, targets in edges.items():
+        pv = v[:1]
+        out.setdefault(pv, {})
+        for w, via in targets.items():
+            pw = w[:1]
+            if pw != pv:
+                out[pv].setdefault(pw, f"{name(v)} -> {name(w)}: {via}")
+    return out
+
+
+def floors(parts) -> list[list[tuple[str, ...]]]:
+    """Parts by floor: the ground floor imports no other part."""
+    floor: dict[tuple[str, ...], int] = {}
+
+    def of(v, seen=()):
+        if v not in floor:
+            below = [of(w, seen + (v,)) for w in parts.get(v, {}) if w not in seen]
+            floor[v] = 1 + max(below, default=-1)
+        return floor[v]
+
+    for v in parts:
+        of(v)
+    out: list[list[tuple[str, ...]]] = [[] for _ in range(max(floor.values(), default=-1) + 1)]
+    for v, f in floor.items():
+        out[f].append(v)
+    return [sorted(f) for f in out]
+
+
 def name(m: tuple[str, ...]) -> str:
     return "/".join(m) or "(crate)"
 
@@ -163,6 +198,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--src", default="src", type=Path)
     ap.add_argument("--edges", action="store_true")
+    ap.add_argument("--house", action="store_true")
     a = ap.parse_args()
     edges = graph(a.src)
     if a.edges:
@@ -178,7 +214,20 @@ def main() -> int:
                 if w in members:
                     print(f"    {name(v)} -> {name(w)}  ({via})")
     print(f"{len(edges)} files, {sum(len(e) for e in edges.values())} edges, {len(found)} circles")
-    return 1 if found else 0
+    parts = parts_graph(edges)
+    house = circles(parts)
+    for comp in house:
+        members = set(comp)
+        print(f"circle of the house, {len(comp)} parts: " + ", ".join(name(m) for m in comp))
+        for v in comp:
+            for w, via in sorted(parts[v].items()):
+                if w in members:
+                    print(f"    {via}")
+    if a.house and not house:
+        for i, f in reversed(list(enumerate(floors(parts)))):
+            print(f"floor {i}: " + " ".join(name(m) for m in f))
+    print(f"{len(parts)} parts, {sum(len(e) for e in parts.values())} arrows between them, {len(house)} circles")
+    return 1 if found or house else 0
 
 
 if __name__ == "__main__":

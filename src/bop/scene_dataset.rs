@@ -55,3 +55,7 @@ pub fn generate_dataset_over(objects: &[(u32, Mesh)], cfg: &SceneConfig, pool: &
     std::fs::write(&path, serde_json::to_string_pretty(cfg)?).with_context(|| format!("writing {}", path.display()))?;
     Ok(DatasetSummary { scene_dir, images: cfg.images, instances })
 }
+
+#[cfg(test)]
+#[path = "scene_dataset_tests.rs"]
+mod tests;

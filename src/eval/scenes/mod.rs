@@ -22,8 +22,6 @@ mod layers;
 mod occluders;
 mod placement;
 mod supersample;
-#[cfg(test)]
-mod tests;
 
 pub use background::Background;
 pub use config::{Appearance, SceneConfig, MAX_OBJECTS_PER_IMAGE, MAX_SUPERSAMPLING};

@@ -1,9 +1,9 @@
-//! Generated datasets (`bop::scene_dataset` writing these scenes) against their own claims: layout, units, masks, depth, round trip,
+//! Generated datasets (`bop::scene_dataset` writing `eval::scenes`' scenes) against their own claims: layout, units, masks, depth, round trip,
 //! reproducibility. GPU tests skip without an adapter unless B2TF_REQUIRE_GPU=1.
 
-use super::*;
-use crate::bop::scene_dataset::{generate_dataset, CONFIG_FILE};
+use super::{generate_dataset, CONFIG_FILE};
 use crate::bop::{load_models_info, load_scene_gt, load_split_gt, TEST_SPLIT};
+use crate::eval::scenes::*;
 use crate::mesh::procedural::textured_box;
 use crate::mesh::Mesh;
 use crate::render::RenderOptions;
