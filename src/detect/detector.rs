@@ -143,6 +143,16 @@ pub struct DetectTimings {
     pub total_ms: f64,
 }
 
+impl DetectTimings {
+    /// Stage name (without `_ms`) → milliseconds: what the service answers and its metrics observe.
+    pub fn by_stage(&self) -> std::collections::BTreeMap<String, f64> {
+        [("responses", self.responses_ms), ("search", self.search_ms), ("verify", self.verify_ms), ("masks", self.masks_ms), ("total", self.total_ms)]
+            .into_iter()
+            .map(|(name, ms)| (name.to_string(), ms))
+            .collect()
+    }
+}
+
 #[derive(Clone, Debug)]
 pub struct DetectReport {
     pub detections: Vec<Detection>,
@@ -192,58 +202,113 @@ pub fn check_options(o: &DetectOptions) -> Result<(), DetectError> {
 /// Looks for every target in `image` by LINE-2D-style shape matching and renders.
 pub fn detect_in_colour(image: &RgbImage, k: &Intrinsics, targets: &[Target], opts: &DetectOptions, renderer: &RenderPool) -> Result<DetectReport, DetectError> {
     let t0 = Instant::now();
+    check_input(image, k, opts)?;
+    let plans: Vec<ScalePlan> = targets.iter().map(|t| scale_plan(t, k, image, opts)).collect();
+    let maps = response_maps(image, targets, &plans);
+    let responses_ms = ms_since(t0);
+
+    let t1 = Instant::now();
+    let (candidates, searched) = search_all(targets, &plans, &maps, opts);
+    let kept = best_per_object(&candidates, targets.len(), opts);
+    let search_ms = ms_since(t1);
+
+    let t2 = Instant::now();
+    let verified = verify_kept(image, k, targets, &candidates, &kept, renderer)?;
+    let verify_ms = ms_since(t2);
+    let passed = passed_and_apart(&candidates, &verified, opts);
+
+    let t3 = Instant::now();
+    let detections: Vec<Detection> = passed
+        .par_iter()
+        .map(|&(i, pose, ev, score)| {
+            let c = &candidates[*i];
+            finish(image, k, &targets[c.target], *pose, c, *ev, *score, opts.refine_masks, renderer)
+        })
+        .collect::<Result<_, _>>()?;
+    let masks_ms = ms_since(t3);
+    let reason = if !detections.is_empty() {
+        None
+    } else if plans.iter().all(|p| p.rungs.is_empty()) {
+        Some("no scale to search: the distance range puts the objects outside the sizes this image can show".to_string())
+    } else {
+        Some(format!("no candidate scored {} or more ({} candidates checked)", opts.min_score, verified.len()))
+    };
+    Ok(DetectReport { detections, searched, timings: DetectTimings { responses_ms, search_ms, verify_ms, masks_ms, total_ms: ms_since(t0) }, reason })
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+fn check_input(image: &RgbImage, k: &Intrinsics, opts: &DetectOptions) -> Result<(), DetectError> {
     check_options(opts)?;
     Intrinsics::new(k.fx, k.fy, k.cx, k.cy, k.width, k.height).map_err(|e| DetectError::BadInput(e.to_string()))?;
     if (k.width, k.height) != image.dimensions() {
         return Err(DetectError::BadInput(format!("camera resolution {}×{} differs from the image's {}×{}", k.width, k.height, image.width(), image.height())));
     }
+    Ok(())
+}
+
+/// The scales one object is searched at, and the distances they stand for.
+struct ScalePlan {
+    rungs: Vec<usize>,
+    /// Nearest and farthest distance (NaN when no scale is left), metres.
+    range: [f64; 2],
+}
+
+fn scale_plan(t: &Target, k: &Intrinsics, image: &RgbImage, opts: &DetectOptions) -> ScalePlan {
     let f = (k.fx * k.fy).sqrt();
     let short_side = image.width().min(image.height()) as f64;
-    // Scales per object, and the union of them (each computed once).
-    let mut plans: Vec<(Vec<usize>, [f64; 2])> = Vec::new();
-    for t in targets {
-        let (c, r) = (t.shape.config.canonical_px as f64, t.mesh.bounding_radius().max(1e-6));
-        let rho_hi = match opts.min_distance_m {
-            Some(z) => scale_for_distance(c, f, r, z),
-            None => c / DEFAULT_MIN_DIAMETER_PX,
-        };
-        let rho_lo = match opts.max_distance_m {
-            Some(z) => scale_for_distance(c, f, r, z),
-            None => c / (DEFAULT_MAX_SHARE * short_side),
-        };
-        // A resampled image smaller than a template holds no whole object.
-        let rho_floor = t.shape.config.template_side() as f64 / short_side;
-        let rungs: Vec<usize> = rungs_between(rho_lo.max(rho_floor * 0.5), rho_hi).into_iter().filter(|&k| rung_scale(k) >= rho_floor * 0.5).collect();
-        let dist = |rho: f64| distance_for_scale(c, f, r, rho);
-        let range = match (rungs.first(), rungs.last()) {
-            (Some(&a), Some(&b)) => [dist(rung_scale(a)), dist(rung_scale(b))],
-            _ => [f64::NAN, f64::NAN],
-        };
-        plans.push((rungs, range));
-    }
+    let (c, r) = (t.shape.config.canonical_px as f64, t.mesh.bounding_radius().max(1e-6));
+    let rho_hi = match opts.min_distance_m {
+        Some(z) => scale_for_distance(c, f, r, z),
+        None => c / DEFAULT_MIN_DIAMETER_PX,
+    };
+    let rho_lo = match opts.max_distance_m {
+        Some(z) => scale_for_distance(c, f, r, z),
+        None => c / (DEFAULT_MAX_SHARE * short_side),
+    };
+    // A resampled image smaller than a template holds no whole object.
+    let rho_floor = t.shape.config.template_side() as f64 / short_side;
+    let rungs: Vec<usize> = rungs_between(rho_lo.max(rho_floor * 0.5), rho_hi).into_iter().filter(|&k| rung_scale(k) >= rho_floor * 0.5).collect();
+    let dist = |rho: f64| distance_for_scale(c, f, r, rho);
+    let range = match (rungs.first(), rungs.last()) {
+        (Some(&a), Some(&b)) => [dist(rung_scale(a)), dist(rung_scale(b))],
+        _ => [f64::NAN, f64::NAN],
+    };
+    ScalePlan { rungs, range }
+}
+
+/// The image resampled to one scale and its response maps: the factors in x and y, the
+/// maps, the resampled image.
+type RungMaps = (f64, f64, ResponseMaps, RgbImage);
+
+/// Response maps once per (scale, gradient threshold) any object needs, shared by all.
+fn response_maps(image: &RgbImage, targets: &[Target], plans: &[ScalePlan]) -> BTreeMap<(usize, u32), RungMaps> {
     let mut needed: BTreeSet<(usize, u32)> = BTreeSet::new();
-    for (t, (rungs, _)) in targets.iter().zip(&plans) {
-        for &k in rungs {
+    for (t, p) in targets.iter().zip(plans) {
+        for &k in &p.rungs {
             needed.insert((k, t.shape.config.min_magnitude.to_bits()));
         }
     }
     let keys: Vec<(usize, u32)> = needed.into_iter().collect();
-    let maps: BTreeMap<(usize, u32), (f64, f64, ResponseMaps, RgbImage)> = keys
-        .par_iter()
+    keys.par_iter()
         .map(|&(k, mag)| {
             let (small, rx, ry) = resampled(image, rung_scale(k));
             let maps = ResponseMaps::compute(&small, f32::from_bits(mag), SPREAD_PX, STRIDE_PX);
             ((k, mag), (rx, ry, maps, small))
         })
-        .collect();
-    let responses_ms = t0.elapsed().as_secs_f64() * 1e3;
+        .collect()
+}
 
-    let t1 = Instant::now();
+/// Every template of every object over its scales' maps: the placements, and per object
+/// what was searched.
+fn search_all(targets: &[Target], plans: &[ScalePlan], maps: &BTreeMap<(usize, u32), RungMaps>, opts: &DetectOptions) -> (Vec<Candidate>, Vec<Searched>) {
     let mut candidates: Vec<Candidate> = Vec::new();
     let mut searched = Vec::new();
-    for (ti, (t, (rungs, range))) in targets.iter().zip(&plans).enumerate() {
+    for (ti, (t, plan)) in targets.iter().zip(plans).enumerate() {
         let before = candidates.len();
-        for &k in rungs {
+        for &k in &plan.rungs {
             let (rx, ry, m, small) = &maps[&(k, t.shape.config.min_magnitude.to_bits())];
             let prior = (!t.shape.colours.is_empty()).then(|| ColourPrior::new(&t.shape.colours, small));
             for p in search(t.shape, m, MIN_RAW_SCORE, MIN_SHAPE_SCORE.min(opts.min_score)) {
@@ -259,12 +324,16 @@ pub fn detect_in_colour(image: &RgbImage, k: &Intrinsics, targets: &[Target], op
                 candidates.push(Candidate { target: ti, template: p.template, u, v, rho: rung_scale(k), bbox, score: p.score, rank });
             }
         }
-        searched.push(Searched { object_id: t.id.to_string(), distance_m: *range, scales: rungs.len(), candidates: candidates.len() - before });
+        searched.push(Searched { object_id: t.id.to_string(), distance_m: plan.range, scales: plan.rungs.len(), candidates: candidates.len() - before });
     }
-    // Each object's best candidates (its own suppression first), so one object's clutter
-    // matches cannot crowd another object out of verification.
+    (candidates, searched)
+}
+
+/// Each object's best candidates (its own suppression first), so one object's clutter
+/// matches cannot crowd another object out of verification.
+fn best_per_object(candidates: &[Candidate], objects: usize, opts: &DetectOptions) -> Vec<usize> {
     let mut kept = Vec::new();
-    for ti in 0..targets.len() {
+    for ti in 0..objects {
         let mut own: Vec<usize> = (0..candidates.len()).filter(|&i| candidates[i].target == ti).collect();
         own.sort_by(|&a, &b| candidates[b].rank.total_cmp(&candidates[a].rank));
         own.truncate(RANKED_PER_OBJECT);
@@ -278,11 +347,18 @@ pub fn detect_in_colour(image: &RgbImage, k: &Intrinsics, targets: &[Target], op
         let scores: Vec<f32> = own.iter().map(|&i| candidates[i].rank).collect();
         kept.extend(suppress(&boxes, &scores, NMS_IOU).into_iter().take(VERIFIED_PER_OBJECT.max(opts.max_detections)).map(|j| own[j]));
     }
-    let search_ms = t1.elapsed().as_secs_f64() * 1e3;
+    kept
+}
 
-    // The best candidates get a render at their pose; the render's evidence joins the score.
-    let t2 = Instant::now();
-    let mut verified: Vec<(usize, Pose, Evidence, f32)> = kept
+/// A verified candidate: its index, the pose, the render's evidence, the combined score.
+type Checked = (usize, Pose, Evidence, f32);
+
+/// The kept candidates rendered at their coarse poses (the render's evidence joins the
+/// score), best first; the best few of each object looked at again from viewpoints turned a
+/// little: the templates' views are ~30° apart, and a render from the right view lines up
+/// with the print as well as with the outline.
+fn verify_kept(image: &RgbImage, k: &Intrinsics, targets: &[Target], candidates: &[Candidate], kept: &[usize], renderer: &RenderPool) -> Result<Vec<Checked>, DetectError> {
+    let mut verified: Vec<Checked> = kept
         .par_iter()
         .map(|&i| {
             let c = &candidates[i];
@@ -295,9 +371,6 @@ pub fn detect_in_colour(image: &RgbImage, k: &Intrinsics, targets: &[Target], op
             Ok((i, pose, ev, combined_score(&ev)))
         })
         .collect::<Result<_, DetectError>>()?;
-    // The best few of each object get a second look from viewpoints turned a little: the
-    // templates' views are ~30° apart, and a render from the right view lines up with
-    // the print as well as with the outline.
     verified.sort_by(|a, b| b.3.total_cmp(&a.3));
     let mut looked_at = vec![0usize; targets.len()];
     let second: Vec<bool> = verified
@@ -316,38 +389,23 @@ pub fn detect_in_colour(image: &RgbImage, k: &Intrinsics, targets: &[Target], op
         }
         Ok::<(), DetectError>(())
     })?;
-    let verify_ms = t2.elapsed().as_secs_f64() * 1e3;
-    // Parts again, now by the verified score: the render of a smaller view can agree with
-    // the print a little better than the whole object's render does.
+    Ok(verified)
+}
+
+/// The verified candidates that score enough and are not a part of a larger one (by the
+/// verified score now: the render of a smaller view can agree with the print a little
+/// better than the whole object's render does), overlaps suppressed, best first, at most
+/// `max_detections`.
+fn passed_and_apart<'a>(candidates: &[Candidate], verified: &'a [Checked], opts: &DetectOptions) -> Vec<&'a Checked> {
     let parts = parts_of_larger(
         &verified.iter().map(|v| candidates[v.0].bbox).collect::<Vec<_>>(),
         &verified.iter().map(|v| v.3).collect::<Vec<_>>(),
         &verified.iter().map(|v| candidates[v.0].target).collect::<Vec<_>>(),
         PART_SCORE_RATIO,
     );
-    let passed: Vec<&(usize, Pose, Evidence, f32)> = verified.iter().zip(&parts).filter(|(v, &part)| !part && v.3 >= opts.min_score).map(|(v, _)| v).collect();
+    let passed: Vec<&Checked> = verified.iter().zip(&parts).filter(|(v, &part)| !part && v.3 >= opts.min_score).map(|(v, _)| v).collect();
     let order = suppress(&passed.iter().map(|v| candidates[v.0].bbox).collect::<Vec<_>>(), &passed.iter().map(|v| v.3).collect::<Vec<_>>(), NMS_IOU);
-    let t3 = Instant::now();
-    let detections: Vec<Detection> = order
-        .into_iter()
-        .take(opts.max_detections)
-        .collect::<Vec<_>>()
-        .par_iter()
-        .map(|&j| {
-            let (i, pose, ev, score) = passed[j];
-            let c = &candidates[*i];
-            finish(image, k, &targets[c.target], *pose, c, *ev, *score, opts.refine_masks, renderer)
-        })
-        .collect::<Result<_, _>>()?;
-    let masks_ms = t3.elapsed().as_secs_f64() * 1e3;
-    let reason = if !detections.is_empty() {
-        None
-    } else if plans.iter().all(|(r, _)| r.is_empty()) {
-        Some("no scale to search: the distance range puts the objects outside the sizes this image can show".to_string())
-    } else {
-        Some(format!("no candidate scored {} or more ({} candidates checked)", opts.min_score, verified.len()))
-    };
-    Ok(DetectReport { detections, searched, timings: DetectTimings { responses_ms, search_ms, verify_ms, masks_ms, total_ms: t0.elapsed().as_secs_f64() * 1e3 }, reason })
+    order.into_iter().take(opts.max_detections).map(|j| passed[j]).collect()
 }
 
 /// `image` resampled by `rho` (whole pixels), with the factors it was resampled by in x and y.
@@ -447,4 +505,18 @@ fn finish(image: &RgbImage, k: &Intrinsics, t: &Target, pose: Pose, c: &Candidat
 /// [x, y, w, h] of a mask's nonzero pixels.
 pub fn bbox_of(mask: &GrayImage) -> Option<[f64; 4]> {
     crate::features::mask_bbox(mask).map(|(u0, v0, u1, v1)| [u0 as f64, v0 as f64, (u1 - u0 + 1) as f64, (v1 - v0 + 1) as f64])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::DetectTimings;
+
+    /// The service answers `by_stage`: every serialised field, by its name without `_ms`.
+    #[test]
+    fn stages_by_name_are_the_serialised_fields() {
+        let t = DetectTimings { responses_ms: 1.0, search_ms: 2.0, verify_ms: 3.0, masks_ms: 4.0, total_ms: 10.0 };
+        let json = serde_json::to_value(&t).unwrap();
+        let fields: std::collections::BTreeMap<String, f64> = json.as_object().unwrap().iter().map(|(k, v)| (k.trim_end_matches("_ms").to_string(), v.as_f64().unwrap())).collect();
+        assert_eq!(t.by_stage(), fields);
+    }
 }

@@ -131,6 +131,26 @@ fn is_zero(v: &f64) -> bool {
     *v == 0.0
 }
 
+impl StageTimings {
+    /// Stage name → milliseconds, as serialised (`depth` only where there was depth): what the
+    /// service answers and its metrics observe.
+    pub fn by_stage(&self) -> std::collections::BTreeMap<String, f64> {
+        let stages = [
+            ("crop", self.crop),
+            ("features", self.features),
+            ("retrieval", self.retrieval),
+            ("matching", self.matching),
+            ("pnp", self.pnp),
+            ("rrc", self.rrc),
+            ("refine", self.refine),
+            ("depth", self.depth),
+            ("selection", self.selection),
+            ("total", self.total),
+        ];
+        stages.into_iter().filter(|&(name, ms)| name != "depth" || !is_zero(&ms)).map(|(name, ms)| (name.to_string(), ms)).collect()
+    }
+}
+
 /// What happened to one candidate mask.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Hypothesis {
@@ -195,6 +215,18 @@ pub struct Estimator {
     /// Scores the outline of every hypothesis in verification, whichever refiner runs (the
     /// same instance as the `Contour` slot unless `with_refiner` replaced only that).
     contour: Arc<ContourRefiner>,
+}
+
+/// What each candidate mask of one request is estimated against.
+struct MaskInputs<'a> {
+    model: &'a ObjectModel,
+    image: &'a RgbImage,
+    depth: Option<&'a DepthImage>,
+    k: &'a Intrinsics,
+    /// Where other detections may hide the object (see `estimate_among`).
+    others: Option<&'a GrayImage>,
+    hints: &'a [Pose],
+    cfg: &'a EstimateConfig,
 }
 
 fn ms(t: Instant) -> f64 {
@@ -368,55 +400,11 @@ impl Estimator {
         let queries = tracing::info_span!("features").in_scope(|| encode(self.backbone.as_ref(), crops, model.config.min_coverage))?;
         timings.features = ms(t);
 
+        let req = MaskInputs { model, image, depth, k, others, hints, cfg };
         let mut hyps = Vec::new();
         for (q, &mi) in queries.iter().zip(&chosen) {
             let _mask_span = tracing::info_span!("mask", index = mi).entered();
-            let mut h = Hypothesis { mask_index: mi, detector_score: detections[mi].score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() };
-            let (retrieved, matched) = self.pose_for_mask(model, q, (image, &detections[mi].mask), k, cfg, &mut h, &mut timings)?;
-            let start = match h.pose {
-                Some(p) => Some((Source::Pipeline, p)),
-                None if cfg.verify.enabled => super::hypotheses::start_without_pnp(model, &matched, &retrieved, &q.crop_box, k),
-                None => None,
-            };
-            if let Some((source, p)) = start {
-                let ctx = RefineContext { model, image, intrinsics: k, mask: &detections[mi].mask, unknown: others, mask_is_probability: false, from_box: detections[mi].from_box, depth };
-                let t = Instant::now();
-                let _span = tracing::info_span!("refine", refiner = cfg.refiner.name(), verify = cfg.verify.enabled).entered();
-                if cfg.verify.enabled {
-                    let (verified, depth_ms) = self.verify(&ctx, (source, p), &retrieved, (&matched, hints), q, cfg)?;
-                    h.verified = verified;
-                    timings.depth += depth_ms;
-                    if let Some(best) = h.verified.first_mut() {
-                        h.pose = Some(best.pose);
-                        h.refinement = Some(best.refinement.clone());
-                        h.render = best.render.take();
-                        // PnP's failure (kept in the trace) no longer leaves the mask without a pose.
-                        if let Some(why) = h.failure.take() {
-                            tracing::debug!(%why, start = %source, "verified from a template where PnP found no pose");
-                        }
-                    }
-                } else {
-                    match self.refiner(cfg.refiner).refine(&ctx, p) {
-                        Ok(mut r) => {
-                            r.report.moved_to_box = held_to_box(&ctx, cfg.box_prior, &mut r.pose);
-                            let t = Instant::now();
-                            self.fit_to_depth(&ctx, &mut r.pose, &mut r.report)?;
-                            if depth.is_some() {
-                                timings.depth += ms(t);
-                            }
-                            h.pose = Some(r.pose);
-                            h.refinement = Some(r.report);
-                        }
-                        Err(e) => h.failure = Some(format!("refiner {} failed: {e}", cfg.refiner.name())),
-                    }
-                }
-                // A pose fitted to the depth is not moved again along the image alone.
-                if cfg.refiner == RefinerKind::Contour && depth.is_none() {
-                    self.refine_on_print(&ctx, &mut h, cfg);
-                }
-                timings.refine += ms(t);
-            }
-            hyps.push(h);
+            hyps.push(self.hypothesis_for_mask(&req, q, (mi, &detections[mi]), &mut timings)?);
         }
 
         let t = Instant::now();
@@ -431,6 +419,91 @@ impl Estimator {
             h.mask_index = super::candidates::box_owner(detections, given, h.mask_index);
         }
         Ok(EstimateResult { timings, ..result })
+    }
+
+    /// One candidate mask's hypothesis: retrieval, matching and PnP (`pose_for_mask`), then
+    /// its start (PnP's pose, or with verification a template's where PnP found none)
+    /// refined and verified.
+    fn hypothesis_for_mask(&self, req: &MaskInputs<'_>, q: &QueryView, (mi, detection): (usize, &Detection), timings: &mut StageTimings) -> Result<Hypothesis, EstimateError> {
+        let cfg = req.cfg;
+        let mut h = Hypothesis { mask_index: mi, detector_score: detection.score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() };
+        let (retrieved, matched) = self.pose_for_mask(req.model, q, (req.image, &detection.mask), req.k, cfg, &mut h, timings)?;
+        let start = match h.pose {
+            Some(p) => Some((Source::Pipeline, p)),
+            None if cfg.verify.enabled => super::hypotheses::start_without_pnp(req.model, &matched, &retrieved, &q.crop_box, req.k),
+            None => None,
+        };
+        if let Some(start) = start {
+            let ctx = RefineContext {
+                model: req.model,
+                image: req.image,
+                intrinsics: req.k,
+                mask: &detection.mask,
+                unknown: req.others,
+                mask_is_probability: false,
+                from_box: detection.from_box,
+                depth: req.depth,
+            };
+            let t = Instant::now();
+            let _span = tracing::info_span!("refine", refiner = cfg.refiner.name(), verify = cfg.verify.enabled).entered();
+            if cfg.verify.enabled {
+                self.verify_into(&ctx, start, (&retrieved, &matched, req.hints), q, cfg, &mut h, timings)?;
+            } else {
+                self.refine_into(&ctx, start.1, cfg, &mut h, timings)?;
+            }
+            // A pose fitted to the depth is not moved again along the image alone.
+            if cfg.refiner == RefinerKind::Contour && req.depth.is_none() {
+                self.refine_on_print(&ctx, &mut h, cfg);
+            }
+            timings.refine += ms(t);
+        }
+        Ok(h)
+    }
+
+    /// The start and its alternatives verified (`verify`); the best becomes the hypothesis's pose.
+    #[allow(clippy::too_many_arguments)]
+    fn verify_into(
+        &self,
+        ctx: &RefineContext<'_>,
+        (source, pose): (Source, Pose),
+        (retrieved, matched, hints): (&[usize], &[Pose], &[Pose]),
+        q: &QueryView,
+        cfg: &EstimateConfig,
+        h: &mut Hypothesis,
+        timings: &mut StageTimings,
+    ) -> Result<(), EstimateError> {
+        let (verified, depth_ms) = self.verify(ctx, (source, pose), retrieved, (matched, hints), q, cfg)?;
+        h.verified = verified;
+        timings.depth += depth_ms;
+        if let Some(best) = h.verified.first_mut() {
+            h.pose = Some(best.pose);
+            h.refinement = Some(best.refinement.clone());
+            h.render = best.render.take();
+            // PnP's failure (kept in the trace) no longer leaves the mask without a pose.
+            if let Some(why) = h.failure.take() {
+                tracing::debug!(%why, start = %source, "verified from a template where PnP found no pose");
+            }
+        }
+        Ok(())
+    }
+
+    /// Without verification: the start refined by the configured refiner, held to the box
+    /// and fitted to the depth where there is one.
+    fn refine_into(&self, ctx: &RefineContext<'_>, start: Pose, cfg: &EstimateConfig, h: &mut Hypothesis, timings: &mut StageTimings) -> Result<(), EstimateError> {
+        match self.refiner(cfg.refiner).refine(ctx, start) {
+            Ok(mut r) => {
+                r.report.moved_to_box = held_to_box(ctx, cfg.box_prior, &mut r.pose);
+                let t = Instant::now();
+                self.fit_to_depth(ctx, &mut r.pose, &mut r.report)?;
+                if ctx.depth.is_some() {
+                    timings.depth += ms(t);
+                }
+                h.pose = Some(r.pose);
+                h.refinement = Some(r.report);
+            }
+            Err(e) => h.failure = Some(format!("refiner {} failed: {e}", cfg.refiner.name())),
+        }
+        Ok(())
     }
 
     /// The hypothesis's pose refined again on its print (`ContourRefiner::refine_on_print`),
@@ -519,19 +592,7 @@ impl Estimator {
                 let held = held_to_box(ctx, cfg.box_prior, &mut r.pose);
                 r.report.moved_to_box = held;
                 let contour = if cfg.refiner == RefinerKind::Contour && !held { r.report.agreement } else { self.contour.agreement(ctx, &r.pose).ok()?.score };
-                Some(Verified {
-                    source,
-                    pose: r.pose,
-                    refinement: r.report,
-                    contour,
-                    iou: f64::NAN,
-                    appearance: f64::NAN,
-                    edges: f64::NAN,
-                    colour: f64::NAN,
-                    features: f64::NAN,
-                    score: f64::NAN,
-                    render: None,
-                })
+                Some(Verified::unscored(source, r.pose, r.report, contour))
             })
             .collect()
     }
@@ -766,6 +827,19 @@ fn run_pnp(c: &Correspondences, k: &Intrinsics, cfg: &PnpConfig) -> Result<PnpRe
 mod tests {
     use super::*;
     use crate::masks::PixelBox;
+
+    /// The service answers `by_stage`; a stage added to the struct but not to it would be
+    /// missing from answers and metrics while the CLI's JSON (serde) shows it.
+    #[test]
+    fn stages_by_name_are_the_serialised_ones() {
+        let as_json = |t: &StageTimings| serde_json::from_value::<std::collections::BTreeMap<String, f64>>(serde_json::to_value(t).unwrap()).unwrap();
+        let mut t = StageTimings { crop: 1.0, features: 2.0, retrieval: 3.0, matching: 4.0, pnp: 5.0, rrc: 6.0, refine: 7.0, depth: 0.0, selection: 9.0, total: 45.0 };
+        assert_eq!(t.by_stage(), as_json(&t));
+        assert!(!t.by_stage().contains_key("depth"));
+        t.depth = 8.0;
+        assert_eq!(t.by_stage(), as_json(&t));
+        assert_eq!(t.by_stage()["depth"], 8.0);
+    }
 
     #[test]
     fn configs_without_the_box_prior_take_the_default_and_its_old_flag_still_reads() {

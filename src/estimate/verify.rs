@@ -154,6 +154,13 @@ pub struct Verified {
     pub render: Option<RenderOutput>,
 }
 
+impl Verified {
+    /// A refined hypothesis with its contour agreement, not yet rendered or scored.
+    pub fn unscored(source: Source, pose: Pose, refinement: RefineReport, contour: f64) -> Self {
+        Self { source, pose, refinement, contour, iou: f64::NAN, appearance: f64::NAN, edges: f64::NAN, colour: f64::NAN, features: f64::NAN, score: f64::NAN, render: None }
+    }
+}
+
 /// Sobel gradient of `at(x, y)` at interior point (x, y).
 fn sobel(at: &dyn Fn(u32, u32) -> f32, x: u32, y: u32) -> (f32, f32) {
     let gx = at(x + 1, y - 1) + 2.0 * at(x + 1, y) + at(x + 1, y + 1) - at(x - 1, y - 1) - 2.0 * at(x - 1, y) - at(x - 1, y + 1);
@@ -494,19 +501,7 @@ mod tests {
 
     #[test]
     fn hypotheses_the_outline_cannot_separate_all_get_a_render() {
-        let v = |contour: f64| Verified {
-            source: Source::Pipeline,
-            pose: Pose::identity(),
-            refinement: RefineReport::default(),
-            contour,
-            iou: f64::NAN,
-            appearance: f64::NAN,
-            edges: f64::NAN,
-            colour: f64::NAN,
-            features: f64::NAN,
-            score: f64::NAN,
-            render: None,
-        };
+        let v = |contour: f64| Verified::unscored(Source::Pipeline, Pose::identity(), RefineReport::default(), contour);
         let sorted: Vec<Verified> = [0.95, 0.94, 0.93, 0.92, 0.91, 0.7, 0.6].into_iter().map(v).collect();
         let cfg = VerifyConfig { rendered: 2, contour_tie: 0.035, max_rendered: 8, ..Default::default() };
         assert_eq!(to_render(&sorted, None, &cfg), vec![0, 1, 2, 3]);

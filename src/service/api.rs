@@ -83,7 +83,7 @@ impl Api {
     /// Detects within `budget`, in an estimate's slot (see `heavy`).
     pub async fn detect(&self, req: DetectRequest, budget: Option<Duration>) -> Result<DetectResponse, ServiceError> {
         let resp = self.heavy(budget, move |core, deadline| core.detect(&req, deadline)).await?;
-        self.metrics.detected(&serde_json::to_value(&resp.timings_ms).unwrap_or_default(), resp.detections.len());
+        self.metrics.detected(&resp.timings_ms, resp.detections.len());
         Ok(resp)
     }
 

@@ -401,7 +401,7 @@ impl Core {
                     detection_index: gathered.owner_of(r.mask_index),
                     reason: r.reason.clone(),
                     diagnostics: serde_json::to_value(&r.hypotheses).unwrap_or_default(),
-                    timings_ms: serde_json::to_value(r.timings).unwrap_or_default(),
+                    timings_ms: r.timings.by_stage(),
                     symmetries: model.symmetries.clone(),
                     arbitrary_rotation_about_axis: InstanceResult::arbitrary_rotation(model.symmetries.as_ref()),
                     runner_up: r.runner_up.as_ref().map(RunnerUpOutput::from),

@@ -5,7 +5,6 @@
 
 use super::error::ServiceError;
 use super::wire::{ImageInput, IntrinsicsInput, PoseOutput, RleInput};
-use crate::detect::detector::DetectTimings;
 use crate::detect::{DetectOptions, DetectReport, Detection, MaskSource, Searched};
 use crate::limits;
 
@@ -114,18 +113,13 @@ impl DetectResponse {
             detections: report.detections.iter().map(DetectionOutput::from).collect(),
             reason: report.reason,
             searched: report.searched,
-            timings_ms: stage_times(&report.timings),
+            timings_ms: report.timings.by_stage(),
             total_ms: started.elapsed().as_secs_f64() * 1e3,
         }
     }
 }
 
 /// The detector's timings by stage name, without the unit suffix the map's name carries.
-fn stage_times(t: &DetectTimings) -> std::collections::BTreeMap<String, f64> {
-    let v = serde_json::to_value(t).unwrap_or_default();
-    v.as_object().into_iter().flatten().filter_map(|(k, v)| Some((k.trim_end_matches("_ms").to_string(), v.as_f64()?))).collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -143,11 +143,6 @@ pub fn detect_response(r: DetectResponse) -> pb::DetectResponse {
     }
 }
 
-/// A JSON object of stage → milliseconds as a proto map.
-fn timings(v: &serde_json::Value) -> std::collections::HashMap<String, f64> {
-    v.as_object().map(|m| m.iter().filter_map(|(k, v)| Some((k.clone(), v.as_f64()?))).collect()).unwrap_or_default()
-}
-
 pub fn estimate_response(r: rq::EstimateResponse) -> pb::EstimateResponse {
     let results = r
         .results
@@ -161,7 +156,7 @@ pub fn estimate_response(r: rq::EstimateResponse) -> pb::EstimateResponse {
             detection_index: i.detection_index.map_or(-1, |d| d as i32),
             reason: i.reason.unwrap_or_default(),
             diagnostics_json: i.diagnostics.to_string(),
-            timings_ms: timings(&i.timings_ms),
+            timings_ms: i.timings_ms.into_iter().collect(),
             symmetries: i.symmetries.map(symmetries),
             arbitrary_rotation_about_axis: i.arbitrary_rotation_about_axis,
             runner_up: i.runner_up.map(|u| pb::RunnerUp { pose: Some(pose(u.pose)), margin: u.margin, distance_over_diameter: u.distance_over_diameter, close_call: u.close_call }),
@@ -309,19 +304,21 @@ mod tests {
         assert_eq!(with(Some(20), Some(12), Some(7)), (20, 12, 7));
     }
 
+    /// A 64×48 request with one (empty) detection and these options, converted.
+    fn one_detection_request(options: pb::EstimateOptions) -> rq::EstimateRequest {
+        estimate_request(pb::EstimateRequest {
+            image: Some(pb::Image::default()),
+            intrinsics: Some(pb::Intrinsics { width: 64, height: 48, ..Default::default() }),
+            detections: vec![pb::Detection::default()],
+            options: Some(options),
+            ..Default::default()
+        })
+        .unwrap()
+    }
+
     #[test]
     fn the_nudge_defaults_when_unset_and_a_nan_is_refused() {
-        let with = |nudge_degrees| {
-            let options = Some(pb::EstimateOptions { nudge_degrees, ..Default::default() });
-            estimate_request(pb::EstimateRequest {
-                image: Some(pb::Image::default()),
-                intrinsics: Some(pb::Intrinsics { width: 64, height: 48, ..Default::default() }),
-                detections: vec![pb::Detection::default()],
-                options,
-                ..Default::default()
-            })
-            .unwrap()
-        };
+        let with = |nudge_degrees| one_detection_request(pb::EstimateOptions { nudge_degrees, ..Default::default() });
         assert_eq!(with(None).options.nudge_degrees, crate::estimate::VerifyConfig::default().nudge_degrees);
         assert_eq!(with(Some(0.0)).options.nudge_degrees, 0.0);
         let e = with(Some(f64::NAN)).check_limits().unwrap_err();
@@ -330,19 +327,7 @@ mod tests {
 
     #[test]
     fn the_box_prior_is_the_default_unless_said() {
-        let with = |box_prior| {
-            let options = Some(pb::EstimateOptions { box_prior, ..Default::default() });
-            estimate_request(pb::EstimateRequest {
-                image: Some(pb::Image::default()),
-                intrinsics: Some(pb::Intrinsics { width: 64, height: 48, ..Default::default() }),
-                detections: vec![pb::Detection::default()],
-                options,
-                ..Default::default()
-            })
-            .unwrap()
-            .options
-            .box_prior
-        };
+        let with = |box_prior| one_detection_request(pb::EstimateOptions { box_prior, ..Default::default() }).options.box_prior;
         use crate::estimate::BoxPrior;
         assert_eq!([None, Some(true), Some(false)].map(with), [BoxPrior::Auto, BoxPrior::Tight, BoxPrior::Off]);
     }

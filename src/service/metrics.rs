@@ -47,11 +47,9 @@ fn write_histogram(out: &mut String, name: &str, labels: &str, buckets: impl Ite
 }
 
 /// Each `stage: ms` of a JSON object into its histogram, in seconds.
-fn observe_stages(stages: &mut BTreeMap<String, Histogram>, prefix: &str, timings_ms: &serde_json::Value) {
-    for (stage, v) in timings_ms.as_object().into_iter().flatten() {
-        if let Some(ms) = v.as_f64() {
-            stages.entry(format!("{prefix}{stage}")).or_default().observe(ms / 1e3);
-        }
+fn observe_stages(stages: &mut BTreeMap<String, Histogram>, prefix: &str, timings_ms: &BTreeMap<String, f64>) {
+    for (stage, ms) in timings_ms {
+        stages.entry(format!("{prefix}{stage}")).or_default().observe(ms / 1e3);
     }
 }
 
@@ -109,7 +107,7 @@ impl Metrics {
     }
 
     /// Stage times of one estimated instance (milliseconds, as the pipeline reports them).
-    pub fn stages(&self, timings_ms: &serde_json::Value, detections: usize) {
+    pub fn stages(&self, timings_ms: &BTreeMap<String, f64>, detections: usize) {
         let mut g = self.inner.lock().expect("metrics lock");
         observe_stages(&mut g.stages, "", timings_ms);
         g.detections_per_estimate.observe(detections as f64);
@@ -117,7 +115,7 @@ impl Metrics {
 
     /// Stage times (milliseconds) of one Detect call, as stages named `detect_<stage>`,
     /// and how many objects it found.
-    pub fn detected(&self, timings_ms: &serde_json::Value, found: usize) {
+    pub fn detected(&self, timings_ms: &BTreeMap<String, f64>, found: usize) {
         let mut g = self.inner.lock().expect("metrics lock");
         observe_stages(&mut g.stages, "detect_", timings_ms);
         g.detections_per_detect.observe(found as f64);
@@ -236,7 +234,7 @@ mod tests {
         m.request("POST", "/v1/estimate", "200", 0.03);
         m.request("POST", "/v1/estimate", "429", 0.001);
         m.request("grpc", "/b2tfpose.v1.PoseService/Estimate", "NOT_FOUND", 0.001);
-        m.stages(&serde_json::json!({"pnp": 4.0, "total": 150.0}), 2);
+        m.stages(&BTreeMap::from([("pnp".to_string(), 4.0), ("total".to_string(), 150.0)]), 2);
         m.key_request("cell-7");
         m.rate_limited("cell-7");
         m.rate_limited("cell-7");

@@ -210,7 +210,7 @@ pub struct InstanceResult {
     /// Per candidate mask: retrieval, matches, inliers, RRC, IoU, selection scores.
     pub diagnostics: serde_json::Value,
     /// Stage times of this instance, milliseconds.
-    pub timings_ms: serde_json::Value,
+    pub timings_ms: std::collections::BTreeMap<String, f64>,
     /// The object's symmetries (metres), as its `ObjectInfo` has them; `None`: unknown (an
     /// object stored before model format 5). The pose is as right as `pose ∘ S` for each
     /// discrete `S`, and as any turn about a continuous axis.

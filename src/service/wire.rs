@@ -44,7 +44,9 @@ impl ImageInput {
     }
 }
 
-/// Pinhole intrinsics in pixels, with the image size they belong to.
+/// Pinhole intrinsics in pixels, with the image size they belong to. The API's own type,
+/// field for field `geometry::Intrinsics` today: kept apart so that the wire contract
+/// (and its OpenAPI schema) does not move when the domain type does; checked on the way in.
 #[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub struct IntrinsicsInput {
     pub fx: f64,
