@@ -21,6 +21,11 @@
 #          tools/gpu_backbone_check.sh pca-speed      # stage times of ViT-L estimates at PCA auto
 #                                                     # (192), 128, 96 and off; then the service
 #
+# Without ONNX Runtime (the embedded backbone; rendering on the GPU), one call:
+#   here:  tools/gpu_backbone_check.sh pack-cell      # .gpu/: a stripped b2tf, zstd, the real frames
+#   there: tools/gpu_backbone_check.sh cell           # tools/bench/real_rgbd_detect.sh, real_boxes.sh
+#                                                     # (RGB, then with depth), objects_searched.sh
+#
 # Each stage keeps what it made in $STATE (default /tmp/b2tf-gpu), which lives as long as
 # the machine stays warm; `bench` names any part that did not arrive.
 set -euo pipefail
@@ -42,14 +47,32 @@ pack() {
   rm -rf "$tmp" .gpu/ort-part-*
   split -b "${PART_MIB}M" -d -a 2 .gpu/ort.tar.zst .gpu/ort-part-
   rm .gpu/ort.tar.zst
+  pack_b2tf
+  (cd .gpu && sha256sum ort-part-* b2tf.zst > manifest)
+  ls -la .gpu
+}
+
+# A stripped b2tf and this machine's zstd (the GPU image has none), with the libraries it links.
+pack_b2tf() {
+  mkdir -p .gpu
   cargo build --release --quiet --bin b2tf
   strip -o .gpu/b2tf target/release/b2tf
   zstd -19 -T0 -q -f --rm .gpu/b2tf -o .gpu/b2tf.zst
-  (cd .gpu && sha256sum ort-part-* b2tf.zst > manifest)
-  # The GPU image has no zstd: carry this machine's, with the libraries it links.
   mkdir -p .gpu/zstd && cp "$(command -v zstd)" .gpu/zstd/
   ldd "$(command -v zstd)" | awk '/=>/ {print $3}' | grep -v '/libc\.so' | xargs -r -I{} cp -L {} .gpu/zstd/
-  ls -la .gpu
+}
+
+# The cell stage's carry: b2tf and the real frames (YCB-V with truth, the empty kitchen frames,
+# one HOPE mesh as the object searched but absent), under the 64 MiB a call takes.
+pack_cell() {
+  local data="${DATA:-../shared/data}"
+  pack_b2tf
+  rm -rf .gpu/data && mkdir -p .gpu/data/hope/models
+  cp -rL "$data/ycbv-rgbd" "$data/empty-rgbd" .gpu/data/
+  cp -L "$data/hope/models/obj_000001".* .gpu/data/hope/models/
+  python3 -c "import json,sys; i=json.load(open(sys.argv[1])); json.dump({'1': i['1']}, open(sys.argv[2], 'w'))" \
+    "$data/hope/models/models_info.json" .gpu/data/hope/models/models_info.json
+  du -sh .gpu
 }
 
 stash() {
@@ -93,12 +116,38 @@ setup_b2tf() {
   zstd -d -q -f "$STATE/parts/b2tf.zst" -o "$STATE/b2tf" && chmod +x "$STATE/b2tf"
   export LD_LIBRARY_PATH="$STATE/ort:$(cuda_library_path):${LD_LIBRARY_PATH:-}"
   export B2TF_ORT_LIB="$STATE/ort/libonnxruntime.so.$ORT_GPU_VERSION"
-  # Rendering there goes through NVIDIA's Vulkan driver; the image lacks the loader, carried
-  # as Debian packages in .gl (the device tool's README says how to fetch them).
+  setup_renderer
+  echo "missing libraries of the CUDA provider:"; ldd "$STATE/ort/libonnxruntime_providers_cuda.so" | grep "not found" || echo "  none"
+}
+
+# Rendering there goes through NVIDIA's Vulkan driver; the image lacks the loader, carried
+# as Debian packages in .gl (the device tool's README says how to fetch them).
+setup_renderer() {
   if compgen -G ".gl/*.deb" >/dev/null; then for f in .gl/*.deb; do dpkg -x "$f" /; done; ldconfig; fi
   local icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
   [ -f "$icd" ] && export VK_DRIVER_FILES="$icd" __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
-  echo "missing libraries of the CUDA provider:"; ldd "$STATE/ort/libonnxruntime_providers_cuda.so" | grep "not found" || echo "  none"
+  return 0
+}
+
+# The detection and box paths with the embedded backbone and the renders on the GPU: the
+# benchmarks docs/detection.md and docs/estimation.md report from 2 cores, on this machine.
+# One object store serves them all (onboarded on first use, in the first script's first pass).
+cell() {
+  local data=.gpu/data out="$STATE/cell"
+  zstd -d -q -f .gpu/b2tf.zst -o "$STATE/b2tf" && chmod +x "$STATE/b2tf"
+  setup_renderer
+  nvidia-smi --query-gpu=name,driver_version --format=csv,noheader
+  echo "cores: $(nproc)"
+  export B2TF_BIN="$STATE/b2tf"
+  mkdir -p "$out/boxes" "$out/many"
+  # First the renderer it found (and the stages of one estimate), so a run on llvmpipe shows.
+  "$STATE/b2tf" bench estimate --images 3 --store "dir://$out/sample"
+  tools/bench/real_rgbd_detect.sh "$data/ycbv-rgbd" "$data/empty-rgbd" "$out/detect"
+  ln -sfn "$(realpath "$out/detect/objects")" "$out/boxes/objects"
+  ln -sfn "$(realpath "$out/detect/objects")" "$out/many/objects"
+  tools/bench/real_boxes.sh "$data/ycbv-rgbd" "$out/boxes"
+  BOTH=--depth tools/bench/real_boxes.sh "$data/ycbv-rgbd" "$out/boxes"
+  tools/bench/objects_searched.sh "$data/ycbv-rgbd" "$data/hope" "$out/many"
 }
 
 bench() {
@@ -162,6 +211,8 @@ other_devices() {
 
 case "${1:-}" in
   pack) pack ;;
+  pack-cell) pack_cell ;;
+  cell) cell ;;
   torch) torch_stage ;;
   export) export_stage ;;
   stash) stash ;;

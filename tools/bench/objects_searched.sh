@@ -30,6 +30,6 @@ for view in "$OUT"/n*; do
   rm -f "$OUT/$name.csv"
   start=$(date +%s.%N)
   "$B2TF" bop run --dataset "$view" --out "$OUT/$name.csv" --store "$STORE" --depth >"$OUT/$name.log" 2>&1
-  seconds=$(echo "$(date +%s.%N) - $start" | bc)
+  seconds=$(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }')
   python3 tools/bench/objects_searched.py report "$OUT/$name.csv" "$YCBV" "$name" "$seconds"
 done

@@ -30,6 +30,6 @@ for kind in masks boxes; do
   rm -f "$OUT/$kind.csv"
   start=$(date +%s.%N)
   "$B2TF" bop run --dataset "$DS" --detections "$det" --out "$OUT/$kind.csv" --store "$STORE" "${extra[@]}" >"$OUT/$kind.log" 2>&1
-  echo "$kind: bop run $(echo "$(date +%s.%N) - $start" | bc) s"
+  echo "$kind: bop run $(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }') s"
   "$B2TF" bop eval --dataset "$DS" --results "$OUT/$kind.csv" | tee "$OUT/$kind-eval.md"
 done

@@ -29,7 +29,7 @@ for kind in depth colour; do
   rm -f "$OUT/$kind.csv"
   start=$(date +%s.%N)
   "$B2TF" bop run --dataset "$DS" --out "$OUT/$kind.csv" --store "$STORE" --detections-out "$OUT/$kind-detections.json" "${extra[@]}" >"$OUT/$kind.log" 2>&1
-  echo "$kind: bop run $(echo "$(date +%s.%N) - $start" | bc) s; $(tail -1 "$OUT/$kind.log")"
+  echo "$kind: bop run $(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }') s; $(tail -1 "$OUT/$kind.log")"
   "$B2TF" bop eval --dataset "$DS" --results "$OUT/$kind.csv" | tee "$OUT/$kind-eval.md"
 done
 # The empty frames as a dataset whose every image asks for one instance of every object.
@@ -54,4 +54,4 @@ start=$(date +%s.%N)
 "$B2TF" bop run --dataset "$view" --out "$OUT/empty.csv" --store "$STORE" --depth >"$OUT/empty.log" 2>&1
 answered=$(( $(wc -l <"$OUT/empty.csv") - 1 ))
 searches=$(python3 -c "import json;print(len(json.load(open('$view/test_targets_bop19.json'))))")
-echo "empty frames, depth: $answered poses answered over $searches searches ($(echo "scale=3; $answered / $searches" | bc) per frame per object), $(echo "$(date +%s.%N) - $start" | bc) s"
+echo "empty frames, depth: $answered poses answered over $searches searches ($(awk -v a="$answered" -v n="$searches" 'BEGIN { printf "%.3f", a / n }') per frame per object), $(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }') s"
