@@ -585,7 +585,26 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
             quantile(&mut t.stages.iter().map(|x| x[8]).collect::<Vec<_>>(), 0.9)
         );
     }
+    for t in &tallies {
+        println!("profile, {}: {}", t.name, profile(&t.stages));
+    }
     Ok(())
+}
+
+/// The stages' shares of all the instances' time together (sums, not medians, so they add
+/// up): where an estimate's time goes, for choosing the next speed step. `other` is what
+/// the total holds beyond the named stages.
+fn profile(stages: &[[f64; 9]]) -> String {
+    const NAMES: [&str; 8] = ["crop", "features", "retrieval", "matching", "pnp", "rrc", "refine", "selection"];
+    let sum = |s: usize| stages.iter().map(|x| x[s]).sum::<f64>();
+    let total = sum(8);
+    if total <= 0.0 {
+        return "no time measured".to_string();
+    }
+    let named: f64 = (0..8).map(sum).sum();
+    let mut parts: Vec<String> = NAMES.iter().enumerate().map(|(s, n)| format!("{n} {:.0} %", 100.0 * sum(s) / total)).collect();
+    parts.push(format!("other {:.0} %", 100.0 * (total - named).max(0.0) / total));
+    format!("{} (of {:.0} ms over {} instances)", parts.join(", "), total, stages.len())
 }
 
 #[cfg(test)]
@@ -615,6 +634,16 @@ mod tests {
         assert_eq!((c.point_sigma_px, c.points.within_mask, c.rounds, c.points.search_px), (0.5, false, d.rounds, d.points.search_px));
         assert!(super::parse_print_config(r#"{"rounds": "three"}"#).unwrap_err().contains("not a PrintRefineConfig"));
         assert!(super::parse_print_config(r#"{"round": 3}"#).unwrap_err().contains("unknown field"));
+    }
+
+    /// Shares of the summed time, with what the stages leave of the total as `other`.
+    #[test]
+    fn the_profile_gives_each_stage_its_share_of_the_summed_time() {
+        let stages = [[0.0, 10.0, 0.0, 20.0, 0.0, 0.0, 50.0, 0.0, 100.0], [0.0, 10.0, 0.0, 20.0, 0.0, 0.0, 30.0, 0.0, 100.0]];
+        let p = super::profile(&stages);
+        assert!(p.starts_with("crop 0 %, features 10 %, retrieval 0 %, matching 20 %, pnp 0 %, rrc 0 %, refine 40 %, selection 0 %, other 30 %"), "{p}");
+        assert!(p.ends_with("(of 200 ms over 2 instances)"), "{p}");
+        assert_eq!(super::profile(&[]), "no time measured");
     }
 
     /// Too many in magenta, missed in cyan, the photo where mask and truth agree.
