@@ -25,6 +25,7 @@ python3 -c "import openapi_spec_validator" 2>/dev/null \
 python3 tools/validate_openapi.py src/service/openapi.json
 python3 tools/compare_runs.py --self-test
 python3 tools/miss_classes.py --self-test
+python3 tools/import_circles.py --self-test
 step cargo-deny
 # Licences, bans, sources (and advisories when GitHub answers): installs cargo-deny once.
 bash scripts/deny.sh

@@ -8,6 +8,8 @@ declaring and re-exporting its own files is the folder's shape, not an import, s
 from a folder's face to the files inside it are left out; everything else counts.
 
     tools/import_circles.py [--src src] [--edges] [--house]
+    tools/import_circles.py --self-test    # three small trees: a file circle, a circle of
+                                           # parts through a test file, none
 
 Prints every circle (a strongly connected set of two or more files, with the edges that
 close it) and exits 1 if there is one. The same for the top-level parts (a folder under
@@ -194,35 +196,62 @@ def name(m: tuple[str, ...]) -> str:
     return "/".join(m) or "(crate)"
 
 
+def print_circles(title: str, found, edges) -> None:
+    """Each circle's members, then the edges that close it (`edges[v][w]`: how to say v → w)."""
+    for comp in found:
+        members = set(comp)
+        print(f"{title} {len(comp)}: " + ", ".join(name(m) for m in comp))
+        for v in comp:
+            for w, said in sorted(edges[v].items()):
+                if w in members:
+                    print(f"    {said}")
+
+
+def self_test() -> int:
+    """A crate whose parts a and b import each other, first file to file, then only through
+    a test file of b (a circle of the house, not of files), then only one way."""
+    import tempfile
+
+    def tree(files: dict[str, str]) -> Path:
+        root = Path(tempfile.mkdtemp()) / "src"
+        for rel, text in files.items():
+            (root / rel).parent.mkdir(parents=True, exist_ok=True)
+            (root / rel).write_text(text)
+        return root
+
+    base = {"lib.rs": "pub mod a;\npub mod b;\n", "a/mod.rs": "pub mod x;\n", "a/x.rs": "use crate::b::y::Y;\npub struct X;\n"}
+    files = tree({**base, "b/mod.rs": "pub mod y;\n", "b/y.rs": "use crate::a::x::X;\npub struct Y;\n"})
+    assert circles(graph(files)) == [[("a", "x"), ("b", "y")]], circles(graph(files))
+    through_test = tree({**base, "b/mod.rs": "pub mod y;\n#[cfg(test)]\nmod y_tests;\n", "b/y.rs": "pub struct Y;\n", "b/y_tests.rs": "use crate::a::x::X;\n"})
+    edges = graph(through_test)
+    assert circles(edges) == [] and circles(parts_graph(edges)) == [[("a",), ("b",)]], circles(parts_graph(edges))
+    one_way = tree({**base, "b/mod.rs": "pub mod y;\n", "b/y.rs": "pub struct Y;\n"})
+    parts = parts_graph(graph(one_way))
+    assert circles(parts) == [] and floors(parts) == [[(), ("b",)], [("a",)]], floors(parts)
+    print("import_circles self-test: ok")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--src", default="src", type=Path)
     ap.add_argument("--edges", action="store_true")
     ap.add_argument("--house", action="store_true")
+    ap.add_argument("--self-test", action="store_true")
     a = ap.parse_args()
+    if a.self_test:
+        return self_test()
     edges = graph(a.src)
     if a.edges:
         for v in sorted(edges):
             for w, via in sorted(edges[v].items()):
                 print(f"{name(v)} -> {name(w)}  ({via})")
     found = circles(edges)
-    for comp in found:
-        members = set(comp)
-        print(f"circle of {len(comp)}: " + ", ".join(name(m) for m in comp))
-        for v in comp:
-            for w, via in sorted(edges[v].items()):
-                if w in members:
-                    print(f"    {name(v)} -> {name(w)}  ({via})")
+    print_circles("circle of", found, {v: {w: f"{name(v)} -> {name(w)}  ({via})" for w, via in t.items()} for v, t in edges.items()})
     print(f"{len(edges)} files, {sum(len(e) for e in edges.values())} edges, {len(found)} circles")
     parts = parts_graph(edges)
     house = circles(parts)
-    for comp in house:
-        members = set(comp)
-        print(f"circle of the house, {len(comp)} parts: " + ", ".join(name(m) for m in comp))
-        for v in comp:
-            for w, via in sorted(parts[v].items()):
-                if w in members:
-                    print(f"    {via}")
+    print_circles("circle of the house,", house, parts)
     if a.house and not house:
         for i, f in reversed(list(enumerate(floors(parts)))):
             print(f"floor {i}: " + " ".join(name(m) for m in f))
