@@ -15,6 +15,7 @@ use crate::geometry::{Intrinsics, Pose};
 use crate::masks::{mask_iou, segment_box, Method, PixelBox, SegmentConfig};
 use crate::mesh::Mesh;
 use crate::render::{RenderOptions, RenderPool};
+use crate::telemetry::ms_since;
 use image::{imageops, GrayImage, RgbImage};
 use nalgebra::{Rotation3, Vector3};
 use rayon::prelude::*;
@@ -234,10 +235,6 @@ pub fn detect_in_colour(image: &RgbImage, k: &Intrinsics, targets: &[Target], op
         Some(format!("no candidate scored {} or more ({} candidates checked)", opts.min_score, verified.len()))
     };
     Ok(DetectReport { detections, searched, timings: DetectTimings { responses_ms, search_ms, verify_ms, masks_ms, total_ms: ms_since(t0) }, reason })
-}
-
-fn ms_since(t: Instant) -> f64 {
-    t.elapsed().as_secs_f64() * 1e3
 }
 
 fn check_input(image: &RgbImage, k: &Intrinsics, opts: &DetectOptions) -> Result<(), DetectError> {

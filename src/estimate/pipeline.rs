@@ -19,6 +19,7 @@ use crate::features::{crop_query, Backbone};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
 use crate::render::RenderPool;
+use crate::telemetry::ms_since;
 use image::{GrayImage, RgbImage};
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -229,10 +230,6 @@ struct MaskInputs<'a> {
     cfg: &'a EstimateConfig,
 }
 
-fn ms(t: Instant) -> f64 {
-    t.elapsed().as_secs_f64() * 1e3
-}
-
 impl Estimator {
     pub fn new(backbone: Arc<dyn Backbone>, renderer: Arc<RenderPool>) -> Self {
         let contour = Arc::new(ContourRefiner::new(renderer.clone()));
@@ -395,10 +392,10 @@ impl Estimator {
         let masks: Vec<&GrayImage> = chosen.iter().map(|&i| &detections[i].mask).collect();
         let crops: Vec<_> = crop_all(image, &masks, model.config.crop_padding, size).into_iter().map(|c| c.expect("validated non-empty")).collect();
         drop(span);
-        timings.crop = ms(t);
+        timings.crop = ms_since(t);
         let t = Instant::now();
         let queries = tracing::info_span!("features").in_scope(|| encode(self.backbone.as_ref(), crops, model.config.min_coverage))?;
-        timings.features = ms(t);
+        timings.features = ms_since(t);
 
         let req = MaskInputs { model, image, depth, k, others, hints, cfg };
         let mut hyps = Vec::new();
@@ -411,8 +408,8 @@ impl Estimator {
         let mut result = tracing::info_span!("selection").in_scope(|| self.select(model, &queries, &chosen, k, (detections, others), hyps, cfg))?;
         let winner = result.mask_index.and_then(|m| result.hypotheses.iter().find(|h| h.mask_index == m));
         result.runner_up = result.pose.as_ref().zip(winner).and_then(|(pose, h)| super::runner_up::runner_up(pose, &h.verified, model));
-        timings.selection = ms(t);
-        timings.total = ms(t_total);
+        timings.selection = ms_since(t);
+        timings.total = ms_since(t_total);
         // Answered as the caller's detections: a depth proposal as its box's first.
         result.mask_index = result.mask_index.map(|i| super::candidates::box_owner(detections, given, i));
         for h in &mut result.hypotheses {
@@ -455,7 +452,7 @@ impl Estimator {
             if cfg.refiner == RefinerKind::Contour && req.depth.is_none() {
                 self.refine_on_print(&ctx, &mut h, cfg);
             }
-            timings.refine += ms(t);
+            timings.refine += ms_since(t);
         }
         Ok(h)
     }
@@ -496,7 +493,7 @@ impl Estimator {
                 let t = Instant::now();
                 self.fit_to_depth(ctx, &mut r.pose, &mut r.report)?;
                 if ctx.depth.is_some() {
-                    timings.depth += ms(t);
+                    timings.depth += ms_since(t);
                 }
                 h.pose = Some(r.pose);
                 h.refinement = Some(r.report);
@@ -573,7 +570,7 @@ impl Estimator {
         }
         let t = Instant::now();
         Self::judge_on_depth(ctx, &mut verified, window)?;
-        let depth_ms = if ctx.depth.is_some() { ms(t) } else { 0.0 };
+        let depth_ms = if ctx.depth.is_some() { ms_since(t) } else { 0.0 };
         // Only the winner's render is reused (by selection); the others are dropped now.
         for v in verified.iter_mut().skip(1) {
             v.render = None;
@@ -676,7 +673,7 @@ impl Estimator {
         }
         let ranked: Vec<usize> = retrieved.iter().map(|r| r.template).collect();
         drop(span);
-        timings.retrieval += ms(t);
+        timings.retrieval += ms_since(t);
 
         let t = Instant::now();
         let m = tracing::info_span!("matching").in_scope(|| super::turned::match_templates(model, self.backbone.as_ref(), photo.0, photo.1, q, &ranked, cfg.k_nn))?;
@@ -686,11 +683,11 @@ impl Estimator {
         let (pool, corr) = (m.pool, m.correspondences);
         h.matches = corr.len();
         let matched = if cfg.verify.enabled { super::placement::matched_templates(model, &corr, &pool, q.crop_box.scale(), k, cfg.verify.matched_templates) } else { vec![] };
-        timings.matching += ms(t);
+        timings.matching += ms_since(t);
 
         let t = Instant::now();
         let first = tracing::info_span!("pnp", matches = corr.len()).in_scope(|| run_pnp(&corr, k, &cfg.pnp));
-        timings.pnp += ms(t);
+        timings.pnp += ms_since(t);
         let first = match first {
             Ok(r) => r,
             Err(e) => {
@@ -718,7 +715,7 @@ impl Estimator {
                     h.rrc_used = true;
                 }
             }
-            timings.rrc += ms(t);
+            timings.rrc += ms_since(t);
         }
         Ok((ranked, matched))
     }

@@ -39,6 +39,11 @@ impl Guard {
     pub fn flush(self) {}
 }
 
+/// Milliseconds since `t`: the unit every stage time the commands and the service report is in.
+pub fn ms_since(t: std::time::Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
 static FORMAT: std::sync::OnceLock<LogFormat> = std::sync::OnceLock::new();
 
 /// The format `init` set up (human before it ran): what a command's own lines outside the

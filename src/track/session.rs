@@ -16,6 +16,7 @@ use crate::estimate::{Detection, EstimateConfig, Estimator};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
 use crate::render::RenderPool;
+use crate::telemetry::ms_since;
 use image::{GrayImage, RgbImage};
 use std::sync::Arc;
 use std::time::Instant;
@@ -300,7 +301,7 @@ impl TrackSession {
             quality: 0.0,
             mode: TrackMode::Refused,
             detection_index: Some(di),
-            ms: ms(t),
+            ms: ms_since(t),
             reason: Some(reason),
             depth_fit: None,
         };
@@ -331,7 +332,7 @@ impl TrackSession {
             quality: 1.0,
             mode: TrackMode::Estimated,
             detection_index: Some(di),
-            ms: ms(t),
+            ms: ms_since(t),
             reason: None,
             depth_fit: None,
         })
@@ -360,7 +361,7 @@ fn finish_track(
         quality,
         mode,
         detection_index,
-        ms: ms(t),
+        ms: ms_since(t),
         reason,
         depth_fit: if mode == TrackMode::Reinitialised { None } else { depth_fit.clone() },
     };
@@ -458,10 +459,6 @@ fn overlap(a: [u32; 4], b: [u32; 4]) -> f64 {
     } else {
         area(i) / smaller
     }
-}
-
-fn ms(t: Instant) -> f64 {
-    t.elapsed().as_secs_f64() * 1e3
 }
 
 #[cfg(test)]
