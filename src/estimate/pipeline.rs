@@ -27,6 +27,7 @@ use std::time::Instant;
 
 mod depth_judge;
 mod nudge;
+mod per_mask;
 mod second_look;
 
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -218,18 +219,6 @@ pub struct Estimator {
     contour: Arc<ContourRefiner>,
 }
 
-/// What each candidate mask of one request is estimated against.
-struct MaskInputs<'a> {
-    model: &'a ObjectModel,
-    image: &'a RgbImage,
-    depth: Option<&'a DepthImage>,
-    k: &'a Intrinsics,
-    /// Where other detections may hide the object (see `estimate_among`).
-    others: Option<&'a GrayImage>,
-    hints: &'a [Pose],
-    cfg: &'a EstimateConfig,
-}
-
 impl Estimator {
     pub fn new(backbone: Arc<dyn Backbone>, renderer: Arc<RenderPool>) -> Self {
         let contour = Arc::new(ContourRefiner::new(renderer.clone()));
@@ -397,7 +386,7 @@ impl Estimator {
         let queries = tracing::info_span!("features").in_scope(|| encode(self.backbone.as_ref(), crops, model.config.min_coverage))?;
         timings.features = ms_since(t);
 
-        let req = MaskInputs { model, image, depth, k, others, hints, cfg };
+        let req = per_mask::MaskInputs { model, image, depth, k, others, hints, cfg };
         let mut hyps = Vec::new();
         for (q, &mi) in queries.iter().zip(&chosen) {
             let _mask_span = tracing::info_span!("mask", index = mi).entered();
@@ -416,91 +405,6 @@ impl Estimator {
             h.mask_index = super::candidates::box_owner(detections, given, h.mask_index);
         }
         Ok(EstimateResult { timings, ..result })
-    }
-
-    /// One candidate mask's hypothesis: retrieval, matching and PnP (`pose_for_mask`), then
-    /// its start (PnP's pose, or with verification a template's where PnP found none)
-    /// refined and verified.
-    fn hypothesis_for_mask(&self, req: &MaskInputs<'_>, q: &QueryView, (mi, detection): (usize, &Detection), timings: &mut StageTimings) -> Result<Hypothesis, EstimateError> {
-        let cfg = req.cfg;
-        let mut h = Hypothesis { mask_index: mi, detector_score: detection.score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() };
-        let (retrieved, matched) = self.pose_for_mask(req.model, q, (req.image, &detection.mask), req.k, cfg, &mut h, timings)?;
-        let start = match h.pose {
-            Some(p) => Some((Source::Pipeline, p)),
-            None if cfg.verify.enabled => super::hypotheses::start_without_pnp(req.model, &matched, &retrieved, &q.crop_box, req.k),
-            None => None,
-        };
-        if let Some(start) = start {
-            let ctx = RefineContext {
-                model: req.model,
-                image: req.image,
-                intrinsics: req.k,
-                mask: &detection.mask,
-                unknown: req.others,
-                mask_is_probability: false,
-                from_box: detection.from_box,
-                depth: req.depth,
-            };
-            let t = Instant::now();
-            let _span = tracing::info_span!("refine", refiner = cfg.refiner.name(), verify = cfg.verify.enabled).entered();
-            if cfg.verify.enabled {
-                self.verify_into(&ctx, start, (&retrieved, &matched, req.hints), q, cfg, &mut h, timings)?;
-            } else {
-                self.refine_into(&ctx, start.1, cfg, &mut h, timings)?;
-            }
-            // A pose fitted to the depth is not moved again along the image alone.
-            if cfg.refiner == RefinerKind::Contour && req.depth.is_none() {
-                self.refine_on_print(&ctx, &mut h, cfg);
-            }
-            timings.refine += ms_since(t);
-        }
-        Ok(h)
-    }
-
-    /// The start and its alternatives verified (`verify`); the best becomes the hypothesis's pose.
-    #[allow(clippy::too_many_arguments)]
-    fn verify_into(
-        &self,
-        ctx: &RefineContext<'_>,
-        (source, pose): (Source, Pose),
-        (retrieved, matched, hints): (&[usize], &[Pose], &[Pose]),
-        q: &QueryView,
-        cfg: &EstimateConfig,
-        h: &mut Hypothesis,
-        timings: &mut StageTimings,
-    ) -> Result<(), EstimateError> {
-        let (verified, depth_ms) = self.verify(ctx, (source, pose), retrieved, (matched, hints), q, cfg)?;
-        h.verified = verified;
-        timings.depth += depth_ms;
-        if let Some(best) = h.verified.first_mut() {
-            h.pose = Some(best.pose);
-            h.refinement = Some(best.refinement.clone());
-            h.render = best.render.take();
-            // PnP's failure (kept in the trace) no longer leaves the mask without a pose.
-            if let Some(why) = h.failure.take() {
-                tracing::debug!(%why, start = %source, "verified from a template where PnP found no pose");
-            }
-        }
-        Ok(())
-    }
-
-    /// Without verification: the start refined by the configured refiner, held to the box
-    /// and fitted to the depth where there is one.
-    fn refine_into(&self, ctx: &RefineContext<'_>, start: Pose, cfg: &EstimateConfig, h: &mut Hypothesis, timings: &mut StageTimings) -> Result<(), EstimateError> {
-        match self.refiner(cfg.refiner).refine(ctx, start) {
-            Ok(mut r) => {
-                r.report.moved_to_box = held_to_box(ctx, cfg.box_prior, &mut r.pose);
-                let t = Instant::now();
-                self.fit_to_depth(ctx, &mut r.pose, &mut r.report)?;
-                if ctx.depth.is_some() {
-                    timings.depth += ms_since(t);
-                }
-                h.pose = Some(r.pose);
-                h.refinement = Some(r.report);
-            }
-            Err(e) => h.failure = Some(format!("refiner {} failed: {e}", cfg.refiner.name())),
-        }
-        Ok(())
     }
 
     /// The hypothesis's pose refined again on its print (`ContourRefiner::refine_on_print`),
