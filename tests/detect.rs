@@ -268,4 +268,12 @@ fn the_depth_confirms_the_object_where_it_is_and_refutes_it_elsewhere() {
     let nearer = b2tfpose::geometry::Pose::new(truth.pose.rotation, truth.pose.translation * (1.0 - 0.05 / truth.pose.translation.norm()));
     let wrong = at(&nearer);
     assert!(right > 0.6 && wrong < 0.2, "right {right}, 5 cm nearer {wrong}");
+    // The screen of the depth detector's candidates confirms as an answer would, and
+    // needs less than an answer: a coarse pose is 10–20° off.
+    use b2tfpose::detect::confirm::confirmation_needed;
+    use b2tfpose::estimate::{CoarseCheck, DepthScreen};
+    assert!(DepthScreen::of(&s.rgb, None, &s.cam, &f.mesh, &f.pool, 0.45).is_none(), "no screen without depth");
+    let screen = DepthScreen::of(&s.rgb, Some(&depth), &s.cam, &f.mesh, &f.pool, 0.45).unwrap();
+    assert_eq!(screen.score(&truth.mask_visib, &truth.pose).unwrap(), right);
+    assert!(screen.needed() > 0.0 && screen.needed() < 0.5 * confirmation_needed(0.45, true), "{}", screen.needed());
 }

@@ -351,3 +351,50 @@ fn a_plugged_refiner_runs_in_place_of_the_built_in_one() {
     assert_eq!(marked.0.load(Ordering::Relaxed), 1, "one mask, one refinement");
     assert_eq!(r.hypotheses[0].refinement.as_ref().map(|rep| rep.residual_px), Some(42.0));
 }
+
+/// A screen that scores every placed template `score`, counting its calls.
+struct FixedScreen {
+    score: f32,
+    calls: std::sync::atomic::AtomicUsize,
+}
+
+impl b2tfpose::estimate::CoarseCheck for FixedScreen {
+    fn score(&self, _mask: &image::GrayImage, _pose: &b2tfpose::geometry::Pose) -> Result<f32, b2tfpose::render::RenderError> {
+        self.calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        Ok(self.score)
+    }
+
+    fn needed(&self) -> f32 {
+        0.5
+    }
+}
+
+#[test]
+fn a_mask_that_fails_the_screen_is_not_estimated_and_one_that_passes_is_as_without() {
+    let f = fixture();
+    let s = scene(1);
+    let det = true_detection(&s);
+    let depth = b2tfpose::depth::DepthImage::from_metres(s.cam.width, s.cam.height, s.depth.clone()).unwrap();
+    let cfg = EstimateConfig::default();
+    let screen = |score| FixedScreen { score, calls: Default::default() };
+    let calls = |s: &FixedScreen| s.calls.load(std::sync::atomic::Ordering::Relaxed);
+    // Failed: three placed templates looked at, then nothing matched, solved or refined.
+    let fails = screen(0.1);
+    let r = f.estimator.estimate_screened(&f.model, (&s.rgb, Some(&depth)), &s.cam, &det, None, Some(&fails), &cfg).unwrap();
+    assert!(r.pose.is_none() && calls(&fails) == 3, "{} calls", calls(&fails));
+    let why = r.hypotheses[0].failure.as_deref().unwrap_or_default();
+    assert!(why.contains("screened out") && why.contains("0.10") && why.contains("0.50 needed"), "{why}");
+    assert!(r.timings.screen > 0.0 && r.timings.matching == 0.0 && r.timings.refine == 0.0, "{:?}", r.timings);
+    assert!(r.timings.by_stage().contains_key("screen"));
+    // Passed at the first template: the estimate goes on as it does without a screen.
+    let passes = screen(0.9);
+    let r = f.estimator.estimate_screened(&f.model, (&s.rgb, Some(&depth)), &s.cam, &det, None, Some(&passes), &cfg).unwrap();
+    let plain = f.estimator.estimate_rgbd(&f.model, &s.rgb, Some(&depth), &s.cam, &det, None, &cfg).unwrap();
+    assert_eq!(calls(&passes), 1);
+    assert_eq!(r.pose.map(|p| p.translation), plain.pose.map(|p| p.translation));
+    assert!(r.pose.is_some() && !plain.timings.by_stage().contains_key("screen"));
+    // Without depth there is nothing to fit the templates to: the screen is not asked.
+    let unused = screen(0.0);
+    let r = f.estimator.estimate_screened(&f.model, (&s.rgb, None), &s.cam, &det, None, Some(&unused), &cfg).unwrap();
+    assert!(r.pose.is_some() && calls(&unused) == 0);
+}

@@ -20,6 +20,7 @@ use super::results_csv::{done_images, ResultRow, ResultsWriter};
 use crate::detect::confirm::{candidate_options, compared_choice, confirm, estimate_instances, on_taken_place, one_per_place, sure_places, Choice};
 use crate::detect::{detect, DetectOptions, Target};
 use crate::estimate::candidates::representative;
+use crate::estimate::DepthScreen;
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateError, Estimator};
 use crate::geometry::Pose;
 use crate::masks::OtherMasks;
@@ -171,13 +172,18 @@ pub fn run(
                 groups.retain(|g| !on_taken_place(refs[g[0]].0, &taken));
             }
             let choice = compared_choice(compared, groups.len(), wanted, choice);
+            // The depth detector's candidates that cannot be this object are not estimated.
+            let screen = match (&source, compared) {
+                (DetectionSource::Detector { pool, options, .. }, true) => DepthScreen::of(&rgb, depth.as_ref(), &camera.cam, &m.mesh, pool, options.min_score),
+                _ => None,
+            };
             let answered = estimate_instances(groups, wanted, choice, |group| {
                 let candidates = Candidates::gather(group.iter().map(|&i| (i, masks[i].as_slice()))).masks;
                 let group = &group;
                 let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, c)| representative(c).0));
                 let kind = if compared { OtherMasks::DepthSegments } else { OtherMasks::Detections };
                 let others = crate::masks::occluders(refs[group[0]].0, others, kind, camera.cam.width, camera.cam.height);
-                let r = match estimator.estimate_rgbd(&m, &rgb, depth.as_ref(), &camera.cam, &candidates, others.as_ref(), &opts.estimate) {
+                let r = match estimator.estimate_screened(&m, (&rgb, depth.as_ref()), &camera.cam, &candidates, others.as_ref(), DepthScreen::as_check(&screen), &opts.estimate) {
                     Ok(r) => r,
                     Err(EstimateError::BadInput(msg)) => {
                         *summary.failures.entry(msg).or_default() += 1;

@@ -1,4 +1,5 @@
 use crate::detect::confirm::{candidate_options, compared_choice, confirm, confirmation_needed, estimate_instances, Choice};
+use crate::estimate::DepthScreen;
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateResult};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -120,9 +121,11 @@ fn estimate_detected(
     // confirmed answered.
     let groups = crate::masks::group_instances(&refs, 0.5);
     let choice = compared_choice(depth.is_some(), groups.len(), 1, Choice::Confirmed { min_score });
+    // Segments that cannot be the object are dropped before they are estimated.
+    let screen = DepthScreen::of(image, depth, k, &model.mesh, renderer, min_score);
     let answered = estimate_instances(groups, 1, choice, |group| {
         let candidates: Vec<Detection> = group.iter().map(|&i| Detection::new(found[i].mask.clone(), found[i].score)).collect();
-        let r = estimator.estimate_rgbd(model, image, depth, k, &candidates, None, cfg)?;
+        let r = estimator.estimate_screened(model, (image, depth), k, &candidates, None, DepthScreen::as_check(&screen), cfg)?;
         count += 1;
         let confirmation = match &r.pose {
             Some(pose) => {

@@ -28,7 +28,10 @@ use std::time::Instant;
 mod depth_judge;
 mod nudge;
 mod per_mask;
+mod screen;
 mod second_look;
+
+pub use screen::{CoarseCheck, DepthScreen};
 
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct EstimateConfig {
@@ -117,6 +120,9 @@ pub struct StageTimings {
     pub crop: f64,
     pub features: f64,
     pub retrieval: f64,
+    /// The caller's screen of each mask (`pipeline::screen`); absent without one.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub screen: f64,
     pub matching: f64,
     pub pnp: f64,
     pub rrc: f64,
@@ -134,13 +140,15 @@ fn is_zero(v: &f64) -> bool {
 }
 
 impl StageTimings {
-    /// Stage name → milliseconds, as serialised (`depth` only where there was depth): what the
+    /// Stage name → milliseconds, as serialised (`depth` only where there was depth, `screen`
+    /// where there was a screen): what the
     /// service answers and its metrics observe.
     pub fn by_stage(&self) -> std::collections::BTreeMap<String, f64> {
         let stages = [
             ("crop", self.crop),
             ("features", self.features),
             ("retrieval", self.retrieval),
+            ("screen", self.screen),
             ("matching", self.matching),
             ("pnp", self.pnp),
             ("rrc", self.rrc),
@@ -149,7 +157,7 @@ impl StageTimings {
             ("selection", self.selection),
             ("total", self.total),
         ];
-        stages.into_iter().filter(|&(name, ms)| name != "depth" || !is_zero(&ms)).map(|(name, ms)| (name.to_string(), ms)).collect()
+        stages.into_iter().filter(|&(name, ms)| !["depth", "screen"].contains(&name) || !is_zero(&ms)).map(|(name, ms)| (name.to_string(), ms)).collect()
     }
 }
 
@@ -364,6 +372,28 @@ impl Estimator {
         hints: &[Pose],
         cfg: &EstimateConfig,
     ) -> Result<EstimateResult, EstimateError> {
+        self.estimate_inputs(&per_mask::MaskInputs { model, image, depth, k, others, hints, screen: None, cfg }, detections)
+    }
+
+    /// `estimate_rgbd` for a candidate that is likely not the object (one of many the
+    /// depth detector offers): each mask must first pass `screen` where there is one
+    /// (`pipeline::screen`), and one that does not costs a few renders, not an estimate.
+    #[allow(clippy::too_many_arguments)]
+    pub fn estimate_screened(
+        &self,
+        model: &ObjectModel,
+        (image, depth): (&RgbImage, Option<&DepthImage>),
+        k: &Intrinsics,
+        detections: &[Detection],
+        others: Option<&GrayImage>,
+        screen: Option<&dyn CoarseCheck>,
+        cfg: &EstimateConfig,
+    ) -> Result<EstimateResult, EstimateError> {
+        self.estimate_inputs(&per_mask::MaskInputs { model, image, depth, k, others, hints: &[], screen, cfg }, detections)
+    }
+
+    fn estimate_inputs(&self, req: &per_mask::MaskInputs<'_>, detections: &[Detection]) -> Result<EstimateResult, EstimateError> {
+        let per_mask::MaskInputs { model, image, depth, k, others, cfg, .. } = *req;
         let t_total = Instant::now();
         self.validate(model, image, k, detections)?;
         // With depth, each box may gain a proposal from the depth beside its colour cuts.
@@ -386,11 +416,10 @@ impl Estimator {
         let queries = tracing::info_span!("features").in_scope(|| encode(self.backbone.as_ref(), crops, model.config.min_coverage))?;
         timings.features = ms_since(t);
 
-        let req = per_mask::MaskInputs { model, image, depth, k, others, hints, cfg };
         let mut hyps = Vec::new();
         for (q, &mi) in queries.iter().zip(&chosen) {
             let _mask_span = tracing::info_span!("mask", index = mi).entered();
-            hyps.push(self.hypothesis_for_mask(&req, q, (mi, &detections[mi]), &mut timings)?);
+            hyps.push(self.hypothesis_for_mask(req, q, (mi, &detections[mi]), &mut timings)?);
         }
 
         let t = Instant::now();
@@ -552,10 +581,24 @@ impl Estimator {
         candidates.into_iter().zip(kept).filter_map(|(c, k)| k.then_some(c)).collect()
     }
 
-    /// Steps 5–8 for one mask: retrieval, matching, PnP, RRC. Returns the retrieved
-    /// templates, best first, and the templates placed by their matches (for verification).
-    /// `photo` is the image and the mask `q` was cropped from (turned again where the object
-    /// shares its patch rows per view).
+    /// Step 5 for one mask: the templates ranked for its query, best first.
+    fn retrieve_for_mask(&self, model: &ObjectModel, q: &QueryView, cfg: &EstimateConfig, h: &mut Hypothesis, timings: &mut StageTimings) -> Vec<usize> {
+        let t = Instant::now();
+        let _span = tracing::info_span!("retrieval").entered();
+        let retrieved = retrieve(model, &q.features.global, &q.silhouette, &cfg.retrieval);
+        h.retrieved_templates = retrieved.len();
+        if let Some(top) = retrieved.first() {
+            h.top_template_cosine = top.cosine;
+            h.top_template_silhouette_iou = top.silhouette_iou;
+        }
+        timings.retrieval += ms_since(t);
+        retrieved.iter().map(|r| r.template).collect()
+    }
+
+    /// Steps 6–8 for one mask: matching against the `ranked` templates, PnP, RRC. Returns
+    /// the templates placed by their matches (for verification). `photo` is the image and
+    /// the mask `q` was cropped from (turned again where the object shares its patch rows
+    /// per view).
     #[allow(clippy::too_many_arguments)]
     fn pose_for_mask(
         &self,
@@ -563,24 +606,13 @@ impl Estimator {
         q: &QueryView,
         photo: (&RgbImage, &GrayImage),
         k: &Intrinsics,
+        ranked: &[usize],
         cfg: &EstimateConfig,
         h: &mut Hypothesis,
         timings: &mut StageTimings,
-    ) -> Result<(Vec<usize>, Vec<Pose>), EstimateError> {
+    ) -> Result<Vec<Pose>, EstimateError> {
         let t = Instant::now();
-        let span = tracing::info_span!("retrieval").entered();
-        let retrieved = retrieve(model, &q.features.global, &q.silhouette, &cfg.retrieval);
-        h.retrieved_templates = retrieved.len();
-        if let Some(top) = retrieved.first() {
-            h.top_template_cosine = top.cosine;
-            h.top_template_silhouette_iou = top.silhouette_iou;
-        }
-        let ranked: Vec<usize> = retrieved.iter().map(|r| r.template).collect();
-        drop(span);
-        timings.retrieval += ms_since(t);
-
-        let t = Instant::now();
-        let m = tracing::info_span!("matching").in_scope(|| super::turned::match_templates(model, self.backbone.as_ref(), photo.0, photo.1, q, &ranked, cfg.k_nn))?;
+        let m = tracing::info_span!("matching").in_scope(|| super::turned::match_templates(model, self.backbone.as_ref(), photo.0, photo.1, q, ranked, cfg.k_nn))?;
         // Encoding turned queries (rows shared per view) is feature work, not matching.
         timings.features += m.encode_ms;
         timings.matching -= m.encode_ms;
@@ -596,7 +628,7 @@ impl Estimator {
             Ok(r) => r,
             Err(e) => {
                 h.failure = Some(format!("no pose from {} matches: {e}", corr.len()));
-                return Ok((ranked, matched));
+                return Ok(matched);
             }
         };
         h.inliers = first.inliers.len();
@@ -621,7 +653,7 @@ impl Estimator {
             }
             timings.rrc += ms_since(t);
         }
-        Ok((ranked, matched))
+        Ok(matched)
     }
 
     /// Step 10: IoU gate and z-normalised scoring across hypotheses; `others` as for
@@ -734,12 +766,12 @@ mod tests {
     #[test]
     fn stages_by_name_are_the_serialised_ones() {
         let as_json = |t: &StageTimings| serde_json::from_value::<std::collections::BTreeMap<String, f64>>(serde_json::to_value(t).unwrap()).unwrap();
-        let mut t = StageTimings { crop: 1.0, features: 2.0, retrieval: 3.0, matching: 4.0, pnp: 5.0, rrc: 6.0, refine: 7.0, depth: 0.0, selection: 9.0, total: 45.0 };
+        let mut t = StageTimings { crop: 1.0, features: 2.0, retrieval: 3.0, screen: 0.0, matching: 4.0, pnp: 5.0, rrc: 6.0, refine: 7.0, depth: 0.0, selection: 9.0, total: 45.0 };
         assert_eq!(t.by_stage(), as_json(&t));
-        assert!(!t.by_stage().contains_key("depth"));
-        t.depth = 8.0;
+        assert!(!t.by_stage().contains_key("depth") && !t.by_stage().contains_key("screen"));
+        (t.depth, t.screen) = (8.0, 2.5);
         assert_eq!(t.by_stage(), as_json(&t));
-        assert_eq!(t.by_stage()["depth"], 8.0);
+        assert_eq!((t.by_stage()["depth"], t.by_stage()["screen"]), (8.0, 2.5));
     }
 
     #[test]

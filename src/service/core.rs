@@ -11,6 +11,7 @@ use super::operations::{OperationState, OperationStatus, Operations};
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput, RunnerUpOutput};
 use crate::detect::confirm::{candidate_options, compared_choice, confirm, confirmation_needed, estimate_instances, on_taken_place, one_per_place, sure_places, Choice};
 use crate::estimate::candidates::representative;
+use crate::estimate::DepthScreen;
 use crate::estimate::{Candidates, Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
 use crate::geometry::ViewSampling;
@@ -371,6 +372,8 @@ impl Core {
                 groups.retain(|g| !on_taken_place(refs[g[0]].0, &taken));
             }
             let object_choice = compared_choice(compared, groups.len(), o.instances_per_object, choice);
+            // The depth detector's candidates that cannot be this object are not estimated.
+            let screen = if compared { DepthScreen::of(&image, depth.as_ref(), &k, &model.mesh, &self.pool, req.detect.min_score) } else { None };
             let answered = estimate_instances(groups.into_iter().enumerate(), o.instances_per_object, object_choice, |(instance, group)| {
                 if deadline.is_some_and(|d| Instant::now() >= d) {
                     return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", tried + instance)));
@@ -380,7 +383,7 @@ impl Core {
                 let kind = if compared { OtherMasks::DepthSegments } else { OtherMasks::Detections };
                 let others = others_mask(&by_object, object_id, &group, kind, k.width, k.height);
                 let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
-                let r = span.in_scope(|| self.estimator.estimate_rgbd(model, &image, depth.as_ref(), &k, candidates, others.as_ref(), &cfg))?;
+                let r = span.in_scope(|| self.estimator.estimate_screened(model, (&image, depth.as_ref()), &k, candidates, others.as_ref(), DepthScreen::as_check(&screen), &cfg))?;
                 let confirmation = match (&r.pose, choice) {
                     (Some(pose), Choice::Confirmed { .. } | Choice::Compared { .. }) => {
                         let mask = &candidates[r.mask_index.unwrap_or(0)].mask;

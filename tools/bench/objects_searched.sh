@@ -25,7 +25,8 @@ python3 tools/bench/objects_searched.py views "$YCBV" "$HOPE" "$OUT"
 STORE="dir://$OUT/objects"
 # Onboarding happens on an object's first use; a first pass keeps it out of the timed ones.
 "$B2TF" bop run --dataset "$OUT/onboard" --out "$OUT/onboard.csv" --store "$STORE" --depth >"$OUT/onboard.log" 2>&1
-for view in "$OUT"/n*; do
+# The views only (a rerun finds their CSVs and logs beside them).
+for view in "$OUT"/n*/; do
   name=$(basename "$view")
   rm -f "$OUT/$name.csv"
   start=$(date +%s.%N)

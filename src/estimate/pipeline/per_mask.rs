@@ -1,4 +1,5 @@
-//! One candidate mask's way through the estimator: retrieval, matching and PnP, then the
+//! One candidate mask's way through the estimator: retrieval, the caller's screen where it
+//! gives one, matching and PnP, then the
 //! start refined, and verified against its alternatives (or, without verification, refined
 //! alone), then refined again on its print. `Estimator::estimate_hinted` runs it for each
 //! mask before selection chooses among them.
@@ -21,33 +22,51 @@ pub(super) struct MaskInputs<'a> {
     /// Where other detections may hide the object (see `Estimator::estimate_among`).
     pub(super) others: Option<&'a GrayImage>,
     pub(super) hints: &'a [Pose],
+    /// Masks that fail it are not estimated (`Estimator::passes_screen`).
+    pub(super) screen: Option<&'a dyn super::CoarseCheck>,
     pub(super) cfg: &'a EstimateConfig,
 }
 
+impl<'a> MaskInputs<'a> {
+    /// What the refiners and the depth fit take for `detection`'s mask.
+    pub(super) fn context(&self, detection: &'a Detection) -> RefineContext<'a> {
+        RefineContext {
+            model: self.model,
+            image: self.image,
+            intrinsics: self.k,
+            mask: &detection.mask,
+            unknown: self.others,
+            mask_is_probability: false,
+            from_box: detection.from_box,
+            depth: self.depth,
+        }
+    }
+}
+
 impl Estimator {
-    /// One candidate mask's hypothesis: retrieval, matching and PnP (`pose_for_mask`), then
+    /// One candidate mask's hypothesis: retrieval, the screen, matching and PnP (`pose_for_mask`), then
     /// its start (PnP's pose, or with verification a template's where PnP found none)
     /// refined and verified.
     pub(super) fn hypothesis_for_mask(&self, req: &MaskInputs<'_>, q: &QueryView, (mi, detection): (usize, &Detection), timings: &mut StageTimings) -> Result<Hypothesis, EstimateError> {
         let cfg = req.cfg;
         let mut h = Hypothesis { mask_index: mi, detector_score: detection.score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() };
-        let (retrieved, matched) = self.pose_for_mask(req.model, q, (req.image, &detection.mask), req.k, cfg, &mut h, timings)?;
+        let retrieved = self.retrieve_for_mask(req.model, q, cfg, &mut h, timings);
+        let t = Instant::now();
+        let passed = self.passes_screen(req, q, detection, &retrieved, &mut h)?;
+        if req.screen.is_some() && req.depth.is_some() {
+            timings.screen += ms_since(t);
+        }
+        if !passed {
+            return Ok(h);
+        }
+        let matched = self.pose_for_mask(req.model, q, (req.image, &detection.mask), req.k, &retrieved, cfg, &mut h, timings)?;
         let start = match h.pose {
             Some(p) => Some((Source::Pipeline, p)),
             None if cfg.verify.enabled => crate::estimate::hypotheses::start_without_pnp(req.model, &matched, &retrieved, &q.crop_box, req.k),
             None => None,
         };
         if let Some(start) = start {
-            let ctx = RefineContext {
-                model: req.model,
-                image: req.image,
-                intrinsics: req.k,
-                mask: &detection.mask,
-                unknown: req.others,
-                mask_is_probability: false,
-                from_box: detection.from_box,
-                depth: req.depth,
-            };
+            let ctx = req.context(detection);
             let t = Instant::now();
             let _span = tracing::info_span!("refine", refiner = cfg.refiner.name(), verify = cfg.verify.enabled).entered();
             if cfg.verify.enabled {
