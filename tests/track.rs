@@ -104,6 +104,11 @@ fn depth_frames_fit_the_track_and_refute_what_they_see_through() {
             fit.free_space_share,
             fit.rms_mm
         );
+        // Every stage that ran is timed within the frame's total; a frame that was checked
+        // (every fifth) spent time relearning.
+        let t = step.timings;
+        assert!(t.contour > 0.0 && t.depth > 0.0 && t.colours + t.contour + t.photometric + t.depth + t.relearn <= t.total, "{t:?}");
+        assert!(step.silhouette_iou.is_none() || t.relearn > 0.0, "{t:?}");
         if step.lost {
             lost += 1;
             tracker.restart(&f.rgb, &k, f.truth).unwrap();

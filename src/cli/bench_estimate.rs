@@ -591,20 +591,10 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     Ok(())
 }
 
-/// The stages' shares of all the instances' time together (sums, not medians, so they add
-/// up): where an estimate's time goes, for choosing the next speed step. `other` is what
-/// the total holds beyond the named stages.
+/// The stages' shares of all the instances' time together (`bench_profile`).
 fn profile(stages: &[[f64; 9]]) -> String {
     const NAMES: [&str; 8] = ["crop", "features", "retrieval", "matching", "pnp", "rrc", "refine", "selection"];
-    let sum = |s: usize| stages.iter().map(|x| x[s]).sum::<f64>();
-    let total = sum(8);
-    if total <= 0.0 {
-        return "no time measured".to_string();
-    }
-    let named: f64 = (0..8).map(sum).sum();
-    let mut parts: Vec<String> = NAMES.iter().enumerate().map(|(s, n)| format!("{n} {:.0} %", 100.0 * sum(s) / total)).collect();
-    parts.push(format!("other {:.0} %", 100.0 * (total - named).max(0.0) / total));
-    format!("{} (of {:.0} ms over {} instances)", parts.join(", "), total, stages.len())
+    super::bench_profile::stage_shares(&NAMES, stages, "instances")
 }
 
 #[cfg(test)]

@@ -13,7 +13,7 @@ use crate::mesh::Units;
 use crate::onboard::ObjectModel;
 use crate::track::sequence::{generate, Frame, SequenceConfig};
 use crate::track::sequence_bop::{write_sequences, SequenceSpec};
-use crate::track::{Tracker, TrackerConfig};
+use crate::track::{TrackTimings, Tracker, TrackerConfig};
 use anyhow::Result;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -103,18 +103,22 @@ impl Accuracy {
     }
 }
 
+/// One object's frames tracked in one mode (RGB or RGB-D).
+#[derive(Default)]
+struct TrackRun {
+    accuracy: Accuracy,
+    /// Frames lost (each restarted at the truth).
+    lost: usize,
+    /// Per tracked frame: the wall-clock time around `Tracker::track` ...
+    ms: Vec<f64>,
+    /// ... and the tracker's own per-stage times (`TrackTimings::as_row`).
+    stages: Vec<[f64; 6]>,
+}
+
 /// Tracks one sequence from its true first pose, with its depth frames or without; a lost
-/// frame restarts at the truth. Adds to `run`'s accuracy, lost count and ms per tracked frame.
-fn track_in_process(
-    model: &Arc<ObjectModel>,
-    pool: &Arc<crate::render::RenderPool>,
-    k: &Intrinsics,
-    seq: &[Frame],
-    with_depth: bool,
-    sample: &[[f32; 3]],
-    run: &mut (Accuracy, usize, Vec<f64>),
-) -> Result<()> {
-    let (acc, lost, ms) = run;
+/// frame restarts at the truth. Adds to `run`'s accuracy, lost count and times per tracked frame.
+fn track_in_process(model: &Arc<ObjectModel>, pool: &Arc<crate::render::RenderPool>, k: &Intrinsics, seq: &[Frame], with_depth: bool, sample: &[[f32; 3]], run: &mut TrackRun) -> Result<()> {
+    let TrackRun { accuracy: acc, lost, ms, stages } = run;
     let mut tracker = Tracker::new(model.clone(), pool.clone(), &seq[0].rgb, k, seq[0].truth, TrackerConfig::default()).map_err(anyhow::Error::msg)?;
     for f in &seq[1..] {
         let depth = if with_depth { Some(DepthImage::from_metres(k.width, k.height, f.depth.clone())?) } else { None };
@@ -128,6 +132,7 @@ fn track_in_process(
             continue;
         }
         ms.push(t.elapsed().as_secs_f64() * 1e3);
+        stages.push(step.timings.as_row());
         acc.push(Some(&step.pose), f, model, sample);
     }
     Ok(())
@@ -171,9 +176,11 @@ pub fn run(a: BenchTrackArgs) -> Result<()> {
     println!("| object | frames | tracked | MSSD < 0.1·d | ADD AUC | ADD-S AUC | lost → re-initialised | ms per tracked frame, median | p95 |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
     let modes: &[bool] = if a.depth { &[false, true] } else { &[false] };
+    // Each run's stage shares, printed after the table (the next speed step's data).
+    let mut profiles = Vec::new();
     for (name, model) in &models {
         let sample = sample_points(model.mesh.positions(), 500);
-        let mut runs: Vec<(Accuracy, usize, Vec<f64>)> = modes.iter().map(|_| (Accuracy::default(), 0, Vec::new())).collect();
+        let mut runs: Vec<TrackRun> = modes.iter().map(|_| TrackRun::default()).collect();
         let (mut grpc_acc, mut grpc_stats) = (Accuracy::default(), StreamStats::default());
         for s in 0..a.sequences {
             let seq = generate(&model.mesh, &k, &config(s), &pool)?;
@@ -188,11 +195,12 @@ pub fn run(a: BenchTrackArgs) -> Result<()> {
                 }
             }
         }
-        for ((acc, lost, ms), &with_depth) in runs.iter_mut().zip(modes) {
+        for (TrackRun { accuracy: acc, lost, ms, stages }, &with_depth) in runs.iter_mut().zip(modes) {
             ms.sort_by(f64::total_cmp);
             let pick = |q: f64| ms.get(((ms.len() as f64 - 1.0) * q).round() as usize).copied().unwrap_or(f64::NAN);
             let label = if a.depth { format!("{name} ({})", if with_depth { "RGB-D" } else { "RGB" }) } else { name.clone() };
             println!("| {label} | {} | {} | {} | {lost} | {:.1} | {:.1} |", acc.frames, ms.len(), acc.cells(), pick(0.5), pick(0.95));
+            profiles.push(format!("profile, {label}: {}", super::bench_profile::stage_shares(&TrackTimings::STAGES, stages, "tracked frames")));
         }
         if server.is_some() {
             grpc_rows.push(format!(
@@ -206,6 +214,10 @@ pub fn run(a: BenchTrackArgs) -> Result<()> {
                 grpc_stats.frames_per_second()
             ));
         }
+    }
+    println!();
+    for p in profiles {
+        println!("{p}");
     }
     if !grpc_rows.is_empty() {
         println!("\nThrough the gRPC Track stream of a `b2tf serve` child (raw RGB frames, the server re-initialises by itself; frames/s end to end, client to answer):\n");

@@ -10,6 +10,7 @@ pub mod bench_estimate;
 pub mod bench_margin;
 pub mod bench_matching;
 pub mod bench_one_call;
+mod bench_profile;
 pub mod bench_proposals;
 pub mod bench_refine;
 pub mod bench_scenes;

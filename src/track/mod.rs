@@ -12,4 +12,4 @@ pub mod session;
 pub mod tracker;
 
 pub use session::{FrameDetection, SessionConfig, SessionError, TrackMode, TrackOutcome, TrackSession};
-pub use tracker::{TrackStep, Tracker, TrackerConfig};
+pub use tracker::{TrackStep, TrackTimings, Tracker, TrackerConfig};

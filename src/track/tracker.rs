@@ -21,9 +21,11 @@ use crate::estimate::refine::{RefineContext, RefineReport, Refiner};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
 use crate::render::{RenderOptions, RenderOutput, RenderPool};
+use crate::telemetry::ms_since;
 use image::{GrayImage, RgbImage};
 use nalgebra::{Point3, Vector3};
 use std::sync::Arc;
+use std::time::Instant;
 
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
@@ -88,6 +90,34 @@ pub struct TrackStep {
     pub silhouette_iou: Option<f64>,
     /// The appearance check's agreement, on the frames that had one (meshes with colours).
     pub appearance: Option<f64>,
+    pub timings: TrackTimings,
+}
+
+/// Where one frame's time went, milliseconds, in the order the stages run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct TrackTimings {
+    /// The colour model's foreground probability over the window.
+    pub colours: f64,
+    /// The contour refiner's alignment of the outline.
+    pub contour: f64,
+    /// The texture term (`photometric`).
+    pub photometric: f64,
+    /// The fit to the depth frame.
+    pub depth: f64,
+    /// Every few frames: the render at the pose, its checks, and the colours, texture and
+    /// surface learnt again from it.
+    pub relearn: f64,
+    pub total: f64,
+}
+
+impl TrackTimings {
+    /// Stage names in `as_row`'s order (the total last, unnamed).
+    pub const STAGES: [&'static str; 5] = ["colours", "contour", "photometric", "depth", "relearn"];
+
+    /// The stages in `STAGES`' order, then the total.
+    pub fn as_row(&self) -> [f64; 6] {
+        [self.colours, self.contour, self.photometric, self.depth, self.relearn, self.total]
+    }
 }
 
 pub struct Tracker {
@@ -249,6 +279,14 @@ impl Tracker {
     /// Tracks the object into the next frame, with the frame's registered depth when the
     /// camera gives one.
     pub fn track(&mut self, image: &RgbImage, depth: Option<&DepthImage>, k: &Intrinsics) -> Result<TrackStep, String> {
+        let t = Instant::now();
+        let mut timings = TrackTimings::default();
+        let mut step = self.step(image, depth, k, &mut timings)?;
+        step.timings = TrackTimings { total: ms_since(t), ..timings };
+        Ok(step)
+    }
+
+    fn step(&mut self, image: &RgbImage, depth: Option<&DepthImage>, k: &Intrinsics, timings: &mut TrackTimings) -> Result<TrackStep, String> {
         if (image.width(), image.height()) != (k.width, k.height) {
             return Err(format!("frame is {}×{} but the intrinsics say {}×{}", image.width(), image.height(), k.width, k.height));
         }
@@ -267,29 +305,48 @@ impl Tracker {
                 report: RefineReport { note: Some("the object left the image".into()), ..Default::default() },
                 silhouette_iou: None,
                 appearance: None,
+                timings: TrackTimings::default(),
             });
         };
+        let t = Instant::now();
         let probs = self.colours.probability_image(image, window);
+        timings.colours = ms_since(t);
         let ctx = RefineContext { model: &self.model, image, intrinsics: k, mask: &probs, unknown: None, mask_is_probability: true, from_box: None, depth: None };
+        let t = Instant::now();
         let mut refined = self.refiner.refine(&ctx, predicted)?;
+        timings.contour = ms_since(t);
         let quality = refined.report.agreement;
         if quality < self.config.lost_below {
             self.velocity = None;
-            return Ok(TrackStep { pose: self.pose, quality, lost: true, report: refined.report, silhouette_iou: None, appearance: None });
+            return Ok(TrackStep { pose: self.pose, quality, lost: true, report: refined.report, silhouette_iou: None, appearance: None, timings: TrackTimings::default() });
         }
+        let t = Instant::now();
         if self.config.photometric.enabled {
             refined.pose = self.texture.align(image, window, k, &refined.pose, &self.config.photometric);
         }
-        if let Some((pose, f)) = depth.and_then(|d| self.fit_depth(d, k, &refined.pose)) {
+        timings.photometric = ms_since(t);
+        let t = Instant::now();
+        let fitted = depth.and_then(|d| self.fit_depth(d, k, &refined.pose));
+        timings.depth = ms_since(t);
+        if let Some((pose, f)) = fitted {
             let verdict = self.depth_verdict(&f);
             refined.report.depth_fit = Some(f);
             if let Some(note) = verdict {
                 self.velocity = None;
-                return Ok(TrackStep { pose: self.pose, quality, lost: true, report: RefineReport { note: Some(note), ..refined.report }, silhouette_iou: None, appearance: None });
+                return Ok(TrackStep {
+                    pose: self.pose,
+                    quality,
+                    lost: true,
+                    report: RefineReport { note: Some(note), ..refined.report },
+                    silhouette_iou: None,
+                    appearance: None,
+                    timings: TrackTimings::default(),
+                });
             }
             refined.pose = pose;
         }
         let (mut checked, mut looks) = (None, None);
+        let t = Instant::now();
         if (self.frames + 1).is_multiple_of(self.config.relearn_every.max(1)) {
             if let Some((render, window)) = self.render_window(k, &refined.pose)? {
                 let iou = silhouette_iou(&self.colours, image, &render.mask, window);
@@ -309,7 +366,15 @@ impl Tracker {
                 };
                 if let Some(note) = failed {
                     self.velocity = None;
-                    return Ok(TrackStep { pose: self.pose, quality, lost: true, report: RefineReport { note: Some(note), ..refined.report }, silhouette_iou: checked, appearance: looks });
+                    return Ok(TrackStep {
+                        pose: self.pose,
+                        quality,
+                        lost: true,
+                        report: RefineReport { note: Some(note), ..refined.report },
+                        silhouette_iou: checked,
+                        appearance: looks,
+                        timings: TrackTimings::default(),
+                    });
                 }
                 self.colours.learn(image, &render.mask, window, self.config.colour_rate);
                 self.silhouette_area = mask_area(&render.mask);
@@ -317,10 +382,11 @@ impl Tracker {
                 self.learn_surface(&render, window, k, &refined.pose);
             }
         }
+        timings.relearn = ms_since(t);
         self.velocity = Some(refined.pose.compose(&self.pose.inverse()));
         self.pose = refined.pose;
         self.frames += 1;
-        Ok(TrackStep { pose: refined.pose, quality, lost: false, report: refined.report, silhouette_iou: checked, appearance: looks })
+        Ok(TrackStep { pose: refined.pose, quality, lost: false, report: refined.report, silhouette_iou: checked, appearance: looks, timings: TrackTimings::default() })
     }
 }
 
