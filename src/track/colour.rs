@@ -28,6 +28,16 @@ impl Window {
         (w.x1 > w.x0 && w.y1 > w.y0).then_some(w)
     }
 
+    /// Whether `other` lies inside this window.
+    pub fn contains(&self, other: &Window) -> bool {
+        self.x0 <= other.x0 && self.y0 <= other.y0 && other.x1 <= self.x1 && other.y1 <= self.y1
+    }
+
+    /// The smallest window holding both.
+    pub fn union(&self, other: &Window) -> Window {
+        Window { x0: self.x0.min(other.x0), y0: self.y0.min(other.y0), x1: self.x1.max(other.x1), y1: self.y1.max(other.y1) }
+    }
+
     pub fn size(&self) -> (u32, u32) {
         (self.x1 - self.x0, self.y1 - self.y0)
     }
@@ -52,12 +62,17 @@ fn bin(p: &image::Rgb<u8>) -> usize {
 pub struct ColourModel {
     foreground: Vec<f32>,
     background: Vec<f32>,
+    /// Each bin's foreground probability as a grey level (`probability` × 255, rounded),
+    /// kept with the histograms: a frame's probability image is then one lookup a pixel.
+    levels: Vec<u8>,
     learnt: bool,
 }
 
 impl Default for ColourModel {
     fn default() -> Self {
-        Self { foreground: vec![0.0; BINS], background: vec![0.0; BINS], learnt: false }
+        let mut m = Self { foreground: vec![0.0; BINS], background: vec![0.0; BINS], levels: Vec::new(), learnt: false };
+        m.levels = m.bin_levels();
+        m
     }
 }
 
@@ -93,12 +108,16 @@ impl ColourModel {
             }
         }
         self.learnt = true;
+        self.levels = self.bin_levels();
         true
     }
 
     /// Foreground probability of one colour; 0.5 for colours neither side has seen.
     pub fn probability(&self, p: &image::Rgb<u8>) -> f32 {
-        let b = bin(p);
+        self.bin_probability(bin(p))
+    }
+
+    fn bin_probability(&self, b: usize) -> f32 {
         let (f, g) = (self.foreground[b], self.background[b]);
         // A floor of one count in ten thousand keeps unseen colours undecided rather than
         // certain either way.
@@ -106,12 +125,24 @@ impl ColourModel {
         (f + floor) / (f + g + 2.0 * floor)
     }
 
+    fn bin_levels(&self) -> Vec<u8> {
+        (0..BINS).map(|b| (self.bin_probability(b) * 255.0).round() as u8).collect()
+    }
+
     /// An image of foreground probabilities (value / 255) inside `window`, 128 (undecided)
     /// elsewhere.
     pub fn probability_image(&self, image: &RgbImage, window: Window) -> GrayImage {
         let mut out = GrayImage::from_pixel(image.width(), image.height(), image::Luma([128]));
-        for (x, y) in window.pixels() {
-            out.put_pixel(x, y, image::Luma([(self.probability(image.get_pixel(x, y)) * 255.0).round() as u8]));
+        let (width, (x0, x1)) = (image.width() as usize, (window.x0 as usize, window.x1 as usize));
+        // Row slices of the raw buffers: this runs on every tracked frame over up to a
+        // third of a megapixel.
+        let (rgb, grey) = (image.as_raw(), out.as_mut());
+        for y in window.y0 as usize..window.y1 as usize {
+            let row = y * width;
+            let colours = rgb[3 * (row + x0)..3 * (row + x1)].chunks_exact(3);
+            for (level, c) in grey[row + x0..row + x1].iter_mut().zip(colours) {
+                *level = self.levels[bin(&image::Rgb([c[0], c[1], c[2]]))];
+            }
         }
         out
     }
@@ -147,6 +178,20 @@ pub(crate) mod tests {
         assert!((m.probability(&image::Rgb([0, 255, 0])) - 0.5).abs() < 1e-6);
         let probs = m.probability_image(&img, Window::around(20.0, 20.0, 5.0, 40, 40).unwrap());
         assert_eq!((probs.get_pixel(20, 20)[0], probs.get_pixel(0, 0)[0]), (255, 128));
+        // Every pixel of the window is its colour's probability, after a blended relearning
+        // too, whatever the colour.
+        let mut noisy = img.clone();
+        for (i, p) in noisy.pixels_mut().enumerate() {
+            p.0 = [(i * 37 % 256) as u8, (i * 91 % 256) as u8, (i * 13 % 256) as u8];
+        }
+        assert!(m.learn(&noisy, &sil, all, 0.3));
+        let window = Window { x0: 3, y0: 5, x1: 31, y1: 38 };
+        let probs = m.probability_image(&noisy, window);
+        for (x, y, v) in probs.enumerate_pixels() {
+            let inside = (window.x0..window.x1).contains(&x) && (window.y0..window.y1).contains(&y);
+            let want = if inside { (m.probability(noisy.get_pixel(x, y)) * 255.0).round() as u8 } else { 128 };
+            assert_eq!(v[0], want, "at ({x}, {y})");
+        }
         // Nothing to learn from a window without background.
         let inner = Window::around(20.0, 20.0, 5.0, 40, 40).unwrap();
         assert!(!m.learn(&img, &image::imageops::crop_imm(&sil, 15, 15, 10, 10).to_image(), inner, 0.2));
@@ -155,5 +200,8 @@ pub(crate) mod tests {
         let wk = inner.intrinsics(&k).unwrap();
         assert_eq!((wk.cx, wk.cy, wk.width, wk.height), (4.5, 4.5, 10, 10));
         assert_eq!(Window::around(-50.0, -50.0, 5.0, 40, 40), None);
+        let (a, b) = (Window { x0: 2, y0: 3, x1: 10, y1: 8 }, Window { x0: 5, y0: 1, x1: 12, y1: 6 });
+        assert_eq!(a.union(&b), Window { x0: 2, y0: 1, x1: 12, y1: 8 });
+        assert!(a.union(&b).contains(&a) && a.union(&b).contains(&b) && !a.contains(&b) && a.contains(&a));
     }
 }

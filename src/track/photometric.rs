@@ -58,11 +58,11 @@ impl GreyWindow {
     fn new(image: &RgbImage, window: Window, sigma: f64) -> Self {
         let (w, h) = window.size();
         let (w, h) = (w as usize, h as usize);
+        let width = image.width() as usize;
         let mut values = Vec::with_capacity(w * h);
-        for y in 0..h {
-            for x in 0..w {
-                values.push(crate::features::grey(image.get_pixel(window.x0 + x as u32, window.y0 + y as u32)));
-            }
+        for y in window.y0 as usize..window.y1 as usize {
+            let row = &image.as_raw()[3 * (y * width + window.x0 as usize)..3 * (y * width + window.x1 as usize)];
+            values.extend(row.chunks_exact(3).map(|c| crate::features::grey(&image::Rgb([c[0], c[1], c[2]]))));
         }
         if sigma > 0.0 {
             values = blur_grey(&values, w, h, sigma);
@@ -150,18 +150,51 @@ impl PhotometricModel {
         if self.samples.len() < 20 {
             return *start;
         }
-        let grey = GreyWindow::new(image, window, config.blur_sigma);
+        // Blurred over the part of the window the points read (`region`) rather than all
+        // of it: the points lie inside the silhouette, and the whole window's blur was paid
+        // for pixels no point reads.
+        let room = 2.0 + blur_radius(config.blur_sigma) as f64;
+        let Some(region) = self.region(window, k, start, REACH_PX + room) else { return *start };
+        let mut grey = GreyWindow::new(image, region, config.blur_sigma);
         let mut pose = *start;
         let Some(mut cost) = self.cost(&grey, k, &pose) else { return *start };
         for _ in 0..config.iterations {
             let Some(step) = self.step(&grey, k, &pose, start, config) else { break };
             let next = apply_update(&pose, &step.0, &step.1);
+            // A step that carried points past the reach left for it: blurred again over
+            // both, so that every point reads what a blur of the whole window gives.
+            if let Some(needed) = self.region(window, k, &next, room) {
+                if !grey.window.contains(&needed) {
+                    grey = GreyWindow::new(image, grey.window.union(&needed), config.blur_sigma);
+                }
+            }
             match self.cost(&grey, k, &next) {
                 Some(c) if c < cost => (pose, cost) = (next, c),
                 _ => break,
             }
         }
         pose
+    }
+
+    /// The part of `window` within `pad` pixels of the points' projections at `pose`
+    /// (those that project); None when none does.
+    fn region(&self, window: Window, k: &Intrinsics, pose: &Pose, pad: f64) -> Option<Window> {
+        let (mut lo, mut hi) = (Vector2::repeat(f64::INFINITY), Vector2::repeat(f64::NEG_INFINITY));
+        for uv in self.samples.iter().filter_map(|s| k.project(&pose.transform_point(&s.point))) {
+            lo = lo.inf(&uv);
+            hi = hi.sup(&uv);
+        }
+        if lo.x > hi.x {
+            return None;
+        }
+        let clip = |a: f64, min: u32, max: u32| a.clamp(min as f64, max as f64) as u32;
+        let region = Window {
+            x0: clip((lo.x - pad).floor(), window.x0, window.x1),
+            y0: clip((lo.y - pad).floor(), window.y0, window.y1),
+            x1: clip((hi.x + pad).ceil(), window.x0, window.x1),
+            y1: clip((hi.y + pad).ceil(), window.y0, window.y1),
+        };
+        (region.x1 > region.x0 && region.y1 > region.y0).then_some(region)
     }
 
     /// (camera-frame point, projection, learnt grey) of the samples facing the camera at
@@ -230,21 +263,33 @@ impl PhotometricModel {
     }
 }
 
+/// Room left around the points' projections at the start for the texture term's steps to
+/// carry them, px (a step that carries them further has the window blurred again).
+const REACH_PX: f64 = 24.0;
+
+/// The blur's kernel reaches this many pixels each side.
+fn blur_radius(sigma: f64) -> isize {
+    (3.0 * sigma).ceil() as isize
+}
+
 /// A separable Gaussian blur of a `w × h` grey grid, edges clamped.
 fn blur_grey(values: &[f32], w: usize, h: usize, sigma: f64) -> Vec<f32> {
-    let r = (3.0 * sigma).ceil() as isize;
+    let r = blur_radius(sigma);
     let kernel: Vec<f32> = (-r..=r).map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp() as f32).collect();
     let total: f32 = kernel.iter().sum();
     let kernel: Vec<f32> = kernel.iter().map(|k| k / total).collect();
-    // One pass along a line of `n` values `stride` apart, starting at `first`.
+    // One pass along a line of `n` values `stride` apart, starting at `first`; the edge
+    // clamp only where the kernel reaches past an end (the bounds-free middle is most of
+    // the work).
     let pass = |src: &[f32], out: &mut [f32], first: usize, stride: usize, n: usize| {
-        for i in 0..n {
-            let mut acc = 0f32;
-            for (j, k) in kernel.iter().enumerate() {
-                let at = (i as isize + j as isize - r).clamp(0, n as isize - 1) as usize;
-                acc += k * src[first + at * stride];
-            }
-            out[first + i * stride] = acc;
+        let clamped = |i: usize| -> f32 { kernel.iter().enumerate().map(|(j, k)| k * src[first + (i as isize + j as isize - r).clamp(0, n as isize - 1) as usize * stride]).sum() };
+        let ends = (r as usize).min(n);
+        for i in (0..ends).chain(n.saturating_sub(r as usize).max(ends)..n) {
+            out[first + i * stride] = clamped(i);
+        }
+        for i in ends..n.saturating_sub(r as usize) {
+            let start = first + (i - r as usize) * stride;
+            out[first + i * stride] = kernel.iter().enumerate().map(|(j, k)| k * src[start + j * stride]).sum();
         }
     };
     let mut rows = vec![0f32; values.len()];
@@ -289,5 +334,19 @@ mod tests {
         let b = blur_grey(&spike, 9, 9, 1.0);
         assert!((b.iter().sum::<f32>() - 1.0).abs() < 1e-4, "mass kept away from the edges");
         assert!(b[40] > b[41] && (b[41] - b[39]).abs() < 1e-6 && (b[41] - b[31]).abs() < 1e-6, "peaked and symmetric");
+        // Every value is the clamped kernel sum, on grids narrower and wider than the kernel.
+        for (w, h) in [(3, 4), (10, 11), (12, 30), (40, 9)] {
+            let values: Vec<f32> = (0..w * h).map(|i| ((i * 7919) % 251) as f32).collect();
+            let sigma = 1.5;
+            let r = blur_radius(sigma);
+            let g: Vec<f64> = (-r..=r).map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp()).collect();
+            let total: f64 = g.iter().sum();
+            let at = |x: isize, y: isize| values[y.clamp(0, h as isize - 1) as usize * w + x.clamp(0, w as isize - 1) as usize] as f64;
+            let blurred = blur_grey(&values, w, h, sigma);
+            for (y, x) in (0..h as isize).flat_map(|y| (0..w as isize).map(move |x| (y, x))) {
+                let want: f64 = (-r..=r).map(|j| g[(j + r) as usize] * (-r..=r).map(|i| g[(i + r) as usize] * at(x + i, y + j)).sum::<f64>()).sum::<f64>() / (total * total);
+                assert!((blurred[y as usize * w + x as usize] as f64 - want).abs() < 1e-3, "{w}×{h} at ({x}, {y})");
+            }
+        }
     }
 }

@@ -47,6 +47,15 @@ pub struct TrackerConfig {
     /// render's colours and interior edges with the frame's, the frame is lost (a pose
     /// that slid to a wrong turn its outline cannot tell). Meshes with colours only.
     pub min_appearance: f64,
+    /// The contour step's line scales, coarse to fine, as factors of the refiner's first
+    /// segment length (`ContourRefinerConfig::scale_factors`; empty: the refiner's), read
+    /// when the tracker starts. A track starts a frame's motion away, not a retrieval's:
+    /// estimation's coarsest scale (1.0) and its middle one only cost time there. Measured
+    /// with `b2tf bench track` (HOPE obj_000001 / 2 / 8 and the sample box, RGB and RGB-D,
+    /// with and without the occluder; docs/tracking.md, "Where a frame's time goes"):
+    /// [0.6, 0.2] kept or raised the MSSD share on 13 of 14 rows at two thirds of the
+    /// contour step's time.
+    pub contour_scales: Vec<f64>,
     /// The texture term after each contour step (photometric.rs).
     pub photometric: PhotometricConfig,
     /// With depth frames: Gauss-Newton steps of the depth fit after the contour step.
@@ -69,6 +78,7 @@ impl Default for TrackerConfig {
             window_radii: 1.6,
             min_silhouette_iou: 0.5,
             min_appearance: 0.3,
+            contour_scales: vec![0.6, 0.2],
             photometric: PhotometricConfig::default(),
             depth_iterations: 6,
             max_free_space: 0.35,
@@ -144,7 +154,10 @@ impl Tracker {
     /// Starts a track at a known `pose` in `image` (e.g. from a full estimate), learning
     /// the colours from the silhouette rendered there.
     pub fn new(model: Arc<ObjectModel>, renderer: Arc<RenderPool>, image: &RgbImage, k: &Intrinsics, pose: Pose, config: TrackerConfig) -> Result<Self, String> {
-        let refiner = ContourRefiner::new(renderer.clone());
+        let mut refiner = ContourRefiner::new(renderer.clone());
+        if !config.contour_scales.is_empty() {
+            refiner.config.scale_factors = config.contour_scales.clone();
+        }
         let coloured = model.mesh.has_colours();
         let mut t = Self {
             model,
@@ -298,15 +311,7 @@ impl Tracker {
             _ => self.pose,
         };
         let Some(window) = self.window(k, &predicted, self.config.window_radii) else {
-            return Ok(TrackStep {
-                pose: self.pose,
-                quality: 0.0,
-                lost: true,
-                report: RefineReport { note: Some("the object left the image".into()), ..Default::default() },
-                silhouette_iou: None,
-                appearance: None,
-                timings: TrackTimings::default(),
-            });
+            return Ok(self.lost(0.0, RefineReport { note: Some("the object left the image".into()), ..Default::default() }, (None, None)));
         };
         let t = Instant::now();
         let probs = self.colours.probability_image(image, window);
@@ -317,8 +322,7 @@ impl Tracker {
         timings.contour = ms_since(t);
         let quality = refined.report.agreement;
         if quality < self.config.lost_below {
-            self.velocity = None;
-            return Ok(TrackStep { pose: self.pose, quality, lost: true, report: refined.report, silhouette_iou: None, appearance: None, timings: TrackTimings::default() });
+            return Ok(self.lost(quality, refined.report, (None, None)));
         }
         let t = Instant::now();
         if self.config.photometric.enabled {
@@ -332,16 +336,7 @@ impl Tracker {
             let verdict = self.depth_verdict(&f);
             refined.report.depth_fit = Some(f);
             if let Some(note) = verdict {
-                self.velocity = None;
-                return Ok(TrackStep {
-                    pose: self.pose,
-                    quality,
-                    lost: true,
-                    report: RefineReport { note: Some(note), ..refined.report },
-                    silhouette_iou: None,
-                    appearance: None,
-                    timings: TrackTimings::default(),
-                });
+                return Ok(self.lost(quality, RefineReport { note: Some(note), ..refined.report }, (None, None)));
             }
             refined.pose = pose;
         }
@@ -365,16 +360,7 @@ impl Tracker {
                     None
                 };
                 if let Some(note) = failed {
-                    self.velocity = None;
-                    return Ok(TrackStep {
-                        pose: self.pose,
-                        quality,
-                        lost: true,
-                        report: RefineReport { note: Some(note), ..refined.report },
-                        silhouette_iou: checked,
-                        appearance: looks,
-                        timings: TrackTimings::default(),
-                    });
+                    return Ok(self.lost(quality, RefineReport { note: Some(note), ..refined.report }, (checked, looks)));
                 }
                 self.colours.learn(image, &render.mask, window, self.config.colour_rate);
                 self.silhouette_area = mask_area(&render.mask);
@@ -386,7 +372,16 @@ impl Tracker {
         self.velocity = Some(refined.pose.compose(&self.pose.inverse()));
         self.pose = refined.pose;
         self.frames += 1;
+        // `track` fills in the timings.
         Ok(TrackStep { pose: refined.pose, quality, lost: false, report: refined.report, silhouette_iou: checked, appearance: looks, timings: TrackTimings::default() })
+    }
+
+    /// A frame that did not confirm the track: the last good pose stays, with what the frame
+    /// measured (`checks`: the silhouette IoU and appearance, where a check ran), and no
+    /// motion is carried into the next frame.
+    fn lost(&mut self, quality: f64, report: RefineReport, checks: (Option<f64>, Option<f64>)) -> TrackStep {
+        self.velocity = None;
+        TrackStep { pose: self.pose, quality, lost: true, report, silhouette_iou: checks.0, appearance: checks.1, timings: TrackTimings::default() }
     }
 }
 
