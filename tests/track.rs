@@ -3,6 +3,7 @@
 //! that disagrees with the intrinsics is refused; `b2tf track` on a folder of frames and
 //! (feature `video`) on an MP4.
 
+use b2tfpose::estimate::contour::ContourRefinerConfig;
 use b2tfpose::eval::pose_error::{rotation_error_deg, translation_error_m};
 use b2tfpose::features::{EmbeddedBackbone, EmbeddedConfig};
 use b2tfpose::geometry::{Intrinsics, Pose, ViewSampling};
@@ -31,6 +32,12 @@ fn follows_a_moving_object_and_reports_a_jump_lost() {
     let (model, pool, k) = setup();
     let seq = generate(&model.mesh, &k, &SequenceConfig { frames: 40, seed: 3, ..Default::default() }, &pool).unwrap();
     let mut tracker = Tracker::new(model.clone(), pool.clone(), &seq[0].rgb, &k, seq[0].truth, TrackerConfig::default()).unwrap();
+    // The tracker's own line scales reach its refiner; an empty list keeps the refiner's.
+    assert_eq!(tracker.contour_scales(), TrackerConfig::default().contour_scales.as_slice());
+    let refiners_own = TrackerConfig { contour_scales: vec![], ..Default::default() };
+    let own = Tracker::new(model.clone(), pool.clone(), &seq[0].rgb, &k, seq[0].truth, refiners_own).unwrap();
+    assert_eq!(own.contour_scales(), ContourRefinerConfig::default().scale_factors.as_slice());
+    assert_ne!(own.contour_scales(), tracker.contour_scales());
     let (mut rot, mut trans, mut lost) = (vec![], vec![], 0);
     for (i, f) in seq.iter().enumerate().skip(1) {
         let step = tracker.track(&f.rgb, None, &k).unwrap();

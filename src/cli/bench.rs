@@ -4,7 +4,7 @@ use crate::eval::reid::ReidSet;
 use crate::features::{EmbeddedBackbone, EmbeddedConfig};
 use crate::geometry::views::{fitted_distance, view_pose};
 use crate::mesh::{load_mesh, procedural::textured_box, Mesh, Units};
-use crate::onboard::{onboard, OnboardConfig};
+use crate::onboard::{onboard_profiled, OnboardConfig};
 use crate::render::RenderOptions;
 use anyhow::{bail, Result};
 use std::path::{Path, PathBuf};
@@ -246,40 +246,42 @@ fn onboard_rows(data: &Path, default_units: Units, meshes: &[PathBuf], store: &d
     let config = OnboardConfig::default();
     println!("{}", store.url());
     println!(
-        "| mesh | units | vertices | faces | diameter (mm) | load (s) | onboarding (s) | of which contour model (s) | store put (s) | templates | patches | model (MB) | of which contour model (MB) |"
+        "| mesh | units | vertices | faces | diameter (mm) | load (s) | onboarding (s) | renders (s) | views (s; crops / features / points, % of thread time) | contour model (s) | detector (s) | symmetries (s) | store put (s) | templates | patches | model (MB) | of which contour model (MB) |"
     );
-    println!("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("|---|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|");
     for path in meshes {
         let units = units_for(path, default_units);
         let t = Instant::now();
         let mesh = match load_mesh(path, units) {
             Ok(m) => m,
             Err(e) => {
-                println!("| {} | | | | | | failed: {e} | | | | | | |", path.display());
+                println!("| {} | | | | | | failed: {e} | | | | | | | | | | |", path.display());
                 continue;
             }
         };
         let load_s = t.elapsed().as_secs_f64();
         let id: String = path.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh").chars().map(|c| if c.is_ascii_alphanumeric() { c } else { '_' }).collect();
         let t = Instant::now();
-        let model = onboard(&id, &mesh, &config, &backbone, &pool, &|_| {})?;
+        let (model, profile) = onboard_profiled(&id, &mesh, &config, &backbone, &pool, &|_| {}, &Default::default())?;
         let onboard_s = t.elapsed().as_secs_f64();
-        // Onboarding builds the contour model last; build it again alone to see its share.
-        let t = Instant::now();
-        let contour = crate::onboard::ContourModel::build(&mesh, &pool, &Default::default())?;
-        let contour_s = t.elapsed().as_secs_f64();
-        let contour_mb = contour.memory_bytes() as f64 / 1e6;
+        let contour_mb = model.contours.get().map_or(0.0, |c| c.memory_bytes() as f64 / 1e6);
+        let shares = profile.view_shares;
+        let views = format!("{:.1} ({:.0} / {:.0} / {:.0} %)", profile.views_s, 100.0 * shares.crops, 100.0 * shares.features, 100.0 * shares.points);
         let t = Instant::now();
         let info = store.put(&model, true)?;
         let put_s = t.elapsed().as_secs_f64();
         let mb = info.bytes as f64 / 1e6;
         println!(
-            "| {} | {} | {} | {} | {:.1} | {load_s:.2} | {onboard_s:.1} | {contour_s:.1} | {put_s:.2} | {} | {} | {mb:.1} | {contour_mb:.1} |",
+            "| {} | {} | {} | {} | {:.1} | {load_s:.2} | {onboard_s:.1} | {:.1} | {views} | {:.1} | {:.1} | {:.1} | {put_s:.2} | {} | {} | {mb:.1} | {contour_mb:.1} |",
             path.strip_prefix(data).unwrap_or(path).display(),
             units.map(|u| u.as_str()).unwrap_or("m (glTF)"),
             mesh.positions().len(),
             mesh.triangles().len(),
             mesh.diameter() * 1e3,
+            profile.renders_s,
+            profile.contours_s,
+            profile.detector_s,
+            profile.symmetries_s,
             model.template_count(),
             model.patch_count()
         );

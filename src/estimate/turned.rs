@@ -24,8 +24,7 @@ pub fn turned_crop(image: &RgbImage, mask: &GrayImage, outline: &[(f64, f64)], q
     let [l, t, r, b] = turn.extents(outline.iter().copied())?;
     let bx = CropBox::around_edges(l - 0.5, t - 0.5, r + 0.5, b + 0.5, padding, size);
     let back = turn.inverse();
-    let to_photo = move |u, v| back.apply(u, v);
-    Some((sample_crop(image, mask, &bx, ToSource::Map(&to_photo)), bx, back))
+    Some((sample_crop(image, mask, &bx, ToSource::Turned(back)), bx, back))
 }
 
 /// What matching produced: one pool of every template's rows (in turn

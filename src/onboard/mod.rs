@@ -10,6 +10,7 @@ pub mod per_view_rows;
 pub mod pipeline;
 pub mod point_grid;
 pub mod pq;
+pub mod profile;
 pub mod stored_rows;
 pub mod template_camera;
 #[doc(hidden)]
@@ -22,4 +23,5 @@ pub use patch_descriptors::PatchDescriptors;
 pub use patch_points::PatchPoints;
 pub use pca_setting::PcaSetting;
 pub use per_view_rows::share_rows_per_view;
-pub use pipeline::{apply_coding, apply_pca, compress, mesh_symmetries, onboard, onboard_cancellable, validate_object_id, OnboardError, Progress};
+pub use pipeline::{apply_coding, apply_pca, compress, mesh_symmetries, onboard, onboard_profiled, validate_object_id, OnboardError, Progress};
+pub use profile::OnboardProfile;

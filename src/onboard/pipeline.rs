@@ -1,6 +1,7 @@
 //! Mesh → base-view renders → in-plane rotated crops → features + 3D points → ObjectModel.
 
 use super::model::{pack_silhouette, ObjectModel, OnboardConfig, PatchRows, Template};
+use super::profile::{timed, OnboardProfile, ViewClock, ViewStep};
 use super::template_camera::{base_intrinsics, in_plane_turn};
 use crate::features::{sample_crop, Backbone, CropInput, ToSource};
 use crate::geometry::symmetry::{KnownSymmetries, SymmetrySource};
@@ -49,12 +50,13 @@ pub fn validate_object_id(id: &str) -> Result<(), OnboardError> {
 const VIEW_CHUNK: usize = 16;
 
 pub fn onboard(object_id: &str, mesh: &Mesh, config: &OnboardConfig, backbone: &dyn Backbone, renderer: &RenderPool, progress: &(dyn Fn(Progress) + Sync)) -> Result<ObjectModel, OnboardError> {
-    onboard_cancellable(object_id, mesh, config, backbone, renderer, progress, &std::sync::atomic::AtomicBool::new(false))
+    onboard_profiled(object_id, mesh, config, backbone, renderer, progress, &std::sync::atomic::AtomicBool::new(false)).map(|(model, _)| model)
 }
 
 /// `onboard` that stops with `OnboardError::Cancelled` at the next chunk of views once
-/// `cancel` is set (a service cancelling a long-running onboarding).
-pub fn onboard_cancellable(
+/// `cancel` is set (a service cancelling a long-running onboarding), and tells where its
+/// time went (`b2tf bench onboard` prints it, the service logs it).
+pub fn onboard_profiled(
     object_id: &str,
     mesh: &Mesh,
     config: &OnboardConfig,
@@ -62,7 +64,7 @@ pub fn onboard_cancellable(
     renderer: &RenderPool,
     progress: &(dyn Fn(Progress) + Sync),
     cancel: &std::sync::atomic::AtomicBool,
-) -> Result<ObjectModel, OnboardError> {
+) -> Result<(ObjectModel, OnboardProfile), OnboardError> {
     validate_object_id(object_id)?;
     config.views.validate().map_err(OnboardError::Config)?;
     let identity = backbone.identity();
@@ -77,6 +79,8 @@ pub fn onboard_cancellable(
     let angles = config.views.in_plane_angles();
     let total = dirs.len() * angles.len();
     let opts = RenderOptions::default();
+    let mut profile = OnboardProfile::default();
+    let clock = ViewClock::default();
 
     let mut parts: Vec<ViewTemplates> = Vec::with_capacity(dirs.len());
     // One span for rendering and describing every template; none per view.
@@ -86,36 +90,41 @@ pub fn onboard_cancellable(
             return Err(OnboardError::Cancelled);
         }
         let views: Vec<(Pose, Intrinsics)> = chunk.iter().map(|d| (view_pose(d, 0.0, &centre, distance), k)).collect();
-        let renders = renderer.render_batch(mesh, &views, &opts)?;
-        let done: Vec<ViewTemplates> = renders
-            .par_iter()
-            .zip(views.par_iter())
-            .enumerate()
-            .map(|(i, (r, (pose, _)))| {
-                let view = chunk_idx * VIEW_CHUNK + i;
-                templates_of_view(view, r, pose, &k, &angles, config, backbone, &grid)
-            })
-            .collect::<Result<_, _>>()?;
+        let renders = timed(&mut profile.renders_s, || renderer.render_batch(mesh, &views, &opts))?;
+        let done: Vec<ViewTemplates> = timed(&mut profile.views_s, || {
+            renders
+                .par_iter()
+                .zip(views.par_iter())
+                .enumerate()
+                .map(|(i, (render, (pose, _)))| {
+                    let base = BaseView { index: chunk_idx * VIEW_CHUNK + i, render, pose, k: &k };
+                    templates_of_view(&base, &angles, config, backbone, &grid, &clock)
+                })
+                .collect::<Result<_, _>>()
+        })?;
         parts.extend(done);
         progress(Progress { templates_done: parts.len() * angles.len(), templates_total: total });
     }
     drop(span);
+    profile.view_shares = clock.shares();
     // Templates are made with their own rows; sharing them per view is a step after.
     let mut model = assemble(object_id, mesh, &OnboardConfig { patch_rows: PatchRows::PerTemplate, ..config.clone() }, identity, k, grid, parts);
     if config.patch_rows == PatchRows::PerView {
-        super::share_rows_per_view(&mut model).map_err(OnboardError::Config)?;
+        timed(&mut profile.compress_s, || super::share_rows_per_view(&mut model)).map_err(OnboardError::Config)?;
     }
     if cancel.load(std::sync::atomic::Ordering::Relaxed) {
         return Err(OnboardError::Cancelled);
     }
-    let contours = tracing::info_span!("contours").in_scope(|| super::contour::ContourModel::build(mesh, renderer, &Default::default()))?;
+    let contours = timed(&mut profile.contours_s, || tracing::info_span!("contours").in_scope(|| super::contour::ContourModel::build(mesh, renderer, &Default::default())))?;
     model.contours = std::sync::OnceLock::from(std::sync::Arc::new(contours));
-    let shapes = tracing::info_span!("detector").in_scope(|| crate::detect::ShapeModel::build(mesh, renderer, &Default::default()))?;
+    let shapes = timed(&mut profile.detector_s, || tracing::info_span!("detector").in_scope(|| crate::detect::ShapeModel::build(mesh, renderer, &Default::default())))?;
     model.detector = std::sync::OnceLock::from(std::sync::Arc::new(shapes));
-    model.symmetries = Some(tracing::info_span!("symmetries").in_scope(|| mesh_symmetries(mesh)));
-    tracing::info_span!("pca").in_scope(|| apply_pca(&mut model, config.pca))?;
-    tracing::info_span!("quantize").in_scope(|| apply_coding(&mut model, config.descriptors))?;
-    Ok(model)
+    model.symmetries = Some(timed(&mut profile.symmetries_s, || tracing::info_span!("symmetries").in_scope(|| mesh_symmetries(mesh))));
+    timed(&mut profile.compress_s, || {
+        tracing::info_span!("pca").in_scope(|| apply_pca(&mut model, config.pca))?;
+        tracing::info_span!("quantize").in_scope(|| apply_coding(&mut model, config.descriptors))
+    })?;
+    Ok((model, profile))
 }
 
 /// The mesh's symmetries as onboarding finds them (`objects upgrade` adds them to objects
@@ -174,56 +183,68 @@ struct ViewTemplates {
     silhouettes: Vec<u64>,
 }
 
-#[allow(clippy::too_many_arguments)]
-fn templates_of_view(
-    view: usize,
-    base: &RenderOutput,
-    base_pose: &Pose,
-    k: &Intrinsics,
-    angles: &[f64],
-    config: &OnboardConfig,
-    backbone: &dyn Backbone,
-    grid: &PatchGrid,
-) -> Result<ViewTemplates, OnboardError> {
-    let outline = crate::features::mask_row_ends(&base.mask);
+/// One base view: its render, the camera pose it was rendered from, the intrinsics.
+struct BaseView<'a> {
+    index: usize,
+    render: &'a RenderOutput,
+    pose: &'a Pose,
+    k: &'a Intrinsics,
+}
+
+/// A view's in-plane templates before their rows: the turns' angles, crop boxes and crops.
+struct TurnedCrops {
+    angles: Vec<f64>,
+    boxes: Vec<CropBox>,
+    crops: Vec<CropInput>,
+}
+
+fn templates_of_view(base: &BaseView, angles: &[f64], config: &OnboardConfig, backbone: &dyn Backbone, grid: &PatchGrid, clock: &ViewClock) -> Result<ViewTemplates, OnboardError> {
+    let outline = crate::features::mask_row_ends(&base.render.mask);
     if outline.is_empty() {
-        return Err(OnboardError::EmptyView(view));
+        return Err(OnboardError::EmptyView(base.index));
     }
     let crop_size = grid.n * grid.patch;
-    let mut boxes = Vec::with_capacity(angles.len());
-    let mut crops: Vec<CropInput> = Vec::with_capacity(angles.len());
-    for &a in angles {
-        // Template pixel = the base pixel turned by `a` about the principal point (fx = fy).
-        let turn = in_plane_turn(k, a);
-        let [l, t, r, b] = turn.extents(outline.iter().copied()).expect("checked non-empty");
-        let bx = CropBox::around_edges(l - 0.5, t - 0.5, r + 0.5, b + 0.5, config.crop_padding, crop_size);
-        let back = turn.inverse();
-        let to_base = move |u, v| back.apply(u, v);
-        crops.push(sample_crop(&base.rgb, &base.mask, &bx, ToSource::Map(&to_base)));
-        boxes.push(bx);
-    }
-    let features = backbone.extract(&crops)?;
-    let inv_pose = base_pose.inverse();
+    let turned = clock.time(ViewStep::Crops, || {
+        let (boxes, crops) = angles
+            .iter()
+            .map(|&angle| {
+                // Template pixel = the base pixel turned by `angle` about the principal point (fx = fy).
+                let turn = in_plane_turn(base.k, angle);
+                let [l, t, r, b] = turn.extents(outline.iter().copied()).expect("checked non-empty");
+                let bx = CropBox::around_edges(l - 0.5, t - 0.5, r + 0.5, b + 0.5, config.crop_padding, crop_size);
+                (bx, sample_crop(&base.render.rgb, &base.render.mask, &bx, ToSource::Turned(turn.inverse())))
+            })
+            .unzip();
+        TurnedCrops { angles: angles.to_vec(), boxes, crops }
+    });
+    let features = clock.time(ViewStep::Features, || backbone.extract(&turned.crops))?;
+    Ok(clock.time(ViewStep::Points, || view_rows(base, config, grid, &turned, &features)))
+}
+
+/// A view's templates from their crops and descriptors: each foreground patch's 3D point
+/// read from the base render's depth, its descriptor and cell, and the template's silhouette.
+fn view_rows(base: &BaseView, config: &OnboardConfig, grid: &PatchGrid, turned: &TurnedCrops, features: &[crate::features::FeatureMap]) -> ViewTemplates {
+    let inv_pose = base.pose.inverse();
     let mut out = ViewTemplates { templates: vec![], globals: vec![], descriptors: vec![], points: vec![], cells: vec![], silhouettes: vec![] };
-    for (ai, ((&a, bx), (fm, crop))) in angles.iter().zip(&boxes).zip(features.iter().zip(&crops)).enumerate() {
-        let to_base = in_plane_turn(k, a).inverse();
+    for (ai, (((&angle, bx), crop), fm)) in turned.angles.iter().zip(&turned.boxes).zip(&turned.crops).zip(features).enumerate() {
+        let to_base = in_plane_turn(base.k, angle).inverse();
         let start = out.points.len();
         for patch in fm.foreground(config.min_coverage) {
             let (cu, cv) = grid.centre_of(patch);
             let (tu, tv) = bx.to_image(cu, cv);
             let (bu, bv) = to_base.apply(tu, tv);
             let search = (grid.patch as f64 * bx.scale() * 0.5).ceil() as i64;
-            let Some(z) = base.depth_near(bu, bv, search) else { continue };
-            let p_cam = k.back_project(bu, bv, z as f64);
+            let Some(z) = base.render.depth_near(bu, bv, search) else { continue };
+            let p_cam = base.k.back_project(bu, bv, z as f64);
             let p_obj = inv_pose.transform_point(&Point3::from(p_cam.coords));
             out.points.push([p_obj.x as f32, p_obj.y as f32, p_obj.z as f32]);
             out.cells.push(patch as u16);
             out.descriptors.extend(fm.descriptor(patch).iter().map(|&x| f16::from_f32(x)));
         }
-        let rot = crate::geometry::views::in_plane_rotation(a);
+        let rot = crate::geometry::views::in_plane_rotation(angle);
         out.templates.push(Template {
-            pose: Pose::new(rot * base_pose.rotation, rot * base_pose.translation),
-            view: view as u32,
+            pose: Pose::new(rot * base.pose.rotation, rot * base.pose.translation),
+            view: base.index as u32,
             in_plane: ai as u32,
             crop: *bx,
             patch_start: start as u32, // made global in `assemble`
@@ -232,7 +253,7 @@ fn templates_of_view(
         out.globals.extend_from_slice(&fm.global);
         out.silhouettes.extend(pack_silhouette(&crop.mask));
     }
-    Ok(out)
+    out
 }
 
 fn assemble(object_id: &str, mesh: &Mesh, config: &OnboardConfig, backbone: crate::features::BackboneIdentity, k: Intrinsics, grid: PatchGrid, parts: Vec<ViewTemplates>) -> ObjectModel {

@@ -16,7 +16,7 @@ use crate::estimate::{Candidates, Detection, EstimateConfig, Estimator};
 use crate::features::Backbone;
 use crate::geometry::ViewSampling;
 use crate::masks::OtherMasks;
-use crate::onboard::{onboard_cancellable, OnboardConfig, OnboardError};
+use crate::onboard::{onboard_profiled, OnboardConfig, OnboardError};
 use crate::render::{RenderPool, RendererConfig};
 use crate::store::{ModelCache, ObjectInfo, ObjectStore};
 use std::collections::BTreeMap;
@@ -270,9 +270,12 @@ impl Core {
         std::thread::spawn(move || {
             let _entered = span.enter();
             let progress = |p: crate::onboard::Progress| op.done.store(p.templates_done as u64, Ordering::Relaxed);
-            let result = onboard_cancellable(&op.object_id, &mesh, &config, backbone.as_ref(), &pool, &progress, &op.cancel);
+            let result = onboard_profiled(&op.object_id, &mesh, &config, backbone.as_ref(), &pool, &progress, &op.cancel);
+            if let Ok((_, profile)) = &result {
+                tracing::info!(?profile, "onboarding stages");
+            }
             let (state, error, info) = match result {
-                Ok(model) => match tracing::info_span!("store.put").in_scope(|| store.put(&model, replace)) {
+                Ok((model, _)) => match tracing::info_span!("store.put").in_scope(|| store.put(&model, replace)) {
                     Ok(info) => {
                         // A replaced object must not be served from the cache's old copy.
                         cache.invalidate(&op.object_id);

@@ -181,6 +181,12 @@ impl Tracker {
         self.pose
     }
 
+    /// The line scales the contour step runs (`TrackerConfig::contour_scales`, or the
+    /// refiner's own where that is empty).
+    pub fn contour_scales(&self) -> &[f64] {
+        &self.refiner.config.scale_factors
+    }
+
     /// Starts over at `pose` in `image` (a re-initialisation after a loss): colours learnt
     /// afresh, no motion carried over.
     /// On failure (the object not in view at `pose`) the track is left as it was.
