@@ -20,6 +20,17 @@ pub struct Window {
 }
 
 impl Window {
+    /// The window's rows of `image`, top to bottom: each row's y and its pixels' colours,
+    /// read from the raw buffer (no per-pixel bounds checks: the tracker reads its window
+    /// of every frame, up to a third of a megapixel, this way).
+    pub fn colour_rows<'a>(self, image: &'a RgbImage) -> impl Iterator<Item = (u32, impl Iterator<Item = image::Rgb<u8>> + 'a)> + 'a {
+        let (width, x0, x1) = (image.width() as usize, self.x0 as usize, self.x1 as usize);
+        (self.y0..self.y1).map(move |y| {
+            let row = y as usize * width;
+            (y, image.as_raw()[3 * (row + x0)..3 * (row + x1)].chunks_exact(3).map(|c| image::Rgb([c[0], c[1], c[2]])))
+        })
+    }
+
     /// The square of half-side `half` around (u, v), clipped to a `width × height` image;
     /// None when nothing of it is inside.
     pub fn around(u: f64, v: f64, half: f64, width: u32, height: u32) -> Option<Self> {
@@ -70,9 +81,8 @@ pub struct ColourModel {
 
 impl Default for ColourModel {
     fn default() -> Self {
-        let mut m = Self { foreground: vec![0.0; BINS], background: vec![0.0; BINS], levels: Vec::new(), learnt: false };
-        m.levels = m.bin_levels();
-        m
+        // Nothing seen on either side: every colour undecided (probability ½, level 128).
+        Self { foreground: vec![0.0; BINS], background: vec![0.0; BINS], levels: vec![128; BINS], learnt: false }
     }
 }
 
@@ -134,14 +144,11 @@ impl ColourModel {
     pub fn probability_image(&self, image: &RgbImage, window: Window) -> GrayImage {
         let mut out = GrayImage::from_pixel(image.width(), image.height(), image::Luma([128]));
         let (width, (x0, x1)) = (image.width() as usize, (window.x0 as usize, window.x1 as usize));
-        // Row slices of the raw buffers: this runs on every tracked frame over up to a
-        // third of a megapixel.
-        let (rgb, grey) = (image.as_raw(), out.as_mut());
-        for y in window.y0 as usize..window.y1 as usize {
-            let row = y * width;
-            let colours = rgb[3 * (row + x0)..3 * (row + x1)].chunks_exact(3);
+        let grey = out.as_mut();
+        for (y, colours) in window.colour_rows(image) {
+            let row = y as usize * width;
             for (level, c) in grey[row + x0..row + x1].iter_mut().zip(colours) {
-                *level = self.levels[bin(&image::Rgb([c[0], c[1], c[2]]))];
+                *level = self.levels[bin(&c)];
             }
         }
         out

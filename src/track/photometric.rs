@@ -58,11 +58,9 @@ impl GreyWindow {
     fn new(image: &RgbImage, window: Window, sigma: f64) -> Self {
         let (w, h) = window.size();
         let (w, h) = (w as usize, h as usize);
-        let width = image.width() as usize;
         let mut values = Vec::with_capacity(w * h);
-        for y in window.y0 as usize..window.y1 as usize {
-            let row = &image.as_raw()[3 * (y * width + window.x0 as usize)..3 * (y * width + window.x1 as usize)];
-            values.extend(row.chunks_exact(3).map(|c| crate::features::grey(&image::Rgb([c[0], c[1], c[2]]))));
+        for (_, colours) in window.colour_rows(image) {
+            values.extend(colours.map(|c| crate::features::grey(&c)));
         }
         if sigma > 0.0 {
             values = blur_grey(&values, w, h, sigma);
@@ -325,6 +323,38 @@ fn huber_weight(r: f64, c: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// What `align` relies on to blur only the points' region: a blurred window read at
+    /// least `2 + blur_radius` pixels inside its edge (the room `align` leaves around the
+    /// points, in the first region and in any union a step makes it blur again) gives what
+    /// the whole frame's blur gives there.
+    #[test]
+    fn a_region_reads_as_the_whole_window_inside_its_room() {
+        let image = RgbImage::from_fn(90, 70, |x, y| image::Rgb([((x * 37 + y * 11) % 251) as u8, ((x * y) % 253) as u8, ((x + 3 * y) % 255) as u8]));
+        let sigma = 1.5;
+        let whole = Window { x0: 0, y0: 0, x1: 90, y1: 70 };
+        let room = 2 + blur_radius(sigma) as u32;
+        let whole_grey = GreyWindow::new(&image, whole, sigma);
+        let first = Window { x0: 20, y0: 15, x1: 50, y1: 40 };
+        let moved = Window { x0: 35, y0: 25, x1: 70, y1: 55 };
+        for region in [first, first.union(&moved)] {
+            let grey = GreyWindow::new(&image, region, sigma);
+            let mut read = 0;
+            for y in (region.y0 + room)..(region.y1 - room) {
+                for x in (region.x0 + room)..(region.x1 - room) {
+                    let uv = Vector2::new(x as f64 + 0.3, y as f64 + 0.6);
+                    let ((a, ga), (b, gb)) = (grey.sample(&uv).unwrap(), whole_grey.sample(&uv).unwrap());
+                    assert!((a - b).abs() < 1e-3 && (ga - gb).norm() < 1e-3, "{region:?} at ({x}, {y}): {a} against {b}");
+                    read += 1;
+                }
+            }
+            assert!(read > 100);
+        }
+        // Nearer its edge than that, a region's clamped blur differs from the whole's.
+        let grey = GreyWindow::new(&image, first, sigma);
+        let edge = Vector2::new(first.x0 as f64 + 1.5, first.y0 as f64 + 10.0);
+        assert!((grey.sample(&edge).unwrap().0 - whole_grey.sample(&edge).unwrap().0).abs() > 1e-2);
+    }
 
     #[test]
     fn blur_keeps_a_constant_and_spreads_a_spike() {
