@@ -226,6 +226,21 @@ struct Tally {
     stages: Vec<[f64; 9]>,
     /// (instances, correct) by apparent object size: < 100, 100–200, ≥ 200 px mask box side.
     by_size: [(usize, usize); 3],
+    /// Each image's instances and their estimates' time in all (ms): what a request naming
+    /// every instance of the image costs, estimated one by one as now.
+    per_image: Vec<(usize, f64)>,
+}
+
+impl Tally {
+    /// The images' time in all: median and p90, with the median instances per image.
+    fn per_image_report(&self) -> String {
+        let (mut counts, mut ms): (Vec<f64>, Vec<f64>) = self.per_image.iter().map(|&(n, t)| (n as f64, t)).unzip();
+        if ms.is_empty() {
+            return "no images".into();
+        }
+        let (n, med) = (median(&mut counts), median(&mut ms));
+        format!("median {med:.0} ms / p90 {:.0} ms an image of {n:.0} instances ({:.0} ms an instance)", quantile(&mut ms, 0.9), med / n.max(1.0))
+    }
 }
 
 pub(super) fn size_bucket(mask: &image::GrayImage) -> usize {
@@ -392,6 +407,9 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
             .iter()
             .map(|inst| if a.from_boxes { boxes.detection(&scene.rgb, &inst.mask_visib, how, a.box_proposals.as_ref()) } else { Ok(vec![Detection::new(inst.mask_visib.clone(), 1.0)]) })
             .collect::<Result<_>>()?;
+        for t in tallies.iter_mut() {
+            t.per_image.push((scene.instances.len(), 0.0));
+        }
         for (n, inst) in scene.instances.iter().enumerate() {
             instances += 1;
             if let Some(dir) = &a.mask_diffs {
@@ -419,6 +437,9 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                 }
                 let tm = &r.timings;
                 t.stages.push([tm.crop, tm.features, tm.retrieval, tm.matching, tm.pnp, tm.rrc, tm.refine, tm.selection, tm.total]);
+                if let Some(image) = t.per_image.last_mut() {
+                    image.1 += tm.total;
+                }
                 let bucket = size_bucket(&inst.mask);
                 t.by_size[bucket].0 += 1;
                 let size_px = crate::features::mask_bbox(&inst.mask).map_or(0, |b| (b.2 - b.0).max(b.3 - b.1));
@@ -588,6 +609,9 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     for t in &tallies {
         println!("profile, {}: {}", t.name, profile(&t.stages));
     }
+    for t in &tallies {
+        println!("per image, {}: {}", t.name, t.per_image_report());
+    }
     Ok(())
 }
 
@@ -617,6 +641,15 @@ mod tests {
 
     /// Settings not named keep their defaults; a wrong type or a setting that does not
     /// exist is refused with what is wrong.
+    /// An image's time is its instances' together; the line gives its median, p90 and the
+    /// median per instance.
+    #[test]
+    fn per_image_time_is_the_sum_of_its_instances() {
+        let t = super::Tally { per_image: vec![(2, 100.0), (2, 300.0), (2, 200.0)], ..Default::default() };
+        assert_eq!(t.per_image_report(), "median 200 ms / p90 300 ms an image of 2 instances (100 ms an instance)");
+        assert_eq!(super::Tally::default().per_image_report(), "no images");
+    }
+
     #[test]
     fn print_settings_are_read_as_json() {
         let c = super::parse_print_config(r#"{"point_sigma_px": 0.5, "points": {"within_mask": false}}"#).unwrap();
