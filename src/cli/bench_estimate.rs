@@ -639,8 +639,6 @@ mod tests {
         }
     }
 
-    /// Settings not named keep their defaults; a wrong type or a setting that does not
-    /// exist is refused with what is wrong.
     /// An image's time is its instances' together; the line gives its median, p90 and the
     /// median per instance.
     #[test]
@@ -650,6 +648,8 @@ mod tests {
         assert_eq!(super::Tally::default().per_image_report(), "no images");
     }
 
+    /// Settings not named keep their defaults; a wrong type or a setting that does not
+    /// exist is refused with what is wrong.
     #[test]
     fn print_settings_are_read_as_json() {
         let c = super::parse_print_config(r#"{"point_sigma_px": 0.5, "points": {"within_mask": false}}"#).unwrap();

@@ -191,9 +191,9 @@ struct BaseView<'a> {
     k: &'a Intrinsics,
 }
 
-/// A view's in-plane templates before their rows: the turns' angles, crop boxes and crops.
+/// A view's in-plane templates before their rows: the crop boxes and crops, in the
+/// order of the view's angles.
 struct TurnedCrops {
-    angles: Vec<f64>,
     boxes: Vec<CropBox>,
     crops: Vec<CropInput>,
 }
@@ -215,18 +215,18 @@ fn templates_of_view(base: &BaseView, angles: &[f64], config: &OnboardConfig, ba
                 (bx, sample_crop(&base.render.rgb, &base.render.mask, &bx, ToSource::Turned(turn.inverse())))
             })
             .unzip();
-        TurnedCrops { angles: angles.to_vec(), boxes, crops }
+        TurnedCrops { boxes, crops }
     });
     let features = clock.time(ViewStep::Features, || backbone.extract(&turned.crops))?;
-    Ok(clock.time(ViewStep::Points, || view_rows(base, config, grid, &turned, &features)))
+    Ok(clock.time(ViewStep::Points, || view_rows(base, config, grid, angles, &turned, &features)))
 }
 
 /// A view's templates from their crops and descriptors: each foreground patch's 3D point
 /// read from the base render's depth, its descriptor and cell, and the template's silhouette.
-fn view_rows(base: &BaseView, config: &OnboardConfig, grid: &PatchGrid, turned: &TurnedCrops, features: &[crate::features::FeatureMap]) -> ViewTemplates {
+fn view_rows(base: &BaseView, config: &OnboardConfig, grid: &PatchGrid, angles: &[f64], turned: &TurnedCrops, features: &[crate::features::FeatureMap]) -> ViewTemplates {
     let inv_pose = base.pose.inverse();
     let mut out = ViewTemplates { templates: vec![], globals: vec![], descriptors: vec![], points: vec![], cells: vec![], silhouettes: vec![] };
-    for (ai, (((&angle, bx), crop), fm)) in turned.angles.iter().zip(&turned.boxes).zip(&turned.crops).zip(features).enumerate() {
+    for (ai, (((&angle, bx), crop), fm)) in angles.iter().zip(&turned.boxes).zip(&turned.crops).zip(features).enumerate() {
         let to_base = in_plane_turn(base.k, angle).inverse();
         let start = out.points.len();
         for patch in fm.foreground(config.min_coverage) {

@@ -26,18 +26,12 @@ pub struct OnboardProfile {
     pub compress_s: f64,
 }
 
+/// Each view step's share of the threads' time spent making templates (0–1, adding up to 1).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ViewShares {
     pub crops: f64,
     pub features: f64,
     pub points: f64,
-}
-
-impl OnboardProfile {
-    /// The stages' sum (what an onboarding takes, less the setting checks).
-    pub fn total_s(&self) -> f64 {
-        self.renders_s + self.views_s + self.contours_s + self.detector_s + self.symmetries_s + self.compress_s
-    }
 }
 
 /// Thread time of the views' three steps, summed over the threads that make them.
