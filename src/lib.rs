@@ -15,6 +15,7 @@ pub mod linalg;
 pub mod masks;
 pub mod mesh;
 pub mod onboard;
+pub mod parallel;
 pub mod percent;
 pub mod render;
 pub mod service;

@@ -20,17 +20,18 @@ use super::results_csv::{done_images, ResultRow, ResultsWriter};
 use crate::detect::confirm::{candidate_options, compared_choice, confirm, estimate_instances, on_taken_place, one_per_place, sure_places, Choice};
 use crate::detect::{detect, DetectOptions, Target};
 use crate::estimate::candidates::representative;
-use crate::estimate::DepthScreen;
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateError, Estimator};
+use crate::estimate::{CoarseCheck, DepthScreen};
 use crate::geometry::Pose;
 use crate::masks::OtherMasks;
 use crate::masks::{group_instances, BoxMask};
 use crate::onboard::ObjectModel;
 use crate::render::RenderPool;
 use anyhow::{Context, Result};
+use image::GrayImage;
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 #[derive(Clone, Debug)]
@@ -46,11 +47,14 @@ pub struct RunOptions {
     /// Each image's depth (`depth/` beside `rgb/`, with its camera's `depth_scale`) goes to
     /// the estimator with it.
     pub depth: bool,
+    /// Threads an image's instances are estimated on side by side (a file's detections; the
+    /// detector's candidates go in turn, until enough are sure).
+    pub instance_threads: usize,
 }
 
 impl Default for RunOptions {
     fn default() -> Self {
-        Self { split: "test".into(), estimate: EstimateConfig::default(), same_instance_iou: 0.5, box_mask: BoxMask::Propose, proposals: Default::default(), depth: false }
+        Self { split: "test".into(), estimate: EstimateConfig::default(), same_instance_iou: 0.5, box_mask: BoxMask::Propose, proposals: Default::default(), depth: false, instance_threads: 1 }
     }
 }
 
@@ -74,6 +78,10 @@ pub struct RunSummary {
     /// Estimator complaints about the input, by message, e.g. a detection the estimator refused.
     pub failures: BTreeMap<String, usize>,
 }
+
+/// One instance's answer: its pose, its score (the confirmation with the detector's
+/// candidates, else the estimator's) and the mask it was estimated from.
+type Answer = (Pose, f32, GrayImage);
 
 /// Where each image's detections come from.
 pub enum DetectionSource<'a> {
@@ -145,9 +153,60 @@ pub fn run(
             decoded.push(found);
         }
         let compared = depth.is_some() && matches!(source, DetectionSource::Detector { .. });
-        let mut answers = Vec::new();
-        // Places another object's answer surely took: not estimated again (`on_taken_place`).
-        let mut taken: Vec<image::GrayImage> = Vec::new();
+        // The detector's own candidates are confirmed at their estimated poses, a few more
+        // than wanted estimated so that confirmation can choose.
+        let (choice, pool) = match &source {
+            DetectionSource::Detector { pool, options, .. } => (Choice::Confirmed { min_score: options.min_score }, Some(*pool)),
+            DetectionSource::File(_) => (Choice::Given, None),
+        };
+        let kind = if compared { OtherMasks::DepthSegments } else { OtherMasks::Detections };
+        // Estimator complaints about the input, by message (instances may run side by side).
+        let failures: Mutex<BTreeMap<String, usize>> = Mutex::default();
+        // One instance (`group` of target `ti`'s candidates): its pose, score and mask, and
+        // its confirmation with the detector's candidates.
+        let estimate_group = |ti: usize, m: &ObjectModel, group: &[usize], screen: Option<&DepthScreen>| -> Result<(Option<Answer>, Option<f32>)> {
+            let (t, masks) = (&targets[ti], &decoded[ti]);
+            let candidates = Candidates::gather(group.iter().map(|&i| (i, masks[i].as_slice()))).masks;
+            let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, c)| representative(c).0));
+            let others = crate::masks::occluders(representative(&masks[group[0]]).0, others, kind, camera.cam.width, camera.cam.height);
+            let check = screen.map(|s| s as &dyn CoarseCheck);
+            let r = match estimator.estimate_screened(m, (&rgb, depth.as_ref()), &camera.cam, &candidates, others.as_ref(), check, &opts.estimate) {
+                Ok(r) => r,
+                Err(EstimateError::BadInput(msg)) => {
+                    *failures.lock().unwrap_or_else(|e| e.into_inner()).entry(msg).or_default() += 1;
+                    return Ok((None, None));
+                }
+                Err(e) => return Err(anyhow::Error::new(e).context(format!("scene {scene_id}, image {im_id}, object {}", t.obj_id))),
+            };
+            // Where an estimate's time goes, per stage (box proposals against masks).
+            tracing::debug!(scene_id, im_id, obj_id = t.obj_id, masks = candidates.len(), timings = ?r.timings, "estimated");
+            let Some(pose) = r.pose else {
+                return Ok((None, None));
+            };
+            let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
+            let Some(pool) = pool else {
+                return Ok((Some((pose, r.score, mask.clone())), None));
+            };
+            let c = confirm(&rgb, depth.as_ref(), &camera.cam, &m.mesh, mask, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?;
+            // For `tools/bench/candidate_ranks.py`.
+            tracing::debug!(
+                scene_id,
+                im_id,
+                obj_id = t.obj_id,
+                x_mm = pose.translation.x * 1e3,
+                y_mm = pose.translation.y * 1e3,
+                z_mm = pose.translation.z * 1e3,
+                rotation = ?pose.rotation_row_major(),
+                cosine = r.hypotheses.iter().map(|h| h.top_template_cosine).fold(0.0f32, f32::max),
+                estimate_score = r.score,
+                confirmation = c,
+                "candidate confirmed"
+            );
+            Ok((Some((pose, c, mask.clone())), Some(c)))
+        };
+        let groups_of = |masks: &[Vec<Detection>]| group_instances(&masks.iter().map(|c| representative(c)).collect::<Vec<_>>(), opts.same_instance_iou);
+        // The targets with candidates, their objects loaded (or onboarded) first.
+        let mut work = Vec::new();
         for (ti, (t, masks)) in targets.iter().zip(&decoded).enumerate() {
             summary.targets += 1;
             summary.instances_requested += t.inst_count as usize;
@@ -155,73 +214,42 @@ pub fn run(
                 summary.targets_without_detection += 1;
                 continue;
             }
-            let m = model(t.obj_id)?;
-            let refs: Vec<_> = masks.iter().map(|c| representative(c)).collect();
-            // The detector's own candidates are confirmed at their estimated poses, a few
-            // more than wanted estimated so that confirmation can choose.
-            let (choice, pool) = match &source {
-                DetectionSource::Detector { pool, options, .. } => (Choice::Confirmed { min_score: options.min_score }, Some(*pool)),
-                DetectionSource::File(_) => (Choice::Given, None),
-            };
-            let wanted = t.inst_count as usize;
-            // The depth detector's candidates are compared (in turn until one is sure), and
-            // each segment answered once across objects after every object's are in
-            // (`one_per_place`).
-            let mut groups = group_instances(&refs, opts.same_instance_iou);
-            if compared {
-                groups.retain(|g| !on_taken_place(refs[g[0]].0, &taken));
+            work.push((ti, model(t.obj_id)?));
+        }
+        let mut answers: Vec<(u32, usize, Vec<Answer>)> = work.iter().map(|(ti, _)| (targets[*ti].obj_id, targets[*ti].inst_count as usize, Vec::new())).collect();
+        if choice == Choice::Given {
+            // The file's instances are all answered: every target's estimated side by side.
+            let jobs: Vec<_> = work.iter().enumerate().flat_map(|(n, w)| groups_of(&decoded[w.0]).into_iter().take(answers[n].1).map(move |g| (n, w, g))).collect();
+            let owners: Vec<usize> = jobs.iter().map(|j| j.0).collect();
+            let done = crate::parallel::ordered_map(jobs, opts.instance_threads, |(_, (ti, m), group)| estimate_group(*ti, m, &group, None))?;
+            for (owner, (estimated, _)) in owners.into_iter().zip(done) {
+                answers[owner].2.extend(estimated);
             }
-            let choice = compared_choice(compared, groups.len(), wanted, choice);
-            // The depth detector's candidates that cannot be this object are not estimated.
-            let screen = match (&source, compared) {
-                (DetectionSource::Detector { pool, options, .. }, true) => DepthScreen::of(&rgb, depth.as_ref(), &camera.cam, &m.mesh, pool, options.min_score),
-                _ => None,
-            };
-            let answered = estimate_instances(groups, wanted, choice, |group| {
-                let candidates = Candidates::gather(group.iter().map(|&i| (i, masks[i].as_slice()))).masks;
-                let group = &group;
-                let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, c)| representative(c).0));
-                let kind = if compared { OtherMasks::DepthSegments } else { OtherMasks::Detections };
-                let others = crate::masks::occluders(refs[group[0]].0, others, kind, camera.cam.width, camera.cam.height);
-                let r = match estimator.estimate_screened(&m, (&rgb, depth.as_ref()), &camera.cam, &candidates, others.as_ref(), DepthScreen::as_check(&screen), &opts.estimate) {
-                    Ok(r) => r,
-                    Err(EstimateError::BadInput(msg)) => {
-                        *summary.failures.entry(msg).or_default() += 1;
-                        return Ok((None, None));
-                    }
-                    Err(e) => return Err(anyhow::Error::new(e).context(format!("scene {scene_id}, image {im_id}, object {}", t.obj_id))),
-                };
-                // Where an estimate's time goes, per stage (box proposals against masks).
-                tracing::debug!(scene_id, im_id, obj_id = t.obj_id, masks = candidates.len(), timings = ?r.timings, "estimated");
-                let Some(pose) = r.pose else {
-                    return Ok((None, None));
-                };
-                match pool {
-                    Some(pool) => {
-                        let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
-                        let c = confirm(&rgb, depth.as_ref(), &camera.cam, &m.mesh, mask, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?;
-                        // For `tools/bench/candidate_ranks.py`.
-                        tracing::debug!(
-                            scene_id,
-                            im_id,
-                            obj_id = t.obj_id,
-                            x_mm = pose.translation.x * 1e3,
-                            y_mm = pose.translation.y * 1e3,
-                            z_mm = pose.translation.z * 1e3,
-                            rotation = ?pose.rotation_row_major(),
-                            cosine = r.hypotheses.iter().map(|h| h.top_template_cosine).fold(0.0f32, f32::max),
-                            estimate_score = r.score,
-                            confirmation = c,
-                            "candidate confirmed"
-                        );
-                        Ok((Some((pose, c, mask.clone())), Some(c)))
-                    }
-                    None => Ok((Some((pose, r.score, candidates[r.mask_index.unwrap_or(0)].mask.clone())), None)),
+        } else {
+            // Places another object's answer surely took: not estimated again (`on_taken_place`).
+            let mut taken: Vec<GrayImage> = Vec::new();
+            for (n, (ti, m)) in work.iter().enumerate() {
+                let (masks, wanted) = (&decoded[*ti], answers[n].1);
+                // The depth detector's candidates are compared (in turn until one is sure),
+                // and each segment answered once across objects after every object's are in
+                // (`one_per_place`).
+                let mut groups = groups_of(masks);
+                if compared {
+                    groups.retain(|g| !on_taken_place(representative(&masks[g[0]]).0, &taken));
                 }
-            })?;
-            let kept: Vec<_> = answered.kept.into_iter().filter_map(|(p, _)| p).collect();
-            taken.extend(sure_places(&kept));
-            answers.push((t.obj_id, wanted, kept));
+                let choice = compared_choice(compared, groups.len(), wanted, choice);
+                // The depth detector's candidates that cannot be this object are not estimated.
+                let screen = match (&source, compared) {
+                    (DetectionSource::Detector { pool, options, .. }, true) => DepthScreen::of(&rgb, depth.as_ref(), &camera.cam, &m.mesh, pool, options.min_score),
+                    _ => None,
+                };
+                let answered = estimate_instances(groups, wanted, choice, |group| estimate_group(*ti, m, &group, screen.as_ref()))?;
+                answers[n].2 = answered.kept.into_iter().filter_map(|(p, _)| p).collect();
+                taken.extend(sure_places(&answers[n].2));
+            }
+        }
+        for (msg, n) in failures.into_inner().unwrap_or_else(|e| e.into_inner()) {
+            *summary.failures.entry(msg).or_default() += n;
         }
         // A row's score: the confirmation with the detector's candidates, else the estimator's.
         let wanted: Vec<usize> = answers.iter().map(|a| a.1).collect();

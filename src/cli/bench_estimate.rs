@@ -134,6 +134,10 @@ pub struct BenchEstimateArgs {
     /// how often that alone changes the verdict: the noise floor for comparing settings.
     #[arg(long)]
     pub stability: bool,
+    /// Threads an image's instances are estimated on side by side, as the service and `bop
+    /// run` do for a request's detections; 1: in turn, each instance's time its own.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=256))]
+    pub instance_threads: u16,
 }
 
 /// `truth` turned by each of `degrees` about a random axis (seeded) through the mesh's
@@ -226,8 +230,8 @@ struct Tally {
     stages: Vec<[f64; 9]>,
     /// (instances, correct) by apparent object size: < 100, 100–200, ≥ 200 px mask box side.
     by_size: [(usize, usize); 3],
-    /// Each image's instances and their estimates' time in all (ms): what a request naming
-    /// every instance of the image costs, estimated one by one as now.
+    /// Each image's instances and the time their estimates took, start to end (ms): what a
+    /// request naming every instance of the image costs (`--instance-threads`).
     per_image: Vec<(usize, f64)>,
 }
 
@@ -407,8 +411,23 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
             .iter()
             .map(|inst| if a.from_boxes { boxes.detection(&scene.rgb, &inst.mask_visib, how, a.box_proposals.as_ref()) } else { Ok(vec![Detection::new(inst.mask_visib.clone(), 1.0)]) })
             .collect::<Result<_>>()?;
-        for t in tallies.iter_mut() {
-            t.per_image.push((scene.instances.len(), 0.0));
+        // Every instance's estimate first, side by side as a request's would be, timed as
+        // the image's; then each is scored, in the instances' order.
+        let others: Vec<Option<image::GrayImage>> = (0..dets.len())
+            .map(|n| if a.alone { None } else { crate::masks::union(dets.iter().enumerate().filter(|&(o, _)| o != n).map(|(_, d)| &d[0].mask), scene.rgb.width(), scene.rgb.height()) })
+            .collect();
+        let hints: Vec<Vec<Pose>> =
+            scene.instances.iter().enumerate().map(|(n, inst)| truth_hints(&inst.pose, &models[inst.obj_id as usize - 1].mesh, &a.truth_hints, im as u64 * 1000 + n as u64)).collect();
+        let mut results: Vec<std::vec::IntoIter<EstimateResult>> = Vec::new();
+        for (t, (_, cfg)) in tallies.iter_mut().zip(&configs) {
+            let (started, setting) = (std::time::Instant::now(), t.name);
+            let estimated = crate::parallel::ordered_map((0..scene.instances.len()).collect(), a.instance_threads.into(), |n| {
+                let inst = &scene.instances[n];
+                tracing::debug!(image = im, obj_id = inst.obj_id, setting, "bench instance");
+                estimator.estimate_hinted(&models[inst.obj_id as usize - 1], (&scene.rgb, depth.as_ref()), &scene.cam, &dets[n], others[n].as_ref(), &hints[n], cfg)
+            })?;
+            t.per_image.push((scene.instances.len(), started.elapsed().as_secs_f64() * 1e3));
+            results.push(estimated.into_iter());
         }
         for (n, inst) in scene.instances.iter().enumerate() {
             instances += 1;
@@ -417,14 +436,11 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                 mask_diff(&scene.rgb, &dets[n][0].mask, &inst.mask_visib).save(&path).with_context(|| format!("cannot write {}", path.display()))?;
             }
             let model = &models[inst.obj_id as usize - 1];
-            let det = dets[n].clone();
-            let others = if a.alone { None } else { crate::masks::union(dets.iter().enumerate().filter(|&(o, _)| o != n).map(|(_, d)| &d[0].mask), scene.rgb.width(), scene.rgb.height()) };
+            let (det, others, hints) = (&dets[n], &others[n], &hints[n]);
             let (symmetries, sample) = &scoring[inst.obj_id as usize - 1];
             let truth = |p: &Pose| crate::eval::pose_error::closest_symmetric(p, &inst.pose, symmetries, sample);
-            for (t, (_, cfg)) in tallies.iter_mut().zip(&configs) {
-                tracing::debug!(image = im, obj_id = inst.obj_id, setting = t.name, "bench instance");
-                let hints = truth_hints(&inst.pose, &model.mesh, &a.truth_hints, im as u64 * 1000 + n as u64);
-                let r: EstimateResult = estimator.estimate_hinted(model, (&scene.rgb, depth.as_ref()), &scene.cam, &det, others.as_ref(), &hints, cfg)?;
+            for ((t, (_, cfg)), estimated) in tallies.iter_mut().zip(&configs).zip(&mut results) {
+                let r = estimated.next().context("an instance without its estimate")?;
                 // The answer's error (MSSD over the diameter, against the truth turned by its
                 // nearest symmetry), one pass over the mesh for the row, the tallies and the
                 // stability check.
@@ -432,14 +448,11 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                 let error = r.pose.as_ref().map(|p| mssd(p, &gt, model.mesh.positions()) / model.diameter());
                 if a.stability && cfg.rrc {
                     let less: Vec<Detection> = det.iter().map(|d| Detection { mask: super::bench_stability::less_one_pixel(&d.mask), ..d.clone() }).collect();
-                    let again = estimator.estimate_hinted(model, (&scene.rgb, depth.as_ref()), &scene.cam, &less, others.as_ref(), &hints, cfg)?;
+                    let again = estimator.estimate_hinted(model, (&scene.rgb, depth.as_ref()), &scene.cam, &less, others.as_ref(), hints, cfg)?;
                     stability.push(error, again.pose.as_ref().map(|p| mssd(p, &truth(p), model.mesh.positions()) / model.diameter()));
                 }
                 let tm = &r.timings;
                 t.stages.push([tm.crop, tm.features, tm.retrieval, tm.matching, tm.pnp, tm.rrc, tm.refine, tm.selection, tm.total]);
-                if let Some(image) = t.per_image.last_mut() {
-                    image.1 += tm.total;
-                }
                 let bucket = size_bucket(&inst.mask);
                 t.by_size[bucket].0 += 1;
                 let size_px = crate::features::mask_bbox(&inst.mask).map_or(0, |b| (b.2 - b.0).max(b.3 - b.1));
@@ -642,7 +655,7 @@ mod tests {
     /// An image's time is its instances' together; the line gives its median, p90 and the
     /// median per instance.
     #[test]
-    fn per_image_time_is_the_sum_of_its_instances() {
+    fn per_image_report_gives_median_p90_and_the_share_an_instance() {
         let t = super::Tally { per_image: vec![(2, 100.0), (2, 300.0), (2, 200.0)], ..Default::default() };
         assert_eq!(t.per_image_report(), "median 200 ms / p90 300 ms an image of 2 instances (100 ms an instance)");
         assert_eq!(super::Tally::default().per_image_report(), "no images");

@@ -86,6 +86,11 @@ pub struct RunArgs {
     /// depth edges, the support plane removed; `masks::depth_proposal`).
     #[arg(long, requires = "depth")]
     pub depth_proposals: bool,
+    /// Threads an image's instances are estimated on side by side, with --detections (the
+    /// detector's candidates go in turn until enough are sure); 1: in turn [default: the
+    /// cores, at least 2]
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..=256))]
+    pub instance_threads: Option<u16>,
 }
 
 #[derive(Args, Debug)]
@@ -194,7 +199,15 @@ fn run_cmd(a: RunArgs) -> Result<()> {
         depth_proposals: a.depth_proposals,
         ..Default::default()
     };
-    let opts = RunOptions { split: a.split.clone(), estimate, box_mask: a.box_mask, proposals: a.box_proposals.clone(), depth: a.depth, ..Default::default() };
+    let opts = RunOptions {
+        split: a.split.clone(),
+        estimate,
+        box_mask: a.box_mask,
+        proposals: a.box_proposals.clone(),
+        depth: a.depth,
+        instance_threads: a.instance_threads.map_or_else(|| crate::parallel::instance_threads(1), usize::from),
+        ..Default::default()
+    };
     let pb = super::progress::bar(0, "images");
     let progress = |done: usize, total: usize| {
         pb.set_length(total as u64);

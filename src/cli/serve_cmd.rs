@@ -41,6 +41,7 @@ pub fn run(a: ServeArgs) -> Result<()> {
         render_pool: s.render_pool,
         cache_bytes: s.cache_bytes,
         max_estimates: s.max_estimates,
+        instance_threads: s.instance_threads,
         queue_depth: s.queue_depth,
         queue_timeout: s.queue_timeout,
         max_onboardings: s.max_onboardings,

@@ -12,6 +12,7 @@
 //! backbone_max_wait_ms = 0       # how long a pass may wait for more requests (GPU: a few ms)
 //! render_pool = 2
 //! max_estimates = 2
+//! instance_threads = 2           # one request's instances estimated side by side [default: cores / max_estimates, at least 2]
 //! queue_depth = 16               # estimates waiting for a slot [default: 8 x max_estimates]
 //! queue_timeout_ms = 30000       # longest one waits before 429
 //! max_onboardings = 1
@@ -69,6 +70,10 @@ pub struct ServeSettings {
     /// Estimates (and detections) running at once; more wait in line [default: 2]
     #[arg(long, env = "B2TF_MAX_ESTIMATES")]
     pub max_estimates: Option<usize>,
+    /// Threads one request's instances (the caller's detections) are estimated on side by
+    /// side; 1: in turn [default: the cores shared among max_estimates, at least 2]
+    #[arg(long, env = "B2TF_INSTANCE_THREADS")]
+    pub instance_threads: Option<usize>,
     /// Estimates waiting for a slot, in arrival order; beyond, or when the expected wait
     /// would pass a request's deadline, 429 / RESOURCE_EXHAUSTED with Retry-After; 0:
     /// refuse at once [default: 8 x max_estimates]
@@ -151,6 +156,7 @@ pub struct Resolved {
     pub backbone_batch: usize,
     pub backbone_max_wait: std::time::Duration,
     pub max_estimates: usize,
+    pub instance_threads: usize,
     pub queue_depth: usize,
     pub queue_timeout: std::time::Duration,
     pub max_onboardings: usize,
@@ -261,6 +267,7 @@ impl ServeSettings {
             backbone_batch: pick!(backbone_batch).unwrap_or(32),
             backbone_max_wait: std::time::Duration::from_secs_f64(max_wait_ms / 1e3),
             max_estimates,
+            instance_threads: positive("instance_threads", pick!(instance_threads).unwrap_or_else(|| crate::parallel::instance_threads(max_estimates)))?,
             queue_depth,
             queue_timeout: std::time::Duration::from_millis(queue_timeout_ms),
             max_onboardings: positive("max_onboardings", pick!(max_onboardings).unwrap_or(1))?,
@@ -297,6 +304,7 @@ mod tests {
         assert_eq!(r.grpc, None);
         assert_eq!(r.max_estimates, 8);
         assert_eq!(r.queue_depth, 64, "the queue follows the running count");
+        assert_eq!(r.instance_threads, 2, "at least two whatever the cores");
         assert_eq!(r.request_timeout, None);
         assert_eq!(r.api_keys_file, Some(dir.path().join("keys.txt")));
         let d = ServeSettings::default().resolve(ServeSettings::default()).unwrap();
@@ -334,6 +342,7 @@ mod tests {
         let none = ServeSettings::default;
         let err = |s: ServeSettings| format!("{:#}", s.resolve(none()).unwrap_err());
         assert!(err(ServeSettings { max_estimates: Some(0), ..none() }).contains("max_estimates"));
+        assert!(err(ServeSettings { instance_threads: Some(0), ..none() }).contains("instance_threads"));
         assert!(err(ServeSettings { backbone: Some("dinov3".into()), ..none() }).contains("dinov3"));
         assert!(err(ServeSettings { device: Some("gpu".into()), ..none() }).contains("gpu"));
         assert!(err(ServeSettings { backbone_max_wait_ms: Some(-1.0), ..none() }).contains("backbone_max_wait_ms"));

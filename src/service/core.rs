@@ -32,6 +32,9 @@ pub struct CoreConfig {
     pub cache_bytes: u64,
     /// Estimates (and detections) running at once; more wait in line.
     pub max_estimates: usize,
+    /// Threads one request's instances are estimated on side by side (the caller's
+    /// detections; the detector's candidates go in turn, until enough are sure).
+    pub instance_threads: usize,
     /// Estimates waiting at most; more are refused (429 / RESOURCE_EXHAUSTED).
     pub queue_depth: usize,
     /// Longest an estimate waits in line before it is refused.
@@ -61,6 +64,7 @@ impl Default for CoreConfig {
             render_pool: RenderPool::DEFAULT_SIZE,
             cache_bytes: 4_000_000_000,
             max_estimates: 2,
+            instance_threads: crate::parallel::instance_threads(2),
             queue_depth: 16,
             queue_timeout: std::time::Duration::from_secs(30),
             max_onboardings: 1,
@@ -363,63 +367,93 @@ impl Core {
         // segment answered once across objects after every object's are in
         // (`detect::confirm::one_per_place`).
         let compared = depth.is_some() && detected.is_some();
-        let mut answers = Vec::new();
-        let mut tried = 0usize;
-        // Places another object's answer surely took: not estimated again (`on_taken_place`).
-        let mut taken: Vec<image::GrayImage> = Vec::new();
-        for (object_id, dets) in &by_object {
-            let model = &models[object_id];
-            let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, c)| representative(c)).collect();
-            let mut groups = crate::masks::group_instances(&refs, 0.5);
-            if compared {
-                groups.retain(|g| !on_taken_place(refs[g[0]].0, &taken));
+        let kind = if compared { OtherMasks::DepthSegments } else { OtherMasks::Detections };
+        // Instances estimated so far, for the deadline's message.
+        let estimated = AtomicUsize::new(0);
+        // One instance: its estimate and, for the detector's candidates, its confirmation.
+        let estimate_one = |object_id: &str, instance: usize, group: &[usize], screen: Option<&DepthScreen>| -> Result<((InstanceResult, image::GrayImage), Option<f32>), ServiceError> {
+            if deadline.is_some_and(|d| Instant::now() >= d) {
+                return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", estimated.load(Ordering::Relaxed))));
             }
-            let object_choice = compared_choice(compared, groups.len(), o.instances_per_object, choice);
-            // The depth detector's candidates that cannot be this object are not estimated.
-            let screen = if compared { DepthScreen::of(&image, depth.as_ref(), &k, &model.mesh, &self.pool, req.detect.min_score) } else { None };
-            let answered = estimate_instances(groups.into_iter().enumerate(), o.instances_per_object, object_choice, |(instance, group)| {
-                if deadline.is_some_and(|d| Instant::now() >= d) {
-                    return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", tried + instance)));
+            let (model, dets) = (&models[object_id], &by_object[object_id]);
+            let gathered = Candidates::gather(group.iter().map(|&g| (dets[g].0, dets[g].1.as_slice())));
+            let candidates = &gathered.masks;
+            let others = others_mask(&by_object, object_id, group, kind, k.width, k.height);
+            let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
+            let check = screen.map(|s| s as &dyn crate::estimate::CoarseCheck);
+            let r = span.in_scope(|| self.estimator.estimate_screened(model, (&image, depth.as_ref()), &k, candidates, others.as_ref(), check, &cfg))?;
+            estimated.fetch_add(1, Ordering::Relaxed);
+            let confirmation = match (&r.pose, choice) {
+                (Some(pose), Choice::Confirmed { .. } | Choice::Compared { .. }) => {
+                    let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
+                    Some(
+                        span.in_scope(|| confirm(&image, depth.as_ref(), &k, &model.mesh, mask, pose, &self.pool))
+                            .map_err(|e| ServiceError::internal(format!("object {object_id:?}: confirming: {e}")))?,
+                    )
                 }
-                let gathered = Candidates::gather(group.iter().map(|&g| (dets[g].0, dets[g].1.as_slice())));
-                let candidates = &gathered.masks;
-                let kind = if compared { OtherMasks::DepthSegments } else { OtherMasks::Detections };
-                let others = others_mask(&by_object, object_id, &group, kind, k.width, k.height);
-                let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
-                let r = span.in_scope(|| self.estimator.estimate_screened(model, (&image, depth.as_ref()), &k, candidates, others.as_ref(), DepthScreen::as_check(&screen), &cfg))?;
-                let confirmation = match (&r.pose, choice) {
-                    (Some(pose), Choice::Confirmed { .. } | Choice::Compared { .. }) => {
-                        let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
-                        Some(
-                            span.in_scope(|| confirm(&image, depth.as_ref(), &k, &model.mesh, mask, pose, &self.pool))
-                                .map_err(|e| ServiceError::internal(format!("object {object_id:?}: confirming: {e}")))?,
-                        )
-                    }
-                    _ => None,
-                };
-                span.in_scope(|| tracing::debug!(found = r.pose.is_some(), score = r.score, confirmation, ms = r.timings.total, "instance estimated"));
-                let result = InstanceResult {
-                    object_id: object_id.to_string(),
-                    instance,
-                    pose: r.pose.as_ref().map(PoseOutput::from),
-                    score: r.score,
-                    confirmation_score: confirmation,
-                    detection_index: gathered.owner_of(r.mask_index),
-                    reason: r.reason.clone(),
-                    diagnostics: serde_json::to_value(&r.hypotheses).unwrap_or_default(),
-                    timings_ms: r.timings.by_stage(),
-                    symmetries: model.symmetries.clone(),
-                    arbitrary_rotation_about_axis: InstanceResult::arbitrary_rotation(model.symmetries.as_ref()),
-                    runner_up: r.runner_up.as_ref().map(RunnerUpOutput::from),
-                };
-                let mask = candidates[r.mask_index.unwrap_or(0)].mask.clone();
-                Ok(((result, mask), confirmation))
-            })?;
-            tried += answered.tried;
-            let kept: Vec<_> = answered.kept.into_iter().map(|((r, mask), c)| (r, c.unwrap_or(0.0), mask)).collect();
-            taken.extend(sure_places(&kept));
-            answers.push(kept);
-        }
+                _ => None,
+            };
+            span.in_scope(|| tracing::debug!(found = r.pose.is_some(), score = r.score, confirmation, ms = r.timings.total, "instance estimated"));
+            let result = InstanceResult {
+                object_id: object_id.to_string(),
+                instance,
+                pose: r.pose.as_ref().map(PoseOutput::from),
+                score: r.score,
+                confirmation_score: confirmation,
+                detection_index: gathered.owner_of(r.mask_index),
+                reason: r.reason.clone(),
+                diagnostics: serde_json::to_value(&r.hypotheses).unwrap_or_default(),
+                timings_ms: r.timings.by_stage(),
+                symmetries: model.symmetries.clone(),
+                arbitrary_rotation_about_axis: InstanceResult::arbitrary_rotation(model.symmetries.as_ref()),
+                runner_up: r.runner_up.as_ref().map(RunnerUpOutput::from),
+            };
+            let mask = candidates[r.mask_index.unwrap_or(0)].mask.clone();
+            Ok(((result, mask), confirmation))
+        };
+        let groups_of = |dets: &[(usize, Vec<Detection>)]| {
+            let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, c)| representative(c)).collect();
+            crate::masks::group_instances(&refs, 0.5)
+        };
+        let (answers, tried) = if choice == Choice::Given {
+            // The caller's instances are all answered: every object's estimated side by side.
+            let jobs: Vec<(&str, usize, Vec<usize>)> = by_object
+                .iter()
+                .flat_map(|(&object_id, dets)| groups_of(dets).into_iter().take(o.instances_per_object).enumerate().map(move |(instance, group)| (object_id, instance, group)))
+                .collect();
+            let owners: Vec<&str> = jobs.iter().map(|j| j.0).collect();
+            let done = crate::parallel::ordered_map(jobs, self.config.instance_threads, |(object_id, instance, group)| estimate_one(object_id, instance, &group, None))?;
+            let tried = done.len();
+            let mut answers: Vec<Vec<(InstanceResult, f32, image::GrayImage)>> = by_object.keys().map(|_| Vec::new()).collect();
+            let slot: BTreeMap<&str, usize> = by_object.keys().enumerate().map(|(i, &id)| (id, i)).collect();
+            for (owner, ((r, mask), _)) in owners.into_iter().zip(done) {
+                answers[slot[owner]].push((r, 0.0, mask));
+            }
+            (answers, tried)
+        } else {
+            // The detector's candidates are estimated in turn until enough are sure.
+            let mut answers = Vec::new();
+            let mut tried = 0usize;
+            // Places another object's answer surely took: not estimated again (`on_taken_place`).
+            let mut taken: Vec<image::GrayImage> = Vec::new();
+            for (&object_id, dets) in &by_object {
+                let model = &models[object_id];
+                let mut groups = groups_of(dets);
+                if compared {
+                    groups.retain(|g| !on_taken_place(representative(&dets[g[0]].1).0, &taken));
+                }
+                let object_choice = compared_choice(compared, groups.len(), o.instances_per_object, choice);
+                // The depth detector's candidates that cannot be this object are not estimated.
+                let screen = if compared { DepthScreen::of(&image, depth.as_ref(), &k, &model.mesh, &self.pool, req.detect.min_score) } else { None };
+                let answered =
+                    estimate_instances(groups.into_iter().enumerate(), o.instances_per_object, object_choice, |(instance, group)| estimate_one(object_id, instance, &group, screen.as_ref()))?;
+                tried += answered.tried;
+                let kept: Vec<_> = answered.kept.into_iter().map(|((r, mask), c)| (r, c.unwrap_or(0.0), mask)).collect();
+                taken.extend(sure_places(&kept));
+                answers.push(kept);
+            }
+            (answers, tried)
+        };
         let per_object: Vec<Vec<(InstanceResult, f32)>> =
             if compared { one_per_place(answers, &vec![o.instances_per_object; by_object.len()]) } else { answers.into_iter().map(|a| a.into_iter().map(|(r, c, _)| (r, c)).collect()).collect() };
         let mut results = Vec::new();
@@ -536,3 +570,7 @@ mod tests {
         assert!(others_mask(&alone, "a", &[0], OtherMasks::Detections, 4, 1).is_none());
     }
 }
+
+#[cfg(test)]
+#[path = "core_instances_tests.rs"]
+mod instances_tests;
