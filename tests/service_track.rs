@@ -138,6 +138,7 @@ async fn sessions_and_streams_track_refuse_bad_frames_and_expire() {
     assert_eq!(s, 200, "{v}");
     let (mode, er, et) = only_object(&v, &seq[0].truth);
     assert!(mode == "estimated" && v["objects"][0]["track_id"] == 0 && v["frame_index"] == 0, "{v}");
+    assert_eq!(v["objects"][0]["timings_ms"], json!({}), "a full estimate has no tracking step");
     assert!(er < 10.0 && et < 0.02, "first estimate {er:.1}° {:.1} mm", et * 1e3);
 
     // Then tracked, without detections; the later frames with their depth (RGB-D), each
@@ -154,6 +155,12 @@ async fn sessions_and_streams_track_refuse_bad_frames_and_expire() {
         assert!(mode == "tracked" || mode == "reinitialised", "{v}");
         if i >= 5 && mode == "tracked" {
             assert!(v["objects"][0]["depth_fit"]["inlier_share"].as_f64().is_some_and(|s| s > 0.5), "{v}");
+        }
+        if mode == "tracked" {
+            // The step's stage times, within its total.
+            let t = &v["objects"][0]["timings_ms"];
+            let total = t["total"].as_f64().unwrap_or(0.0);
+            assert!(total > 0.0 && t["contour"].as_f64().is_some_and(|c| c > 0.0 && c <= total), "{v}");
         }
         errors.push((er, et));
     }
@@ -245,6 +252,7 @@ async fn sessions_and_streams_track_refuse_bad_frames_and_expire() {
         assert!(a.error.is_none() && a.frame_index == i as u64 + 1, "{a:?}");
         assert_eq!(a.objects[0].mode(), pb::tracked_object::Mode::Tracked, "{a:?}");
         assert!(a.objects[0].depth_fit.as_ref().is_some_and(|d| d.inlier_share > 0.5 && d.rms_mm < 5.0), "{a:?}");
+        assert!(a.objects[0].timings_ms.get("depth").is_some_and(|&d| d > 0.0 && d <= a.objects[0].timings_ms["total"]), "{a:?}");
     }
     let stream_session = a.session_id.clone();
     let (_, v) = call(&c, M::GET, &tracks, None).await;

@@ -116,6 +116,9 @@ fn depth_frames_fit_the_track_and_refute_what_they_see_through() {
         let t = step.timings;
         assert!(t.contour > 0.0 && t.depth > 0.0 && t.colours + t.contour + t.photometric + t.depth + t.relearn <= t.total, "{t:?}");
         assert!(step.silhouette_iou.is_none() || t.relearn > 0.0, "{t:?}");
+        // As answers carry them: every stage by name, the total as "total".
+        let named = t.by_stage();
+        assert_eq!((named["contour"], named["depth"], named["relearn"], named["total"], named.len()), (t.contour, t.depth, t.relearn, t.total, 6));
         if step.lost {
             lost += 1;
             tracker.restart(&f.rgb, &k, f.truth).unwrap();

@@ -71,6 +71,7 @@ fn tracked_object(o: TrackedObject) -> pb::TrackedObject {
             tolerance_mm: f.tolerance_mm,
             moved_mm: f.moved_mm,
         }),
+        timings_ms: o.timings_ms.into_iter().collect(),
     }
 }
 

@@ -96,6 +96,11 @@ pub struct TrackedObject {
     /// How the pose lies on the measured surface, on frames tracked with depth.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub depth_fit: Option<DepthFitOutput>,
+    /// The tracking step's stage times, ms (colours, contour, photometric, depth, relearn,
+    /// total), on frames the track was followed from the last one; empty for a new track
+    /// or a refused detection.
+    #[serde(default)]
+    pub timings_ms: std::collections::BTreeMap<String, f64>,
 }
 
 /// `estimate::depth_fit::DepthFit` as answers carry it.
@@ -139,6 +144,7 @@ impl From<TrackOutcome> for TrackedObject {
             ms: o.ms,
             reason: o.reason,
             depth_fit: o.depth_fit.as_ref().map(DepthFitOutput::from),
+            timings_ms: o.timings.map(|t| t.by_stage()).unwrap_or_default(),
         }
     }
 }

@@ -94,6 +94,10 @@ pub struct TrackOutcome {
     /// How the pose lies on the measured surface, on frames tracked with depth (and lost
     /// ones the depth refused).
     pub depth_fit: Option<DepthFit>,
+    /// The tracking step's stage times, on frames the track was followed from the last
+    /// one (tracked, lost, dropped, re-initialised: the full estimate is in `ms` only);
+    /// none for a new track or a refused detection.
+    pub timings: Option<super::TrackTimings>,
 }
 
 /// A detection of one object in a frame (a mask; boxes are segmented by the caller).
@@ -304,6 +308,7 @@ impl TrackSession {
             ms: ms_since(t),
             reason: Some(reason),
             depth_fit: None,
+            timings: None,
         };
         if self.tracks.len() >= self.config.max_tracks {
             return Ok(refused(format!("this session already tracks {} objects (its limit)", self.tracks.len()), t));
@@ -335,6 +340,7 @@ impl TrackSession {
             ms: ms_since(t),
             reason: None,
             depth_fit: None,
+            timings: None,
         })
     }
 }
@@ -364,6 +370,7 @@ fn finish_track(
         ms: ms_since(t),
         reason,
         depth_fit: if mode == TrackMode::Reinitialised { None } else { depth_fit.clone() },
+        timings: Some(step.timings),
     };
     if !step.lost {
         track.lost_frames = 0;

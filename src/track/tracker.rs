@@ -128,6 +128,11 @@ impl TrackTimings {
     pub fn as_row(&self) -> [f64; 6] {
         [self.colours, self.contour, self.photometric, self.depth, self.relearn, self.total]
     }
+
+    /// Stage name → milliseconds, the total as "total": as answers carry them.
+    pub fn by_stage(&self) -> std::collections::BTreeMap<String, f64> {
+        Self::STAGES.iter().chain(&["total"]).zip(self.as_row()).map(|(name, ms)| (name.to_string(), ms)).collect()
+    }
 }
 
 pub struct Tracker {

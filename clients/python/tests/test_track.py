@@ -51,6 +51,9 @@ def test_a_moving_then_still_object_is_estimated_then_tracked(tracked: List[b2tf
         assert o.pose.rotation_error_deg(s.truth) < 3.0 and o.pose.translation_error_m(s.truth) < 0.005, (r.frame_index, o)
     for r in tracked[1:]:
         assert r.objects[0].detection_index is None and r.objects[0].quality > 0.5
+        t = r.objects[0].timings_ms  # the tracking step's stages, within its total
+        assert 0 < t["contour"] <= t["total"] and set(t) == {"colours", "contour", "photometric", "depth", "relearn", "total"}, t
+    assert tracked[0].objects[0].timings_ms == {}  # a full estimate: no tracking step
     # Still: the pose stays put.
     still = [r.objects[0].pose for r in tracked[-3:]]
     assert all(p is not None and still[0] is not None and p.rotation_error_deg(still[0]) < 0.5 and p.translation_error_m(still[0]) < 0.001 for p in still)

@@ -420,6 +420,10 @@ class TrackedObject:
     reason: Optional[str]
     depth_fit: Optional[DepthFit] = None
     """How the pose lies on the frame's measured surface, on frames tracked with depth."""
+    timings_ms: Dict[str, float] = field(default_factory=dict)
+    """The tracking step's stage times, milliseconds (colours, contour, photometric, depth,
+    relearn, total), on frames the track was followed from the last one; empty for a new
+    track or a refused detection."""
 
     @property
     def ok(self) -> bool:
@@ -437,6 +441,7 @@ class TrackedObject:
             ms=m.ms,
             reason=m.reason or None,
             depth_fit=DepthFit.from_pb(m.depth_fit) if m.HasField("depth_fit") else None,
+            timings_ms=dict(m.timings_ms),
         )
 
 
