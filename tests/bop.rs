@@ -29,9 +29,13 @@ fn pool() -> RenderPool {
 
 /// A BOP models folder holding the generated box as object 1, and a dataset made from it.
 fn dataset(root: &Path, images: usize, pool: &RenderPool) -> SynthSummary {
+    let scene = SceneConfig { images, objects_per_image: 1, image_size: (320, 240), fill_range: (0.45, 0.6), max_occlusion: 0.1, seed: 5, ..Default::default() };
+    dataset_of(root, scene, pool)
+}
+
+fn dataset_of(root: &Path, scene: SceneConfig, pool: &RenderPool) -> SynthSummary {
     let models = root.join("source_models");
     write_bop_ply(&textured_box([0.10, 0.06, 0.16], 3), &models, "obj_000001").unwrap();
-    let scene = SceneConfig { images, objects_per_image: 1, image_size: (320, 240), fill_range: (0.45, 0.6), max_occlusion: 0.1, seed: 5, ..Default::default() };
     synth(&models, &root.join("ds"), &SynthOptions { scene, degraded: true, distractors: true, targets: None, untextured: false, backgrounds: None }, pool).unwrap()
 }
 
@@ -109,6 +113,35 @@ fn ground_truth_scores_one_and_a_known_shift_scores_exactly() {
     // No results at all: every recall is 0.
     let r = score(&ds, &[], &pool);
     assert_eq!((r.ar, r.targets, r.estimates), (0.0, 3, 0));
+}
+
+/// Several instances of an image estimated side by side write what estimating them in turn
+/// writes (the rows' times apart).
+#[test]
+fn instances_side_by_side_write_the_same_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    let pool = Arc::new(pool());
+    let scene = SceneConfig { images: 2, objects_per_image: 3, image_size: (320, 240), fill_range: (0.25, 0.35), max_occlusion: 0.1, seed: 9, ..Default::default() };
+    let s = dataset_of(dir.path(), scene, &pool);
+    let ds = dir.path().join("ds");
+    assert!(load_targets(&ds).unwrap().iter().all(|t| t.inst_count == 3), "three instances of the box in each image");
+    let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap());
+    let cfg = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps: 4 }, render_size: 128, ..Default::default() };
+    let mesh = b2tfpose::mesh::load_mesh(&ds.join("models/obj_000001.ply"), Some(b2tfpose::mesh::Units::Mm)).unwrap();
+    let model = Arc::new(onboard("obj_000001", &mesh, &cfg, backbone.as_ref(), &pool, &|_| {}).unwrap());
+    let estimator = Estimator::new(backbone, pool.clone());
+    let index = DetectionIndex::new(read_detections(&s.detections_path).unwrap());
+    let rows = |threads: usize| {
+        let csv = dir.path().join(format!("threads-{threads}.csv"));
+        let opts = RunOptions { instance_threads: threads, estimate: b2tfpose::estimate::EstimateConfig { rrc: false, ..Default::default() }, ..Default::default() };
+        let summary = run(&ds, DetectionSource::File(&index), &csv, &estimator, &mut |_| Ok(model.clone()), &opts, &no_progress).unwrap();
+        let rows: Vec<_> = read(&csv).into_iter().map(|r| ResultRow { time: 0.0, ..r }).collect();
+        (summary, rows)
+    };
+    let (in_turn, side_by_side) = (rows(1), rows(3));
+    assert_eq!(in_turn.0.instances_requested, 6, "{:?}", in_turn.0);
+    assert!(in_turn.1.len() >= 4, "most instances answered: {:?}", in_turn.0);
+    assert_eq!(in_turn, side_by_side);
 }
 
 #[test]
