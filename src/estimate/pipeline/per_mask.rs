@@ -1,8 +1,8 @@
 //! One candidate mask's way through the estimator: retrieval, the caller's screen where it
-//! gives one, matching and PnP, then the
-//! start refined, and verified against its alternatives (or, without verification, refined
-//! alone), then refined again on its print. `Estimator::estimate_hinted` runs it for each
-//! mask before selection chooses among them.
+//! gives one, matching and PnP, then the start refined, and verified against its
+//! alternatives (or, without verification, refined alone), then refined again on its
+//! print. `Estimator::estimate_hinted` runs it for each mask before selection chooses
+//! among them.
 
 use super::{Detection, EstimateConfig, EstimateError, Estimator, Hypothesis, QueryView, RefineContext, RefinerKind, StageTimings};
 use crate::depth::DepthImage;
@@ -44,9 +44,9 @@ impl<'a> MaskInputs<'a> {
 }
 
 impl Estimator {
-    /// One candidate mask's hypothesis: retrieval, the screen, matching and PnP (`pose_for_mask`), then
-    /// its start (PnP's pose, or with verification a template's where PnP found none)
-    /// refined and verified.
+    /// One candidate mask's hypothesis: retrieval, the screen, matching and PnP
+    /// (`pose_for_mask`), then its start (PnP's pose, or with verification a template's
+    /// where PnP found none) refined and verified.
     pub(super) fn hypothesis_for_mask(&self, req: &MaskInputs<'_>, q: &QueryView, (mi, detection): (usize, &Detection), timings: &mut StageTimings) -> Result<Hypothesis, EstimateError> {
         let cfg = req.cfg;
         let mut h = Hypothesis { mask_index: mi, detector_score: detection.score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() };
