@@ -62,9 +62,9 @@ where
 }
 
 /// Instance threads for one request when the server runs `max_estimates` requests at once:
-/// the cores shared among them, at least two (an instance's estimate leaves some of its
-/// core idle while it waits on renders and on the backbone's queue, so two side by side
-/// on one core's share still gain; measured in docs/benchmarks.md, "Many instances").
+/// the cores shared among them, at least two (an estimate waits on renders and on the
+/// backbone's queue now and then; on 2 cores two threads measured within the run-to-run
+/// spread of one, docs/benchmarks.md "per image", so the floor costs nothing there).
 pub fn instance_threads(max_estimates: usize) -> usize {
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     (cores / max_estimates.max(1)).max(2)

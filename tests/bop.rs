@@ -41,6 +41,15 @@ fn dataset_of(root: &Path, scene: SceneConfig, pool: &RenderPool) -> SynthSummar
 
 fn no_progress(_: usize, _: usize) {}
 
+/// The dataset's box onboarded at `views` and `render_size`, and an estimator beside it.
+fn onboarded_box(ds: &Path, views: ViewSampling, render_size: u32, pool: &Arc<RenderPool>) -> (Arc<b2tfpose::onboard::ObjectModel>, Estimator) {
+    let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap());
+    let cfg = OnboardConfig { views, render_size, ..Default::default() };
+    let mesh = b2tfpose::mesh::load_mesh(&ds.join("models/obj_000001.ply"), Some(b2tfpose::mesh::Units::Mm)).unwrap();
+    let model = Arc::new(onboard("obj_000001", &mesh, &cfg, backbone.as_ref(), pool, &|_| {}).unwrap());
+    (model, Estimator::new(backbone, pool.clone()))
+}
+
 /// BOP'19 scores of `rows`, with the warnings the files gave.
 fn score_warned(ds: &Path, rows: &[ResultRow], pool: &RenderPool) -> (ArReport, Vec<String>) {
     let mut warnings = Vec::new();
@@ -125,11 +134,7 @@ fn instances_side_by_side_write_the_same_rows() {
     let s = dataset_of(dir.path(), scene, &pool);
     let ds = dir.path().join("ds");
     assert!(load_targets(&ds).unwrap().iter().all(|t| t.inst_count == 3), "three instances of the box in each image");
-    let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap());
-    let cfg = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps: 4 }, render_size: 128, ..Default::default() };
-    let mesh = b2tfpose::mesh::load_mesh(&ds.join("models/obj_000001.ply"), Some(b2tfpose::mesh::Units::Mm)).unwrap();
-    let model = Arc::new(onboard("obj_000001", &mesh, &cfg, backbone.as_ref(), &pool, &|_| {}).unwrap());
-    let estimator = Estimator::new(backbone, pool.clone());
+    let (model, estimator) = onboarded_box(&ds, ViewSampling { level: 0, in_plane_steps: 4 }, 128, &pool);
     let index = DetectionIndex::new(read_detections(&s.detections_path).unwrap());
     let rows = |threads: usize| {
         let csv = dir.path().join(format!("threads-{threads}.csv"));
@@ -150,11 +155,7 @@ fn run_estimates_every_target_resumes_and_is_scored() {
     let pool = Arc::new(pool());
     let s = dataset(dir.path(), 2, &pool);
     let ds = dir.path().join("ds");
-    let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap());
-    let cfg = OnboardConfig { views: ViewSampling { level: 1, in_plane_steps: 12 }, render_size: 256, ..Default::default() };
-    let mesh = b2tfpose::mesh::load_mesh(&ds.join("models/obj_000001.ply"), Some(b2tfpose::mesh::Units::Mm)).unwrap();
-    let model = Arc::new(onboard("obj_000001", &mesh, &cfg, backbone.as_ref(), &pool, &|_| {}).unwrap());
-    let estimator = Estimator::new(backbone, pool.clone());
+    let (model, estimator) = onboarded_box(&ds, ViewSampling { level: 1, in_plane_steps: 12 }, 256, &pool);
     let index = DetectionIndex::new(read_detections(&s.detections_path).unwrap());
     let csv = dir.path().join("out/results.csv");
     std::fs::create_dir_all(csv.parent().unwrap()).unwrap();

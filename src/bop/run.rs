@@ -164,12 +164,11 @@ pub fn run(
         let failures: Mutex<BTreeMap<String, usize>> = Mutex::default();
         // One instance (`group` of target `ti`'s candidates): its pose, score and mask, and
         // its confirmation with the detector's candidates.
-        let estimate_group = |ti: usize, m: &ObjectModel, group: &[usize], screen: Option<&DepthScreen>| -> Result<(Option<Answer>, Option<f32>)> {
+        let estimate_group = |ti: usize, m: &ObjectModel, group: &[usize], check: Option<&dyn CoarseCheck>| -> Result<(Option<Answer>, Option<f32>)> {
             let (t, masks) = (&targets[ti], &decoded[ti]);
             let candidates = Candidates::gather(group.iter().map(|&i| (i, masks[i].as_slice()))).masks;
             let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, c)| representative(c).0));
             let others = crate::masks::occluders(representative(&masks[group[0]]).0, others, kind, camera.cam.width, camera.cam.height);
-            let check = screen.map(|s| s as &dyn CoarseCheck);
             let r = match estimator.estimate_screened(m, (&rgb, depth.as_ref()), &camera.cam, &candidates, others.as_ref(), check, &opts.estimate) {
                 Ok(r) => r,
                 Err(EstimateError::BadInput(msg)) => {
@@ -243,7 +242,7 @@ pub fn run(
                     (DetectionSource::Detector { pool, options, .. }, true) => DepthScreen::of(&rgb, depth.as_ref(), &camera.cam, &m.mesh, pool, options.min_score),
                     _ => None,
                 };
-                let answered = estimate_instances(groups, wanted, choice, |group| estimate_group(*ti, m, &group, screen.as_ref()))?;
+                let answered = estimate_instances(groups, wanted, choice, |group| estimate_group(*ti, m, &group, DepthScreen::as_check(&screen)))?;
                 answers[n].2 = answered.kept.into_iter().filter_map(|(p, _)| p).collect();
                 taken.extend(sure_places(&answers[n].2));
             }

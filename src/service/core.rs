@@ -11,8 +11,8 @@ use super::operations::{OperationState, OperationStatus, Operations};
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput, RunnerUpOutput};
 use crate::detect::confirm::{candidate_options, compared_choice, confirm, confirmation_needed, estimate_instances, on_taken_place, one_per_place, sure_places, Choice};
 use crate::estimate::candidates::representative;
-use crate::estimate::DepthScreen;
 use crate::estimate::{Candidates, Detection, EstimateConfig, Estimator};
+use crate::estimate::{CoarseCheck, DepthScreen};
 use crate::features::Backbone;
 use crate::geometry::ViewSampling;
 use crate::masks::OtherMasks;
@@ -371,7 +371,7 @@ impl Core {
         // Instances estimated so far, for the deadline's message.
         let estimated = AtomicUsize::new(0);
         // One instance: its estimate and, for the detector's candidates, its confirmation.
-        let estimate_one = |object_id: &str, instance: usize, group: &[usize], screen: Option<&DepthScreen>| -> Result<((InstanceResult, image::GrayImage), Option<f32>), ServiceError> {
+        let estimate_one = |object_id: &str, instance: usize, group: &[usize], check: Option<&dyn CoarseCheck>| -> Result<((InstanceResult, image::GrayImage), Option<f32>), ServiceError> {
             if deadline.is_some_and(|d| Instant::now() >= d) {
                 return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", estimated.load(Ordering::Relaxed))));
             }
@@ -380,7 +380,6 @@ impl Core {
             let candidates = &gathered.masks;
             let others = others_mask(&by_object, object_id, group, kind, k.width, k.height);
             let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
-            let check = screen.map(|s| s as &dyn crate::estimate::CoarseCheck);
             let r = span.in_scope(|| self.estimator.estimate_screened(model, (&image, depth.as_ref()), &k, candidates, others.as_ref(), check, &cfg))?;
             estimated.fetch_add(1, Ordering::Relaxed);
             let confirmation = match (&r.pose, choice) {
@@ -445,8 +444,9 @@ impl Core {
                 let object_choice = compared_choice(compared, groups.len(), o.instances_per_object, choice);
                 // The depth detector's candidates that cannot be this object are not estimated.
                 let screen = if compared { DepthScreen::of(&image, depth.as_ref(), &k, &model.mesh, &self.pool, req.detect.min_score) } else { None };
-                let answered =
-                    estimate_instances(groups.into_iter().enumerate(), o.instances_per_object, object_choice, |(instance, group)| estimate_one(object_id, instance, &group, screen.as_ref()))?;
+                let answered = estimate_instances(groups.into_iter().enumerate(), o.instances_per_object, object_choice, |(instance, group)| {
+                    estimate_one(object_id, instance, &group, DepthScreen::as_check(&screen))
+                })?;
                 tried += answered.tried;
                 let kept: Vec<_> = answered.kept.into_iter().map(|((r, mask), c)| (r, c.unwrap_or(0.0), mask)).collect();
                 taken.extend(sure_places(&kept));
