@@ -13,6 +13,11 @@
 //! PAMI 2007: a node's terminal capacity is signed, so any change is a valid residual), and
 //! the next [`Graph::max_flow`] pushes only what the change opened: the later rounds cost a
 //! fraction of the first.
+//!
+//! Arcs and nodes are `u32` indices and each node's arcs lie in one flat array
+//! (compressed rows, built at the first cut in the order the arcs were added, so the
+//! search visits them in that order and the cut is the same): the search reads a node's
+//! arcs and their heads from a few cache lines instead of a heap list per node.
 
 use std::collections::VecDeque;
 
@@ -20,8 +25,8 @@ const FREE: u8 = 0;
 const SOURCE: u8 = 1;
 const SINK: u8 = 2;
 /// `parent` of a tree root (its parent is the terminal) and of a node with none.
-const TERMINAL: usize = usize::MAX - 1;
-const ORPHAN: usize = usize::MAX;
+const TERMINAL: u32 = u32::MAX - 1;
+const ORPHAN: u32 = u32::MAX;
 
 /// A directed graph over `n` nodes plus the two terminals.
 pub struct Graph {
@@ -32,31 +37,41 @@ pub struct Graph {
     /// Flow already pushed along s→v→t paths when cancelling terminals.
     cancelled: i64,
     /// Arcs in pairs: arc `2i` and its reverse `2i+1`; `head` is where an arc points.
-    head: Vec<usize>,
+    head: Vec<u32>,
     cap: Vec<i64>,
-    adj: Vec<Vec<usize>>,
+    /// The arc leaving from each, in the order added; turned into `first`/`arcs` at the
+    /// first cut.
+    tail: Vec<u32>,
+    /// Node `v`'s arcs are `arcs[first[v]..first[v + 1]]`.
+    first: Vec<u32>,
+    arcs: Vec<u32>,
     tree: Vec<u8>,
     /// The arc from a node to its parent in its tree, or `TERMINAL` / `ORPHAN`.
-    parent: Vec<usize>,
+    parent: Vec<u32>,
     /// When a node's path to its terminal was last verified, and its length then: lets
     /// the adoption stage stop walking up a tree at a node already known to be rooted.
     stamp: Vec<u64>,
     dist: Vec<u32>,
     time: u64,
-    active: VecDeque<usize>,
+    active: VecDeque<u32>,
     is_active: Vec<bool>,
-    orphans: Vec<usize>,
+    orphans: Vec<u32>,
 }
 
 impl Graph {
+    /// A graph of `n` nodes; fewer than `u32::MAX - 1` of them, as the arcs (a box's
+    /// graph has some 25 000 nodes and eight arcs each).
     pub fn new(n: usize) -> Graph {
+        assert!(n < TERMINAL as usize, "a graph of {n} nodes");
         Graph {
             terminal: vec![0; n],
             given: vec![0; n],
             cancelled: 0,
             head: Vec::new(),
             cap: Vec::new(),
-            adj: vec![Vec::new(); n],
+            tail: Vec::new(),
+            first: Vec::new(),
+            arcs: Vec::new(),
             tree: vec![FREE; n],
             parent: vec![ORPHAN; n],
             stamp: vec![0; n],
@@ -88,13 +103,43 @@ impl Graph {
     }
 
     /// Adds `ab` on a→b and `ba` on b→a (both ≥ 0).
+    /// Edges are added before the first [`Graph::max_flow`]; later cuts change only the
+    /// terminals.
     pub fn add_edge(&mut self, a: usize, b: usize, ab: i64, ba: i64) {
         debug_assert!(ab >= 0 && ba >= 0);
-        let i = self.head.len();
-        self.head.extend([b, a]);
+        assert!(self.arcs.is_empty(), "edges are added before the first cut");
+        assert!(self.head.len() + 2 < TERMINAL as usize, "too many arcs");
+        self.head.extend([b as u32, a as u32]);
+        self.tail.extend([a as u32, b as u32]);
         self.cap.extend([ab, ba]);
-        self.adj[a].push(i);
-        self.adj[b].push(i + 1);
+    }
+
+    /// Each node's arcs in one flat array, in the order they were added (a counting sort
+    /// by tail, stable).
+    fn index_arcs(&mut self) {
+        let n = self.terminal.len();
+        let mut first = vec![0u32; n + 1];
+        for &t in &self.tail {
+            first[t as usize + 1] += 1;
+        }
+        for v in 0..n {
+            first[v + 1] += first[v];
+        }
+        let mut next = first.clone();
+        let mut arcs = vec![0u32; self.tail.len()];
+        for (a, &t) in self.tail.iter().enumerate() {
+            arcs[next[t as usize] as usize] = a as u32;
+            next[t as usize] += 1;
+        }
+        self.first = first;
+        self.arcs = arcs;
+        self.tail = Vec::new();
+    }
+
+    /// Node `v`'s arcs.
+    #[inline]
+    fn arcs_of(&self, v: usize) -> std::ops::Range<usize> {
+        self.first[v] as usize..self.first[v + 1] as usize
     }
 
     /// Pushes flow until none can pass and returns how much this call pushed: on a new
@@ -102,6 +147,9 @@ impl Graph {
     /// [`Graph::set_terminal`], it starts from the flow already there (the trees are grown
     /// afresh) and returns only what it added, which is not a cut's capacity.
     pub fn max_flow(&mut self) -> i64 {
+        if self.first.is_empty() {
+            self.index_arcs();
+        }
         let mut flow = std::mem::take(&mut self.cancelled);
         self.tree.fill(FREE);
         self.parent.fill(ORPHAN);
@@ -120,6 +168,7 @@ impl Graph {
             }
         }
         while let Some(&v) = self.active.front() {
+            let v = v as usize;
             if self.tree[v] == FREE {
                 self.active.pop_front();
                 self.is_active[v] = false;
@@ -143,7 +192,7 @@ impl Graph {
     fn activate(&mut self, v: usize) {
         if !self.is_active[v] {
             self.is_active[v] = true;
-            self.active.push_back(v);
+            self.active.push_back(v as u32);
         }
     }
 
@@ -161,16 +210,16 @@ impl Graph {
     /// neighbour belongs to the other tree.
     fn grow(&mut self, v: usize) -> Option<usize> {
         let t = self.tree[v];
-        for k in 0..self.adj[v].len() {
-            let a = self.adj[v][k];
+        for k in self.arcs_of(v) {
+            let a = self.arcs[k] as usize;
             if !self.open(t, a) {
                 continue;
             }
-            let w = self.head[a];
+            let w = self.head[a] as usize;
             match self.tree[w] {
                 FREE => {
                     self.tree[w] = t;
-                    self.parent[w] = a ^ 1;
+                    self.parent[w] = (a ^ 1) as u32;
                     self.stamp[w] = self.stamp[v];
                     self.dist[w] = self.dist[v] + 1;
                     self.activate(w);
@@ -185,14 +234,14 @@ impl Graph {
     /// Pushes the bottleneck along source → bridge → sink; nodes whose link to their
     /// parent (or terminal) saturates become orphans.
     fn augment(&mut self, bridge: usize) -> i64 {
-        let (p, q) = (self.head[bridge ^ 1], self.head[bridge]);
+        let (p, q) = (self.head[bridge ^ 1] as usize, self.head[bridge] as usize);
         let mut push = self.cap[bridge];
         for (start, tree) in [(p, SOURCE), (q, SINK)] {
             let mut u = start;
             while self.parent[u] != TERMINAL {
-                let a = self.parent[u];
+                let a = self.parent[u] as usize;
                 push = push.min(if tree == SOURCE { self.cap[a ^ 1] } else { self.cap[a] });
-                u = self.head[a];
+                u = self.head[a] as usize;
             }
             push = push.min(self.terminal[u].abs());
         }
@@ -201,22 +250,22 @@ impl Graph {
         for (start, tree) in [(p, SOURCE), (q, SINK)] {
             let mut u = start;
             while self.parent[u] != TERMINAL {
-                let a = self.parent[u];
+                let a = self.parent[u] as usize;
                 // Flow runs parent→u in the source tree, u→parent in the sink tree.
                 let (forward, back) = if tree == SOURCE { (a ^ 1, a) } else { (a, a ^ 1) };
                 self.cap[forward] -= push;
                 self.cap[back] += push;
-                let next = self.head[a];
+                let next = self.head[a] as usize;
                 if self.cap[forward] == 0 {
                     self.parent[u] = ORPHAN;
-                    self.orphans.push(u);
+                    self.orphans.push(u as u32);
                 }
                 u = next;
             }
             self.terminal[u] += if tree == SOURCE { -push } else { push };
             if self.terminal[u] == 0 {
                 self.parent[u] = ORPHAN;
-                self.orphans.push(u);
+                self.orphans.push(u as u32);
             }
         }
         push
@@ -235,7 +284,7 @@ impl Graph {
                 ORPHAN => return None,
                 a => {
                     d += 1;
-                    j = self.head[a];
+                    j = self.head[a as usize] as usize;
                 }
             }
         }
@@ -246,11 +295,12 @@ impl Graph {
     /// later grow into it.
     fn adopt(&mut self) {
         while let Some(u) = self.orphans.pop() {
+            let u = u as usize;
             let t = self.tree[u];
             let mut best: Option<(u32, usize)> = None;
-            for k in 0..self.adj[u].len() {
-                let a = self.adj[u][k];
-                let w = self.head[a];
+            for k in self.arcs_of(u) {
+                let a = self.arcs[k] as usize;
+                let w = self.head[a] as usize;
                 // The arc from the would-be parent w to u (source tree), or u to w (sink).
                 let feeds = if t == SOURCE { self.cap[a ^ 1] > 0 } else { self.cap[a] > 0 };
                 if self.tree[w] != t || !feeds {
@@ -265,7 +315,7 @@ impl Graph {
             }
             match best {
                 Some((d, a)) => {
-                    self.parent[u] = a;
+                    self.parent[u] = a as u32;
                     self.stamp[u] = self.time;
                     self.dist[u] = d + 1;
                 }
@@ -283,15 +333,15 @@ impl Graph {
             d = d.saturating_sub(1);
             match self.parent[j] {
                 TERMINAL | ORPHAN => break,
-                a => j = self.head[a],
+                a => j = self.head[a as usize] as usize,
             }
         }
     }
 
     fn free(&mut self, u: usize, t: u8) {
-        for k in 0..self.adj[u].len() {
-            let a = self.adj[u][k];
-            let w = self.head[a];
+        for k in self.arcs_of(u) {
+            let a = self.arcs[k] as usize;
+            let w = self.head[a] as usize;
             if self.tree[w] != t {
                 continue;
             }
@@ -301,9 +351,9 @@ impl Graph {
                 self.activate(w);
             }
             let p = self.parent[w];
-            if p != TERMINAL && p != ORPHAN && self.head[p] == u {
+            if p != TERMINAL && p != ORPHAN && self.head[p as usize] as usize == u {
                 self.parent[w] = ORPHAN;
-                self.orphans.push(w);
+                self.orphans.push(w as u32);
             }
         }
         self.tree[u] = FREE;
