@@ -35,11 +35,15 @@ pub fn appearance(render: &RenderOutput, image: &RgbImage, window: Window) -> f6
 /// IoU of `silhouette` (the pose rendered through `window` alone, the window's size) with
 /// the pixels in the window whose foreground probability is over one half.
 pub fn silhouette_iou(colours: &ColourModel, image: &RgbImage, silhouette: &GrayImage, window: Window) -> f64 {
+    if silhouette.dimensions() != window.size() {
+        return 0.0;
+    }
+    let object = colours.object_bins();
     let (mut both, mut either) = (0usize, 0usize);
-    for y in window.y0..window.y1 {
-        for x in window.x0..window.x1 {
-            let rendered = silhouette.get_pixel(x - window.x0, y - window.y0)[0] > 0;
-            let coloured = colours.probability(image.get_pixel(x, y)) > 0.5;
+    // Raw rows: the window is up to a third of a megapixel at every relearning.
+    for ((_, colours), drawn) in window.colour_rows(image).zip(silhouette.as_raw().chunks_exact(window.size().0 as usize)) {
+        for (c, &m) in colours.zip(drawn) {
+            let (rendered, coloured) = (m > 0, object(&c));
             both += (rendered && coloured) as usize;
             either += (rendered || coloured) as usize;
         }
@@ -67,5 +71,14 @@ mod tests {
         let shifted = GrayImage::from_fn(40, 40, |x, y| image::Luma([if (20..40).contains(&x) && (10..30).contains(&y) { 255 } else { 0 }]));
         assert!((silhouette_iou(&colours, &img, &shifted, all) - 1.0 / 3.0).abs() < 1e-9);
         assert_eq!(silhouette_iou(&ColourModel::default(), &img, &GrayImage::new(40, 40), all), 0.0);
+        // A window off the image's corner reads the silhouette's rows against its own.
+        let part = Window { x0: 5, y0: 8, x1: 35, y1: 33 };
+        let sil_part = image::imageops::crop_imm(&sil, 5, 8, 30, 25).to_image();
+        assert_eq!(silhouette_iou(&colours, &img, &sil_part, part), 1.0);
+        // The shifted silhouette cut at the window's right edge (x 35): 200 shared of 500.
+        let sil_shifted = image::imageops::crop_imm(&shifted, 5, 8, 30, 25).to_image();
+        assert!((silhouette_iou(&colours, &img, &sil_shifted, part) - 0.4).abs() < 1e-9);
+        // A silhouette that is not the window's size measures nothing.
+        assert_eq!(silhouette_iou(&colours, &img, &GrayImage::new(10, 10), part), 0.0);
     }
 }

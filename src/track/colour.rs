@@ -58,10 +58,6 @@ impl Window {
         let (w, h) = self.size();
         k.window(self.x0, self.y0, w, h)
     }
-
-    fn pixels(&self) -> impl Iterator<Item = (u32, u32)> + '_ {
-        (self.y0..self.y1).flat_map(move |y| (self.x0..self.x1).map(move |x| (x, y)))
-    }
 }
 
 fn bin(p: &image::Rgb<u8>) -> usize {
@@ -98,14 +94,16 @@ impl ColourModel {
         }
         let (mut fg, mut bg) = (vec![0f32; BINS], vec![0f32; BINS]);
         let (mut nf, mut nb) = (0usize, 0usize);
-        for (x, y) in window.pixels() {
-            let b = bin(image.get_pixel(x, y));
-            if silhouette.get_pixel(x - window.x0, y - window.y0)[0] > 0 {
-                fg[b] += 1.0;
-                nf += 1;
-            } else {
-                bg[b] += 1.0;
-                nb += 1;
+        for ((_, colours), drawn) in window.colour_rows(image).zip(silhouette.as_raw().chunks_exact(window.size().0 as usize)) {
+            for (c, &m) in colours.zip(drawn) {
+                let b = bin(&c);
+                if m > 0 {
+                    fg[b] += 1.0;
+                    nf += 1;
+                } else {
+                    bg[b] += 1.0;
+                    nb += 1;
+                }
             }
         }
         if nf == 0 || nb == 0 {
@@ -125,6 +123,13 @@ impl ColourModel {
     /// Foreground probability of one colour; 0.5 for colours neither side has seen.
     pub fn probability(&self, p: &image::Rgb<u8>) -> f32 {
         self.bin_probability(bin(p))
+    }
+
+    /// Whether a colour is more likely the object's than the background's (`probability`
+    /// over one half), from a table of the bins made once: a test per pixel of a window.
+    pub fn object_bins(&self) -> impl Fn(&image::Rgb<u8>) -> bool {
+        let object: Vec<bool> = (0..BINS).map(|b| self.bin_probability(b) > 0.5).collect();
+        move |p| object[bin(p)]
     }
 
     fn bin_probability(&self, b: usize) -> f32 {
@@ -171,6 +176,24 @@ pub(crate) mod tests {
             }
         }
         (img, sil)
+    }
+
+    #[test]
+    fn a_window_off_the_corner_learns_its_own_pixels() {
+        let (img, sil) = red_square();
+        // Rows 8..33 and columns 5..35: the square's part in it is object, the rest background.
+        let part = Window { x0: 5, y0: 8, x1: 35, y1: 33 };
+        let sil_part = image::imageops::crop_imm(&sil, 5, 8, 30, 25).to_image();
+        let mut m = ColourModel::default();
+        assert!(m.learn(&img, &sil_part, part, 1.0));
+        assert!(m.probability(&image::Rgb([220, 30, 30])) > 0.99);
+        assert!(m.probability(&image::Rgb([20, 120, 200])) < 0.01);
+        // The table of object colours says what the probability says, for every colour.
+        let object = m.object_bins();
+        for c in (0..=255u8).step_by(5).flat_map(|r| (0..=255u8).step_by(17).map(move |g| image::Rgb([r, g, 255 - r]))) {
+            assert_eq!(object(&c), m.probability(&c) > 0.5, "{c:?}");
+        }
+        assert!(object(&image::Rgb([220, 30, 30])) && !object(&image::Rgb([20, 120, 200])));
     }
 
     #[test]

@@ -104,7 +104,20 @@ impl PhotometricModel {
     /// well inside the silhouette with the strongest grey gradients, back-projected with the
     /// render's depth.
     pub fn learn(&mut self, image: &RgbImage, render: &RenderOutput, window: Window, wk: &Intrinsics, pose: &Pose, config: &PhotometricConfig) {
-        let grey = GreyWindow::new(image, window, config.blur_sigma);
+        // Blurred over the silhouette's part of the window (with the room `align` leaves,
+        // so every point reads what the whole window's blur gives): the window is some
+        // three object radii a side, and its blur was most of a relearning's time.
+        let room = 2 + blur_radius(config.blur_sigma) as u32;
+        let Some(region) = drawn_region(render, window, room) else {
+            self.samples.clear();
+            return;
+        };
+        self.learn_in(&GreyWindow::new(image, region, config.blur_sigma), render, window, wk, pose, config);
+    }
+
+    /// `learn` with the blurred frame `grey` (the window's, or a part of it that holds
+    /// every point the render can give).
+    fn learn_in(&mut self, grey: &GreyWindow, render: &RenderOutput, window: Window, wk: &Intrinsics, pose: &Pose, config: &PhotometricConfig) {
         let (w, h) = (render.width() as usize, render.height() as usize);
         let depth = |x: usize, y: usize| render.depth[y * w + x] as f64;
         let back = |x: usize, y: usize| {
@@ -266,6 +279,24 @@ impl PhotometricModel {
 const REACH_PX: f64 = 24.0;
 
 /// The blur's kernel reaches this many pixels each side.
+/// The part of `window` within `pad` pixels of the pixels `render` (the window's size)
+/// draws the object on; None when it draws none.
+fn drawn_region(render: &RenderOutput, window: Window, pad: u32) -> Option<Window> {
+    let w = render.width() as usize;
+    let (mut lo, mut hi) = ((u32::MAX, u32::MAX), (0u32, 0u32));
+    for (y, row) in render.depth.chunks_exact(w.max(1)).enumerate() {
+        let (Some(first), Some(last)) = (row.iter().position(|&z| z > 0.0), row.iter().rposition(|&z| z > 0.0)) else { continue };
+        lo = (lo.0.min(first as u32), lo.1.min(y as u32));
+        hi = (hi.0.max(last as u32), y as u32);
+    }
+    (lo.0 != u32::MAX).then(|| Window {
+        x0: (window.x0 + lo.0).saturating_sub(pad).max(window.x0),
+        y0: (window.y0 + lo.1).saturating_sub(pad).max(window.y0),
+        x1: (window.x0 + hi.0 + 1 + pad).min(window.x1),
+        y1: (window.y0 + hi.1 + 1 + pad).min(window.y1),
+    })
+}
+
 fn blur_radius(sigma: f64) -> isize {
     (3.0 * sigma).ceil() as isize
 }
@@ -354,6 +385,43 @@ mod tests {
         let grey = GreyWindow::new(&image, first, sigma);
         let edge = Vector2::new(first.x0 as f64 + 1.5, first.y0 as f64 + 10.0);
         assert!((grey.sample(&edge).unwrap().0 - whole_grey.sample(&edge).unwrap().0).abs() > 1e-2);
+    }
+
+    /// A relearning blurs only the silhouette's part of the window: the points it keeps
+    /// are those a blur of the whole window gives, bit for bit, wherever in the window the
+    /// object is drawn (its middle, against an edge); a window with nothing drawn keeps none.
+    #[test]
+    fn learning_from_the_silhouettes_part_keeps_the_whole_windows_points() {
+        let image = RgbImage::from_fn(120, 90, |x, y| image::Rgb([((x * 37 + y * 11) % 251) as u8, ((x * y) % 253) as u8, ((x * x + 3 * y) % 255) as u8]));
+        let window = Window { x0: 10, y0: 5, x1: 110, y1: 85 };
+        let (w, h) = window.size();
+        let wk = Intrinsics::new(200.0, 200.0, w as f64 / 2.0, h as f64 / 2.0, w, h).unwrap();
+        let pose = Pose::new(nalgebra::Rotation3::from_euler_angles(0.2, -0.1, 0.3), Vector3::new(0.01, 0.0, 0.5));
+        let config = PhotometricConfig::default();
+        // A tilted plane drawn over a rectangle of the window.
+        let drawn = |(x0, y0, x1, y1): (u32, u32, u32, u32)| {
+            let inside = |x: u32, y: u32| (x0..x1).contains(&x) && (y0..y1).contains(&y);
+            RenderOutput {
+                rgb: RgbImage::new(w, h),
+                depth: (0..w * h).map(|i| if inside(i % w, i / w) { 0.5 + 0.0004 * (i % w) as f32 - 0.0002 * (i / w) as f32 } else { 0.0 }).collect(),
+                mask: image::GrayImage::from_fn(w, h, |x, y| image::Luma([if inside(x, y) { 255 } else { 0 }])),
+            }
+        };
+        for rect in [(30, 20, 70, 60), (0, 0, 40, 50), (60, 40, 100, 80)] {
+            let render = drawn(rect);
+            let mut part = PhotometricModel::default();
+            part.learn(&image, &render, window, &wk, &pose, &config);
+            let mut whole = PhotometricModel::default();
+            whole.learn_in(&GreyWindow::new(&image, window, config.blur_sigma), &render, window, &wk, &pose, &config);
+            assert!(part.len() > 50, "{rect:?}: {} points", part.len());
+            assert_eq!(part.len(), whole.len(), "{rect:?}");
+            for (a, b) in part.samples.iter().zip(&whole.samples) {
+                assert!(a.point == b.point && a.normal == b.normal && a.grey == b.grey, "{rect:?}");
+            }
+        }
+        let mut none = PhotometricModel { samples: vec![Sample { point: Point3::origin(), normal: Vector3::z(), grey: 1.0 }] };
+        none.learn(&image, &drawn((0, 0, 0, 0)), window, &wk, &pose, &config);
+        assert!(none.is_empty());
     }
 
     #[test]
