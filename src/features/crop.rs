@@ -88,7 +88,8 @@ pub fn sample_crop(rgb: &RgbImage, mask: &GrayImage, b: &CropBox, to_source: ToS
     };
     let plan = match to_source {
         ToSource::Shift(dx, dy) => Plan::Separable { columns: taps(b.origin_u, dx), rows: taps(b.origin_v, dy) },
-        ToSource::Turned(turn) => Plan::Turned(turn),
+        // Where the source has no object pixel, nothing is sampled (`mapped_sums`).
+        ToSource::Turned(turn) => Plan::Turned(turn, mask_bbox(mask)),
     };
     let inv = 1.0 / (sub * sub) as f32;
     let mut out_rgb = RgbImage::new(b.size, b.size);
@@ -100,7 +101,8 @@ pub fn sample_crop(rgb: &RgbImage, mask: &GrayImage, b: &CropBox, to_source: ToS
         let crop_rows = i * CROP_ROWS_PER_BAND..i * CROP_ROWS_PER_BAND + band_mask.len() / size.max(1);
         let sums = match &plan {
             Plan::Separable { columns, rows } => source.separable_sums(size, sub, columns, &rows[crop_rows.start * sub..crop_rows.end * sub]),
-            Plan::Turned(turn) => source.mapped_sums(size, crop_rows, &offsets, b, |u, v| turn.apply(u, v)),
+            Plan::Turned(_, None) => vec![[0.0; 4]; crop_rows.len() * size],
+            Plan::Turned(turn, Some(drawn)) => source.mapped_sums(size, crop_rows, &offsets, (b, *drawn), |u, v| turn.apply(u, v)),
         };
         for ((acc, px), m) in sums.iter().zip(band_rgb.chunks_exact_mut(3)).zip(band_mask.iter_mut()) {
             // Premultiplied: background black, edge pixels darkened by their coverage.
@@ -115,10 +117,11 @@ pub fn sample_crop(rgb: &RgbImage, mask: &GrayImage, b: &CropBox, to_source: ToS
     CropInput { rgb: out_rgb, mask: out_mask }
 }
 
-/// How `sample_crop` finds its taps: per column and per row, or per sample point.
+/// How `sample_crop` finds its taps: per column and per row, or per sample point (with
+/// the source mask's bounding box, None when it has no object pixel).
 enum Plan {
     Separable { columns: Vec<(i64, f32)>, rows: Vec<(i64, f32)> },
-    Turned(Turn),
+    Turned(Turn, Option<(u32, u32, u32, u32)>),
 }
 
 /// Crop rows per band of `sample_crop`: a band's source rows are interpolated once for
@@ -146,11 +149,23 @@ impl Source<'_> {
     /// `crop_rows` over its `offsets`² sample points, each point mapped to the source on
     /// its own: crop to image by `b`, image to source by `map` (a type, not a `dyn`, so
     /// that it is inlined: onboarding crops 1944 turned templates of some 200 000 sample
-    /// points each).
-    fn mapped_sums(&self, size: usize, crop_rows: std::ops::Range<usize>, offsets: &[f64], b: &CropBox, map: impl Fn(f64, f64) -> (f64, f64)) -> Vec<[f32; 4]> {
+    /// points each). `map` is affine (a turn), so each crop row meets the source's `drawn`
+    /// box (its object pixels' bounds) in one run of columns: only those are sampled, since
+    /// every tap of the others reads background (a template's crop is mostly margin).
+    fn mapped_sums(&self, size: usize, crop_rows: std::ops::Range<usize>, offsets: &[f64], (b, drawn): (&CropBox, (u32, u32, u32, u32)), map: impl Fn(f64, f64) -> (f64, f64)) -> Vec<[f32; 4]> {
         let mut sums = vec![[0f32; 4]; crop_rows.len() * size];
+        // A sample point within half a crop pixel of a pixel's centre per axis lands within
+        // 0.71 × scale source pixels of the centre's point (turned), and its taps read the
+        // box only from within one pixel of it; one more pixel for rounding.
+        let reach = 0.71 * b.scale() + 2.0;
+        let (lo, hi) = ((drawn.0 as f64 - reach, drawn.1 as f64 - reach), (drawn.2 as f64 + reach, drawn.3 as f64 + reach));
         for (cv, row) in crop_rows.zip(sums.chunks_mut(size.max(1))) {
-            for (cu, acc) in row.iter_mut().enumerate() {
+            let point = |cu: f64| {
+                let (iu, iv) = b.to_image(cu, cv as f64);
+                map(iu, iv)
+            };
+            let (start, end) = columns_within(point(0.0), point(1.0), lo, hi, size);
+            for (cu, acc) in row.iter_mut().enumerate().take(end).skip(start) {
                 for &dv in offsets {
                     for &du in offsets {
                         let (iu, iv) = b.to_image(cu as f64 + du, cv as f64 + dv);
@@ -252,6 +267,30 @@ impl Source<'_> {
     }
 }
 
+/// The columns `start..end` of `0..size` whose points `p0 + cu · (p1 − p0)` (an affine
+/// row of sample points) lie within the box `lo`–`hi`, one column wider each side for
+/// rounding; empty when none does.
+fn columns_within(p0: (f64, f64), p1: (f64, f64), lo: (f64, f64), hi: (f64, f64), size: usize) -> (usize, usize) {
+    let (mut from, mut to) = (f64::NEG_INFINITY, f64::INFINITY);
+    for (start, step, lo, hi) in [(p0.0, p1.0 - p0.0, lo.0, hi.0), (p0.1, p1.1 - p0.1, lo.1, hi.1)] {
+        if step.abs() < 1e-12 {
+            if start < lo || start > hi {
+                return (0, 0);
+            }
+            continue;
+        }
+        let (a, b) = ((lo - start) / step, (hi - start) / step);
+        from = from.max(a.min(b));
+        to = to.min(a.max(b));
+    }
+    if from > to {
+        return (0, 0);
+    }
+    let start = (from.floor() - 1.0).clamp(0.0, size as f64) as usize;
+    let end = (to.ceil() + 2.0).clamp(0.0, size as f64) as usize;
+    (start, end.max(start))
+}
+
 /// Crop of a query image around its mask, with `padding` (fraction of the box side).
 pub fn crop_query(rgb: &RgbImage, mask: &GrayImage, padding: f64, size: u32) -> Option<(CropInput, CropBox)> {
     let (a, b, c, d) = mask_bbox(mask)?;
@@ -334,6 +373,53 @@ mod tests {
                 assert!(worst <= 1 && differ * 100 <= fast.mask.len(), "box {:?}, shift {:?}: {differ} values differ, by up to {worst}", (a, b, c, d, pad, size), (dx, dy));
             }
         }
+    }
+
+    #[test]
+    fn turned_crops_sample_only_where_the_object_can_be_and_give_the_reference_bytes() {
+        // An object (a soft-edged disc) in a corner of its source, as a template's render
+        // has it in its middle: the turned crops skip the columns that miss its box and
+        // must still be the reference's bytes, shrinking, enlarging, turned every way, the
+        // disc near the source's edge, and an empty mask.
+        let (w, h) = (120u32, 90u32);
+        let rgb = RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 7 + y * 3) as u8, (x * y) as u8, (255 - x * 2) as u8]));
+        let disc = |cx: i64, cy: i64, r2: i64| {
+            GrayImage::from_fn(w, h, move |x, y| {
+                let d = (x as i64 - cx).pow(2) + (y as i64 - cy).pow(2);
+                image::Luma([if d < r2 {
+                    255
+                } else if d < r2 + 60 {
+                    120
+                } else {
+                    0
+                }])
+            })
+        };
+        for mask in [disc(35, 30, 150), disc(110, 80, 200), disc(2, 45, 90), GrayImage::new(w, h)] {
+            for (a, b, c, d, pad, size) in [(20, 15, 50, 45, 0.2, 64), (0, 0, 119, 89, 0.1, 32), (25, 20, 45, 40, 0.5, 100), (90, 60, 119, 89, 0.3, 24)] {
+                let bx = CropBox::around(a, b, c, d, pad, size);
+                for angle in [0.0, 0.3, 1.2, -2.5, std::f64::consts::PI] {
+                    let turn = Turn::new(angle, [60.0, 45.0]);
+                    let (fast, slow) = (sample_crop(&rgb, &mask, &bx, ToSource::Turned(turn)), reference_crop(&rgb, &mask, &bx, &|u, v| turn.apply(u, v)));
+                    assert_eq!((fast.rgb.as_raw(), fast.mask.as_raw()), (slow.rgb.as_raw(), slow.mask.as_raw()), "box {:?}, angle {angle}", (a, b, c, d, pad, size));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_row_meets_a_box_in_one_run_of_columns() {
+        // Points x = 10 + 2·cu along y = 5: x within 20..=30 for cu 5..=10, widened by one
+        // column each side (and the end exclusive).
+        assert_eq!(columns_within((10.0, 5.0), (12.0, 5.0), (20.0, 0.0), (30.0, 10.0), 100), (4, 12));
+        // Going the other way, and clipped to the row.
+        assert_eq!(columns_within((30.0, 5.0), (28.0, 5.0), (20.0, 0.0), (30.0, 10.0), 100), (0, 7));
+        // A row beside the box, and one along it.
+        assert_eq!(columns_within((10.0, 50.0), (12.0, 50.0), (20.0, 0.0), (30.0, 10.0), 100), (0, 0));
+        assert_eq!(columns_within((25.0, 5.0), (25.0, 5.0), (20.0, 0.0), (30.0, 10.0), 8), (0, 8));
+        // Past the row's end.
+        let (start, end) = columns_within((10.0, 5.0), (10.1, 5.0), (20.0, 0.0), (30.0, 10.0), 50);
+        assert_eq!(start, end);
     }
 
     /// Each row's first and last object pixel, and nothing for rows without one.
