@@ -39,8 +39,8 @@ pub struct Graph {
     /// Arcs in pairs: arc `2i` and its reverse `2i+1`; `head` is where an arc points.
     head: Vec<u32>,
     cap: Vec<i64>,
-    /// The arc leaving from each, in the order added; turned into `first`/`arcs` at the
-    /// first cut.
+    /// The node each arc leaves from, in the order added; turned into `first`/`arcs` at
+    /// the first cut.
     tail: Vec<u32>,
     /// Node `v`'s arcs are `arcs[first[v]..first[v + 1]]`.
     first: Vec<u32>,
@@ -103,6 +103,7 @@ impl Graph {
     }
 
     /// Adds `ab` on a→b and `ba` on b→a (both ≥ 0).
+    ///
     /// Edges are added before the first [`Graph::max_flow`]; later cuts change only the
     /// terminals.
     pub fn add_edge(&mut self, a: usize, b: usize, ab: i64, ba: i64) {

@@ -35,18 +35,14 @@ pub fn appearance(render: &RenderOutput, image: &RgbImage, window: Window) -> f6
 /// IoU of `silhouette` (the pose rendered through `window` alone, the window's size) with
 /// the pixels in the window whose foreground probability is over one half.
 pub fn silhouette_iou(colours: &ColourModel, image: &RgbImage, silhouette: &GrayImage, window: Window) -> f64 {
-    if silhouette.dimensions() != window.size() {
-        return 0.0;
-    }
+    // Raw rows: the window is up to a third of a megapixel at every relearning.
+    let Some(pixels) = window.with_silhouette(image, silhouette) else { return 0.0 };
     let object = colours.object_bins();
     let (mut both, mut either) = (0usize, 0usize);
-    // Raw rows: the window is up to a third of a megapixel at every relearning.
-    for ((_, colours), drawn) in window.colour_rows(image).zip(silhouette.as_raw().chunks_exact(window.size().0 as usize)) {
-        for (c, &m) in colours.zip(drawn) {
-            let (rendered, coloured) = (m > 0, object(&c));
-            both += (rendered && coloured) as usize;
-            either += (rendered || coloured) as usize;
-        }
+    for (c, rendered) in pixels {
+        let coloured = object(&c);
+        both += (rendered && coloured) as usize;
+        either += (rendered || coloured) as usize;
     }
     if either == 0 {
         0.0

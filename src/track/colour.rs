@@ -53,6 +53,16 @@ impl Window {
         (self.x1 - self.x0, self.y1 - self.y0)
     }
 
+    /// The window's pixels of `image`, row by row, each with whether `silhouette` (the
+    /// window's size, non-zero on the object) covers it; None when the silhouette is
+    /// another size. Raw rows, as `colour_rows`.
+    pub fn with_silhouette<'a>(self, image: &'a RgbImage, silhouette: &'a GrayImage) -> Option<impl Iterator<Item = (image::Rgb<u8>, bool)> + 'a> {
+        (silhouette.dimensions() == self.size()).then(|| {
+            let drawn = silhouette.as_raw().chunks_exact(self.size().0 as usize);
+            self.colour_rows(image).zip(drawn).flat_map(|((_, colours), drawn)| colours.zip(drawn.iter().map(|&m| m > 0)))
+        })
+    }
+
     /// `k` seeing only this window: a render through it covers the window's pixels alone.
     pub fn intrinsics(&self, k: &crate::geometry::Intrinsics) -> Option<crate::geometry::Intrinsics> {
         let (w, h) = self.size();
@@ -89,21 +99,17 @@ impl ColourModel {
     /// (1: replace; the first call always replaces). Returns false, learning nothing, when
     /// either side has no pixel or the silhouette is not the window's size.
     pub fn learn(&mut self, image: &RgbImage, silhouette: &GrayImage, window: Window, rate: f32) -> bool {
-        if silhouette.dimensions() != window.size() {
-            return false;
-        }
+        let Some(pixels) = window.with_silhouette(image, silhouette) else { return false };
         let (mut fg, mut bg) = (vec![0f32; BINS], vec![0f32; BINS]);
         let (mut nf, mut nb) = (0usize, 0usize);
-        for ((_, colours), drawn) in window.colour_rows(image).zip(silhouette.as_raw().chunks_exact(window.size().0 as usize)) {
-            for (c, &m) in colours.zip(drawn) {
-                let b = bin(&c);
-                if m > 0 {
-                    fg[b] += 1.0;
-                    nf += 1;
-                } else {
-                    bg[b] += 1.0;
-                    nb += 1;
-                }
+        for (c, drawn) in pixels {
+            let b = bin(&c);
+            if drawn {
+                fg[b] += 1.0;
+                nf += 1;
+            } else {
+                bg[b] += 1.0;
+                nb += 1;
             }
         }
         if nf == 0 || nb == 0 {

@@ -278,25 +278,19 @@ impl PhotometricModel {
 /// carry them, px (a step that carries them further has the window blurred again).
 const REACH_PX: f64 = 24.0;
 
-/// The blur's kernel reaches this many pixels each side.
 /// The part of `window` within `pad` pixels of the pixels `render` (the window's size)
-/// draws the object on; None when it draws none.
+/// draws the object on (its mask, which is where its depth is); None when it draws none.
 fn drawn_region(render: &RenderOutput, window: Window, pad: u32) -> Option<Window> {
-    let w = render.width() as usize;
-    let (mut lo, mut hi) = ((u32::MAX, u32::MAX), (0u32, 0u32));
-    for (y, row) in render.depth.chunks_exact(w.max(1)).enumerate() {
-        let (Some(first), Some(last)) = (row.iter().position(|&z| z > 0.0), row.iter().rposition(|&z| z > 0.0)) else { continue };
-        lo = (lo.0.min(first as u32), lo.1.min(y as u32));
-        hi = (hi.0.max(last as u32), y as u32);
-    }
-    (lo.0 != u32::MAX).then(|| Window {
-        x0: (window.x0 + lo.0).saturating_sub(pad).max(window.x0),
-        y0: (window.y0 + lo.1).saturating_sub(pad).max(window.y0),
-        x1: (window.x0 + hi.0 + 1 + pad).min(window.x1),
-        y1: (window.y0 + hi.1 + 1 + pad).min(window.y1),
+    let (x0, y0, x1, y1) = crate::features::mask_bbox(&render.mask)?;
+    Some(Window {
+        x0: (window.x0 + x0).saturating_sub(pad).max(window.x0),
+        y0: (window.y0 + y0).saturating_sub(pad).max(window.y0),
+        x1: (window.x0 + x1 + 1 + pad).min(window.x1),
+        y1: (window.y0 + y1 + 1 + pad).min(window.y1),
     })
 }
 
+/// The blur's kernel reaches this many pixels each side.
 fn blur_radius(sigma: f64) -> isize {
     (3.0 * sigma).ceil() as isize
 }
