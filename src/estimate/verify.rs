@@ -171,7 +171,21 @@ fn sobel(at: &dyn Fn(u32, u32) -> f32, x: u32, y: u32) -> (f32, f32) {
 /// Whether window pixel (x, y), at least 2 px from the window's edge, lies 2 px or more
 /// inside the render's silhouette: its outline's pixels mix object and background.
 fn well_inside(render: &RenderOutput, x: u32, y: u32) -> bool {
-    (-2i64..=2).all(|d| render.mask.get_pixel((x as i64 + d) as u32, y)[0] > 0 && render.mask.get_pixel(x, (y as i64 + d) as u32)[0] > 0)
+    // The raw buffer by index: the check runs for every pixel of the silhouette's box, ten
+    // reads each.
+    let (mask, stride) = (render.mask.as_raw(), render.mask.width() as usize);
+    let i = y as usize * stride + x as usize;
+    (0..=4).all(|d| mask[i + d - 2] > 0 && mask[i + d * stride - 2 * stride] > 0)
+}
+
+/// The window pixels, row by row, that lie [`well_inside`] the render's silhouette and
+/// that the Sobel kernels can read (3 px from the window's edge). Only the silhouette's box,
+/// shrunk by the 2 px `well_inside` asks for, is scanned: the window is up to three object
+/// radii a side around a tracked object, its silhouette a third of it.
+fn interior_pixels(render: &RenderOutput, w: u32, h: u32) -> impl Iterator<Item = (u32, u32)> + '_ {
+    let span = crate::features::mask_bbox(&render.mask).filter(|_| w >= 7 && h >= 7);
+    let (xs, ys) = span.map_or((0..0, 0..0), |(lx, ly, hx, hy)| ((lx + 2).max(3)..(hx.saturating_sub(2) + 1).min(w - 3), (ly + 2).max(3)..(hy.saturating_sub(2) + 1).min(h - 3)));
+    ys.flat_map(move |y| xs.clone().map(move |x| (x, y))).filter(|&(x, y)| well_inside(render, x, y))
 }
 
 /// Grey-level Sobel magnitude (of 8·255 at most) below which a pixel has no edge.
@@ -194,30 +208,21 @@ pub fn appearance_agreement(render: &RenderOutput, image: &RgbImage, mask: &Gray
 /// admits, for callers without a mask image (a tracker checks its own render).
 pub fn appearance_agreement_where(render: &RenderOutput, image: &RgbImage, window: (u32, u32, u32, u32), in_mask: &dyn Fn(u32, u32) -> bool) -> f64 {
     let (x0, y0, w, h) = window;
-    if w < 7 || h < 7 {
-        return 0.0;
-    }
     let r_at = |x: u32, y: u32| grey(render.rgb.get_pixel(x, y));
     let i_at = |x: u32, y: u32| grey(image.get_pixel(x0 + x, y0 + y));
-    let inside = |x: u32, y: u32| well_inside(render, x, y) && in_mask(x, y);
     let (mut sum, mut count) = (0.0f64, 0usize);
-    for y in 3..h - 3 {
-        for x in 3..w - 3 {
-            if !inside(x, y) {
-                continue;
-            }
-            let (rx, ry) = sobel(&r_at, x, y);
-            let (ix, iy) = sobel(&i_at, x, y);
-            let (rm, im) = (rx * rx + ry * ry, ix * ix + iy * iy);
-            let (r_edge, i_edge) = (rm >= EDGE * EDGE, im >= EDGE * EDGE);
-            if !(r_edge || i_edge) {
-                continue;
-            }
-            count += 1;
-            if r_edge && i_edge {
-                let dot = (rx * ix + ry * iy) as f64;
-                sum += dot * dot / (rm as f64 * im as f64);
-            }
+    for (x, y) in interior_pixels(render, w, h).filter(|&(x, y)| in_mask(x, y)) {
+        let (rx, ry) = sobel(&r_at, x, y);
+        let (ix, iy) = sobel(&i_at, x, y);
+        let (rm, im) = (rx * rx + ry * ry, ix * ix + iy * iy);
+        let (r_edge, i_edge) = (rm >= EDGE * EDGE, im >= EDGE * EDGE);
+        if !(r_edge || i_edge) {
+            continue;
+        }
+        count += 1;
+        if r_edge && i_edge {
+            let dot = (rx * ix + ry * iy) as f64;
+            sum += dot * dot / (rm as f64 * im as f64);
         }
     }
     if count == 0 {
@@ -240,19 +245,11 @@ pub fn colour_agreement(render: &RenderOutput, image: &RgbImage, mask: &GrayImag
 /// [`colour_agreement`] over the window pixels (window coordinates) that `in_mask` admits.
 pub fn colour_agreement_where(render: &RenderOutput, image: &RgbImage, window: (u32, u32, u32, u32), in_mask: &dyn Fn(u32, u32) -> bool) -> f64 {
     let (x0, y0, w, h) = window;
-    if w < 7 || h < 7 {
-        return 0.0;
-    }
-    let inside = |x: u32, y: u32| well_inside(render, x, y) && in_mask(x, y);
     let mut px: Vec<([f64; 3], [f64; 3])> = Vec::new();
-    for y in 3..h - 3 {
-        for x in 3..w - 3 {
-            if inside(x, y) {
-                let r = render.rgb.get_pixel(x, y);
-                let i = image.get_pixel(x0 + x, y0 + y);
-                px.push(([r[0] as f64, r[1] as f64, r[2] as f64], [i[0] as f64, i[1] as f64, i[2] as f64]));
-            }
-        }
+    for (x, y) in interior_pixels(render, w, h).filter(|&(x, y)| in_mask(x, y)) {
+        let r = render.rgb.get_pixel(x, y);
+        let i = image.get_pixel(x0 + x, y0 + y);
+        px.push(([r[0] as f64, r[1] as f64, r[2] as f64], [i[0] as f64, i[1] as f64, i[2] as f64]));
     }
     if px.len() < 10 {
         return 0.0;
@@ -442,6 +439,22 @@ mod tests {
         let plain = RenderOutput { rgb: RgbImage::from_pixel(40, 40, image::Rgb([128, 128, 128])), depth: vec![1.0; 1600], mask: full.clone() };
         let unexplained = appearance_agreement(&plain, &striped(40, true), &full, (0, 0, 40, 40));
         assert!(unexplained < 0.05, "{unexplained}");
+    }
+
+    #[test]
+    fn the_interior_is_read_from_the_silhouettes_box_in_row_order() {
+        // A disc drawn in a 60 × 50 window's middle, against each edge and corner, too small
+        // to have an interior, and absent: the pixels visited are those a scan of the whole
+        // window finds well inside, in the same order (so the sums are the same to the bit).
+        for (cx, cy, r) in [(30.0, 25.0, 14.0), (0.0, 25.0, 12.0), (59.0, 25.0, 12.0), (30.0, 0.0, 12.0), (30.0, 49.0, 12.0), (2.0, 3.0, 9.0), (57.0, 47.0, 9.0), (30.0, 25.0, 2.0), (30.0, 25.0, -1.0)]
+        {
+            let mask = GrayImage::from_fn(60, 50, |x, y| image::Luma([if (x as f64 - cx).powi(2) + (y as f64 - cy).powi(2) <= r * r { 255 } else { 0 }]));
+            let at = |x: i64, y: i64| mask.get_pixel(x as u32, y as u32)[0] > 0;
+            let whole: Vec<(u32, u32)> = (3..47).flat_map(|y| (3..57).map(move |x| (x, y))).filter(|&(x, y)| (-2..=2).all(|d| at(x as i64 + d, y as i64) && at(x as i64, y as i64 + d))).collect();
+            let render = RenderOutput { rgb: RgbImage::new(60, 50), depth: vec![0.0; 3000], mask };
+            assert_eq!(interior_pixels(&render, 60, 50).collect::<Vec<_>>(), whole, "disc at ({cx}, {cy}) r {r}");
+        }
+        assert_eq!(interior_pixels(&RenderOutput { rgb: RgbImage::new(6, 6), depth: vec![1.0; 36], mask: GrayImage::from_pixel(6, 6, image::Luma([255])) }, 6, 6).count(), 0);
     }
 
     #[test]

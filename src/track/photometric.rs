@@ -296,34 +296,49 @@ fn blur_radius(sigma: f64) -> isize {
 }
 
 /// A separable Gaussian blur of a `w × h` grey grid, edges clamped.
+///
+/// Both passes add the kernel's taps one shifted row at a time (a row of the grid, or the
+/// rows above and below for the vertical pass) rather than a pixel's taps one pixel at a
+/// time: the vertical pass then reads rows, not columns `w` apart, and the inner loops
+/// run over contiguous values the compiler can vectorise. Each value's taps are still added
+/// in the kernel's order, so the sums are those of the pixel-at-a-time form to the bit.
 fn blur_grey(values: &[f32], w: usize, h: usize, sigma: f64) -> Vec<f32> {
     let r = blur_radius(sigma);
     let kernel: Vec<f32> = (-r..=r).map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp() as f32).collect();
     let total: f32 = kernel.iter().sum();
     let kernel: Vec<f32> = kernel.iter().map(|k| k / total).collect();
-    // One pass along a line of `n` values `stride` apart, starting at `first`; the edge
-    // clamp only where the kernel reaches past an end (the bounds-free middle is most of
-    // the work).
-    let pass = |src: &[f32], out: &mut [f32], first: usize, stride: usize, n: usize| {
-        let clamped = |i: usize| -> f32 { kernel.iter().enumerate().map(|(j, k)| k * src[first + (i as isize + j as isize - r).clamp(0, n as isize - 1) as usize * stride]).sum() };
-        let ends = (r as usize).min(n);
-        for i in (0..ends).chain(n.saturating_sub(r as usize).max(ends)..n) {
-            out[first + i * stride] = clamped(i);
-        }
-        for i in ends..n.saturating_sub(r as usize) {
-            let start = first + (i - r as usize) * stride;
-            out[first + i * stride] = kernel.iter().enumerate().map(|(j, k)| k * src[start + j * stride]).sum();
-        }
-    };
     let mut rows = vec![0f32; values.len()];
-    for y in 0..h {
-        pass(values, &mut rows, y * w, 1, w);
+    for (src, out) in values.chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
+        blur_row(src, out, &kernel);
     }
     let mut out = vec![0f32; values.len()];
-    for x in 0..w {
-        pass(&rows, &mut out, x, w, h);
+    for (y, row) in out.chunks_exact_mut(w).enumerate() {
+        for (j, k) in kernel.iter().enumerate() {
+            let from = (y as isize + j as isize - r).clamp(0, h as isize - 1) as usize * w;
+            for (o, v) in row.iter_mut().zip(&rows[from..from + w]) {
+                *o += k * v;
+            }
+        }
     }
     out
+}
+
+/// One row of the horizontal pass into `out` (zeroed): the clamped sum where the kernel
+/// reaches past an end, shifted rows added tap by tap in the bounds-free middle.
+fn blur_row(src: &[f32], out: &mut [f32], kernel: &[f32]) {
+    let (n, r) = (src.len(), kernel.len() / 2);
+    let clamped = |i: usize| -> f32 { kernel.iter().enumerate().map(|(j, k)| k * src[(i + j).saturating_sub(r).min(n - 1)]).sum() };
+    let ends = r.min(n);
+    let middle = ends..n.saturating_sub(r).max(ends);
+    for i in (0..ends).chain(middle.end..n) {
+        out[i] = clamped(i);
+    }
+    for (j, k) in kernel.iter().enumerate().filter(|_| !middle.is_empty()) {
+        let shifted = &src[middle.start + j - r..middle.end + j - r];
+        for (o, v) in out[middle.clone()].iter_mut().zip(shifted) {
+            *o += k * v;
+        }
+    }
 }
 
 /// Grey levels beyond this residual count linearly (a highlight, an occluder).

@@ -9,21 +9,27 @@ use image::GrayImage;
 pub struct Posterior<'a> {
     mask: &'a GrayImage,
     unknown: Option<&'a GrayImage>,
-    /// Probability given to a background mask pixel (1 − this to an object pixel).
-    softness: f32,
-    /// The mask's values are probabilities (value / 255), kept within the softness bounds.
-    graded: bool,
+    /// The probability each mask value gives (but 0.5 on `unknown`'s pixels): 0 the
+    /// softness, any other value 1 − the softness; or for a graded mask, the value's
+    /// probability (value / 255) kept within those bounds. A table, because the lines read
+    /// four pixels for each of their samples, and a division each was a measurable part of
+    /// a tracking step.
+    levels: [f32; 256],
 }
+
+/// Probability given to a background mask pixel (1 − this to an object pixel).
+const SOFTNESS: f32 = 0.1;
 
 impl<'a> Posterior<'a> {
     pub fn new(mask: &'a GrayImage, unknown: Option<&'a GrayImage>) -> Self {
-        Self { mask, unknown: unknown.filter(|u| u.dimensions() == mask.dimensions()), softness: 0.1, graded: false }
+        let levels = std::array::from_fn(|v| if v > 0 { 1.0 - SOFTNESS } else { SOFTNESS });
+        Self { mask, unknown: unknown.filter(|u| u.dimensions() == mask.dimensions()), levels }
     }
 
     /// From an image of foreground probabilities (0 = surely background, 255 = surely the
     /// object), e.g. a tracker's colour posterior.
     pub fn probabilities(probs: &'a GrayImage) -> Self {
-        Self { mask: probs, unknown: None, softness: 0.1, graded: true }
+        Self { mask: probs, unknown: None, levels: std::array::from_fn(|v| (v as f32 / 255.0).clamp(SOFTNESS, 1.0 - SOFTNESS)) }
     }
 
     /// Foreground probability at image point (u, v) (pixel centres at integers),
@@ -62,16 +68,10 @@ impl<'a> Posterior<'a> {
         // The raw buffers by index: four reads per sample of every line, where `get_pixel`
         // would check the bounds again each time.
         let value = self.mask.as_raw()[i];
-        if self.graded {
-            return (value as f32 / 255.0).clamp(self.softness, 1.0 - self.softness);
-        }
-        if value > 0 {
-            return 1.0 - self.softness;
-        }
-        if self.unknown.is_some_and(|u| u.as_raw()[i] > 0) {
+        if value == 0 && self.unknown.is_some_and(|u| u.as_raw()[i] > 0) {
             return 0.5;
         }
-        self.softness
+        self.levels[value as usize]
     }
 }
 
