@@ -11,6 +11,7 @@ use crate::geometry::{Intrinsics, Pose};
 use crate::render::{RenderOptions, RenderOutput, RenderPool};
 use image::{GrayImage, RgbImage};
 use rayon::prelude::*;
+use std::ops::Range;
 
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
@@ -162,7 +163,7 @@ impl Verified {
 }
 
 /// Sobel gradient of `at(x, y)` at interior point (x, y).
-fn sobel(at: &dyn Fn(u32, u32) -> f32, x: u32, y: u32) -> (f32, f32) {
+fn sobel(at: impl Fn(u32, u32) -> f32, x: u32, y: u32) -> (f32, f32) {
     let gx = at(x + 1, y - 1) + 2.0 * at(x + 1, y) + at(x + 1, y + 1) - at(x - 1, y - 1) - 2.0 * at(x - 1, y) - at(x - 1, y + 1);
     let gy = at(x - 1, y + 1) + 2.0 * at(x, y + 1) + at(x + 1, y + 1) - at(x - 1, y - 1) - 2.0 * at(x, y - 1) - at(x + 1, y - 1);
     (gx, gy)
@@ -183,9 +184,24 @@ fn well_inside(render: &RenderOutput, x: u32, y: u32) -> bool {
 /// shrunk by the 2 px `well_inside` asks for, is scanned: the window is up to three object
 /// radii a side around a tracked object, its silhouette a third of it.
 fn interior_pixels(render: &RenderOutput, w: u32, h: u32) -> impl Iterator<Item = (u32, u32)> + '_ {
-    let span = crate::features::mask_bbox(&render.mask).filter(|_| w >= 7 && h >= 7);
-    let (xs, ys) = span.map_or((0..0, 0..0), |(lx, ly, hx, hy)| ((lx + 2).max(3)..(hx.saturating_sub(2) + 1).min(w - 3), (ly + 2).max(3)..(hy.saturating_sub(2) + 1).min(h - 3)));
+    let (xs, ys) = interior_span(render, w, h);
     ys.flat_map(move |y| xs.clone().map(move |x| (x, y))).filter(|&(x, y)| well_inside(render, x, y))
+}
+
+/// The columns and rows of the box [`interior_pixels`] scans (empty where there is none).
+fn interior_span(render: &RenderOutput, w: u32, h: u32) -> (Range<u32>, Range<u32>) {
+    let span = crate::features::mask_bbox(&render.mask).filter(|_| w >= 7 && h >= 7);
+    span.map_or((0..0, 0..0), |(lx, ly, hx, hy)| ((lx + 2).max(3)..(hx.saturating_sub(2) + 1).min(w - 3), (ly + 2).max(3)..(hy.saturating_sub(2) + 1).min(h - 3)))
+}
+
+/// Grey levels of the pixels (x, y) ∈ `xs` × `ys` grown by the one pixel a Sobel kernel
+/// reaches, read through `at`, and a lookup by the same coordinates: the kernels read each
+/// pixel up to six times, and converting it once is most of what the edges cost.
+fn grey_patch<'a>(xs: &Range<u32>, ys: &Range<u32>, at: impl Fn(u32, u32) -> &'a image::Rgb<u8>) -> impl Fn(u32, u32) -> f32 {
+    let (x0, y0) = (xs.start.saturating_sub(1), ys.start.saturating_sub(1));
+    let width = (xs.end + 1).saturating_sub(x0) as usize;
+    let values: Vec<f32> = (y0..ys.end + 1).flat_map(|y| (x0..x0 + width as u32).map(move |x| (x, y))).map(|(x, y)| grey(at(x, y))).collect();
+    move |x, y| values[(y - y0) as usize * width + (x - x0) as usize]
 }
 
 /// Grey-level Sobel magnitude (of 8·255 at most) below which a pixel has no edge.
@@ -208,8 +224,12 @@ pub fn appearance_agreement(render: &RenderOutput, image: &RgbImage, mask: &Gray
 /// admits, for callers without a mask image (a tracker checks its own render).
 pub fn appearance_agreement_where(render: &RenderOutput, image: &RgbImage, window: (u32, u32, u32, u32), in_mask: &dyn Fn(u32, u32) -> bool) -> f64 {
     let (x0, y0, w, h) = window;
-    let r_at = |x: u32, y: u32| grey(render.rgb.get_pixel(x, y));
-    let i_at = |x: u32, y: u32| grey(image.get_pixel(x0 + x, y0 + y));
+    let (xs, ys) = interior_span(render, w, h);
+    if xs.is_empty() || ys.is_empty() {
+        return 0.0;
+    }
+    let r_at = grey_patch(&xs, &ys, |x, y| render.rgb.get_pixel(x, y));
+    let i_at = grey_patch(&xs, &ys, |x, y| image.get_pixel(x0 + x, y0 + y));
     let (mut sum, mut count) = (0.0f64, 0usize);
     for (x, y) in interior_pixels(render, w, h).filter(|&(x, y)| in_mask(x, y)) {
         let (rx, ry) = sobel(&r_at, x, y);
