@@ -14,6 +14,12 @@
 //! the next [`Graph::max_flow`] pushes only what the change opened: the later rounds cost a
 //! fraction of the first.
 //!
+//! Before the trees grow, each cut pushes what it can along the paths of one arc between
+//! neighbours of opposite terminals (`push_to_neighbours`): the cut read off (the nodes the
+//! source still reaches, the minimal minimum cut) is the same for any maximum flow, so
+//! this only shortens the search (tested against brute force on tiny graphs: the cut is
+//! the minimal one).
+//!
 //! Arcs and nodes are `u32` indices and each node's arcs lie in one flat array
 //! (compressed rows, built at the first cut in the order the arcs were added, so the
 //! search visits them in that order and the cut is the same): the search reads a node's
@@ -160,6 +166,7 @@ impl Graph {
         self.active.clear();
         self.is_active.fill(false);
         self.orphans.clear();
+        flow += self.push_to_neighbours();
         for v in 0..self.terminal.len() {
             if self.terminal[v] != 0 {
                 self.tree[v] = if self.terminal[v] > 0 { SOURCE } else { SINK };
@@ -184,6 +191,38 @@ impl Graph {
                 None => {
                     self.active.pop_front();
                     self.is_active[v] = false;
+                }
+            }
+        }
+        flow
+    }
+
+    /// Pushes flow along every path source → v → w → sink of one arc, before the trees
+    /// grow: in a grid's graph cut most flow passes between neighbours of opposite
+    /// terminals, and the search would find each such path only after growing its trees
+    /// out to it. Any maximum flow leaves the same nodes reachable from the source (the
+    /// minimal minimum cut, which `is_source_side` reads), so this changes how fast the
+    /// cut is found, not which.
+    fn push_to_neighbours(&mut self) -> i64 {
+        let mut flow = 0;
+        for v in 0..self.terminal.len() {
+            if self.terminal[v] <= 0 {
+                continue;
+            }
+            for k in self.arcs_of(v) {
+                let a = self.arcs[k] as usize;
+                let w = self.head[a] as usize;
+                let push = self.terminal[v].min(self.cap[a]).min(-self.terminal[w]);
+                if push <= 0 {
+                    continue;
+                }
+                self.terminal[v] -= push;
+                self.cap[a] -= push;
+                self.cap[a ^ 1] += push;
+                self.terminal[w] += push;
+                flow += push;
+                if self.terminal[v] == 0 {
+                    break;
                 }
             }
         }
@@ -411,6 +450,15 @@ mod tests {
         t + e
     }
 
+    /// The source side of the minimal minimum cut: the intersection of every minimum cut's
+    /// source side (minimum cuts are closed under intersection). It is the set of nodes
+    /// the source reaches in the residual graph of any maximum flow, so whatever order the
+    /// flow is pushed in, the cut read off must be this one.
+    fn minimal_min_cut(spec: &Spec, n: usize) -> u32 {
+        let brute = (0..1u32 << n).map(|s| cut_cost(spec, s)).min().unwrap();
+        (0..1u32 << n).filter(|&s| cut_cost(spec, s) == brute).fold((1u32 << n) - 1, |acc, s| acc & s)
+    }
+
     fn build((terminals, edges): &Spec) -> Graph {
         let mut g = Graph::new(terminals.len());
         for (v, &(fs, ts)) in terminals.iter().enumerate() {
@@ -432,9 +480,10 @@ mod tests {
             let mut g = build(&spec);
             let flow = g.max_flow();
             assert_eq!(flow, brute, "{spec:?}");
-            // The reported side is a minimum cut, not just any partition.
+            // The reported side is the minimal minimum cut, not just any partition.
             let side = (0..n).fold(0u32, |acc, v| acc | (g.is_source_side(v) as u32) << v);
             assert_eq!(cut_cost(&spec, side), brute, "{spec:?}");
+            assert_eq!(side, minimal_min_cut(&spec, n), "{spec:?}");
         }
     }
 
@@ -457,6 +506,7 @@ mod tests {
                 let brute = (0..1u32 << n).map(|s| cut_cost(&spec, s)).min().unwrap();
                 let side = (0..n).fold(0u32, |acc, v| acc | (g.is_source_side(v) as u32) << v);
                 assert_eq!(cut_cost(&spec, side), brute, "{spec:?}");
+                assert_eq!(side, minimal_min_cut(&spec, n), "{spec:?}");
             }
         }
     }
