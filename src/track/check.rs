@@ -36,15 +36,14 @@ pub fn appearance(render: &RenderOutput, image: &RgbImage, window: Window) -> f6
 /// the pixels in the window whose foreground probability is over one half.
 pub fn silhouette_iou(colours: &ColourModel, image: &RgbImage, silhouette: &GrayImage, window: Window) -> f64 {
     // Raw rows: the window is up to a third of a megapixel at every relearning.
-    let Some(pixels) = window.with_silhouette(image, silhouette) else { return 0.0 };
     let object = colours.object_bins();
     let (mut both, mut either) = (0usize, 0usize);
-    for (c, rendered) in pixels {
+    let read = window.each_with_silhouette(image, silhouette, |c, rendered| {
         let coloured = object(&c);
         both += (rendered && coloured) as usize;
         either += (rendered || coloured) as usize;
-    }
-    if either == 0 {
+    });
+    if !read || either == 0 {
         0.0
     } else {
         both as f64 / either as f64
