@@ -179,27 +179,30 @@ fn well_inside(render: &RenderOutput, x: u32, y: u32) -> bool {
     (0..=4).all(|d| mask[i + d - 2] > 0 && mask[i + d * stride - 2 * stride] > 0)
 }
 
-/// The window pixels, row by row, that lie [`well_inside`] the render's silhouette and
-/// that the Sobel kernels can read (3 px from the window's edge). Only the silhouette's box,
-/// shrunk by the 2 px `well_inside` asks for, is scanned: the window is up to three object
-/// radii a side around a tracked object, its silhouette a third of it.
-fn interior_pixels(render: &RenderOutput, w: u32, h: u32) -> impl Iterator<Item = (u32, u32)> + '_ {
-    let (xs, ys) = interior_span(render, w, h);
-    ys.flat_map(move |y| xs.clone().map(move |x| (x, y))).filter(|&(x, y)| well_inside(render, x, y))
-}
-
-/// The columns and rows of the box [`interior_pixels`] scans (empty where there is none).
+/// The columns and rows of a `w × h` window where pixels can lie [`well_inside`] the
+/// render's silhouette and the Sobel kernels can read them (3 px from the window's edge):
+/// the silhouette's box shrunk by the 2 px `well_inside` asks for. Empty where there is
+/// none. The window is up to three object radii a side around a tracked object, its
+/// silhouette a third of it.
 fn interior_span(render: &RenderOutput, w: u32, h: u32) -> (Range<u32>, Range<u32>) {
     let span = crate::features::mask_bbox(&render.mask).filter(|_| w >= 7 && h >= 7);
     span.map_or((0..0, 0..0), |(lx, ly, hx, hy)| ((lx + 2).max(3)..(hx.saturating_sub(2) + 1).min(w - 3), (ly + 2).max(3)..(hy.saturating_sub(2) + 1).min(h - 3)))
 }
 
-/// Grey levels of the pixels (x, y) ∈ `xs` × `ys` grown by the one pixel a Sobel kernel
-/// reaches, read through `at`, and a lookup by the same coordinates: the kernels read each
-/// pixel up to six times, and converting it once is most of what the edges cost.
-fn grey_patch<'a>(xs: &Range<u32>, ys: &Range<u32>, at: impl Fn(u32, u32) -> &'a image::Rgb<u8>) -> impl Fn(u32, u32) -> f32 {
-    let (x0, y0) = (xs.start.saturating_sub(1), ys.start.saturating_sub(1));
-    let width = (xs.end + 1).saturating_sub(x0) as usize;
+/// The pixels of `span` (`interior_span`), row by row, that lie [`well_inside`] the
+/// render's silhouette.
+fn interior_pixels<'a>(render: &'a RenderOutput, (xs, ys): &(Range<u32>, Range<u32>)) -> impl Iterator<Item = (u32, u32)> + 'a {
+    let xs = xs.clone();
+    ys.clone().flat_map(move |y| xs.clone().map(move |x| (x, y))).filter(|&(x, y)| well_inside(render, x, y))
+}
+
+/// Grey levels of the pixels (x, y) ∈ `xs` × `ys` (an `interior_span`, so at least 3 px
+/// from the window's edge) grown by the one pixel a Sobel kernel reaches, read through
+/// `at`, and a lookup by the same coordinates: the kernels read each pixel up to six
+/// times, and converting it once is most of what the edges cost.
+fn grey_patch<'a>((xs, ys): &(Range<u32>, Range<u32>), at: impl Fn(u32, u32) -> &'a image::Rgb<u8>) -> impl Fn(u32, u32) -> f32 {
+    let (x0, y0) = (xs.start - 1, ys.start - 1);
+    let width = (xs.end + 1 - x0) as usize;
     let values: Vec<f32> = (y0..ys.end + 1).flat_map(|y| (x0..x0 + width as u32).map(move |x| (x, y))).map(|(x, y)| grey(at(x, y))).collect();
     move |x, y| values[(y - y0) as usize * width + (x - x0) as usize]
 }
@@ -224,14 +227,14 @@ pub fn appearance_agreement(render: &RenderOutput, image: &RgbImage, mask: &Gray
 /// admits, for callers without a mask image (a tracker checks its own render).
 pub fn appearance_agreement_where(render: &RenderOutput, image: &RgbImage, window: (u32, u32, u32, u32), in_mask: &dyn Fn(u32, u32) -> bool) -> f64 {
     let (x0, y0, w, h) = window;
-    let (xs, ys) = interior_span(render, w, h);
-    if xs.is_empty() || ys.is_empty() {
+    let span = interior_span(render, w, h);
+    if span.0.is_empty() || span.1.is_empty() {
         return 0.0;
     }
-    let r_at = grey_patch(&xs, &ys, |x, y| render.rgb.get_pixel(x, y));
-    let i_at = grey_patch(&xs, &ys, |x, y| image.get_pixel(x0 + x, y0 + y));
+    let r_at = grey_patch(&span, |x, y| render.rgb.get_pixel(x, y));
+    let i_at = grey_patch(&span, |x, y| image.get_pixel(x0 + x, y0 + y));
     let (mut sum, mut count) = (0.0f64, 0usize);
-    for (x, y) in interior_pixels(render, w, h).filter(|&(x, y)| in_mask(x, y)) {
+    for (x, y) in interior_pixels(render, &span).filter(|&(x, y)| in_mask(x, y)) {
         let (rx, ry) = sobel(&r_at, x, y);
         let (ix, iy) = sobel(&i_at, x, y);
         let (rm, im) = (rx * rx + ry * ry, ix * ix + iy * iy);
@@ -266,7 +269,7 @@ pub fn colour_agreement(render: &RenderOutput, image: &RgbImage, mask: &GrayImag
 pub fn colour_agreement_where(render: &RenderOutput, image: &RgbImage, window: (u32, u32, u32, u32), in_mask: &dyn Fn(u32, u32) -> bool) -> f64 {
     let (x0, y0, w, h) = window;
     let mut px: Vec<([f64; 3], [f64; 3])> = Vec::new();
-    for (x, y) in interior_pixels(render, w, h).filter(|&(x, y)| in_mask(x, y)) {
+    for (x, y) in interior_pixels(render, &interior_span(render, w, h)).filter(|&(x, y)| in_mask(x, y)) {
         let r = render.rgb.get_pixel(x, y);
         let i = image.get_pixel(x0 + x, y0 + y);
         px.push(([r[0] as f64, r[1] as f64, r[2] as f64], [i[0] as f64, i[1] as f64, i[2] as f64]));
@@ -472,9 +475,10 @@ mod tests {
             let at = |x: i64, y: i64| mask.get_pixel(x as u32, y as u32)[0] > 0;
             let whole: Vec<(u32, u32)> = (3..47).flat_map(|y| (3..57).map(move |x| (x, y))).filter(|&(x, y)| (-2..=2).all(|d| at(x as i64 + d, y as i64) && at(x as i64, y as i64 + d))).collect();
             let render = RenderOutput { rgb: RgbImage::new(60, 50), depth: vec![0.0; 3000], mask };
-            assert_eq!(interior_pixels(&render, 60, 50).collect::<Vec<_>>(), whole, "disc at ({cx}, {cy}) r {r}");
+            assert_eq!(interior_pixels(&render, &interior_span(&render, 60, 50)).collect::<Vec<_>>(), whole, "disc at ({cx}, {cy}) r {r}");
         }
-        assert_eq!(interior_pixels(&RenderOutput { rgb: RgbImage::new(6, 6), depth: vec![1.0; 36], mask: GrayImage::from_pixel(6, 6, image::Luma([255])) }, 6, 6).count(), 0);
+        let small = RenderOutput { rgb: RgbImage::new(6, 6), depth: vec![1.0; 36], mask: GrayImage::from_pixel(6, 6, image::Luma([255])) };
+        assert_eq!(interior_pixels(&small, &interior_span(&small, 6, 6)).count(), 0);
     }
 
     #[test]

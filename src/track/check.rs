@@ -35,7 +35,6 @@ pub fn appearance(render: &RenderOutput, image: &RgbImage, window: Window) -> f6
 /// IoU of `silhouette` (the pose rendered through `window` alone, the window's size) with
 /// the pixels in the window whose foreground probability is over one half.
 pub fn silhouette_iou(colours: &ColourModel, image: &RgbImage, silhouette: &GrayImage, window: Window) -> f64 {
-    // Raw rows: the window is up to a third of a megapixel at every relearning.
     let object = colours.object_bins();
     let (mut both, mut either) = (0usize, 0usize);
     let read = window.each_with_silhouette(image, silhouette, |c, rendered| {

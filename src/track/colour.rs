@@ -73,6 +73,7 @@ impl Window {
         true
     }
 
+    /// `k` seeing only this window: a render through it covers the window's pixels alone.
     pub fn intrinsics(&self, k: &crate::geometry::Intrinsics) -> Option<crate::geometry::Intrinsics> {
         let (w, h) = self.size();
         k.window(self.x0, self.y0, w, h)

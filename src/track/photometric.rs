@@ -333,7 +333,10 @@ fn blur_row(src: &[f32], out: &mut [f32], kernel: &[f32]) {
     for i in (0..ends).chain(middle.end..n) {
         out[i] = clamped(i);
     }
-    for (j, k) in kernel.iter().enumerate().filter(|_| !middle.is_empty()) {
+    if middle.is_empty() {
+        return;
+    }
+    for (j, k) in kernel.iter().enumerate() {
         let shifted = &src[middle.start + j - r..middle.end + j - r];
         for (o, v) in out[middle.clone()].iter_mut().zip(shifted) {
             *o += k * v;
