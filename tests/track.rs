@@ -32,12 +32,16 @@ fn follows_a_moving_object_and_reports_a_jump_lost() {
     let (model, pool, k) = setup();
     let seq = generate(&model.mesh, &k, &SequenceConfig { frames: 40, seed: 3, ..Default::default() }, &pool).unwrap();
     let mut tracker = Tracker::new(model.clone(), pool.clone(), &seq[0].rgb, &k, seq[0].truth, TrackerConfig::default()).unwrap();
-    // The tracker's own line scales reach its refiner; an empty list keeps the refiner's.
+    // The tracker's own line scales and passes reach its refiner; an empty list and 0
+    // keep the refiner's.
     assert_eq!(tracker.contour_scales(), TrackerConfig::default().contour_scales.as_slice());
-    let refiners_own = TrackerConfig { contour_scales: vec![], ..Default::default() };
+    assert_eq!(tracker.contour_passes(), TrackerConfig::default().contour_passes);
+    let refiners_own = TrackerConfig { contour_scales: vec![], contour_passes: 0, ..Default::default() };
     let own = Tracker::new(model.clone(), pool.clone(), &seq[0].rgb, &k, seq[0].truth, refiners_own).unwrap();
     assert_eq!(own.contour_scales(), ContourRefinerConfig::default().scale_factors.as_slice());
     assert_ne!(own.contour_scales(), tracker.contour_scales());
+    assert_eq!(own.contour_passes(), ContourRefinerConfig::default().passes_per_scale);
+    assert_ne!(own.contour_passes(), tracker.contour_passes());
     let (mut rot, mut trans, mut lost) = (vec![], vec![], 0);
     for (i, f) in seq.iter().enumerate().skip(1) {
         let step = tracker.track(&f.rgb, None, &k).unwrap();

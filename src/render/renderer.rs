@@ -38,7 +38,8 @@ pub struct Renderer {
     cache: MeshCache<GpuMesh>,
     /// What it draws of each mesh (the cache's size is in `cache`).
     config: RendererConfig,
-    /// Targets of the last image size; most callers render one size repeatedly.
+    /// Targets of the last image size that needed new ones (`Targets::serves`); most
+    /// callers render one size repeatedly, or sizes a little apart.
     targets: Option<Targets>,
 }
 
@@ -87,17 +88,17 @@ impl Renderer {
             let frame = FrameUniform::new(pose, &clip_from_camera(k, near, far), opts);
             ctx.queue.write_buffer(&pipeline.frame_buffer, 0, bytemuck::bytes_of(&frame));
             let t = match targets {
-                Some(t) if t.width == k.width && t.height == k.height => t,
-                _ => targets.insert(Targets::new(&ctx.device, k.width, k.height)),
+                Some(t) if t.serves(k.width, k.height) => t,
+                _ => targets.insert(Targets::for_image(&ctx.device, k.width, k.height)),
             };
             let mut encoder = ctx.device.create_command_encoder(&Default::default());
             {
-                let mut pass = t.begin_pass(&mut encoder);
+                let mut pass = t.begin_pass(&mut encoder, k.width, k.height);
                 pass.set_pipeline(if gpu.culled { &pipeline.culling } else { &pipeline.pipeline });
                 pass.set_bind_group(0, &pipeline.frame_group, &[]);
                 gpu.draw(&mut pass);
             }
-            t.encode_readback(&mut encoder);
+            t.encode_readback(&mut encoder, k.width, k.height);
             ctx.queue.submit([encoder.finish()]);
         });
         if let Err(e) = submitted {
@@ -108,7 +109,7 @@ impl Renderer {
         }
         let t = targets.as_ref().expect("created above");
         let pitch = padded_row_bytes(k.width) as usize;
-        t.read(&ctx.device, |rgba, depth| assemble(k.width, k.height, pitch, rgba, depth, opts.background))
+        t.read(&ctx.device, k.width, k.height, |rgba, depth| assemble(k.width, k.height, pitch, rgba, depth, opts.background))
     }
 
     /// Uploads `mesh` now unless it is cached, so that its first render does not pay for it.

@@ -56,6 +56,18 @@ pub struct TrackerConfig {
     /// [0.6, 0.2] kept or raised the MSSD share on 13 of 14 rows at two thirds of the
     /// contour step's time.
     pub contour_scales: Vec<f64>,
+    /// Correspondence passes per line scale in the contour step (each builds its lines at
+    /// the pose the last left; 0: the refiner's own, estimation's two). One pass a scale
+    /// took a quarter off a frame's time and moved the MSSD shares by a frame or so either
+    /// way (`b2tf bench track`, HOPE obj_000001 / 2 / 8 and the sample box, RGB and RGB-D,
+    /// with and without the occluder; docs/tracking.md, "One pass a scale").
+    pub contour_passes: usize,
+    /// Keep the predicted pose where the contour step's result agrees less with the
+    /// colours than it did (estimation's guard against drifting a good pose away). It costs
+    /// a set of lines a frame, and on the same runs it never changed a row: the tracker's
+    /// own checks (the outline agreement's floor, the silhouette and appearance checks)
+    /// catch what it would.
+    pub contour_compares_with_start: bool,
     /// The texture term after each contour step (photometric.rs).
     pub photometric: PhotometricConfig,
     /// With depth frames: Gauss-Newton steps of the depth fit after the contour step.
@@ -79,6 +91,8 @@ impl Default for TrackerConfig {
             min_silhouette_iou: 0.5,
             min_appearance: 0.3,
             contour_scales: vec![0.6, 0.2],
+            contour_passes: 1,
+            contour_compares_with_start: false,
             photometric: PhotometricConfig::default(),
             depth_iterations: 6,
             max_free_space: 0.35,
@@ -163,6 +177,10 @@ impl Tracker {
         if !config.contour_scales.is_empty() {
             refiner.config.scale_factors = config.contour_scales.clone();
         }
+        if config.contour_passes > 0 {
+            refiner.config.passes_per_scale = config.contour_passes;
+        }
+        refiner.config.compare_with_start = config.contour_compares_with_start;
         let coloured = model.mesh.has_colours();
         let mut t = Self {
             model,
@@ -190,6 +208,12 @@ impl Tracker {
     /// refiner's own where that is empty).
     pub fn contour_scales(&self) -> &[f64] {
         &self.refiner.config.scale_factors
+    }
+
+    /// Correspondence passes per line scale the contour step runs
+    /// (`TrackerConfig::contour_passes`, or the refiner's own where that is 0).
+    pub fn contour_passes(&self) -> usize {
+        self.refiner.config.passes_per_scale
     }
 
     /// Starts over at `pose` in `image` (a re-initialisation after a loss): colours learnt

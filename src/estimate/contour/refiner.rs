@@ -44,6 +44,11 @@ pub struct ContourRefinerConfig {
     /// it shows one clearly near the mask's (`photo_edge`); the others use the mask alone.
     #[serde(default)]
     pub photo_edges: PhotoEdges,
+    /// Keep the start where the result agrees less with the mask than it did (measured at
+    /// both on lines of the verification scale). Off, the start's agreement is measured
+    /// only where the start is kept for another reason (its report).
+    #[serde(default = "default_compare_with_start")]
+    pub compare_with_start: bool,
 }
 
 /// Where the contour refiner reads outlines off the photo's edges, not the mask's alone.
@@ -92,6 +97,10 @@ fn default_occlusion_model() -> bool {
     true
 }
 
+fn default_compare_with_start() -> bool {
+    true
+}
+
 impl Default for ContourRefinerConfig {
     fn default() -> Self {
         Self {
@@ -107,6 +116,7 @@ impl Default for ContourRefinerConfig {
             max_turn_deg: default_max_turn_deg(),
             max_depth_change: default_max_depth_change(),
             photo_edges: PhotoEdges::default(),
+            compare_with_start: true,
         }
     }
 }
@@ -201,8 +211,13 @@ impl Refiner for ContourRefiner {
     fn refine(&self, ctx: &RefineContext<'_>, start: Pose) -> Result<Refined, String> {
         let (cm, centre, post) = self.inputs(ctx)?;
         let k = ctx.intrinsics;
-        let before = self.agreement_at(ctx, &cm, &centre, &post, &start);
-        let keep = |note: String| Ok(Refined { pose: start, report: before.report(false, Some(note)) });
+        // The start's agreement: what a result must beat, and what a kept start reports.
+        let before = std::cell::OnceCell::new();
+        let before = || *before.get_or_init(|| self.agreement_at(ctx, &cm, &centre, &post, &start));
+        if self.config.compare_with_start {
+            before();
+        }
+        let keep = |note: String| Ok(Refined { pose: start, report: before().report(false, Some(note)) });
         // Too few lines see the mask's outline (empty, wrong or far-off mask): no update
         // could be trusted.
         let scales = self.scales(Self::apparent_diameter(ctx, &start, &centre));
@@ -242,8 +257,8 @@ impl Refiner for ContourRefiner {
             return keep(format!("no improvement: the result turned {turn:.0}° and moved {:.0} % in depth, beyond a local refinement's reach", 100.0 * (z1 - z0).abs() / z0));
         }
         let after = self.agreement_at(ctx, &cm, &centre, &post, &pose);
-        if after.score < before.score {
-            return keep(format!("no improvement: contour agreement {:.3} after, {:.3} before", after.score, before.score));
+        if self.config.compare_with_start && after.score < before().score {
+            return keep(format!("no improvement: contour agreement {:.3} after, {:.3} before", after.score, before().score));
         }
         Ok(Refined { pose, report: RefineReport { depth_sigma_m: depth_sigma, visible_fraction: visible, photo_edge_share: photo_share, ..after.report(true, None) } })
     }

@@ -275,6 +275,26 @@ fn changing_image_size_between_renders() {
     assert_eq!(r.render(&mesh, &p, &camera(), &o).unwrap(), big);
 }
 
+/// A render drawn into the corner of targets kept from a larger one (`Targets::serves`) is
+/// the render made in targets of its own size, pixel for pixel: sizes a few pixels apart,
+/// as a tracker's window gives, odd sides, and the larger size again after them.
+#[test]
+fn renders_into_reused_larger_targets_match_renders_of_their_own_size() {
+    let (Some(mut reusing), Some(mut fresh_each)) = (renderer(), renderer()) else { return };
+    let (mesh, o) = (textured_sphere(), RenderOptions::default());
+    let p = pose([20.0, 35.0, 0.0], [0.004, -0.003, 0.3]);
+    let sized = |w: u32, h: u32| Intrinsics::new(0.9 * w as f64, 0.9 * w as f64, (w as f64 - 1.0) / 2.0 + 3.3, (h as f64 - 1.0) / 2.0 - 2.1, w, h).unwrap();
+    // Sides that are multiples of the allocation step get targets of exactly their size.
+    for (w, h) in [(320, 256), (256, 192), (250, 233), (193, 240), (255, 199), (320, 256), (192, 128), (161, 130)] {
+        let k = sized(w, h);
+        let reused = reusing.render(&mesh, &p, &k, &o).unwrap();
+        // A renderer whose targets were last made for another size makes new ones.
+        let own = fresh_each.render(&mesh, &p, &sized(w + 300, h + 300), &o).and_then(|_| fresh_each.render(&mesh, &p, &k, &o)).unwrap();
+        assert!(reused.mask_bbox().is_some(), "{w}×{h}: the sphere is in view");
+        assert!(reused == own, "{w}×{h} differs from a render in targets of its own size");
+    }
+}
+
 #[test]
 fn pool_from_many_threads_matches_a_single_renderer() {
     let Some(mut single) = renderer() else { return };
