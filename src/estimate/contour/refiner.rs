@@ -211,12 +211,10 @@ impl Refiner for ContourRefiner {
     fn refine(&self, ctx: &RefineContext<'_>, start: Pose) -> Result<Refined, String> {
         let (cm, centre, post) = self.inputs(ctx)?;
         let k = ctx.intrinsics;
-        // The start's agreement: what a result must beat, and what a kept start reports.
+        // The start's agreement: what a result must beat, and what a kept start reports;
+        // measured only where one of them needs it.
         let before = std::cell::OnceCell::new();
         let before = || *before.get_or_init(|| self.agreement_at(ctx, &cm, &centre, &post, &start));
-        if self.config.compare_with_start {
-            before();
-        }
         let keep = |note: String| Ok(Refined { pose: start, report: before().report(false, Some(note)) });
         // Too few lines see the mask's outline (empty, wrong or far-off mask): no update
         // could be trusted.
