@@ -470,3 +470,74 @@ fn generated_sequences_read_back_as_a_bop_dataset() {
     assert!(b2tfpose::bop::dataset::load_models_info(dir.path()).unwrap().contains_key(&5));
     assert!(dir.path().join(b2tfpose::track::sequence_bop::SEQUENCES_FILE).exists());
 }
+
+/// The colours read across the outline at a pose, with no render: inside, the object's;
+/// outside, the background's, on a frame that draws the object in one colour and the rest
+/// in another; a pose moved aside reads the wrong side.
+#[test]
+fn outline_colours_read_the_object_inside_and_the_background_outside() {
+    use b2tfpose::track::outline_colours::outline_samples;
+    let (model, pool, k) = setup();
+    let centre = Vector3::from(model.mesh.bbox_center());
+    let pose = b2tfpose::geometry::views::view_pose(&Vector3::new(1.0, 0.8, 2.0).normalize(), 0.3, &centre, 0.45);
+    let mask = pool.render(&model.mesh, &pose, &k, &Default::default()).unwrap().mask;
+    let (red, blue) = (image::Rgb([220u8, 30, 30]), image::Rgb([20u8, 120, 200]));
+    let frame = image::RgbImage::from_fn(k.width, k.height, |x, y| if mask.get_pixel(x, y)[0] > 0 { red } else { blue });
+    let cm = model.contour_model_or_build(&pool).unwrap();
+    let right_share = |samples: &[(image::Rgb<u8>, bool)], inside: bool| {
+        let side: Vec<_> = samples.iter().filter(|s| s.1 == inside).collect();
+        let right = side.iter().filter(|s| s.0 == if inside { red } else { blue }).count();
+        (side.len(), right as f64 / side.len().max(1) as f64)
+    };
+    let samples = outline_samples(&cm, &centre, &pose, &k, &frame, 8.0);
+    let ((n_in, in_right), (n_out, out_right)) = (right_share(&samples, true), right_share(&samples, false));
+    eprintln!("{n_in} inside ({in_right:.3} the object's), {n_out} outside ({out_right:.3} the background's)");
+    assert!(n_in > 500 && n_out > 500 && in_right > 0.99 && out_right > 0.99);
+    // A longer reach reads more pixels; none off the image.
+    assert!(outline_samples(&cm, &centre, &pose, &k, &frame, 16.0).len() > samples.len());
+    // The pose 15 px to the right of the object: much of what it calls inside is background.
+    let aside = Pose::new(pose.rotation, pose.translation + Vector3::new(15.0 * pose.translation.z / k.fx, 0.0, 0.0));
+    let (_, in_right) = right_share(&outline_samples(&cm, &centre, &aside, &k, &frame, 8.0), true);
+    assert!(in_right < 0.8, "{in_right:.3}");
+}
+
+/// A frame whose outline agrees only faintly (under `check_below`) is checked at once, not
+/// at its turn; and every tracked frame learns the colours across the outline when
+/// `outline_colour_rate` is on: a new background colour becomes the background's.
+#[test]
+fn doubtful_frames_are_checked_at_once_and_outline_colours_are_learnt_every_frame() {
+    let (model, pool, k) = setup();
+    let seq = generate(&model.mesh, &k, &SequenceConfig { frames: 6, seed: 3, ..Default::default() }, &pool).unwrap();
+    for check_below in [1.01, 0.0] {
+        let config = TrackerConfig { relearn_every: 1000, check_below, ..Default::default() };
+        let mut tracker = Tracker::new(model.clone(), pool.clone(), &seq[0].rgb, &k, seq[0].truth, config).unwrap();
+        for f in &seq[1..] {
+            let step = tracker.track(&f.rgb, None, &k).unwrap();
+            assert!(!step.lost, "{:?}", step.report.note);
+            assert_eq!(step.silhouette_iou.is_some(), check_below > 1.0, "check_below {check_below}: {:?}", step.silhouette_iou);
+        }
+    }
+    // The box at its first pose, now in front of a plain green wall. Against a colour it has
+    // never seen (undecided) the contour step finds no outline and keeps its start, the
+    // true pose; the frame is not called lost here (`lost_below` under any agreement), so
+    // that it learns.
+    let start = &seq[0];
+    let r = pool.render(&model.mesh, &start.truth, &k, &Default::default()).unwrap();
+    let wall = image::RgbImage::from_pixel(k.width, k.height, image::Rgb([0, 250, 0]));
+    let framed = b2tfpose::eval::degrade::composite(&r.rgb, &r.mask, &wall);
+    let green = image::Rgb([0u8, 250, 0]);
+    for rate in [0.5, 0.0] {
+        let config = TrackerConfig { relearn_every: 1000, check_below: 0.0, lost_below: -1.0, outline_colour_rate: rate, ..Default::default() };
+        let mut tracker = Tracker::new(model.clone(), pool.clone(), &start.rgb, &k, start.truth, config).unwrap();
+        let before = tracker.colour_model().probability(&green);
+        let step = tracker.track(&framed, None, &k).unwrap();
+        assert!(!step.lost && step.silhouette_iou.is_none(), "{:?}", step.report.note);
+        let after = tracker.colour_model().probability(&green);
+        eprintln!("rate {rate}: green {before:.3} → {after:.3}");
+        if rate > 0.0 {
+            assert!(after < 0.05 && after < before, "{before:.3} → {after:.3}");
+        } else {
+            assert_eq!(after, before);
+        }
+    }
+}

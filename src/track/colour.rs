@@ -121,11 +121,31 @@ impl ColourModel {
                 nb += 1;
             }
         });
-        if !read || nf == 0 || nb == 0 {
+        read && self.blend(&fg, nf, &bg, nb, rate)
+    }
+
+    /// Learns from pixels sampled on either side of the object's outline (the tracker's
+    /// lines at the pose a frame ended at: no render), blending as `learn` does. `samples`
+    /// gives each pixel's colour and whether it lies inside the outline.
+    pub fn learn_samples(&mut self, samples: impl IntoIterator<Item = (image::Rgb<u8>, bool)>, rate: f32) -> bool {
+        let (mut fg, mut bg) = (vec![0f32; BINS], vec![0f32; BINS]);
+        let (mut nf, mut nb) = (0usize, 0usize);
+        for (c, inside) in samples {
+            let (h, n) = if inside { (&mut fg, &mut nf) } else { (&mut bg, &mut nb) };
+            h[bin(&c)] += 1.0;
+            *n += 1;
+        }
+        self.blend(&fg, nf, &bg, nb, rate)
+    }
+
+    /// Blends new counts (`nf`, `nb` pixels) into the running histograms with weight
+    /// `rate` (the first learning replaces); false, changing nothing, when a side is empty.
+    fn blend(&mut self, fg: &[f32], nf: usize, bg: &[f32], nb: usize, rate: f32) -> bool {
+        if nf == 0 || nb == 0 {
             return false;
         }
         let rate = if self.learnt { rate.clamp(0.0, 1.0) } else { 1.0 };
-        for (h, new, n) in [(&mut self.foreground, &fg, nf), (&mut self.background, &bg, nb)] {
+        for (h, new, n) in [(&mut self.foreground, fg, nf), (&mut self.background, bg, nb)] {
             for (old, &c) in h.iter_mut().zip(new.iter()) {
                 *old = (1.0 - rate) * *old + rate * c / n as f32;
             }
@@ -209,6 +229,33 @@ pub(crate) mod tests {
             assert_eq!(object(&c), m.probability(&c) > 0.5, "{c:?}");
         }
         assert!(object(&image::Rgb([220, 30, 30])) && !object(&image::Rgb([20, 120, 200])));
+    }
+
+    #[test]
+    fn samples_blend_in_as_a_silhouettes_pixels_do() {
+        let (red, blue, green) = (image::Rgb([220, 30, 30]), image::Rgb([20, 120, 200]), image::Rgb([0, 250, 0]));
+        let mut m = ColourModel::default();
+        assert!(!m.learn_samples([(red, true)], 1.0), "no background sample");
+        assert!(!m.learn_samples([(blue, false)], 1.0), "no object sample");
+        assert!((m.probability(&red) - 0.5).abs() < 1e-6, "a refused learning changes nothing");
+        // The first learning replaces, whatever the rate.
+        assert!(m.learn_samples([(red, true), (red, true), (blue, false)], 0.1));
+        assert!(m.probability(&red) > 0.99 && m.probability(&blue) < 0.01);
+        // The same counts as a silhouette's: the two models agree on every colour.
+        let (img, sil) = red_square();
+        let all = Window { x0: 0, y0: 0, x1: 40, y1: 40 };
+        let mut from_silhouette = ColourModel::default();
+        assert!(from_silhouette.learn(&img, &sil, all, 1.0));
+        let mut from_samples = ColourModel::default();
+        let samples = img.enumerate_pixels().map(|(x, y, c)| (*c, sil.get_pixel(x, y)[0] > 0));
+        assert!(from_samples.learn_samples(samples, 1.0));
+        assert_eq!(from_silhouette.levels, from_samples.levels);
+        // Later learnings blend at their rate: at 0.5, green (new background) takes half the
+        // background's weight, red stays the object's whole.
+        assert!(from_samples.learn_samples([(red, true), (green, false)], 0.5));
+        assert!((from_samples.probability(&green) - 1e-4 / (0.5 + 2e-4)).abs() < 1e-6);
+        assert!((from_samples.probability(&blue) - 1e-4 / (0.5 + 2e-4)).abs() < 1e-6);
+        assert!((from_samples.probability(&red) - (1.0 + 1e-4) / (1.0 + 2e-4)).abs() < 1e-6);
     }
 
     #[test]

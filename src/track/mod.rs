@@ -4,6 +4,7 @@
 
 pub mod check;
 pub mod colour;
+pub mod outline_colours;
 pub mod photometric;
 pub mod search;
 pub mod sequence;
