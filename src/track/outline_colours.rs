@@ -2,11 +2,11 @@
 //! contour model's normals (M3T's way of learning its histograms every frame from the
 //! correspondence lines' pixels, with no render).
 
-use crate::estimate::contour::lines::{camera_direction, projection_jacobian};
+use crate::estimate::contour::lines::{camera_direction, project_rim_point, ProjectedRimPoint};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ContourModel;
 use image::RgbImage;
-use nalgebra::{Point3, Vector3};
+use nalgebra::Vector3;
 
 /// Pixels nearer the outline than this (px) are left out on both sides: the projected
 /// outline is a pixel or so off the true one, and edge pixels mix both colours.
@@ -20,17 +20,7 @@ pub fn outline_samples(cm: &ContourModel, centre: &Vector3<f64>, pose: &Pose, k:
     let view = cm.nearest_view(&camera_direction(pose, centre));
     let mut out = Vec::new();
     for i in cm.view_range(view) {
-        let x = Vector3::new(cm.points[i][0] as f64, cm.points[i][1] as f64, cm.points[i][2] as f64);
-        let n = Vector3::new(cm.normals[i][0] as f64, cm.normals[i][1] as f64, cm.normals[i][2] as f64);
-        let p = Point3::from(pose.rotation * x + pose.translation);
-        let Some(c) = k.project(&p) else { continue };
-        let n2 = projection_jacobian(k, &p) * (pose.rotation * n);
-        let len = n2.norm();
-        if len < 1e-9 {
-            continue;
-        }
-        let normal = n2 / len;
-        let px_per_m = k.fx.max(k.fy) / p.z;
+        let Some(ProjectedRimPoint { centre: c, normal, px_per_m, .. }) = project_rim_point(cm, i, pose, k) else { continue };
         for (inside, extent_m) in [(true, cm.foreground_m[i]), (false, cm.background_m[i])] {
             let reach = reach_px.min(extent_m as f64 * px_per_m - SKIP_PX);
             let sign = if inside { -1.0 } else { 1.0 };

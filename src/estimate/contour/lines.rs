@@ -85,19 +85,35 @@ pub fn build_lines(cm: &ContourModel, centre: &Vector3<f64>, pose: &Pose, k: &In
     cm.view_range(view).into_par_iter().filter_map(|i| line(cm, i, pose, k, post, scale, photo)).collect()
 }
 
-/// Line `i` of the model at `pose`; `None` when it cannot be measured at this scale.
-fn line(cm: &ContourModel, i: usize, pose: &Pose, k: &Intrinsics, post: &Posterior<'_>, scale: LineScale, photo: Option<PhotoLines<'_>>) -> Option<Line> {
+/// Contour point `i` of the model seen at `pose`.
+pub struct ProjectedRimPoint {
+    /// The point, object frame (metres).
+    pub object_point: Vector3<f64>,
+    /// Where it projects, and the unit outward normal of the outline there.
+    pub centre: Vector2<f64>,
+    pub normal: Vector2<f64>,
+    /// Image pixels per metre at its depth.
+    pub px_per_m: f64,
+}
+
+/// Contour point `i` projected at `pose`; `None` behind the camera or where its normal
+/// projects to nothing (seen edge-on).
+pub fn project_rim_point(cm: &ContourModel, i: usize, pose: &Pose, k: &Intrinsics) -> Option<ProjectedRimPoint> {
     let x = Vector3::new(cm.points[i][0] as f64, cm.points[i][1] as f64, cm.points[i][2] as f64);
     let n = Vector3::new(cm.normals[i][0] as f64, cm.normals[i][1] as f64, cm.normals[i][2] as f64);
     let p = Point3::from(pose.rotation * x + pose.translation);
-    let centre_px = k.project(&p)?;
+    let centre = k.project(&p)?;
     let n2 = projection_jacobian(k, &p) * (pose.rotation * n);
     let len = n2.norm();
     if len < 1e-9 {
         return None;
     }
-    let normal = n2 / len;
-    let px_per_m = k.fx.max(k.fy) / p.z;
+    Some(ProjectedRimPoint { object_point: x, centre, normal: n2 / len, px_per_m: k.fx.max(k.fy) / p.z })
+}
+
+/// Line `i` of the model at `pose`; `None` when it cannot be measured at this scale.
+fn line(cm: &ContourModel, i: usize, pose: &Pose, k: &Intrinsics, post: &Posterior<'_>, scale: LineScale, photo: Option<PhotoLines<'_>>) -> Option<Line> {
+    let ProjectedRimPoint { object_point: x, centre: centre_px, normal, px_per_m } = project_rim_point(cm, i, pose, k)?;
     let inner = ((cm.foreground_m[i] as f64 * px_per_m / scale.segment_px).floor() as usize).min(scale.segments);
     let outer = ((cm.background_m[i] as f64 * px_per_m / scale.segment_px).floor() as usize).min(scale.segments);
     // Fewer than two segments a side cannot place an outline (a thin part at a coarse
