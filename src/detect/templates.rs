@@ -10,6 +10,7 @@
 //! interior edges (texture, creases), each set spread out so no part of the view dominates.
 
 use super::gradients::{colour_gradients, mask_gradients, quantised_bits, BINS};
+use crate::geometry::pixel::floor_i64;
 use crate::geometry::views::{fitted_distance, icosphere, in_plane_rotation, look_at_rotation, view_pose};
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Mesh;
@@ -302,25 +303,32 @@ fn turn_image(rgb: &RgbImage, mask: &GrayImage, angle: f64) -> (RgbImage, GrayIm
     let (w, h) = rgb.dimensions();
     let (cx, cy) = ((w as f64 - 1.0) * 0.5, (h as f64 - 1.0) * 0.5);
     let (s, c) = angle.sin_cos();
-    // Output pixel p shows input pixel R(−angle)·(p − centre) + centre.
-    let source = |x: u32, y: u32| {
-        let (dx, dy) = (x as f64 - cx, y as f64 - cy);
-        (cx + c * dx + s * dy, cy - s * dx + c * dy)
-    };
-    let sample = |img: &[u8], ch: usize, u: f64, v: f64, c_: usize| -> f64 {
-        let (x0, y0) = (u.floor(), v.floor());
-        let (fx, fy) = (u - x0, v - y0);
-        let at = |x: f64, y: f64| if x < 0.0 || y < 0.0 || x >= w as f64 || y >= h as f64 { 0.0 } else { img[(y as usize * w as usize + x as usize) * ch + c_] as f64 };
-        at(x0, y0) * (1.0 - fx) * (1.0 - fy) + at(x0 + 1.0, y0) * fx * (1.0 - fy) + at(x0, y0 + 1.0) * (1.0 - fx) * fy + at(x0 + 1.0, y0 + 1.0) * fx * fy
-    };
-    let turned_rgb = RgbImage::from_fn(w, h, |x, y| {
-        let (u, v) = source(x, y);
-        image::Rgb(std::array::from_fn(|k| sample(rgb.as_raw(), 3, u, v, k).round() as u8))
-    });
-    let turned_mask = GrayImage::from_fn(w, h, |x, y| {
-        let (u, v) = source(x, y);
-        image::Luma([sample(mask.as_raw(), 1, u, v, 0).round() as u8])
-    });
+    let (src_rgb, src_mask) = (rgb.as_raw(), mask.as_raw());
+    let (mut turned_rgb, mut turned_mask) = (RgbImage::new(w, h), GrayImage::new(w, h));
+    let pixels = turned_rgb.chunks_exact_mut(3).zip(turned_mask.iter_mut());
+    for (i, (px, m)) in pixels.enumerate() {
+        // Output pixel p shows input pixel R(−angle)·(p − centre) + centre.
+        let (dx, dy) = ((i as u32 % w) as f64 - cx, (i as u32 / w) as f64 - cy);
+        let (u, v) = (cx + c * dx + s * dy, cy - s * dx + c * dy);
+        let (x0, y0) = (floor_i64(u), floor_i64(v));
+        let (fx, fy) = (u - x0 as f64, v - y0 as f64);
+        // The four bilinear taps, found once for the four channels: the pixel's index
+        // (None outside the image, which reads 0) and its weights along x and y.
+        let taps = [(0, 0, 1.0 - fx, 1.0 - fy), (1, 0, fx, 1.0 - fy), (0, 1, 1.0 - fx, fy), (1, 1, fx, fy)].map(|(ox, oy, wx, wy)| {
+            let (x, y) = (x0.saturating_add(ox), y0.saturating_add(oy));
+            let inside = x >= 0 && y >= 0 && x < w as i64 && y < h as i64;
+            (inside.then(|| (y * w as i64 + x) as usize), wx, wy)
+        });
+        let level = |img: &[u8], channels: usize, k: usize| {
+            let sum = taps.iter().fold(0.0, |acc, &(at, wx, wy)| acc + at.map_or(0.0, |i| img[i * channels + k] as f64) * wx * wy);
+            // Sums are ≥ 0: adding ½ and truncating rounds them, without a libm call.
+            (sum + 0.5) as u8
+        };
+        for (k, level_k) in px.iter_mut().enumerate() {
+            *level_k = level(src_rgb, 3, k);
+        }
+        *m = level(src_mask, 1, 0);
+    }
     (turned_rgb, turned_mask)
 }
 
