@@ -190,21 +190,28 @@ impl EmbeddedBackbone {
         let w = crop.rgb.width() as usize;
         let (rgb, mask) = (crop.rgb.as_raw(), crop.mask.as_raw());
         let columns: Vec<(usize, usize)> = (0..w).map(|x| (x / p, (x % p) / half)).collect();
+        // Per row, every pixel's two opponent values first, in a loop without branches
+        // (the divisions vectorise; background pixels' values are computed and not used),
+        // then the object pixels' values added in column order.
+        let mut opponent = vec![[0f32; 2]; w];
         for y in 0..crop.rgb.height() as usize {
             let (row_patch, row_quadrant) = ((y / p) * n, ((y % p) / half) * 2);
-            for (x, &(col_patch, col_quadrant)) in columns.iter().enumerate() {
-                let m = mask[y * w + x] as f32 / 255.0;
-                if m < 0.5 {
-                    continue;
-                }
+            let (row_rgb, row_mask) = (&rgb[y * w * 3..(y + 1) * w * 3], &mask[y * w..(y + 1) * w]);
+            for ((o, px), &m) in opponent.iter_mut().zip(row_rgb.chunks_exact(3)).zip(row_mask) {
                 // Undo the coverage premultiplication of edge pixels before taking ratios.
-                let px = &rgb[(y * w + x) * 3..][..3];
+                let m = m as f32 / 255.0;
                 let [r, g, bl] = [px[0], px[1], px[2]].map(|c| c as f32 / (255.0 * m));
                 let sum = r + g + bl + 0.05;
+                *o = [(r - g) / sum, (0.5 * (r + g) - bl) / sum];
+            }
+            for ((&(col_patch, col_quadrant), o), &m) in columns.iter().zip(&opponent).zip(row_mask) {
+                if (m as f32 / 255.0) < 0.5 {
+                    continue;
+                }
                 let k = row_patch + col_patch;
                 let q = row_quadrant + col_quadrant;
-                acc[k * COLOR_DIMS + q * 2] += (r - g) / sum;
-                acc[k * COLOR_DIMS + q * 2 + 1] += (0.5 * (r + g) - bl) / sum;
+                acc[k * COLOR_DIMS + q * 2] += o[0];
+                acc[k * COLOR_DIMS + q * 2 + 1] += o[1];
                 weight[k * 4 + q] += 1.0;
             }
         }
