@@ -196,7 +196,12 @@ impl EmbeddedBackbone {
         let mut opponent = vec![[0f32; 2]; w];
         for y in 0..crop.rgb.height() as usize {
             let (row_patch, row_quadrant) = ((y / p) * n, ((y % p) / half) * 2);
-            let (row_rgb, row_mask) = (&rgb[y * w * 3..(y + 1) * w * 3], &mask[y * w..(y + 1) * w]);
+            // Only the row's run from its first to its last object pixel can add anything.
+            let row_mask = &mask[y * w..(y + 1) * w];
+            let Some(first) = row_mask.iter().position(|&m| m != 0) else { continue };
+            let last = row_mask.iter().rposition(|&m| m != 0).unwrap_or(first);
+            let (row_rgb, row_mask) = (&rgb[(y * w + first) * 3..(y * w + last + 1) * 3], &row_mask[first..=last]);
+            let (columns, opponent) = (&columns[first..=last], &mut opponent[first..=last]);
             for ((o, px), &m) in opponent.iter_mut().zip(row_rgb.chunks_exact(3)).zip(row_mask) {
                 // Undo the coverage premultiplication of edge pixels before taking ratios.
                 let m = m as f32 / 255.0;
@@ -204,7 +209,7 @@ impl EmbeddedBackbone {
                 let sum = r + g + bl + 0.05;
                 *o = [(r - g) / sum, (0.5 * (r + g) - bl) / sum];
             }
-            for ((&(col_patch, col_quadrant), o), &m) in columns.iter().zip(&opponent).zip(row_mask) {
+            for ((&(col_patch, col_quadrant), o), &m) in columns.iter().zip(opponent.iter()).zip(row_mask) {
                 if (m as f32 / 255.0) < 0.5 {
                     continue;
                 }
