@@ -151,9 +151,17 @@ impl EmbeddedBackbone {
         let mut pos = vec![0f32; s];
         let scale = b as f32 / period;
         let column_base: Vec<usize> = (0..s).map(|x| (x / cell) * b).collect();
+        // Each row's first and last lit column (the background is black): a gradient can be
+        // nonzero only within a column of the lit span of the rows around it, so the rest
+        // of the row (the crop's margin) is neither computed nor read.
+        let lit: Vec<Option<(usize, usize)>> = lum.chunks_exact(s).map(|r| Some((r.iter().position(|&v| v != 0.0)?, r.iter().rposition(|&v| v != 0.0)?))).collect();
         for y in 1..s - 1 {
+            let Some((first, last)) = lit[y - 1..=y + 1].iter().flatten().fold(None, |span: Option<(usize, usize)>, &(a, z)| Some(span.map_or((a, z), |(f, l)| (f.min(a), l.max(z))))) else {
+                continue;
+            };
+            let columns = first.saturating_sub(1).max(1)..(last + 2).min(s - 1);
             let (above, here, below) = (&lum[(y - 1) * s..y * s], &lum[y * s..(y + 1) * s], &lum[(y + 1) * s..(y + 2) * s]);
-            for x in 1..s - 1 {
+            for x in columns.clone() {
                 let gx = here[x + 1] - here[x - 1];
                 let gy = below[x] - above[x];
                 let m = (gx * gx + gy * gy).sqrt();
@@ -161,7 +169,7 @@ impl EmbeddedBackbone {
                 pos[x] = wrap_angle(fast_atan2(gy, gx), period) * scale;
             }
             let row = &mut hist[(y / cell) * nc * b..(y / cell + 1) * nc * b];
-            for x in 1..s - 1 {
+            for x in columns {
                 if mag[x] == 0.0 {
                     continue;
                 }
@@ -419,6 +427,40 @@ mod tests {
             let got = shape_bin_sums(&backbone.shape_bins, n, &weights);
             assert_eq!(got.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), expected.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "n = {n}");
         }
+    }
+
+    #[test]
+    fn gradients_are_read_only_where_the_rows_around_are_lit_and_give_the_full_rows_histograms() {
+        // A disc with a wide black margin, and one lit pixel alone in a far row and column:
+        // the histograms must be those of every column of every row.
+        let backbone = EmbeddedBackbone::new(EmbeddedConfig { input_size: 64, ..EmbeddedConfig::default() }).unwrap();
+        let mut crop = disc_crop(64, [200, 120, 40]);
+        crop.rgb.put_pixel(60, 3, image::Rgb([255, 255, 255]));
+        let got = backbone.cell_histograms(&crop);
+        let (s, cell, b) = (64usize, (backbone.config.patch_size / 2) as usize, backbone.config.orientation_bins);
+        let mut lum: Vec<f32> = crop.rgb.pixels().map(|p| crate::features::grey(p) / 255.0).collect();
+        for _ in 0..backbone.config.smoothing_passes {
+            binomial_blur(&mut lum, s);
+        }
+        let period = if backbone.config.signed_orientation { std::f32::consts::TAU } else { std::f32::consts::PI };
+        let mut expected = vec![0f32; (s / cell) * (s / cell) * b];
+        for y in 1..s - 1 {
+            for x in 1..s - 1 {
+                let (gx, gy) = (lum[y * s + x + 1] - lum[y * s + x - 1], lum[(y + 1) * s + x] - lum[(y - 1) * s + x]);
+                let m = (gx * gx + gy * gy).sqrt();
+                if m < 1e-4 {
+                    continue;
+                }
+                let pos = wrap_angle(fast_atan2(gy, gx), period) * (b as f32 / period);
+                let lo = (pos as usize) % b;
+                let frac = pos - (pos as usize) as f32;
+                let bins = &mut expected[((y / cell) * (s / cell) + x / cell) * b..][..b];
+                bins[lo] += m * (1.0 - frac);
+                bins[(lo + 1) % b] += m * frac;
+            }
+        }
+        assert!(expected.iter().filter(|&&v| v > 0.0).count() > 20);
+        assert_eq!(got.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), expected.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
     }
 
     #[test]
