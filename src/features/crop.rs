@@ -27,8 +27,7 @@ pub fn mask_bbox(mask: &GrayImage) -> Option<(u32, u32, u32, u32)> {
     let raw = mask.as_raw();
     for v in 0..h {
         let row = &raw[(v * w) as usize..((v + 1) * w) as usize];
-        if let Some(first) = row.iter().position(|&m| m > 0) {
-            let last = row.iter().rposition(|&m| m > 0).unwrap_or(first);
+        if let Some((first, last)) = nonzero_span(row) {
             lo_u = lo_u.min(first as u32);
             hi_u = hi_u.max(last as u32);
             lo_v = lo_v.min(v);
@@ -36,6 +35,14 @@ pub fn mask_bbox(mask: &GrayImage) -> Option<(u32, u32, u32, u32)> {
         }
     }
     (lo_u != u32::MAX).then_some((lo_u, lo_v, hi_u, hi_v))
+}
+
+/// The first and last nonzero value of `row` (a mask's or a black-backed image's row);
+/// `None` when all are zero.
+pub fn nonzero_span<T: Copy + PartialEq + Default>(row: &[T]) -> Option<(usize, usize)> {
+    let first = row.iter().position(|&v| v != T::default())?;
+    let last = row.iter().rposition(|&v| v != T::default())?;
+    Some((first, last))
 }
 
 /// Grey level (0–255) of an sRGB pixel, Rec. 601 weights: what every image comparison
@@ -54,8 +61,7 @@ pub fn mask_row_ends(mask: &GrayImage) -> Vec<(f64, f64)> {
         .chunks_exact(w.max(1))
         .enumerate()
         .filter_map(|(v, row)| {
-            let first = row.iter().position(|&m| m > 0)?;
-            let last = row.iter().rposition(|&m| m > 0)?;
+            let (first, last) = nonzero_span(row)?;
             Some([(first as f64, v as f64), (last as f64, v as f64)])
         })
         .flatten()

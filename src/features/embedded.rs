@@ -154,11 +154,10 @@ impl EmbeddedBackbone {
         // Each row's first and last lit column (the background is black): a gradient can be
         // nonzero only within a column of the lit span of the rows around it, so the rest
         // of the row (the crop's margin) is neither computed nor read.
-        let lit: Vec<Option<(usize, usize)>> = lum.chunks_exact(s).map(|r| Some((r.iter().position(|&v| v != 0.0)?, r.iter().rposition(|&v| v != 0.0)?))).collect();
+        let lit: Vec<Option<(usize, usize)>> = lum.chunks_exact(s).map(super::crop::nonzero_span).collect();
         for y in 1..s - 1 {
-            let Some((first, last)) = lit[y - 1..=y + 1].iter().flatten().fold(None, |span: Option<(usize, usize)>, &(a, z)| Some(span.map_or((a, z), |(f, l)| (f.min(a), l.max(z))))) else {
-                continue;
-            };
+            let around = || lit[y - 1..=y + 1].iter().flatten();
+            let (Some(first), Some(last)) = (around().map(|span| span.0).min(), around().map(|span| span.1).max()) else { continue };
             let columns = first.saturating_sub(1).max(1)..(last + 2).min(s - 1);
             let (above, here, below) = (&lum[(y - 1) * s..y * s], &lum[y * s..(y + 1) * s], &lum[(y + 1) * s..(y + 2) * s]);
             for x in columns.clone() {
@@ -206,8 +205,7 @@ impl EmbeddedBackbone {
             let (row_patch, row_quadrant) = ((y / p) * n, ((y % p) / half) * 2);
             // Only the row's run from its first to its last object pixel can add anything.
             let row_mask = &mask[y * w..(y + 1) * w];
-            let Some(first) = row_mask.iter().position(|&m| m != 0) else { continue };
-            let last = row_mask.iter().rposition(|&m| m != 0).unwrap_or(first);
+            let Some((first, last)) = super::crop::nonzero_span(row_mask) else { continue };
             let (row_rgb, row_mask) = (&rgb[(y * w + first) * 3..(y * w + last + 1) * 3], &row_mask[first..=last]);
             let (columns, opponent) = (&columns[first..=last], &mut opponent[first..=last]);
             for ((o, px), &m) in opponent.iter_mut().zip(row_rgb.chunks_exact(3)).zip(row_mask) {
