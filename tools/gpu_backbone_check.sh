@@ -10,6 +10,8 @@
 #                                                     # plain and fused (-mha) attention
 #          tools/gpu_backbone_check.sh stash          # keep the parts carried by this call
 #          tools/gpu_backbone_check.sh bench          # b2tf on CUDA: backbone, estimate, serve
+#          tools/gpu_backbone_check.sh bench-served   # the same with only the fp16 fused export
+#                                                     # (after export-served: fewer minutes of GPU)
 #          tools/gpu_backbone_check.sh serve-ab       # fp16 fused export only: the service with this
 #                                                     # b2tf and with a carried .gpu/b2tf-baseline.zst
 #          tools/gpu_backbone_check.sh other-devices  # ViT-L on TensorRT (refused without
@@ -159,6 +161,16 @@ bench() {
   "$b2tf" bench serve --backbone "onnx:$m/vitl16-fp16-mha.onnx" --device cuda:0 --store "dir://$STATE/store" --clients 1,4,16 --requests 4 --protocols grpc
 }
 
+# `bench` for the served export alone (`export-served`), when the lease is short.
+bench_served() {
+  setup_b2tf
+  local m="$STATE/models/vitl16-fp16-mha.onnx"
+  nvidia-smi --query-gpu=name,driver_version --format=csv,noheader
+  "$STATE/b2tf" bench backbone --onnx "$m" --device cuda:0 --batches 1,8,32 --passes 5
+  "$STATE/b2tf" bench estimate --backbone "onnx:$m" --device cuda:0 --images 5 --store "dir://$STATE/store"
+  "$STATE/b2tf" bench serve --backbone "onnx:$m" --device cuda:0 --store "dir://$STATE/store" --clients 1,4,16 --requests 4 --protocols grpc
+}
+
 # The service with two builds on one machine (this one, and an earlier one carried as
 # .gpu/b2tf-baseline.zst): server CPU per request, the rate, latency. Needs only the fp16
 # fused-attention export (`export_backbone.py ... --fp16 --fused-attention`).
@@ -217,10 +229,11 @@ case "${1:-}" in
   export) export_stage ;;
   stash) stash ;;
   bench) bench ;;
+  bench-served) bench_served ;;
   serve-ab) serve_ab ;;
   other-devices) other_devices ;;
   export-served) export_served ;;
   threads) threads ;;
   pca-speed) pca_speed ;;
-  *) echo "usage: $0 pack|torch|export|export-served|stash|bench|serve-ab|threads|pca-speed|other-devices" >&2; exit 2 ;;
+  *) echo "usage: $0 pack|pack-cell|cell|torch|export|export-served|stash|bench|bench-served|serve-ab|threads|pca-speed|other-devices" >&2; exit 2 ;;
 esac
