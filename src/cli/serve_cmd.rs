@@ -39,6 +39,7 @@ pub fn run(a: ServeArgs) -> Result<()> {
     let config = CoreConfig {
         store_url: s.store.clone(),
         render_pool: s.render_pool,
+        render_meshes: s.render_meshes,
         cache_bytes: s.cache_bytes,
         max_estimates: s.max_estimates,
         instance_threads: s.instance_threads,

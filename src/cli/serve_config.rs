@@ -11,6 +11,7 @@
 //! backbone_batch = 32            # crops per backbone pass of the batching queue; 0: none
 //! backbone_max_wait_ms = 0       # how long a pass may wait for more requests (GPU: a few ms)
 //! render_pool = 2
+//! render_meshes = 8              # objects' meshes each render context keeps uploaded
 //! max_estimates = 2
 //! instance_threads = 2           # one request's instances estimated side by side [default: cores / max_estimates, at least 2]
 //! queue_depth = 16               # estimates waiting for a slot [default: 8 x max_estimates]
@@ -67,6 +68,11 @@ pub struct ServeSettings {
     /// Render contexts [default: 2]
     #[arg(long, env = "B2TF_RENDER_POOL")]
     pub render_pool: Option<usize>,
+    /// Objects' meshes each render context keeps uploaded (the least recently used one is
+    /// replaced): at least the objects a cell estimates in turn, or each request uploads
+    /// its object again (about 50-100 ms of a textured mesh) [default: 8]
+    #[arg(long, env = "B2TF_RENDER_MESHES")]
+    pub render_meshes: Option<usize>,
     /// Estimates (and detections) running at once; more wait in line [default: 2]
     #[arg(long, env = "B2TF_MAX_ESTIMATES")]
     pub max_estimates: Option<usize>,
@@ -151,6 +157,7 @@ pub struct Resolved {
     pub grpc: Option<String>,
     pub store: String,
     pub render_pool: usize,
+    pub render_meshes: usize,
     pub backbone: crate::features::BackboneChoice,
     pub device: crate::features::Device,
     pub backbone_batch: usize,
@@ -262,6 +269,7 @@ impl ServeSettings {
             grpc,
             store: pick!(store).unwrap_or_else(crate::store::default_url),
             render_pool: positive("render_pool", pick!(render_pool).unwrap_or(crate::render::RenderPool::DEFAULT_SIZE))?,
+            render_meshes: positive("render_meshes", pick!(render_meshes).unwrap_or(crate::render::RendererConfig::default().max_cached_meshes))?,
             backbone,
             device,
             backbone_batch: pick!(backbone_batch).unwrap_or(32),
@@ -343,6 +351,7 @@ mod tests {
         let err = |s: ServeSettings| format!("{:#}", s.resolve(none()).unwrap_err());
         assert!(err(ServeSettings { max_estimates: Some(0), ..none() }).contains("max_estimates"));
         assert!(err(ServeSettings { instance_threads: Some(0), ..none() }).contains("instance_threads"));
+        assert!(err(ServeSettings { render_meshes: Some(0), ..none() }).contains("render_meshes"));
         assert!(err(ServeSettings { backbone: Some("dinov3".into()), ..none() }).contains("dinov3"));
         assert!(err(ServeSettings { device: Some("gpu".into()), ..none() }).contains("gpu"));
         assert!(err(ServeSettings { backbone_max_wait_ms: Some(-1.0), ..none() }).contains("backbone_max_wait_ms"));

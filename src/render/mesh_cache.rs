@@ -45,6 +45,11 @@ impl<V> MeshCache<V> {
         self.entries.retain(|e| e.id != id);
     }
 
+    /// Whether `id` is held, without counting as a use.
+    pub fn contains(&self, id: u64) -> bool {
+        self.entries.iter().any(|e| e.id == id)
+    }
+
     pub fn len(&self) -> usize {
         self.entries.len()
     }
@@ -71,7 +76,9 @@ mod tests {
         assert_eq!(*c.get_or_insert_with(1, || "a3"), "a");
         assert_eq!(*c.get_or_insert_with(2, || "b2"), "b2");
         assert_eq!(c.uploads(), 4);
+        assert!(c.contains(1) && c.contains(2) && !c.contains(3));
         c.remove(2);
         assert_eq!(c.len(), 1);
+        assert!(!c.contains(2));
     }
 }

@@ -55,6 +55,16 @@ impl RenderPool {
         self.renderers.iter().try_for_each(|r| self.counted(lock(r)).prepare(mesh))
     }
 
+    /// Whether a renderer not busy right now lacks `mesh` (busy ones are not waited for: a
+    /// caller deciding whether to upload ahead can leave them to upload on first use).
+    pub fn lacks(&self, mesh: &Mesh) -> bool {
+        self.renderers.iter().any(|r| match r.try_lock() {
+            Ok(r) => !r.holds(mesh),
+            Err(TryLockError::Poisoned(e)) => !e.into_inner().holds(mesh),
+            Err(TryLockError::WouldBlock) => false,
+        })
+    }
+
     /// Several views of one mesh, in order, spread over the pool's renderers.
     pub fn render_batch(&self, mesh: &Mesh, views: &[(Pose, Intrinsics)], opts: &RenderOptions) -> Result<Vec<RenderOutput>, RenderError> {
         let workers = self.size().min(views.len());

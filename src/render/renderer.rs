@@ -73,6 +73,11 @@ impl Renderer {
         self.cache.uploads()
     }
 
+    /// Whether `mesh` is uploaded here (a render of it would upload nothing).
+    pub fn holds(&self, mesh: &Mesh) -> bool {
+        self.cache.contains(mesh.id())
+    }
+
     pub fn cached_meshes(&self) -> usize {
         self.cache.len()
     }

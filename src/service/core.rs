@@ -28,6 +28,8 @@ use std::time::Instant;
 pub struct CoreConfig {
     pub store_url: String,
     pub render_pool: usize,
+    /// Objects' meshes each render context keeps uploaded (`RendererConfig::max_cached_meshes`).
+    pub render_meshes: usize,
     /// Memory for loaded objects (LRU beyond it).
     pub cache_bytes: u64,
     /// Estimates (and detections) running at once; more wait in line.
@@ -62,6 +64,7 @@ impl Default for CoreConfig {
         Self {
             store_url: crate::store::default_url(),
             render_pool: RenderPool::DEFAULT_SIZE,
+            render_meshes: RendererConfig::default().max_cached_meshes,
             cache_bytes: 4_000_000_000,
             max_estimates: 2,
             instance_threads: crate::parallel::instance_threads(2),
@@ -118,7 +121,10 @@ impl Core {
             Some(q) => q.clone(),
             None => inner,
         };
-        let pool = Arc::new(RenderPool::new(config.render_pool.max(1), RendererConfig::default()).map_err(|e| ServiceError::new(ErrorKind::Unavailable, e.to_string()))?);
+        let pool = Arc::new(
+            RenderPool::new(config.render_pool.max(1), RendererConfig { max_cached_meshes: config.render_meshes, ..RendererConfig::default() })
+                .map_err(|e| ServiceError::new(ErrorKind::Unavailable, e.to_string()))?,
+        );
         let estimator = Estimator::new(backbone.clone(), pool.clone());
         let cache = Arc::new(ModelCache::new(store.clone(), config.cache_bytes));
         let tracks = super::track_sessions::TrackSessions::new(config.max_track_sessions, config.track_idle_timeout);
@@ -160,13 +166,14 @@ impl Core {
     }
 
     /// `load` for a request that will render the object (an estimate, a track). One just
-    /// loaded is uploaded to the render pool on a thread of its own meanwhile: the upload
-    /// (for a textured mesh mostly its texture's decode, about 40 ms for 2048²) then
-    /// overlaps the request's feature extraction and retrieval instead of delaying its
+    /// loaded, or whose mesh a render context no longer holds (more objects in use than
+    /// `render_meshes`), is uploaded to the render pool on a thread of its own meanwhile:
+    /// the upload (for a textured mesh mostly its texture's decode, about 40 ms for 2048²)
+    /// then overlaps the request's feature extraction and retrieval instead of delaying its
     /// first render, and the texture is decoded once for all renderers rather than once each.
     pub(super) fn load_to_render(&self, id: &str) -> Result<Arc<crate::onboard::ObjectModel>, ServiceError> {
         let (model, loaded) = self.fetch(id)?;
-        if loaded {
+        if loaded || self.pool.lacks(&model.mesh) {
             let (pool, model) = (self.pool.clone(), model.clone());
             let span = tracing::info_span!("render.prepare", object_id = id);
             let started = std::thread::Builder::new().name("render-prepare".into()).spawn(move || {
@@ -544,16 +551,39 @@ mod tests {
         }
         core.load("a").unwrap();
         core.load_to_render("b").unwrap();
-        let t = Instant::now();
-        while core.render_mesh_uploads() < 2 {
-            assert!(t.elapsed().as_secs() < 60, "the mesh never reached both renderers");
-            std::thread::sleep(std::time::Duration::from_millis(20));
-        }
+        wait_for_uploads(&core, 2);
         std::thread::sleep(std::time::Duration::from_millis(200));
         assert_eq!(core.render_mesh_uploads(), 2, "one upload per renderer, of b only");
         core.load_to_render("b").unwrap();
         std::thread::sleep(std::time::Duration::from_millis(200));
         assert_eq!(core.render_mesh_uploads(), 2, "a loaded object is not uploaded again");
+    }
+
+    /// More objects in turn than a renderer keeps (`render_meshes`): an object already
+    /// loaded whose mesh the others pushed off the renderers is uploaded again ahead of
+    /// its renders, as on its first load.
+    #[test]
+    fn an_object_pushed_off_the_renderers_is_uploaded_again_ahead() {
+        let Some(model) = crate::onboard::test_model::small_model() else { return };
+        let dir = tempfile::tempdir().unwrap();
+        let store_url = format!("dir://{}", dir.path().display());
+        let core = Core::new(CoreConfig { store_url, render_pool: 2, render_meshes: 1, ..Default::default() }).unwrap();
+        for id in ["a", "b"] {
+            core.store.put(&crate::onboard::ObjectModel { object_id: id.into(), ..model.clone() }, false).unwrap();
+        }
+        for (id, uploads) in [("a", 2), ("b", 4), ("a", 6)] {
+            core.load_to_render(id).unwrap();
+            wait_for_uploads(&core, uploads);
+        }
+    }
+
+    /// Waits (a minute at most) until the renderers have uploaded `n` meshes in all.
+    fn wait_for_uploads(core: &Core, n: u64) {
+        let t = Instant::now();
+        while core.render_mesh_uploads() < n {
+            assert!(t.elapsed().as_secs() < 60, "{} mesh uploads, never {n}", core.render_mesh_uploads());
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
     }
 
     #[test]

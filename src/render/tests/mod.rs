@@ -30,7 +30,11 @@ pub(crate) fn test_pool() -> Option<RenderPool> {
 }
 
 fn pool_of(size: usize) -> Option<RenderPool> {
-    match RenderPool::new(size, RendererConfig::default()) {
+    pool_with(size, RendererConfig::default())
+}
+
+fn pool_with(size: usize, config: RendererConfig) -> Option<RenderPool> {
+    match RenderPool::new(size, config) {
         Ok(p) => Some(p),
         Err(e @ RenderError::NoAdapter { .. }) if std::env::var_os("B2TF_REQUIRE_GPU").is_none() => {
             eprintln!("SKIPPED (no GPU adapter): {e}");
@@ -239,6 +243,23 @@ fn prepare_uploads_to_every_renderer_once_and_renders_reuse_it() {
     assert_eq!(pool.render_batch(&mesh, &views, &o).unwrap().len(), 4);
     pool.prepare(&mesh).unwrap();
     assert_eq!(pool.mesh_uploads(), 2, "already uploaded everywhere");
+}
+
+/// What the service asks before a request renders: whether an object's mesh must be put on
+/// the renderers again, having been pushed out by others (more objects in turn than each
+/// keeps).
+#[test]
+fn a_pool_says_when_it_lacks_a_mesh_that_others_pushed_out() {
+    let Some(pool) = pool_with(2, RendererConfig { max_cached_meshes: 1, ..Default::default() }) else { return };
+    let (a, b) = (textured_sphere(), cube(0.05, None));
+    assert!(pool.lacks(&a), "nothing uploaded yet");
+    pool.prepare(&a).unwrap();
+    assert!(!pool.lacks(&a) && pool.lacks(&b));
+    pool.render(&b, &pose([0.0; 3], [0.0, 0.0, 0.4]), &camera(), &RenderOptions::default()).unwrap();
+    assert!(pool.lacks(&a), "one renderer drew the cube in the sphere's place");
+    pool.prepare(&a).unwrap();
+    assert!(!pool.lacks(&a));
+    assert_eq!(pool.mesh_uploads(), 4, "the sphere on both, the cube on one, the sphere again where the cube had replaced it");
 }
 
 #[test]
