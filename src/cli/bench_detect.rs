@@ -85,7 +85,7 @@ pub fn run(a: BenchDetectArgs) -> Result<()> {
         bail!("--estimate-store runs the onboarded (textured) objects; leave out --untextured");
     }
     let mut one_call = a.estimate_store.as_deref().map(|url| super::bench_one_call::OneCall::open(url, &names[..searched], opts.clone())).transpose()?;
-    let pool = super::open_renderer(RenderPool::DEFAULT_SIZE)?;
+    let pool = super::open_renderer_for(RenderPool::DEFAULT_SIZE, meshes.len())?;
     let t = Instant::now();
     let shapes: Vec<ShapeModel> = meshes[..searched].iter().map(|m| ShapeModel::build(m, &pool, &Default::default())).collect::<Result<_, _>>()?;
     println!("templates: {} objects × {} in {:.1} s ({:.2} s per object)", searched, shapes[0].template_count(), t.elapsed().as_secs_f64(), t.elapsed().as_secs_f64() / searched as f64);

@@ -163,7 +163,7 @@ fn run_cmd(a: RunArgs) -> Result<()> {
     let search = a.search.options();
     crate::detect::check_options(&search)?;
     let backbone = a.backbone.open()?;
-    let pool = Arc::new(super::open_renderer(RenderPool::DEFAULT_SIZE)?);
+    let pool = Arc::new(super::open_renderer_for(RenderPool::DEFAULT_SIZE, targeted_objects(&a.dataset))?);
     let estimator = crate::estimate::Estimator::new(backbone.clone(), pool.clone());
     let url = a.store.clone().unwrap_or_else(|| format!("sqlite://{}", a.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new(".")).join("b2tf-objects.db").display()));
     let store = crate::store::open(&url)?;
@@ -245,6 +245,12 @@ fn run_cmd(a: RunArgs) -> Result<()> {
     Ok(())
 }
 
+/// How many objects the dataset's targets name (0 where they cannot be read: the run
+/// reports why when it reads them).
+fn targeted_objects(dataset: &std::path::Path) -> usize {
+    crate::bop::load_targets(dataset).map(|t| t.iter().map(|t| t.obj_id).collect::<HashSet<u32>>().len()).unwrap_or(0)
+}
+
 /// `N` or `MIN,MAX` (1 ≤ MIN ≤ MAX): a count of instances per image.
 fn parse_count_range(s: &str) -> Result<(usize, usize), String> {
     let parse = |x: &str| x.trim().parse::<usize>().map_err(|e| format!("{x:?}: {e}"));
@@ -290,4 +296,18 @@ fn synth_cmd(a: SynthArgs) -> Result<()> {
         s.box_detections_path.display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    /// The renderers of a run keep as many meshes as its targets name objects.
+    #[test]
+    fn targeted_objects_are_the_distinct_ids_of_the_targets() {
+        let dir = tempfile::tempdir().unwrap();
+        assert_eq!(super::targeted_objects(dir.path()), 0, "no targets file");
+        let target = |obj: u32, im: u32| format!(r#"{{"scene_id": 0, "im_id": {im}, "obj_id": {obj}, "inst_count": 1}}"#);
+        let targets = [target(1, 1), target(2, 1), target(2, 2), target(5, 2)].join(", ");
+        std::fs::write(dir.path().join(crate::bop::format::TEST_TARGETS), format!("[{targets}]")).unwrap();
+        assert_eq!(super::targeted_objects(dir.path()), 3);
+    }
 }
