@@ -31,8 +31,8 @@ impl OneCall {
     pub fn open(store_url: &str, ids: &[String], detect: DetectOptions) -> Result<Self> {
         // The renderers keep every searched object, as a cell's server would be set up for them
         // (`serve --render-meshes`).
-        let defaults = CoreConfig::default();
-        let core = Core::new(CoreConfig { store_url: store_url.into(), render_meshes: defaults.render_meshes.max(ids.len()), ..defaults }).with_context(|| format!("opening {store_url}"))?;
+        let render_meshes = crate::render::RendererConfig::keeping(ids.len()).max_cached_meshes;
+        let core = Core::new(CoreConfig { store_url: store_url.into(), render_meshes, ..Default::default() }).with_context(|| format!("opening {store_url}"))?;
         let listed = core.list_objects().map_err(|e| anyhow::anyhow!("listing {store_url}: {e}"))?;
         if let Some(missing) = ids.iter().find(|id| !listed.iter().any(|o| o.id == **id)) {
             anyhow::bail!("--estimate-store {store_url} has no object {missing:?}: onboard each searched mesh under its file's name (b2tf onboard --mesh … --id {missing})");

@@ -139,13 +139,9 @@ pub fn open_renderer(size: usize) -> anyhow::Result<crate::render::RenderPool> {
     open_renderer_with(size, crate::render::RendererConfig::default())
 }
 
-/// `open_renderer` whose renderers keep `objects` meshes uploaded (at least the default):
-/// a run over more objects than that, each image searching them all, would otherwise
-/// upload every object again for every image (17 objects searched on the real YCB-V frames:
-/// 142 uploads of 30-60 ms in a few frames).
+/// `open_renderer` whose renderers keep `objects` meshes uploaded (`RendererConfig::keeping`).
 pub fn open_renderer_for(size: usize, objects: usize) -> anyhow::Result<crate::render::RenderPool> {
-    let config = crate::render::RendererConfig::default();
-    open_renderer_with(size, crate::render::RendererConfig { max_cached_meshes: config.max_cached_meshes.max(objects), ..config })
+    open_renderer_with(size, crate::render::RendererConfig::keeping(objects))
 }
 
 /// `open_renderer` with other renderer settings.

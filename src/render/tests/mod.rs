@@ -372,3 +372,10 @@ fn a_texture_held_as_png_renders_as_its_pixels_and_a_damaged_one_as_the_base_col
     let plain = r.render(&Mesh::new("untextured sphere", Units::M, untextured).unwrap(), &p, &k, &o).unwrap();
     assert!(damaged.rgb == plain.rgb && damaged.rgb != decoded.rgb);
 }
+
+#[test]
+fn a_run_over_many_objects_keeps_them_all_and_never_fewer_than_the_default() {
+    let default = RendererConfig::default().max_cached_meshes;
+    assert_eq!(RendererConfig::keeping(0).max_cached_meshes, default);
+    assert_eq!(RendererConfig::keeping(default + 9).max_cached_meshes, default + 9);
+}
