@@ -386,13 +386,23 @@ fn a_mask_that_fails_the_screen_is_not_estimated_and_one_that_passes_is_as_witho
     assert!(why.contains("screened out") && why.contains("0.10") && why.contains("0.50 needed"), "{why}");
     assert!(r.timings.screen > 0.0 && r.timings.matching == 0.0 && r.timings.refine == 0.0, "{:?}", r.timings);
     assert!(r.timings.by_stage().contains_key("screen"));
-    // Passed at the first template: the estimate goes on as it does without a screen.
+    // Passed at the first template: the estimate goes on as it does without a screen, with
+    // the candidates' effort (light by default: fewer hypotheses refined).
     let passes = screen(0.9);
     let r = f.estimator.estimate_screened(&f.model, (&s.rgb, Some(&depth)), &s.cam, &det, None, Some(&passes), &cfg).unwrap();
-    let plain = f.estimator.estimate_rgbd(&f.model, &s.rgb, Some(&depth), &s.cam, &det, None, &cfg).unwrap();
+    let light = b2tfpose::estimate::CandidateEffort::applied(&cfg);
+    let plain = f.estimator.estimate_rgbd(&f.model, &s.rgb, Some(&depth), &s.cam, &det, None, &light).unwrap();
     assert_eq!(calls(&passes), 1);
     assert_eq!(r.pose.map(|p| p.translation), plain.pose.map(|p| p.translation));
     assert!(r.pose.is_some() && !plain.timings.by_stage().contains_key("screen"));
+    assert!(r.timings.screen > 0.0, "{:?}", r.timings);
+    // Full effort: as a given mask, every hypothesis refined.
+    let full_cfg = EstimateConfig { candidate_effort: b2tfpose::estimate::CandidateEffort::Full, ..cfg.clone() };
+    let full = f.estimator.estimate_screened(&f.model, (&s.rgb, Some(&depth)), &s.cam, &det, None, Some(&passes), &full_cfg).unwrap();
+    let given = f.estimator.estimate_rgbd(&f.model, &s.rgb, Some(&depth), &s.cam, &det, None, &cfg).unwrap();
+    assert_eq!(full.pose.map(|p| p.translation), given.pose.map(|p| p.translation));
+    let verified = |r: &b2tfpose::estimate::EstimateResult| r.hypotheses[0].verified.len();
+    assert!(verified(&full) > verified(&r), "{} light, {} full", verified(&r), verified(&full));
     // Without depth there is nothing to fit the templates to: the screen is not asked.
     let unused = screen(0.0);
     let r = f.estimator.estimate_screened(&f.model, (&s.rgb, None), &s.cam, &det, None, Some(&unused), &cfg).unwrap();

@@ -86,6 +86,11 @@ pub struct RunArgs {
     /// depth edges, the support plane removed; `masks::depth_proposal`).
     #[arg(long, requires = "depth")]
     pub depth_proposals: bool,
+    /// With depth and no detections given: how the depth detector's candidates are
+    /// estimated: light (without RRC, at most 12 hypotheses refined; docs/detection.md) or
+    /// full (as a given mask).
+    #[arg(long, value_enum, default_value_t = crate::estimate::CandidateEffort::default(), requires = "depth")]
+    pub candidate_effort: crate::estimate::CandidateEffort,
     /// Threads an image's instances are estimated on side by side, with --detections (the
     /// detector's candidates go in turn until enough are sure); 1: in turn [default: the
     /// cores, at least 2]
@@ -197,6 +202,7 @@ fn run_cmd(a: RunArgs) -> Result<()> {
         print: a.verify.print_config(),
         box_prior: a.box_prior,
         depth_proposals: a.depth_proposals,
+        candidate_effort: a.candidate_effort,
         ..Default::default()
     };
     let opts = RunOptions {

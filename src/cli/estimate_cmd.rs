@@ -48,6 +48,11 @@ pub struct EstimateArgs {
     /// Skip render-guided re-correspondence.
     #[arg(long)]
     pub no_rrc: bool,
+    /// With depth and no detections given: how the depth detector's candidates are
+    /// estimated: light (without RRC, at most 12 hypotheses refined; docs/detection.md) or
+    /// full (as a given mask).
+    #[arg(long, value_enum, default_value_t = crate::estimate::CandidateEffort::default(), requires = "depth")]
+    pub candidate_effort: crate::estimate::CandidateEffort,
     /// Refiner after PnP/RRC: none (pass-through), silhouette-depth (scales the depth to
     /// the best silhouette IoU) or contour (aligns the outline with the mask).
     #[arg(long, value_enum, default_value_t = crate::estimate::RefinerKind::default())]
@@ -161,7 +166,15 @@ pub fn run(a: EstimateArgs) -> Result<()> {
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
     let backbone = a.target.backbone.open()?;
     let estimator = crate::estimate::Estimator::new(backbone, renderer.clone());
-    let mut cfg = EstimateConfig { rrc: !a.no_rrc, refiner: a.refiner, verify: a.verify.config(), print: a.verify.print_config(), box_prior: a.box_prior, ..Default::default() };
+    let mut cfg = EstimateConfig {
+        rrc: !a.no_rrc,
+        refiner: a.refiner,
+        verify: a.verify.config(),
+        print: a.verify.print_config(),
+        box_prior: a.box_prior,
+        candidate_effort: a.candidate_effort,
+        ..Default::default()
+    };
     cfg.retrieval.k = a.k;
     let (result, confirmation) = if given == 0 {
         let (r, c) = estimate_detected(&a, &model, (&image, depth.as_ref()), &k, &estimator, &renderer, &cfg)?;

@@ -2,6 +2,7 @@
 //! and hypothesis selection across masks (DESIGN.md steps 4–10).
 
 pub mod box_prior;
+pub mod candidate_effort;
 pub mod candidates;
 pub mod contour;
 pub mod correspond;
@@ -23,7 +24,7 @@ pub mod verify;
 
 pub use box_prior::BoxPrior;
 pub use candidates::{Candidates, Detection};
-pub use pipeline::{CoarseCheck, DepthScreen, EstimateConfig, EstimateResult, Estimator, Hypothesis, StageTimings};
+pub use pipeline::{CandidateEffort, CoarseCheck, DepthScreen, EstimateConfig, EstimateResult, Estimator, Hypothesis, StageTimings};
 pub use refine::{PassThrough, RefineContext, RefineReport, Refined, Refiner, RefinerKind};
 pub use runner_up::RunnerUp;
 pub use verify::VerifyConfig;

@@ -31,6 +31,7 @@ mod per_mask;
 mod screen;
 mod second_look;
 
+pub use super::candidate_effort::CandidateEffort;
 pub use screen::{CoarseCheck, DepthScreen};
 
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -83,6 +84,10 @@ pub struct EstimateConfig {
     /// (docs/estimation.md, "Depth (RGB-D)").
     #[serde(default)]
     pub depth_proposals: bool,
+    /// How the depth detector's candidates, screened against the depth, are estimated:
+    /// light (without RRC, fewer hypotheses refined) by default (`candidate_effort`).
+    #[serde(default)]
+    pub candidate_effort: CandidateEffort,
 }
 
 impl Default for EstimateConfig {
@@ -102,6 +107,7 @@ impl Default for EstimateConfig {
             print: PrintRefineConfig::default(),
             box_prior: BoxPrior::default(),
             depth_proposals: false,
+            candidate_effort: CandidateEffort::default(),
         }
     }
 }
@@ -377,7 +383,8 @@ impl Estimator {
 
     /// `estimate_rgbd` for a candidate that is likely not the object (one of many the
     /// depth detector offers): each mask must first pass `screen` where there is one
-    /// (`pipeline::screen`), and one that does not costs a few renders, not an estimate.
+    /// (`pipeline::screen`), and one that does not costs a few renders, not an estimate;
+    /// one that does is estimated with `cfg.candidate_effort` (`candidate_effort`).
     #[allow(clippy::too_many_arguments)]
     pub fn estimate_screened(
         &self,
@@ -389,7 +396,10 @@ impl Estimator {
         screen: Option<&dyn CoarseCheck>,
         cfg: &EstimateConfig,
     ) -> Result<EstimateResult, EstimateError> {
-        self.estimate_inputs(&per_mask::MaskInputs { model, image, depth, k, others, hints: &[], screen, cfg }, detections)
+        // Screened against the depth, a candidate is estimated with the effort it is given;
+        // without depth the screen is not asked and the estimate is a mask's.
+        let cfg = if screen.is_some() && depth.is_some() { CandidateEffort::applied(cfg) } else { std::borrow::Cow::Borrowed(cfg) };
+        self.estimate_inputs(&per_mask::MaskInputs { model, image, depth, k, others, hints: &[], screen, cfg: &cfg }, detections)
     }
 
     fn estimate_inputs(&self, req: &per_mask::MaskInputs<'_>, detections: &[Detection]) -> Result<EstimateResult, EstimateError> {
