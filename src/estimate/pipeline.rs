@@ -85,7 +85,7 @@ pub struct EstimateConfig {
     #[serde(default)]
     pub depth_proposals: bool,
     /// How the depth detector's candidates, screened against the depth, are estimated:
-    /// light (without RRC, fewer hypotheses refined) by default (`candidate_effort`).
+    /// light (fewer verification hypotheses refined) by default (`candidate_effort`).
     #[serde(default)]
     pub candidate_effort: CandidateEffort,
 }
