@@ -87,7 +87,7 @@ pub struct RunArgs {
     #[arg(long, requires = "depth")]
     pub depth_proposals: bool,
     /// With depth and no detections given: how the depth detector's candidates are
-    /// estimated: light (without RRC, at most 12 hypotheses refined; docs/detection.md) or
+    /// estimated: light (at most 12 verification hypotheses refined; docs/detection.md) or
     /// full (as a given mask).
     #[arg(long, value_enum, default_value_t = crate::estimate::CandidateEffort::default(), requires = "depth")]
     pub candidate_effort: crate::estimate::CandidateEffort,

@@ -2,8 +2,9 @@
 //! of an object's size to every object of that size, so most of its candidates are not the
 //! object they are estimated for, and with several objects searched their estimates are
 //! most of a frame's time (docs/detection.md, "Screening"). With depth, refining only the
-//! verification hypotheses whose outline agrees best where they start kept every answer
-//! on the real YCB-V frames and on generated scenes over real frames, for 7–13 % less time;
+//! verification hypotheses whose outline agrees best where they start answered as many
+//! instances, one more or one fewer, on the real YCB-V frames and on generated scenes over
+//! real frames, for a tenth less time on frames with 3–4 objects (none with 8 searched);
 //! RRC turned off as well saved a third but lost a tenth of the AR on the generated scenes
 //! (docs/detection.md, "Lighter estimates for the detector's candidates").
 
