@@ -1,7 +1,7 @@
 //! Estimation end to end on lavapipe: a generated scene of the procedural box, each stage's
 //! contribution, and every kind of bad input.
 
-use b2tfpose::estimate::{Detection, EstimateConfig, EstimateError, Estimator};
+use b2tfpose::estimate::{Detection, EstimateConfig, EstimateError, Estimator, Screen};
 use b2tfpose::eval::pose_error::mssd;
 use b2tfpose::eval::scenes::{generate_image, SceneConfig};
 use b2tfpose::features::{EmbeddedBackbone, EmbeddedConfig};
@@ -380,7 +380,7 @@ fn a_mask_that_fails_the_screen_is_not_estimated_and_one_that_passes_is_as_witho
     let calls = |s: &FixedScreen| s.calls.load(std::sync::atomic::Ordering::Relaxed);
     // Failed: three placed templates looked at, then nothing matched, solved or refined.
     let fails = screen(0.1);
-    let r = f.estimator.estimate_screened(&f.model, (&s.rgb, Some(&depth)), &s.cam, &det, None, Some(&fails), &cfg).unwrap();
+    let r = f.estimator.estimate_screened(&f.model, (&s.rgb, Some(&depth)), &s.cam, &det, None, Screen::Check(&fails), &cfg).unwrap();
     assert!(r.pose.is_none() && calls(&fails) == 3, "{} calls", calls(&fails));
     let why = r.hypotheses[0].failure.as_deref().unwrap_or_default();
     assert!(why.contains("screened out") && why.contains("0.10") && why.contains("0.50 needed"), "{why}");
@@ -389,7 +389,7 @@ fn a_mask_that_fails_the_screen_is_not_estimated_and_one_that_passes_is_as_witho
     // Passed at the first template: the estimate goes on as it does without a screen, with
     // the candidates' effort (light by default: fewer hypotheses refined).
     let passes = screen(0.9);
-    let r = f.estimator.estimate_screened(&f.model, (&s.rgb, Some(&depth)), &s.cam, &det, None, Some(&passes), &cfg).unwrap();
+    let r = f.estimator.estimate_screened(&f.model, (&s.rgb, Some(&depth)), &s.cam, &det, None, Screen::Check(&passes), &cfg).unwrap();
     let light = b2tfpose::estimate::CandidateEffort::applied(&cfg);
     let plain = f.estimator.estimate_rgbd(&f.model, &s.rgb, Some(&depth), &s.cam, &det, None, &light).unwrap();
     assert_eq!(calls(&passes), 1);
@@ -398,13 +398,41 @@ fn a_mask_that_fails_the_screen_is_not_estimated_and_one_that_passes_is_as_witho
     assert!(r.timings.screen > 0.0, "{:?}", r.timings);
     // Full effort: as a given mask, every hypothesis refined.
     let full_cfg = EstimateConfig { candidate_effort: b2tfpose::estimate::CandidateEffort::Full, ..cfg.clone() };
-    let full = f.estimator.estimate_screened(&f.model, (&s.rgb, Some(&depth)), &s.cam, &det, None, Some(&passes), &full_cfg).unwrap();
+    let full = f.estimator.estimate_screened(&f.model, (&s.rgb, Some(&depth)), &s.cam, &det, None, Screen::Check(&passes), &full_cfg).unwrap();
     let given = f.estimator.estimate_rgbd(&f.model, &s.rgb, Some(&depth), &s.cam, &det, None, &cfg).unwrap();
     assert_eq!(full.pose.map(|p| p.translation), given.pose.map(|p| p.translation));
     let verified = |r: &b2tfpose::estimate::EstimateResult| r.hypotheses[0].verified.len();
     assert!(verified(&full) > verified(&r), "{} light, {} full", verified(&r), verified(&full));
     // Without depth there is nothing to fit the templates to: the screen is not asked.
     let unused = screen(0.0);
-    let r = f.estimator.estimate_screened(&f.model, (&s.rgb, None), &s.cam, &det, None, Some(&unused), &cfg).unwrap();
+    let r = f.estimator.estimate_screened(&f.model, (&s.rgb, None), &s.cam, &det, None, Screen::Check(&unused), &cfg).unwrap();
     assert!(r.pose.is_some() && calls(&unused) == 0);
+}
+
+#[test]
+fn masks_scored_beforehand_are_screened_by_their_scores_without_a_second_look() {
+    let f = fixture();
+    let s = scene(1);
+    let det = true_detection(&s);
+    let depth = b2tfpose::depth::DepthImage::from_metres(s.cam.width, s.cam.height, s.depth.clone()).unwrap();
+    let cfg = EstimateConfig::default();
+    // Scored in full: all three placed templates looked at, not only until one passes.
+    let check = FixedScreen { score: 0.9, calls: Default::default() };
+    let scores = f.estimator.screen_scores(&f.model, (&s.rgb, Some(&depth)), &s.cam, &det, &check, &cfg).unwrap();
+    assert_eq!(scores, vec![0.9; det.len()]);
+    assert_eq!(check.calls.load(std::sync::atomic::Ordering::Relaxed), 3 * det.len());
+    // Without depth nothing is screened: every mask passes.
+    assert_eq!(f.estimator.screen_scores(&f.model, (&s.rgb, None), &s.cam, &det, &check, &cfg).unwrap(), vec![1.0; det.len()]);
+    // Below what is needed: not estimated, with the score in the reason.
+    let low = vec![0.04; det.len()];
+    let r = f.estimator.estimate_screened(&f.model, (&s.rgb, Some(&depth)), &s.cam, &det, None, Screen::Scored { scores: &low, needed: 0.06 }, &cfg).unwrap();
+    let why = r.hypotheses[0].failure.as_deref().unwrap_or_default();
+    assert!(r.pose.is_none() && why.contains("screened out") && why.contains("0.04") && why.contains("0.06 needed"), "{why}");
+    // Passed: the same estimate as checking each mask as it comes.
+    let passed = f.estimator.estimate_screened(&f.model, (&s.rgb, Some(&depth)), &s.cam, &det, None, Screen::Scored { scores: &scores, needed: 0.5 }, &cfg).unwrap();
+    let checked = f.estimator.estimate_screened(&f.model, (&s.rgb, Some(&depth)), &s.cam, &det, None, Screen::Check(&check), &cfg).unwrap();
+    assert_eq!(passed.pose.map(|p| p.translation), checked.pose.map(|p| p.translation));
+    assert!(passed.pose.is_some());
+    // A bad request is refused as the estimate refuses it.
+    assert!(f.estimator.screen_scores(&f.model, (&s.rgb, Some(&depth)), &s.cam, &[], &check, &cfg).is_err());
 }

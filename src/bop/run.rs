@@ -17,11 +17,12 @@ use super::dataset::{load_rgb, load_scene_cameras, load_targets, ImageCamera};
 use super::detections::{DetectionIndex, DetectionRecord};
 use super::format::{scene_dir, TargetRecord};
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
-use crate::detect::confirm::{candidate_options, compared_choice, confirm, estimate_instances, on_taken_place, one_per_place, sure_places, Choice};
+use crate::detect::confirm::{candidate_options, compared_at_most, compared_choice, confirm, estimate_instances, on_taken_place, one_per_place, sure_places, Choice};
+use crate::detect::rivals::{drop_outranked, Screened};
 use crate::detect::{detect, DetectOptions, Target};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateError, Estimator};
-use crate::estimate::{CoarseCheck, DepthScreen};
+use crate::estimate::{CoarseCheck, DepthScreen, Screen};
 use crate::geometry::Pose;
 use crate::masks::OtherMasks;
 use crate::masks::{group_instances, BoxMask};
@@ -164,18 +165,32 @@ pub fn run(
         let failures: Mutex<BTreeMap<String, usize>> = Mutex::default();
         // One instance (`group` of target `ti`'s candidates): its pose, score and mask, and
         // its confirmation with the detector's candidates.
-        let estimate_group = |ti: usize, m: &ObjectModel, group: &[usize], check: Option<&dyn CoarseCheck>| -> Result<(Option<Answer>, Option<f32>)> {
+        // Complaints about the input are counted, not raised (the instance goes without).
+        let refused = |e: EstimateError, ti: usize| -> Result<()> {
+            match e {
+                EstimateError::BadInput(msg) => {
+                    *failures.lock().unwrap_or_else(|e| e.into_inner()).entry(msg).or_default() += 1;
+                    Ok(())
+                }
+                e => Err(anyhow::Error::new(e).context(format!("scene {scene_id}, image {im_id}, object {}", targets[ti].obj_id))),
+            }
+        };
+        let candidates_of = |ti: usize, group: &[usize]| Candidates::gather(group.iter().map(|&i| (i, decoded[ti][i].as_slice()))).masks;
+        // A group's screen scores, one per candidate mask (`Estimator::screen_scores`).
+        let screen_group = |ti: usize, m: &ObjectModel, group: &[usize], check: &dyn CoarseCheck| -> Result<Option<Vec<f32>>> {
+            match estimator.screen_scores(m, (&rgb, depth.as_ref()), &camera.cam, &candidates_of(ti, group), check, &opts.estimate) {
+                Ok(scores) => Ok(Some(scores)),
+                Err(e) => refused(e, ti).map(|()| None),
+            }
+        };
+        let estimate_group = |ti: usize, m: &ObjectModel, group: &[usize], screen: Screen<'_>| -> Result<(Option<Answer>, Option<f32>)> {
             let (t, masks) = (&targets[ti], &decoded[ti]);
-            let candidates = Candidates::gather(group.iter().map(|&i| (i, masks[i].as_slice()))).masks;
+            let candidates = candidates_of(ti, group);
             let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, c)| representative(c).0));
             let others = crate::masks::occluders(representative(&masks[group[0]]).0, others, kind, camera.cam.width, camera.cam.height);
-            let r = match estimator.estimate_screened(m, (&rgb, depth.as_ref()), &camera.cam, &candidates, others.as_ref(), check, &opts.estimate) {
+            let r = match estimator.estimate_screened(m, (&rgb, depth.as_ref()), &camera.cam, &candidates, others.as_ref(), screen, &opts.estimate) {
                 Ok(r) => r,
-                Err(EstimateError::BadInput(msg)) => {
-                    *failures.lock().unwrap_or_else(|e| e.into_inner()).entry(msg).or_default() += 1;
-                    return Ok((None, None));
-                }
-                Err(e) => return Err(anyhow::Error::new(e).context(format!("scene {scene_id}, image {im_id}, object {}", t.obj_id))),
+                Err(e) => return refused(e, ti).map(|()| (None, None)),
             };
             // Where an estimate's time goes, per stage (box proposals against masks).
             tracing::debug!(scene_id, im_id, obj_id = t.obj_id, masks = candidates.len(), timings = ?r.timings, "estimated");
@@ -220,11 +235,40 @@ pub fn run(
             // The file's instances are all answered: every target's estimated side by side.
             let jobs: Vec<_> = work.iter().enumerate().flat_map(|(n, w)| groups_of(&decoded[w.0]).into_iter().take(answers[n].1).map(move |g| (n, w, g))).collect();
             let owners: Vec<usize> = jobs.iter().map(|j| j.0).collect();
-            let done = crate::parallel::ordered_map(jobs, opts.instance_threads, |(_, (ti, m), group)| estimate_group(*ti, m, &group, None))?;
+            let done = crate::parallel::ordered_map(jobs, opts.instance_threads, |(_, (ti, m), group)| estimate_group(*ti, m, &group, Screen::Off))?;
             for (owner, (estimated, _)) in owners.into_iter().zip(done) {
                 answers[owner].2.extend(estimated);
             }
         } else {
+            // The depth detector's candidates that cannot be their object are not estimated:
+            // each screened first, and one far below another object's on its place dropped
+            // (`detect::rivals`).
+            let screens: Vec<Option<DepthScreen>> = work
+                .iter()
+                .map(|(_, m)| match (&source, compared) {
+                    (DetectionSource::Detector { pool, options, .. }, true) => DepthScreen::of(&rgb, depth.as_ref(), &camera.cam, &m.mesh, pool, options.min_score),
+                    _ => None,
+                })
+                .collect();
+            // Each instance's screen scores (of those that can be compared); one the estimator
+            // refuses is dropped.
+            let mut candidates: Vec<Vec<Screened>> = Vec::new();
+            for (n, (ti, m)) in work.iter().enumerate() {
+                let mut screened = Vec::new();
+                let at_most = if screens[n].is_some() { compared_at_most(answers[n].1) } else { usize::MAX };
+                for group in groups_of(&decoded[*ti]).into_iter().take(at_most) {
+                    let scores = match &screens[n] {
+                        Some(check) => match screen_group(*ti, m, &group, check)? {
+                            Some(scores) => Some(scores),
+                            None => continue,
+                        },
+                        None => None,
+                    };
+                    screened.push(Screened { group, scores });
+                }
+                candidates.push(screened);
+            }
+            drop_outranked(&mut candidates, |n, g| representative(&decoded[work[n].0][g[0]]).0);
             // Places another object's answer surely took: not estimated again (`on_taken_place`).
             let mut taken: Vec<GrayImage> = Vec::new();
             for (n, (ti, m)) in work.iter().enumerate() {
@@ -232,17 +276,12 @@ pub fn run(
                 // The depth detector's candidates are compared (in turn until one is sure),
                 // and each segment answered once across objects after every object's are in
                 // (`one_per_place`).
-                let mut groups = groups_of(masks);
+                let mut jobs: Vec<&Screened> = candidates[n].iter().collect();
                 if compared {
-                    groups.retain(|g| !on_taken_place(representative(&masks[g[0]]).0, &taken));
+                    jobs.retain(|c| !on_taken_place(representative(&masks[c.group[0]]).0, &taken));
                 }
-                let choice = compared_choice(compared, groups.len(), wanted, choice);
-                // The depth detector's candidates that cannot be this object are not estimated.
-                let screen = match (&source, compared) {
-                    (DetectionSource::Detector { pool, options, .. }, true) => DepthScreen::of(&rgb, depth.as_ref(), &camera.cam, &m.mesh, pool, options.min_score),
-                    _ => None,
-                };
-                let answered = estimate_instances(groups, wanted, choice, |group| estimate_group(*ti, m, &group, DepthScreen::as_check(&screen)))?;
+                let choice = compared_choice(compared, jobs.len(), wanted, choice);
+                let answered = estimate_instances(jobs, wanted, choice, |c| estimate_group(*ti, m, &c.group, DepthScreen::scored(&screens[n], c.scores.as_deref())))?;
                 answers[n].2 = answered.kept.into_iter().filter_map(|(p, _)| p).collect();
                 taken.extend(sure_places(&answers[n].2));
             }

@@ -130,7 +130,7 @@ fn estimate_detected(
     let screen = DepthScreen::of(image, depth, k, &model.mesh, renderer, min_score);
     let answered = estimate_instances(groups, 1, choice, |group| {
         let candidates: Vec<Detection> = group.iter().map(|&i| Detection::new(found[i].mask.clone(), found[i].score)).collect();
-        let r = estimator.estimate_screened(model, (image, depth), k, &candidates, None, DepthScreen::as_check(&screen), cfg)?;
+        let r = estimator.estimate_screened(model, (image, depth), k, &candidates, None, DepthScreen::as_screen(&screen), cfg)?;
         count += 1;
         let confirmation = match &r.pose {
             Some(pose) => {

@@ -178,13 +178,19 @@ fn settled(scores: &[Option<f32>], wanted: usize, sure: f32) -> bool {
 /// stop at the first confirmed at `SURE` (`one_per_place` then decides).
 pub const DEPTH_CANDIDATES_COMPARED: usize = 9;
 
+/// The most candidates of an object with `wanted` instances compared when the depth
+/// detector found them (and so the most worth screening).
+pub fn compared_at_most(wanted: usize) -> usize {
+    DEPTH_CANDIDATES_COMPARED.max(wanted)
+}
+
 /// How the candidates of an object with `wanted` instances and `candidates` candidate
 /// groups are chosen: with the depth detector's candidates (`compared`) and the caller's
 /// `Choice::Confirmed`, all of them up to `DEPTH_CANDIDATES_COMPARED` (and at least those
 /// wanted) compared, to be chosen among once every object's are in; else `choice`.
 pub fn compared_choice(compared: bool, candidates: usize, wanted: usize, choice: Choice) -> Choice {
     match choice {
-        Choice::Confirmed { min_score } if compared => Choice::Compared { min_score, limit: candidates.min(DEPTH_CANDIDATES_COMPARED.max(wanted)) },
+        Choice::Confirmed { min_score } if compared => Choice::Compared { min_score, limit: candidates.min(compared_at_most(wanted)) },
         other => other,
     }
 }
@@ -195,7 +201,12 @@ pub fn compared_choice(compared: bool, candidates: usize, wanted: usize, choice:
 /// there confirms lower, so `one_per_place` would give the place to the sure one anyway,
 /// and each estimate costs about 0.3 s.
 pub fn on_taken_place(mask: &GrayImage, taken: &[GrayImage]) -> bool {
-    taken.iter().any(|t| crate::masks::mask_iou(t, mask) >= SAME_PLACE_IOU)
+    taken.iter().any(|t| same_place(t, mask))
+}
+
+/// Whether two masks are one place: IoU ≥ `SAME_PLACE_IOU`.
+pub fn same_place(a: &GrayImage, b: &GrayImage) -> bool {
+    crate::masks::mask_iou(a, b) >= SAME_PLACE_IOU
 }
 
 /// The masks of an object's `answers` (anything, confirmation, mask) confirmed at

@@ -23,6 +23,7 @@ pub mod frame;
 pub mod gradients;
 pub mod nms;
 pub mod responses;
+pub mod rivals;
 pub mod scales;
 pub mod search;
 pub mod segment_cuts;

@@ -22,6 +22,7 @@ use crate::render::RenderPool;
 use crate::telemetry::ms_since;
 use image::{GrayImage, RgbImage};
 use rayon::prelude::*;
+use std::borrow::Cow;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -32,7 +33,7 @@ mod screen;
 mod second_look;
 
 pub use super::candidate_effort::CandidateEffort;
-pub use screen::{CoarseCheck, DepthScreen};
+pub use screen::{CoarseCheck, DepthScreen, Screen};
 
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct EstimateConfig {
@@ -233,6 +234,16 @@ pub struct Estimator {
     contour: Arc<ContourRefiner>,
 }
 
+/// A request's masks as the estimator takes them (`Estimator::queries`).
+struct Queries<'d> {
+    /// The detections, followed by the depth proposals of boxes where asked for.
+    detections: Cow<'d, [Detection]>,
+    /// The masks estimated (`Estimator::candidate_masks`), indices into `detections`.
+    chosen: Vec<usize>,
+    /// Their crops encoded, in `chosen`'s order.
+    views: Vec<QueryView>,
+}
+
 impl Estimator {
     pub fn new(backbone: Arc<dyn Backbone>, renderer: Arc<RenderPool>) -> Self {
         let contour = Arc::new(ContourRefiner::new(renderer.clone()));
@@ -378,7 +389,7 @@ impl Estimator {
         hints: &[Pose],
         cfg: &EstimateConfig,
     ) -> Result<EstimateResult, EstimateError> {
-        self.estimate_inputs(&per_mask::MaskInputs { model, image, depth, k, others, hints, screen: None, cfg }, detections)
+        self.estimate_inputs(&per_mask::MaskInputs { model, image, depth, k, others, hints, screen: Screen::Off, cfg }, detections)
     }
 
     /// `estimate_rgbd` for a candidate that is likely not the object (one of many the
@@ -393,25 +404,27 @@ impl Estimator {
         k: &Intrinsics,
         detections: &[Detection],
         others: Option<&GrayImage>,
-        screen: Option<&dyn CoarseCheck>,
+        screen: Screen<'_>,
         cfg: &EstimateConfig,
     ) -> Result<EstimateResult, EstimateError> {
         // Screened against the depth, a candidate is estimated with the effort it is given;
         // without depth the screen is not asked and the estimate is a mask's.
-        let cfg = if screen.is_some() && depth.is_some() { CandidateEffort::applied(cfg) } else { std::borrow::Cow::Borrowed(cfg) };
+        let cfg = if screen.is_on() && depth.is_some() { CandidateEffort::applied(cfg) } else { Cow::Borrowed(cfg) };
         self.estimate_inputs(&per_mask::MaskInputs { model, image, depth, k, others, hints: &[], screen, cfg: &cfg }, detections)
     }
 
-    fn estimate_inputs(&self, req: &per_mask::MaskInputs<'_>, detections: &[Detection]) -> Result<EstimateResult, EstimateError> {
-        let per_mask::MaskInputs { model, image, depth, k, others, cfg, .. } = *req;
-        let t_total = Instant::now();
+    /// The masks a request's detections give (`candidate_masks`; with depth proposals where
+    /// the configuration asks for them), each cropped and encoded by the backbone: the
+    /// detections as estimated (extended), the chosen masks' indices and their queries.
+    fn queries<'d>(&self, req: &per_mask::MaskInputs<'_>, detections: &'d [Detection], timings: &mut StageTimings) -> Result<Queries<'d>, EstimateError> {
+        let per_mask::MaskInputs { model, image, depth, k, cfg, .. } = *req;
         self.validate(model, image, k, detections)?;
         // With depth, each box may gain a proposal from the depth beside its colour cuts.
-        let given = detections.len();
-        let extended = depth.filter(|_| cfg.depth_proposals).map(|d| super::candidates::with_depth_proposals(detections, d, k));
-        let detections = extended.as_deref().unwrap_or(detections);
-        let mut timings = StageTimings::default();
-        let chosen = Self::candidate_masks(detections, cfg);
+        let detections: Cow<'d, [Detection]> = match depth.filter(|_| cfg.depth_proposals) {
+            Some(d) => Cow::Owned(super::candidates::with_depth_proposals(detections, d, k)),
+            None => Cow::Borrowed(detections),
+        };
+        let chosen = Self::candidate_masks(&detections, cfg);
         let size = model.grid.n * model.grid.patch;
 
         // Spans mark the stages the timings measure (exported traces, log context); the
@@ -425,6 +438,48 @@ impl Estimator {
         let t = Instant::now();
         let queries = tracing::info_span!("features").in_scope(|| encode(self.backbone.as_ref(), crops, model.config.min_coverage))?;
         timings.features = ms_since(t);
+        Ok(Queries { detections, chosen, views: queries })
+    }
+
+    /// Each candidate mask's screen score under `check` (`Estimator::best_placed`: the
+    /// best of the first retrieved templates placed at the mask and fitted to the depth), in
+    /// the order of `detections` (followed by the depth proposals of boxes where `cfg` asks
+    /// for them, as the estimate makes them), 0 for a mask the estimate would not take (`candidate_masks`),
+    /// without depth every mask 1 (not screened). For callers that compare one place's
+    /// candidates of several objects before estimating any (`detect::rivals`); they then
+    /// estimate with `Screen::Scored`.
+    pub fn screen_scores(
+        &self,
+        model: &ObjectModel,
+        (image, depth): (&RgbImage, Option<&DepthImage>),
+        k: &Intrinsics,
+        detections: &[Detection],
+        check: &dyn CoarseCheck,
+        cfg: &EstimateConfig,
+    ) -> Result<Vec<f32>, EstimateError> {
+        let req = per_mask::MaskInputs { model, image, depth, k, others: None, hints: &[], screen: Screen::Check(check), cfg };
+        if depth.is_none() {
+            self.validate(model, image, k, detections)?;
+            return Ok(vec![1.0; detections.len()]);
+        }
+        let mut timings = StageTimings::default();
+        let Queries { detections: extended, chosen, views } = self.queries(&req, detections, &mut timings)?;
+        let mut scores = vec![0.0; extended.len()];
+        for (q, &mi) in views.iter().zip(&chosen) {
+            let mut h = Hypothesis::default();
+            let retrieved = self.retrieve_for_mask(model, q, cfg, &mut h, &mut timings);
+            scores[mi] = self.best_placed(&req, q, &extended[mi], &retrieved, check, None)?;
+        }
+        Ok(scores)
+    }
+
+    fn estimate_inputs(&self, req: &per_mask::MaskInputs<'_>, detections: &[Detection]) -> Result<EstimateResult, EstimateError> {
+        let per_mask::MaskInputs { model, k, others, cfg, .. } = *req;
+        let t_total = Instant::now();
+        let given = detections.len();
+        let mut timings = StageTimings::default();
+        let Queries { detections, chosen, views: queries } = self.queries(req, detections, &mut timings)?;
+        let detections: &[Detection] = &detections;
 
         let mut hyps = Vec::new();
         for (q, &mi) in queries.iter().zip(&chosen) {

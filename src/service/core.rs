@@ -9,10 +9,11 @@ use super::detect_requests::DetectionOutput;
 use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput, RunnerUpOutput};
-use crate::detect::confirm::{candidate_options, compared_choice, confirm, confirmation_needed, estimate_instances, on_taken_place, one_per_place, sure_places, Choice};
+use crate::detect::confirm::{candidate_options, compared_at_most, compared_choice, confirm, confirmation_needed, estimate_instances, on_taken_place, one_per_place, sure_places, Choice};
+use crate::detect::rivals::{drop_outranked, Screened};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, Estimator};
-use crate::estimate::{CoarseCheck, DepthScreen};
+use crate::estimate::{CoarseCheck, DepthScreen, Screen};
 use crate::features::Backbone;
 use crate::geometry::ViewSampling;
 use crate::masks::OtherMasks;
@@ -378,16 +379,29 @@ impl Core {
         // Instances estimated so far, for the deadline's message.
         let estimated = AtomicUsize::new(0);
         // One instance: its estimate and, for the detector's candidates, its confirmation.
-        let estimate_one = |object_id: &str, instance: usize, group: &[usize], check: Option<&dyn CoarseCheck>| -> Result<((InstanceResult, image::GrayImage), Option<f32>), ServiceError> {
-            if deadline.is_some_and(|d| Instant::now() >= d) {
-                return Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", estimated.load(Ordering::Relaxed))));
+        let past_deadline = || -> Result<(), ServiceError> {
+            match deadline.is_some_and(|d| Instant::now() >= d) {
+                true => Err(ServiceError::new(ErrorKind::DeadlineExceeded, format!("deadline passed after {} instance(s)", estimated.load(Ordering::Relaxed)))),
+                false => Ok(()),
             }
-            let (model, dets) = (&models[object_id], &by_object[object_id]);
-            let gathered = Candidates::gather(group.iter().map(|&g| (dets[g].0, dets[g].1.as_slice())));
+        };
+        let gather = |object_id: &str, group: &[usize]| {
+            let dets = &by_object[object_id];
+            Candidates::gather(group.iter().map(|&g| (dets[g].0, dets[g].1.as_slice())))
+        };
+        // A group's screen scores, one per candidate mask (`Estimator::screen_scores`).
+        let screen_group = |object_id: &str, group: &[usize], check: &dyn CoarseCheck| -> Result<Vec<f32>, ServiceError> {
+            past_deadline()?;
+            Ok(self.estimator.screen_scores(&models[object_id], (&image, depth.as_ref()), &k, &gather(object_id, group).masks, check, &cfg)?)
+        };
+        let estimate_one = |object_id: &str, instance: usize, group: &[usize], screen: Screen<'_>| -> Result<((InstanceResult, image::GrayImage), Option<f32>), ServiceError> {
+            past_deadline()?;
+            let model = &models[object_id];
+            let gathered = gather(object_id, group);
             let candidates = &gathered.masks;
             let others = others_mask(&by_object, object_id, group, kind, k.width, k.height);
             let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
-            let r = span.in_scope(|| self.estimator.estimate_screened(model, (&image, depth.as_ref()), &k, candidates, others.as_ref(), check, &cfg))?;
+            let r = span.in_scope(|| self.estimator.estimate_screened(model, (&image, depth.as_ref()), &k, candidates, others.as_ref(), screen, &cfg))?;
             estimated.fetch_add(1, Ordering::Relaxed);
             let confirmation = match (&r.pose, choice) {
                 (Some(pose), Choice::Confirmed { .. } | Choice::Compared { .. }) => {
@@ -428,7 +442,7 @@ impl Core {
                 .flat_map(|(&object_id, dets)| groups_of(dets).into_iter().take(o.instances_per_object).enumerate().map(move |(instance, group)| (object_id, instance, group)))
                 .collect();
             let owners: Vec<&str> = jobs.iter().map(|j| j.0).collect();
-            let done = crate::parallel::ordered_map(jobs, self.config.instance_threads, |(object_id, instance, group)| estimate_one(object_id, instance, &group, None))?;
+            let done = crate::parallel::ordered_map(jobs, self.config.instance_threads, |(object_id, instance, group)| estimate_one(object_id, instance, &group, Screen::Off))?;
             let tried = done.len();
             let mut answers: Vec<Vec<(InstanceResult, f32, image::GrayImage)>> = by_object.keys().map(|_| Vec::new()).collect();
             let slot: BTreeMap<&str, usize> = by_object.keys().enumerate().map(|(i, &id)| (id, i)).collect();
@@ -440,19 +454,33 @@ impl Core {
             // The detector's candidates are estimated in turn until enough are sure.
             let mut answers = Vec::new();
             let mut tried = 0usize;
+            // The depth detector's candidates that cannot be their object are not estimated:
+            // each screened first, and one far below another object's on its place dropped
+            // (`detect::rivals`).
+            let screens: Vec<Option<DepthScreen>> =
+                by_object.keys().map(|id| if compared { DepthScreen::of(&image, depth.as_ref(), &k, &models[id].mesh, &self.pool, req.detect.min_score) } else { None }).collect();
+            let mut candidates: Vec<Vec<Screened>> = Vec::new();
+            for ((&object_id, dets), screen) in by_object.iter().zip(&screens) {
+                // Those that can be compared, where screened.
+                let at_most = if screen.is_some() { compared_at_most(o.instances_per_object) } else { usize::MAX };
+                let screened = groups_of(dets).into_iter().take(at_most).map(|group| {
+                    let scores = screen.as_ref().map(|check| screen_group(object_id, &group, check)).transpose()?;
+                    Ok(Screened { group, scores })
+                });
+                candidates.push(screened.collect::<Result<_, ServiceError>>()?);
+            }
+            let detections: Vec<&Vec<(usize, Vec<Detection>)>> = by_object.values().collect();
+            drop_outranked(&mut candidates, |n, g| representative(&detections[n][g[0]].1).0);
             // Places another object's answer surely took: not estimated again (`on_taken_place`).
             let mut taken: Vec<image::GrayImage> = Vec::new();
-            for (&object_id, dets) in &by_object {
-                let model = &models[object_id];
-                let mut groups = groups_of(dets);
+            for (n, (&object_id, dets)) in by_object.iter().enumerate() {
+                let mut jobs: Vec<(usize, &Screened)> = candidates[n].iter().enumerate().collect();
                 if compared {
-                    groups.retain(|g| !on_taken_place(representative(&dets[g[0]].1).0, &taken));
+                    jobs.retain(|(_, c)| !on_taken_place(representative(&dets[c.group[0]].1).0, &taken));
                 }
-                let object_choice = compared_choice(compared, groups.len(), o.instances_per_object, choice);
-                // The depth detector's candidates that cannot be this object are not estimated.
-                let screen = if compared { DepthScreen::of(&image, depth.as_ref(), &k, &model.mesh, &self.pool, req.detect.min_score) } else { None };
-                let answered = estimate_instances(groups.into_iter().enumerate(), o.instances_per_object, object_choice, |(instance, group)| {
-                    estimate_one(object_id, instance, &group, DepthScreen::as_check(&screen))
+                let object_choice = compared_choice(compared, jobs.len(), o.instances_per_object, choice);
+                let answered = estimate_instances(jobs, o.instances_per_object, object_choice, |(instance, c)| {
+                    estimate_one(object_id, instance, &c.group, DepthScreen::scored(&screens[n], c.scores.as_deref()))
                 })?;
                 tried += answered.tried;
                 let kept: Vec<_> = answered.kept.into_iter().map(|((r, mask), c)| (r, c.unwrap_or(0.0), mask)).collect();

@@ -23,7 +23,7 @@ pub(super) struct MaskInputs<'a> {
     pub(super) others: Option<&'a GrayImage>,
     pub(super) hints: &'a [Pose],
     /// Masks that fail it are not estimated (`Estimator::passes_screen`).
-    pub(super) screen: Option<&'a dyn super::CoarseCheck>,
+    pub(super) screen: super::Screen<'a>,
     pub(super) cfg: &'a EstimateConfig,
 }
 
@@ -52,8 +52,8 @@ impl Estimator {
         let mut h = Hypothesis { mask_index: mi, detector_score: detection.score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() };
         let retrieved = self.retrieve_for_mask(req.model, q, cfg, &mut h, timings);
         let t = Instant::now();
-        let passed = self.passes_screen(req, q, detection, &retrieved, &mut h)?;
-        if req.screen.is_some() && req.depth.is_some() {
+        let passed = self.passes_screen(req, q, (mi, detection), &retrieved, &mut h)?;
+        if req.screen.is_on() && req.depth.is_some() {
             timings.screen += ms_since(t);
         }
         if !passed {

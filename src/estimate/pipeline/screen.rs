@@ -27,18 +27,36 @@ pub trait CoarseCheck: Sync {
     fn needed(&self) -> f32;
 }
 
+/// How a candidate's masks are screened before they are estimated.
+#[derive(Clone, Copy)]
+pub enum Screen<'a> {
+    /// Not screened: every mask is estimated.
+    Off,
+    /// Each mask checked as it comes (`Estimator::best_placed`, stopping at the first
+    /// placed template that passes).
+    Check(&'a dyn CoarseCheck),
+    /// Scored by the caller beforehand (`Estimator::screen_scores`, in the masks' order):
+    /// a mask scored below `needed` is not estimated.
+    Scored { scores: &'a [f32], needed: f32 },
+}
+
+impl Screen<'_> {
+    /// Whether the masks are screened (and so estimated with the candidates' effort).
+    pub fn is_on(&self) -> bool {
+        !matches!(self, Screen::Off)
+    }
+}
+
 /// Retrieved templates placed and scored, best retrieval first. On the real YCB-V frames
 /// with 8 objects searched (docs/detection.md, "Screening"), the best of the first three
 /// kept every right candidate; the first alone lost two of twenty.
 const SCREENED_TEMPLATES: usize = 3;
 
 impl Estimator {
-    /// Whether the mask passes `check` (always without one, or without depth to fit to):
-    /// the best of the first retrieved templates (`ranked`), each placed at the mask and
-    /// fitted to the depth, must score `check.needed()`. The first that does ends the look.
-    /// A mask that does not pass gets its hypothesis's `failure`.
-    pub(super) fn passes_screen(&self, req: &MaskInputs<'_>, q: &QueryView, detection: &Detection, ranked: &[usize], h: &mut Hypothesis) -> Result<bool, EstimateError> {
-        let (Some(check), Some(_)) = (req.screen, req.depth) else { return Ok(true) };
+    /// The best score under `check` of the first retrieved templates (`ranked`), each placed
+    /// at the mask and fitted to the depth; with `enough`, the look ends at the first that
+    /// reaches it.
+    pub(super) fn best_placed(&self, req: &MaskInputs<'_>, q: &QueryView, detection: &Detection, ranked: &[usize], check: &dyn CoarseCheck, enough: Option<f32>) -> Result<f32, EstimateError> {
         let ctx = req.context(detection);
         let mut best = 0.0f32;
         for &t in ranked.iter().take(SCREENED_TEMPLATES) {
@@ -46,12 +64,32 @@ impl Estimator {
             let mut report = crate::estimate::RefineReport::default();
             self.fit_to_depth(&ctx, &mut pose, &mut report)?;
             best = best.max(check.score(&detection.mask, &pose)?);
-            if best >= check.needed() {
-                return Ok(true);
+            if enough.is_some_and(|enough| best >= enough) {
+                break;
             }
         }
-        tracing::debug!(best, needed = check.needed(), "screened out");
-        h.failure = Some(format!("screened out: the best placed template scores {best:.2}, {:.2} needed", check.needed()));
+        Ok(best)
+    }
+
+    /// Whether mask `mi` passes the request's screen (always without one, or without depth
+    /// to fit to): the best of the first retrieved templates (`ranked`), each placed at the
+    /// mask and fitted to the depth, must score what the screen needs. A mask that does not
+    /// pass gets its hypothesis's `failure`.
+    pub(super) fn passes_screen(&self, req: &MaskInputs<'_>, q: &QueryView, (mi, detection): (usize, &Detection), ranked: &[usize], h: &mut Hypothesis) -> Result<bool, EstimateError> {
+        if req.depth.is_none() {
+            return Ok(true);
+        }
+        let (best, needed) = match req.screen {
+            Screen::Off => return Ok(true),
+            Screen::Check(check) => (self.best_placed(req, q, detection, ranked, check, Some(check.needed()))?, check.needed()),
+            // A mask the caller did not score (none should be) is estimated.
+            Screen::Scored { scores, needed } => (scores.get(mi).copied().unwrap_or(needed), needed),
+        };
+        if best >= needed {
+            return Ok(true);
+        }
+        tracing::debug!(best, needed, "screened out");
+        h.failure = Some(format!("screened out: the best placed template scores {best:.2}, {needed:.2} needed"));
         Ok(false)
     }
 }
@@ -86,9 +124,18 @@ impl<'a> DepthScreen<'a> {
         depth.map(|depth| Self { image, depth, k, mesh, renderer, min_score })
     }
 
-    /// As the estimator takes it.
-    pub fn as_check(screen: &Option<Self>) -> Option<&dyn CoarseCheck> {
-        screen.as_ref().map(|s| s as &dyn CoarseCheck)
+    /// As the estimator takes it: each mask checked as it comes (`Screen::Off` without one).
+    pub fn as_screen(screen: &Option<Self>) -> Screen<'_> {
+        screen.as_ref().map_or(Screen::Off, |s| Screen::Check(s))
+    }
+
+    /// As the estimator takes it when the masks were scored beforehand
+    /// (`Estimator::screen_scores`; `Screen::Off` without a screen or scores).
+    pub fn scored<'s>(screen: &Option<Self>, scores: Option<&'s [f32]>) -> Screen<'s> {
+        match (screen, scores) {
+            (Some(check), Some(scores)) => Screen::Scored { scores, needed: check.needed() },
+            _ => Screen::Off,
+        }
     }
 }
 
