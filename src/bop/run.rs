@@ -17,8 +17,8 @@ use super::dataset::{load_rgb, load_scene_cameras, load_targets, ImageCamera};
 use super::detections::{DetectionIndex, DetectionRecord};
 use super::format::{scene_dir, TargetRecord};
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
-use crate::detect::confirm::{candidate_options, compared_at_most, compared_choice, confirm, estimate_instances, on_taken_place, one_per_place, sure_places, Choice};
-use crate::detect::rivals::{drop_outranked, Screened};
+use crate::detect::compared::{answer_objects, Comparison, ObjectCandidates};
+use crate::detect::confirm::{candidate_options, confirm, one_per_place, Choice};
 use crate::detect::{detect, DetectOptions, Target};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateError, Estimator};
@@ -139,6 +139,7 @@ pub fn run(
                 &detected
             }
         };
+        let detected_at = started.elapsed();
         let mut rows = Vec::new();
         // Every target's candidates first: each instance's refiner learns where the other
         // detections of the image are (it may be hidden there).
@@ -240,9 +241,9 @@ pub fn run(
                 answers[owner].2.extend(estimated);
             }
         } else {
-            // The depth detector's candidates that cannot be their object are not estimated:
-            // each screened first, and one far below another object's on its place dropped
-            // (`detect::rivals`).
+            // The detector's candidates, screened with depth (those that cannot be their
+            // object not estimated), compared across objects and estimated in turn until
+            // enough are sure (`detect::compared`).
             let screens: Vec<Option<DepthScreen>> = work
                 .iter()
                 .map(|(_, m)| match (&source, compared) {
@@ -250,40 +251,19 @@ pub fn run(
                     _ => None,
                 })
                 .collect();
-            // Each instance's screen scores (of those that can be compared); one the estimator
-            // refuses is dropped.
-            let mut candidates: Vec<Vec<Screened>> = Vec::new();
-            for (n, (ti, m)) in work.iter().enumerate() {
-                let mut screened = Vec::new();
-                let at_most = if screens[n].is_some() { compared_at_most(answers[n].1) } else { usize::MAX };
-                for group in groups_of(&decoded[*ti]).into_iter().take(at_most) {
-                    let scores = match &screens[n] {
-                        Some(check) => match screen_group(*ti, m, &group, check)? {
-                            Some(scores) => Some(scores),
-                            None => continue,
-                        },
-                        None => None,
-                    };
-                    screened.push(Screened { group, scores });
-                }
-                candidates.push(screened);
-            }
-            drop_outranked(&mut candidates, |n, g| representative(&decoded[work[n].0][g[0]]).0);
-            // Places another object's answer surely took: not estimated again (`on_taken_place`).
-            let mut taken: Vec<GrayImage> = Vec::new();
-            for (n, (ti, m)) in work.iter().enumerate() {
-                let (masks, wanted) = (&decoded[*ti], answers[n].1);
-                // The depth detector's candidates are compared (in turn until one is sure),
-                // and each segment answered once across objects after every object's are in
-                // (`one_per_place`).
-                let mut jobs: Vec<&Screened> = candidates[n].iter().collect();
-                if compared {
-                    jobs.retain(|c| !on_taken_place(representative(&masks[c.group[0]]).0, &taken));
-                }
-                let choice = compared_choice(compared, jobs.len(), wanted, choice);
-                let answered = estimate_instances(jobs, wanted, choice, |c| estimate_group(*ti, m, &c.group, DepthScreen::scored(&screens[n], c.scores.as_deref())))?;
-                answers[n].2 = answered.kept.into_iter().filter_map(|(p, _)| p).collect();
-                taken.extend(sure_places(&answers[n].2));
+            let objects: Vec<ObjectCandidates> =
+                work.iter().zip(&answers).zip(&screens).map(|(((ti, _), a), s)| ObjectCandidates { groups: groups_of(&decoded[*ti]), wanted: a.1, screened: s.is_some() }).collect();
+            let how = Comparison { compared, choice, threads: opts.instance_threads };
+            let answered = answer_objects(
+                &objects,
+                how,
+                |n, d| representative(&decoded[work[n].0][d]).0,
+                |n, group| screens[n].as_ref().map_or(Ok(None), |check| screen_group(work[n].0, &work[n].1, group, check)),
+                |n, _, c| estimate_group(work[n].0, &work[n].1, &c.group, DepthScreen::scored(&screens[n], c.scores.as_deref())),
+                |a| a.as_ref().map(|a| &a.2),
+            )?;
+            for (a, instances) in answers.iter_mut().zip(answered) {
+                a.2 = instances.kept.into_iter().filter_map(|(p, _)| p).collect();
             }
         }
         for (msg, n) in failures.into_inner().unwrap_or_else(|e| e.into_inner()) {
@@ -299,6 +279,9 @@ pub fn run(
             rows.extend(poses.into_iter().map(|(pose, score)| ResultRow { scene_id, im_id, obj_id, score: score as f64, pose, time: 0.0 }));
         }
         let seconds = started.elapsed().as_secs_f64();
+        // Where the image's time went: detection (with decoding), and the rest (screens in
+        // `detect::compared`'s log).
+        tracing::debug!(scene_id, im_id, detect_s = detected_at.as_secs_f64(), estimate_s = seconds - detected_at.as_secs_f64(), "image phases");
         for r in &mut rows {
             r.time = seconds;
         }

@@ -14,6 +14,7 @@
 
 pub mod align;
 pub mod colour_prior;
+pub mod compared;
 pub mod confirm;
 pub mod depth_check;
 pub mod depth_detector;

@@ -7,6 +7,7 @@
 //! place or near it, so a candidate scoring well below another object's on the same place
 //! is not estimated (docs/detection.md, "Rivals on one place").
 
+use super::compared::boxes_meet;
 use super::confirm::same_place;
 use crate::features::mask_bbox;
 use image::GrayImage;
@@ -59,10 +60,7 @@ pub fn drop_outranked<'a>(objects: &mut [Vec<Screened>], place: impl Fn(usize, &
 pub fn outranked(candidates: &[Rival<'_>]) -> Vec<bool> {
     let boxes: Vec<Option<(u32, u32, u32, u32)>> = candidates.iter().map(|c| mask_bbox(c.place)).collect();
     // Masks whose boxes do not meet share no pixel: most pairs of a frame.
-    let meet = |a: usize, b: usize| match (boxes[a], boxes[b]) {
-        (Some(p), Some(q)) => p.0 <= q.2 && q.0 <= p.2 && p.1 <= q.3 && q.1 <= p.3,
-        _ => false,
-    };
+    let meet = |a: usize, b: usize| boxes_meet(boxes[a], boxes[b]);
     (0..candidates.len())
         .map(|i| {
             let c = &candidates[i];

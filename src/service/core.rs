@@ -9,8 +9,8 @@ use super::detect_requests::DetectionOutput;
 use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput, RunnerUpOutput};
-use crate::detect::confirm::{candidate_options, compared_at_most, compared_choice, confirm, confirmation_needed, estimate_instances, on_taken_place, one_per_place, sure_places, Choice};
-use crate::detect::rivals::{drop_outranked, Screened};
+use crate::detect::compared::{answer_objects, Comparison, ObjectCandidates};
+use crate::detect::confirm::{candidate_options, confirm, confirmation_needed, one_per_place, Choice};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, Estimator};
 use crate::estimate::{CoarseCheck, DepthScreen, Screen};
@@ -451,42 +451,26 @@ impl Core {
             }
             (answers, tried)
         } else {
-            // The detector's candidates are estimated in turn until enough are sure.
-            let mut answers = Vec::new();
-            let mut tried = 0usize;
-            // The depth detector's candidates that cannot be their object are not estimated:
-            // each screened first, and one far below another object's on its place dropped
-            // (`detect::rivals`).
+            // The detector's candidates, screened with depth (those that cannot be their
+            // object not estimated), compared across objects and estimated in turn until
+            // enough are sure (`detect::compared`).
             let screens: Vec<Option<DepthScreen>> =
                 by_object.keys().map(|id| if compared { DepthScreen::of(&image, depth.as_ref(), &k, &models[id].mesh, &self.pool, req.detect.min_score) } else { None }).collect();
-            let mut candidates: Vec<Vec<Screened>> = Vec::new();
-            for ((&object_id, dets), screen) in by_object.iter().zip(&screens) {
-                // Those that can be compared, where screened.
-                let at_most = if screen.is_some() { compared_at_most(o.instances_per_object) } else { usize::MAX };
-                let screened = groups_of(dets).into_iter().take(at_most).map(|group| {
-                    let scores = screen.as_ref().map(|check| screen_group(object_id, &group, check)).transpose()?;
-                    Ok(Screened { group, scores })
-                });
-                candidates.push(screened.collect::<Result<_, ServiceError>>()?);
-            }
+            let ids: Vec<&str> = by_object.keys().copied().collect();
             let detections: Vec<&Vec<(usize, Vec<Detection>)>> = by_object.values().collect();
-            drop_outranked(&mut candidates, |n, g| representative(&detections[n][g[0]].1).0);
-            // Places another object's answer surely took: not estimated again (`on_taken_place`).
-            let mut taken: Vec<image::GrayImage> = Vec::new();
-            for (n, (&object_id, dets)) in by_object.iter().enumerate() {
-                let mut jobs: Vec<(usize, &Screened)> = candidates[n].iter().enumerate().collect();
-                if compared {
-                    jobs.retain(|(_, c)| !on_taken_place(representative(&dets[c.group[0]].1).0, &taken));
-                }
-                let object_choice = compared_choice(compared, jobs.len(), o.instances_per_object, choice);
-                let answered = estimate_instances(jobs, o.instances_per_object, object_choice, |(instance, c)| {
-                    estimate_one(object_id, instance, &c.group, DepthScreen::scored(&screens[n], c.scores.as_deref()))
-                })?;
-                tried += answered.tried;
-                let kept: Vec<_> = answered.kept.into_iter().map(|((r, mask), c)| (r, c.unwrap_or(0.0), mask)).collect();
-                taken.extend(sure_places(&kept));
-                answers.push(kept);
-            }
+            let objects: Vec<ObjectCandidates> =
+                detections.iter().zip(&screens).map(|(dets, s)| ObjectCandidates { groups: groups_of(dets), wanted: o.instances_per_object, screened: s.is_some() }).collect();
+            let how = Comparison { compared, choice, threads: self.config.instance_threads };
+            let answered = answer_objects(
+                &objects,
+                how,
+                |n, d| representative(&detections[n][d].1).0,
+                |n, group| screens[n].as_ref().map_or(Ok(None), |check| screen_group(ids[n], group, check).map(Some)),
+                |n, instance, c| estimate_one(ids[n], instance, &c.group, DepthScreen::scored(&screens[n], c.scores.as_deref())),
+                |t| Some(&t.1),
+            )?;
+            let tried = answered.iter().map(|i| i.tried).sum();
+            let answers = answered.into_iter().map(|i| i.kept.into_iter().map(|((r, mask), c)| (r, c.unwrap_or(0.0), mask)).collect()).collect();
             (answers, tried)
         };
         let per_object: Vec<Vec<(InstanceResult, f32)>> =
