@@ -91,9 +91,10 @@ pub struct RunArgs {
     /// full (as a given mask).
     #[arg(long, value_enum, default_value_t = crate::estimate::CandidateEffort::default(), requires = "depth")]
     pub candidate_effort: crate::estimate::CandidateEffort,
-    /// Threads an image's instances are estimated on side by side, with --detections (the
-    /// detector's candidates go in turn until enough are sure); 1: in turn [default: the
-    /// cores, at least 2]
+    /// Threads an image's instances are estimated on side by side, with --detections; the
+    /// detector's candidates with --depth are screened on them and estimated on them object
+    /// by object (in turn where objects share a place); 1: in turn [default: the cores, at
+    /// least 2]
     #[arg(long, value_parser = clap::value_parser!(u16).range(1..=256))]
     pub instance_threads: Option<u16>,
 }

@@ -76,8 +76,9 @@ pub struct ServeSettings {
     /// Estimates (and detections) running at once; more wait in line [default: 2]
     #[arg(long, env = "B2TF_MAX_ESTIMATES")]
     pub max_estimates: Option<usize>,
-    /// Threads one request's instances (the caller's detections) are estimated on side by
-    /// side; 1: in turn [default: the cores shared among max_estimates, at least 2]
+    /// Threads one request's instances (the caller's detections, or with depth the
+    /// detector's candidates object by object) are estimated on side by side; 1: in turn
+    /// [default: the cores shared among max_estimates, at least 2]
     #[arg(long, env = "B2TF_INSTANCE_THREADS")]
     pub instance_threads: Option<usize>,
     /// Estimates waiting for a slot, in arrival order; beyond, or when the expected wait

@@ -36,7 +36,8 @@ pub struct CoreConfig {
     /// Estimates (and detections) running at once; more wait in line.
     pub max_estimates: usize,
     /// Threads one request's instances are estimated on side by side (the caller's
-    /// detections; the detector's candidates go in turn, until enough are sure).
+    /// detections; the detector's candidates with depth are screened on them and estimated
+    /// object by object, `detect::compared`).
     pub instance_threads: usize,
     /// Estimates waiting at most; more are refused (429 / RESOURCE_EXHAUSTED).
     pub queue_depth: usize,
