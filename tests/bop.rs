@@ -199,6 +199,56 @@ fn run_estimates_every_target_resumes_and_is_scored() {
     assert_eq!(read(&csv).len(), detected.estimates_written);
 }
 
+/// With depth and no detections, two objects of one size searched in images holding one of
+/// them (the box; a can as wide is not there): the box's segment is a candidate of both,
+/// only the box is answered, near its true pose, and the rows are the same whether the
+/// objects are screened and estimated in turn or side by side (`detect::compared`).
+#[test]
+fn depth_candidates_of_two_objects_answer_the_one_there_on_any_threads() {
+    let dir = tempfile::tempdir().unwrap();
+    let pool = Arc::new(pool());
+    // The box whole and well inside both images (seed 21 put one at the image's corner,
+    // where the cheaply onboarded box confirmed lower than the can).
+    let scene = SceneConfig { images: 2, objects_per_image: 1, image_size: (320, 240), fill_range: (0.35, 0.45), max_occlusion: 0.0, seed: 23, ..Default::default() };
+    let models = dir.path().join("source_models");
+    write_bop_ply(&textured_box([0.10, 0.06, 0.16], 3), &models, "obj_000001").unwrap();
+    let ds = dir.path().join("ds");
+    synth(&models, &ds, &SynthOptions { scene, degraded: false, distractors: false, targets: None, untextured: false, backgrounds: None }, &pool).unwrap();
+    // The can is searched in every image as well.
+    let mut targets: Vec<serde_json::Value> = serde_json::from_str(&std::fs::read_to_string(ds.join("test_targets_bop19.json")).unwrap()).unwrap();
+    let can_targets: Vec<serde_json::Value> = targets.iter().map(|t| serde_json::json!({"scene_id": t["scene_id"], "im_id": t["im_id"], "obj_id": 2, "inst_count": 1})).collect();
+    targets.extend(can_targets);
+    std::fs::write(ds.join("test_targets_bop19.json"), serde_json::to_string(&targets).unwrap()).unwrap();
+    let (the_box, estimator) = onboarded_box(&ds, ViewSampling { level: 0, in_plane_steps: 4 }, 128, &pool);
+    let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap();
+    let cfg = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps: 4 }, render_size: 128, ..Default::default() };
+    let can = Arc::new(onboard("obj_000002", &b2tfpose::mesh::procedural::cylinder(0.05, 0.17, 24), &cfg, &backbone, &pool, &|_| {}).unwrap());
+    let gt = load_split_gt(&ds, TEST_SPLIT, &mut Vec::new()).unwrap();
+    let rows = |threads: usize| {
+        let csv = dir.path().join(format!("depth-{threads}.csv"));
+        let opts = RunOptions { depth: true, instance_threads: threads, ..Default::default() };
+        let mut found = Vec::new();
+        // Every candidate confirmed is kept (the cheap onboarding's confirmations are low):
+        // each place goes to the object confirmed best there.
+        let options = b2tfpose::detect::DetectOptions { min_score: 0.0, ..Default::default() };
+        let source = DetectionSource::Detector { pool: &pool, options, found: &mut found };
+        let summary = run(&ds, source, &csv, &estimator, &mut |id| Ok(if id == 1 { the_box.clone() } else { can.clone() }), &opts, &no_progress).unwrap();
+        assert!(found.iter().any(|d| d.obj_id == 2), "the box's segment is offered to the can too: {found:?}");
+        let rows: Vec<_> = read(&csv).into_iter().map(|r| ResultRow { time: 0.0, ..r }).collect();
+        (summary.instances_requested, rows)
+    };
+    let (in_turn, side_by_side) = (rows(1), rows(2));
+    assert_eq!(in_turn.0, 4, "the box and the can in each of two images");
+    // One answer an image (one place), the box's.
+    assert!(in_turn.1.len() == 2 && in_turn.1.iter().all(|r| r.obj_id == 1), "{:?}", in_turn.1);
+    for r in &in_turn.1 {
+        let truth = gt.iter().find(|im| (im.scene_id, im.im_id) == (r.scene_id, r.im_id)).unwrap();
+        let off = (r.pose.translation - truth.instances[0].pose.translation).norm();
+        assert!(off < 0.02, "image {}: {:.1} mm from the box", r.im_id, off * 1e3);
+    }
+    assert_eq!(in_turn, side_by_side);
+}
+
 /// `bop synth` as the RGB-D benchmark uses it: two objects, only the first a target (the
 /// second stands in the scenes as a distractor), bare meshes, 1–2 instances an image, and
 /// the detections as boxes too; a target that is not among the models is refused.
