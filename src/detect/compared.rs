@@ -11,7 +11,7 @@
 //! its answers (the taken places), so the answers are the same on any number of threads.
 
 use super::confirm::{compared_at_most, compared_choice, estimate_instances, on_taken_place, same_place, sure_places, Choice, Instances};
-use super::rivals::{drop_outranked, Screened};
+use super::rivals::{boxes_meet, drop_outranked, Screened};
 use crate::features::mask_bbox;
 use image::GrayImage;
 
@@ -143,14 +143,6 @@ fn sharing_places<'p>(candidates: &[Vec<Screened>], place: &impl Fn(usize, usize
         }
     }
     chains
-}
-
-/// Whether two masks' boxes (`mask_bbox`) meet: masks whose boxes do not share no pixel.
-pub fn boxes_meet(a: Option<(u32, u32, u32, u32)>, b: Option<(u32, u32, u32, u32)>) -> bool {
-    match (a, b) {
-        (Some(p), Some(q)) => p.0 <= q.2 && q.0 <= p.2 && p.1 <= q.3 && q.1 <= p.3,
-        _ => false,
-    }
 }
 
 #[cfg(test)]

@@ -7,7 +7,6 @@
 //! place or near it, so a candidate scoring well below another object's on the same place
 //! is not estimated (docs/detection.md, "Rivals on one place").
 
-use super::compared::boxes_meet;
 use super::confirm::same_place;
 use crate::features::mask_bbox;
 use image::GrayImage;
@@ -70,6 +69,14 @@ pub fn outranked(candidates: &[Rival<'_>]) -> Vec<bool> {
             })
         })
         .collect()
+}
+
+/// Whether two masks' boxes (`mask_bbox`) meet: masks whose boxes do not share no pixel.
+pub fn boxes_meet(a: Option<(u32, u32, u32, u32)>, b: Option<(u32, u32, u32, u32)>) -> bool {
+    match (a, b) {
+        (Some(p), Some(q)) => p.0 <= q.2 && q.0 <= p.2 && p.1 <= q.3 && q.1 <= p.3,
+        _ => false,
+    }
 }
 
 #[cfg(test)]
