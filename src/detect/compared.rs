@@ -68,8 +68,7 @@ pub fn answer_objects<'p, T: Send, E: Send>(
             let wanted = objects[o].wanted;
             let choice = compared_choice(how.compared, jobs.len(), wanted, how.choice);
             let instances = estimate_instances(jobs, wanted, choice, |(instance, c)| estimate(o, instance, c))?;
-            let placed: Vec<((), f32, GrayImage)> = instances.kept.iter().filter_map(|(t, c)| Some(((), (*c)?, answer_place(t)?.clone()))).collect();
-            taken.extend(sure_places(&placed));
+            taken.extend(sure_places(instances.kept.iter().filter_map(|(t, c)| Some(((*c)?, answer_place(t)?)))));
             answered.push((o, instances));
         }
         Ok(answered)

@@ -209,10 +209,10 @@ pub fn same_place(a: &GrayImage, b: &GrayImage) -> bool {
     crate::masks::mask_iou(a, b) >= SAME_PLACE_IOU
 }
 
-/// The masks of an object's `answers` (anything, confirmation, mask) confirmed at
-/// `SURELY_TAKEN` or more, for `on_taken_place`.
-pub fn sure_places<'a, T>(answers: &'a [(T, f32, GrayImage)]) -> impl Iterator<Item = GrayImage> + 'a {
-    answers.iter().filter(|a| a.1 >= SURELY_TAKEN).map(|a| a.2.clone())
+/// The masks of an object's answers (each its confirmation and the mask it was estimated
+/// from) confirmed at `SURELY_TAKEN` or more, for `on_taken_place`.
+pub fn sure_places<'a>(answers: impl IntoIterator<Item = (f32, &'a GrayImage)> + 'a) -> impl Iterator<Item = GrayImage> + 'a {
+    answers.into_iter().filter(|a| a.0 >= SURELY_TAKEN).map(|a| a.1.clone())
 }
 
 /// A place answered with this confirmation is taken for the other objects. Higher than
@@ -309,8 +309,8 @@ mod tests {
     #[test]
     fn places_surely_answered_are_taken_for_the_other_objects() {
         let square = |x0: u32| GrayImage::from_fn(20, 10, |x, _| image::Luma([if (x0..x0 + 8).contains(&x) { 255 } else { 0 }]));
-        let answers = vec![("sure", 0.9, square(0)), ("unsure", 0.75, square(10))];
-        let taken: Vec<GrayImage> = sure_places(&answers).collect();
+        let answers = [("sure", 0.9, square(0)), ("unsure", 0.75, square(10))];
+        let taken: Vec<GrayImage> = sure_places(answers.iter().map(|a| (a.1, &a.2))).collect();
         assert_eq!(taken.len(), 1, "only the answer confirmed at 0.85 or more");
         let shifted = GrayImage::from_fn(20, 10, |x, _| image::Luma([if (1..9).contains(&x) { 255 } else { 0 }]));
         assert!(on_taken_place(&shifted, &taken), "IoU 7/9 with the sure place");

@@ -71,7 +71,7 @@ pub fn outranked(candidates: &[Rival<'_>]) -> Vec<bool> {
         .collect()
 }
 
-/// Whether two masks' boxes (`mask_bbox`) meet: masks whose boxes do not share no pixel.
+/// Whether two masks' boxes (`mask_bbox`) meet: masks whose boxes do not meet share no pixel.
 pub fn boxes_meet(a: Option<(u32, u32, u32, u32)>, b: Option<(u32, u32, u32, u32)>) -> bool {
     match (a, b) {
         (Some(p), Some(q)) => p.0 <= q.2 && q.0 <= p.2 && p.1 <= q.3 && q.1 <= p.3,
