@@ -6,7 +6,7 @@ use super::contour::{ContourRefiner, PrintRefineConfig};
 use super::correspond::{correspond, Correspondences};
 use super::hypotheses::Source;
 use super::pnp::{solve_pnp_ransac, PnpConfig, PnpResult};
-use super::query::{crop_all, encode, QueryView};
+use super::query::QueryView;
 use super::refine::{PassThrough, RefineContext, RefineReport, Refiner, RefinerKind};
 use super::retrieve::{retrieve, RetrievalConfig};
 use super::rrc::rrc_pool;
@@ -29,8 +29,11 @@ use std::time::Instant;
 mod depth_judge;
 mod nudge;
 mod per_mask;
+mod queries;
 mod screen;
 mod second_look;
+
+use queries::Queries;
 
 pub use super::candidate_effort::CandidateEffort;
 pub use screen::{CoarseCheck, DepthScreen, Screen};
@@ -234,16 +237,6 @@ pub struct Estimator {
     contour: Arc<ContourRefiner>,
 }
 
-/// A request's masks as the estimator takes them (`Estimator::queries`).
-struct Queries<'d> {
-    /// The detections, followed by the depth proposals of boxes where asked for.
-    detections: Cow<'d, [Detection]>,
-    /// The masks estimated (`Estimator::candidate_masks`), indices into `detections`.
-    chosen: Vec<usize>,
-    /// Their crops encoded, in `chosen`'s order.
-    views: Vec<QueryView>,
-}
-
 impl Estimator {
     pub fn new(backbone: Arc<dyn Backbone>, renderer: Arc<RenderPool>) -> Self {
         let contour = Arc::new(ContourRefiner::new(renderer.clone()));
@@ -285,57 +278,6 @@ impl Estimator {
 
     pub fn backbone(&self) -> &dyn Backbone {
         self.backbone.as_ref()
-    }
-
-    /// Checks the inputs; every problem is an `EstimateError` naming what is wrong.
-    fn validate(&self, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, detections: &[Detection]) -> Result<(), EstimateError> {
-        let ours = self.backbone.identity();
-        if ours != model.backbone {
-            return Err(EstimateError::BackboneMismatch {
-                object: model.object_id.clone(),
-                model: format!("{} ({})", model.backbone.name, model.backbone.weights_hash),
-                ours: format!("{} ({})", ours.name, ours.weights_hash),
-            });
-        }
-        Intrinsics::new(k.fx, k.fy, k.cx, k.cy, k.width, k.height).map_err(|e| EstimateError::BadInput(e.to_string()))?;
-        if (k.width, k.height) != image.dimensions() {
-            return Err(EstimateError::BadInput(format!("camera resolution {}×{} differs from the image's {}×{}", k.width, k.height, image.width(), image.height())));
-        }
-        if detections.is_empty() {
-            return Err(EstimateError::BadInput("no detection (mask) given".into()));
-        }
-        for (i, d) in detections.iter().enumerate() {
-            if d.mask.dimensions() != image.dimensions() {
-                return Err(EstimateError::BadInput(format!("mask {i} is {}×{}, the image {}×{}", d.mask.width(), d.mask.height(), image.width(), image.height())));
-            }
-            if !d.score.is_finite() {
-                return Err(EstimateError::BadInput(format!("mask {i} has a non-finite score")));
-            }
-            if crate::features::mask_bbox(&d.mask).is_none() {
-                return Err(EstimateError::BadInput(format!("mask {i} is empty (no object pixel)")));
-            }
-        }
-        Ok(())
-    }
-
-    /// Indices of the masks to try: score ≥ threshold, best first, at most `max_masks`
-    /// (the proposals of one box count once, and all of them are tried); the best one
-    /// when none passes.
-    fn candidate_masks(detections: &[Detection], cfg: &EstimateConfig) -> Vec<usize> {
-        let mut order: Vec<usize> = (0..detections.len()).collect();
-        order.sort_by(|&a, &b| detections[b].score.total_cmp(&detections[a].score));
-        let mut kept: Vec<usize> = Vec::new();
-        let mut sources = 0;
-        for i in order {
-            let d = &detections[i];
-            if d.from_box.is_some() && kept.iter().any(|&j| detections[j].from_box == d.from_box) {
-                kept.push(i);
-            } else if sources < cfg.max_masks.max(1) && (d.score >= cfg.min_mask_score || sources == 0) {
-                kept.push(i);
-                sources += 1;
-            }
-        }
-        kept
     }
 
     pub fn estimate(&self, model: &ObjectModel, image: &RgbImage, k: &Intrinsics, detections: &[Detection], cfg: &EstimateConfig) -> Result<EstimateResult, EstimateError> {
@@ -411,66 +353,6 @@ impl Estimator {
         // without depth the screen is not asked and the estimate is a mask's.
         let cfg = if screen.is_on() && depth.is_some() { CandidateEffort::applied(cfg) } else { Cow::Borrowed(cfg) };
         self.estimate_inputs(&per_mask::MaskInputs { model, image, depth, k, others, hints: &[], screen, cfg: &cfg }, detections)
-    }
-
-    /// The masks a request's detections give (`candidate_masks`; with depth proposals where
-    /// the configuration asks for them), each cropped and encoded by the backbone: the
-    /// detections as estimated (extended), the chosen masks' indices and their queries.
-    fn queries<'d>(&self, req: &per_mask::MaskInputs<'_>, detections: &'d [Detection], timings: &mut StageTimings) -> Result<Queries<'d>, EstimateError> {
-        let per_mask::MaskInputs { model, image, depth, k, cfg, .. } = *req;
-        self.validate(model, image, k, detections)?;
-        // With depth, each box may gain a proposal from the depth beside its colour cuts.
-        let detections: Cow<'d, [Detection]> = match depth.filter(|_| cfg.depth_proposals) {
-            Some(d) => Cow::Owned(super::candidates::with_depth_proposals(detections, d, k)),
-            None => Cow::Borrowed(detections),
-        };
-        let chosen = Self::candidate_masks(&detections, cfg);
-        let size = model.grid.n * model.grid.patch;
-
-        // Spans mark the stages the timings measure (exported traces, log context); the
-        // loops inside the stages have none.
-        let t = Instant::now();
-        let span = tracing::info_span!("crop", masks = chosen.len()).entered();
-        let masks: Vec<&GrayImage> = chosen.iter().map(|&i| &detections[i].mask).collect();
-        let crops: Vec<_> = crop_all(image, &masks, model.config.crop_padding, size).into_iter().map(|c| c.expect("validated non-empty")).collect();
-        drop(span);
-        timings.crop = ms_since(t);
-        let t = Instant::now();
-        let queries = tracing::info_span!("features").in_scope(|| encode(self.backbone.as_ref(), crops, model.config.min_coverage))?;
-        timings.features = ms_since(t);
-        Ok(Queries { detections, chosen, views: queries })
-    }
-
-    /// Each candidate mask's screen score under `check` (`Estimator::best_placed`: the
-    /// best of the first retrieved templates placed at the mask and fitted to the depth), in
-    /// the order of `detections` (followed by the depth proposals of boxes where `cfg` asks
-    /// for them, as the estimate makes them), 0 for a mask the estimate would not take (`candidate_masks`),
-    /// without depth every mask 1 (not screened). For callers that compare one place's
-    /// candidates of several objects before estimating any (`detect::rivals`); they then
-    /// estimate with `Screen::Scored`.
-    pub fn screen_scores(
-        &self,
-        model: &ObjectModel,
-        (image, depth): (&RgbImage, Option<&DepthImage>),
-        k: &Intrinsics,
-        detections: &[Detection],
-        check: &dyn CoarseCheck,
-        cfg: &EstimateConfig,
-    ) -> Result<Vec<f32>, EstimateError> {
-        let req = per_mask::MaskInputs { model, image, depth, k, others: None, hints: &[], screen: Screen::Check(check), cfg };
-        if depth.is_none() {
-            self.validate(model, image, k, detections)?;
-            return Ok(vec![1.0; detections.len()]);
-        }
-        let mut timings = StageTimings::default();
-        let Queries { detections: extended, chosen, views } = self.queries(&req, detections, &mut timings)?;
-        let mut scores = vec![0.0; extended.len()];
-        for (q, &mi) in views.iter().zip(&chosen) {
-            let mut h = Hypothesis::default();
-            let retrieved = self.retrieve_for_mask(model, q, cfg, &mut h, &mut timings);
-            scores[mi] = self.best_placed(&req, q, &extended[mi], &retrieved, check, None)?;
-        }
-        Ok(scores)
     }
 
     fn estimate_inputs(&self, req: &per_mask::MaskInputs<'_>, detections: &[Detection]) -> Result<EstimateResult, EstimateError> {

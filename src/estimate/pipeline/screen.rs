@@ -8,13 +8,14 @@
 //! the profile), the screen a few renders.
 
 use super::per_mask::MaskInputs;
-use super::{EstimateError, Estimator, Hypothesis, QueryView};
+use super::{EstimateConfig, EstimateError, Estimator, Hypothesis, Queries, QueryView, StageTimings};
 use crate::depth::DepthImage;
 use crate::detect::confirm::{confirm, confirmation_needed};
 use crate::estimate::candidates::Detection;
 use crate::estimate::hypotheses::place_template;
 use crate::geometry::{Intrinsics, Pose};
 use crate::mesh::Mesh;
+use crate::onboard::ObjectModel;
 use crate::render::{RenderError, RenderPool};
 use image::{GrayImage, RgbImage};
 
@@ -69,6 +70,38 @@ impl Estimator {
             }
         }
         Ok(best)
+    }
+
+    /// Each candidate mask's screen score under `check` (`Estimator::best_placed`: the
+    /// best of the first retrieved templates placed at the mask and fitted to the depth), in
+    /// the order of `detections` (followed by the depth proposals of boxes where `cfg` asks
+    /// for them, as the estimate makes them), 0 for a mask the estimate would not take (`candidate_masks`),
+    /// without depth every mask 1 (not screened). For callers that compare one place's
+    /// candidates of several objects before estimating any (`detect::rivals`); they then
+    /// estimate with `Screen::Scored`.
+    pub fn screen_scores(
+        &self,
+        model: &ObjectModel,
+        (image, depth): (&RgbImage, Option<&DepthImage>),
+        k: &Intrinsics,
+        detections: &[Detection],
+        check: &dyn CoarseCheck,
+        cfg: &EstimateConfig,
+    ) -> Result<Vec<f32>, EstimateError> {
+        let req = MaskInputs { model, image, depth, k, others: None, hints: &[], screen: Screen::Check(check), cfg };
+        if depth.is_none() {
+            self.validate(model, image, k, detections)?;
+            return Ok(vec![1.0; detections.len()]);
+        }
+        let mut timings = StageTimings::default();
+        let Queries { detections: extended, chosen, views } = self.queries(&req, detections, &mut timings)?;
+        let mut scores = vec![0.0; extended.len()];
+        for (q, &mi) in views.iter().zip(&chosen) {
+            let mut h = Hypothesis::default();
+            let retrieved = self.retrieve_for_mask(model, q, cfg, &mut h, &mut timings);
+            scores[mi] = self.best_placed(&req, q, &extended[mi], &retrieved, check, None)?;
+        }
+        Ok(scores)
     }
 
     /// Whether mask `mi` passes the request's screen (always without one, or without depth
