@@ -369,12 +369,18 @@ impl b2tfpose::estimate::CoarseCheck for FixedScreen {
     }
 }
 
-#[test]
-fn a_mask_that_fails_the_screen_is_not_estimated_and_one_that_passes_is_as_without() {
-    let f = fixture();
+/// The scene the screen's tests estimate: the fixture, its first scene, the true mask and
+/// the scene's depth.
+fn screened_scene() -> (&'static Fixture, b2tfpose::eval::scenes::SceneImage, [Detection; 1], b2tfpose::depth::DepthImage) {
     let s = scene(1);
     let det = true_detection(&s);
     let depth = b2tfpose::depth::DepthImage::from_metres(s.cam.width, s.cam.height, s.depth.clone()).unwrap();
+    (fixture(), s, det, depth)
+}
+
+#[test]
+fn a_mask_that_fails_the_screen_is_not_estimated_and_one_that_passes_is_as_without() {
+    let (f, s, det, depth) = screened_scene();
     let cfg = EstimateConfig::default();
     let screen = |score| FixedScreen { score, calls: Default::default() };
     let calls = |s: &FixedScreen| s.calls.load(std::sync::atomic::Ordering::Relaxed);
@@ -411,10 +417,7 @@ fn a_mask_that_fails_the_screen_is_not_estimated_and_one_that_passes_is_as_witho
 
 #[test]
 fn masks_scored_beforehand_are_screened_by_their_scores_without_a_second_look() {
-    let f = fixture();
-    let s = scene(1);
-    let det = true_detection(&s);
-    let depth = b2tfpose::depth::DepthImage::from_metres(s.cam.width, s.cam.height, s.depth.clone()).unwrap();
+    let (f, s, det, depth) = screened_scene();
     let cfg = EstimateConfig::default();
     // Scored in full: all three placed templates looked at, not only until one passes.
     let check = FixedScreen { score: 0.9, calls: Default::default() };
