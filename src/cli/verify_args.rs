@@ -60,6 +60,11 @@ pub struct VerifyArgs {
     /// for 20–55 ms more per instance; 0: off; at most 45).
     #[arg(long, value_parser = nudge_degrees)]
     pub nudge: Option<f64>,
+    /// With depth: the best this many template views placed on the measured surface
+    /// under the mask and fitted there, as hypotheses always rendered and judged
+    /// (default 4; 0: off).
+    #[arg(long)]
+    pub depth_views: Option<usize>,
     /// Rounds of refining the kept pose on its print as well as its outline, on objects
     /// with colours (render, find the print in the photo, update; default 3, 0: none).
     #[arg(long)]
@@ -101,6 +106,7 @@ impl VerifyArgs {
             occlusion_aware_iou: !self.iou_counts_occluded,
             replace_off_mask: !self.no_replace_at_mask,
             nudge_degrees: self.nudge.unwrap_or(d.nudge_degrees),
+            depth_views: self.depth_views.unwrap_or(d.depth_views),
             ..d
         }
     }

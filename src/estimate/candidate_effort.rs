@@ -6,7 +6,11 @@
 //! instances, one more or one fewer, on the real YCB-V frames and on generated scenes over
 //! real frames, for a tenth less time on frames with 3–4 objects (none with 8 searched);
 //! RRC turned off as well saved a third but lost a tenth of the AR on the generated scenes
-//! (docs/detection.md, "Lighter estimates for the detector's candidates").
+//! (docs/detection.md, "Lighter estimates for the detector's candidates"). The depth's own
+//! template views (`VerifyConfig::depth_views`) are left out too: they fit a candidate of
+//! the wrong object to the surface as well as the right one's, and on the generated scenes
+//! over real frames the detector's answers lost 0.03–0.06 AR with them (docs/estimation.md,
+//! "Views found in the depth").
 
 use super::EstimateConfig;
 use std::borrow::Cow;
@@ -19,7 +23,8 @@ pub const LIGHT_REFINED: usize = 12;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum CandidateEffort {
-    /// At most [`LIGHT_REFINED`] verification hypotheses refined.
+    /// At most [`LIGHT_REFINED`] verification hypotheses refined, no views searched in the
+    /// depth.
     #[default]
     Light,
     /// As a caller's mask: the configuration as it is.
@@ -37,6 +42,7 @@ impl CandidateEffort {
                 if light.verify.refined == 0 || light.verify.refined > LIGHT_REFINED {
                     light.verify.refined = LIGHT_REFINED;
                 }
+                light.verify.depth_views = 0;
                 Cow::Owned(light)
             }
         }
@@ -54,8 +60,9 @@ mod tests {
         let light = CandidateEffort::applied(&cfg);
         assert_eq!(light.verify.refined, LIGHT_REFINED);
         // Everything else as the caller's.
+        assert_eq!(light.verify.depth_views, 0);
         let mut back = light.clone().into_owned();
-        back.verify.refined = 0;
+        (back.verify.refined, back.verify.depth_views) = (0, cfg.verify.depth_views);
         assert_eq!(back, cfg);
         // A caller's smaller number stays.
         let mut fewer = cfg.clone();

@@ -76,23 +76,24 @@ pub fn visible_samples(render: &RenderOutput, pose: &Pose, camera: &Intrinsics) 
     for y in (1..h.saturating_sub(1)).step_by(step as usize) {
         for x in (1..w.saturating_sub(1)).step_by(step as usize) {
             let (Some(c), Some(l), Some(r), Some(u), Some(d)) = (at(x, y), at(x - 1, y), at(x + 1, y), at(x, y - 1), at(x, y + 1)) else { continue };
-            // Neighbours on another surface (a depth edge) give no normal.
-            let edge = 0.02 * c.z;
-            if [l, r, u, d].iter().any(|p| (p.z - c.z).abs() > edge) {
-                continue;
-            }
-            let mut n = (r - l).cross(&(d - u));
-            if n.norm() < 1e-15 {
-                continue;
-            }
-            n.normalize_mut();
-            if n.dot(&c.coords) > 0.0 {
-                n = -n;
-            }
+            let Some(n) = grid_normal(&c.coords, [l.coords, r.coords, u.coords, d.coords], 0.02) else { continue };
             out.push(SurfaceSample { point: inverse.transform_point(&c).coords, normal: inverse.rotation * n });
         }
     }
     out
+}
+
+/// The unit normal, facing the camera, at camera-frame point `c` of a grid of surface
+/// points from its left, right, up and down neighbours (central differences); `None`
+/// across a depth edge (a neighbour further than `edge_share` of `c`'s depth from it:
+/// another surface) or where the neighbours are degenerate.
+pub(super) fn grid_normal(c: &Vector3<f64>, [l, r, u, d]: [Vector3<f64>; 4], edge_share: f64) -> Option<Vector3<f64>> {
+    let edge = edge_share * c.z;
+    if [l, r, u, d].iter().any(|p| (p.z - c.z).abs() > edge) {
+        return None;
+    }
+    let n = (r - l).cross(&(d - u)).try_normalize(1e-15)?;
+    Some(if n.dot(c) > 0.0 { -n } else { n })
 }
 
 /// How the fit runs.
@@ -117,7 +118,7 @@ impl Default for DepthFitConfig {
 
 /// Inlier tolerance for an object of `diameter` metres: 5 % of it, within 5–15 mm
 /// (Kinect-class noise is 2–5 mm at 1 m).
-fn tolerance(diameter: f64) -> f64 {
+pub(super) fn tolerance(diameter: f64) -> f64 {
     (0.05 * diameter).clamp(0.005, 0.015)
 }
 

@@ -38,6 +38,8 @@ pub enum Source {
     Nudge(usize),
     /// The caller's hint pose `i` (`Estimator::estimate_hinted`).
     Hint(usize),
+    /// The `i`-th best template view placed on the measured depth (`depth_search`).
+    DepthView(usize),
 }
 
 impl std::fmt::Display for Source {
@@ -52,6 +54,7 @@ impl std::fmt::Display for Source {
             Source::PrintFlip(i) => write!(f, "print-flip-{i}"),
             Source::Hint(i) => write!(f, "hint-{i}"),
             Source::Nudge(i) => write!(f, "nudge-{i}"),
+            Source::DepthView(i) => write!(f, "depth-view-{i}"),
             Source::Spin { axis, degrees } => write!(f, "spin-{}-{degrees}", ['x', 'y', 'z'].get(*axis).copied().unwrap_or('?')),
         }
     }

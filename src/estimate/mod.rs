@@ -7,6 +7,7 @@ pub mod candidates;
 pub mod contour;
 pub mod correspond;
 pub mod depth_fit;
+pub mod depth_search;
 pub mod hypotheses;
 pub mod matching;
 pub mod pipeline;

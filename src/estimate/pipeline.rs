@@ -425,6 +425,12 @@ impl Estimator {
         let mut candidates = super::hypotheses::candidates(ctx.model, (start, &pose), replaced.as_ref(), retrieved, &cfg.verify, &query.crop_box, ctx.intrinsics);
         candidates.extend(matched.iter().enumerate().map(|(i, &p)| (Source::Matched(i), p)).filter(|&(s, _)| s != start));
         candidates.extend(hints.iter().enumerate().map(|(i, &p)| (Source::Hint(i), p)));
+        if let Some(depth) = ctx.depth.filter(|_| cfg.verify.depth_views > 0) {
+            let t = Instant::now();
+            let found = super::depth_search::searched(ctx.model, depth, ctx.intrinsics, ctx.mask, cfg.verify.depth_views);
+            tracing::debug!(ms = ms_since(t), found = found.len(), "depth views searched");
+            candidates.extend(found.into_iter().enumerate().map(|(i, s)| (Source::DepthView(i), s.pose)));
+        }
         // Hypotheses that are the same pose up to the object's symmetry show the same image:
         // when asked, one of each is refined (the start comes first, so it stays).
         let symmetric = ctx.model.symmetries.as_ref().filter(|_| cfg.verify.skip_symmetric).and_then(|s| crate::geometry::symmetric_poses::SymmetricPoses::new(&s.symmetries, ctx.model.diameter()));
@@ -438,8 +444,8 @@ impl Estimator {
         verified.sort_by(|a, b| b.contour.total_cmp(&a.contour));
         let window = mask_window(ctx.mask).expect("validated non-empty");
         // The start (the pipeline's own pose) is always rendered: it must be beaten on the evidence.
-        let first = verified.iter().position(|v| v.source == start);
-        let rendered = super::verify::to_render(&verified, first, &cfg.verify);
+        let always: Vec<usize> = verified.iter().enumerate().filter(|(_, v)| v.source == start || matches!(v.source, Source::DepthView(_))).map(|(i, _)| i).collect();
+        let rendered = super::verify::to_render(&verified, &always, &cfg.verify);
         self.judge(ctx, &mut verified, &rendered, window, query, cfg)?;
         verified.sort_by(|a, b| b.score.total_cmp(&a.score));
         if cfg.verify.second_look {

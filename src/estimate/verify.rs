@@ -82,6 +82,10 @@ pub struct VerifyConfig {
     /// (docs/benchmarks/estimation-boxes-and-nudges.md, "The nudge across the line of
     /// sight").
     pub nudge_degrees: f64,
+    /// With depth: the template views placed on the measured surface under the mask and
+    /// fitted there (`depth_search`), this many of the best, as hypotheses that are always
+    /// rendered and judged. 0 turns the search off.
+    pub depth_views: usize,
 }
 
 impl Default for VerifyConfig {
@@ -113,6 +117,7 @@ impl Default for VerifyConfig {
             occlusion_aware_iou: true,
             replace_off_mask: true,
             nudge_degrees: 8.0,
+            depth_views: 4,
         }
     }
 }
@@ -388,15 +393,18 @@ pub fn render_evidence(
 }
 
 /// Which hypotheses (sorted by contour agreement, best first) get a render: the first
-/// `rendered`, then any within `contour_tie` of the best up to `max_rendered`, and the
-/// start (index `start`: the pipeline's own pose) in any case: it must be beaten on the
-/// evidence.
-pub fn to_render(sorted: &[Verified], start: Option<usize>, cfg: &VerifyConfig) -> Vec<usize> {
+/// `rendered`, then any within `contour_tie` of the best up to `max_rendered`, and those
+/// in `always` in any case (the start, the pipeline's own pose: it must be beaten on the
+/// evidence; the depth's views, which the outline cannot rank: they come from what it
+/// does not see).
+pub fn to_render(sorted: &[Verified], always: &[usize], cfg: &VerifyConfig) -> Vec<usize> {
     let best = sorted.first().map_or(0.0, |v| v.contour);
     let cap = cfg.max_rendered.max(cfg.rendered);
     let mut out: Vec<usize> = (0..sorted.len()).filter(|&i| i < cfg.rendered || sorted[i].contour >= best - cfg.contour_tie).take(cap).collect();
-    if let Some(p) = start.filter(|p| !out.contains(p)) {
-        out.push(p);
+    for &p in always {
+        if !out.contains(&p) {
+            out.push(p);
+        }
     }
     out
 }
@@ -541,11 +549,11 @@ mod tests {
         let v = |contour: f64| Verified::unscored(Source::Pipeline, Pose::identity(), RefineReport::default(), contour);
         let sorted: Vec<Verified> = [0.95, 0.94, 0.93, 0.92, 0.91, 0.7, 0.6].into_iter().map(v).collect();
         let cfg = VerifyConfig { rendered: 2, contour_tie: 0.035, max_rendered: 8, ..Default::default() };
-        assert_eq!(to_render(&sorted, None, &cfg), vec![0, 1, 2, 3]);
+        assert_eq!(to_render(&sorted, &[], &cfg), vec![0, 1, 2, 3]);
         // The pipeline's pose is rendered wherever it ranks.
-        assert_eq!(to_render(&sorted, Some(6), &cfg), vec![0, 1, 2, 3, 6]);
+        assert_eq!(to_render(&sorted, &[6], &cfg), vec![0, 1, 2, 3, 6]);
         // The cap holds, and never cuts below `rendered`.
-        assert_eq!(to_render(&sorted, None, &VerifyConfig { max_rendered: 3, ..cfg.clone() }), vec![0, 1, 2]);
-        assert_eq!(to_render(&sorted, None, &VerifyConfig { rendered: 3, contour_tie: 0.0, max_rendered: 1, ..cfg }), vec![0, 1, 2]);
+        assert_eq!(to_render(&sorted, &[], &VerifyConfig { max_rendered: 3, ..cfg.clone() }), vec![0, 1, 2]);
+        assert_eq!(to_render(&sorted, &[], &VerifyConfig { rendered: 3, contour_tie: 0.0, max_rendered: 1, ..cfg }), vec![0, 1, 2]);
     }
 }
