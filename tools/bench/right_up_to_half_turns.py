@@ -14,6 +14,7 @@ does; the middle count leaves them out, so it measures what the change can reach
 DATASET: a BOP dataset folder (models/models_info.json, test/*/scene_gt.json, and
 test_targets_bop19.json where there is one). Needs numpy.
 """
+
 import csv
 import json
 import math
