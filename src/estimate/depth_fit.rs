@@ -153,7 +153,7 @@ pub fn fit(samples: &[SurfaceSample], pose: &Pose, depth: &DepthImage, k: &Intri
 }
 
 /// Measured z less model z, per sample with a measurement at its pixel.
-fn depth_differences(samples: &[SurfaceSample], pose: &Pose, depth: &DepthImage, k: &Intrinsics) -> Vec<f64> {
+pub(super) fn depth_differences(samples: &[SurfaceSample], pose: &Pose, depth: &DepthImage, k: &Intrinsics) -> Vec<f64> {
     samples
         .iter()
         .filter_map(|s| {
@@ -166,7 +166,7 @@ fn depth_differences(samples: &[SurfaceSample], pose: &Pose, depth: &DepthImage,
 }
 
 /// `pose` moved `dz` deeper along the ray through its `centre` (so its image stays put).
-fn along_ray(pose: &Pose, centre: &Vector3<f64>, dz: f64) -> Pose {
+pub(super) fn along_ray(pose: &Pose, centre: &Vector3<f64>, dz: f64) -> Pose {
     let c = pose.rotation * centre + pose.translation;
     if c.z <= 1e-9 {
         return *pose;
@@ -174,7 +174,7 @@ fn along_ray(pose: &Pose, centre: &Vector3<f64>, dz: f64) -> Pose {
     Pose::new(pose.rotation, pose.translation + c * (dz / c.z))
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+pub(super) fn median(mut v: Vec<f64>) -> f64 {
     let mid = v.len() / 2;
     *v.select_nth_unstable_by(mid, f64::total_cmp).1
 }

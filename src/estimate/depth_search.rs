@@ -14,7 +14,7 @@
 //! are fitted by the point-to-plane ICP of `depth_fit` (normals from the template's patch
 //! grid) and handed to verification, which refines, renders and judges them with the rest.
 
-use super::depth_fit::{fit, DepthFit, DepthFitConfig, SurfaceSample};
+use super::depth_fit::{along_ray, depth_differences, fit, median, DepthFit, DepthFitConfig, SurfaceSample};
 use crate::depth::DepthImage;
 use crate::geometry::{geodesic_distance, Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -216,19 +216,6 @@ impl Scene<'_> {
         let side = model.grid.patch as f64 * tp.crop.scale() * (self.k.fx / model.render_intrinsics.fx) * (z_template / z);
         tp.patch_count as f64 * side * side
     }
-
-    /// Measured less model depth for the `points` with a measurement.
-    fn depth_differences(&self, points: &[Vector3<f64>], pose: &Pose) -> Vec<f64> {
-        points
-            .iter()
-            .filter_map(|p| {
-                let x = pose.rotation * p + pose.translation;
-                let uv = self.k.project(&Point3::from(x))?;
-                let d = self.depth.nearest(uv.x, uv.y) as f64;
-                (d > 0.0).then_some(d - x.z)
-            })
-            .collect()
-    }
 }
 
 fn in_mask(mask: &GrayImage, u: f64, v: f64) -> bool {
@@ -262,11 +249,6 @@ fn measured_centre(depth: &DepthImage, k: &Intrinsics, mask: &GrayImage) -> Opti
     Some(Vector3::new(x, y, z))
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    let mid = v.len() / 2;
-    *v.select_nth_unstable_by(mid, f64::total_cmp).1
-}
-
 /// Every n-th of `samples`, so that at most `at_most` are left.
 fn thinned(samples: &[SurfaceSample], at_most: usize) -> Vec<SurfaceSample> {
     let step = samples.len().div_ceil(at_most.max(1)).max(1);
@@ -291,20 +273,17 @@ fn placed_on(model: &ObjectModel, t: usize, samples: &[SurfaceSample], centre: &
     if samples.is_empty() || centre.z <= 0.0 {
         return None;
     }
-    let points: Vec<Vector3<f64>> = samples.iter().map(|s| s.point).collect();
-    let mean = points.iter().sum::<Vector3<f64>>() / points.len() as f64;
+    let mean = samples.iter().map(|s| s.point).sum::<Vector3<f64>>() / samples.len() as f64;
     // The template's camera looks along +z at the object; turn it to look along the ray.
     let turn = Rotation3::rotation_between(&Vector3::z(), centre).unwrap_or_else(Rotation3::identity);
     let rotation = turn * model.templates[t].pose.rotation;
     let pose = Pose::new(rotation, centre - rotation * mean);
-    let diffs = scene.depth_differences(&points, &pose);
+    let diffs = depth_differences(samples, &pose, scene.depth, scene.k);
     if diffs.is_empty() {
         return None;
     }
-    let shift = median(diffs);
     // Deeper along the ray through the points' mean, so the image stays put.
-    let c = rotation * mean + pose.translation;
-    Some(Pose::new(rotation, pose.translation + c * (shift / c.z)))
+    Some(along_ray(&pose, &mean, median(diffs)))
 }
 
 /// The patch points of template `t` (a view's first) with normals from their neighbours
