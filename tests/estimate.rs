@@ -439,3 +439,31 @@ fn masks_scored_beforehand_are_screened_by_their_scores_without_a_second_look() 
     // A bad request is refused as the estimate refuses it.
     assert!(f.estimator.screen_scores(&f.model, (&s.rgb, Some(&depth)), &s.cam, &[], &check, &cfg).is_err());
 }
+
+#[test]
+fn an_answer_reviewed_in_depth_gives_way_to_a_view_found_there_and_a_right_one_stands() {
+    let (f, s, det, depth) = screened_scene();
+    let truth = s.instances[0].pose;
+    let cfg = EstimateConfig::default();
+    let d = f.model.diameter();
+    let error = |p: &b2tfpose::geometry::Pose| mssd(p, &truth, f.model.mesh.positions());
+    // Half-turned about the camera's view axis through the object and 3 cm too far: the
+    // views found in the depth under its mask put it back.
+    let turn = nalgebra::Rotation3::from_axis_angle(&nalgebra::Vector3::y_axis(), std::f64::consts::PI);
+    let wrong = b2tfpose::geometry::Pose::new(truth.rotation * turn, truth.translation + truth.translation.normalize() * 0.03);
+    assert!(error(&wrong) > 0.1 * d);
+    let r = f.estimator.reviewed_in_depth(&f.model, (&s.rgb, &depth), &s.cam, &det[0], None, wrong, &cfg).unwrap();
+    assert!(r.view.is_some() && error(&r.pose) < 0.1 * d, "view {:?}, MSSD {:.1} mm", r.view, error(&r.pose) * 1e3);
+    // The true pose is kept as it is, or at most moved within its error.
+    let r = f.estimator.reviewed_in_depth(&f.model, (&s.rgb, &depth), &s.cam, &det[0], None, truth, &cfg).unwrap();
+    assert!(r.view.is_none() && r.pose == truth || error(&r.pose) < 0.05 * d, "view {:?}, MSSD {:.1} mm", r.view, error(&r.pose) * 1e3);
+    // No views asked for, or no depth measured under the mask: the answer stands.
+    let none = EstimateConfig { verify: b2tfpose::estimate::verify::VerifyConfig { depth_views: 0, ..cfg.verify.clone() }, ..cfg.clone() };
+    assert_eq!(f.estimator.reviewed_in_depth(&f.model, (&s.rgb, &depth), &s.cam, &det[0], None, wrong, &none).unwrap(), b2tfpose::estimate::Reviewed { pose: wrong, view: None });
+    let blank = b2tfpose::depth::DepthImage::from_metres(s.cam.width, s.cam.height, vec![0.0; (s.cam.width * s.cam.height) as usize]).unwrap();
+    assert_eq!(f.estimator.reviewed_in_depth(&f.model, (&s.rgb, &blank), &s.cam, &det[0], None, wrong, &cfg).unwrap().view, None);
+    // A mask that is not the image's size is refused as an estimate refuses it.
+    let small = Detection::new(image::GrayImage::new(8, 8), 0.9);
+    let e = f.estimator.reviewed_in_depth(&f.model, (&s.rgb, &depth), &s.cam, &small, None, wrong, &cfg).unwrap_err();
+    assert!(matches!(e, EstimateError::BadInput(ref m) if m.contains("mask")), "{e}");
+}

@@ -17,7 +17,7 @@ use super::dataset::{load_rgb, load_scene_cameras, load_targets, ImageCamera};
 use super::detections::{DetectionIndex, DetectionRecord};
 use super::format::{scene_dir, TargetRecord};
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
-use crate::detect::compared::{answer_objects, Comparison, ObjectCandidates};
+use crate::detect::compared::{answer_objects, reviewed, Comparison, ObjectCandidates};
 use crate::detect::confirm::{candidate_options, confirm, one_per_place, Choice};
 use crate::detect::{detect, DetectOptions, Target};
 use crate::estimate::candidates::representative;
@@ -80,9 +80,13 @@ pub struct RunSummary {
     pub failures: BTreeMap<String, usize>,
 }
 
-/// One instance's answer: its pose, its score (the confirmation with the detector's
-/// candidates, else the estimator's) and the mask it was estimated from.
-type Answer = (Pose, f32, GrayImage);
+/// An instance's pose with the candidate group it was estimated from and the index of its
+/// mask among the group's candidates.
+type Estimated = (Pose, Vec<usize>, usize);
+
+/// One instance's answer: what was estimated, its score (the confirmation with the
+/// detector's candidates, else the estimator's) and the mask it was estimated from.
+type Answer = (Estimated, f32, GrayImage);
 
 /// Where each image's detections come from.
 pub enum DetectionSource<'a> {
@@ -184,11 +188,14 @@ pub fn run(
                 Err(e) => refused(e, ti).map(|()| None),
             }
         };
-        let estimate_group = |ti: usize, m: &ObjectModel, group: &[usize], screen: Screen<'_>| -> Result<(Option<Answer>, Option<f32>)> {
-            let (t, masks) = (&targets[ti], &decoded[ti]);
-            let candidates = candidates_of(ti, group);
+        let others_of = |ti: usize, group: &[usize]| {
             let others = decoded.iter().enumerate().flat_map(|(tj, ms)| ms.iter().enumerate().filter(move |(i, _)| !(tj == ti && group.contains(i))).map(|(_, c)| representative(c).0));
-            let others = crate::masks::occluders(representative(&masks[group[0]]).0, others, kind, camera.cam.width, camera.cam.height);
+            crate::masks::occluders(representative(&decoded[ti][group[0]]).0, others, kind, camera.cam.width, camera.cam.height)
+        };
+        let estimate_group = |ti: usize, m: &ObjectModel, group: &[usize], screen: Screen<'_>| -> Result<(Option<Answer>, Option<f32>)> {
+            let t = &targets[ti];
+            let candidates = candidates_of(ti, group);
+            let others = others_of(ti, group);
             let r = match estimator.estimate_screened(m, (&rgb, depth.as_ref()), &camera.cam, &candidates, others.as_ref(), screen, &opts.estimate) {
                 Ok(r) => r,
                 Err(e) => return refused(e, ti).map(|()| (None, None)),
@@ -200,7 +207,7 @@ pub fn run(
             };
             let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
             let Some(pool) = pool else {
-                return Ok((Some((pose, r.score, mask.clone())), None));
+                return Ok((Some(((pose, group.to_vec(), r.mask_index.unwrap_or(0)), r.score, mask.clone())), None));
             };
             let c = confirm(&rgb, depth.as_ref(), &camera.cam, &m.mesh, mask, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?;
             // For `tools/bench/candidate_ranks.py`.
@@ -217,7 +224,7 @@ pub fn run(
                 confirmation = c,
                 "candidate confirmed"
             );
-            Ok((Some((pose, c, mask.clone())), Some(c)))
+            Ok((Some(((pose, group.to_vec(), r.mask_index.unwrap_or(0)), c, mask.clone())), Some(c)))
         };
         let groups_of = |masks: &[Vec<Detection>]| group_instances(&masks.iter().map(|c| representative(c)).collect::<Vec<_>>(), opts.same_instance_iou);
         // The targets with candidates, their objects loaded (or onboarded) first.
@@ -272,11 +279,22 @@ pub fn run(
         // A row's score: the confirmation with the detector's candidates, else the estimator's.
         let wanted: Vec<usize> = answers.iter().map(|a| a.1).collect();
         let obj_ids: Vec<u32> = answers.iter().map(|a| a.0).collect();
-        let per_object: Vec<Vec<(Pose, f32)>> =
+        let per_object: Vec<Vec<(Estimated, f32)>> =
             if compared { one_per_place(answers.into_iter().map(|a| a.2).collect(), &wanted) } else { answers.into_iter().map(|a| a.2.into_iter().map(|(p, s, _)| (p, s)).collect()).collect() };
+        // Which object each place holds is settled: the answers are looked at again beside
+        // the depth's own views (`Estimator::reviewed_in_depth`).
+        let per_object = match depth.as_ref().filter(|_| compared) {
+            Some(d) => reviewed(per_object, opts.instance_threads, |n, (pose, group, mask)| {
+                let (ti, m) = (work[n].0, &work[n].1);
+                let r = estimator.reviewed_in_depth(m, (&rgb, d), &camera.cam, &candidates_of(ti, &group)[mask], others_of(ti, &group).as_ref(), pose, &opts.estimate)?;
+                tracing::debug!(scene_id, im_id, obj_id = targets[ti].obj_id, view = r.view, moved_mm = (r.pose.translation - pose.translation).norm() * 1e3, "answer reviewed");
+                Ok::<_, anyhow::Error>((r.pose, group, mask))
+            })?,
+            None => per_object,
+        };
         for ((obj_id, wanted), poses) in obj_ids.into_iter().zip(wanted).zip(per_object) {
             summary.instances_without_pose += wanted.saturating_sub(poses.len());
-            rows.extend(poses.into_iter().map(|(pose, score)| ResultRow { scene_id, im_id, obj_id, score: score as f64, pose, time: 0.0 }));
+            rows.extend(poses.into_iter().map(|((pose, _, _), score)| ResultRow { scene_id, im_id, obj_id, score: score as f64, pose, time: 0.0 }));
         }
         let seconds = started.elapsed().as_secs_f64();
         // Where the image's time went: detection (with decoding), and the rest (screens in

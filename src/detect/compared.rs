@@ -80,6 +80,20 @@ pub fn answer_objects<'p, T: Send, E: Send>(
     Ok(out.into_iter().map(|i| i.unwrap_or(Instances { kept: Vec::new(), tried: 0, best: None })).collect())
 }
 
+/// Every object's chosen answers (`one_per_place`'s) passed through `review(object,
+/// answer)`, side by side on `threads`, each kept in its object's list and order with its
+/// score: with depth, the answers looked at again beside the depth's own views
+/// (`Estimator::reviewed_in_depth`), which object each place holds being settled.
+pub fn reviewed<T: Send, E: Send>(per_object: Vec<Vec<(T, f32)>>, threads: usize, review: impl Fn(usize, T) -> Result<T, E> + Sync) -> Result<Vec<Vec<(T, f32)>>, E> {
+    let mut out: Vec<Vec<(T, f32)>> = per_object.iter().map(|_| Vec::new()).collect();
+    let jobs: Vec<(usize, T, f32)> = per_object.into_iter().enumerate().flat_map(|(o, answers)| answers.into_iter().map(move |(t, s)| (o, t, s))).collect();
+    let done = crate::parallel::ordered_map(jobs, threads, |(o, t, s)| Ok((o, review(o, t)?, s)))?;
+    for (o, t, s) in done {
+        out[o].push((t, s));
+    }
+    Ok(out)
+}
+
 /// Each object's groups that are estimated, with their screen scores where screened (all
 /// objects' screens side by side); a group the screen refuses is dropped.
 fn screened<E: Send>(objects: &[ObjectCandidates], threads: usize, screen: &(impl Fn(usize, &[usize]) -> Result<Option<Vec<f32>>, E> + Sync)) -> Result<Vec<Vec<Screened>>, E> {
@@ -206,6 +220,16 @@ mod tests {
             assert_eq!(kept, [vec![0], vec![1], vec![2], vec![]], "{threads} threads");
             assert_eq!(out.iter().map(|i| i.tried).collect::<Vec<_>>(), [1, 1, 1, 0]);
         }
+    }
+
+    #[test]
+    fn reviewed_answers_keep_their_object_order_and_score() {
+        let answers = vec![vec![(1, 0.9), (2, 0.7)], vec![], vec![(3, 0.5)]];
+        for threads in [1, 3] {
+            let out = reviewed(answers.clone(), threads, |o, t| Ok::<_, ()>(t * 10 + o as i32)).unwrap();
+            assert_eq!(out, [vec![(10, 0.9), (20, 0.7)], vec![], vec![(32, 0.5)]]);
+        }
+        assert_eq!(reviewed(answers, 2, |_, t| if t == 2 { Err("failed") } else { Ok(t) }), Err("failed"));
     }
 
     #[test]

@@ -25,7 +25,7 @@ pub mod verify;
 
 pub use box_prior::BoxPrior;
 pub use candidates::{Candidates, Detection};
-pub use pipeline::{CandidateEffort, CoarseCheck, DepthScreen, EstimateConfig, EstimateResult, Estimator, Hypothesis, Screen, StageTimings};
+pub use pipeline::{CandidateEffort, CoarseCheck, DepthScreen, EstimateConfig, EstimateResult, Estimator, Hypothesis, Reviewed, Screen, StageTimings};
 pub use refine::{PassThrough, RefineContext, RefineReport, Refined, Refiner, RefinerKind};
 pub use runner_up::RunnerUp;
 pub use verify::VerifyConfig;

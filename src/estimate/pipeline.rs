@@ -27,11 +27,13 @@ use std::sync::Arc;
 use std::time::Instant;
 
 mod depth_judge;
+mod depth_review;
 mod nudge;
 mod per_mask;
 mod queries;
 mod screen;
 mod second_look;
+pub use depth_review::Reviewed;
 
 use queries::Queries;
 

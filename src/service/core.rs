@@ -9,7 +9,7 @@ use super::detect_requests::DetectionOutput;
 use super::error::{ErrorKind, ServiceError};
 use super::operations::{OperationState, OperationStatus, Operations};
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput, RunnerUpOutput};
-use crate::detect::compared::{answer_objects, Comparison, ObjectCandidates};
+use crate::detect::compared::{answer_objects, reviewed, Comparison, ObjectCandidates};
 use crate::detect::confirm::{candidate_options, confirm, confirmation_needed, one_per_place, Choice};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, Estimator};
@@ -395,7 +395,10 @@ impl Core {
             past_deadline()?;
             Ok(self.estimator.screen_scores(&models[object_id], (&image, depth.as_ref()), &k, &gather(object_id, group).masks, check, &cfg)?)
         };
-        let estimate_one = |object_id: &str, instance: usize, group: &[usize], screen: Screen<'_>| -> Result<((InstanceResult, image::GrayImage), Option<f32>), ServiceError> {
+        // An instance's answer, the mask it came from and where (its candidate group, the
+        // mask's index among the group's candidates), and its confirmation.
+        type Answered = ((InstanceResult, image::GrayImage, Vec<usize>, usize), Option<f32>);
+        let estimate_one = |object_id: &str, instance: usize, group: &[usize], screen: Screen<'_>| -> Result<Answered, ServiceError> {
             past_deadline()?;
             let model = &models[object_id];
             let gathered = gather(object_id, group);
@@ -430,7 +433,7 @@ impl Core {
                 runner_up: r.runner_up.as_ref().map(RunnerUpOutput::from),
             };
             let mask = candidates[r.mask_index.unwrap_or(0)].mask.clone();
-            Ok(((result, mask), confirmation))
+            Ok(((result, mask, group.to_vec(), r.mask_index.unwrap_or(0)), confirmation))
         };
         let groups_of = |dets: &[(usize, Vec<Detection>)]| {
             let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, c)| representative(c)).collect();
@@ -447,10 +450,10 @@ impl Core {
             let tried = done.len();
             let mut answers: Vec<Vec<(InstanceResult, f32, image::GrayImage)>> = by_object.keys().map(|_| Vec::new()).collect();
             let slot: BTreeMap<&str, usize> = by_object.keys().enumerate().map(|(i, &id)| (id, i)).collect();
-            for (owner, ((r, mask), _)) in owners.into_iter().zip(done) {
+            for (owner, ((r, mask, _, _), _)) in owners.into_iter().zip(done) {
                 answers[slot[owner]].push((r, 0.0, mask));
             }
-            (answers, tried)
+            (answers.into_iter().map(|a| a.into_iter().map(|(r, c, _)| (r, c)).collect()).collect(), tried)
         } else {
             // The detector's candidates, screened with depth (those that cannot be their
             // object not estimated), compared across objects and estimated in turn until
@@ -471,11 +474,26 @@ impl Core {
                 |t| Some(&t.1),
             )?;
             let tried = answered.iter().map(|i| i.tried).sum();
-            let answers = answered.into_iter().map(|i| i.kept.into_iter().map(|((r, mask), c)| (r, c.unwrap_or(0.0), mask)).collect()).collect();
-            (answers, tried)
+            let answers: Vec<Vec<_>> = answered.into_iter().map(|i| i.kept.into_iter().map(|((r, mask, group, m), c)| ((r, group, m), c.unwrap_or(0.0), mask)).collect()).collect();
+            // Which object each place holds is settled (`one_per_place`): with depth the
+            // answers are looked at again beside the depth's own views
+            // (`Estimator::reviewed_in_depth`).
+            let per_object = match depth.as_ref().filter(|_| compared) {
+                Some(d) => reviewed(one_per_place(answers, &vec![o.instances_per_object; by_object.len()]), self.config.instance_threads, |n, (mut r, group, m)| {
+                    past_deadline()?;
+                    let Some(pose) = r.pose.as_ref().map(|p| crate::geometry::Pose::from_row_major(&p.r, p.t)) else { return Ok((r, group, m)) };
+                    let candidates = gather(ids[n], &group).masks;
+                    let others = others_mask(&by_object, ids[n], &group, kind, k.width, k.height);
+                    let reviewed = self.estimator.reviewed_in_depth(&models[ids[n]], (&image, d), &k, &candidates[m], others.as_ref(), pose, &cfg)?;
+                    tracing::debug!(object_id = ids[n], view = reviewed.view, "answer reviewed");
+                    r.pose = Some(PoseOutput::from(&reviewed.pose));
+                    Ok::<_, ServiceError>((r, group, m))
+                })?,
+                None => answers.into_iter().map(|a| a.into_iter().map(|(t, c, _)| (t, c)).collect()).collect(),
+            };
+            (per_object.into_iter().map(|a| a.into_iter().map(|((r, _, _), c)| (r, c)).collect()).collect(), tried)
         };
-        let per_object: Vec<Vec<(InstanceResult, f32)>> =
-            if compared { one_per_place(answers, &vec![o.instances_per_object; by_object.len()]) } else { answers.into_iter().map(|a| a.into_iter().map(|(r, c, _)| (r, c)).collect()).collect() };
+        let per_object: Vec<Vec<(InstanceResult, f32)>> = answers;
         let mut results = Vec::new();
         for kept in per_object {
             // Instances are numbered in the answer's order, best confirmed first.
