@@ -18,7 +18,8 @@ use super::detections::{DetectionIndex, DetectionRecord};
 use super::format::{scene_dir, TargetRecord};
 use super::results_csv::{done_images, ResultRow, ResultsWriter};
 use crate::detect::compared::{answer_objects, reviewed, Comparison, ObjectCandidates};
-use crate::detect::confirm::{candidate_options, confirm, one_per_place, Choice};
+use crate::detect::confirm::{candidate_options, confirm, confirmation_needed, one_per_place, Choice};
+use crate::detect::near_miss::{reviewed_near_miss, Candidate};
 use crate::detect::{detect, DetectOptions, Target};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateError, Estimator};
@@ -210,6 +211,14 @@ pub fn run(
                 return Ok((Some(((pose, group.to_vec(), r.mask_index.unwrap_or(0)), r.score, mask.clone())), None));
             };
             let c = confirm(&rgb, depth.as_ref(), &camera.cam, &m.mesh, mask, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?;
+            // The depth detector's candidate confirmed just short of an answer gets a second look.
+            let (pose, c) = match (depth.as_ref().filter(|_| compared), choice) {
+                (Some(d), Choice::Confirmed { min_score }) => {
+                    let candidate = Candidate { model: m, detection: &candidates[r.mask_index.unwrap_or(0)], others: others.as_ref(), pose, confirmation: c };
+                    reviewed_near_miss(estimator, (&rgb, d), &camera.cam, candidate, confirmation_needed(min_score, true), &opts.estimate, pool)?
+                }
+                _ => (pose, c),
+            };
             // For `tools/bench/candidate_ranks.py`.
             tracing::debug!(
                 scene_id,

@@ -11,6 +11,7 @@ use super::operations::{OperationState, OperationStatus, Operations};
 use super::requests::{EstimateRequest, EstimateResponse, InstanceResult, OnboardRequest, PoseOutput, RunnerUpOutput};
 use crate::detect::compared::{answer_objects, reviewed, Comparison, ObjectCandidates};
 use crate::detect::confirm::{candidate_options, confirm, confirmation_needed, one_per_place, Choice};
+use crate::detect::near_miss::{reviewed_near_miss, Candidate};
 use crate::estimate::candidates::representative;
 use crate::estimate::{Candidates, Detection, EstimateConfig, Estimator};
 use crate::estimate::{CoarseCheck, DepthScreen, Screen};
@@ -416,6 +417,17 @@ impl Core {
                     )
                 }
                 _ => None,
+            };
+            // The depth detector's candidate confirmed just short of an answer gets a second look.
+            let mut r = r;
+            let confirmation = match (r.pose, confirmation, depth.as_ref().filter(|_| compared)) {
+                (Some(pose), Some(c), Some(d)) => {
+                    let candidate = Candidate { model, detection: &candidates[r.mask_index.unwrap_or(0)], others: others.as_ref(), pose, confirmation: c };
+                    let (pose, c) = span.in_scope(|| reviewed_near_miss(&self.estimator, (&image, d), &k, candidate, confirmation_needed(req.detect.min_score, true), &cfg, &self.pool))?;
+                    r.pose = Some(pose);
+                    Some(c)
+                }
+                _ => confirmation,
             };
             span.in_scope(|| tracing::debug!(found = r.pose.is_some(), score = r.score, confirmation, ms = r.timings.total, "instance estimated"));
             let result = InstanceResult {
