@@ -268,6 +268,14 @@ fn estimate_writes_the_result_json_and_overlay() {
     let confirmed = doc["poses"][0]["confirmation_score"].as_f64().unwrap();
     let t: Vec<f64> = doc["poses"][0]["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
     assert!(confirmed >= b2tfpose::detect::DetectOptions::default().min_score as f64 && (t[2] - 0.6).abs() < 0.06, "{doc}");
+    // With the depth: found among the surfaces of its size, and the answer reviewed beside
+    // the views found in the depth (which may stand or give way to one).
+    let (ok, out, err) =
+        b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--depth", s(&depth), "--depth-scale", "0.1", "--no-rrc", "--out", s(&result)]);
+    assert!(ok && out.contains("confirmed at its pose"), "{out}{err}");
+    let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&result).unwrap()).unwrap();
+    let t: Vec<f64> = doc["poses"][0]["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert!((t[2] - 0.6).abs() < 0.03, "{doc}");
     let blank = d.join("blank.png");
     image::RgbImage::from_pixel(320, 240, image::Rgb([90, 90, 90])).save(&blank).unwrap();
     let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&blank), "--camera", s(&cam), "--out", s(&result)]);

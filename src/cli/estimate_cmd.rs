@@ -1,4 +1,5 @@
 use crate::detect::confirm::{candidate_options, compared_choice, confirm, confirmation_needed, estimate_instances, Choice};
+use crate::detect::near_miss::{reviewed_near_miss, Candidate};
 use crate::estimate::DepthScreen;
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateResult};
 use crate::geometry::{Intrinsics, Pose};
@@ -132,18 +133,41 @@ fn estimate_detected(
         let candidates: Vec<Detection> = group.iter().map(|&i| Detection::new(found[i].mask.clone(), found[i].score)).collect();
         let r = estimator.estimate_screened(model, (image, depth), k, &candidates, None, DepthScreen::as_screen(&screen), cfg)?;
         count += 1;
-        let confirmation = match &r.pose {
+        let mut r = r;
+        let chosen = candidates[r.mask_index.unwrap_or(0)].clone();
+        let confirmation = match r.pose {
             Some(pose) => {
-                let c = confirm(image, depth, k, &model.mesh, &candidates[r.mask_index.unwrap_or(0)].mask, pose, renderer)?;
+                let c = confirm(image, depth, k, &model.mesh, &chosen.mask, &pose, renderer)?;
                 println!("candidate {count} estimated, confirmed at its pose with {c:.3}");
+                // Just short of an answer: a second look beside the depth's own views.
+                let (pose, c) = match depth {
+                    Some(d) => {
+                        reviewed_near_miss(estimator, (image, d), k, Candidate { model, detection: &chosen, others: None, pose, confirmation: c }, confirmation_needed(min_score, true), cfg, renderer)?
+                    }
+                    None => (pose, c),
+                };
+                if Some(pose) != r.pose {
+                    println!("candidate {count} reviewed beside the views found in the depth, confirmed at its new pose with {c:.3}");
+                }
+                r.pose = Some(pose);
                 Some(c)
             }
             None => None,
         };
-        anyhow::Ok((r, confirmation))
+        anyhow::Ok(((r, chosen), confirmation))
     })?;
     match answered.kept.into_iter().next() {
-        Some((r, c)) => Ok((r, c.unwrap_or(0.0))),
+        Some(((mut r, chosen), c)) => {
+            // The object's answer chosen: its pose judged again beside the depth's views.
+            if let (Some(d), Some(pose)) = (depth, r.pose) {
+                let reviewed = estimator.reviewed_in_depth(model, (image, d), k, &chosen, None, pose, cfg)?;
+                if let Some(view) = reviewed.view {
+                    println!("answer reviewed beside the views found in the depth: depth view {view} judged better");
+                }
+                r.pose = Some(reviewed.pose);
+            }
+            Ok((r, c.unwrap_or(0.0)))
+        }
         None => bail!(
             "none of the detector's {} candidate(s) of {} was confirmed at its estimated pose (best {:.3}, needed {:.3} for --min-score {min_score}); give a --mask (or a --box), or lower --min-score",
             answered.tried,
