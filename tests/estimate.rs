@@ -470,7 +470,7 @@ fn an_answer_reviewed_in_depth_gives_way_to_a_view_found_there_and_a_right_one_s
 
 #[test]
 fn a_candidate_confirmed_just_short_of_an_answer_is_reviewed_in_depth() {
-    use b2tfpose::detect::near_miss::{reviewed_near_miss, Candidate};
+    use b2tfpose::estimate::near_miss::{reviewed_near_miss, Candidate};
     let (f, s, det, depth) = screened_scene();
     let truth = s.instances[0].pose;
     let cfg = EstimateConfig::default();

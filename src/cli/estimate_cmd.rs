@@ -1,5 +1,5 @@
 use crate::detect::confirm::{candidate_options, compared_choice, confirm, confirmation_needed, estimate_instances, Choice};
-use crate::detect::near_miss::{reviewed_near_miss, Candidate};
+use crate::estimate::near_miss::{reviewed_near_miss, Candidate};
 use crate::estimate::DepthScreen;
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateResult};
 use crate::geometry::{Intrinsics, Pose};

@@ -22,7 +22,6 @@ pub mod depth_segments;
 pub mod detector;
 pub mod frame;
 pub mod gradients;
-pub mod near_miss;
 pub mod nms;
 pub mod responses;
 pub mod rivals;

@@ -10,6 +10,7 @@ pub mod depth_fit;
 pub mod depth_search;
 pub mod hypotheses;
 pub mod matching;
+pub mod near_miss;
 pub mod pipeline;
 pub mod placement;
 pub mod pnp;
