@@ -7,8 +7,8 @@
 //! misplaced answer right (docs/detection.md, "Answers reviewed with the depth's views").
 //! So each chosen answer is judged again with them: the answer's pose and the views found
 //! under its mask, the views refined as verification refines its hypotheses, all rendered,
-//! judged and fitted to the depth as verification does, and the best kept. Only the pose can change: which object it is stays the
-//! comparison's.
+//! judged and fitted to the depth as verification does, and the best kept. Only the pose
+//! can change: which object it is stays the comparison's.
 
 use super::{EstimateError, Estimator, RefineContext, RefineReport, Verified};
 use crate::depth::DepthImage;
