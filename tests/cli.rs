@@ -135,6 +135,22 @@ fn bad_inputs_give_clear_errors() {
             "supersampling must be 1 or an odd number",
         ),
         (vec!["bench".into(), "estimate".into(), "--images".into(), "1".into(), "--photo-edges".into(), "textured".into()], "'textured'"),
+        (
+            vec![
+                "estimate".into(),
+                "--store".into(),
+                store.clone(),
+                "--object".into(),
+                "x".into(),
+                "--image".into(),
+                "i.png".into(),
+                "--camera".into(),
+                "c.json".into(),
+                "--depth-views".into(),
+                "13".into(),
+            ],
+            "--depth-views",
+        ),
         (vec!["render".into(), "--mesh".into(), s(&mesh).into(), "--units".into(), "furlongs".into(), "--camera".into(), "c.json".into(), "--out".into(), s(d).into()], "unknown length unit"),
     ];
     for (args, needle) in cases {

@@ -454,12 +454,15 @@ fn an_answer_reviewed_in_depth_gives_way_to_a_view_found_there_and_a_right_one_s
     assert!(error(&wrong) > 0.1 * d);
     let r = f.estimator.reviewed_in_depth(&f.model, (&s.rgb, &depth), &s.cam, &det[0], None, wrong, &cfg).unwrap();
     assert!(r.view.is_some() && error(&r.pose) < 0.1 * d, "view {:?}, MSSD {:.1} mm", r.view, error(&r.pose) * 1e3);
+    // The close-call verdict is then the review's: the answer it replaced was judged too.
+    let up = r.runner_up.expect("a runner-up");
+    assert!(up.margin >= 0.0 && up.distance > 0.0, "{up:?}");
     // The true pose is kept as it is, or at most moved within its error.
     let r = f.estimator.reviewed_in_depth(&f.model, (&s.rgb, &depth), &s.cam, &det[0], None, truth, &cfg).unwrap();
     assert!(r.view.is_none() && r.pose == truth || error(&r.pose) < 0.05 * d, "view {:?}, MSSD {:.1} mm", r.view, error(&r.pose) * 1e3);
     // No views asked for, or no depth measured under the mask: the answer stands.
     let none = EstimateConfig { verify: b2tfpose::estimate::verify::VerifyConfig { depth_views: 0, ..cfg.verify.clone() }, ..cfg.clone() };
-    assert_eq!(f.estimator.reviewed_in_depth(&f.model, (&s.rgb, &depth), &s.cam, &det[0], None, wrong, &none).unwrap(), b2tfpose::estimate::Reviewed { pose: wrong, view: None });
+    assert_eq!(f.estimator.reviewed_in_depth(&f.model, (&s.rgb, &depth), &s.cam, &det[0], None, wrong, &none).unwrap(), b2tfpose::estimate::Reviewed { pose: wrong, view: None, runner_up: None });
     let blank = b2tfpose::depth::DepthImage::from_metres(s.cam.width, s.cam.height, vec![0.0; (s.cam.width * s.cam.height) as usize]).unwrap();
     assert_eq!(f.estimator.reviewed_in_depth(&f.model, (&s.rgb, &blank), &s.cam, &det[0], None, wrong, &cfg).unwrap().view, None);
     // A mask that is not the image's size is refused as an estimate refuses it.
@@ -482,9 +485,13 @@ fn a_candidate_confirmed_just_short_of_an_answer_is_reviewed_in_depth() {
     let review = |confirmation, needed| reviewed_near_miss(&f.estimator, (&s.rgb, &depth), &s.cam, candidate(confirmation), needed, &cfg, &f.pool).unwrap();
     // Short of what an answer needs (0.5) but within reach: reviewed, and the view found in
     // the depth confirms better than the estimate did (0.3 here, the half-turn far less).
-    let (pose, again) = review(0.3, 0.5);
+    let looked = review(0.3, 0.5);
+    let (pose, again) = (looked.pose, looked.confirmation);
     assert!(again > 0.3_f32.max(confirmed) && error(&pose) < 0.1 * f.model.diameter(), "{confirmed} → {again}, MSSD {:.1} mm", error(&pose) * 1e3);
-    // Already an answer, or out of reach: left as estimated.
-    assert_eq!(review(0.5, 0.5), (wrong, 0.5));
-    assert_eq!(review(0.05, 0.5), (wrong, 0.05));
+    assert!(looked.reviewed, "said so, so that it is not reviewed again");
+    // Already an answer, or out of reach: left as estimated, and not reviewed.
+    for (confirmation, needed) in [(0.5, 0.5), (0.05, 0.5)] {
+        let l = review(confirmation, needed);
+        assert_eq!((l.pose, l.confirmation, l.reviewed), (wrong, confirmation, false));
+    }
 }

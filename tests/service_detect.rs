@@ -155,6 +155,12 @@ fn detect_and_estimate_by_object_id_over_http_and_grpc() {
     let t: Vec<f64> = results[0]["pose"]["t"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
     let off = ((t[0] - sc.truth.translation.x).powi(2) + (t[1] - sc.truth.translation.y).powi(2) + (t[2] - sc.truth.translation.z).powi(2)).sqrt();
     assert!(off < 0.02, "the box {off} m off: {est}");
+    // More views than the depth search gives: refused, naming the option.
+    let mut many = with_depth.clone();
+    many["options"] = json!({"depth_views": 13});
+    let (s, r) = post(&c, &format!("{base}/v1/estimate"), &many);
+    assert_eq!(s, 400, "{r}");
+    assert!(r.to_string().contains("options.depth_views is 13, over the limit of 12"), "{r}");
     // A depth range that holds nothing: no result, and the detector's reason.
     let mut far = with_depth.clone();
     far["detect"] = json!({"min_distance_m": 5.0});

@@ -21,7 +21,7 @@ use crate::detect::compared::{answer_objects, reviewed, Comparison, ObjectCandid
 use crate::detect::confirm::{candidate_options, confirm, confirmation_needed, one_per_place, Choice};
 use crate::detect::{detect, DetectOptions, Target};
 use crate::estimate::candidates::representative;
-use crate::estimate::near_miss::{reviewed_near_miss, Candidate};
+use crate::estimate::near_miss::{reviewed_near_miss, Candidate, Looked};
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateError, Estimator};
 use crate::estimate::{CoarseCheck, DepthScreen, Screen};
 use crate::geometry::Pose;
@@ -83,7 +83,14 @@ pub struct RunSummary {
 
 /// An instance's pose with the candidate group it was estimated from and the index of its
 /// mask among the group's candidates.
-type Estimated = (Pose, Vec<usize>, usize);
+struct Estimated {
+    pose: Pose,
+    /// Its candidate group and the index of the mask it was estimated from there.
+    group: Vec<usize>,
+    mask: usize,
+    /// Whether it was reviewed in the depth already (a near miss: `estimate::near_miss`).
+    reviewed: bool,
+}
 
 /// One instance's answer: what was estimated, its score (the confirmation with the
 /// detector's candidates, else the estimator's) and the mask it was estimated from.
@@ -207,18 +214,20 @@ pub fn run(
                 return Ok((None, None));
             };
             let mask = &candidates[r.mask_index.unwrap_or(0)].mask;
+            let estimated = |pose, reviewed| Estimated { pose, group: group.to_vec(), mask: r.mask_index.unwrap_or(0), reviewed };
             let Some(pool) = pool else {
-                return Ok((Some(((pose, group.to_vec(), r.mask_index.unwrap_or(0)), r.score, mask.clone())), None));
+                return Ok((Some((estimated(pose, false), r.score, mask.clone())), None));
             };
             let c = confirm(&rgb, depth.as_ref(), &camera.cam, &m.mesh, mask, &pose, pool).with_context(|| format!("scene {scene_id}, image {im_id}, object {}: confirming", t.obj_id))?;
             // The depth detector's candidate confirmed just short of an answer gets a second look.
-            let (pose, c) = match (depth.as_ref().filter(|_| compared), choice) {
+            let looked = match (depth.as_ref().filter(|_| compared), choice) {
                 (Some(d), Choice::Confirmed { min_score }) => {
                     let candidate = Candidate { model: m, detection: &candidates[r.mask_index.unwrap_or(0)], others: others.as_ref(), pose, confirmation: c };
                     reviewed_near_miss(estimator, (&rgb, d), &camera.cam, candidate, confirmation_needed(min_score, true), &opts.estimate, pool)?
                 }
-                _ => (pose, c),
+                _ => Looked { pose, confirmation: c, reviewed: false, runner_up: None },
             };
+            let (pose, c) = (looked.pose, looked.confirmation);
             // For `tools/bench/candidate_ranks.py`.
             tracing::debug!(
                 scene_id,
@@ -233,7 +242,7 @@ pub fn run(
                 confirmation = c,
                 "candidate confirmed"
             );
-            Ok((Some(((pose, group.to_vec(), r.mask_index.unwrap_or(0)), c, mask.clone())), Some(c)))
+            Ok((Some((estimated(pose, looked.reviewed), c, mask.clone())), Some(c)))
         };
         let groups_of = |masks: &[Vec<Detection>]| group_instances(&masks.iter().map(|c| representative(c)).collect::<Vec<_>>(), opts.same_instance_iou);
         // The targets with candidates, their objects loaded (or onboarded) first.
@@ -293,17 +302,20 @@ pub fn run(
         // Which object each place holds is settled: the answers are looked at again beside
         // the depth's own views (`Estimator::reviewed_in_depth`).
         let per_object = match depth.as_ref().filter(|_| compared) {
-            Some(d) => reviewed(per_object, opts.instance_threads, |n, (pose, group, mask)| {
+            Some(d) => reviewed(per_object, opts.instance_threads, |n, e: Estimated| {
+                if e.reviewed {
+                    return Ok(e);
+                }
                 let (ti, m) = (work[n].0, &work[n].1);
-                let r = estimator.reviewed_in_depth(m, (&rgb, d), &camera.cam, &candidates_of(ti, &group)[mask], others_of(ti, &group).as_ref(), pose, &opts.estimate)?;
-                tracing::debug!(scene_id, im_id, obj_id = targets[ti].obj_id, view = r.view, moved_mm = (r.pose.translation - pose.translation).norm() * 1e3, "answer reviewed");
-                Ok::<_, anyhow::Error>((r.pose, group, mask))
+                let r = estimator.reviewed_in_depth(m, (&rgb, d), &camera.cam, &candidates_of(ti, &e.group)[e.mask], others_of(ti, &e.group).as_ref(), e.pose, &opts.estimate)?;
+                tracing::debug!(scene_id, im_id, obj_id = targets[ti].obj_id, view = r.view, moved_mm = (r.pose.translation - e.pose.translation).norm() * 1e3, "answer reviewed");
+                Ok::<_, anyhow::Error>(Estimated { pose: r.pose, reviewed: true, ..e })
             })?,
             None => per_object,
         };
         for ((obj_id, wanted), poses) in obj_ids.into_iter().zip(wanted).zip(per_object) {
             summary.instances_without_pose += wanted.saturating_sub(poses.len());
-            rows.extend(poses.into_iter().map(|((pose, _, _), score)| ResultRow { scene_id, im_id, obj_id, score: score as f64, pose, time: 0.0 }));
+            rows.extend(poses.into_iter().map(|(e, score)| ResultRow { scene_id, im_id, obj_id, score: score as f64, pose: e.pose, time: 0.0 }));
         }
         let seconds = started.elapsed().as_secs_f64();
         // Where the image's time went: detection (with decoding), and the rest (screens in

@@ -1,5 +1,5 @@
 use crate::detect::confirm::{candidate_options, compared_choice, confirm, confirmation_needed, estimate_instances, Choice};
-use crate::estimate::near_miss::{reviewed_near_miss, Candidate};
+use crate::estimate::near_miss::{reviewed_near_miss, Candidate, Looked};
 use crate::estimate::DepthScreen;
 use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateResult};
 use crate::geometry::{Intrinsics, Pose};
@@ -140,31 +140,33 @@ fn estimate_detected(
                 let c = confirm(image, depth, k, &model.mesh, &chosen.mask, &pose, renderer)?;
                 println!("candidate {count} estimated, confirmed at its pose with {c:.3}");
                 // Just short of an answer: a second look beside the depth's own views.
-                let (pose, c) = match depth {
+                let looked = match depth {
                     Some(d) => {
                         reviewed_near_miss(estimator, (image, d), k, Candidate { model, detection: &chosen, others: None, pose, confirmation: c }, confirmation_needed(min_score, true), cfg, renderer)?
                     }
-                    None => (pose, c),
+                    None => Looked { pose, confirmation: c, reviewed: false, runner_up: None },
                 };
-                if Some(pose) != r.pose {
-                    println!("candidate {count} reviewed beside the views found in the depth, confirmed at its new pose with {c:.3}");
+                if looked.pose != pose {
+                    r.runner_up = looked.runner_up;
+                    println!("candidate {count} reviewed beside the views found in the depth, confirmed at its new pose with {:.3}", looked.confirmation);
                 }
-                r.pose = Some(pose);
-                Some(c)
+                r.pose = Some(looked.pose);
+                Some((looked.confirmation, looked.reviewed))
             }
             None => None,
         };
-        anyhow::Ok(((r, chosen), confirmation))
+        anyhow::Ok(((r, chosen, confirmation.is_some_and(|c| c.1)), confirmation.map(|c| c.0)))
     })?;
     match answered.kept.into_iter().next() {
-        Some(((mut r, chosen), c)) => {
-            // The object's answer chosen: its pose judged again beside the depth's views.
-            if let (Some(d), Some(pose)) = (depth, r.pose) {
+        Some(((mut r, chosen, reviewed), c)) => {
+            // The object's answer chosen: its pose judged again beside the depth's views
+            // (unless it was reviewed as a near miss).
+            if let (Some(d), Some(pose), false) = (depth, r.pose, reviewed) {
                 let reviewed = estimator.reviewed_in_depth(model, (image, d), k, &chosen, None, pose, cfg)?;
                 if let Some(view) = reviewed.view {
                     println!("answer reviewed beside the views found in the depth: depth view {view} judged better");
+                    (r.pose, r.runner_up) = (Some(reviewed.pose), reviewed.runner_up);
                 }
-                r.pose = Some(reviewed.pose);
             }
             Ok((r, c.unwrap_or(0.0)))
         }

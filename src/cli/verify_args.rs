@@ -62,9 +62,10 @@ pub struct VerifyArgs {
     pub nudge: Option<f64>,
     /// With depth: the best this many template views placed on the measured surface
     /// under the mask and fitted there, as hypotheses always rendered and judged
-    /// (default 4; 0: off).
-    #[arg(long)]
-    pub depth_views: Option<usize>,
+    /// (default 4; 0: off; at most 12). With the depth detector's candidates also the
+    /// views every answer is reviewed against.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(0..=crate::estimate::depth_search::MOST_VIEWS as u64))]
+    pub depth_views: Option<u64>,
     /// Rounds of refining the kept pose on its print as well as its outline, on objects
     /// with colours (render, find the print in the photo, update; default 3, 0: none).
     #[arg(long)]
@@ -106,7 +107,7 @@ impl VerifyArgs {
             occlusion_aware_iou: !self.iou_counts_occluded,
             replace_off_mask: !self.no_replace_at_mask,
             nudge_degrees: self.nudge.unwrap_or(d.nudge_degrees),
-            depth_views: self.depth_views.unwrap_or(d.depth_views),
+            depth_views: self.depth_views.map_or(d.depth_views, |n| n as usize),
             ..d
         }
     }

@@ -32,6 +32,8 @@ const MASK_POINTS: usize = 1500;
 const FEW_POINTS: usize = 48;
 const FEW_STEPS: usize = 6;
 const FITTED: usize = 12;
+/// The most views `searched` gives: the fitted ones.
+pub const MOST_VIEWS: usize = FITTED;
 /// Fitted poses closer than this in rotation (degrees) and a tenth of the diameter in
 /// place are one pose: the better is kept.
 const SAME_ROTATION_DEGREES: f64 = 10.0;

@@ -10,6 +10,7 @@
 //! about a light estimate's half, and one far below is another object or none.
 
 use crate::depth::DepthImage;
+use crate::estimate::runner_up::RunnerUp;
 use crate::estimate::{Detection, EstimateConfig, EstimateError, Estimator};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
@@ -36,6 +37,18 @@ pub struct Candidate<'a> {
     pub confirmation: f32,
 }
 
+/// A candidate's pose and confirmation after `reviewed_near_miss`.
+#[derive(Clone, Copy, Debug)]
+pub struct Looked {
+    pub pose: Pose,
+    pub confirmation: f32,
+    /// Whether it was reviewed (its pose the reviewed one or beaten by it): another review
+    /// would find the same views, so the answer's review after `one_per_place` skips it.
+    pub reviewed: bool,
+    /// Where the review changed the pose: the best other answer it judged.
+    pub runner_up: Option<RunnerUp>,
+}
+
 /// The candidate's pose and confirmation: reviewed when a near miss of `needed`, and the
 /// reviewed pose kept when it confirms better; as estimated otherwise.
 pub fn reviewed_near_miss(
@@ -46,17 +59,18 @@ pub fn reviewed_near_miss(
     needed: f32,
     cfg: &EstimateConfig,
     pool: &RenderPool,
-) -> Result<(Pose, f32), EstimateError> {
+) -> Result<Looked, EstimateError> {
+    let unchanged = |reviewed| Looked { pose: c.pose, confirmation: c.confirmation, reviewed, runner_up: None };
     if !near_miss(c.confirmation, needed) {
-        return Ok((c.pose, c.confirmation));
+        return Ok(unchanged(false));
     }
     let r = estimator.reviewed_in_depth(c.model, (image, depth), k, c.detection, c.others, c.pose, cfg)?;
     if r.view.is_none() {
-        return Ok((c.pose, c.confirmation));
+        return Ok(unchanged(true));
     }
     let again = crate::detect::confirm::confirm(image, Some(depth), k, &c.model.mesh, &c.detection.mask, &r.pose, pool)?;
     tracing::debug!(before = c.confirmation, after = again, view = r.view, "near miss reviewed");
-    Ok(if again > c.confirmation { (r.pose, again) } else { (c.pose, c.confirmation) })
+    Ok(if again > c.confirmation { Looked { pose: r.pose, confirmation: again, reviewed: true, runner_up: r.runner_up } } else { unchanged(true) })
 }
 
 #[cfg(test)]

@@ -369,6 +369,7 @@ impl Core {
         cfg.verify.spin_steps = o.spin_steps;
         cfg.verify.matched_templates = o.verify_matched;
         cfg.verify.nudge_degrees = o.nudge_degrees;
+        cfg.verify.depth_views = o.depth_views;
         cfg.box_prior = o.box_prior;
         // The detector's candidates are confirmed at their estimated poses: a few more than
         // wanted are estimated, and the confirmed ones kept (`detect::confirm`).
@@ -396,10 +397,8 @@ impl Core {
             past_deadline()?;
             Ok(self.estimator.screen_scores(&models[object_id], (&image, depth.as_ref()), &k, &gather(object_id, group).masks, check, &cfg)?)
         };
-        // An instance's answer, the mask it came from and where (its candidate group, the
-        // mask's index among the group's candidates), and its confirmation.
-        type Answered = ((InstanceResult, image::GrayImage, Vec<usize>, usize), Option<f32>);
-        let estimate_one = |object_id: &str, instance: usize, group: &[usize], screen: Screen<'_>| -> Result<Answered, ServiceError> {
+        // An instance's answer and its confirmation.
+        let estimate_one = |object_id: &str, instance: usize, group: &[usize], screen: Screen<'_>| -> Result<(Answered, Option<f32>), ServiceError> {
             past_deadline()?;
             let model = &models[object_id];
             let gathered = gather(object_id, group);
@@ -420,12 +419,16 @@ impl Core {
             };
             // The depth detector's candidate confirmed just short of an answer gets a second look.
             let mut r = r;
+            let mut reviewed = false;
             let confirmation = match (r.pose, confirmation, depth.as_ref().filter(|_| compared)) {
                 (Some(pose), Some(c), Some(d)) => {
                     let candidate = Candidate { model, detection: &candidates[r.mask_index.unwrap_or(0)], others: others.as_ref(), pose, confirmation: c };
-                    let (pose, c) = span.in_scope(|| reviewed_near_miss(&self.estimator, (&image, d), &k, candidate, confirmation_needed(req.detect.min_score, true), &cfg, &self.pool))?;
-                    r.pose = Some(pose);
-                    Some(c)
+                    let looked = span.in_scope(|| reviewed_near_miss(&self.estimator, (&image, d), &k, candidate, confirmation_needed(req.detect.min_score, true), &cfg, &self.pool))?;
+                    if looked.pose != pose {
+                        r.runner_up = looked.runner_up;
+                    }
+                    (r.pose, reviewed) = (Some(looked.pose), looked.reviewed);
+                    Some(looked.confirmation)
                 }
                 _ => confirmation,
             };
@@ -445,13 +448,13 @@ impl Core {
                 runner_up: r.runner_up.as_ref().map(RunnerUpOutput::from),
             };
             let mask = candidates[r.mask_index.unwrap_or(0)].mask.clone();
-            Ok(((result, mask, group.to_vec(), r.mask_index.unwrap_or(0)), confirmation))
+            Ok((Answered { result, mask, group: group.to_vec(), index: r.mask_index.unwrap_or(0), reviewed }, confirmation))
         };
         let groups_of = |dets: &[(usize, Vec<Detection>)]| {
             let refs: Vec<(&image::GrayImage, f64)> = dets.iter().map(|(_, c)| representative(c)).collect();
             crate::masks::group_instances(&refs, 0.5)
         };
-        let (answers, tried) = if choice == Choice::Given {
+        let (answers, tried): (Vec<Vec<(InstanceResult, f32)>>, usize) = if choice == Choice::Given {
             // The caller's instances are all answered: every object's estimated side by side.
             let jobs: Vec<(&str, usize, Vec<usize>)> = by_object
                 .iter()
@@ -462,8 +465,8 @@ impl Core {
             let tried = done.len();
             let mut answers: Vec<Vec<(InstanceResult, f32, image::GrayImage)>> = by_object.keys().map(|_| Vec::new()).collect();
             let slot: BTreeMap<&str, usize> = by_object.keys().enumerate().map(|(i, &id)| (id, i)).collect();
-            for (owner, ((r, mask, _, _), _)) in owners.into_iter().zip(done) {
-                answers[slot[owner]].push((r, 0.0, mask));
+            for (owner, (a, _)) in owners.into_iter().zip(done) {
+                answers[slot[owner]].push((a.result, 0.0, a.mask));
             }
             (answers.into_iter().map(|a| a.into_iter().map(|(r, c, _)| (r, c)).collect()).collect(), tried)
         } else {
@@ -483,31 +486,46 @@ impl Core {
                 |n, d| representative(&detections[n][d].1).0,
                 |n, group| screens[n].as_ref().map_or(Ok(None), |check| screen_group(ids[n], group, check).map(Some)),
                 |n, instance, c| estimate_one(ids[n], instance, &c.group, DepthScreen::scored(&screens[n], c.scores.as_deref())),
-                |t| Some(&t.1),
+                |t| Some(&t.mask),
             )?;
             let tried = answered.iter().map(|i| i.tried).sum();
-            let answers: Vec<Vec<_>> = answered.into_iter().map(|i| i.kept.into_iter().map(|((r, mask, group, m), c)| ((r, group, m), c.unwrap_or(0.0), mask)).collect()).collect();
+            let answers: Vec<Vec<_>> = answered
+                .into_iter()
+                .map(|i| {
+                    i.kept
+                        .into_iter()
+                        .map(|(a, c)| {
+                            let mask = a.mask.clone();
+                            (a, c.unwrap_or(0.0), mask)
+                        })
+                        .collect()
+                })
+                .collect();
             // Which object each place holds is settled (`one_per_place`): with depth the
             // answers are looked at again beside the depth's own views
-            // (`Estimator::reviewed_in_depth`).
+            // (`Estimator::reviewed_in_depth`), unless reviewed already as near misses.
             let per_object = match depth.as_ref().filter(|_| compared) {
-                Some(d) => reviewed(one_per_place(answers, &vec![o.instances_per_object; by_object.len()]), self.config.instance_threads, |n, (mut r, group, m)| {
+                Some(d) => reviewed(one_per_place(answers, &vec![o.instances_per_object; by_object.len()]), self.config.instance_threads, |n, mut a: Answered| {
                     past_deadline()?;
-                    let Some(pose) = r.pose.as_ref().map(|p| crate::geometry::Pose::from_row_major(&p.r, p.t)) else { return Ok((r, group, m)) };
-                    let candidates = gather(ids[n], &group).masks;
-                    let others = others_mask(&by_object, ids[n], &group, kind, k.width, k.height);
-                    let reviewed = self.estimator.reviewed_in_depth(&models[ids[n]], (&image, d), &k, &candidates[m], others.as_ref(), pose, &cfg)?;
+                    let Some(pose) = a.result.pose.as_ref().map(|p| crate::geometry::Pose::from_row_major(&p.r, p.t)).filter(|_| !a.reviewed) else { return Ok(a) };
+                    let candidates = gather(ids[n], &a.group).masks;
+                    let others = others_mask(&by_object, ids[n], &a.group, kind, k.width, k.height);
+                    let reviewed = self.estimator.reviewed_in_depth(&models[ids[n]], (&image, d), &k, &candidates[a.index], others.as_ref(), pose, &cfg)?;
                     tracing::debug!(object_id = ids[n], view = reviewed.view, "answer reviewed");
-                    r.pose = Some(PoseOutput::from(&reviewed.pose));
-                    Ok::<_, ServiceError>((r, group, m))
+                    if reviewed.view.is_some() {
+                        // The runner-up and close call now compare the answer the review
+                        // chose; the diagnostics stay the estimate's (what it judged).
+                        a.result.pose = Some(PoseOutput::from(&reviewed.pose));
+                        a.result.runner_up = reviewed.runner_up.as_ref().map(RunnerUpOutput::from);
+                    }
+                    Ok::<_, ServiceError>(a)
                 })?,
                 None => answers.into_iter().map(|a| a.into_iter().map(|(t, c, _)| (t, c)).collect()).collect(),
             };
-            (per_object.into_iter().map(|a| a.into_iter().map(|((r, _, _), c)| (r, c)).collect()).collect(), tried)
+            (per_object.into_iter().map(|a| a.into_iter().map(|(a, c)| (a.result, c)).collect()).collect(), tried)
         };
-        let per_object: Vec<Vec<(InstanceResult, f32)>> = answers;
         let mut results = Vec::new();
-        for kept in per_object {
+        for kept in answers {
             // Instances are numbered in the answer's order, best confirmed first.
             results.extend(kept.into_iter().enumerate().map(|(n, (r, _))| InstanceResult { instance: n, ..r }));
         }
@@ -523,6 +541,17 @@ impl Core {
         let overlay_png = if o.overlay { Some(draw_answer(&image, &k, &results, &models, &self.pool)?.into()) } else { None };
         Ok(EstimateResponse { results, detections, reason, overlay_png, total_ms: t0.elapsed().as_secs_f64() * 1e3 })
     }
+}
+
+/// An instance's answer, the mask it was estimated from and where that came from (its
+/// candidate group, the mask's index among the group's candidates).
+struct Answered {
+    result: InstanceResult,
+    mask: image::GrayImage,
+    group: Vec<usize>,
+    index: usize,
+    /// Whether it was reviewed in the depth already (a near miss: `estimate::near_miss`).
+    reviewed: bool,
 }
 
 /// The photo with every answered pose drawn on it (`render::overlay`), one colour per

@@ -86,6 +86,7 @@ pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, S
         spin_steps: o.spin_steps.map_or(defaults.spin_steps, |n| n as usize),
         verify_matched: o.verify_matched.map_or(defaults.verify_matched, |n| n as usize),
         nudge_degrees: o.nudge_degrees.unwrap_or(defaults.nudge_degrees),
+        depth_views: o.depth_views.map_or(defaults.depth_views, |n| n as usize),
         box_prior: o.box_prior.map_or(defaults.box_prior, crate::estimate::BoxPrior::from_flag),
         overlay: o.overlay,
         refiner: if o.refiner.is_empty() { defaults.refiner } else { o.refiner.parse().map_err(|e: String| ServiceError::invalid(format!("options.refiner: {e}")))? },
@@ -323,6 +324,15 @@ mod tests {
         assert_eq!(with(Some(0.0)).options.nudge_degrees, 0.0);
         let e = with(Some(f64::NAN)).check_limits().unwrap_err();
         assert!(e.message.contains("options.nudge_degrees: NaN is outside 0–45 degrees"), "{}", e.message);
+    }
+
+    #[test]
+    fn the_depth_views_default_when_unset_and_too_many_are_refused() {
+        let with = |depth_views| one_detection_request(pb::EstimateOptions { depth_views, ..Default::default() });
+        assert_eq!(with(None).options.depth_views, crate::estimate::VerifyConfig::default().depth_views);
+        assert_eq!(with(Some(0)).options.depth_views, 0, "0 turns them off");
+        let e = with(Some(100)).check_limits().unwrap_err();
+        assert_eq!(e.message, "options.depth_views is 100, over the limit of 12");
     }
 
     #[test]

@@ -93,6 +93,10 @@ pub struct EstimateOptions {
     /// The winner tilted this many degrees each way across the line of sight, verified
     /// (0: off).
     pub nudge_degrees: f64,
+    /// With depth: the best this many template views found on the measured surface under
+    /// the mask, fitted there and judged beside the estimate's hypotheses; with the depth
+    /// detector's candidates also the views every answer is reviewed against (0: off).
+    pub depth_views: usize,
     /// Whether a box-only detection's poses are moved back until their outline covers the
     /// box (`estimate::box_prior`): `"auto"` (the default), for meshes without colours;
     /// `"tight"` or true, always; `"off"` or false, never (boxes drawn loose bring the
@@ -118,6 +122,7 @@ impl Default for EstimateOptions {
             spin_steps: v.spin_steps,
             verify_matched: v.matched_templates,
             nudge_degrees: v.nudge_degrees,
+            depth_views: v.depth_views,
             box_prior: crate::estimate::BoxPrior::default(),
             overlay: false,
         }
@@ -181,6 +186,7 @@ impl EstimateRequest {
             ("options.verify_templates", o.verify_templates, limits::MAX_VERIFY_TEMPLATES),
             ("options.verify_matched", o.verify_matched, limits::MAX_VERIFY_TEMPLATES),
             ("options.spin_steps", o.spin_steps, limits::MAX_SPIN_STEPS),
+            ("options.depth_views", o.depth_views, crate::estimate::depth_search::MOST_VIEWS),
         ] {
             if value > max {
                 return Err(invalid(format!("{name} is {value}, over the limit of {max}")));
@@ -389,6 +395,9 @@ mod tests {
         let mut v = estimate(1, 64, 48);
         v["options"] = serde_json::json!({"spin_steps": 360});
         assert_eq!(refusal(v), "options.spin_steps is 360, over the limit of 72");
+        let mut v = estimate(1, 64, 48);
+        v["options"] = serde_json::json!({"depth_views": 13});
+        assert_eq!(refusal(v), "options.depth_views is 13, over the limit of 12");
         for degrees in [90.0, -1.0] {
             let mut v = estimate(1, 64, 48);
             v["options"] = serde_json::json!({ "nudge_degrees": degrees });

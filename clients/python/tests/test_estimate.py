@@ -207,6 +207,13 @@ def test_depth_fits_the_pose_to_the_measured_surface(client: b2tfpose.Client, sc
     assert r.pose is not None and np.linalg.norm(np.asarray(r.pose.t) - scene.truth.t) < 0.005, r.pose.t
     fits = [h["refinement"]["depth_fit"] for h in r.diagnostics if "depth_fit" in h.get("refinement", {})]
     assert fits and fits[0]["inlier_share"] > 0.8, fits
+    # The views found in the depth are judged beside the other hypotheses, unless turned off.
+    kinds = lambda r: {v["source"]["kind"] for h in r.diagnostics for v in h.get("verified", [])}  # noqa: E731
+    assert "depth-view" in kinds(r), kinds(r)
+    [off] = client.estimate(scene.rgb, scene.K, det, rrc=False, depth=depth, depth_scale=0.1, depth_views=0)
+    assert off.pose is not None and "depth-view" not in kinds(off), kinds(off)
+    with pytest.raises(b2tfpose.InvalidArgument, match="options.depth_views is 13, over the limit of 12"):
+        client.estimate(scene.rgb, scene.K, det, depth=depth, depth_scale=0.1, depth_views=13)
     # The same depth as float metres, and as the PNG file: the same answer.
     [m] = client.estimate(scene.rgb, scene.K, det, rrc=False, depth=depth.astype(np.float32) / 10000.0)
     [p] = client.estimate(scene.rgb, scene.K, det, rrc=False, depth=scene.dir / "depth.png", depth_scale=0.1)

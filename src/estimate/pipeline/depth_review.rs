@@ -15,6 +15,7 @@ use crate::depth::DepthImage;
 use crate::estimate::candidates::Detection;
 use crate::estimate::hypotheses::Source;
 use crate::estimate::query::{crop_all, encode};
+use crate::estimate::runner_up::{runner_up, RunnerUp};
 use crate::estimate::select::mask_window;
 use crate::estimate::EstimateConfig;
 use crate::geometry::{Intrinsics, Pose};
@@ -28,6 +29,9 @@ pub struct Reviewed {
     /// The depth view that beat the answer (its rank in the search), None when the answer
     /// stood.
     pub view: Option<usize>,
+    /// With a view that won: the best other answer the review judged (the answer it
+    /// replaced, as a rule), for the answer's close-call verdict; None otherwise.
+    pub runner_up: Option<RunnerUp>,
 }
 
 impl Estimator {
@@ -47,7 +51,7 @@ impl Estimator {
         pose: Pose,
         cfg: &EstimateConfig,
     ) -> Result<Reviewed, EstimateError> {
-        let unchanged = Reviewed { pose, view: None };
+        let unchanged = Reviewed { pose, view: None, runner_up: None };
         self.validate(model, image, k, std::slice::from_ref(detection))?;
         let found = crate::estimate::depth_search::searched(model, depth, k, &detection.mask, cfg.verify.depth_views);
         if found.is_empty() {
@@ -69,7 +73,7 @@ impl Estimator {
         self.judge(&ctx, &mut verified, &all, window, &query, cfg)?;
         Self::judge_on_depth(&ctx, &mut verified, window)?;
         Ok(match verified.first() {
-            Some(Verified { source: Source::DepthView(i), pose, .. }) => Reviewed { pose: *pose, view: Some(*i) },
+            Some(Verified { source: Source::DepthView(i), pose, .. }) => Reviewed { pose: *pose, view: Some(*i), runner_up: runner_up(pose, &verified, model) },
             _ => unchanged,
         })
     }

@@ -126,6 +126,7 @@ def estimate_request(
     spin_steps: Optional[int] = None,
     verify_matched: Optional[int] = None,
     nudge_degrees: Optional[float] = None,
+    depth_views: Optional[int] = None,
     box_prior: Optional[bool] = None,
     overlay: bool = False,
     depth: Optional[DepthInput] = None,
@@ -156,6 +157,8 @@ def estimate_request(
         options.verify_matched = verify_matched
     if nudge_degrees is not None:
         options.nudge_degrees = nudge_degrees
+    if depth_views is not None:
+        options.depth_views = depth_views
     if box_prior is not None:
         options.box_prior = box_prior
     if depth is None and depth_scale is not None:

@@ -261,6 +261,7 @@ class Client:
         spin_steps: Optional[int] = None,
         verify_matched: Optional[int] = None,
         nudge_degrees: Optional[float] = None,
+        depth_views: Optional[int] = None,
         box_prior: Optional[bool] = None,
         overlay: bool = False,
         depth: Optional[DepthInput] = None,
@@ -282,7 +283,8 @@ class Client:
         estimates (``.detections`` of the result lists what it found). ``rrc``,
         ``refiner`` ("contour", "silhouette-depth", "none"), ``k``, ``max_masks``,
         ``instances_per_object``, ``verify``, ``verify_templates``, ``spin_steps``, ``verify_matched``,
-        ``nudge_degrees`` (0: off), ``box_prior`` (True: boxes drawn tight, always held; False: drawn loose, never; None: the server's default, held for meshes without colours): the server's options
+        ``nudge_degrees`` (0: off), ``depth_views`` (with depth: template views found
+        on the measured surface, judged and reviewed against; 0: off), ``box_prior`` (True: boxes drawn tight, always held; False: drawn loose, never; None: the server's default, held for meshes without colours): the server's options
         (None: its default). ``overlay=True``: the answer's
         ``.overlay_png`` is the photo with the poses drawn on it (PNG bytes).
         ``depth``: an RGB-D camera's depth registered to ``image`` (same size and K):
@@ -309,6 +311,7 @@ class Client:
             spin_steps=spin_steps,
             verify_matched=verify_matched,
             nudge_degrees=nudge_degrees,
+            depth_views=depth_views,
             box_prior=box_prior,
             overlay=overlay,
             depth=depth,
