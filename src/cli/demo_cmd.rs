@@ -32,7 +32,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
             if let Some(u) = &result.runner_up {
                 println!("{}", describe_runner_up(u));
             }
-            write_overlay(&scene.photo, &renderer, &model, p, &scene.k, &a.out.join("overlay.png"))?;
+            write_overlay(&scene.photo, None, &renderer, &model, p, &scene.k, &a.out.join("overlay.png"))?;
             println!("wrote {}/{{scene,mask,overlay}}.png and result.json", a.out.display());
         }
         None => println!("no pose: {}", result.reason.as_deref().unwrap_or("unknown")),

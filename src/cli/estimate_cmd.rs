@@ -1,3 +1,4 @@
+use crate::depth::DepthImage;
 use crate::detect::confirm::{candidate_options, compared_choice, confirm, confirmation_needed, estimate_instances, Choice};
 use crate::estimate::near_miss::{reviewed_near_miss, Candidate, Looked};
 use crate::estimate::DepthScreen;
@@ -226,7 +227,7 @@ pub fn run(a: EstimateArgs) -> Result<()> {
     }
     println!("total {:.0} ms; wrote {}", result.timings.total, a.out.display());
     if let (Some(path), Some(pose)) = (&a.overlay, &result.pose) {
-        write_overlay(&image, &renderer, &model, pose, &k, path)?;
+        write_overlay(&image, depth.as_ref(), &renderer, &model, pose, &k, path)?;
         println!("overlay: {}", path.display());
     }
     Ok(())
@@ -246,8 +247,10 @@ pub fn describe_runner_up(u: &crate::estimate::RunnerUp) -> String {
     format!("runner-up: {} ({:.2}·d from the answer) lost by {:.3}{close}", u.source, u.distance, u.margin)
 }
 
-pub fn write_overlay(image: &image::RgbImage, renderer: &crate::render::RenderPool, model: &ObjectModel, pose: &Pose, k: &Intrinsics, path: &Path) -> Result<()> {
-    let img = crate::render::overlay::draw_overlay(image, renderer, &model.mesh, pose, k, [0, 255, 0])?;
+/// PATH: the photo with the pose drawn on it; with depth, hidden where the measured surface
+/// stands in front of it (`render::overlay::draw_overlay_seen`).
+pub fn write_overlay(image: &image::RgbImage, depth: Option<&DepthImage>, renderer: &crate::render::RenderPool, model: &ObjectModel, pose: &Pose, k: &Intrinsics, path: &Path) -> Result<()> {
+    let img = crate::render::overlay::draw_overlay_seen(image, depth, renderer, &model.mesh, pose, k, [0, 255, 0])?;
     img.save(path).with_context(|| format!("writing {}", path.display()))
 }
 

@@ -155,7 +155,7 @@ pub fn run(a: TrackArgs) -> Result<()> {
         writeln!(out, "{}", pose_line(&frame, &o))?;
         out.flush().with_context(|| format!("writing {}", a.out.display()))?;
         if let (Some(d), Some(p)) = (&a.overlay_dir, &o.pose) {
-            write_overlay(image, &renderer, &model, p, &k, &d.join(&frame.overlay_name))?;
+            write_overlay(image, depth.as_ref(), &renderer, &model, p, &k, &d.join(&frame.overlay_name))?;
         }
     }
     tracked_ms.sort_by(f64::total_cmp);

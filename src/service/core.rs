@@ -538,7 +538,7 @@ impl Core {
                 req.detect.min_score
             ));
         }
-        let overlay_png = if o.overlay { Some(draw_answer(&image, &k, &results, &models, &self.pool)?.into()) } else { None };
+        let overlay_png = if o.overlay { Some(draw_answer(&image, depth.as_ref(), &k, &results, &models, &self.pool)?.into()) } else { None };
         Ok(EstimateResponse { results, detections, reason, overlay_png, total_ms: t0.elapsed().as_secs_f64() * 1e3 })
     }
 }
@@ -555,9 +555,10 @@ struct Answered {
 }
 
 /// The photo with every answered pose drawn on it (`render::overlay`), one colour per
-/// result, as PNG.
+/// result, hidden where the request's depth stands in front of it, as PNG.
 fn draw_answer(
     image: &image::RgbImage,
+    depth: Option<&crate::depth::DepthImage>,
     k: &crate::geometry::Intrinsics,
     results: &[InstanceResult],
     models: &BTreeMap<&str, Arc<crate::onboard::ObjectModel>>,
@@ -569,7 +570,8 @@ fn draw_answer(
     for (i, r) in results.iter().enumerate() {
         let (Some(p), Some(model)) = (&r.pose, models.get(r.object_id.as_str())) else { continue };
         let pose = crate::geometry::Pose::from_row_major(&p.r, p.t);
-        out = crate::render::overlay::draw_overlay(&out, pool, &model.mesh, &pose, k, COLOURS[i % COLOURS.len()]).map_err(|e| ServiceError::internal(format!("drawing the overlay: {e}")))?;
+        out =
+            crate::render::overlay::draw_overlay_seen(&out, depth, pool, &model.mesh, &pose, k, COLOURS[i % COLOURS.len()]).map_err(|e| ServiceError::internal(format!("drawing the overlay: {e}")))?;
     }
     super::thumbnails::png(&out)
 }
