@@ -350,6 +350,7 @@ def run(page: Page, server: Server, inputs: dict, mask: list) -> None:
     page.by("photo-nudge").clear()
     page.by("photo-nudge").send_keys("12")
     page.by("photo-spin-steps").send_keys("4")
+    page.by("photo-depth-views").send_keys("2")
     Select(page.by("photo-refiner")).select_by_value("contour")
     Select(page.by("photo-box-prior")).select_by_value("true")
     page.by("photo-estimate").click()
@@ -361,12 +362,12 @@ def run(page: Page, server: Server, inputs: dict, mask: list) -> None:
     assert "pose(s) found" in page.by("photo-summary").text and "sample-box" in page.by("photo-results").text
     assert "$MASK" in page.by("photo-curl").text and "mask=" in page.by("photo-python").text
     curl, python = page.by("photo-curl").text, page.by("photo-python").text
-    assert all(o in curl for o in ('"nudge_degrees":12', '"spin_steps":4', '"refiner":"contour"', '"box_prior":true')) and "verify_templates" not in curl, curl
-    assert all(o in python for o in ("nudge_degrees=12", "spin_steps=4", 'refiner="contour"', "box_prior=True")), python
+    assert all(o in curl for o in ('"nudge_degrees":12', '"spin_steps":4', '"depth_views":2', '"refiner":"contour"', '"box_prior":true')) and "verify_templates" not in curl, curl
+    assert all(o in python for o in ("nudge_degrees=12", "spin_steps=4", "depth_views=2", 'refiner="contour"', "box_prior=True")), python
     masked_t = [float(v) for v in d.find_element(By.CSS_SELECTOR, "#photo-results tbody tr .t").text.split(",")]
     assert math.dist(masked_t, [v * 1000 for v in inputs["pose"]["t"]]) < 20, masked_t
     page.shot("05-photo-mask")
-    for setting in ("photo-nudge", "photo-spin-steps"):
+    for setting in ("photo-nudge", "photo-spin-steps", "photo-depth-views"):
         page.by(setting).clear()
     Select(page.by("photo-refiner")).select_by_value("")
     Select(page.by("photo-box-prior")).select_by_value("")
