@@ -26,6 +26,7 @@ python3 tools/validate_openapi.py src/service/openapi.json
 python3 tools/compare_runs.py --self-test
 python3 tools/miss_classes.py --self-test
 python3 tools/import_circles.py --self-test
+python3 tools/bench/frame_time.py --self-test
 step cargo-deny
 # Licences, bans, sources (and advisories when GitHub answers): installs cargo-deny once.
 bash scripts/deny.sh
