@@ -132,9 +132,9 @@ fn estimate_detected(
     let screen = DepthScreen::of(image, depth, k, &model.mesh, renderer, min_score);
     let answered = estimate_instances(groups, 1, choice, |group| {
         let candidates: Vec<Detection> = group.iter().map(|&i| Detection::new(found[i].mask.clone(), found[i].score)).collect();
-        let r = estimator.estimate_screened(model, (image, depth), k, &candidates, None, DepthScreen::as_screen(&screen), cfg)?;
+        let mut r = estimator.estimate_screened(model, (image, depth), k, &candidates, None, DepthScreen::as_screen(&screen), cfg)?;
         count += 1;
-        let mut r = r;
+        let mut reviewed = false;
         let chosen = candidates[r.mask_index.unwrap_or(0)].clone();
         let confirmation = match r.pose {
             Some(pose) => {
@@ -151,12 +151,12 @@ fn estimate_detected(
                     r.runner_up = looked.runner_up;
                     println!("candidate {count} reviewed beside the views found in the depth, confirmed at its new pose with {:.3}", looked.confirmation);
                 }
-                r.pose = Some(looked.pose);
-                Some((looked.confirmation, looked.reviewed))
+                (r.pose, reviewed) = (Some(looked.pose), looked.reviewed);
+                Some(looked.confirmation)
             }
             None => None,
         };
-        anyhow::Ok(((r, chosen, confirmation.is_some_and(|c| c.1)), confirmation.map(|c| c.0)))
+        anyhow::Ok(((r, chosen, reviewed), confirmation))
     })?;
     match answered.kept.into_iter().next() {
         Some(((mut r, chosen, reviewed), c)) => {

@@ -405,7 +405,7 @@ impl Core {
             let candidates = &gathered.masks;
             let others = others_mask(&by_object, object_id, group, kind, k.width, k.height);
             let span = tracing::info_span!("instance", object_id, instance, masks = candidates.len());
-            let r = span.in_scope(|| self.estimator.estimate_screened(model, (&image, depth.as_ref()), &k, candidates, others.as_ref(), screen, &cfg))?;
+            let mut r = span.in_scope(|| self.estimator.estimate_screened(model, (&image, depth.as_ref()), &k, candidates, others.as_ref(), screen, &cfg))?;
             estimated.fetch_add(1, Ordering::Relaxed);
             let confirmation = match (&r.pose, choice) {
                 (Some(pose), Choice::Confirmed { .. } | Choice::Compared { .. }) => {
@@ -418,7 +418,6 @@ impl Core {
                 _ => None,
             };
             // The depth detector's candidate confirmed just short of an answer gets a second look.
-            let mut r = r;
             let mut reviewed = false;
             let confirmation = match (r.pose, confirmation, depth.as_ref().filter(|_| compared)) {
                 (Some(pose), Some(c), Some(d)) => {
@@ -494,8 +493,10 @@ impl Core {
                 .map(|i| {
                     i.kept
                         .into_iter()
-                        .map(|(a, c)| {
-                            let mask = a.mask.clone();
+                        .map(|(mut a, c)| {
+                            // `one_per_place` holds the mask beside the answer; nothing
+                            // reads the answer's own after it (moved, not copied).
+                            let mask = std::mem::take(&mut a.mask);
                             (a, c.unwrap_or(0.0), mask)
                         })
                         .collect()
