@@ -6,8 +6,8 @@
 //! the real YCB-V frames the foam brick at 0.29 and the mug, handle on the wrong side, at
 //! 0.42, against the 0.5 an answer needs. Reviewed, the brick confirmed at 0.71 and the mug
 //! at 0.51 (docs/detection.md, "Answers reviewed with the depth's views"). Only candidates
-//! within reach are reviewed (a fifth of what an answer needs, or more): a review costs
-//! about a light estimate's half, and one far below is another object or none.
+//! within reach are reviewed (`WITHIN_REACH`): a review costs about a light estimate's
+//! half, and one far below is another object or none.
 
 use crate::depth::DepthImage;
 use crate::estimate::runner_up::RunnerUp;
@@ -18,7 +18,11 @@ use crate::render::RenderPool;
 use image::{GrayImage, RgbImage};
 
 /// A confirmation at least this share of what an answer needs is within a review's reach.
-const WITHIN_REACH: f32 = 0.2;
+/// Measured (docs/detection.md, "Near misses within reach"): of 103 reviews over the real
+/// YCB-V frames (the objects in each, and 8 searched) and two generated sets, the 11 that
+/// rescued a candidate started from 0.46 of what an answer needs or more, and the 40 from
+/// below 0.4 of it reached two thirds of it at most: at 0.2 those were reviewed for nothing.
+const WITHIN_REACH: f32 = 0.4;
 
 /// Whether a candidate confirmed at `confirmation` is short of the `needed` one but within
 /// reach of a review.
@@ -79,8 +83,8 @@ mod tests {
 
     #[test]
     fn only_confirmations_short_of_an_answer_but_within_reach_are_near_misses() {
-        assert!(near_miss(0.45, 0.5) && near_miss(0.1, 0.5));
+        assert!(near_miss(0.45, 0.5) && near_miss(0.2, 0.5));
         assert!(!near_miss(0.5, 0.5), "an answer already");
-        assert!(!near_miss(0.09, 0.5), "out of reach");
+        assert!(!near_miss(0.19, 0.5), "out of reach");
     }
 }
