@@ -199,9 +199,8 @@ pub fn run(
             crate::masks::occluders(representative(&decoded[ti][group[0]]).0, others, kind, camera.cam.width, camera.cam.height)
         };
         // One instance (`group` of target `ti`'s candidates): its pose, score and mask, and
-        // its confirmation with the detector's candidates; `screened`, its screen score where
-        // it was screened beforehand, goes to the log beside the confirmation.
-        let estimate_group = |ti: usize, m: &ObjectModel, group: &[usize], screen: Screen<'_>, screened: Option<f32>| -> Result<(Option<Answer>, Option<f32>)> {
+        // its confirmation with the detector's candidates.
+        let estimate_group = |ti: usize, m: &ObjectModel, group: &[usize], screen: Screen<'_>| -> Result<(Option<Answer>, Option<f32>)> {
             let t = &targets[ti];
             let candidates = candidates_of(ti, group);
             let others = others_of(ti, group);
@@ -240,7 +239,7 @@ pub fn run(
                 rotation = ?pose.rotation_row_major(),
                 cosine = r.hypotheses.iter().map(|h| h.top_template_cosine).fold(0.0f32, f32::max),
                 estimate_score = r.score,
-                screened,
+                screened = screen.best_score(),
                 confirmation = c,
                 "candidate confirmed"
             );
@@ -263,7 +262,7 @@ pub fn run(
             // The file's instances are all answered: every target's estimated side by side.
             let jobs: Vec<_> = work.iter().enumerate().flat_map(|(n, w)| groups_of(&decoded[w.0]).into_iter().take(answers[n].1).map(move |g| (n, w, g))).collect();
             let owners: Vec<usize> = jobs.iter().map(|j| j.0).collect();
-            let done = crate::parallel::ordered_map(jobs, opts.instance_threads, |(_, (ti, m), group)| estimate_group(*ti, m, &group, Screen::Off, None))?;
+            let done = crate::parallel::ordered_map(jobs, opts.instance_threads, |(_, (ti, m), group)| estimate_group(*ti, m, &group, Screen::Off))?;
             for (owner, (estimated, _)) in owners.into_iter().zip(done) {
                 answers[owner].2.extend(estimated);
             }
@@ -286,7 +285,7 @@ pub fn run(
                 how,
                 |n, d| representative(&decoded[work[n].0][d]).0,
                 |n, group| screens[n].as_ref().map_or(Ok(None), |check| screen_group(work[n].0, &work[n].1, group, check)),
-                |n, _, c| estimate_group(work[n].0, &work[n].1, &c.group, DepthScreen::scored(&screens[n], c.scores.as_deref()), c.best()),
+                |n, _, c| estimate_group(work[n].0, &work[n].1, &c.group, DepthScreen::scored(&screens[n], c.scores.as_deref())),
                 |a| a.as_ref().map(|a| &a.2),
             )?;
             for (a, instances) in answers.iter_mut().zip(answered) {

@@ -14,7 +14,8 @@ stopped at its first confirmation of 0.7 or more (the order of the log is the or
 estimation). Where the log carries the candidates' screen scores (`screened`, the best of
 their placed templates' confirmations before the estimate), how many of the right ones, of
 the wrong ones of an object in the image and of the objects not in it a screen would keep
-at each threshold. docs/detection.md "With depth" quotes its figures.
+at each threshold. docs/detection.md ("With depth", "What the screen sees") quotes its
+figures.
 """
 
 import json, re, sys

@@ -46,6 +46,15 @@ impl Screen<'_> {
     pub fn is_on(&self) -> bool {
         !matches!(self, Screen::Off)
     }
+
+    /// The best of the masks' scores where they were scored beforehand (`Scored`), else
+    /// `None`: what the screen thought of the candidate, for the logs.
+    pub fn best_score(&self) -> Option<f32> {
+        match self {
+            Screen::Scored { scores, .. } => Some(scores.iter().copied().fold(0.0, f32::max)),
+            _ => None,
+        }
+    }
 }
 
 /// Retrieved templates placed and scored, best retrieval first. On the real YCB-V frames
