@@ -19,7 +19,8 @@ use std::collections::BTreeMap;
 /// of turn `angle` (with `padding`, to `size`²), and the turn that maps the crop's image
 /// coordinates back to the photo's.
 pub fn turned_crop(image: &RgbImage, mask: &GrayImage, outline: &[(f64, f64)], query_box: &CropBox, angle: f64, padding: f64, size: u32) -> Option<(CropInput, CropBox, Turn)> {
-    let centre = query_box.to_image((size as f64 - 1.0) * 0.5, (size as f64 - 1.0) * 0.5);
+    let middle = (query_box.size as f64 - 1.0) * 0.5;
+    let centre = query_box.to_image(middle, middle);
     let turn = Turn::new(-angle, [centre.0, centre.1]);
     let [l, t, r, b] = turn.extents(outline.iter().copied())?;
     let bx = CropBox::around_edges(l - 0.5, t - 0.5, r + 0.5, b + 0.5, padding, size);
@@ -46,7 +47,10 @@ pub fn match_templates(model: &ObjectModel, backbone: &dyn Backbone, image: &Rgb
         by_turn.entry(if model.rows_per_view() { model.templates[t].in_plane } else { 0 }).or_default().push(t);
     }
     let t0 = std::time::Instant::now();
-    let size = model.grid.n * model.grid.patch;
+    // Turned queries at the backbone's reduced size where it has one: a query is encoded
+    // once per turn (up to 11 times), and the photo seldom holds more detail than the
+    // smaller crop keeps (docs/store.md, "Patch rows per view").
+    let size = backbone.reduced_input_size().unwrap_or(model.grid.n * model.grid.patch);
     let outline = if by_turn.keys().any(|&r| r != 0) { mask_row_ends(mask) } else { vec![] };
     let (mut crops, mut backs) = (Vec::new(), Vec::new());
     for (&r, group) in by_turn.iter().filter(|(&r, _)| r != 0) {

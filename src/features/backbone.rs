@@ -53,15 +53,24 @@ pub enum FeatureError {
 
 pub trait Backbone: Send + Sync {
     fn identity(&self) -> BackboneIdentity;
-    /// One feature map per crop, in order. Crops must be `input_size` square.
+    /// One feature map per crop, in order. Crops must be `input_size` square, or
+    /// `reduced_input_size` square where the backbone has one.
     fn extract(&self, crops: &[CropInput]) -> Result<Vec<FeatureMap>, FeatureError>;
+    /// The side of a smaller crop the backbone also encodes, on a grid of as many patches
+    /// (each covering the same share of the crop): for queries encoded many times over
+    /// (the turned queries of objects that share patch rows per view), where the photo
+    /// rarely holds more detail than the smaller crop keeps. `None`: `input_size` only.
+    fn reduced_input_size(&self) -> Option<u32> {
+        None
+    }
 }
 
-/// Shared check of crop sizes for backbones.
-pub fn check_sizes(crops: &[CropInput], expected: u32) -> Result<(), FeatureError> {
+/// Shared check of crop sizes for backbones: each crop `expected` square, or `reduced`.
+pub fn check_sizes(crops: &[CropInput], expected: u32, reduced: Option<u32>) -> Result<(), FeatureError> {
     for (index, c) in crops.iter().enumerate() {
         let (width, height) = c.rgb.dimensions();
-        if width != expected || height != expected || c.mask.dimensions() != (width, height) {
+        let known = width == expected || Some(width) == reduced;
+        if !known || height != width || c.mask.dimensions() != (width, height) {
             return Err(FeatureError::WrongSize { index, width, height, expected });
         }
     }

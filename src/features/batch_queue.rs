@@ -53,6 +53,8 @@ pub struct QueueStats {
 
 pub struct BatchingBackbone {
     identity: BackboneIdentity,
+    /// The inner backbone's `reduced_input_size`, answered here without the queue.
+    reduced_input_size: Option<u32>,
     /// `None` only while dropping.
     jobs: Option<Sender<Job>>,
     counters: Arc<Counters>,
@@ -72,10 +74,11 @@ impl BatchingBackbone {
         let (tx, rx) = channel::<Job>();
         let counters = Arc::new(Counters::default());
         let identity = inner.identity();
+        let reduced_input_size = inner.reduced_input_size();
         let worker_counters = counters.clone();
         let worker =
             std::thread::Builder::new().name("backbone-queue".into()).spawn(move || worker(inner, rx, max_batch.max(1), max_wait, worker_counters)).expect("spawning the backbone queue thread");
-        Self { identity, jobs: Some(tx), counters, worker: Some(worker) }
+        Self { identity, reduced_input_size, jobs: Some(tx), counters, worker: Some(worker) }
     }
 
     pub fn stats(&self) -> QueueStats {
@@ -193,11 +196,15 @@ impl Backbone for BatchingBackbone {
         self.identity.clone()
     }
 
+    fn reduced_input_size(&self) -> Option<u32> {
+        self.reduced_input_size
+    }
+
     fn extract(&self, crops: &[CropInput]) -> Result<Vec<FeatureMap>, FeatureError> {
         if crops.is_empty() {
             return Ok(Vec::new());
         }
-        super::backbone::check_sizes(crops, self.identity.input_size)?;
+        super::backbone::check_sizes(crops, self.identity.input_size, self.reduced_input_size)?;
         let (reply, answer) = sync_channel(1);
         self.counters.queued.fetch_add(crops.len(), Ordering::Relaxed);
         let sent = self.jobs.as_ref().map(|jobs| jobs.send(Job { crops: crops.to_vec(), queued_at: Instant::now(), reply }));
@@ -253,6 +260,14 @@ mod tests {
         bad[1].rgb = image::RgbImage::new(64, 64);
         assert!(matches!(queue.extract(&bad), Err(FeatureError::WrongSize { index: 1, .. })));
         assert!(queue.extract(&[]).unwrap().is_empty());
+        // The inner backbone's reduced crops pass the queue too, in a batch with full ones.
+        assert_eq!(queue.reduced_input_size(), inner.reduced_input_size());
+        let half = inner.reduced_input_size().unwrap();
+        let mut mixed = crops(2, 5);
+        mixed[1] = CropInput { rgb: image::imageops::thumbnail(&mixed[1].rgb, half, half), mask: image::imageops::thumbnail(&mixed[1].mask, half, half) };
+        let (d, q) = (inner.extract(&mixed).unwrap(), queue.extract(&mixed).unwrap());
+        assert_eq!((q[1].grid, &q[1].local), (d[1].grid, &d[1].local));
+        assert_eq!(q[1].grid.n, q[0].grid.n);
     }
 
     #[test]

@@ -86,14 +86,24 @@ impl EmbeddedBackbone {
         self.hog_dims() + COLOR_DIMS + SHAPE_RINGS.len() * SHAPE_SECTORS
     }
 
+    /// The patch grid of a crop of side `side`: the backbone's own for `input_size`, and
+    /// the same number of patches, each half as wide, for a reduced crop.
+    fn grid_for(&self, side: u32) -> PatchGrid {
+        if side == self.config.input_size {
+            self.grid
+        } else {
+            PatchGrid { n: self.grid.n, patch: self.grid.patch / 2 }
+        }
+    }
+
     fn extract_one(&self, crop: &CropInput) -> FeatureMap {
-        let grid = self.grid;
+        let grid = self.grid_for(crop.rgb.width());
         let n = grid.n as usize;
         let dim = self.local_dim();
         let coverage = patch_coverage(&crop.mask, &grid);
-        let cells = self.cell_histograms(crop);
+        let cells = self.cell_histograms(crop, grid);
         let shape = self.shape_context(&coverage);
-        let color = self.chromaticity(crop);
+        let color = self.chromaticity(crop, grid);
         let hd = self.hog_dims();
         let b = self.config.orientation_bins;
         let nc = 2 * n; // cells per side: two per patch
@@ -134,13 +144,17 @@ impl EmbeddedBackbone {
 
     /// Orientation histograms of (patch/2)-px cells, gradient magnitude soft-assigned to the
     /// two nearest orientation bins.
-    fn cell_histograms(&self, crop: &CropInput) -> Vec<f32> {
-        let s = self.config.input_size as usize;
+    fn cell_histograms(&self, crop: &CropInput, grid: PatchGrid) -> Vec<f32> {
+        let s = crop.rgb.width() as usize;
+        let reduced = grid.patch != self.grid.patch;
         let mut lum: Vec<f32> = crop.rgb.pixels().map(|p| super::grey(p) / 255.0).collect();
-        for _ in 0..self.config.smoothing_passes {
+        // A pass blurs with variance ½ px²; at half the size the same blur in the picture
+        // is a quarter of that: a quarter of the passes, at least one where there are any.
+        let passes = if reduced { self.config.smoothing_passes.div_ceil(4) } else { self.config.smoothing_passes };
+        for _ in 0..passes {
             binomial_blur(&mut lum, s);
         }
-        let cell = (self.config.patch_size / 2) as usize;
+        let cell = (grid.patch / 2) as usize;
         let nc = s / cell;
         let b = self.config.orientation_bins;
         let period = if self.config.signed_orientation { std::f32::consts::TAU } else { std::f32::consts::PI };
@@ -150,6 +164,7 @@ impl EmbeddedBackbone {
         let mut mag = vec![0f32; s];
         let mut pos = vec![0f32; s];
         let scale = b as f32 / period;
+        let gain = (self.grid.patch / grid.patch) as f32;
         let column_base: Vec<usize> = (0..s).map(|x| (x / cell) * b).collect();
         // Each row's first and last lit column (the background is black): a gradient can be
         // nonzero only within a column of the lit span of the rows around it, so the rest
@@ -164,7 +179,7 @@ impl EmbeddedBackbone {
                 let gx = here[x + 1] - here[x - 1];
                 let gy = below[x] - above[x];
                 let m = (gx * gx + gy * gy).sqrt();
-                mag[x] = if m < 1e-4 { 0.0 } else { m };
+                mag[x] = if m < 1e-4 { 0.0 } else { m * gain };
                 pos[x] = wrap_angle(fast_atan2(gy, gx), period) * scale;
             }
             let row = &mut hist[(y / cell) * nc * b..(y / cell + 1) * nc * b];
@@ -186,9 +201,9 @@ impl EmbeddedBackbone {
     }
 
     /// Mean opponent chromaticity of the object pixels in each quadrant of each patch.
-    fn chromaticity(&self, crop: &CropInput) -> Vec<f32> {
-        let n = self.grid.n as usize;
-        let p = self.grid.patch as usize;
+    fn chromaticity(&self, crop: &CropInput, grid: PatchGrid) -> Vec<f32> {
+        let n = grid.n as usize;
+        let p = grid.patch as usize;
         let half = p / 2;
         let mut acc = vec![0f32; n * n * COLOR_DIMS];
         let mut weight = vec![0f32; n * n * 4];
@@ -309,8 +324,13 @@ impl Backbone for EmbeddedBackbone {
         }
     }
 
+    fn reduced_input_size(&self) -> Option<u32> {
+        // Half-width patches need cells of at least a pixel (a cell is half a patch).
+        (self.config.patch_size >= 4).then_some(self.config.input_size / 2)
+    }
+
     fn extract(&self, crops: &[CropInput]) -> Result<Vec<FeatureMap>, FeatureError> {
-        check_sizes(crops, self.config.input_size)?;
+        check_sizes(crops, self.config.input_size, self.reduced_input_size())?;
         Ok(crops.par_iter().map(|c| self.extract_one(c)).collect())
     }
 }
@@ -434,7 +454,7 @@ mod tests {
         let backbone = EmbeddedBackbone::new(EmbeddedConfig { input_size: 64, ..EmbeddedConfig::default() }).unwrap();
         let mut crop = disc_crop(64, [200, 120, 40]);
         crop.rgb.put_pixel(60, 3, image::Rgb([255, 255, 255]));
-        let got = backbone.cell_histograms(&crop);
+        let got = backbone.cell_histograms(&crop, backbone.grid);
         let (s, cell, b) = (64usize, (backbone.config.patch_size / 2) as usize, backbone.config.orientation_bins);
         let mut lum: Vec<f32> = crop.rgb.pixels().map(|p| crate::features::grey(p) / 255.0).collect();
         for _ in 0..backbone.config.smoothing_passes {
@@ -459,6 +479,62 @@ mod tests {
         }
         assert!(expected.iter().filter(|&&v| v > 0.0).count() > 20);
         assert_eq!(got.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), expected.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+    }
+
+    /// A photo of a textured object (an ellipse with colour regions, stripes and a
+    /// gradient) 140 px across on a 320×240 frame, and its mask.
+    fn textured_photo() -> (RgbImage, GrayImage) {
+        let (mut rgb, mut mask) = (RgbImage::new(320, 240), GrayImage::new(320, 240));
+        for (x, y, p) in rgb.enumerate_pixels_mut() {
+            let (u, v) = ((x as f32 - 160.0) / 70.0, (y as f32 - 120.0) / 50.0);
+            if u * u + v * v >= 1.0 {
+                continue;
+            }
+            mask.put_pixel(x, y, image::Luma([255]));
+            let stripe = ((u * 3.0 + v * 2.0).sin() > 0.3) as u8;
+            let base = if u < -0.2 {
+                [180u8, 60, 40]
+            } else if v > 0.3 {
+                [40, 90, 170]
+            } else {
+                [200, 190, 60]
+            };
+            let shade = (0.6 + 0.4 * (1.0 - v.abs())) * if stripe == 1 { 0.55 } else { 1.0 };
+            *p = image::Rgb(base.map(|c| (c as f32 * shade) as u8));
+        }
+        (rgb, mask)
+    }
+
+    #[test]
+    fn a_reduced_crop_gives_the_full_crops_descriptors_patch_for_patch() {
+        // What a turned query encoded small relies on: its rows meet the rows of the same
+        // patches encoded at full size (the templates') as their nearest neighbours.
+        let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap();
+        let reduced = backbone.reduced_input_size().unwrap();
+        assert_eq!(reduced * 2, backbone.config.input_size);
+        let (photo, mask) = textured_photo();
+        let crop_at = |size| {
+            let b = crate::geometry::CropBox::around_edges(90.0, 70.0, 230.0, 170.0, 0.1, size);
+            crate::features::sample_crop(&photo, &mask, &b, crate::features::ToSource::Shift(0.0, 0.0))
+        };
+        let maps = backbone.extract(&[crop_at(backbone.config.input_size), crop_at(reduced)]).unwrap();
+        let (full, small) = (&maps[0], &maps[1]);
+        assert_eq!((small.grid.n, small.grid.patch * 2), (full.grid.n, full.grid.patch));
+        let foreground = full.foreground(0.5);
+        assert!(foreground.len() > 200, "{} foreground patches", foreground.len());
+        let dot = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f32>();
+        let (mut same, mut cosines) = (0, Vec::new());
+        for &k in &foreground {
+            let row = small.descriptor(k);
+            cosines.push(dot(row, full.descriptor(k)));
+            let nearest = foreground.iter().copied().max_by(|&a, &b| dot(row, full.descriptor(a)).total_cmp(&dot(row, full.descriptor(b)))).unwrap();
+            same += (nearest == k) as usize;
+        }
+        cosines.sort_by(f32::total_cmp);
+        let median = cosines[cosines.len() / 2];
+        let share = same as f32 / foreground.len() as f32;
+        eprintln!("median cosine {median}, nearest the same patch {share}");
+        assert!(median > 0.9 && share > 0.5, "median cosine {median}, nearest the same patch for {share} of the patches");
     }
 
     #[test]
@@ -529,8 +605,13 @@ mod tests {
     #[test]
     fn wrong_crop_size_is_an_error() {
         let bb = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap();
-        let err = bb.extract(&[disc_crop(256, [1, 2, 3])]).unwrap_err();
-        assert!(err.to_string().contains("256×256"), "{err}");
+        // The reduced size passes; others, and a non-square crop, are refused by name.
+        assert_eq!(bb.extract(&[disc_crop(256, [1, 2, 3])]).unwrap()[0].grid.n, 32);
+        let err = bb.extract(&[disc_crop(512, [1, 2, 3]), disc_crop(300, [1, 2, 3])]).unwrap_err();
+        assert!(err.to_string().contains("crop 1 is 300×300"), "{err}");
+        let mut wide = disc_crop(512, [1, 2, 3]);
+        wide.rgb = RgbImage::new(512, 256);
+        assert!(matches!(bb.extract(&[wide]), Err(FeatureError::WrongSize { width: 512, height: 256, .. })));
     }
 
     #[test]

@@ -320,7 +320,7 @@ impl Backbone for OnnxBackbone {
     }
 
     fn extract(&self, crops: &[CropInput]) -> Result<Vec<FeatureMap>, FeatureError> {
-        check_sizes(crops, self.spec.input_size)?;
+        check_sizes(crops, self.spec.input_size, None)?;
         let (ld, gd, p) = (self.spec.local_dim as usize, self.spec.global_dim as usize, self.grid.len());
         let mut maps = Vec::with_capacity(crops.len());
         for chunk in crops.chunks(self.max_batch) {
