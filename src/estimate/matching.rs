@@ -49,7 +49,9 @@ pub struct MatchGroup<'a> {
 /// are counted per *patch* across the groups, so a patch keeps its best matches over all
 /// the turns as one pool of all templates would. Returns (group, match within the group).
 pub fn grouped_mutual_matches(groups: &[MatchGroup<'_>], dim: usize, k_nn: usize) -> Vec<(usize, Match)> {
-    let ranked: Vec<Option<Ranked>> = groups.iter().map(|g| rank(g.query, g.pool, dim, k_nn)).collect();
+    // Groups side by side: a turn's group is small (its templates against its own query),
+    // too small for `rank`'s own split across the cores to pay on its own.
+    let ranked: Vec<Option<Ranked>> = groups.par_iter().map(|g| rank(g.query, g.pool, dim, k_nn)).collect();
     // Per patch: its best k (group, query row, pool row, similarity) over every group.
     let mut per_patch: std::collections::BTreeMap<usize, Vec<(usize, usize, usize, f32)>> = Default::default();
     for (g, r) in ranked.iter().enumerate() {

@@ -12,6 +12,7 @@ use crate::features::{mask_row_ends, sample_crop, Backbone, CropInput, FeatureEr
 use crate::geometry::{CropBox, Turn};
 use crate::onboard::ObjectModel;
 use image::{GrayImage, RgbImage};
+use rayon::prelude::*;
 use std::collections::BTreeMap;
 
 /// The query turned by −`angle` about the centre of its unturned crop `query_box`, cropped
@@ -52,13 +53,14 @@ pub fn match_templates(model: &ObjectModel, backbone: &dyn Backbone, image: &Rgb
     // smaller crop keeps (docs/store.md, "Patch rows per view").
     let size = backbone.reduced_input_size().unwrap_or(model.grid.n * model.grid.patch);
     let outline = if by_turn.keys().any(|&r| r != 0) { mask_row_ends(mask) } else { vec![] };
-    let (mut crops, mut backs) = (Vec::new(), Vec::new());
-    for (&r, group) in by_turn.iter().filter(|(&r, _)| r != 0) {
-        if let Some((crop, bx, back)) = turned_crop(image, mask, &outline, &query.crop_box, model.in_plane_angle(group[0]), model.config.crop_padding, size) {
-            crops.push((crop, bx));
-            backs.push((r, back));
-        }
-    }
+    // The turns' crops side by side: each is small enough at the reduced size that its own
+    // split into bands of rows leaves the cores idle between them.
+    let turns: Vec<(u32, f64)> = by_turn.iter().filter(|(&r, _)| r != 0).map(|(&r, group)| (r, model.in_plane_angle(group[0]))).collect();
+    let made: Vec<_> = turns
+        .par_iter()
+        .filter_map(|&(r, angle)| turned_crop(image, mask, &outline, &query.crop_box, angle, model.config.crop_padding, size).map(|(crop, bx, back)| ((crop, bx), (r, back))))
+        .collect();
+    let (crops, backs): (Vec<_>, Vec<_>) = made.into_iter().unzip();
     let mut turned: BTreeMap<u32, QueryView> = BTreeMap::new();
     if !crops.is_empty() {
         for (mut q, (r, back)) in encode(backbone, crops, model.config.min_coverage)?.into_iter().zip(backs) {
