@@ -36,8 +36,13 @@ pub struct Screened {
 impl Screened {
     /// Its best mask's score (`None` unscreened).
     pub fn best(&self) -> Option<f32> {
-        self.scores.as_ref().map(|s| s.iter().copied().fold(0.0, f32::max))
+        self.scores.as_deref().map(best_score)
     }
+}
+
+/// A candidate's screen score: the best of its masks' scores (0 for none).
+pub fn best_score(scores: &[f32]) -> f32 {
+    scores.iter().copied().fold(0.0, f32::max)
 }
 
 /// Drops the screened candidates that another object's outrank on their place (`outranked`);

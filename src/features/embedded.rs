@@ -533,8 +533,9 @@ mod tests {
         cosines.sort_by(f32::total_cmp);
         let median = cosines[cosines.len() / 2];
         let share = same as f32 / foreground.len() as f32;
-        eprintln!("median cosine {median}, nearest the same patch {share}");
-        assert!(median > 0.9 && share > 0.5, "median cosine {median}, nearest the same patch for {share} of the patches");
+        // Measured 0.9999 and 0.99; without the gradients' gain (the norm floor meaning
+        // something else at half size) 0.994 and 0.88.
+        assert!(median > 0.999 && share > 0.95, "median cosine {median}, nearest the same patch for {share} of the patches");
     }
 
     #[test]

@@ -51,7 +51,7 @@ impl Screen<'_> {
     /// `None`: what the screen thought of the candidate, for the logs.
     pub fn best_score(&self) -> Option<f32> {
         match self {
-            Screen::Scored { scores, .. } => Some(scores.iter().copied().fold(0.0, f32::max)),
+            Screen::Scored { scores, .. } => Some(crate::detect::rivals::best_score(scores)),
             _ => None,
         }
     }
