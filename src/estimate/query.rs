@@ -13,7 +13,8 @@ pub struct QueryView {
     /// Foreground patch indices and their descriptors (`fg.len() × dim`).
     pub foreground: Vec<usize>,
     pub descriptors: Vec<f32>,
-    /// 64×64 crop silhouette, bit-packed like the templates'.
+    /// 64×64 crop silhouette, bit-packed like the templates' (empty where `encode_with`
+    /// skipped it).
     pub silhouette: Vec<u64>,
     /// For a query turned to meet shared patch rows (`estimate::turned`), the map from its
     /// crop's image coordinates back to the photo's; `None` for the photo as it is.
@@ -39,7 +40,20 @@ pub fn crop_all(image: &RgbImage, masks: &[&GrayImage], padding: f64, size: u32)
 
 /// Encodes crops in one batched backbone call and gathers foreground descriptors.
 pub fn encode(backbone: &dyn Backbone, crops: Vec<(CropInput, CropBox)>, min_coverage: f32) -> Result<Vec<QueryView>, FeatureError> {
-    let silhouettes: Vec<Vec<u64>> = crops.iter().map(|(c, _)| pack_silhouette(&c.mask)).collect();
+    encode_with(backbone, crops, min_coverage, Silhouettes::Packed)
+}
+
+/// Whether `encode_with` packs each crop's 64×64 silhouette (what retrieval compares), or
+/// leaves it empty for crops that are only matched (the turned queries of `estimate::turned`).
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub enum Silhouettes {
+    Packed,
+    Skipped,
+}
+
+/// `encode`, with the silhouettes packed or skipped.
+pub fn encode_with(backbone: &dyn Backbone, crops: Vec<(CropInput, CropBox)>, min_coverage: f32, silhouettes: Silhouettes) -> Result<Vec<QueryView>, FeatureError> {
+    let silhouettes: Vec<Vec<u64>> = crops.iter().map(|(c, _)| if silhouettes == Silhouettes::Packed { pack_silhouette(&c.mask) } else { Vec::new() }).collect();
     let (inputs, boxes): (Vec<CropInput>, Vec<CropBox>) = crops.into_iter().unzip();
     let maps = backbone.extract(&inputs)?;
     Ok(maps

@@ -7,7 +7,7 @@
 
 use super::correspond::{Correspondences, PatchPool};
 use super::matching::{grouped_mutual_matches, MatchGroup};
-use super::query::{encode, QueryView};
+use super::query::{encode_with, QueryView, Silhouettes};
 use crate::features::{mask_row_ends, sample_crop, Backbone, CropInput, FeatureError, ToSource};
 use crate::geometry::{CropBox, Turn};
 use crate::onboard::ObjectModel;
@@ -63,7 +63,7 @@ pub fn match_templates(model: &ObjectModel, backbone: &dyn Backbone, image: &Rgb
     let (crops, backs): (Vec<_>, Vec<_>) = made.into_iter().unzip();
     let mut turned: BTreeMap<u32, QueryView> = BTreeMap::new();
     if !crops.is_empty() {
-        for (mut q, (r, back)) in encode(backbone, crops, model.config.min_coverage)?.into_iter().zip(backs) {
+        for (mut q, (r, back)) in encode_with(backbone, crops, model.config.min_coverage, Silhouettes::Skipped)?.into_iter().zip(backs) {
             q.turn = Some(back);
             turned.insert(r, q);
         }

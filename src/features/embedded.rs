@@ -70,7 +70,7 @@ impl EmbeddedBackbone {
         }
         let n = n as usize;
         let every_cell: Vec<(usize, usize, f32)> = (0..n * n).map(|k| (k / n, k % n, 1.0)).collect();
-        let shape_counts = shape_bin_sums(&shape_bins, n, &every_cell);
+        let shape_counts = shape_bin_sums(&shape_bins, n, &every_cell, &(0..n * n).collect::<Vec<_>>());
         Ok(Self { config, grid, shape_bins, shape_counts })
     }
 
@@ -111,6 +111,12 @@ impl EmbeddedBackbone {
         for i in 0..n {
             for j in 0..n {
                 let k = i * n + j;
+                // A patch the mask does not touch keeps a zero row: every reader takes
+                // patches at a coverage of at least the model's `min_coverage` (0.5), and
+                // a crop is mostly such background.
+                if coverage[k] == 0.0 {
+                    continue;
+                }
                 let out = &mut local[k * dim..(k + 1) * dim];
                 // 4×4 cells around the patch (one-cell ring) pooled into 2×2 quadrants.
                 for ci in 0..4 {
@@ -258,8 +264,11 @@ impl EmbeddedBackbone {
         // Only covered patches add to a bin; kept in grid order, so every sum is the full
         // scan's, bit for bit, at a fraction of the work (crops are mostly background).
         let covered: Vec<(usize, usize, f32)> = coverage.iter().enumerate().filter(|(_, c)| **c != 0.0).map(|(k, c)| (k / n, k % n, *c)).collect();
-        let mut out = shape_bin_sums(&self.shape_bins, n, &covered);
-        for (k, o) in out.chunks_exact_mut(d).enumerate() {
+        // Only the covered patches' own contexts: the others' rows stay zero (`extract_one`).
+        let patches: Vec<usize> = covered.iter().map(|&(i, j, _)| i * n + j).collect();
+        let mut out = shape_bin_sums(&self.shape_bins, n, &covered, &patches);
+        for &k in &patches {
+            let o = &mut out[k * d..(k + 1) * d];
             // Bins that fall outside the crop count as background (their cells are 0).
             for (v, c) in o.iter_mut().zip(&self.shape_counts[k * d..(k + 1) * d]) {
                 if *c > 0.0 {
@@ -272,10 +281,11 @@ impl EmbeddedBackbone {
     }
 }
 
-/// For every patch of an `n`×`n` grid, the sums of `weights` (row, column, weight) over
-/// each silhouette-context bin around it (`shape_bins`: the bin of every offset), in the
-/// order given: `[patch][bin]`.
-fn shape_bin_sums(shape_bins: &[usize], n: usize, weights: &[(usize, usize, f32)]) -> Vec<f32> {
+/// For each of `patches` (indices into an `n`×`n` grid), the sums of `weights` (row,
+/// column, weight) over each silhouette-context bin around it (`shape_bins`: the bin of
+/// every offset), in the order given: `[patch][bin]` over the whole grid, zero for the
+/// patches not asked for.
+fn shape_bin_sums(shape_bins: &[usize], n: usize, weights: &[(usize, usize, f32)], patches: &[usize]) -> Vec<f32> {
     let (side, d) = (2 * n - 1, SHAPE_RINGS.len() * SHAPE_SECTORS);
     let mut out = vec![0f32; n * n * d];
     // Four patches at a time: neighbouring weights mostly fall in the same bin, so one
@@ -283,13 +293,12 @@ fn shape_bin_sums(shape_bins: &[usize], n: usize, weights: &[(usize, usize, f32)
     // side. Each patch still adds its weights in the order given, so the sums are the
     // same bits as one patch at a time.
     const LANES: usize = 4;
-    for (g, group) in out.chunks_mut(LANES * d).enumerate() {
-        let first = g * LANES;
-        let lanes = group.len() / d;
+    for group in patches.chunks(LANES) {
         // Where each patch's row of the bin table starts: patch (i, j) reads offset
-        // (ii − i, jj − j), at `(ii + n − 1 − i) · side + jj + n − 1 − j`.
+        // (ii − i, jj − j), at `(ii + n − 1 − i) · side + jj + n − 1 − j`. A short last
+        // group repeats its last patch in the spare lanes.
         let starts: [usize; LANES] = std::array::from_fn(|l| {
-            let k = (first + l).min(first + lanes - 1);
+            let k = group[l.min(group.len() - 1)];
             (n - 1 - k / n) * side + n - 1 - k % n
         });
         let mut sums = [[0f32; SHAPE_RINGS.len() * SHAPE_SECTORS]; LANES];
@@ -302,8 +311,8 @@ fn shape_bin_sums(shape_bins: &[usize], n: usize, weights: &[(usize, usize, f32)
                 }
             }
         }
-        for (o, sum) in group.chunks_exact_mut(d).zip(&sums) {
-            o.copy_from_slice(sum);
+        for (&k, sum) in group.iter().zip(&sums) {
+            out[k * d..(k + 1) * d].copy_from_slice(sum);
         }
     }
     out
@@ -442,8 +451,17 @@ mod tests {
                     }
                 }
             }
-            let got = shape_bin_sums(&backbone.shape_bins, n, &weights);
+            let every: Vec<usize> = (0..n * n).collect();
+            let got = shape_bin_sums(&backbone.shape_bins, n, &weights, &every);
             assert_eq!(got.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), expected.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "n = {n}");
+            // A subset (seven patches: a group of four and a short one) gets the same rows,
+            // and the rest zeros.
+            let some: Vec<usize> = every.iter().copied().filter(|k| k % 4 == 2).take(7).collect();
+            let got = shape_bin_sums(&backbone.shape_bins, n, &weights, &some);
+            for (k, (g, e)) in got.chunks_exact(d).zip(expected.chunks_exact(d)).enumerate() {
+                let want: Vec<u32> = if some.contains(&k) { e.iter().map(|v| v.to_bits()).collect() } else { vec![0; d] };
+                assert_eq!(g.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), want, "n = {n}, patch {k}");
+            }
         }
     }
 
@@ -596,6 +614,12 @@ mod tests {
         for &k in &fg {
             let n: f32 = a[0].descriptor(k).iter().map(|x| x * x).sum();
             assert!((n - 1.0).abs() < 1e-4);
+        }
+        // Patches the mask touches at all are described; the rest keep zero rows (no
+        // reader takes them).
+        for (k, &c) in a[0].coverage.iter().enumerate() {
+            let n: f32 = a[0].descriptor(k).iter().map(|x| x * x).sum();
+            assert!(if c > 0.0 { (n - 1.0).abs() < 1e-4 } else { n == 0.0 }, "patch {k}, coverage {c}: |row|² {n}");
         }
         let g: f32 = a[0].global.iter().map(|x| x * x).sum();
         assert!((g - 1.0).abs() < 1e-4);
