@@ -38,6 +38,8 @@ fn sample_render_and_onboard() {
     let (ok, out, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--store", &dir_store, "--level", "0", "--in-plane", "2"]);
     assert!(ok, "{out}{err}");
     assert!(out.contains("24 templates"), "{out}");
+    // The default (`auto`) with the embedded backbone: rows per view.
+    assert!(out.contains("patch rows: per view, shared by its 2 in-plane turns"), "{out}");
     assert!(d.join("models/box/manifest.json").is_file());
     let (ok, out, err) = b2tf(&["objects", "list", "--store", &dir_store]);
     assert!(ok && out.contains("| box | m |") && out.contains("1 objects"), "{out}{err}");
@@ -52,12 +54,33 @@ fn sample_render_and_onboard() {
     assert!(ok && out.contains("int8 with a scale each"), "{out}{err}");
     assert!(std::fs::metadata(d.join("models/box/tensors.safetensors")).unwrap().len() < f16_bytes);
     let i8_bytes = std::fs::metadata(d.join("models/box/tensors.safetensors")).unwrap().len();
-    let (ok, out, err) =
-        b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box", "--store", &dir_store, "--level", "0", "--in-plane", "2", "--replace", "--descriptors", "i8", "--patch-rows", "per-view"]);
-    assert!(ok && out.contains("patch rows: per view, shared by its 2 in-plane turns"), "{out}{err}");
     let (ok, out, err) = b2tf(&["objects", "show", "box", "--load", "--store", &dir_store]);
     assert!(ok && out.contains("\"patch_rows\": \"per-view\"") && out.contains("\"descriptors\": \"i8\""), "{out}{err}");
-    assert!(std::fs::metadata(d.join("models/box/tensors.safetensors")).unwrap().len() < i8_bytes);
+    // Rows per template on request: every turn its own rows, more bytes.
+    let (ok, out, err) = b2tf(&[
+        "onboard",
+        "--mesh",
+        s(&mesh),
+        "--units",
+        "m",
+        "--id",
+        "box",
+        "--store",
+        &dir_store,
+        "--level",
+        "0",
+        "--in-plane",
+        "2",
+        "--replace",
+        "--descriptors",
+        "i8",
+        "--patch-rows",
+        "per-template",
+    ]);
+    assert!(ok && !out.contains("patch rows: per view"), "{out}{err}");
+    let (ok, out, err) = b2tf(&["objects", "show", "box", "--load", "--store", &dir_store]);
+    assert!(ok && out.contains("\"patch_rows\": \"per-template\""), "{out}{err}");
+    assert!(std::fs::metadata(d.join("models/box/tensors.safetensors")).unwrap().len() > i8_bytes);
     let (ok, _, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box2", "--store", &dir_store, "--patch-rows", "per-face"]);
     assert!(!ok && err.contains("'per-face'") && err.contains("per-view"), "{err}");
     let (ok, _, err) = b2tf(&["onboard", "--mesh", s(&mesh), "--units", "m", "--id", "box2", "--store", &dir_store, "--descriptors", "zip"]);

@@ -18,13 +18,14 @@ struct Fixture {
 }
 
 /// One onboarded box shared by the tests (level 1: 42 views × 12 in-plane, to stay quick in
-/// debug builds; accuracy only needs the nearest template within ~30°).
+/// debug builds; accuracy only needs the nearest template within ~30°), with rows per
+/// template, so that the rows-per-view test below has the full model to compare with.
 fn fixture() -> &'static Fixture {
     static F: OnceLock<Fixture> = OnceLock::new();
     F.get_or_init(|| {
         let pool = Arc::new(RenderPool::new(1, RendererConfig::default()).unwrap());
         let backbone = Arc::new(EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap());
-        let cfg = OnboardConfig { views: ViewSampling { level: 1, in_plane_steps: 12 }, render_size: 256, ..Default::default() };
+        let cfg = OnboardConfig { views: ViewSampling { level: 1, in_plane_steps: 12 }, render_size: 256, patch_rows: b2tfpose::onboard::PatchRows::PerTemplate, ..Default::default() };
         let model = onboard("box", &textured_box([0.10, 0.06, 0.16], 3), &cfg, backbone.as_ref(), &pool, &|_| {}).unwrap();
         Fixture { model, estimator: Estimator::new(backbone, pool.clone()), pool }
     })
@@ -171,7 +172,13 @@ fn silhouette_depth_refiner_pulls_a_wrong_depth_back() {
 fn pca_compressed_model_stores_smaller_and_still_finds_the_pose() {
     let f = fixture();
     let backbone = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap();
-    let cfg = OnboardConfig { views: ViewSampling { level: 1, in_plane_steps: 12 }, render_size: 256, pca: b2tfpose::onboard::PcaSetting::Components(24), ..Default::default() };
+    let cfg = OnboardConfig {
+        views: ViewSampling { level: 1, in_plane_steps: 12 },
+        render_size: 256,
+        pca: b2tfpose::onboard::PcaSetting::Components(24),
+        patch_rows: b2tfpose::onboard::PatchRows::PerTemplate,
+        ..Default::default()
+    };
     let small = onboard("box", &textured_box([0.10, 0.06, 0.16], 3), &cfg, &backbone, &f.pool, &|_| {}).unwrap();
     assert_eq!((small.local_dim, small.pca.as_ref().unwrap().input_dim), (24, f.model.local_dim));
     assert_eq!(small.patch_descriptors.rows(24), f.model.patch_descriptors.rows(f.model.local_dim));

@@ -11,7 +11,9 @@ use std::sync::Mutex;
 
 fn small_model() -> ObjectModel {
     let mesh = textured_box([0.10, 0.06, 0.16], 3);
-    let cfg = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps: 3 }, render_size: 256, ..Default::default() };
+    // Every template its own rows: each row's point must project onto its own template's
+    // patch (rows shared per view are checked in `onboard::per_view_rows`).
+    let cfg = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps: 3 }, render_size: 256, patch_rows: b2tfpose::onboard::PatchRows::PerTemplate, ..Default::default() };
     let bb = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap();
     let pool = RenderPool::new(1, RendererConfig::default()).unwrap();
     let seen = Mutex::new(vec![]);

@@ -34,7 +34,7 @@ pub struct BenchCatalogueArgs {
     #[arg(long, value_enum, default_value_t = DescriptorCoding::F16)]
     pub descriptors: DescriptorCoding,
     /// Which templates keep patch rows in the copies (`b2tf onboard --patch-rows`).
-    #[arg(long, value_enum, default_value_t = crate::onboard::PatchRows::PerTemplate)]
+    #[arg(long, value_enum, default_value_t = crate::onboard::PatchRows::Auto)]
     pub patch_rows: crate::onboard::PatchRows,
     /// The server's model cache budget, MB (its default: 4000).
     #[arg(long)]
@@ -175,7 +175,8 @@ fn fill(a: &BenchCatalogueArgs) -> Result<Vec<String>> {
             continue;
         }
         let mut model = from.get(source)?;
-        if a.patch_rows == crate::onboard::PatchRows::PerView && !model.rows_per_view() {
+        // The sources are the embedded backbone's bench models, for which `auto` is per view.
+        if a.patch_rows != crate::onboard::PatchRows::PerTemplate && !model.rows_per_view() {
             crate::onboard::share_rows_per_view(&mut model).map_err(anyhow::Error::msg)?;
         }
         crate::onboard::apply_coding(&mut model, a.descriptors)?;

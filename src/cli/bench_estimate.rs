@@ -76,8 +76,9 @@ pub struct BenchEstimateArgs {
     /// default), pq4 or pq2 (product-quantised in memory, as onboarding would).
     #[arg(long, value_enum, default_value = "f16")]
     pub descriptors: crate::onboard::DescriptorCoding,
-    /// Which templates hold patch rows, as `b2tf onboard --patch-rows` (applied in memory).
-    #[arg(long, value_enum, default_value = "per-template")]
+    /// Which templates hold patch rows, as `b2tf onboard --patch-rows` (applied in memory
+    /// to the models cached per template).
+    #[arg(long, value_enum, default_value = "auto")]
     pub patch_rows: crate::onboard::PatchRows,
     /// Write one CSV row per instance and setting (errors, apparent size) into this file.
     #[arg(long)]
@@ -308,9 +309,7 @@ pub(super) fn bench_models(meshes: &[(String, Mesh)], gap: bool, store: &str, ba
         .map(|(name, mesh)| {
             let (id, template_mesh) = if gap { (format!("{name}-untextured"), mesh.without_appearance()) } else { (name.clone(), mesh.clone()) };
             let id = cached_id_for(&id, &backbone.identity());
-            // Cached uncompressed: any PCA and descriptor coding apply to it in memory (as
-            // onboarding with those settings would) without onboarding again.
-            super::cached_model(&id, &template_mesh, store.as_ref(), backbone, pool, crate::onboard::PcaSetting::Off, crate::onboard::DescriptorCoding::F16)
+            super::cached_model(&id, &template_mesh, store.as_ref(), backbone, pool, super::bench_cache_config())
         })
         .collect()
 }
@@ -322,7 +321,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     let meshes = a.scenes.load_meshes()?;
     let mut models = bench_models(&meshes, a.gap, &a.scenes.store, backbone.as_ref(), &pool)?;
     for model in &mut models {
-        if a.patch_rows == crate::onboard::PatchRows::PerView {
+        if a.patch_rows.resolve(backbone.as_ref()) == crate::onboard::PatchRows::PerView {
             crate::onboard::share_rows_per_view(model).map_err(anyhow::Error::msg)?;
         }
         crate::onboard::apply_pca(model, a.pca)?;

@@ -70,7 +70,7 @@ pub fn run(a: BenchStoreArgs) -> Result<()> {
     };
     let cache = crate::store::open(&a.cache_store)?;
     let id = super::bench_estimate::cached_id_for(&name, &backbone.identity());
-    let full = super::cached_model(&id, &mesh, cache.as_ref(), backbone.as_ref(), &pool, crate::onboard::PcaSetting::Off, crate::onboard::DescriptorCoding::F16)?;
+    let full = super::cached_model(&id, &mesh, cache.as_ref(), backbone.as_ref(), &pool, super::bench_cache_config())?;
     let mut variants: Vec<(String, ObjectModel)> = vec![(format!("{} dims (f16)", full.local_dim), full.clone())];
     let mut compress_s = vec![];
     for &d in &a.pca {

@@ -170,7 +170,7 @@ pub fn run(a: BenchTrackArgs) -> Result<()> {
     let k = Intrinsics::new(1.25 * a.width as f64, 1.25 * a.width as f64, (a.width as f64 - 1.0) / 2.0, (a.height as f64 - 1.0) / 2.0, a.width, a.height)?;
     let mut models = Vec::new();
     for (name, mesh) in &meshes {
-        models.push((name.clone(), Arc::new(super::cached_model(name, mesh, store.as_ref(), &backbone, &pool, crate::onboard::PcaSetting::Off, crate::onboard::DescriptorCoding::F16)?)));
+        models.push((name.clone(), Arc::new(super::cached_model(name, mesh, store.as_ref(), &backbone, &pool, super::bench_cache_config())?)));
     }
     drop(store); // the server below opens it
     let config = |s: usize| SequenceConfig {

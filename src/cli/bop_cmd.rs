@@ -183,7 +183,7 @@ fn run_cmd(a: RunArgs) -> Result<()> {
         let id = format!("obj_{obj_id:06}");
         if checked.insert(obj_id) {
             let mesh = load_mesh(&model_path(&a.dataset, obj_id), Some(Units::Mm))?;
-            let mut m = super::cached_model(&id, &mesh, store.as_ref(), backbone.as_ref(), &pool, Default::default(), Default::default())?;
+            let mut m = super::cached_model(&id, &mesh, store.as_ref(), backbone.as_ref(), &pool, Default::default())?;
             // The dataset's own symmetries, where it declares them, over those found.
             if let Some(given) = given_symmetries.get(&obj_id) {
                 let known = KnownSymmetries { source: SymmetrySource::ModelsInfo, symmetries: given.scaled(MM_TO_M) };

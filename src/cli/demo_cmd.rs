@@ -18,7 +18,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let renderer = Arc::new(super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?);
 
     let store = crate::store::open(&format!("sqlite://{}", a.out.join("objects.db").display()))?;
-    let model = super::cached_model("demo-box", &mesh, store.as_ref(), backbone.as_ref(), &renderer, Default::default(), Default::default())?;
+    let model = super::cached_model("demo-box", &mesh, store.as_ref(), backbone.as_ref(), &renderer, Default::default())?;
     println!("demo object: {} templates, {} patches", model.template_count(), model.patch_count());
 
     let scene = make_scene(&mesh, &renderer, a.seed, &a.out)?;

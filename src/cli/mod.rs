@@ -150,19 +150,27 @@ pub fn open_renderer_with(size: usize, config: crate::render::RendererConfig) ->
 }
 
 /// The object `id` from `store` when it was made from this mesh (geometry and appearance)
-/// by this backbone with the default settings; otherwise onboards it (with a progress bar)
-/// and puts it there. Benchmarks and the demo reuse models across runs this way.
+/// by this backbone with `config` (its `patch_rows` resolved for the backbone); otherwise
+/// onboards it (with a progress bar) and puts it there. Benchmarks and the demo reuse
+/// models across runs this way.
+/// What the benches cache: uncompressed descriptors with every template's own rows, from
+/// which any PCA, coding and patch rows are made in memory (as onboarding with them would)
+/// without onboarding again.
+pub fn bench_cache_config() -> crate::onboard::OnboardConfig {
+    use crate::onboard::{DescriptorCoding, OnboardConfig, PatchRows, PcaSetting};
+    OnboardConfig { pca: PcaSetting::Off, descriptors: DescriptorCoding::F16, patch_rows: PatchRows::PerTemplate, ..Default::default() }
+}
+
 pub fn cached_model(
     id: &str,
     mesh: &crate::mesh::Mesh,
     store: &dyn crate::store::ObjectStore,
     backbone: &dyn crate::features::Backbone,
     pool: &crate::render::RenderPool,
-    pca: crate::onboard::PcaSetting,
-    descriptors: crate::onboard::DescriptorCoding,
+    config: crate::onboard::OnboardConfig,
 ) -> anyhow::Result<crate::onboard::ObjectModel> {
-    use crate::onboard::{onboard, OnboardConfig};
-    let config = OnboardConfig { pca, descriptors, ..Default::default() };
+    use crate::onboard::onboard;
+    let config = crate::onboard::OnboardConfig { patch_rows: config.patch_rows.resolve(backbone), ..config };
     if let Ok(mut m) = store.get(id) {
         if m.backbone == backbone.identity() && m.config == config && m.mesh.positions() == mesh.positions() && m.mesh.has_texture() == mesh.has_texture() {
             // Cached by an older version: what it lacks is made as `objects upgrade` makes

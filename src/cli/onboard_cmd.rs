@@ -37,10 +37,12 @@ pub struct OnboardArgs {
     /// (a quarter); the quantised ones cost accuracy (docs/store.md).
     #[arg(long, value_enum, default_value = "f16")]
     pub descriptors: crate::onboard::DescriptorCoding,
-    /// Which templates keep patch rows: `per-template`, or `per-view` (each view's
-    /// in-plane turns share its unturned template's rows, about a twelfth of the bytes at 12
-    /// turns; estimation then encodes the query once per turn it needs: docs/store.md).
-    #[arg(long, value_enum, default_value = "per-template")]
+    /// Which templates keep patch rows: `per-view` (each view's in-plane turns share its
+    /// unturned template's rows, about a twelfth of the bytes at 12 turns; estimation then
+    /// encodes the query once per turn it needs), `per-template` (every template its own
+    /// rows), or `auto`: per view with the embedded backbone (whose turned queries cost
+    /// about 20 ms of one core an estimate), per template with an ONNX one (docs/store.md).
+    #[arg(long, value_enum, default_value = "auto")]
     pub patch_rows: crate::onboard::PatchRows,
     /// Replace an existing object with the same id.
     #[arg(long)]

@@ -49,21 +49,42 @@ pub struct OnboardConfig {
     pub descriptors: DescriptorCoding,
     /// Whether each template holds its own patch rows or the in-plane turns of a view share
     /// the rows of its first; records before format 8 held them per template.
-    #[serde(default)]
+    #[serde(default = "PatchRows::per_template")]
     pub patch_rows: PatchRows,
 }
 
 /// Which templates hold patch rows (`b2tf onboard --patch-rows`). The in-plane turns of a
 /// view show the same patches turned; per view, they are stored once and estimation turns
 /// the query instead (docs/store.md, "Patch rows per view").
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+/// A model holds one of the first two; `Auto`, the default, asks onboarding to choose.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum PatchRows {
     /// Every template its own rows.
-    #[default]
     PerTemplate,
     /// The rows of each view's in-plane-0 template only, shared by its turns.
     PerView,
+    /// Per view where the backbone encodes the turned queries at a reduced size (the
+    /// embedded one: about 20 ms of one core an estimate, docs/store.md "Per view by
+    /// default"), per template where each turn would be another full pass (an ONNX
+    /// ViT).
+    Auto,
+}
+
+impl PatchRows {
+    /// What records before format 8 held.
+    pub fn per_template() -> Self {
+        PatchRows::PerTemplate
+    }
+
+    /// `Auto` made per view or per template for `backbone`; the others as they are.
+    pub fn resolve(self, backbone: &dyn crate::features::Backbone) -> Self {
+        match self {
+            PatchRows::Auto if backbone.reduced_input_size().is_some() => PatchRows::PerView,
+            PatchRows::Auto => PatchRows::PerTemplate,
+            rows => rows,
+        }
+    }
 }
 
 /// How an object's patch descriptors are stored (`b2tf onboard --descriptors`).
@@ -117,7 +138,7 @@ impl std::str::FromStr for PatchRows {
     type Err = String;
 
     fn from_str(s: &str) -> Result<Self, String> {
-        <Self as clap::ValueEnum>::from_str(s.trim(), true).map_err(|_| format!("unknown patch rows {s:?} (expected per-template or per-view)"))
+        <Self as clap::ValueEnum>::from_str(s.trim(), true).map_err(|_| format!("unknown patch rows {s:?} (expected per-template, per-view or auto)"))
     }
 }
 
@@ -131,7 +152,7 @@ impl Default for OnboardConfig {
             min_coverage: 0.5,
             pca: PcaSetting::Auto,
             descriptors: DescriptorCoding::F16,
-            patch_rows: PatchRows::PerTemplate,
+            patch_rows: PatchRows::Auto,
         }
     }
 }
@@ -417,5 +438,25 @@ mod tests {
         assert_eq!(with(None), PcaSetting::Off);
         assert_eq!(with(Some(serde_json::Value::Null)), PcaSetting::Off);
         assert_eq!(with(Some(serde_json::json!(16))), PcaSetting::Components(16));
+    }
+
+    #[test]
+    fn records_from_before_format_8_hold_rows_per_template_and_auto_resolves_by_backbone() {
+        let mut v = serde_json::to_value(OnboardConfig::default()).unwrap();
+        assert_eq!(v["patch_rows"], "auto");
+        v.as_object_mut().unwrap().remove("patch_rows");
+        assert_eq!(serde_json::from_value::<OnboardConfig>(v).unwrap().patch_rows, PatchRows::PerTemplate);
+        use crate::features::{Backbone, EmbeddedBackbone, EmbeddedConfig};
+        let embedded = EmbeddedBackbone::new(EmbeddedConfig::default()).unwrap();
+        // Patches of 2 px have no half-width patches: no reduced size, as an ONNX ViT.
+        let full_only = EmbeddedBackbone::new(EmbeddedConfig { patch_size: 2, input_size: 64, ..Default::default() }).unwrap();
+        assert!(embedded.reduced_input_size().is_some() && full_only.reduced_input_size().is_none());
+        assert_eq!(PatchRows::Auto.resolve(&embedded), PatchRows::PerView);
+        assert_eq!(PatchRows::Auto.resolve(&full_only), PatchRows::PerTemplate);
+        for rows in [PatchRows::PerView, PatchRows::PerTemplate] {
+            assert_eq!((rows.resolve(&embedded), rows.resolve(&full_only)), (rows, rows));
+        }
+        assert_eq!("AUTO".parse::<PatchRows>(), Ok(PatchRows::Auto));
+        assert!("per-face".parse::<PatchRows>().unwrap_err().contains("per-template, per-view or auto"));
     }
 }

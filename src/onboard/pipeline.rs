@@ -109,7 +109,7 @@ pub fn onboard_profiled(
     profile.view_shares = clock.shares();
     // Templates are made with their own rows; sharing them per view is a step after.
     let mut model = assemble(object_id, mesh, &OnboardConfig { patch_rows: PatchRows::PerTemplate, ..config.clone() }, identity, k, grid, parts);
-    if config.patch_rows == PatchRows::PerView {
+    if config.patch_rows.resolve(backbone) == PatchRows::PerView {
         timed(&mut profile.compress_s, || super::share_rows_per_view(&mut model)).map_err(OnboardError::Config)?;
     }
     if cancel.load(std::sync::atomic::Ordering::Relaxed) {

@@ -1,5 +1,6 @@
 //! Small real object models for tests (the crate's and tests/): a textured box onboarded
-//! once per test binary at 128², 12 views. `None` (the test skips, after saying why)
+//! once per test binary at 128², 12 views, every template with its own patch rows (the
+//! tests of rows per view share them from these). `None` (the test skips, after saying why)
 //! without a GPU adapter, unless B2TF_REQUIRE_GPU is set, as elsewhere in the crate.
 
 use super::{ObjectModel, OnboardConfig};
@@ -31,6 +32,6 @@ fn onboard_box(in_plane_steps: u32) -> Option<ObjectModel> {
     };
     let backbone = crate::features::EmbeddedBackbone::new(crate::features::EmbeddedConfig::default()).expect("embedded backbone");
     let mesh = crate::mesh::procedural::textured_box([0.1, 0.06, 0.16], 3);
-    let config = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps }, render_size: 128, ..Default::default() };
+    let config = OnboardConfig { views: ViewSampling { level: 0, in_plane_steps }, render_size: 128, patch_rows: super::PatchRows::PerTemplate, ..Default::default() };
     Some(super::onboard("obj-a", &mesh, &config, &backbone, &pool, &|_| {}).expect("onboarding the test object"))
 }

@@ -264,7 +264,7 @@ mod tests {
         let o = onboard_with(Some(pb::OnboardOptions { level: Some(0), in_plane: 1, pca: 16, full_descriptors: false, descriptors: "pq4".into(), patch_rows: "per-view".into() }));
         assert_eq!((o.level, o.in_plane, o.pca, o.descriptors, o.patch_rows), (0, 1, PcaSetting::Components(16), crate::onboard::DescriptorCoding::Pq4, crate::onboard::PatchRows::PerView));
         let o = onboard_with(Some(pb::OnboardOptions { level: None, in_plane: 0, pca: 0, full_descriptors: true, descriptors: String::new(), patch_rows: String::new() }));
-        assert_eq!((o.pca, o.descriptors, o.patch_rows), (PcaSetting::Off, crate::onboard::DescriptorCoding::F16, crate::onboard::PatchRows::PerTemplate));
+        assert_eq!((o.pca, o.descriptors, o.patch_rows), (PcaSetting::Off, crate::onboard::DescriptorCoding::F16, crate::onboard::PatchRows::Auto));
         let mesh = Some(pb::Mesh { data: vec![1], format: "obj".into(), units: "m".into(), resources: vec![] });
         let both = pb::OnboardOptions { level: None, in_plane: 0, pca: 8, full_descriptors: true, ..Default::default() };
         let err = onboard_request(pb::OnboardRequest { object_id: "x".into(), mesh, options: Some(both), replace: false }).unwrap_err();

@@ -310,13 +310,14 @@ pub struct OnboardOptions {
     pub pca: crate::onboard::PcaSetting,
     /// How the patch descriptors are stored: "f16" (default), "i8", "pq2" or "pq4".
     pub descriptors: crate::onboard::DescriptorCoding,
-    /// Which templates keep patch rows: "per-template" (default) or "per-view".
+    /// Which templates keep patch rows: "auto" (default: per view with the embedded
+    /// backbone, per template with an ONNX one), "per-view" or "per-template".
     pub patch_rows: crate::onboard::PatchRows,
 }
 
 impl Default for OnboardOptions {
     fn default() -> Self {
-        Self { level: 2, in_plane: 12, pca: crate::onboard::PcaSetting::Auto, descriptors: crate::onboard::DescriptorCoding::F16, patch_rows: crate::onboard::PatchRows::PerTemplate }
+        Self { level: 2, in_plane: 12, pca: crate::onboard::PcaSetting::Auto, descriptors: crate::onboard::DescriptorCoding::F16, patch_rows: crate::onboard::PatchRows::Auto }
     }
 }
 

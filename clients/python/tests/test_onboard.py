@@ -131,19 +131,23 @@ def test_pca_settings(client: b2tfpose.Client, sample_obj: Path) -> None:
 
 def test_descriptor_codings(client: b2tfpose.Client, sample_obj: Path) -> None:
     # A compact coding is smaller in the store than the exact f16 rows of the same views.
-    exact = client.onboard("codings-f16", sample_obj, units="m", level=0, in_plane=2, replace=True, retry=True)
-    compact = client.onboard("codings-pq4", sample_obj, units="m", level=0, in_plane=2, descriptors="pq4", replace=True, retry=True)
+    exact = client.onboard("codings-f16", sample_obj, units="m", level=0, in_plane=2, patch_rows="per-template", replace=True, retry=True)
+    compact = client.onboard("codings-pq4", sample_obj, units="m", level=0, in_plane=2, descriptors="pq4", patch_rows="per-template", replace=True, retry=True)
     assert compact.templates == exact.templates and compact.bytes < exact.bytes, (compact, exact)
     # Rows per view: the second in-plane turn shares the first one's rows.
     shared = client.onboard("codings-per-view", sample_obj, units="m", level=0, in_plane=2, patch_rows="per-view", replace=True, retry=True)
     assert shared.templates == exact.templates and shared.bytes < exact.bytes, (shared, exact)
-    for object_id in ("codings-f16", "codings-pq4", "codings-per-view"):
+    # The server's default ("auto") with its embedded backbone is rows per view.
+    default = client.onboard("codings-default", sample_obj, units="m", level=0, in_plane=2, replace=True, retry=True)
+    # (The stored record names the object, so the two differ by the ids' lengths.)
+    assert default.templates == exact.templates and abs(default.bytes - shared.bytes) < 100 < exact.bytes - shared.bytes, (default, shared, exact)
+    for object_id in ("codings-f16", "codings-pq4", "codings-per-view", "codings-default"):
         client.delete_object(object_id)
     # Refused in the client, before anything is uploaded.
     for bad in ("pq8", "F16 ", 4):
         with pytest.raises(ValueError, match="descriptors must be one of f16, i8, pq2, pq4"):
             client.onboard("codings-bad", sample_obj, units="m", level=0, in_plane=1, descriptors=bad)  # type: ignore[arg-type]
-    with pytest.raises(ValueError, match="patch_rows must be one of per-template, per-view"):
+    with pytest.raises(ValueError, match="patch_rows must be one of per-template, per-view, auto"):
         client.onboard("codings-bad", sample_obj, units="m", level=0, in_plane=1, patch_rows="per_view")
 
 

@@ -17,7 +17,7 @@ PcaSetting = Union[None, int, Literal["auto", "off"]]
 
 REFINERS = ("none", "silhouette-depth", "contour")
 DESCRIPTOR_CODINGS = ("f16", "i8", "pq2", "pq4")
-PATCH_ROWS = ("per-template", "per-view")
+PATCH_ROWS = ("per-template", "per-view", "auto")
 
 
 def pca_fields(pca: PcaSetting) -> Dict[str, Any]:

@@ -203,8 +203,9 @@ class Client:
         compressing only descriptors wider than 256 values), "off" or a component count;
         ``descriptors``: how they are stored, "f16" (None: the server's default, exact),
         "i8", "pq2" or "pq4" (an eighth of the bytes, some accuracy lost); ``patch_rows``:
-        "per-template" (None: the server's default) or "per-view" (a view's in-plane turns
-        share its rows: about a twelfth of the bytes; estimates encode the query per turn).
+        "auto" (None: the server's default; per view with the embedded backbone, per
+        template with an ONNX one), "per-view" (a view's in-plane turns share its rows,
+        about a twelfth of the bytes; estimates encode the query per turn) or "per-template".
         Waits for the object (``progress`` gets each state; ``timeout`` bounds the wait,
         None: no limit), or with ``wait=False`` returns the :class:`Operation` at once.
         """
