@@ -16,12 +16,15 @@ from .fixtures import Fixtures
 WAYS = ("json", "multipart", "grpc")
 
 
-def start(http: str, client: b2tfpose.Client, fx: Fixtures, oid: str, level: int, in_plane: int, how: str, timeout: float = 60) -> Tuple[Reply, Optional[str]]:
+def start(http: str, client: b2tfpose.Client, fx: Fixtures, oid: str, level: int, in_plane: int, how: str, timeout: float = 60, patch_rows: Optional[str] = None) -> Tuple[Reply, Optional[str]]:
     """(the answer, the operation id when accepted). `client` is a b2tfpose.Client made
-    with retries off and the timeout wanted."""
+    with retries off and the timeout wanted. `patch_rows` (gRPC only; None: the server's
+    default) sets how many bytes the object takes."""
     if how == "grpc":
-        r = grpc_call(lambda: client.onboard(oid, fx.obj, format="obj", units="m", resources=fx.resources, level=level, in_plane=in_plane, wait=False))
+        r = grpc_call(lambda: client.onboard(oid, fx.obj, format="obj", units="m", resources=fx.resources, level=level, in_plane=in_plane, patch_rows=patch_rows, wait=False))
         return r, (r.body.id if r.status == "OK" else None)
+    if patch_rows is not None:
+        raise ValueError("patch_rows is passed over gRPC only")
     if how == "json":
         body, ctype = fx.onboard_json(oid, level, in_plane), "application/json"
     else:
@@ -47,9 +50,9 @@ def wait(http: str, op: str, timeout: float = 300, poll: float = 0.1) -> Dict[st
         time.sleep(poll)
 
 
-def onboard(http: str, client: b2tfpose.Client, fx: Fixtures, oid: str, level: int, in_plane: int, how: str = "json") -> Dict[str, Any]:
+def onboard(http: str, client: b2tfpose.Client, fx: Fixtures, oid: str, level: int, in_plane: int, how: str = "json", patch_rows: Optional[str] = None) -> Dict[str, Any]:
     """Onboards and waits: the final operation JSON (its `state` says how it ended)."""
-    r, op = start(http, client, fx, oid, level, in_plane, how)
+    r, op = start(http, client, fx, oid, level, in_plane, how, patch_rows=patch_rows)
     if op is None:
         raise RuntimeError(f"onboarding {oid} refused: {r.status} {r.detail} {r.body!r}"[:400])
     return wait(http, op)
