@@ -54,7 +54,8 @@ fn recovers_the_pose_of_the_box_in_generated_scenes() {
         let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &det, &EstimateConfig::default()).unwrap();
         let h = &r.hypotheses[0];
         assert!(h.matches >= h.inliers && h.retrieved_templates > 0, "{h:?}");
-        assert!(r.timings.total > 0.0 && r.timings.rrc > 0.0, "{:?}", r.timings);
+        // RRC timed where it ran; skipped (sure first matches) it costs nothing.
+        assert!(r.timings.total > 0.0 && (r.timings.rrc > 0.0) != h.rrc_skipped, "{:?}, {h:?}", r.timings);
         if let Some(p) = r.pose {
             assert_eq!(r.mask_index, Some(0));
             assert!((0.0..=1.0).contains(&r.score));
@@ -193,14 +194,38 @@ fn pca_compressed_model_stores_smaller_and_still_finds_the_pose() {
         let s = scene(seed);
         let inst = &s.instances[0];
         let det = true_detection(&s);
-        let r = f.estimator.estimate(&back, &s.rgb, &s.cam, &det, &EstimateConfig::default()).unwrap();
-        // RRC matches fresh (uncompressed) render descriptors against the raw query ones.
+        // RRC on every instance (not skipped where the first matches are sure): it matches
+        // fresh (uncompressed) render descriptors against the raw query ones.
+        let r = f.estimator.estimate(&back, &s.rgb, &s.cam, &det, &EstimateConfig { rrc_sure_share: 0.0, ..Default::default() }).unwrap();
         assert!(r.hypotheses[0].rrc_matches > 0, "{:?}", r.hypotheses[0]);
         if r.pose.is_some_and(|p| mssd(&p, &inst.pose, back.mesh.positions()) < 0.1 * back.diameter()) {
             correct += 1;
         }
     }
     assert!(correct >= 3, "{correct} of 4 scenes within MSSD 0.1·d with 24 PCA components");
+}
+
+/// RRC is left out where the first PnP's inliers reach `rrc_sure_share` of the query's
+/// foreground patches, and runs where they fall short or the share is 0 (always).
+#[test]
+fn rrc_is_skipped_only_where_the_first_matches_are_sure_enough() {
+    let f = fixture();
+    let s = scene(2);
+    let det = true_detection(&s);
+    let run = |share: f64| {
+        let cfg = EstimateConfig { rrc_sure_share: share, verify: b2tfpose::estimate::VerifyConfig { enabled: false, ..Default::default() }, ..Default::default() };
+        let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &det, &cfg).unwrap();
+        assert!(r.pose.is_some() && r.hypotheses[0].inliers > 0, "{:?}", r.hypotheses[0]);
+        (r.hypotheses[0].clone(), r.timings.rrc)
+    };
+    // Any inlier is sure enough at a share near 0: no render, no second matching.
+    let (skipped, rrc_ms) = run(1e-9);
+    assert!(skipped.rrc_skipped && skipped.rrc_matches == 0 && rrc_ms == 0.0, "{skipped:?}, RRC {rrc_ms} ms");
+    // Every foreground patch an inlier is never reached; 0 turns the skip off.
+    for share in [1.0, 0.0] {
+        let (ran, rrc_ms) = run(share);
+        assert!(!ran.rrc_skipped && ran.rrc_matches > 0 && rrc_ms > 0.0, "share {share}: {ran:?}");
+    }
 }
 
 /// Patch rows per view: the model keeps a twelfth of its rows, survives a memory-mapped

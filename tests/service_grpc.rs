@@ -217,7 +217,7 @@ async fn onboard_estimate_bad_inputs_health_and_reflection_over_grpc() {
     // A deadline shorter than the work: DEADLINE_EXCEEDED from the server (CANCELLED if the
     // transport's own timer fires first), well before the work would have finished.
     let mut slow = good();
-    slow.options = Some(pb::EstimateOptions { rrc: Some(true), ..Default::default() });
+    slow.options = Some(pb::EstimateOptions { rrc: Some(true), rrc_always: true, ..Default::default() });
     let mut req = tonic::Request::new(slow);
     req.set_timeout(Duration::from_millis(150));
     let t = Instant::now();

@@ -184,12 +184,20 @@ fn onboard_estimate_and_bad_inputs_over_http() {
     // Estimates' backbone passes go through the same queue: the query crop, and with RRC
     // its renders as well.
     let plain_jobs = jobs() - jobs_before;
-    let mut with_rrc = request(good_image.clone(), intrinsics.clone(), good_dets.clone());
-    with_rrc["options"]["rrc"] = json!(true);
-    let jobs_before = jobs();
-    assert_eq!(call(&c, "POST", &format!("{base}/v1/estimate"), Some(&with_rrc)).0, 200);
-    let rrc_jobs = jobs() - jobs_before;
-    assert!(plain_jobs >= 1.0 && rrc_jobs > plain_jobs, "queue jobs: {plain_jobs} without RRC, {rrc_jobs} with");
+    // With RRC, its renders' pass as well: always with `rrc_always`, and by default unless
+    // the answer says the first matches were sure enough to skip it.
+    for always in [true, false] {
+        let mut with_rrc = request(good_image.clone(), intrinsics.clone(), good_dets.clone());
+        with_rrc["options"]["rrc"] = json!(true);
+        with_rrc["options"]["rrc_always"] = json!(always);
+        let jobs_before = jobs();
+        let (s, answer) = call(&c, "POST", &format!("{base}/v1/estimate"), Some(&with_rrc));
+        assert_eq!(s, 200, "{answer}");
+        let rrc_jobs = jobs() - jobs_before;
+        let skipped = answer["results"][0]["diagnostics"][0]["rrc_skipped"] == json!(true);
+        assert!(!(always && skipped), "rrc_always, yet skipped: {answer}");
+        assert!(plain_jobs >= 1.0 && (rrc_jobs > plain_jobs) != skipped, "queue jobs: {plain_jobs} without RRC, {rrc_jobs} with (always {always}, skipped {skipped})");
+    }
     let res = &est["results"][0];
     assert_eq!(res["object_id"], "box");
     let tv: Vec<f64> = res["pose"]["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();

@@ -42,11 +42,17 @@ pub struct BenchCatalogueArgs {
     /// RRC in the estimate requests.
     #[arg(long)]
     pub no_rrc: bool,
+    /// The backbone the server runs (and the one `--patch-rows auto` resolves for).
+    #[command(flatten)]
+    pub backbone: super::backbone_args::BackboneArgs,
 }
 
 pub fn run(a: BenchCatalogueArgs) -> Result<()> {
-    let ids = fill(&a)?;
+    // What `auto` means for the backbone the server runs, said in the figures' heading.
+    let rows = a.patch_rows.resolve(a.backbone.open()?.as_ref());
+    let ids = fill(&a, rows)?;
     let mut extra = vec!["--max-estimates".to_string(), "1".to_string()];
+    extra.extend(["--backbone".to_string(), a.backbone.backbone.to_string(), "--device".to_string(), a.backbone.device.to_string()]);
     if let Some(mb) = a.cache_mb {
         extra.extend(["--cache-mb".to_string(), mb.to_string()]);
     }
@@ -102,7 +108,7 @@ pub fn run(a: BenchCatalogueArgs) -> Result<()> {
         ids.len(),
         a.from,
         a.descriptors,
-        a.patch_rows,
+        rows,
         a.store,
         a.cache_mb.map_or(String::new(), |mb| format!(", --cache-mb {mb}")),
         if a.no_rrc { "off" } else { "on" }
@@ -158,8 +164,9 @@ fn print_extra_by_stage(cold: &[Timed], warm: &[Timed]) {
     }
 }
 
-/// Copies the sources into the scratch store until it holds `objects` ids; returns them.
-fn fill(a: &BenchCatalogueArgs) -> Result<Vec<String>> {
+/// Copies the sources into the scratch store until it holds `objects` ids, their patch
+/// rows shared per view where `rows` says so; returns the ids.
+fn fill(a: &BenchCatalogueArgs, rows: crate::onboard::PatchRows) -> Result<Vec<String>> {
     let from = crate::store::open_read_only(&a.from)?;
     let sources: Vec<String> = from.list()?.into_iter().map(|o| o.id).collect();
     if sources.is_empty() {
@@ -175,8 +182,7 @@ fn fill(a: &BenchCatalogueArgs) -> Result<Vec<String>> {
             continue;
         }
         let mut model = from.get(source)?;
-        // The sources are the embedded backbone's bench models, for which `auto` is per view.
-        if a.patch_rows != crate::onboard::PatchRows::PerTemplate && !model.rows_per_view() {
+        if rows == crate::onboard::PatchRows::PerView && !model.rows_per_view() {
             crate::onboard::share_rows_per_view(&mut model).map_err(anyhow::Error::msg)?;
         }
         crate::onboard::apply_coding(&mut model, a.descriptors)?;

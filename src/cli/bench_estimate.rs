@@ -42,6 +42,11 @@ pub struct BenchEstimateArgs {
     /// photo is wider (default 256; 512 or more: no cap below the backbone's crop).
     #[arg(long)]
     pub rrc_render_cap: Option<u32>,
+    /// RRC on every instance, also where the first PnP's inliers are sure enough to skip
+    /// it (the paper's method; by default RRC runs where they are under 0.15 of the
+    /// query's foreground patches).
+    #[arg(long)]
+    pub rrc_always: bool,
     /// Refiner after PnP/RRC: none (pass-through), silhouette-depth (scales the depth to
     /// the best silhouette IoU) or contour (aligns the outline with the mask).
     #[arg(long, value_enum, default_value_t = crate::estimate::RefinerKind::default())]
@@ -234,6 +239,8 @@ struct Tally {
     /// Each image's instances and the time their estimates took, start to end (ms): what a
     /// request naming every instance of the image costs (`--instance-threads`).
     per_image: Vec<(usize, f64)>,
+    /// Instances whose RRC was skipped, their first matches being sure enough.
+    rrc_skipped: usize,
 }
 
 impl Tally {
@@ -373,6 +380,9 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     if let Some(c) = a.rrc_render_cap {
         base.rrc_render_cap = c;
     }
+    if a.rrc_always {
+        base.rrc_sure_share = 0.0;
+    }
     base.verify = a.verify.config();
     base.print = a.print_config.unwrap_or_default();
     if let Some(rounds) = a.verify.print_rounds {
@@ -460,6 +470,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
                     let again = estimator.estimate_hinted(model, (&scene.rgb, depth.as_ref()), &scene.cam, &less, others.as_ref(), hints, cfg)?;
                     stability.push(error, again.pose.as_ref().map(|p| mssd(p, &truth(p), model.mesh.positions()) / model.diameter()));
                 }
+                t.rrc_skipped += usize::from(r.hypotheses.iter().any(|h| h.rrc_skipped));
                 let tm = &r.timings;
                 t.stages.push([tm.crop, tm.features, tm.retrieval, tm.matching, tm.pnp, tm.rrc, tm.refine, tm.selection, tm.total]);
                 let bucket = size_bucket(&inst.mask);
@@ -635,6 +646,9 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     }
     for t in &tallies {
         println!("profile, {}: {}", t.name, profile(&t.stages));
+    }
+    for (t, (_, cfg)) in tallies.iter().zip(&configs).filter(|(_, (_, cfg))| cfg.rrc && cfg.rrc_sure_share > 0.0) {
+        println!("RRC skipped on {} of {} instances, {}: the first PnP's inliers at least {} of the query's foreground patches", t.rrc_skipped, t.stages.len(), t.name, cfg.rrc_sure_share);
     }
     for t in &tallies {
         println!("per image, {}: {}", t.name, t.per_image_report());

@@ -50,6 +50,11 @@ pub struct RunArgs {
     pub out: PathBuf,
     #[arg(long)]
     pub no_rrc: bool,
+    /// RRC on every instance, also where the first PnP's inliers are sure enough to skip
+    /// it (the paper's method; by default RRC runs where they are under 0.15 of the
+    /// query's foreground patches).
+    #[arg(long)]
+    pub rrc_always: bool,
     #[arg(long, default_value = "test")]
     pub split: String,
     /// Object store for the dataset's onboarded objects (default:
@@ -198,6 +203,7 @@ fn run_cmd(a: RunArgs) -> Result<()> {
     };
     let estimate = EstimateConfig {
         rrc: !a.no_rrc,
+        rrc_sure_share: if a.rrc_always { 0.0 } else { EstimateConfig::default().rrc_sure_share },
         refiner: a.refiner,
         verify: a.verify.config(),
         print: a.verify.print_config(),

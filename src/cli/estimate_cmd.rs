@@ -50,6 +50,11 @@ pub struct EstimateArgs {
     /// Skip render-guided re-correspondence.
     #[arg(long)]
     pub no_rrc: bool,
+    /// RRC on every instance, also where the first PnP's inliers are sure enough to skip
+    /// it (the paper's method; by default RRC runs where they are under 0.15 of the
+    /// query's foreground patches).
+    #[arg(long)]
+    pub rrc_always: bool,
     /// With depth and no detections given: how the depth detector's candidates are
     /// estimated: light (at most 12 verification hypotheses refined; docs/detection.md) or
     /// full (as a given mask).
@@ -195,6 +200,7 @@ pub fn run(a: EstimateArgs) -> Result<()> {
     let estimator = crate::estimate::Estimator::new(backbone, renderer.clone());
     let mut cfg = EstimateConfig {
         rrc: !a.no_rrc,
+        rrc_sure_share: if a.rrc_always { 0.0 } else { EstimateConfig::default().rrc_sure_share },
         refiner: a.refiner,
         verify: a.verify.config(),
         print: a.verify.print_config(),

@@ -363,6 +363,9 @@ impl Core {
         // Every object must exist before any work starts.
         let models: BTreeMap<&str, _> = by_object.keys().map(|&id| Ok((id, self.load_to_render(id)?))).collect::<Result<_, ServiceError>>()?;
         let mut cfg = EstimateConfig { rrc: o.rrc, max_masks: o.max_masks, refiner: o.refiner, ..Default::default() };
+        if o.rrc_always {
+            cfg.rrc_sure_share = 0.0;
+        }
         cfg.retrieval.k = o.k;
         cfg.verify.enabled = o.verify;
         cfg.verify.templates = o.verify_templates;

@@ -78,6 +78,7 @@ pub fn estimate_request(r: pb::EstimateRequest) -> Result<rq::EstimateRequest, S
     let o = r.options.unwrap_or_default();
     let options = EstimateOptions {
         rrc: o.rrc.unwrap_or(defaults.rrc),
+        rrc_always: o.rrc_always,
         k: non_zero(o.k as usize, defaults.k),
         max_masks: non_zero(o.max_masks as usize, defaults.max_masks),
         instances_per_object: non_zero(o.instances_per_object as usize, defaults.instances_per_object),
@@ -340,6 +341,12 @@ mod tests {
         let with = |box_prior| one_detection_request(pb::EstimateOptions { box_prior, ..Default::default() }).options.box_prior;
         use crate::estimate::BoxPrior;
         assert_eq!([None, Some(true), Some(false)].map(with), [BoxPrior::Auto, BoxPrior::Tight, BoxPrior::Off]);
+    }
+
+    #[test]
+    fn rrc_is_skipped_where_sure_unless_always_is_said() {
+        let with = |rrc_always| one_detection_request(pb::EstimateOptions { rrc_always, ..Default::default() }).options;
+        assert_eq!([false, true].map(|a| (with(a).rrc, with(a).rrc_always)), [(true, false), (true, true)]);
     }
 
     #[test]

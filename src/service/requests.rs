@@ -73,6 +73,9 @@ impl DetectionInput {
 pub struct EstimateOptions {
     /// Render-guided re-correspondence.
     pub rrc: bool,
+    /// RRC also where the first PnP's inliers are sure enough to skip it
+    /// (`EstimateConfig::rrc_sure_share`).
+    pub rrc_always: bool,
     /// Templates kept by retrieval.
     pub k: usize,
     /// Candidate masks per instance (multi-mask selection).
@@ -113,6 +116,7 @@ impl Default for EstimateOptions {
         let v = crate::estimate::VerifyConfig::default();
         Self {
             rrc: true,
+            rrc_always: false,
             k: 125,
             max_masks: 2,
             instances_per_object: 1,

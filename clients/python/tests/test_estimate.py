@@ -96,6 +96,16 @@ def test_options_reach_the_server(client: b2tfpose.Client, rgb_result: b2tfpose.
     assert client.estimate(scene.rgb, scene.K, [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)], rrc=False, verify=False).overlay_png is None
 
 
+def test_rrc_always_runs_rrc_where_the_server_may_skip_it(client: b2tfpose.Client, scene: Scene) -> None:
+    det = [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)]
+    [always] = client.estimate(scene.rgb, scene.K, det, verify=False, rrc_always=True)
+    assert "rrc_skipped" not in always.diagnostics[0] and always.diagnostics[0]["rrc_matches"] > 0
+    # By default RRC is skipped only where the first matches are sure, and then not matched.
+    [default] = client.estimate(scene.rgb, scene.K, det, verify=False)
+    d = default.diagnostics[0]
+    assert (d.get("rrc_skipped", False), d["rrc_matches"] == 0) in [(True, True), (False, False)]
+
+
 def test_verification_hypotheses_follow_the_options(client: b2tfpose.Client, scene: Scene) -> None:
     det = [b2tfpose.Detection(SAMPLE_ID, mask=scene.mask)]
     [r] = client.estimate(scene.rgb, scene.K, det, rrc=False, verify_templates=0, spin_steps=0, verify_matched=0)

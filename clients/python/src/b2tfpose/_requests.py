@@ -131,6 +131,7 @@ def estimate_request(
     overlay: bool = False,
     depth: Optional[DepthInput] = None,
     depth_scale: Optional[float] = None,
+    rrc_always: bool = False,
 ) -> pb.EstimateRequest:
     ids = objects_list(objects)
     if detections is None:
@@ -144,7 +145,7 @@ def estimate_request(
     if refiner is not None and refiner not in REFINERS:
         raise ValueError(f"refiner {refiner!r}: expected one of {', '.join(REFINERS)}")
     img, w, h = image_message(image, bgr=bgr)
-    options = pb.EstimateOptions(k=k or 0, max_masks=max_masks or 0, instances_per_object=instances_per_object or 0, refiner=refiner or "", overlay=bool(overlay))
+    options = pb.EstimateOptions(k=k or 0, max_masks=max_masks or 0, instances_per_object=instances_per_object or 0, refiner=refiner or "", overlay=bool(overlay), rrc_always=bool(rrc_always))
     if rrc is not None:
         options.rrc = rrc
     if verify is not None:

@@ -253,6 +253,7 @@ class Client:
         objects: Optional[Sequence[str]] = None,
         bgr: bool = False,
         rrc: Optional[bool] = None,
+        rrc_always: bool = False,
         refiner: Optional[str] = None,
         k: Optional[int] = None,
         max_masks: Optional[int] = None,
@@ -282,6 +283,7 @@ class Client:
         ``objects``: ids the server detects first (as :meth:`detect`, with its
         ``max_detections``, ``min_score``, ``min_distance``, ``max_distance``), then
         estimates (``.detections`` of the result lists what it found). ``rrc``,
+        ``rrc_always`` (RRC also where the first matches are sure enough to skip it),
         ``refiner`` ("contour", "silhouette-depth", "none"), ``k``, ``max_masks``,
         ``instances_per_object``, ``verify``, ``verify_templates``, ``spin_steps``, ``verify_matched``,
         ``nudge_degrees`` (0: off), ``depth_views`` (with depth: template views found
@@ -303,6 +305,7 @@ class Client:
             detect=_requests.detect_options(max_detections, min_score, min_distance, max_distance),
             bgr=bgr,
             rrc=rrc,
+            rrc_always=rrc_always,
             refiner=refiner,
             k=k,
             max_masks=max_masks,
