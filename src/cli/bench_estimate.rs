@@ -380,9 +380,7 @@ pub fn run(a: BenchEstimateArgs) -> Result<()> {
     if let Some(c) = a.rrc_render_cap {
         base.rrc_render_cap = c;
     }
-    if a.rrc_always {
-        base.rrc_sure_share = 0.0;
-    }
+    base = base.with_rrc_always(a.rrc_always);
     base.verify = a.verify.config();
     base.print = a.print_config.unwrap_or_default();
     if let Some(rounds) = a.verify.print_rounds {

@@ -203,7 +203,6 @@ fn run_cmd(a: RunArgs) -> Result<()> {
     };
     let estimate = EstimateConfig {
         rrc: !a.no_rrc,
-        rrc_sure_share: if a.rrc_always { 0.0 } else { EstimateConfig::default().rrc_sure_share },
         refiner: a.refiner,
         verify: a.verify.config(),
         print: a.verify.print_config(),
@@ -211,7 +210,8 @@ fn run_cmd(a: RunArgs) -> Result<()> {
         depth_proposals: a.depth_proposals,
         candidate_effort: a.candidate_effort,
         ..Default::default()
-    };
+    }
+    .with_rrc_always(a.rrc_always);
     let opts = RunOptions {
         split: a.split.clone(),
         estimate,

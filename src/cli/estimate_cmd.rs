@@ -200,14 +200,14 @@ pub fn run(a: EstimateArgs) -> Result<()> {
     let estimator = crate::estimate::Estimator::new(backbone, renderer.clone());
     let mut cfg = EstimateConfig {
         rrc: !a.no_rrc,
-        rrc_sure_share: if a.rrc_always { 0.0 } else { EstimateConfig::default().rrc_sure_share },
         refiner: a.refiner,
         verify: a.verify.config(),
         print: a.verify.print_config(),
         box_prior: a.box_prior,
         candidate_effort: a.candidate_effort,
         ..Default::default()
-    };
+    }
+    .with_rrc_always(a.rrc_always);
     cfg.retrieval.k = a.k;
     let (result, confirmation) = if given == 0 {
         let (r, c) = estimate_detected(&a, &model, (&image, depth.as_ref()), &k, &estimator, &renderer, &cfg)?;

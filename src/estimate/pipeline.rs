@@ -141,6 +141,18 @@ fn default_rrc_sure_share() -> f64 {
     0.15
 }
 
+impl EstimateConfig {
+    /// With `always`, RRC runs on every instance, never skipped for sure first matches
+    /// (`rrc_sure_share` 0): what `--rrc-always` and the API's `rrc_always` ask for.
+    pub fn with_rrc_always(self, always: bool) -> Self {
+        if always {
+            Self { rrc_sure_share: 0.0, ..self }
+        } else {
+            self
+        }
+    }
+}
+
 /// Milliseconds per stage, summed over the masks of one estimate.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct StageTimings {
@@ -753,6 +765,13 @@ mod tests {
         (t.depth, t.screen) = (8.0, 2.5);
         assert_eq!(t.by_stage(), as_json(&t));
         assert_eq!((t.by_stage()["depth"], t.by_stage()["screen"]), (8.0, 2.5));
+    }
+
+    #[test]
+    fn rrc_always_turns_the_skip_off_and_otherwise_keeps_the_share() {
+        let share = |always| EstimateConfig { rrc_sure_share: 0.2, ..Default::default() }.with_rrc_always(always).rrc_sure_share;
+        assert_eq!((share(true), share(false)), (0.0, 0.2));
+        assert!(!rrc_is_sure(1000, 10, 0.0) && rrc_is_sure(2, 10, 0.2) && !rrc_is_sure(1, 10, 0.2));
     }
 
     #[test]

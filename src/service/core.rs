@@ -362,10 +362,7 @@ impl Core {
         }
         // Every object must exist before any work starts.
         let models: BTreeMap<&str, _> = by_object.keys().map(|&id| Ok((id, self.load_to_render(id)?))).collect::<Result<_, ServiceError>>()?;
-        let mut cfg = EstimateConfig { rrc: o.rrc, max_masks: o.max_masks, refiner: o.refiner, ..Default::default() };
-        if o.rrc_always {
-            cfg.rrc_sure_share = 0.0;
-        }
+        let mut cfg = EstimateConfig { rrc: o.rrc, max_masks: o.max_masks, refiner: o.refiner, ..Default::default() }.with_rrc_always(o.rrc_always);
         cfg.retrieval.k = o.k;
         cfg.verify.enabled = o.verify;
         cfg.verify.templates = o.verify_templates;
