@@ -323,6 +323,47 @@ fn hints_and_nudges_are_verified_with_the_other_hypotheses() {
     assert!(mssd(&hint.pose, &inst.pose, f.model.mesh.positions()) < 0.05 * d, "the refined truth stays right");
 }
 
+/// Verification's cut after the contour refiner's first line scale: the hypotheses it
+/// finishes are refined exactly as without it (a subset of the full run's, pose for pose),
+/// the pipeline's own among them, fewer in all, and the answer stays right; with another
+/// refiner there is nothing to cut.
+#[test]
+fn verification_finishes_only_the_best_after_the_first_line_scale() {
+    use b2tfpose::estimate::hypotheses::Source;
+    use b2tfpose::estimate::RefinerKind;
+    let f = fixture();
+    let s = scene(3);
+    let inst = &s.instances[0];
+    let det = true_detection(&s);
+    // Only the main verification's hypotheses: no nudges or second look added after it.
+    let mut cfg = EstimateConfig::default();
+    assert_eq!(cfg.verify.finished, 16, "cut by default");
+    (cfg.verify.nudge_degrees, cfg.verify.second_look, cfg.verify.finished) = (0.0, false, 0);
+    let verified = |cfg: &EstimateConfig| f.estimator.estimate(&f.model, &s.rgb, &s.cam, &det, cfg).unwrap();
+    let full = verified(&cfg);
+    cfg.verify.finished = 6;
+    let cut = verified(&cfg);
+    let (all, some) = (&full.hypotheses[0].verified, &cut.hypotheses[0].verified);
+    assert!(all.len() > 12, "{} hypotheses", all.len());
+    // At most 6 finished, beside those the refiner kept at their start after the first scale.
+    let kept_at_start = some.iter().filter(|v| !v.refinement.moved).count();
+    assert!(some.len() >= 6 && some.len() <= 6 + kept_at_start && some.len() < all.len(), "{} of {}", some.len(), all.len());
+    assert!(some.iter().any(|v| v.source == Source::Pipeline));
+    for v in some {
+        let same = all.iter().find(|w| w.source == v.source).unwrap_or_else(|| panic!("{} not in the full run", v.source));
+        assert_eq!((v.pose.rotation, v.pose.translation), (same.pose.rotation, same.pose.translation), "{}", v.source);
+    }
+    let e = mssd(&cut.pose.expect("a pose"), &inst.pose, f.model.mesh.positions());
+    assert!(e < 0.1 * f.model.diameter(), "MSSD {:.1} mm", e * 1e3);
+
+    let other = |finished| {
+        let mut c = EstimateConfig { refiner: RefinerKind::SilhouetteDepth, ..cfg.clone() };
+        c.verify.finished = finished;
+        verified(&c).hypotheses[0].verified.len()
+    };
+    assert_eq!(other(6), other(0), "only the contour refiner is refined in stages");
+}
+
 /// Where PnP finds no pose (here it is asked for more inliers than there can be matches),
 /// verification starts from the template with the most matches instead and still finds
 /// the box; without verification the mask has no pose and says why.
@@ -335,6 +376,8 @@ fn verification_starts_from_a_template_where_pnp_finds_no_pose() {
     let det = true_detection(&s);
     let mut cfg = EstimateConfig::default();
     cfg.pnp.min_inliers = 1_000_000;
+    // Every hypothesis refined in full, so that all those made from the start are there.
+    cfg.verify.finished = 0;
     let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &det, &cfg).unwrap();
     let h = &r.hypotheses[0];
     let sources: Vec<Source> = h.verified.iter().map(|v| v.source).collect();

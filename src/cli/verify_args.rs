@@ -51,6 +51,11 @@ pub struct VerifyArgs {
     /// start, and the pipeline's pose always (0: all).
     #[arg(long)]
     pub verify_refined: Option<usize>,
+    /// Hypotheses taken past the contour refiner's first line scale: the best this many by
+    /// outline agreement there, the pipeline's pose and the depth's views always (default
+    /// 16; 0: all, about a seventh slower and as accurate within noise).
+    #[arg(long)]
+    pub verify_finished: Option<usize>,
     /// Count the render's pixels under other detections against a pose's silhouette IoU,
     /// as if nothing could hide the object there (by default they count neither way).
     #[arg(long)]
@@ -101,6 +106,7 @@ impl VerifyArgs {
             skip_symmetric: self.skip_symmetric_hypotheses,
             feature_share: self.feature_share.unwrap_or(d.feature_share),
             refined: self.verify_refined.unwrap_or(d.refined),
+            finished: self.verify_finished.unwrap_or(d.finished),
             second_look: !self.no_second_look,
             rendered: self.verify_rendered.unwrap_or(d.rendered),
             max_rendered: self.verify_max_rendered.unwrap_or(d.max_rendered),

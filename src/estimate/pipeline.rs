@@ -26,6 +26,7 @@ use std::borrow::Cow;
 use std::sync::Arc;
 use std::time::Instant;
 
+mod coarse_cut;
 mod depth_judge;
 mod depth_review;
 mod nudge;
@@ -473,11 +474,13 @@ impl Estimator {
         if cfg.verify.refined > 0 && candidates.len() > cfg.verify.refined {
             candidates = self.most_agreeing(ctx, candidates, cfg.verify.refined);
         }
-        let mut verified = self.refine_hypotheses(ctx, &candidates, cfg);
+        let always = |s: Source| s == start || matches!(s, Source::DepthView(_));
+        // The caller's hints are refined in full too, so that they are judged as given.
+        let mut verified = self.refine_with_cut(ctx, &candidates, |s| always(s) || matches!(s, Source::Hint(_)), cfg);
         verified.sort_by(|a, b| b.contour.total_cmp(&a.contour));
         let window = mask_window(ctx.mask).expect("validated non-empty");
         // The start (the pipeline's own pose) is always rendered: it must be beaten on the evidence.
-        let always: Vec<usize> = verified.iter().enumerate().filter(|(_, v)| v.source == start || matches!(v.source, Source::DepthView(_))).map(|(i, _)| i).collect();
+        let always: Vec<usize> = verified.iter().enumerate().filter(|(_, v)| always(v.source)).map(|(i, _)| i).collect();
         let rendered = super::verify::to_render(&verified, &always, &cfg.verify);
         self.judge(ctx, &mut verified, &rendered, window, query, cfg)?;
         verified.sort_by(|a, b| b.score.total_cmp(&a.score));
@@ -501,16 +504,16 @@ impl Estimator {
     /// left out. Not yet rendered or scored.
     fn refine_hypotheses(&self, ctx: &RefineContext<'_>, candidates: &[(Source, Pose)], cfg: &EstimateConfig) -> Vec<Verified> {
         let refiner = self.refiner(cfg.refiner);
-        candidates
-            .par_iter()
-            .filter_map(|&(source, p)| {
-                let mut r = refiner.refine(ctx, p).ok()?;
-                let held = held_to_box(ctx, cfg.box_prior, &mut r.pose);
-                r.report.moved_to_box = held;
-                let contour = if cfg.refiner == RefinerKind::Contour && !held { r.report.agreement } else { self.contour.agreement(ctx, &r.pose).ok()?.score };
-                Some(Verified::unscored(source, r.pose, r.report, contour))
-            })
-            .collect()
+        candidates.par_iter().filter_map(|&(source, p)| self.verified(ctx, source, refiner.refine(ctx, p).ok()?, cfg)).collect()
+    }
+
+    /// A refined hypothesis, held to the caller's box where it is one's proposal, with its
+    /// contour agreement; not yet rendered or scored.
+    fn verified(&self, ctx: &RefineContext<'_>, source: Source, mut r: super::refine::Refined, cfg: &EstimateConfig) -> Option<Verified> {
+        let held = held_to_box(ctx, cfg.box_prior, &mut r.pose);
+        r.report.moved_to_box = held;
+        let contour = if cfg.refiner == RefinerKind::Contour && !held { r.report.agreement } else { self.contour.agreement(ctx, &r.pose).ok()?.score };
+        Some(Verified::unscored(source, r.pose, r.report, contour))
     }
 
     /// Renders the hypotheses `which` over the mask's `window` and measures what the

@@ -14,4 +14,4 @@ pub mod refiner;
 pub mod solve;
 
 pub use print_refine::PrintRefineConfig;
-pub use refiner::{Agreement, ContourRefiner, ContourRefinerConfig, PhotoEdges};
+pub use refiner::{Agreement, Begun, CoarseRun, ContourRefiner, ContourRefinerConfig, PhotoEdges};

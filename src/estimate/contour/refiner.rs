@@ -153,6 +153,9 @@ fn agreement(lines: &[Line], scale: &LineScale) -> Agreement {
     a
 }
 
+/// What every measurement at a pose needs (`ContourRefiner::inputs`).
+pub(super) type Inputs<'a> = (Arc<ContourModel>, Vector3<f64>, Posterior<'a>);
+
 pub struct ContourRefiner {
     pub(super) renderer: Arc<RenderPool>,
     pub config: ContourRefinerConfig,
@@ -176,7 +179,7 @@ impl ContourRefiner {
 
     /// What every measurement at a pose needs: the contour model (built now for an object
     /// stored without one), the object centre and the mask's posterior.
-    pub(super) fn inputs<'a>(&self, ctx: &RefineContext<'a>) -> Result<(Arc<ContourModel>, Vector3<f64>, Posterior<'a>), String> {
+    pub(super) fn inputs<'a>(&self, ctx: &RefineContext<'a>) -> Result<Inputs<'a>, String> {
         let cm = ctx.model.contour_model_or_build(&self.renderer).map_err(|e| e.to_string())?;
         Ok((cm, Vector3::from(ctx.model.mesh.bbox_center()), if ctx.mask_is_probability { Posterior::probabilities(ctx.mask) } else { Posterior::new(ctx.mask, ctx.unknown) }))
     }
@@ -203,61 +206,134 @@ impl ContourRefiner {
     }
 }
 
+/// A refinement taken through its first (coarsest) line scale, to be finished
+/// ([`ContourRefiner::finish`]) or dropped where other hypotheses agree better there
+/// (verification's cut, `VerifyConfig::finished`).
+pub struct CoarseRun {
+    start: Pose,
+    pose: Pose,
+    scales: Vec<LineScale>,
+    /// Agreement with the mask on the coarse scale's last lines (built before the last
+    /// pass's updates): what the cut ranks runs by, read off lines built anyway.
+    pub coarse_agreement: f64,
+    last: LastStep,
+}
+
+/// What the last pose update said, reported with the refined pose.
+#[derive(Clone, Copy)]
+struct LastStep {
+    /// The depth's standard deviation, the visible share of the outline and the share of
+    /// lines whose outline came from the photo's edge.
+    depth_sigma: f64,
+    visible: f64,
+    photo_share: f64,
+}
+
+/// A refinement begun: already over (the start kept, for a reason in its report), or
+/// through its first scale.
+pub enum Begun {
+    Done(Refined),
+    Coarse(CoarseRun),
+}
+
+impl ContourRefiner {
+    /// The start kept, with its agreement and `note` as the report.
+    fn kept(&self, ctx: &RefineContext<'_>, inputs: &Inputs<'_>, start: Pose, note: String) -> Refined {
+        let (cm, centre, post) = inputs;
+        Refined { pose: start, report: self.agreement_at(ctx, cm, centre, post, &start).report(false, Some(note)) }
+    }
+
+    /// Runs the line scales `scales` from `run.pose`, the first pass on `first` where it
+    /// is given (lines already built at that pose on the first of them). The agreement of
+    /// the last lines built, or why the run left the field of view.
+    fn run_scales(&self, ctx: &RefineContext<'_>, (cm, centre, post): &Inputs<'_>, run: &mut CoarseRun, scales: &[LineScale], mut first: Option<Vec<Line>>) -> Result<f64, String> {
+        let k = ctx.intrinsics;
+        let radius = ctx.model.mesh.bounding_radius();
+        let photo = self.config.photo_edges.lines(ctx.image, &ctx.model.mesh);
+        let mut last_agreement = f64::NAN;
+        for scale in scales {
+            for _ in 0..self.config.passes_per_scale {
+                let lines = first.take().unwrap_or_else(|| build_lines(cm, centre, &run.pose, k, post, *scale, photo));
+                last_agreement = agreement(&lines, scale).score;
+                run.last.photo_share = lines.iter().filter(|l| l.photo_edge).count() as f64 / lines.len().max(1) as f64;
+                for _ in 0..self.config.updates_per_pass {
+                    let Some(step) = gauss_newton_update(&lines, PointTerm::NONE, &run.pose, &run.start, k, &self.config.regularisation, radius, self.config.occlusion_model) else { break };
+                    run.pose = apply_update(&run.pose, &step.omega, &step.v);
+                    run.last.depth_sigma = step.depth_sigma(&run.pose);
+                    // Lines without an edge (hidden entirely, or past the image border)
+                    // count as not visible.
+                    run.last.visible = step.own_edges / lines.len().max(1) as f64;
+                }
+                if run.pose.translation.z <= 0.0 || !run.pose.translation.iter().all(|x| x.is_finite()) {
+                    return Err("no improvement: the update left the camera's field of view".into());
+                }
+            }
+        }
+        Ok(last_agreement)
+    }
+
+    /// Checks the start and runs the first line scale from it.
+    pub fn begin(&self, ctx: &RefineContext<'_>, start: Pose) -> Result<Begun, String> {
+        let inputs = self.inputs(ctx)?;
+        let (cm, centre, post) = &inputs;
+        let scales = self.scales(Self::apparent_diameter(ctx, &start, centre));
+        let photo = self.config.photo_edges.lines(ctx.image, &ctx.model.mesh);
+        // Too few lines see the mask's outline (empty, wrong or far-off mask): no update
+        // could be trusted. The first pass measures at the start on these lines.
+        let coarse = build_lines(cm, centre, &start, ctx.intrinsics, post, scales[0], photo);
+        let edges = coarse.iter().filter(|l| l.edge).count();
+        if (edges as f64) < self.config.min_edge_share * coarse.len().max(1) as f64 {
+            let note = format!("no improvement: {edges} of {} lines see the mask's outline", coarse.len());
+            return Ok(Begun::Done(self.kept(ctx, &inputs, start, note)));
+        }
+        let last = LastStep { depth_sigma: f64::NAN, visible: f64::NAN, photo_share: f64::NAN };
+        let mut run = CoarseRun { start, pose: start, scales, coarse_agreement: f64::NAN, last };
+        let first_scale = [run.scales[0]];
+        match self.run_scales(ctx, &inputs, &mut run, &first_scale, Some(coarse)) {
+            Ok(a) => run.coarse_agreement = a,
+            Err(note) => return Ok(Begun::Done(self.kept(ctx, &inputs, start, note))),
+        }
+        Ok(Begun::Coarse(run))
+    }
+
+    /// Runs the remaining line scales of `run`, and keeps its start where the result ran
+    /// beyond a local method's reach or agrees less with the mask than the start did.
+    pub fn finish(&self, ctx: &RefineContext<'_>, mut run: CoarseRun) -> Result<Refined, String> {
+        let inputs = self.inputs(ctx)?;
+        let finer = run.scales[1..].to_vec();
+        if let Err(note) = self.run_scales(ctx, &inputs, &mut run, &finer, None) {
+            return Ok(self.kept(ctx, &inputs, run.start, note));
+        }
+        let (cm, centre, post) = &inputs;
+        let (start, pose) = (run.start, run.pose);
+        let turn = start.rotation.rotation_to(&pose.rotation).angle().to_degrees();
+        let (z0, z1) = ((start.rotation * centre + start.translation).z, (pose.rotation * centre + pose.translation).z);
+        if turn > self.config.max_turn_deg || (z1 - z0).abs() > self.config.max_depth_change * z0 {
+            let note = format!("no improvement: the result turned {turn:.0}° and moved {:.0} % in depth, beyond a local refinement's reach", 100.0 * (z1 - z0).abs() / z0);
+            return Ok(self.kept(ctx, &inputs, start, note));
+        }
+        let after = self.agreement_at(ctx, cm, centre, post, &pose);
+        if self.config.compare_with_start {
+            let before = self.agreement_at(ctx, cm, centre, post, &start);
+            if after.score < before.score {
+                let note = format!("no improvement: contour agreement {:.3} after, {:.3} before", after.score, before.score);
+                return Ok(Refined { pose: start, report: before.report(false, Some(note)) });
+            }
+        }
+        let LastStep { depth_sigma, visible, photo_share } = run.last;
+        Ok(Refined { pose, report: RefineReport { depth_sigma_m: depth_sigma, visible_fraction: visible, photo_edge_share: photo_share, ..after.report(true, None) } })
+    }
+}
+
 impl Refiner for ContourRefiner {
     fn name(&self) -> &str {
         "contour"
     }
 
     fn refine(&self, ctx: &RefineContext<'_>, start: Pose) -> Result<Refined, String> {
-        let (cm, centre, post) = self.inputs(ctx)?;
-        let k = ctx.intrinsics;
-        // The start's agreement: what a result must beat, and what a kept start reports;
-        // measured only where one of them needs it.
-        let before = std::cell::OnceCell::new();
-        let before = || *before.get_or_init(|| self.agreement_at(ctx, &cm, &centre, &post, &start));
-        let keep = |note: String| Ok(Refined { pose: start, report: before().report(false, Some(note)) });
-        // Too few lines see the mask's outline (empty, wrong or far-off mask): no update
-        // could be trusted.
-        let scales = self.scales(Self::apparent_diameter(ctx, &start, &centre));
-        let photo = self.config.photo_edges.lines(ctx.image, &ctx.model.mesh);
-        let coarse = build_lines(&cm, &centre, &start, k, &post, scales[0], photo);
-        let edges = coarse.iter().filter(|l| l.edge).count();
-        if (edges as f64) < self.config.min_edge_share * coarse.len().max(1) as f64 {
-            return keep(format!("no improvement: {edges} of {} lines see the mask's outline", coarse.len()));
+        match self.begin(ctx, start)? {
+            Begun::Done(r) => Ok(r),
+            Begun::Coarse(run) => self.finish(ctx, run),
         }
-        let radius = ctx.model.mesh.bounding_radius();
-        let mut pose = start;
-        // The depth's standard deviation and the visible share of the outline from the last
-        // step, on the finest lines.
-        let (mut depth_sigma, mut visible, mut photo_share) = (f64::NAN, f64::NAN, f64::NAN);
-        // The first pass measures at the start pose on the first scale: the check's lines.
-        let mut first = Some(coarse);
-        for scale in &scales {
-            for _ in 0..self.config.passes_per_scale {
-                let lines = first.take().unwrap_or_else(|| build_lines(&cm, &centre, &pose, k, &post, *scale, photo));
-                photo_share = lines.iter().filter(|l| l.photo_edge).count() as f64 / lines.len().max(1) as f64;
-                for _ in 0..self.config.updates_per_pass {
-                    let Some(step) = gauss_newton_update(&lines, PointTerm::NONE, &pose, &start, k, &self.config.regularisation, radius, self.config.occlusion_model) else { break };
-                    pose = apply_update(&pose, &step.omega, &step.v);
-                    depth_sigma = step.depth_sigma(&pose);
-                    // Lines without an edge (hidden entirely, or past the image border)
-                    // count as not visible.
-                    visible = step.own_edges / lines.len().max(1) as f64;
-                }
-                if pose.translation.z <= 0.0 || !pose.translation.iter().all(|x| x.is_finite()) {
-                    return keep("no improvement: the update left the camera's field of view".into());
-                }
-            }
-        }
-        let turn = start.rotation.rotation_to(&pose.rotation).angle().to_degrees();
-        let (z0, z1) = ((start.rotation * centre + start.translation).z, (pose.rotation * centre + pose.translation).z);
-        if turn > self.config.max_turn_deg || (z1 - z0).abs() > self.config.max_depth_change * z0 {
-            return keep(format!("no improvement: the result turned {turn:.0}° and moved {:.0} % in depth, beyond a local refinement's reach", 100.0 * (z1 - z0).abs() / z0));
-        }
-        let after = self.agreement_at(ctx, &cm, &centre, &post, &pose);
-        if self.config.compare_with_start && after.score < before().score {
-            return keep(format!("no improvement: contour agreement {:.3} after, {:.3} before", after.score, before().score));
-        }
-        Ok(Refined { pose, report: RefineReport { depth_sigma_m: depth_sigma, visible_fraction: visible, photo_edge_share: photo_share, ..after.report(true, None) } })
     }
 }
