@@ -34,7 +34,7 @@ pub struct VerifyArgs {
     #[arg(long)]
     pub verify_rendered: Option<usize>,
     /// Most hypotheses rendered in verification, those the outline cannot tell apart
-    /// included (default 12).
+    /// included (default 10).
     #[arg(long)]
     pub verify_max_rendered: Option<usize>,
     /// No second look: where the winner's rendered print agrees with nothing in the photo,
