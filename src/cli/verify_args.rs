@@ -52,7 +52,7 @@ pub struct VerifyArgs {
     #[arg(long)]
     pub verify_refined: Option<usize>,
     /// Hypotheses taken past the contour refiner's first line scale: the best this many by
-    /// outline agreement there, the pipeline's pose and the depth's views always (default
+    /// outline agreement there, the pipeline's pose, the depth's views and hints always (default
     /// 16; 0: all, about a seventh slower and as accurate within noise).
     #[arg(long)]
     pub verify_finished: Option<usize>,

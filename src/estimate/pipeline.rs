@@ -566,7 +566,7 @@ impl Estimator {
     /// the start (the first: the pipeline's pose) whatever its agreement, in their order.
     fn most_agreeing(&self, ctx: &RefineContext<'_>, candidates: Vec<(Source, Pose)>, keep: usize) -> Vec<(Source, Pose)> {
         let scores: Vec<f64> = candidates.par_iter().map(|(_, p)| self.contour.agreement(ctx, p).map_or(f64::NEG_INFINITY, |a| a.score)).collect();
-        let kept = super::verify::first_and_best(&scores, keep);
+        let kept = super::verify::always_and_best(&scores, |i| i == 0, keep);
         candidates.into_iter().zip(kept).filter_map(|(c, k)| k.then_some(c)).collect()
     }
 

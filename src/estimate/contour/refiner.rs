@@ -209,7 +209,8 @@ impl ContourRefiner {
 /// A refinement taken through its first (coarsest) line scale, to be finished
 /// ([`ContourRefiner::finish`]) or dropped where other hypotheses agree better there
 /// (verification's cut, `VerifyConfig::finished`).
-pub struct CoarseRun {
+pub struct CoarseRun<'a> {
+    inputs: Inputs<'a>,
     start: Pose,
     pose: Pose,
     scales: Vec<LineScale>,
@@ -231,9 +232,12 @@ struct LastStep {
 
 /// A refinement begun: already over (the start kept, for a reason in its report), or
 /// through its first scale.
-pub enum Begun {
+// The run is several times a `Refined` (it carries the mask's posterior table), but a
+// `Begun` lives only until it is sorted into finished and running: not worth a box each.
+#[allow(clippy::large_enum_variant)]
+pub enum Begun<'a> {
     Done(Refined),
-    Coarse(CoarseRun),
+    Coarse(CoarseRun<'a>),
 }
 
 impl ContourRefiner {
@@ -245,35 +249,38 @@ impl ContourRefiner {
 
     /// Runs the line scales `scales` from `run.pose`, the first pass on `first` where it
     /// is given (lines already built at that pose on the first of them). The agreement of
-    /// the last lines built, or why the run left the field of view.
-    fn run_scales(&self, ctx: &RefineContext<'_>, (cm, centre, post): &Inputs<'_>, run: &mut CoarseRun, scales: &[LineScale], mut first: Option<Vec<Line>>) -> Result<f64, String> {
+    /// the last lines built (scored on the last pass only: only the cut reads it), or why
+    /// the run left the field of view.
+    fn run_scales(&self, ctx: &RefineContext<'_>, run: &mut CoarseRun<'_>, scales: &[LineScale], mut first: Option<Vec<Line>>) -> Result<f64, String> {
         let k = ctx.intrinsics;
         let radius = ctx.model.mesh.bounding_radius();
         let photo = self.config.photo_edges.lines(ctx.image, &ctx.model.mesh);
         let mut last_agreement = f64::NAN;
-        for scale in scales {
-            for _ in 0..self.config.passes_per_scale {
-                let lines = first.take().unwrap_or_else(|| build_lines(cm, centre, &run.pose, k, post, *scale, photo));
+        let passes = scales.len() * self.config.passes_per_scale;
+        for (pass, scale) in scales.iter().flat_map(|s| std::iter::repeat_n(s, self.config.passes_per_scale)).enumerate() {
+            let (cm, centre, post) = &run.inputs;
+            let lines = first.take().unwrap_or_else(|| build_lines(cm, centre, &run.pose, k, post, *scale, photo));
+            if pass + 1 == passes {
                 last_agreement = agreement(&lines, scale).score;
-                run.last.photo_share = lines.iter().filter(|l| l.photo_edge).count() as f64 / lines.len().max(1) as f64;
-                for _ in 0..self.config.updates_per_pass {
-                    let Some(step) = gauss_newton_update(&lines, PointTerm::NONE, &run.pose, &run.start, k, &self.config.regularisation, radius, self.config.occlusion_model) else { break };
-                    run.pose = apply_update(&run.pose, &step.omega, &step.v);
-                    run.last.depth_sigma = step.depth_sigma(&run.pose);
-                    // Lines without an edge (hidden entirely, or past the image border)
-                    // count as not visible.
-                    run.last.visible = step.own_edges / lines.len().max(1) as f64;
-                }
-                if run.pose.translation.z <= 0.0 || !run.pose.translation.iter().all(|x| x.is_finite()) {
-                    return Err("no improvement: the update left the camera's field of view".into());
-                }
+            }
+            run.last.photo_share = lines.iter().filter(|l| l.photo_edge).count() as f64 / lines.len().max(1) as f64;
+            for _ in 0..self.config.updates_per_pass {
+                let Some(step) = gauss_newton_update(&lines, PointTerm::NONE, &run.pose, &run.start, k, &self.config.regularisation, radius, self.config.occlusion_model) else { break };
+                run.pose = apply_update(&run.pose, &step.omega, &step.v);
+                run.last.depth_sigma = step.depth_sigma(&run.pose);
+                // Lines without an edge (hidden entirely, or past the image border)
+                // count as not visible.
+                run.last.visible = step.own_edges / lines.len().max(1) as f64;
+            }
+            if run.pose.translation.z <= 0.0 || !run.pose.translation.iter().all(|x| x.is_finite()) {
+                return Err("no improvement: the update left the camera's field of view".into());
             }
         }
         Ok(last_agreement)
     }
 
     /// Checks the start and runs the first line scale from it.
-    pub fn begin(&self, ctx: &RefineContext<'_>, start: Pose) -> Result<Begun, String> {
+    pub fn begin<'a>(&self, ctx: &RefineContext<'a>, start: Pose) -> Result<Begun<'a>, String> {
         let inputs = self.inputs(ctx)?;
         let (cm, centre, post) = &inputs;
         let scales = self.scales(Self::apparent_diameter(ctx, &start, centre));
@@ -287,30 +294,30 @@ impl ContourRefiner {
             return Ok(Begun::Done(self.kept(ctx, &inputs, start, note)));
         }
         let last = LastStep { depth_sigma: f64::NAN, visible: f64::NAN, photo_share: f64::NAN };
-        let mut run = CoarseRun { start, pose: start, scales, coarse_agreement: f64::NAN, last };
-        let first_scale = [run.scales[0]];
-        match self.run_scales(ctx, &inputs, &mut run, &first_scale, Some(coarse)) {
+        let first_scale = [scales[0]];
+        let mut run = CoarseRun { inputs, start, pose: start, scales, coarse_agreement: f64::NAN, last };
+        match self.run_scales(ctx, &mut run, &first_scale, Some(coarse)) {
             Ok(a) => run.coarse_agreement = a,
-            Err(note) => return Ok(Begun::Done(self.kept(ctx, &inputs, start, note))),
+            Err(note) => return Ok(Begun::Done(self.kept(ctx, &run.inputs, start, note))),
         }
         Ok(Begun::Coarse(run))
     }
 
     /// Runs the remaining line scales of `run`, and keeps its start where the result ran
     /// beyond a local method's reach or agrees less with the mask than the start did.
-    pub fn finish(&self, ctx: &RefineContext<'_>, mut run: CoarseRun) -> Result<Refined, String> {
-        let inputs = self.inputs(ctx)?;
+    pub fn finish(&self, ctx: &RefineContext<'_>, mut run: CoarseRun<'_>) -> Result<Refined, String> {
         let finer = run.scales[1..].to_vec();
-        if let Err(note) = self.run_scales(ctx, &inputs, &mut run, &finer, None) {
-            return Ok(self.kept(ctx, &inputs, run.start, note));
+        if let Err(note) = self.run_scales(ctx, &mut run, &finer, None) {
+            return Ok(self.kept(ctx, &run.inputs, run.start, note));
         }
-        let (cm, centre, post) = &inputs;
+        let inputs = &run.inputs;
+        let (cm, centre, post) = inputs;
         let (start, pose) = (run.start, run.pose);
         let turn = start.rotation.rotation_to(&pose.rotation).angle().to_degrees();
         let (z0, z1) = ((start.rotation * centre + start.translation).z, (pose.rotation * centre + pose.translation).z);
         if turn > self.config.max_turn_deg || (z1 - z0).abs() > self.config.max_depth_change * z0 {
             let note = format!("no improvement: the result turned {turn:.0}° and moved {:.0} % in depth, beyond a local refinement's reach", 100.0 * (z1 - z0).abs() / z0);
-            return Ok(self.kept(ctx, &inputs, start, note));
+            return Ok(self.kept(ctx, inputs, start, note));
         }
         let after = self.agreement_at(ctx, cm, centre, post, &pose);
         if self.config.compare_with_start {
