@@ -35,7 +35,7 @@ export function python(request, files, keyed) {
   else args.push(`[${request.detections.map((d) => detection(d, files)).join(", ")}]`);
   args.push(`rrc=${o.rrc ? "True" : "False"}`, `verify=${o.verify ? "True" : "False"}`);
   // The client's keyword arguments carry the API options' names.
-  for (const name of ["refiner", "verify_templates", "verify_matched", "spin_steps", "nudge_degrees", "depth_views", "box_prior"]) {
+  for (const name of ["rrc_always", "refiner", "verify_templates", "verify_matched", "spin_steps", "nudge_degrees", "depth_views", "box_prior"]) {
     if (o[name] !== undefined) args.push(`${name}=${pythonValue(o[name])}`);
   }
   if (request.depth) args.push(`depth=${quote(files.depth ?? "depth.png", '"')}`, `depth_scale=${json(request.depth.scale_mm)}`);

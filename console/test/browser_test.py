@@ -353,6 +353,7 @@ def run(page: Page, server: Server, inputs: dict, mask: list) -> None:
     page.by("photo-depth-views").send_keys("2")
     Select(page.by("photo-refiner")).select_by_value("contour")
     Select(page.by("photo-box-prior")).select_by_value("true")
+    Select(page.by("photo-rrc-always")).select_by_value("true")
     page.by("photo-estimate").click()
     # Busy at once, before the mask is encoded, with the box's answer put away: no second
     # request from a second click, and no old answer read as the new one.
@@ -362,8 +363,8 @@ def run(page: Page, server: Server, inputs: dict, mask: list) -> None:
     assert "pose(s) found" in page.by("photo-summary").text and "sample-box" in page.by("photo-results").text
     assert "$MASK" in page.by("photo-curl").text and "mask=" in page.by("photo-python").text
     curl, python = page.by("photo-curl").text, page.by("photo-python").text
-    assert all(o in curl for o in ('"nudge_degrees":12', '"spin_steps":4', '"depth_views":2', '"refiner":"contour"', '"box_prior":true')) and "verify_templates" not in curl, curl
-    assert all(o in python for o in ("nudge_degrees=12", "spin_steps=4", "depth_views=2", 'refiner="contour"', "box_prior=True")), python
+    assert all(o in curl for o in ('"nudge_degrees":12', '"spin_steps":4', '"depth_views":2', '"refiner":"contour"', '"box_prior":true', '"rrc_always":true')) and "verify_templates" not in curl, curl
+    assert all(o in python for o in ("nudge_degrees=12", "spin_steps=4", "depth_views=2", 'refiner="contour"', "box_prior=True", "rrc_always=True")), python
     masked_t = [float(v) for v in d.find_element(By.CSS_SELECTOR, "#photo-results tbody tr .t").text.split(",")]
     assert math.dist(masked_t, [v * 1000 for v in inputs["pose"]["t"]]) < 20, masked_t
     page.shot("05-photo-mask")
@@ -371,6 +372,7 @@ def run(page: Page, server: Server, inputs: dict, mask: list) -> None:
         page.by(setting).clear()
     Select(page.by("photo-refiner")).select_by_value("")
     Select(page.by("photo-box-prior")).select_by_value("")
+    Select(page.by("photo-rrc-always")).select_by_value("")
     # The detector: no box, no mask.
     d.find_element(By.CSS_SELECTOR, 'input[name="mode"][value="detect"]').click()
     page.by("photo-estimate").click()
