@@ -60,9 +60,9 @@ pub struct VerifyConfig {
     /// start, and the pipeline's pose always; 0 refines all.
     pub refined: usize,
     /// Hypotheses the contour refiner takes past its first line scale: the best this many
-    /// by their outline's agreement with the mask there, the pipeline's pose, the
-    /// depth's views and the caller's hints always; the others are dropped. 0 finishes all. 16 of the 32 by
-    /// measurement (docs/benchmarks/estimation-occlusion-and-speed.md, "Only the best
+    /// by their outline's agreement with the mask there, the pipeline's pose, the depth's
+    /// views and the caller's hints always; the others are dropped. 0 finishes all. 16 of
+    /// the 32 by measurement (docs/benchmarks/estimation-occlusion-and-speed.md, "Only the best
     /// hypotheses past the first line scale"): on 510 generated HOPE instances over eleven
     /// sets it changed four verdicts (three to wrong, one to right) for about a seventh
     /// less time an estimate.
@@ -105,9 +105,10 @@ impl Default for VerifyConfig {
         // often (+1–1.5 points at any share from 0.25 to 1), and 12 renders kept most of
         // what rendering all would; since only the best 16 are refined to the end, 10 keep
         // what 12 did (709 of 710 answers identical, one more right: "Only the best
-        // hypotheses past the first line scale" in docs/benchmarks/estimation-occlusion-and-speed.md). Half of those 10 templates are now the ones with the
-        // most matches, placed by their matches: right more often than the retrieved ones
-        // placed at the mask, for the same time
+        // hypotheses past the first line scale" in
+        // docs/benchmarks/estimation-occlusion-and-speed.md). Half of those 10 templates
+        // are now the ones with the most matches, placed by their matches: right more
+        // often than the retrieved ones placed at the mask, for the same time
         // (docs/benchmarks/estimation-occlusion-and-speed.md, "Templates placed by their
         // matches").
         Self {
