@@ -82,6 +82,12 @@ pub enum ToSource {
 /// frame to source pixel coordinates. When the crop shrinks the source, each crop pixel
 /// averages a grid of sub-samples so that thin edges are not aliased.
 pub fn sample_crop(rgb: &RgbImage, mask: &GrayImage, b: &CropBox, to_source: ToSource) -> CropInput {
+    let (mut out_rgb, mut out_mask) = (RgbImage::new(b.size, b.size), GrayImage::new(b.size, b.size));
+    // No object pixel in the source: every tap is mask-weighted, so the crop stays black
+    // and empty, and nothing needs sampling.
+    let Some(drawn) = mask_bbox(mask) else {
+        return CropInput { rgb: out_rgb, mask: out_mask };
+    };
     let size = b.size as usize;
     let sub = b.scale().ceil().clamp(1.0, 4.0) as usize;
     let source = Source { rgb: rgb.as_raw(), mask: mask.as_raw(), w: rgb.width() as i64, h: rgb.height() as i64 };
@@ -93,22 +99,19 @@ pub fn sample_crop(rgb: &RgbImage, mask: &GrayImage, b: &CropBox, to_source: ToS
         (0..size).flat_map(|c| offsets.iter().map(move |&d| Source::tap(origin + ((c as f64 + d) + 0.5) * s - shift))).collect()
     };
     let plan = match to_source {
-        ToSource::Shift(dx, dy) => Plan::Separable { columns: taps(b.origin_u, dx), rows: taps(b.origin_v, dy), drawn: mask_bbox(mask) },
-        // Where the source has no object pixel, nothing is sampled (`mapped_sums`).
-        ToSource::Turned(turn) => Plan::Turned(turn, mask_bbox(mask)),
+        ToSource::Shift(dx, dy) => Plan::Separable { columns: taps(b.origin_u, dx), rows: taps(b.origin_v, dy) },
+        ToSource::Turned(turn) => Plan::Turned(turn),
     };
     let inv = 1.0 / (sub * sub) as f32;
-    let mut out_rgb = RgbImage::new(b.size, b.size);
-    let mut out_mask = GrayImage::new(b.size, b.size);
     // Bands of crop rows on all cores: every output pixel depends on the source alone.
     let band = (size * CROP_ROWS_PER_BAND).max(1);
     let bands = out_rgb.par_chunks_mut(3 * band).zip(out_mask.par_chunks_mut(band)).enumerate();
     bands.for_each(|(i, (band_rgb, band_mask))| {
         let crop_rows = i * CROP_ROWS_PER_BAND..i * CROP_ROWS_PER_BAND + band_mask.len() / size.max(1);
         let sums = match &plan {
-            Plan::Separable { drawn: None, .. } | Plan::Turned(_, None) => vec![[0.0; 4]; crop_rows.len() * size],
-            Plan::Separable { columns, rows, drawn: Some(drawn) } => source.separable_sums(size, sub, columns, &rows[crop_rows.start * sub..crop_rows.end * sub], *drawn),
-            Plan::Turned(turn, Some(drawn)) => source.mapped_sums(size, crop_rows, &offsets, (b, *drawn), |u, v| turn.apply(u, v)),
+            Plan::Separable { columns, rows } => source.separable_sums(size, sub, columns, &rows[crop_rows.start * sub..crop_rows.end * sub], drawn),
+            // Where the source has no object pixel, nothing is sampled (`mapped_sums`).
+            Plan::Turned(turn) => source.mapped_sums(size, crop_rows, &offsets, (b, drawn), |u, v| turn.apply(u, v)),
         };
         for ((acc, px), m) in sums.iter().zip(band_rgb.chunks_exact_mut(3)).zip(band_mask.iter_mut()) {
             // No coverage: every tap added 0 (they are mask-weighted), and the output
@@ -128,11 +131,10 @@ pub fn sample_crop(rgb: &RgbImage, mask: &GrayImage, b: &CropBox, to_source: ToS
     CropInput { rgb: out_rgb, mask: out_mask }
 }
 
-/// How `sample_crop` finds its taps: per column and per row, or per sample point; either
-/// with the source mask's bounding box, None when it has no object pixel.
+/// How `sample_crop` finds its taps: per column and per row, or per sample point.
 enum Plan {
-    Separable { columns: Vec<(i64, f32)>, rows: Vec<(i64, f32)>, drawn: Option<(u32, u32, u32, u32)> },
-    Turned(Turn, Option<(u32, u32, u32, u32)>),
+    Separable { columns: Vec<(i64, f32)>, rows: Vec<(i64, f32)> },
+    Turned(Turn),
 }
 
 /// Crop rows per band of `sample_crop`: a band's source rows are interpolated once for
