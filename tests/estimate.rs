@@ -570,3 +570,36 @@ fn a_candidate_confirmed_just_short_of_an_answer_is_reviewed_in_depth() {
         assert_eq!((l.pose, l.confirmation, l.reviewed), (wrong, confirmation, false));
     }
 }
+
+#[test]
+fn a_boxs_later_proposals_are_estimated_only_where_its_first_pose_does_not_fit_it() {
+    let f = fixture();
+    let s = scene(6);
+    let truth = s.instances[0].mask_visib.clone();
+    let (x0, y0, x1, y1) = b2tfpose::features::mask_bbox(&truth).unwrap();
+    let b = b2tfpose::masks::PixelBox { x0, y0, x1: x1 + 1, y1: y1 + 1 };
+    // A second mask of the same box: the object and a strip of background below it.
+    let mut grown = truth.clone();
+    for y in y1..(y1 + 12).min(truth.height()) {
+        for x in x0..=x1 {
+            grown.put_pixel(x, y, image::Luma([255]));
+        }
+    }
+    let proposals = |first: &image::GrayImage| [first.clone(), grown.clone(), truth.clone()].map(|mask| Detection { mask, score: 0.9, from_box: Some(b) });
+    let not_estimated = |h: &b2tfpose::estimate::Hypothesis| h.failure.as_deref().is_some_and(|f| f.starts_with("not estimated"));
+    let said = |r: &b2tfpose::estimate::EstimateResult| r.hypotheses.iter().map(|h| (h.iou, h.failure.clone())).collect::<Vec<_>>();
+    let sure = EstimateConfig { sure_proposal_iou: 0.85, ..Default::default() };
+    // The true mask first: its pose fits it, and the box's other proposals wait.
+    let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &proposals(&truth), &sure).unwrap();
+    assert!(r.hypotheses[0].iou >= 0.85 && r.hypotheses[1..].iter().all(|h| not_estimated(h) && h.pose.is_none()), "{:?}", said(&r));
+    assert_eq!(r.mask_index, Some(0));
+    let e = mssd(&r.pose.unwrap(), &s.instances[0].pose, f.model.mesh.positions());
+    assert!(e < 0.1 * f.model.diameter(), "MSSD {e}");
+    // Where the first pose fits less than asked, the others are estimated too.
+    let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &proposals(&truth), &EstimateConfig { sure_proposal_iou: 0.999, ..Default::default() }).unwrap();
+    assert!(r.hypotheses[0].iou < 0.999 && r.hypotheses.iter().all(|h| !not_estimated(h) && h.pose.is_some()), "{:?}", said(&r));
+    // At 0, every proposal is estimated whatever the first gave.
+    let every = EstimateConfig { sure_proposal_iou: 0.0, ..Default::default() };
+    let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &proposals(&truth), &every).unwrap();
+    assert!(r.hypotheses.iter().all(|h| !not_estimated(h)), "{:?}", said(&r));
+}
