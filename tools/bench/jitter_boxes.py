@@ -10,6 +10,7 @@ pixel-exact boxes says little; several seeds of this give its mean and spread.
     tools/bench/jitter_boxes.py DETECTIONS_BOX.json OUT.json --seed S [--jitter 0.02]
         [--width 640 --height 480]
 """
+
 import argparse
 import json
 import random
