@@ -245,7 +245,7 @@ fn estimate_writes_the_result_json_and_overlay() {
     let (x0, y0, x1, y1) = b2tfpose::features::mask_bbox(&image::open(&mask).unwrap().to_luma8()).unwrap();
     let bbox = format!("{x0},{y0},{},{}", x1 - x0 + 1, y1 - y0 + 1);
     let (ok, out, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--box", &bbox, "--no-rrc", "--out", s(&result)]);
-    assert!(ok && out.contains("mask proposals filling"), "{out}{err}");
+    assert!(ok && out.contains("mask proposal"), "{out}{err}");
     let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&result).unwrap()).unwrap();
     assert_eq!(doc["poses"][0]["mask_index"], 0, "{doc}");
     let t: Vec<f64> = doc["poses"][0]["t"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();

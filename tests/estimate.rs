@@ -571,13 +571,19 @@ fn a_candidate_confirmed_just_short_of_an_answer_is_reviewed_in_depth() {
     }
 }
 
+/// A generated scene, its instance's visible mask and the box around it.
+fn boxed_scene(seed: u64) -> (b2tfpose::eval::scenes::SceneImage, image::GrayImage, b2tfpose::masks::PixelBox) {
+    let s = scene(seed);
+    let truth = s.instances[0].mask_visib.clone();
+    let (x0, y0, x1, y1) = b2tfpose::features::mask_bbox(&truth).unwrap();
+    (s, truth, b2tfpose::masks::PixelBox { x0, y0, x1: x1 + 1, y1: y1 + 1 })
+}
+
 #[test]
 fn a_boxs_later_proposals_are_estimated_only_where_its_first_pose_does_not_fit_it() {
     let f = fixture();
-    let s = scene(6);
-    let truth = s.instances[0].mask_visib.clone();
-    let (x0, y0, x1, y1) = b2tfpose::features::mask_bbox(&truth).unwrap();
-    let b = b2tfpose::masks::PixelBox { x0, y0, x1: x1 + 1, y1: y1 + 1 };
+    let (s, truth, b) = boxed_scene(6);
+    let (x0, x1, y1) = (b.x0, b.x1 - 1, b.y1 - 1);
     // A second mask of the same box: the object and a strip of background below it.
     let mut grown = truth.clone();
     for y in y1..(y1 + 12).min(truth.height()) {
@@ -585,7 +591,7 @@ fn a_boxs_later_proposals_are_estimated_only_where_its_first_pose_does_not_fit_i
             grown.put_pixel(x, y, image::Luma([255]));
         }
     }
-    let proposals = |first: &image::GrayImage| [first.clone(), grown.clone(), truth.clone()].map(|mask| Detection { mask, score: 0.9, from_box: Some(b) });
+    let proposals = |first: &image::GrayImage| [first.clone(), grown.clone(), truth.clone()].map(|mask| Detection { mask, score: 0.9, from_box: Some(b), later: None });
     let not_estimated = |h: &b2tfpose::estimate::Hypothesis| h.failure.as_deref().is_some_and(|f| f.starts_with("not estimated"));
     let said = |r: &b2tfpose::estimate::EstimateResult| r.hypotheses.iter().map(|h| (h.iou, h.failure.clone())).collect::<Vec<_>>();
     let sure = EstimateConfig { sure_proposal_iou: 0.85, ..Default::default() };
@@ -602,4 +608,25 @@ fn a_boxs_later_proposals_are_estimated_only_where_its_first_pose_does_not_fit_i
     let every = EstimateConfig { sure_proposal_iou: 0.0, ..Default::default() };
     let r = f.estimator.estimate(&f.model, &s.rgb, &s.cam, &proposals(&truth), &every).unwrap();
     assert!(r.hypotheses.iter().all(|h| !not_estimated(h)), "{:?}", said(&r));
+}
+
+#[test]
+fn a_boxs_later_sources_are_cut_only_where_its_first_pose_does_not_fit_it() {
+    let f = fixture();
+    let (s, truth, b) = boxed_scene(6);
+    // The box's first proposal, with an ellipse still to come (a mask no cut here makes).
+    let first = [Detection { mask: truth, score: 0.9, from_box: Some(b), later: Some("ellipse".parse().unwrap()) }];
+    let at = |t: f32| f.estimator.estimate(&f.model, &s.rgb, &s.cam, &first, &EstimateConfig { sure_proposal_iou: t, ..Default::default() }).unwrap();
+    let r = at(0.85);
+    assert_eq!(r.hypotheses.len(), 1, "the first fits: nothing more cut");
+    let e = mssd(&r.pose.unwrap(), &s.instances[0].pose, f.model.mesh.positions());
+    assert!(e < 0.1 * f.model.diameter(), "MSSD {e}");
+    // Where the first does not fit as asked (and at 0), the ellipse is made and estimated
+    // too, answered as the caller's one detection.
+    for t in [0.999, 0.0] {
+        let r = at(t);
+        assert_eq!(r.hypotheses.len(), 2, "at {t}");
+        assert!(r.hypotheses.iter().all(|h| h.mask_index == 0 && h.pose.is_some()), "at {t}");
+        assert_eq!(r.mask_index, Some(0));
+    }
 }

@@ -105,7 +105,10 @@ fn detections(a: &EstimateArgs, image: &image::RgbImage) -> Result<Candidates> {
         let proposed = crate::masks::box_masks(image, *b, crate::masks::BoxMask::Propose, &Default::default()).with_context(named)?;
         let area = proposed.bbox.area() as f64;
         let fills: Vec<String> = proposed.masks.iter().map(|m| format!("{:.0} %", m.as_raw().iter().filter(|&&v| v > 0).count() as f64 / area * 100.0)).collect();
-        println!("box {j}: {} mask proposals filling {} of the box, {:.0} ms", fills.len(), fills.join(", "), t.elapsed().as_secs_f64() * 1e3);
+        let n = fills.len();
+        // The other sources are cut where the first proposal's pose does not fit it.
+        let more = if proposed.later.is_some() { " (more where its pose does not fit it)" } else { "" };
+        println!("box {j}: {n} mask proposal{} filling {} of the box{more}, {:.0} ms", if n == 1 { "" } else { "s" }, fills.join(", "), t.elapsed().as_secs_f64() * 1e3);
         let index = a.masks.len() + j;
         out.push(index, Detection::from_box_masks(proposed, score(index)));
     }

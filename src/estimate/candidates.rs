@@ -1,7 +1,7 @@
 //! The caller's detections as the estimator's candidate masks: a detection is one mask,
 //! or a box's mask proposals (`masks::proposals`) that count as one candidate.
 
-use crate::masks::{BoxMasks, PixelBox};
+use crate::masks::{BoxMasks, PixelBox, ProposalConfig};
 use image::GrayImage;
 
 /// A segmentation of the object in the image, with the detector's confidence.
@@ -13,19 +13,24 @@ pub struct Detection {
     /// (`masks::proposals`): the proposals of one box count as one candidate, and their
     /// poses are judged by how well they fill the box as well as by their own mask.
     pub from_box: Option<PixelBox>,
+    /// The box's proposal sources still to try, on its first proposal: the estimator makes
+    /// their masks only where this one's pose does not fit it
+    /// (`EstimateConfig::sure_proposal_iou`).
+    pub later: Option<ProposalConfig>,
 }
 
 impl Detection {
     /// A mask the caller (or its detector) made.
     pub fn new(mask: GrayImage, score: f32) -> Self {
-        Self { mask, score, from_box: None }
+        Self { mask, score, from_box: None, later: None }
     }
 
     /// A box-only detection's masks: proposals carry the box, a single mask made from
     /// the box (`BoxMask::Segment`/`Fill`) stands alone as if the caller had sent it.
     pub fn from_box_masks(b: BoxMasks, score: f32) -> Vec<Self> {
         let from_box = b.proposed.then_some(b.bbox);
-        b.masks.into_iter().map(|mask| Self { mask, score, from_box }).collect()
+        let mut later = b.later.filter(|_| b.proposed);
+        b.masks.into_iter().map(|mask| Self { mask, score, from_box, later: later.take() }).collect()
     }
 }
 
@@ -42,7 +47,7 @@ pub fn with_depth_proposals(detections: &[Detection], depth: &crate::depth::Dept
     }
     for (b, score) in boxes {
         if let Some(mask) = crate::masks::depth_proposal::depth_proposal(depth, k, &b) {
-            out.push(Detection { mask, score, from_box: Some(b) });
+            out.push(Detection { mask, score, from_box: Some(b), later: None });
         }
     }
     out
@@ -100,7 +105,7 @@ mod tests {
     use super::*;
 
     fn det(from_box: Option<PixelBox>) -> Detection {
-        Detection { mask: GrayImage::new(1, 1), score: 0.5, from_box }
+        Detection { mask: GrayImage::new(1, 1), score: 0.5, from_box, later: None }
     }
 
     #[test]
@@ -122,10 +127,10 @@ mod tests {
     #[test]
     fn box_proposals_carry_the_box_and_one_box_mask_stands_alone() {
         let b = PixelBox { x0: 1, y0: 2, x1: 5, y1: 6 };
-        let proposed = Detection::from_box_masks(BoxMasks { bbox: b, proposed: true, masks: vec![GrayImage::new(2, 2); 3] }, 0.7);
+        let proposed = Detection::from_box_masks(BoxMasks { bbox: b, proposed: true, masks: vec![GrayImage::new(2, 2); 3], later: None }, 0.7);
         assert_eq!(proposed.len(), 3);
         assert!(proposed.iter().all(|d| d.from_box == Some(b) && d.score == 0.7));
-        let single = Detection::from_box_masks(BoxMasks { bbox: b, proposed: false, masks: vec![GrayImage::new(2, 2)] }, 0.7);
+        let single = Detection::from_box_masks(BoxMasks { bbox: b, proposed: false, masks: vec![GrayImage::new(2, 2)], later: None }, 0.7);
         assert_eq!((single.len(), single[0].from_box), (1, None));
     }
 

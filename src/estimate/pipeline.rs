@@ -77,8 +77,8 @@ pub struct EstimateConfig {
     #[serde(default = "default_rrc_sure_share")]
     pub rrc_sure_share: f64,
     /// A box's first mask proposal (its `cut`) is enough where its pose, rendered, overlaps
-    /// it by at least this IoU: the box's other proposals are not estimated (0: every
-    /// proposal is). 0.85 by measurement: on the real YCB-V frames, over the exact boxes and
+    /// it by at least this IoU: the box's other proposals are neither made
+    /// (`Detection::later`) nor estimated (0: every proposal is). 0.85 by measurement: on the real YCB-V frames, over the exact boxes and
     /// five jitters of them, estimating the others only below 0.8–0.9 kept the AR of
     /// estimating all (0.365 mean) where the first alone gave 0.355, and the others were
     /// estimated for 45 of 210 instances (docs/estimation.md, "The first proposal where its
@@ -409,13 +409,14 @@ impl Estimator {
         let t_total = Instant::now();
         let given = detections.len();
         let mut timings = StageTimings::default();
-        let Queries { detections, chosen, views: queries } = self.queries(req, detections, &mut timings)?;
-        let detections: &[Detection] = &detections;
+        let Queries { detections: mut all, mut chosen, views: queries } = self.queries(req, detections, &mut timings)?;
+        let detections: &[Detection] = &all;
 
         let mut hyps = Vec::new();
         // A box's proposals come in their sources' order; where the first one's pose fits
-        // it (`sure_proposal_iou`), the others are left unestimated.
-        let (mut seen, mut sure): (Vec<PixelBox>, Vec<PixelBox>) = (Vec::new(), Vec::new());
+        // it (`sure_proposal_iou`), the others are left unestimated, and those of its
+        // sources not yet made (`Detection::later`) are not made.
+        let (mut seen, mut sure, mut unsure): (Vec<PixelBox>, Vec<PixelBox>, Vec<usize>) = (Vec::new(), Vec::new(), Vec::new());
         for (q, &mi) in queries.iter().zip(&chosen) {
             let _mask_span = tracing::info_span!("mask", index = mi).entered();
             let d = &detections[mi];
@@ -429,10 +430,29 @@ impl Estimator {
                 seen.push(b);
                 if cfg.sure_proposal_iou > 0.0 && self.kept_iou(model, k, &mut h, d, others, cfg)?.is_some_and(|iou| iou >= cfg.sure_proposal_iou) {
                     sure.push(b);
+                } else if d.later.is_some() {
+                    unsure.push(mi);
                 }
             }
             hyps.push(h);
         }
+        // The later proposals of the boxes whose first one's pose did not fit it, estimated
+        // after the caller's masks and answered as their box's (`box_owner`).
+        let later = later_proposals(req.image, detections, &unsure);
+        let mut queries = queries;
+        if !later.is_empty() {
+            let masks: Vec<&GrayImage> = later.iter().map(|d| &d.mask).collect();
+            let views = self.encode_masks(model, req.image, &masks, &mut timings)?;
+            for (j, (q, d)) in views.iter().zip(&later).enumerate() {
+                let mi = all.len() + j;
+                let _mask_span = tracing::info_span!("mask", index = mi).entered();
+                hyps.push(self.hypothesis_for_mask(req, q, (mi, d), &mut timings)?);
+                chosen.push(mi);
+            }
+            queries.extend(views);
+            all.to_mut().extend(later);
+        }
+        let detections: &[Detection] = &all;
 
         let t = Instant::now();
         let mut result = tracing::info_span!("selection").in_scope(|| self.select(model, &queries, &chosen, k, (detections, others), hyps, cfg))?;
@@ -773,6 +793,20 @@ fn confidence(h: &Hypothesis, w: &[f32; 3]) -> f32 {
     ((w[0] * c + w[1] * h.iou + w[2] * h.detector_score.clamp(0.0, 1.0)) / total).clamp(0.0, 1.0)
 }
 
+/// The masks of the proposal sources still to try (`Detection::later`) for the boxes whose
+/// first proposals are `unsure` (indices into `detections`), each a candidate of its box,
+/// those within `same_iou` of a mask the box has already dropped.
+fn later_proposals(image: &RgbImage, detections: &[Detection], unsure: &[usize]) -> Vec<Detection> {
+    let mut out = Vec::new();
+    for &mi in unsure {
+        let d = &detections[mi];
+        let (Some(b), Some(rest)) = (d.from_box, d.later.as_ref()) else { continue };
+        let earlier: Vec<&GrayImage> = detections.iter().filter(|e| e.from_box == Some(b)).map(|e| &e.mask).collect();
+        out.extend(crate::masks::more_proposals(image, &b, rest, &earlier).into_iter().map(|p| Detection { mask: p.mask, score: d.score, from_box: Some(b), later: None }));
+    }
+    out
+}
+
 /// A box proposal's pose brought back to cover the caller's box where the proposal pulled
 /// it too far and the prior holds for the object (`box_prior`); true where it moved.
 fn held_to_box(ctx: &RefineContext<'_>, prior: BoxPrior, pose: &mut Pose) -> bool {
@@ -830,7 +864,7 @@ mod tests {
     }
 
     fn det(score: f32, from_box: Option<PixelBox>) -> Detection {
-        Detection { mask: GrayImage::new(1, 1), score, from_box }
+        Detection { mask: GrayImage::new(1, 1), score, from_box, later: None }
     }
 
     #[test]

@@ -96,20 +96,26 @@ pub fn box_to_mask_with(image: &RgbImage, bbox: [f64; 4], how: BoxMask, cfg: &Se
 }
 
 /// What a box-only detection offers the estimator: the box clipped to `image`, whether its
-/// masks are proposals to choose among (`Propose`), and the masks, never empty.
+/// masks are proposals to choose among (`Propose`), the masks, never empty, and the
+/// proposal sources still to try where the first one's pose does not fit it.
 pub struct BoxMasks {
     pub bbox: PixelBox,
     pub proposed: bool,
     pub masks: Vec<GrayImage>,
+    pub later: Option<super::ProposalConfig>,
 }
 
-/// The masks of a box-only detection as `how` says: every proposal of
-/// [`super::proposals::propose`], or the one mask of [`box_to_mask`].
+/// The masks of a box-only detection as `how` says: the first proposal of
+/// [`super::proposals::propose_first`] (every one where it is the only source or declines)
+/// with the sources still to try, or the one mask of [`box_to_mask`].
 pub fn box_masks(image: &RgbImage, bbox: [f64; 4], how: BoxMask, proposals: &super::ProposalConfig) -> Result<BoxMasks, MaskError> {
     let b = PixelBox::from_xywh(bbox, image.width(), image.height())?;
     Ok(match how {
-        BoxMask::Propose => BoxMasks { bbox: b, proposed: true, masks: super::proposals::propose(image, &b, proposals).into_iter().map(|p| p.mask).collect() },
-        one => BoxMasks { bbox: b, proposed: false, masks: vec![box_to_mask(image, bbox, one)?.mask] },
+        BoxMask::Propose => {
+            let (first, later) = super::proposals::propose_first(image, &b, proposals);
+            BoxMasks { bbox: b, proposed: true, masks: first.into_iter().map(|p| p.mask).collect(), later }
+        }
+        one => BoxMasks { bbox: b, proposed: false, masks: vec![box_to_mask(image, bbox, one)?.mask], later: None },
     })
 }
 

@@ -22,7 +22,7 @@ pub mod union;
 pub use decode::{box_masks, box_to_mask, box_to_mask_with, mask_from_png, mask_from_rle, require_nonempty, BoxMask, BoxMasks};
 pub use instances::{group_instances, mask_iou};
 pub use pixel_box::PixelBox;
-pub use proposals::{propose, Proposal, ProposalConfig, ProposalKind};
+pub use proposals::{more_proposals, propose, propose_first, Proposal, ProposalConfig, ProposalKind};
 pub use rle::{Rle, RleError};
 pub use segment::{ellipse_in_box, segment_box, Method, SegmentConfig, Segmentation};
 pub use union::{occluders, union, OtherMasks};

@@ -153,6 +153,14 @@ impl ProposalConfig {
         Self { cut: true, smooth_cut: false, wide_ring_cut: false, ellipse: false, fill: false, ..Self::default() }
     }
 
+    /// The sources switched on after the first, None where there is no other.
+    pub fn after_first(&self) -> Option<ProposalConfig> {
+        let mut rest = self.clone();
+        let first = [&mut rest.cut, &mut rest.smooth_cut, &mut rest.wide_ring_cut, &mut rest.ellipse, &mut rest.fill].into_iter().find(|on| **on)?;
+        *first = false;
+        (rest.cut || rest.smooth_cut || rest.wide_ring_cut || rest.ellipse || rest.fill).then_some(rest)
+    }
+
     /// The sources switched on, in the order their proposals are listed.
     pub fn sources(&self) -> Vec<Box<dyn ProposalSource>> {
         let base = SegmentConfig::default();
@@ -179,6 +187,36 @@ impl ProposalConfig {
 /// The proposals for box `b` (already clipped to `image`), duplicates dropped; never
 /// empty: where every source declines, the inscribed ellipse.
 pub fn propose(image: &RgbImage, b: &PixelBox, cfg: &ProposalConfig) -> Vec<Proposal> {
+    let mut kept = proposed(image, b, cfg, &[]);
+    if kept.is_empty() {
+        kept.push(Proposal { mask: ellipse_in_box(image.width(), image.height(), b), kind: ProposalKind::Ellipse });
+    }
+    kept
+}
+
+/// The first source's proposal for box `b`, and the sources still to try after it (made
+/// by [`more_proposals`] where the estimator asks: `EstimateConfig::sure_proposal_iou`);
+/// where the first source declines or is the only one, every proposal at once
+/// ([`propose`]) and none to come.
+pub fn propose_first(image: &RgbImage, b: &PixelBox, cfg: &ProposalConfig) -> (Vec<Proposal>, Option<ProposalConfig>) {
+    let sources = cfg.sources();
+    if let (Some(first), Some(rest)) = (sources.first(), cfg.after_first()) {
+        if let Some(mask) = first.propose(image, b).filter(|m| m.as_raw().contains(&OBJECT)) {
+            return (vec![Proposal { mask, kind: first.kind() }], Some(rest));
+        }
+    }
+    (propose(image, b, cfg), None)
+}
+
+/// The proposals of `rest`'s sources for box `b`, those within `same_iou` of one another
+/// or of an `earlier` mask dropped; empty where every source declines.
+pub fn more_proposals(image: &RgbImage, b: &PixelBox, rest: &ProposalConfig, earlier: &[&GrayImage]) -> Vec<Proposal> {
+    proposed(image, b, rest, earlier)
+}
+
+/// Every source's proposal, each source on its own thread, in the sources' order; empty
+/// ones and those within `same_iou` of an earlier one (or of `earlier`) dropped.
+fn proposed(image: &RgbImage, b: &PixelBox, cfg: &ProposalConfig, earlier: &[&GrayImage]) -> Vec<Proposal> {
     let sources = cfg.sources();
     let found: Vec<Proposal> = std::thread::scope(|s| {
         let handles: Vec<_> = sources.iter().map(|src| s.spawn(move || src.propose(image, b).map(|mask| Proposal { mask, kind: src.kind() }))).collect();
@@ -186,13 +224,11 @@ pub fn propose(image: &RgbImage, b: &PixelBox, cfg: &ProposalConfig) -> Vec<Prop
     });
     let mut kept: Vec<Proposal> = Vec::new();
     for p in found {
-        if !p.mask.as_raw().contains(&OBJECT) || kept.iter().any(|k| mask_iou(&k.mask, &p.mask) >= cfg.same_iou) {
+        let same = |m: &GrayImage| mask_iou(m, &p.mask) >= cfg.same_iou;
+        if !p.mask.as_raw().contains(&OBJECT) || kept.iter().any(|k| same(&k.mask)) || earlier.iter().any(|m| same(m)) {
             continue;
         }
         kept.push(p);
-    }
-    if kept.is_empty() {
-        kept.push(Proposal { mask: ellipse_in_box(image.width(), image.height(), b), kind: ProposalKind::Ellipse });
     }
     kept
 }
@@ -254,5 +290,25 @@ mod tests {
         assert_eq!(ps[0].mask.as_raw().iter().filter(|&&v| v == OBJECT).count() as u64, b.area());
         assert_eq!("cut,grabcut".parse::<ProposalConfig>().unwrap_err(), "box proposal source \"grabcut\": expected cut, smooth-cut, wide-ring-cut, ellipse or fill");
         assert_eq!(ProposalConfig::default().sources().iter().map(|s| s.kind()).collect::<Vec<_>>(), vec![ProposalKind::Cut, ProposalKind::SmoothCut, ProposalKind::WideRingCut]);
+    }
+
+    #[test]
+    fn the_first_proposal_comes_alone_with_the_sources_still_to_try() {
+        let (image, b) = scene();
+        let cfg: ProposalConfig = "cut,wide-ring-cut,ellipse".parse().unwrap();
+        let rest = cfg.after_first().unwrap();
+        assert_eq!(rest.sources().iter().map(|s| s.kind()).collect::<Vec<_>>(), vec![ProposalKind::WideRingCut, ProposalKind::Ellipse]);
+        assert!(ProposalConfig::single().after_first().is_none());
+        let (first, later) = propose_first(&image, &b, &cfg);
+        assert_eq!((first.len(), first[0].kind, later.as_ref()), (1, ProposalKind::Cut, Some(&rest)));
+        // The later ones: none the same as the first, and the first itself dropped as one.
+        let more = more_proposals(&image, &b, &rest, &[&first[0].mask]);
+        assert!(!more.is_empty() && more.iter().all(|p| p.kind != ProposalKind::Cut && mask_iou(&p.mask, &first[0].mask) < 0.9));
+        let again = more_proposals(&image, &b, &"cut".parse().unwrap(), &[&first[0].mask]);
+        assert!(again.is_empty(), "the cut made again is the first");
+        // A first source that declines (a flat image): every proposal at once, none to come.
+        let flat = RgbImage::from_pixel(120, 80, Rgb([90, 90, 90]));
+        let (all, later) = propose_first(&flat, &b, &cfg);
+        assert_eq!((all.iter().map(|p| p.kind).collect::<Vec<_>>(), later), (vec![ProposalKind::Ellipse], None));
     }
 }

@@ -87,19 +87,25 @@ impl Estimator {
             None => Cow::Borrowed(detections),
         };
         let chosen = Self::candidate_masks(&detections, cfg);
-        let size = model.grid.n * model.grid.patch;
+        let masks: Vec<&GrayImage> = chosen.iter().map(|&i| &detections[i].mask).collect();
+        let queries = self.encode_masks(model, image, &masks, timings)?;
+        Ok(Queries { detections, chosen, views: queries })
+    }
 
+    /// Each of `masks` (non-empty) cropped from `image` and encoded by the backbone, the
+    /// time added to `timings`' crop and features.
+    pub(super) fn encode_masks(&self, model: &ObjectModel, image: &RgbImage, masks: &[&GrayImage], timings: &mut StageTimings) -> Result<Vec<QueryView>, EstimateError> {
+        let size = model.grid.n * model.grid.patch;
         // Spans mark the stages the timings measure (exported traces, log context); the
         // loops inside the stages have none.
         let t = Instant::now();
-        let span = tracing::info_span!("crop", masks = chosen.len()).entered();
-        let masks: Vec<&GrayImage> = chosen.iter().map(|&i| &detections[i].mask).collect();
-        let crops: Vec<_> = crop_all(image, &masks, model.config.crop_padding, size).into_iter().map(|c| c.expect("validated non-empty")).collect();
+        let span = tracing::info_span!("crop", masks = masks.len()).entered();
+        let crops: Vec<_> = crop_all(image, masks, model.config.crop_padding, size).into_iter().map(|c| c.expect("validated non-empty")).collect();
         drop(span);
-        timings.crop = ms_since(t);
+        timings.crop += ms_since(t);
         let t = Instant::now();
         let queries = tracing::info_span!("features").in_scope(|| encode(self.backbone.as_ref(), crops, model.config.min_coverage))?;
-        timings.features = ms_since(t);
-        Ok(Queries { detections, chosen, views: queries })
+        timings.features += ms_since(t);
+        Ok(queries)
     }
 }
