@@ -78,11 +78,11 @@ pub struct EstimateConfig {
     pub rrc_sure_share: f64,
     /// A box's first mask proposal (its `cut`) is enough where its pose, rendered, overlaps
     /// it by at least this IoU: the box's other proposals are neither made
-    /// (`Detection::later`) nor estimated (0: every proposal is). 0.85 by measurement: on the real YCB-V frames, over the exact boxes and
-    /// five jitters of them, estimating the others only below 0.8–0.9 kept the AR of
-    /// estimating all (0.365 mean) where the first alone gave 0.355, and the others were
-    /// estimated for 45 of 210 instances (docs/estimation.md, "The first proposal where its
-    /// pose fits it").
+    /// (`Detection::later`) nor estimated (0: every proposal is). 0.85 by measurement: on
+    /// the real YCB-V frames, over the exact boxes and five jitters of them, estimating the
+    /// others only below 0.8–0.9 kept the AR of estimating all (0.365 mean) where the first
+    /// alone gave 0.355, and the others were estimated for 45 of 210 instances
+    /// (docs/estimation.md, "The first proposal where its pose fits it").
     #[serde(default = "default_sure_proposal_iou")]
     pub sure_proposal_iou: f32,
     /// Candidate masks per object, and the detector score they need (the best one is kept
@@ -794,8 +794,8 @@ fn confidence(h: &Hypothesis, w: &[f32; 3]) -> f32 {
 }
 
 /// The masks of the proposal sources still to try (`Detection::later`) for the boxes whose
-/// first proposals are `unsure` (indices into `detections`), each a candidate of its box,
-/// those within `same_iou` of a mask the box has already dropped.
+/// first proposals are `unsure` (indices into `detections`), each a candidate of its box;
+/// one within `same_iou` of a mask the box already has is dropped.
 fn later_proposals(image: &RgbImage, detections: &[Detection], unsure: &[usize]) -> Vec<Detection> {
     let mut out = Vec::new();
     for &mi in unsure {
