@@ -17,7 +17,6 @@ use super::EstimateError;
 use crate::depth::DepthImage;
 use crate::features::{crop_query, Backbone};
 use crate::geometry::{Intrinsics, Pose};
-use crate::masks::PixelBox;
 use crate::onboard::ObjectModel;
 use crate::render::RenderPool;
 use crate::telemetry::ms_since;
@@ -27,6 +26,7 @@ use std::borrow::Cow;
 use std::sync::Arc;
 use std::time::Instant;
 
+mod box_proposals;
 mod coarse_cut;
 mod depth_judge;
 mod depth_review;
@@ -37,6 +37,7 @@ mod screen;
 mod second_look;
 pub use depth_review::Reviewed;
 
+use box_proposals::held_to_box;
 use queries::Queries;
 
 pub use super::candidate_effort::CandidateEffort;
@@ -260,6 +261,14 @@ pub struct Hypothesis {
     pub failure: Option<String>,
 }
 
+impl Hypothesis {
+    /// The hypothesis of candidate `mask_index` before anything is estimated: its selection
+    /// inputs NaN until scored.
+    pub(crate) fn unscored(mask_index: usize, detector_score: f32) -> Self {
+        Hypothesis { mask_index, detector_score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() }
+    }
+}
+
 /// The result for one object: the selected pose (if any) and every hypothesis.
 #[derive(Clone, Debug, Default)]
 pub struct EstimateResult {
@@ -409,50 +418,9 @@ impl Estimator {
         let t_total = Instant::now();
         let given = detections.len();
         let mut timings = StageTimings::default();
-        let Queries { detections: mut all, mut chosen, views: queries } = self.queries(req, detections, &mut timings)?;
-        let detections: &[Detection] = &all;
-
-        let mut hyps = Vec::new();
-        // A box's proposals come in their sources' order; where the first one's pose fits
-        // it (`sure_proposal_iou`), the others are left unestimated, and those of its
-        // sources not yet made (`Detection::later`) are not made.
-        let (mut seen, mut sure, mut unsure): (Vec<PixelBox>, Vec<PixelBox>, Vec<usize>) = (Vec::new(), Vec::new(), Vec::new());
-        for (q, &mi) in queries.iter().zip(&chosen) {
-            let _mask_span = tracing::info_span!("mask", index = mi).entered();
-            let d = &detections[mi];
-            if d.from_box.is_some_and(|b| sure.contains(&b)) {
-                let why = format!("not estimated: the first proposal of its box fits its pose (IoU ≥ {})", cfg.sure_proposal_iou);
-                hyps.push(Hypothesis { mask_index: mi, detector_score: d.score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, failure: Some(why), ..Default::default() });
-                continue;
-            }
-            let mut h = self.hypothesis_for_mask(req, q, (mi, d), &mut timings)?;
-            if let Some(b) = d.from_box.filter(|b| !seen.contains(b)) {
-                seen.push(b);
-                if cfg.sure_proposal_iou > 0.0 && self.kept_iou(model, k, &mut h, d, others, cfg)?.is_some_and(|iou| iou >= cfg.sure_proposal_iou) {
-                    sure.push(b);
-                } else if d.later.is_some() {
-                    unsure.push(mi);
-                }
-            }
-            hyps.push(h);
-        }
-        // The later proposals of the boxes whose first one's pose did not fit it, estimated
-        // after the caller's masks and answered as their box's (`box_owner`).
-        let later = later_proposals(req.image, detections, &unsure);
-        let mut queries = queries;
-        if !later.is_empty() {
-            let masks: Vec<&GrayImage> = later.iter().map(|d| &d.mask).collect();
-            let views = self.encode_masks(model, req.image, &masks, &mut timings)?;
-            for (j, (q, d)) in views.iter().zip(&later).enumerate() {
-                let mi = all.len() + j;
-                let _mask_span = tracing::info_span!("mask", index = mi).entered();
-                hyps.push(self.hypothesis_for_mask(req, q, (mi, d), &mut timings)?);
-                chosen.push(mi);
-            }
-            queries.extend(views);
-            all.to_mut().extend(later);
-        }
-        let detections: &[Detection] = &all;
+        let Queries { detections: all, chosen, views } = self.queries(req, detections, &mut timings)?;
+        let box_proposals::Estimated { detections, chosen, views: queries, hypotheses: hyps } = self.hypotheses_by_box(req, all, chosen, views, &mut timings)?;
+        let detections: &[Detection] = &detections;
 
         let t = Instant::now();
         let mut result = tracing::info_span!("selection").in_scope(|| self.select(model, &queries, &chosen, k, (detections, others), hyps, cfg))?;
@@ -793,32 +761,6 @@ fn confidence(h: &Hypothesis, w: &[f32; 3]) -> f32 {
     ((w[0] * c + w[1] * h.iou + w[2] * h.detector_score.clamp(0.0, 1.0)) / total).clamp(0.0, 1.0)
 }
 
-/// The masks of the proposal sources still to try (`Detection::later`) for the boxes whose
-/// first proposals are `unsure` (indices into `detections`), each a candidate of its box;
-/// one within `same_iou` of a mask the box already has is dropped.
-fn later_proposals(image: &RgbImage, detections: &[Detection], unsure: &[usize]) -> Vec<Detection> {
-    let mut out = Vec::new();
-    for &mi in unsure {
-        let d = &detections[mi];
-        let (Some(b), Some(rest)) = (d.from_box, d.later.as_ref()) else { continue };
-        let earlier: Vec<&GrayImage> = detections.iter().filter(|e| e.from_box == Some(b)).map(|e| &e.mask).collect();
-        out.extend(crate::masks::more_proposals(image, &b, rest, &earlier).into_iter().map(|p| Detection { mask: p.mask, score: d.score, from_box: Some(b), later: None }));
-    }
-    out
-}
-
-/// A box proposal's pose brought back to cover the caller's box where the proposal pulled
-/// it too far and the prior holds for the object (`box_prior`); true where it moved.
-fn held_to_box(ctx: &RefineContext<'_>, prior: BoxPrior, pose: &mut Pose) -> bool {
-    match ctx.from_box.filter(|_| prior.holds(&ctx.model.mesh)).and_then(|b| super::box_prior::covering_box(&ctx.model.mesh, pose, &b, ctx.intrinsics)) {
-        Some(p) => {
-            *pose = p;
-            true
-        }
-        None => false,
-    }
-}
-
 /// Whether `inliers` of a query's `foreground` patches are sure enough to skip RRC at
 /// `share` (never at 0 or less).
 fn rrc_is_sure(inliers: usize, foreground: usize, share: f64) -> bool {
@@ -832,6 +774,7 @@ fn run_pnp(c: &Correspondences, k: &Intrinsics, cfg: &PnpConfig) -> Result<PnpRe
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::masks::PixelBox;
 
     /// The service answers `by_stage`; a stage added to the struct but not to it would be
     /// missing from answers and metrics while the CLI's JSON (serde) shows it.

@@ -49,7 +49,7 @@ impl Estimator {
     /// where PnP found none) refined and verified.
     pub(super) fn hypothesis_for_mask(&self, req: &MaskInputs<'_>, q: &QueryView, (mi, detection): (usize, &Detection), timings: &mut StageTimings) -> Result<Hypothesis, EstimateError> {
         let cfg = req.cfg;
-        let mut h = Hypothesis { mask_index: mi, detector_score: detection.score, cosine: f32::NAN, iou: f32::NAN, score: f32::NAN, ..Default::default() };
+        let mut h = Hypothesis::unscored(mi, detection.score);
         let retrieved = self.retrieve_for_mask(req.model, q, cfg, &mut h, timings);
         let t = Instant::now();
         let passed = self.passes_screen(req, q, (mi, detection), &retrieved, &mut h)?;
