@@ -156,7 +156,12 @@ fn run_estimates_every_target_resumes_and_is_scored() {
     let s = dataset(dir.path(), 2, &pool);
     let ds = dir.path().join("ds");
     let (model, estimator) = onboarded_box(&ds, ViewSampling { level: 1, in_plane_steps: 12 }, 256, &pool);
-    let index = DetectionIndex::new(read_detections(&s.detections_path).unwrap());
+    // A box outside its image besides each true detection: counted unusable, not estimated.
+    let mut records = read_detections(&s.detections_path).unwrap();
+    let outside = records.iter().map(|d| DetectionRecord { bbox: [1e4, 1e4, 10.0, 10.0], segmentation: None, score: 0.1, ..d.clone() }).collect::<Vec<_>>();
+    let unusable = outside.len();
+    records.extend(outside);
+    let index = DetectionIndex::new(records);
     let csv = dir.path().join("out/results.csv");
     std::fs::create_dir_all(csv.parent().unwrap()).unwrap();
     let mut calls = 0;
@@ -168,6 +173,7 @@ fn run_estimates_every_target_resumes_and_is_scored() {
     let summary = run(&ds, DetectionSource::File(&index), &csv, &estimator, &mut get, &RunOptions::default(), &no_progress).unwrap();
     assert_eq!((summary.images, summary.targets, summary.images_done_before), (2, 2, 0), "{summary:?}");
     assert_eq!(summary.estimates_written + summary.instances_without_pose, 2, "{summary:?}");
+    assert_eq!(summary.unusable_detections, unusable, "{summary:?}");
     let rows = read(&csv);
     assert_eq!(rows.len(), summary.estimates_written);
     assert!(rows.iter().all(|r| r.time > 0.0 && (0.0..=1.0).contains(&r.score)));

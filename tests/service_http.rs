@@ -321,6 +321,16 @@ fn onboard_estimate_and_bad_inputs_over_http() {
             "detections[1].bbox: box [10.0, 10.0, 0.0, 20.0] ([x, y, w, h]) has zero area",
         ),
         (request(good_image.clone(), intrinsics.clone(), json!([{"object_id": "box", "mask_png": empty_mask}])), 400, "detections[0].mask_png: the mask is empty"),
+        // Detections are decoded side by side; the first bad one in the request is named.
+        (
+            request(
+                good_image.clone(),
+                intrinsics.clone(),
+                json!([box_dets[0].clone(), {"object_id": "box", "bbox": [10.0, 10.0, 0.0, 20.0]}, {"object_id": "box", "bbox": [400.0, 10.0, 20.0, 20.0]}]),
+            ),
+            400,
+            "detections[1].bbox: box [10.0, 10.0, 0.0, 20.0] ([x, y, w, h]) has zero area",
+        ),
         (with_option(request(good_image.clone(), intrinsics.clone(), good_dets.clone()), "box_prior", json!("loose")), 400, "box_prior: expected true, false"),
     ];
     for (body, want, needle) in cases {

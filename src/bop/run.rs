@@ -31,6 +31,7 @@ use crate::onboard::ObjectModel;
 use crate::render::RenderPool;
 use anyhow::{Context, Result};
 use image::GrayImage;
+use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
@@ -155,16 +156,13 @@ pub fn run(
         let mut rows = Vec::new();
         // Every target's candidates first: each instance's refiner learns where the other
         // detections of the image are (it may be hidden there).
+        // Cut on all cores: a box's proposals take tens of ms of one core each.
+        let decoded_or_not: Vec<Vec<Result<Vec<Detection>, String>>> =
+            targets.par_iter().map(|t| detections.get(scene_id, im_id, t.obj_id).par_iter().map(|d| d.candidates(&rgb, opts.box_mask, &opts.proposals)).collect()).collect();
         let mut decoded: Vec<Vec<Vec<Detection>>> = Vec::with_capacity(targets.len());
-        for t in &targets {
-            let mut found = Vec::new();
-            for d in detections.get(scene_id, im_id, t.obj_id) {
-                match d.candidates(&rgb, opts.box_mask, &opts.proposals) {
-                    Ok(c) => found.push(c),
-                    Err(_) => summary.unusable_detections += 1,
-                }
-            }
-            decoded.push(found);
+        for found in decoded_or_not {
+            summary.unusable_detections += found.iter().filter(|c| c.is_err()).count();
+            decoded.push(found.into_iter().filter_map(Result::ok).collect());
         }
         let compared = depth.is_some() && matches!(source, DetectionSource::Detector { .. });
         // The detector's own candidates are confirmed at their estimated poses, a few more

@@ -21,6 +21,7 @@ use crate::masks::OtherMasks;
 use crate::onboard::{onboard_profiled, OnboardConfig, OnboardError};
 use crate::render::{RenderPool, RendererConfig};
 use crate::store::{ModelCache, ObjectInfo, ObjectStore};
+use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
@@ -581,8 +582,11 @@ fn draw_answer(
 /// mask as the box's mask proposals (`masks::proposals`).
 fn decode_masks(req: &EstimateRequest, image: &image::RgbImage) -> Result<Vec<(String, Vec<Detection>)>, ServiceError> {
     let _span = tracing::info_span!("masks", detections = req.detections.len()).entered();
-    req.detections
-        .iter()
+    // On all cores (a box's proposals take tens of ms of one core each); the first bad
+    // detection in the request's order is the one answered.
+    let decoded: Vec<Result<(String, Vec<Detection>), ServiceError>> = req
+        .detections
+        .par_iter()
         .enumerate()
         .map(|(i, d)| {
             if !d.score.is_finite() {
@@ -591,7 +595,8 @@ fn decode_masks(req: &EstimateRequest, image: &image::RgbImage) -> Result<Vec<(S
             crate::store::validate_id(&d.object_id).map_err(|e| ServiceError::invalid(format!("detections[{i}].object_id: {e}")))?;
             Ok((d.object_id.clone(), d.candidates(i, image)?))
         })
-        .collect()
+        .collect();
+    decoded.into_iter().collect()
 }
 
 /// Union of every detection's mask except those of `object_id`'s instance `group` (and
