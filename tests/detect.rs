@@ -10,7 +10,7 @@ use b2tfpose::features::{EmbeddedBackbone, EmbeddedConfig};
 use b2tfpose::geometry::{geodesic_distance, ViewSampling};
 use b2tfpose::mesh::procedural::textured_box;
 use b2tfpose::mesh::Mesh;
-use b2tfpose::onboard::{onboard, OnboardConfig};
+use b2tfpose::onboard::{onboard, OnboardConfig, PatchRows};
 use b2tfpose::render::{RenderPool, RendererConfig};
 use std::sync::OnceLock;
 
@@ -180,6 +180,22 @@ fn upgrade_and_detect_from_the_command_line() {
     assert!(upgraded.patch_points.is_grid());
     let (ok, out, _) = b2tf(&["objects", "upgrade", "--store", &store_url, "box_7"]);
     assert!(ok && out.contains("box_7: up to date"), "{out}");
+
+    // An object holding its patch rows per template (as before per view was the default)
+    // is left so, with a hint, unless asked to keep them per view.
+    let rows_url = format!("dir://{}", d.join("rows").display());
+    let per_template = onboard("box_9", &f.mesh, &OnboardConfig { patch_rows: PatchRows::PerTemplate, ..cfg.clone() }, &backbone, &f.pool, &|_| {}).unwrap();
+    let rows_store = b2tfpose::store::open(&rows_url).unwrap();
+    rows_store.put(&per_template, false).unwrap();
+    let (ok, out, err) = b2tf(&["objects", "upgrade", "--store", &rows_url]);
+    assert!(ok && out.contains("box_9: up to date (patch rows per template: --rows-per-view"), "{out}{err}");
+    assert!(!rows_store.get("box_9").unwrap().rows_per_view());
+    let (ok, out, err) = b2tf(&["objects", "upgrade", "--store", &rows_url, "--rows-per-view", "box_9"]);
+    assert!(ok && out.contains("box_9: added patch rows per view"), "{out}{err}");
+    let shared = rows_store.get("box_9").unwrap();
+    assert!(shared.rows_per_view() && shared.patch_count() < per_template.patch_count() && shared.templates.len() == per_template.templates.len());
+    let (ok, out, _) = b2tf(&["objects", "upgrade", "--store", &rows_url, "--rows-per-view"]);
+    assert!(ok && out.contains("box_9: up to date") && !out.contains("--rows-per-view"), "{out}");
 
     let s = scene(&[(1, f.mesh.clone())], 1, 11);
     s.rgb.save(d.join("scene.png")).unwrap();

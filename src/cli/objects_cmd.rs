@@ -33,7 +33,15 @@ pub enum ObjectsCommand {
     /// Brings objects stored by an older version up to the current model format: computes
     /// what they lack (the contour model, the detector's templates) from their stored mesh
     /// and writes them back, without re-onboarding. Default: every object in the store.
-    Upgrade { ids: Vec<String> },
+    Upgrade {
+        ids: Vec<String>,
+        /// Also keep the patch rows of objects that hold them per template once per view,
+        /// as onboarding does by default with the embedded backbone: several times smaller
+        /// on disk and in memory, estimation turning the query instead (docs/store.md,
+        /// "Patch rows per view"). With an ONNX backbone each turn is another pass.
+        #[arg(long)]
+        rows_per_view: bool,
+    },
     /// Copies objects into another store, as they are (e.g. from a folder into a bucket
     /// when moving to `s3://`). Default: every object. An object already in the target is
     /// left alone unless --replace.
@@ -81,7 +89,7 @@ pub fn run(a: ObjectsArgs) -> Result<()> {
             store.delete(&id)?;
             println!("deleted {id:?} from {}", store.url());
         }
-        ObjectsCommand::Upgrade { ids } => upgrade(store.as_ref(), ids)?,
+        ObjectsCommand::Upgrade { ids, rows_per_view } => upgrade(store.as_ref(), ids, rows_per_view)?,
         ObjectsCommand::Copy { to, ids, replace } => copy(store.as_ref(), &to, ids, replace)?,
     }
     Ok(())
@@ -109,32 +117,39 @@ fn copy(from: &dyn crate::store::ObjectStore, to: &str, ids: Vec<String>, replac
     Ok(())
 }
 
-fn upgrade(store: &dyn crate::store::ObjectStore, ids: Vec<String>) -> Result<()> {
+fn upgrade(store: &dyn crate::store::ObjectStore, ids: Vec<String>, rows_per_view: bool) -> Result<()> {
     let ids = if ids.is_empty() { store.list()?.into_iter().map(|o| o.id).collect() } else { ids };
     let renderer = super::open_renderer(crate::render::RenderPool::DEFAULT_SIZE)?;
     for id in ids {
         let mut m = store.get(&id)?;
+        let share_rows = rows_per_view && !m.rows_per_view();
         let lacked: Vec<&str> = [
             ("contour model", m.contours.get().is_none()),
             ("plain print runs", m.contour_lacks_plain_runs()),
             ("detector templates", m.detector.get().is_none()),
             ("symmetries", m.symmetries.is_none()),
             ("compact patch points", !m.patch_points.is_grid()),
+            ("patch rows per view", share_rows),
         ]
         .iter()
         .filter(|(_, missing)| *missing)
         .map(|(what, _)| *what)
         .collect();
+        let hint = if !rows_per_view && !m.rows_per_view() { " (patch rows per template: --rows-per-view keeps them once per view, smaller)" } else { "" };
         if lacked.is_empty() {
-            println!("{id}: up to date");
+            println!("{id}: up to date{hint}");
             continue;
         }
         let t = Instant::now();
+        let before = store.info(&id)?.bytes;
         m.add_what_older_versions_lacked(&renderer)?;
         m.contour_model_or_build(&renderer)?;
         m.shape_model_or_build(&renderer)?;
-        store.put(&m, true)?;
-        println!("{id}: added {} in {:.1} s", lacked.join(" and "), t.elapsed().as_secs_f64());
+        if share_rows {
+            crate::onboard::share_rows_per_view(&mut m).map_err(anyhow::Error::msg)?;
+        }
+        let after = store.put(&m, true)?.bytes;
+        println!("{id}: added {} in {:.1} s, {:.1} → {:.1} MB{hint}", lacked.join(" and "), t.elapsed().as_secs_f64(), before as f64 / 1e6, after as f64 / 1e6);
     }
     Ok(())
 }
