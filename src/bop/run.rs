@@ -206,8 +206,10 @@ pub fn run(
                 Ok(r) => r,
                 Err(e) => return refused(e, ti).map(|()| (None, None)),
             };
-            // Where an estimate's time goes, per stage (box proposals against masks).
-            tracing::debug!(scene_id, im_id, obj_id = t.obj_id, masks = candidates.len(), timings = ?r.timings, "estimated");
+            // Where an estimate's time goes, per stage (box proposals against masks), and by
+            // how much it beat its runner-up (whether a close call means the same from boxes).
+            let runner_up_margin = r.runner_up.as_ref().map(|u| u.margin);
+            tracing::debug!(scene_id, im_id, obj_id = t.obj_id, masks = candidates.len(), runner_up_margin = ?runner_up_margin, timings = ?r.timings, "estimated");
             let Some(pose) = r.pose else {
                 return Ok((None, None));
             };
