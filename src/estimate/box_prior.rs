@@ -120,6 +120,37 @@ pub fn covering_box(mesh: &Mesh, pose: &Pose, b: &PixelBox, k: &Intrinsics) -> O
     Some(seen_at(&pose.rotation, &centre, &seen_from, (target.x, target.y), c.z / scale, k))
 }
 
+/// The share of a box's side within which its edge counts as cut by the image's border.
+pub const BORDER_MARGIN: f64 = 0.02;
+
+/// `pose` brought nearer along its viewing ray where `b` is cut by the image's border on
+/// one side of an axis and the outline falls short of the box's free edge on the other:
+/// the outline grows about the centre's projection until that edge reaches the box's.
+/// `None` where no box edge is cut or the outline reaches the free edges already.
+pub fn to_free_edge(mesh: &Mesh, pose: &Pose, b: &PixelBox, k: &Intrinsics) -> Option<Pose> {
+    let (lo, hi) = outline_box(mesh, pose, k, OUTLINE_POINTS)?;
+    let (b_lo, b_hi) = ([b.x0 as f64, b.y0 as f64], [b.x1 as f64, b.y1 as f64]);
+    let centre = Vector3::from(mesh.bbox_center());
+    let c = pose.rotation * centre + pose.translation;
+    let uv = k.project(&nalgebra::Point3::from(c))?;
+    let image = [k.width as f64, k.height as f64];
+    let mut scale = 0.0f64;
+    for a in 0..2 {
+        let margin = (BORDER_MARGIN * (b_hi[a] - b_lo[a])).max(1.0);
+        let free = match (b_lo[a] <= margin, b_hi[a] >= image[a] - margin) {
+            (false, true) if b_lo[a] < uv[a] && lo[a] < uv[a] && hi[a] >= image[a] => (uv[a] - b_lo[a]) / (uv[a] - lo[a]),
+            (true, false) if uv[a] < b_hi[a] && uv[a] < hi[a] && lo[a] <= 0.0 => (b_hi[a] - uv[a]) / (hi[a] - uv[a]),
+            _ => 0.0,
+        };
+        scale = scale.max(free);
+    }
+    if scale <= 1.0 {
+        return None;
+    }
+    let seen_from = Vector3::new((uv.x - k.cx) / k.fx, (uv.y - k.cy) / k.fy, 1.0);
+    Some(seen_at(&pose.rotation, &centre, &seen_from, (uv.x, uv.y), c.z / scale, k))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -151,6 +182,30 @@ mod tests {
         assert!(lo[0] <= b.x0 as f64 + 1.0 && lo[1] <= b.y0 as f64 + 1.0 && hi[0] >= b.x1 as f64 - 1.0 && hi[1] >= b.y1 as f64 - 1.0);
         // Covering the box now, it stays (to rounding).
         assert!(covering_box(&mesh, &near, &b, &k).is_none_or(|p| (p.translation - near.translation).norm() < 1e-6));
+    }
+
+    #[test]
+    fn a_pose_too_far_for_a_box_cut_by_the_border_comes_to_its_free_edge() {
+        let (mesh, k) = (cube(), camera());
+        // Long side upright, the lower part below the image: the box ends at the border.
+        let truth = Pose::new(Rotation3::from_euler_angles(0.1, 0.2, std::f64::consts::FRAC_PI_2), Vector3::new(0.01, 0.105, 0.3));
+        let (lo, hi) = outline(&mesh, &truth, &k);
+        assert!(hi[1] > 500.0 && lo[1] > 300.0, "{lo:?} {hi:?}");
+        let b = PixelBox { x0: lo[0].round() as u32, y0: lo[1].round() as u32, x1: hi[0].round() as u32, y1: 480 };
+        // 20 % too far, the outline still running off the image: the box's height is only
+        // the outline's cut, its top edge what is left to hold.
+        let far = Pose::new(truth.rotation, truth.translation * 1.2);
+        let near = to_free_edge(&mesh, &far, &b, &k).expect("short of the box's top");
+        assert!((near.translation - truth.translation).norm() < 0.008, "{:?} against {:?}", near.translation, truth.translation);
+        // Its outline's top now at the box's, to within two pixels (the growth about the
+        // centre's projection is a perspective approximation).
+        assert!((outline(&mesh, &near, &k).0[1] - b.y0 as f64).abs() < 2.0);
+        // A box the border does not cut is the sized prior's, not this.
+        let inside = PixelBox { y1: 470, ..b };
+        assert!(to_free_edge(&mesh, &far, &inside, &k).is_none());
+        // An outline that ends inside the image is not cut by it: nothing to hold.
+        let whole = Pose::new(truth.rotation, Vector3::new(0.01, 0.0, 0.6));
+        assert!(to_free_edge(&mesh, &whole, &b, &k).is_none());
     }
 
     #[test]

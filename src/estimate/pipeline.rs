@@ -424,6 +424,9 @@ impl Estimator {
 
         let t = Instant::now();
         let mut result = tracing::info_span!("selection").in_scope(|| self.select(model, &queries, &chosen, k, (detections, others), hyps, cfg))?;
+        if req.depth.is_none() {
+            box_proposals::winner_to_free_edge(model, k, detections, &mut result, cfg.box_prior);
+        }
         let winner = result.mask_index.and_then(|m| result.hypotheses.iter().find(|h| h.mask_index == m));
         result.runner_up = result.pose.as_ref().zip(winner).and_then(|(pose, h)| super::runner_up::runner_up(pose, &h.verified, model));
         timings.selection = ms_since(t);

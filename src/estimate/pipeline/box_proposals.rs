@@ -9,11 +9,12 @@
 //! cover the box where the object's prior holds (`box_prior::covering_box`).
 
 use super::per_mask::MaskInputs;
-use super::{EstimateError, Estimator, Hypothesis, QueryView, RefineContext, StageTimings};
+use super::{EstimateError, EstimateResult, Estimator, Hypothesis, QueryView, RefineContext, StageTimings};
 use crate::estimate::box_prior::BoxPrior;
 use crate::estimate::candidates::Detection;
-use crate::geometry::Pose;
+use crate::geometry::{Intrinsics, Pose};
 use crate::masks::PixelBox;
+use crate::onboard::ObjectModel;
 use image::{GrayImage, RgbImage};
 use std::borrow::Cow;
 
@@ -102,5 +103,19 @@ pub(super) fn held_to_box(ctx: &RefineContext<'_>, prior: BoxPrior, pose: &mut P
             true
         }
         None => false,
+    }
+}
+
+/// The selected pose, where it came from a box cut by the image's border and the prior
+/// holds, brought nearer until its outline reaches the box's free edge
+/// (`box_prior::to_free_edge`). Only the winner: held so during refinement, every
+/// hypothesis came nearer, and selection then chose half-turns (docs/estimation.md, "Boxes
+/// cut by the image's border"). Not with depth, which measures the distance.
+pub(super) fn winner_to_free_edge(model: &ObjectModel, k: &Intrinsics, detections: &[Detection], result: &mut EstimateResult, prior: BoxPrior) {
+    let from_box = result.mask_index.and_then(|m| detections[m].from_box).filter(|_| prior.holds(&model.mesh));
+    if let (Some(pose), Some(b)) = (result.pose.as_mut(), from_box) {
+        if let Some(nearer) = crate::estimate::box_prior::to_free_edge(&model.mesh, pose, &b, k) {
+            *pose = nearer;
+        }
     }
 }
