@@ -630,3 +630,50 @@ fn a_boxs_later_sources_are_cut_only_where_its_first_pose_does_not_fit_it() {
         assert_eq!(r.mask_index, Some(0));
     }
 }
+
+/// The scene `seed` with its rows below the middle of its instance cut off: the image, its
+/// camera, its depth and the visible mask, as a camera whose view ends there sees them.
+fn cut_at_the_bottom(seed: u64) -> (image::RgbImage, Intrinsics, b2tfpose::depth::DepthImage, image::GrayImage) {
+    let (s, truth, b) = boxed_scene(seed);
+    let cut = (b.y0 + b.y1) / 2;
+    let w = s.cam.width;
+    let rgb = image::imageops::crop_imm(&s.rgb, 0, 0, w, cut).to_image();
+    let mask = image::imageops::crop_imm(&truth, 0, 0, w, cut).to_image();
+    let cam = Intrinsics { height: cut, ..s.cam };
+    let depth = b2tfpose::depth::DepthImage::from_metres(w, cut, s.depth[..(w * cut) as usize].to_vec()).unwrap();
+    (rgb, cam, depth, mask)
+}
+
+#[test]
+fn the_winner_of_a_box_cut_by_the_border_comes_to_its_free_edge_without_depth_only() {
+    let f = fixture();
+    let (rgb, cam, depth, mask) = cut_at_the_bottom(6);
+    let (x0, y0, x1, _) = b2tfpose::features::mask_bbox(&mask).unwrap();
+    // The caller's box ends at the image's bottom and reaches 12 px above the object: the
+    // free edge says the object is nearer than it is.
+    let b = b2tfpose::masks::PixelBox { x0, y0: y0 - 12, x1: x1 + 1, y1: cam.height };
+    let det = [Detection { mask, score: 0.9, from_box: Some(b), later: None }];
+    // The textured box's print would leave the prior off by default.
+    let cfg = EstimateConfig { box_prior: b2tfpose::estimate::BoxPrior::Tight, ..Default::default() };
+    let moved = |r: &b2tfpose::estimate::EstimateResult| r.hypotheses.iter().filter(|h| h.refinement.as_ref().is_some_and(|x| x.moved_to_free_edge)).count();
+
+    let r = f.estimator.estimate(&f.model, &rgb, &cam, &det, &cfg).unwrap();
+    let pose = r.pose.unwrap();
+    assert_eq!(moved(&r), 1, "the winner alone moves");
+    let winner = r.hypotheses.iter().find(|h| Some(h.mask_index) == r.mask_index).unwrap();
+    assert_eq!(winner.pose, Some(pose), "the winning hypothesis holds the answer's pose");
+    // Its outline's top at the box's free edge.
+    let top = f
+        .model
+        .mesh
+        .positions()
+        .iter()
+        .filter_map(|p| cam.project(&nalgebra::Point3::from(pose.rotation * nalgebra::Vector3::from(p.map(f64::from)) + pose.translation)))
+        .map(|uv| uv.y)
+        .fold(f64::INFINITY, f64::min);
+    assert!((top - b.y0 as f64).abs() < 2.0, "outline's top {top} against the box's {}", b.y0);
+
+    let r = f.estimator.estimate_rgbd(&f.model, &rgb, Some(&depth), &cam, &det, None, &cfg).unwrap();
+    assert!(r.pose.is_some());
+    assert_eq!(moved(&r), 0, "depth measures the distance");
+}

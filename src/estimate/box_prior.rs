@@ -83,14 +83,49 @@ pub const BOX_SLACK: f64 = 0.0;
 /// than elsewhere, since a missed corner vertex here moves the pose in depth.
 const OUTLINE_POINTS: usize = 50_000;
 
+/// A pose's projected outline (its vertices' box, pixels) and its centre's projection:
+/// what both moves of this module grow about.
+struct Outlined {
+    lo: [f64; 2],
+    hi: [f64; 2],
+    /// The mesh's box centre, in the object's frame and projected.
+    centre: Vector3<f64>,
+    uv: Vector2<f64>,
+    /// The centre's camera depth.
+    z: f64,
+}
+
+impl Outlined {
+    /// `None` where the pose (or a vertex) is not in front of the camera.
+    fn of(mesh: &Mesh, pose: &Pose, k: &Intrinsics) -> Option<Self> {
+        let (lo, hi) = outline_box(mesh, pose, k, OUTLINE_POINTS)?;
+        let centre = Vector3::from(mesh.bbox_center());
+        let c = pose.rotation * centre + pose.translation;
+        let uv = k.project(&nalgebra::Point3::from(c))?;
+        Some(Outlined { lo, hi, centre, uv: Vector2::new(uv.x, uv.y), z: c.z })
+    }
+
+    /// `pose` brought nearer until its outline is `scale` times as large, its centre seen
+    /// at `target`; the rotation turns with the viewing ray so the object is seen as before.
+    fn nearer(&self, pose: &Pose, scale: f64, target: Vector2<f64>, k: &Intrinsics) -> Pose {
+        let seen_from = Vector3::new((self.uv.x - k.cx) / k.fx, (self.uv.y - k.cy) / k.fy, 1.0);
+        seen_at(&pose.rotation, &self.centre, &seen_from, (target.x, target.y), self.z / scale, k)
+    }
+}
+
+/// A box's corners as the outline's are kept: min and max (u, v).
+fn corners(b: &PixelBox) -> ([f64; 2], [f64; 2]) {
+    ([b.x0 as f64, b.y0 as f64], [b.x1 as f64, b.y1 as f64])
+}
+
 /// `pose` brought nearer along its viewing ray, and shifted, until its projected outline
 /// covers `b` (the smallest such move), where the box is wider or taller than the outline
 /// by more than [`BOX_SLACK`]; the rotation turns with the ray so the object is seen as
 /// before. `None` where the outline covers the box already, or the pose is not in front of
 /// the camera.
 pub fn covering_box(mesh: &Mesh, pose: &Pose, b: &PixelBox, k: &Intrinsics) -> Option<Pose> {
-    let (lo, hi) = outline_box(mesh, pose, k, OUTLINE_POINTS)?;
-    let (b_lo, b_hi) = ([b.x0 as f64, b.y0 as f64], [b.x1 as f64, b.y1 as f64]);
+    let o = Outlined::of(mesh, pose, k)?;
+    let ((lo, hi), (b_lo, b_hi)) = ((o.lo, o.hi), corners(b));
     let (outline_w, outline_h) = (hi[0] - lo[0], hi[1] - lo[1]);
     if outline_w <= 0.0 || outline_h <= 0.0 {
         return None;
@@ -99,12 +134,10 @@ pub fn covering_box(mesh: &Mesh, pose: &Pose, b: &PixelBox, k: &Intrinsics) -> O
     if scale <= 1.0 + BOX_SLACK {
         return None;
     }
-    let centre = Vector3::from(mesh.bbox_center());
-    let c = pose.rotation * centre + pose.translation;
-    let uv = k.project(&nalgebra::Point3::from(c))?;
     // The outline grows about the centre's projection, then shifts the least that puts the
     // box inside it.
-    let (mut target, mut shift) = (Vector2::new(uv.x, uv.y), [0.0; 2]);
+    let uv = o.uv;
+    let mut shift = [0.0; 2];
     for a in 0..2 {
         let (g_lo, g_hi) = (uv[a] + (lo[a] - uv[a]) * scale, uv[a] + (hi[a] - uv[a]) * scale);
         shift[a] = if b_lo[a] < g_lo {
@@ -115,9 +148,7 @@ pub fn covering_box(mesh: &Mesh, pose: &Pose, b: &PixelBox, k: &Intrinsics) -> O
             0.0
         };
     }
-    target += Vector2::new(shift[0], shift[1]);
-    let seen_from = Vector3::new((uv.x - k.cx) / k.fx, (uv.y - k.cy) / k.fy, 1.0);
-    Some(seen_at(&pose.rotation, &centre, &seen_from, (target.x, target.y), c.z / scale, k))
+    Some(o.nearer(pose, scale, uv + Vector2::new(shift[0], shift[1]), k))
 }
 
 /// The share of a box's side within which its edge counts as cut by the image's border.
@@ -128,11 +159,8 @@ pub const BORDER_MARGIN: f64 = 0.02;
 /// the outline grows about the centre's projection until that edge reaches the box's.
 /// `None` where no box edge is cut or the outline reaches the free edges already.
 pub fn to_free_edge(mesh: &Mesh, pose: &Pose, b: &PixelBox, k: &Intrinsics) -> Option<Pose> {
-    let (lo, hi) = outline_box(mesh, pose, k, OUTLINE_POINTS)?;
-    let (b_lo, b_hi) = ([b.x0 as f64, b.y0 as f64], [b.x1 as f64, b.y1 as f64]);
-    let centre = Vector3::from(mesh.bbox_center());
-    let c = pose.rotation * centre + pose.translation;
-    let uv = k.project(&nalgebra::Point3::from(c))?;
+    let o = Outlined::of(mesh, pose, k)?;
+    let ((lo, hi, uv), (b_lo, b_hi)) = ((o.lo, o.hi, o.uv), corners(b));
     let image = [k.width as f64, k.height as f64];
     let mut scale = 0.0f64;
     for a in 0..2 {
@@ -144,11 +172,7 @@ pub fn to_free_edge(mesh: &Mesh, pose: &Pose, b: &PixelBox, k: &Intrinsics) -> O
         };
         scale = scale.max(free);
     }
-    if scale <= 1.0 {
-        return None;
-    }
-    let seen_from = Vector3::new((uv.x - k.cx) / k.fx, (uv.y - k.cy) / k.fy, 1.0);
-    Some(seen_at(&pose.rotation, &centre, &seen_from, (uv.x, uv.y), c.z / scale, k))
+    (scale > 1.0).then(|| o.nearer(pose, scale, uv, k))
 }
 
 #[cfg(test)]

@@ -101,6 +101,11 @@ pub struct RefineReport {
     /// the caller's box (`estimate::box_prior`); absent otherwise.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub moved_to_box: bool,
+    /// The selected pose of a box cut by the image's border was then brought nearer until
+    /// its outline reached the box's free edge (`box_prior::to_free_edge`); absent
+    /// otherwise.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub moved_to_free_edge: bool,
     /// The pose fitted to the measured depth, and what the depth says of it
     /// (`estimate::depth_fit`); absent without depth.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -121,6 +126,7 @@ impl Default for RefineReport {
             photo_edge_share: f64::NAN,
             print_points: None,
             moved_to_box: false,
+            moved_to_free_edge: false,
             depth_fit: None,
         }
     }

@@ -12,9 +12,8 @@ use super::per_mask::MaskInputs;
 use super::{EstimateError, EstimateResult, Estimator, Hypothesis, QueryView, RefineContext, StageTimings};
 use crate::estimate::box_prior::BoxPrior;
 use crate::estimate::candidates::Detection;
-use crate::geometry::{Intrinsics, Pose};
+use crate::geometry::Pose;
 use crate::masks::PixelBox;
-use crate::onboard::ObjectModel;
 use image::{GrayImage, RgbImage};
 use std::borrow::Cow;
 
@@ -108,14 +107,21 @@ pub(super) fn held_to_box(ctx: &RefineContext<'_>, prior: BoxPrior, pose: &mut P
 
 /// The selected pose, where it came from a box cut by the image's border and the prior
 /// holds, brought nearer until its outline reaches the box's free edge
-/// (`box_prior::to_free_edge`). Only the winner: held so during refinement, every
+/// (`box_prior::to_free_edge`); the winning hypothesis takes the same pose and says so
+/// (`RefineReport::moved_to_free_edge`). Only the winner: held so during refinement, every
 /// hypothesis came nearer, and selection then chose half-turns (docs/estimation.md, "Boxes
 /// cut by the image's border"). Not with depth, which measures the distance.
-pub(super) fn winner_to_free_edge(model: &ObjectModel, k: &Intrinsics, detections: &[Detection], result: &mut EstimateResult, prior: BoxPrior) {
-    let from_box = result.mask_index.and_then(|m| detections[m].from_box).filter(|_| prior.holds(&model.mesh));
-    if let (Some(pose), Some(b)) = (result.pose.as_mut(), from_box) {
-        if let Some(nearer) = crate::estimate::box_prior::to_free_edge(&model.mesh, pose, &b, k) {
-            *pose = nearer;
-        }
+pub(super) fn winner_to_free_edge(req: &MaskInputs<'_>, detections: &[Detection], result: &mut EstimateResult) {
+    let MaskInputs { model, k, depth, cfg, .. } = *req;
+    if depth.is_some() {
+        return;
+    }
+    let Some(m) = result.mask_index else { return };
+    let Some(b) = detections[m].from_box.filter(|_| cfg.box_prior.holds(&model.mesh)) else { return };
+    let Some(nearer) = result.pose.as_ref().and_then(|pose| crate::estimate::box_prior::to_free_edge(&model.mesh, pose, &b, k)) else { return };
+    result.pose = Some(nearer);
+    if let Some(h) = result.hypotheses.iter_mut().find(|h| h.mask_index == m) {
+        h.pose = Some(nearer);
+        h.refinement.get_or_insert_with(Default::default).moved_to_free_edge = true;
     }
 }
