@@ -25,14 +25,6 @@ impl PatchPool {
         self.points.is_empty()
     }
 
-    /// Adds `other`'s patches after these (of the same object and descriptor size).
-    pub fn append(&mut self, other: PatchPool) {
-        debug_assert_eq!(self.dim, other.dim);
-        self.descriptors.extend(other.descriptors);
-        self.points.extend(other.points);
-        self.origins.extend(other.origins);
-    }
-
     /// All patches of the given templates of `model` (descriptors widened or decoded to f32).
     pub fn from_templates(model: &ObjectModel, templates: impl IntoIterator<Item = usize>) -> Self {
         let mut pool = PatchPool { dim: model.local_dim, ..Default::default() };

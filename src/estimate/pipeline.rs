@@ -388,9 +388,9 @@ impl Estimator {
         // Encoding turned queries (rows shared per view) is feature work, not matching.
         timings.features += m.encode_ms;
         timings.matching -= m.encode_ms;
-        let (pool, corr) = (m.pool, m.correspondences);
+        let (origins, corr) = (m.origins, m.correspondences);
         h.matches = corr.len();
-        let matched = if cfg.verify.enabled { super::placement::matched_templates(model, &corr, &pool, q.crop_box.scale(), k, cfg.verify.matched_templates) } else { vec![] };
+        let matched = if cfg.verify.enabled { super::placement::matched_templates(model, &corr, &origins, q.crop_box.scale(), k, cfg.verify.matched_templates) } else { vec![] };
         timings.matching += ms_since(t);
 
         let t = Instant::now();

@@ -9,7 +9,7 @@
 //! the template's crop to the image, robust to the wrong ones) and placed where that fit
 //! puts them.
 
-use super::correspond::{Correspondences, PatchPool};
+use super::correspond::Correspondences;
 use super::hypotheses::place_in;
 use crate::geometry::{Intrinsics, Pose, ScaleShift};
 use crate::onboard::ObjectModel;
@@ -86,14 +86,16 @@ struct TemplateMatches {
 
 /// Up to `count` poses: the templates with the most matches in `corr` (at least
 /// `MIN_MATCHES`), each placed where the robust fit of its matches puts it. Best first.
-pub fn matched_templates(model: &ObjectModel, corr: &Correspondences, pool: &PatchPool, query_scale: f64, k: &Intrinsics, count: usize) -> Vec<Pose> {
+/// `origins` are the template and cell of each row of the pool `corr` matched
+/// (`PatchPool::origins`); none where the pool was not made of templates.
+pub fn matched_templates(model: &ObjectModel, corr: &Correspondences, origins: &[(u32, u16)], query_scale: f64, k: &Intrinsics, count: usize) -> Vec<Pose> {
     const MIN_MATCHES: usize = 4;
-    if count == 0 || pool.origins.len() != pool.len() {
+    if count == 0 || corr.pool_index.iter().any(|&j| j >= origins.len()) {
         return vec![];
     }
     let mut by_template: std::collections::BTreeMap<u32, TemplateMatches> = Default::default();
     for (m, &j) in corr.pool_index.iter().enumerate() {
-        let (t, cell) = pool.origins[j];
+        let (t, cell) = origins[j];
         let (cu, cv) = model.patch_centre_in_template(t as usize, cell);
         let e = by_template.entry(t).or_default();
         e.crop.push([cu, cv]);
@@ -120,6 +122,7 @@ pub fn matched_templates(model: &ObjectModel, corr: &Correspondences, pool: &Pat
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::estimate::correspond::PatchPool;
 
     /// The fit finds the scale and shift behind most pairs and ignores the rest.
     #[test]
@@ -171,12 +174,12 @@ mod tests {
             }
         }
         let k = model.render_intrinsics;
-        let placed = matched_templates(model, &corr, &pool, tp.crop.scale(), &k, 1);
+        let placed = matched_templates(model, &corr, &pool.origins, tp.crop.scale(), &k, 1);
         assert_eq!(placed.len(), 1);
         let p = placed[0];
         let turn = crate::geometry::geodesic_distance(&p.rotation, &tp.pose.rotation).to_degrees();
         let shift = (p.translation - tp.pose.translation).norm() / model.diameter();
         assert!(turn < 0.5 && shift < 0.01, "off by {turn:.2}° and {shift:.3}·d");
-        assert_eq!(matched_templates(model, &corr, &pool, tp.crop.scale(), &k, 0).len(), 0);
+        assert_eq!(matched_templates(model, &corr, &pool.origins, tp.crop.scale(), &k, 0).len(), 0);
     }
 }

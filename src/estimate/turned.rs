@@ -29,10 +29,13 @@ pub fn turned_crop(image: &RgbImage, mask: &GrayImage, outline: &[(f64, f64)], q
     Some((sample_crop(image, mask, &bx, ToSource::Turned(back)), bx, back))
 }
 
-/// What matching produced: one pool of every template's rows (in turn
-/// order), the matches into it, and the milliseconds spent encoding the turned queries.
+/// What matching produced: where each row of one pool of every template's rows (in turn
+/// order) came from, the matches into that pool, and the milliseconds spent encoding the
+/// turned queries.
 pub struct TurnedMatches {
-    pub pool: PatchPool,
+    /// Per pool row, its template and cell (`PatchPool::origins`): all that is asked of the
+    /// pool after matching, so its descriptors (megabytes) are not joined.
+    pub origins: Vec<(u32, u16)>,
     pub correspondences: Correspondences,
     pub encode_ms: f64,
 }
@@ -93,11 +96,8 @@ pub fn match_templates(model: &ObjectModel, backbone: &dyn Backbone, image: &Rgb
         let part = &parts[g];
         correspondences.push(part.query.patch_centre(m.query), part.pool.points[m.pool], m.similarity, offsets[g] + m.pool);
     }
-    let mut pool = PatchPool { dim: model.local_dim, ..Default::default() };
-    for part in parts {
-        pool.append(part.pool);
-    }
-    Ok(TurnedMatches { pool, correspondences, encode_ms })
+    let origins = parts.iter().flat_map(|part| part.pool.origins.iter().copied()).collect();
+    Ok(TurnedMatches { origins, correspondences, encode_ms })
 }
 
 /// One turn's share of the matching: its query, the query's rows in the templates' space
