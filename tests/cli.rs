@@ -298,6 +298,10 @@ fn estimate_writes_the_result_json_and_overlay() {
         let (ok, _, err) = b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--box", bad, "--out", s(&result)]);
         assert!(!ok && err.contains(needle), "{bad}: {err}");
     }
+    // Several boxes are cut side by side; the first bad one given is the one named.
+    let (ok, _, err) =
+        b2tf(&["estimate", "--store", &store, "--object", "box", "--image", s(&img), "--camera", s(&cam), "--box", &bbox, "--box", "10,10,0,5", "--box", "400,10,20,20", "--out", s(&result)]);
+    assert!(!ok && err.contains("--box 10,10,0,5") && !err.contains("400,10"), "{err}");
     // Neither mask nor box: the detector's candidates are estimated and the one confirmed
     // at its estimated pose is answered; on an image without the object, a refusal that
     // names what to give instead.

@@ -6,6 +6,7 @@ use crate::estimate::{Candidates, Detection, EstimateConfig, EstimateResult};
 use crate::geometry::{Intrinsics, Pose};
 use crate::onboard::ObjectModel;
 use anyhow::{bail, Context, Result};
+use rayon::prelude::*;
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -99,16 +100,25 @@ fn detections(a: &EstimateArgs, image: &image::RgbImage) -> Result<Candidates> {
         let mask = crate::masks::decode::check_size(load_mask(p)?, width, height).and_then(crate::masks::require_nonempty).with_context(|| format!("--mask {}", p.display()))?;
         out.push(i, [Detection::new(mask, score(i))]);
     }
-    for (j, b) in a.boxes.iter().enumerate() {
-        let t = std::time::Instant::now();
+    // Every box cut side by side (a cut is ~60 ms of one core), then reported in order, so
+    // that the first bad box named is the first given.
+    let cut: Vec<_> = a
+        .boxes
+        .par_iter()
+        .map(|b| {
+            let t = std::time::Instant::now();
+            (crate::masks::box_masks(image, *b, crate::masks::BoxMask::Propose, &Default::default()), t.elapsed())
+        })
+        .collect();
+    for (j, (b, (proposed, took))) in a.boxes.iter().zip(cut).enumerate() {
         let named = || format!("--box {}", b.map(|v| v.to_string()).join(","));
-        let proposed = crate::masks::box_masks(image, *b, crate::masks::BoxMask::Propose, &Default::default()).with_context(named)?;
+        let proposed = proposed.with_context(named)?;
         let area = proposed.bbox.area() as f64;
         let fills: Vec<String> = proposed.masks.iter().map(|m| format!("{:.0} %", m.as_raw().iter().filter(|&&v| v > 0).count() as f64 / area * 100.0)).collect();
         let n = fills.len();
         // The other sources are cut where the first proposal's pose does not fit it.
         let more = if proposed.later.is_some() { " (more where its pose does not fit it)" } else { "" };
-        println!("box {j}: {n} mask proposal{} filling {} of the box{more}, {:.0} ms", if n == 1 { "" } else { "s" }, fills.join(", "), t.elapsed().as_secs_f64() * 1e3);
+        println!("box {j}: {n} mask proposal{} filling {} of the box{more}, {:.0} ms", if n == 1 { "" } else { "s" }, fills.join(", "), took.as_secs_f64() * 1e3);
         let index = a.masks.len() + j;
         out.push(index, Detection::from_box_masks(proposed, score(index)));
     }
